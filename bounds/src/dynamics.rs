@@ -1,0 +1,272 @@
+//! Target dynamics: the clockwise coordinated turn whose turn rate depends on
+//! speed (seeds 000/001), with constant velocity as its `a_m = 0` case.
+
+use nalgebra::{Cholesky, Matrix2};
+use rand::Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+
+use crate::{Mat4, State};
+
+/// Below this |ωT| the trigonometric ratios use their Taylor series, whose
+/// truncation error (~(ωT)⁴) is then far below f64 precision.
+const SMALL_TURN: f64 = 1e-4;
+
+/// `x(k) = F(Ω(x)) x(k−1) + ξ`, `Ω(x) = −a_m / max(‖v‖, v_min)`, `ξ ~ N(0, Q)`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CoordinatedTurn {
+    /// Sampling period T, seconds.
+    pub period: f64,
+    /// Manoeuvre acceleration a_m ≥ 0, m/s². Zero gives constant velocity.
+    pub maneuver_accel: f64,
+    /// Speed floor v_min > 0 that keeps the turn rate finite, m/s.
+    pub min_speed: f64,
+    /// Process-noise intensity σ_v, m s^-3/2.
+    pub sigma_v: f64,
+}
+
+/// Everything about one transition that the filters and bounds need, computed
+/// once: `Q`, `Q⁻¹` and the Cholesky factor used to sample `ξ`.
+#[derive(Debug, Clone)]
+pub struct Dynamics {
+    pub model: CoordinatedTurn,
+    q: Mat4,
+    q_inv: Mat4,
+    q_chol: Mat4,
+}
+
+impl CoordinatedTurn {
+    pub fn constant_velocity(period: f64, sigma_v: f64) -> Self {
+        Self { period, maneuver_accel: 0.0, min_speed: 1.0, sigma_v }
+    }
+
+    /// Turn rate Ω(x), rad/s (negative: clockwise).
+    pub fn turn_rate(&self, x: &State) -> f64 {
+        -self.maneuver_accel / speed(x).max(self.min_speed)
+    }
+
+    /// `f(x) = F(Ω(x)) x`.
+    pub fn transition(&self, x: &State) -> State {
+        let t = TurnTerms::new(self.turn_rate(x), self.period);
+        let (vx, vy) = (x[2], x[3]);
+        State::new(
+            x[0] + t.s * vx - t.c * vy,
+            x[1] + t.c * vx + t.s * vy,
+            t.cos * vx - t.sin * vy,
+            t.sin * vx + t.cos * vy,
+        )
+    }
+
+    /// `F̃(x) = ∂f/∂x`, including the dependence of Ω on the velocity:
+    /// `F̃ = F(Ω) + (∂F/∂ω · x) (∂Ω/∂x)ᵀ`.
+    pub fn jacobian(&self, x: &State) -> Mat4 {
+        let omega = self.turn_rate(x);
+        let t = TurnTerms::new(omega, self.period);
+        let mut jac = t.matrix();
+        let v = speed(x);
+        if self.maneuver_accel > 0.0 && v > self.min_speed {
+            let (vx, vy) = (x[2], x[3]);
+            let period = self.period;
+            // ∂(F x)/∂ω
+            let df = State::new(
+                t.ds * vx - t.dc * vy,
+                t.dc * vx + t.ds * vy,
+                -period * (t.sin * vx + t.cos * vy),
+                period * (t.cos * vx - t.sin * vy),
+            );
+            // Ω = −a_m/‖v‖ ⇒ ∂Ω/∂v = a_m v / ‖v‖³
+            let k = self.maneuver_accel / (v * v * v);
+            let (dw_dvx, dw_dvy) = (k * vx, k * vy);
+            for r in 0..4 {
+                jac[(r, 2)] += df[r] * dw_dvx;
+                jac[(r, 3)] += df[r] * dw_dvy;
+            }
+        }
+        jac
+    }
+
+    /// `Q = σ_v² [[T³/3 I, T²/2 I], [T²/2 I, T I]]`.
+    pub fn process_noise(&self) -> Mat4 {
+        let t = self.period;
+        let q = self.sigma_v * self.sigma_v;
+        let block = |c: f64| Matrix2::identity() * (q * c);
+        let mut m = Mat4::zeros();
+        m.fixed_view_mut::<2, 2>(0, 0).copy_from(&block(t * t * t / 3.0));
+        m.fixed_view_mut::<2, 2>(0, 2).copy_from(&block(t * t / 2.0));
+        m.fixed_view_mut::<2, 2>(2, 0).copy_from(&block(t * t / 2.0));
+        m.fixed_view_mut::<2, 2>(2, 2).copy_from(&block(t));
+        m
+    }
+}
+
+impl Dynamics {
+    /// `None` when Q is not positive definite (σ_v or T not positive).
+    pub fn new(model: CoordinatedTurn) -> Option<Self> {
+        if !(model.period > 0.0 && model.sigma_v > 0.0 && model.min_speed > 0.0 && model.maneuver_accel >= 0.0) {
+            return None;
+        }
+        let q = model.process_noise();
+        let chol = Cholesky::new(q)?;
+        let q_inv = chol.inverse();
+        Some(Self { model, q, q_inv, q_chol: chol.l() })
+    }
+
+    pub fn q(&self) -> &Mat4 {
+        &self.q
+    }
+
+    /// `Q⁻¹`.
+    pub fn q_inv(&self) -> &Mat4 {
+        &self.q_inv
+    }
+
+    pub fn transition(&self, x: &State) -> State {
+        self.model.transition(x)
+    }
+
+    pub fn jacobian(&self, x: &State) -> Mat4 {
+        self.model.jacobian(x)
+    }
+
+    /// One draw of `ξ ~ N(0, Q)`.
+    pub fn sample_noise<R: Rng + ?Sized>(&self, rng: &mut R) -> State {
+        let n = State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
+        self.q_chol * n
+    }
+
+    /// One draw from `p(x(k) | x(k−1))`: the predictor's proposal.
+    pub fn propagate<R: Rng + ?Sized>(&self, x: &State, rng: &mut R) -> State {
+        self.transition(x) + self.sample_noise(rng)
+    }
+}
+
+fn speed(x: &State) -> f64 {
+    x[2].hypot(x[3])
+}
+
+/// The trigonometric entries of F(ω) and their derivatives in ω.
+struct TurnTerms {
+    sin: f64,
+    cos: f64,
+    /// sin(ωT)/ω
+    s: f64,
+    /// (1 − cos ωT)/ω
+    c: f64,
+    /// d/dω of `s`
+    ds: f64,
+    /// d/dω of `c`
+    dc: f64,
+}
+
+impl TurnTerms {
+    fn new(omega: f64, period: f64) -> Self {
+        let wt = omega * period;
+        let (sin, cos) = wt.sin_cos();
+        if wt.abs() < SMALL_TURN {
+            let t2 = period * period;
+            let t3 = t2 * period;
+            Self {
+                sin,
+                cos,
+                s: period - omega * omega * t3 / 6.0,
+                c: omega * t2 / 2.0 - omega.powi(3) * t2 * t2 / 24.0,
+                ds: -omega * t3 / 3.0,
+                dc: t2 / 2.0 - omega * omega * t2 * t2 / 8.0,
+            }
+        } else {
+            let w2 = omega * omega;
+            // 1 − cos ωT = 2 sin²(ωT/2): the subtraction loses half the digits
+            // at the small turn rates of the default scenario.
+            let half = (0.5 * wt).sin();
+            let one_minus_cos = 2.0 * half * half;
+            Self {
+                sin,
+                cos,
+                s: sin / omega,
+                c: one_minus_cos / omega,
+                ds: (period * cos * omega - sin) / w2,
+                dc: (period * sin * omega - one_minus_cos) / w2,
+            }
+        }
+    }
+
+    fn matrix(&self) -> Mat4 {
+        Mat4::new(
+            1.0, 0.0, self.s, -self.c, //
+            0.0, 1.0, self.c, self.s, //
+            0.0, 0.0, self.cos, -self.sin, //
+            0.0, 0.0, self.sin, self.cos,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::{central_jacobian, random_state};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn turning() -> CoordinatedTurn {
+        CoordinatedTurn { period: 1.0, maneuver_accel: 0.1, min_speed: 0.1, sigma_v: 0.05 }
+    }
+
+    #[test]
+    fn jacobian_matches_central_differences_over_random_states() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        for model in [turning(), CoordinatedTurn { maneuver_accel: 2.0, ..turning() }] {
+            for i in 0..2000 {
+                // A third of the states are slow targets (but above v_min,
+                // where Ω is smooth).
+                let speed_scale = if i % 3 == 0 { 0.3 } else { 20.0 };
+                let x = random_state(&mut rng, 1500.0, speed_scale);
+                if speed(&x) < 1.5 * model.min_speed {
+                    continue;
+                }
+                let numeric = central_jacobian(|y| model.transition(y), &x, 1e-6);
+                let analytic = model.jacobian(&x);
+                let err = (numeric - analytic).abs().max();
+                assert!(err < 1e-6, "state {x:?}: error {err}\n{analytic}\n{numeric}");
+            }
+        }
+    }
+
+    #[test]
+    fn constant_velocity_is_the_zero_turn_limit() {
+        let cv = CoordinatedTurn::constant_velocity(2.0, 1.0);
+        let x = State::new(10.0, -5.0, 3.0, 4.0);
+        let expected = State::new(16.0, 3.0, 3.0, 4.0);
+        assert!((cv.transition(&x) - expected).norm() < 1e-12);
+        // A barely turning target agrees with the series branch continuously.
+        let slow_turn = CoordinatedTurn { maneuver_accel: 1e-7, ..cv };
+        let fast_turn = CoordinatedTurn { maneuver_accel: 1.1e-3, ..cv };
+        assert!((slow_turn.transition(&x) - expected).norm() < 1e-6);
+        let err = (fast_turn.jacobian(&x) - central_jacobian(|y| fast_turn.transition(y), &x, 1e-6)).abs().max();
+        assert!(err < 1e-7, "{err}\n{}\n{}", fast_turn.jacobian(&x), central_jacobian(|y| fast_turn.transition(y), &x, 1e-6));
+    }
+
+    #[test]
+    fn clockwise_turn_keeps_speed_and_turns_right() {
+        let m = turning();
+        let x = State::new(0.0, 0.0, 0.0, 10.0); // heading north
+        let y = m.transition(&x);
+        assert!((speed(&y) - 10.0).abs() < 1e-12);
+        assert!(y[2] > 0.0, "a clockwise turn from north heads east: {y:?}");
+    }
+
+    #[test]
+    fn sampled_noise_has_covariance_q() {
+        let d = Dynamics::new(turning()).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let n = 200_000;
+        let mut cov = Mat4::zeros();
+        for _ in 0..n {
+            let e = d.sample_noise(&mut rng);
+            cov += e * e.transpose();
+        }
+        cov /= n as f64;
+        let rel = (cov - d.q()).abs().max() / d.q().abs().max();
+        assert!(rel < 0.02, "relative error {rel}");
+        assert!((d.q() * d.q_inv() - Mat4::identity()).abs().max() < 1e-9);
+    }
+}

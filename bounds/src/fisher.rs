@@ -1,0 +1,190 @@
+//! Fisher information of one observation about the state, for a raw or a
+//! quantized measurement through any [`ObservationModel`].
+
+use crate::observation::{Evaluation, ObservationModel};
+use crate::quantizer::{FisherScalars, Quantizer};
+use crate::{Mat4, State};
+
+/// How a sensor reports: the raw value, or a quantizer cell index.
+#[derive(Debug, Clone, Copy)]
+pub enum Measurement<'q> {
+    Raw,
+    Quantized(&'q Quantizer),
+}
+
+/// `J_Y(x) = Σ_i ∇h_i ∇h_iᵀ / h_i` for a quantized observation, or
+/// `J_Z(x) = ∇g∇gᵀ/R + ∇R∇Rᵀ/(2R²)` for a raw one.
+#[inline]
+pub fn expected_information(model: &ObservationModel, measurement: Measurement<'_>, x: &State) -> Mat4 {
+    let e = model.evaluate(x);
+    let scalars = match measurement {
+        Measurement::Raw => FisherScalars::raw(e.r),
+        Measurement::Quantized(q) => q.fisher_scalars(e.g, e.r),
+    };
+    assemble(&scalars, &e)
+}
+
+/// `gg ∇g∇gᵀ + gr (∇g∇Rᵀ + ∇R∇gᵀ) + rr ∇R∇Rᵀ`.
+#[inline]
+fn assemble(s: &FisherScalars, e: &Evaluation) -> Mat4 {
+    let gg = e.grad_g * e.grad_g.transpose();
+    if e.grad_r == State::zeros() {
+        return gg * s.gg;
+    }
+    let gr = e.grad_g * e.grad_r.transpose();
+    gg * s.gg + (gr + gr.transpose()) * s.gr + e.grad_r * e.grad_r.transpose() * s.rr
+}
+
+/// `∇_x h_i(x) = (∂h/∂g) ∇g + (∂h/∂R) ∇R` for cell `index`.
+pub fn cell_probability_gradient(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> State {
+    let e = model.evaluate(x);
+    let s = q.sensitivity(index, e.g, e.r);
+    e.grad_g * s.d_mean + e.grad_r * s.d_variance
+}
+
+/// `ln h_i(x)`.
+pub fn ln_cell_probability(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> f64 {
+    let e = model.evaluate(x);
+    q.ln_probability(index, e.g, e.r)
+}
+
+/// `∇ ln h_i(x) = ∇h_i / h_i`, from the analytic sensitivities.
+pub fn score(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> State {
+    let e = model.evaluate(x);
+    let s = q.sensitivity(index, e.g, e.r);
+    (e.grad_g * s.d_mean + e.grad_r * s.d_variance) / s.probability
+}
+
+/// Observed information `−∇² ln h_y(x)` at the received cell `y`: central
+/// differences of the analytic score, symmetrized. Used by the auxiliary-FIM
+/// baseline (seed 001 Theorem 1).
+///
+/// The models give first derivatives only; differencing the analytic score
+/// keeps one order of accuracy over differencing `ln h` twice.
+pub fn observed_information(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> Mat4 {
+    let mut hess = Mat4::zeros();
+    for k in 0..4 {
+        let step = 1e-5 * x[k].abs().max(1.0);
+        let mut up = *x;
+        let mut down = *x;
+        up[k] += step;
+        down[k] -= step;
+        let column = (score(model, q, index, &up) - score(model, q, index, &down)) / (2.0 * step);
+        hess.set_column(k, &column);
+    }
+    -(hess + hess.transpose()) * 0.5
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::{central_gradient, random_state};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use std::f64::consts::PI;
+
+    fn bearing() -> ObservationModel {
+        ObservationModel::Bearing { sensor: [700.0, 300.0], sigma_theta: 0.02, d0: 500.0 }
+    }
+
+    #[test]
+    fn cell_probability_gradient_matches_central_differences() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let q8 = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let q3 = Quantizer::uniform_wrapped(3, -PI, PI).unwrap();
+        let rss = ObservationModel::Rss { sensor: [700.0, 300.0], p0: -30.0, zeta: 3.0, d0: 1.0, sigma: 4.0 };
+        let qr = Quantizer::uniform(4, -110.0, -40.0).unwrap();
+        let mut checked = 0;
+        for n in 0..3000 {
+            let mut x = random_state(&mut rng, 1500.0, 10.0);
+            if n % 5 == 0 {
+                // Due south of the sensor: bearing at the ±π wrap.
+                x[0] = 700.0 + (n as f64 % 7.0 - 3.0) * 0.3;
+                x[1] = 300.0 - 50.0 - n as f64 * 0.05;
+            }
+            for (model, q) in [(bearing(), &q8), (bearing(), &q3), (rss, &qr)] {
+                let e = model.evaluate(&x);
+                // The cells that matter: the one holding g and its neighbours.
+                let centre = q.encode(e.g) as i64;
+                for di in -2..=2 {
+                    let i = (centre + di).rem_euclid(q.cells() as i64) as u32;
+                    if q.probability(i, e.g, e.r) < 1e-8 {
+                        continue;
+                    }
+                    let analytic = cell_probability_gradient(&model, q, i, &x);
+                    let numeric = central_gradient(|y| { let e = model.evaluate(y); q.probability(i, e.g, e.r) }, &x, 1e-3, false);
+                    let scale = analytic.abs().max().max(1e-9);
+                    assert!((analytic - numeric).abs().max() / scale < 1e-4, "cell {i} at {x:?}: {analytic:?} vs {numeric:?}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 10_000, "only {checked} gradients checked");
+    }
+
+    #[test]
+    fn quantized_information_approaches_raw_information_with_bits() {
+        let x = State::new(900.0, 800.0, 3.0, -2.0);
+        let raw = expected_information(&bearing(), Measurement::Raw, &x);
+        let mut prev = 0.0;
+        for bits in [2u8, 4, 6, 8, 10, 12] {
+            let q = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
+            let j = expected_information(&bearing(), Measurement::Quantized(&q), &x);
+            let ratio = j.trace() / raw.trace();
+            assert!(ratio > prev && ratio <= 1.0 + 1e-9, "{bits} bits: {ratio}");
+            prev = ratio;
+        }
+        assert!(prev > 0.999, "{prev}");
+    }
+
+    #[test]
+    fn quantized_information_is_symmetric_positive_semidefinite() {
+        let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..500 {
+            let x = random_state(&mut rng, 1500.0, 10.0);
+            let j = expected_information(&bearing(), Measurement::Quantized(&q), &x);
+            assert!((j - j.transpose()).abs().max() <= 1e-12 * j.abs().max());
+            let eig = j.symmetric_eigen().eigenvalues;
+            assert!(eig.min() >= -1e-9 * eig.max(), "{eig:?}");
+        }
+    }
+
+    #[test]
+    fn observed_information_matches_second_differences_of_ln_h() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let q = Quantizer::uniform_wrapped(6, -PI, PI).unwrap();
+        let model = bearing();
+        for _ in 0..200 {
+            let x = random_state(&mut rng, 1500.0, 10.0);
+            let e = model.evaluate(&x);
+            let y = q.encode(e.g);
+            let analytic = observed_information(&model, &q, y, &x);
+            // Second central differences of ln h with a coarser step.
+            let f = |z: &State| ln_cell_probability(&model, &q, y, z);
+            let mut numeric = Mat4::zeros();
+            let h = 0.05;
+            for a in 0..2 {
+                for b in 0..2 {
+                    let mut pp = x; pp[a] += h; pp[b] += h;
+                    let mut pm = x; pm[a] += h; pm[b] -= h;
+                    let mut mp = x; mp[a] -= h; mp[b] += h;
+                    let mut mm = x; mm[a] -= h; mm[b] -= h;
+                    numeric[(a, b)] = -(f(&pp) - f(&pm) - f(&mp) + f(&mm)) / (4.0 * h * h);
+                }
+            }
+            let scale = analytic.abs().max().max(1e-9);
+            assert!((analytic - numeric).abs().max() / scale < 1e-3, "{analytic}\n{numeric}");
+            // Velocity does not enter a bearing: that block is exactly zero.
+            assert_eq!(analytic.fixed_view::<2, 2>(2, 2).abs().max(), 0.0);
+        }
+    }
+
+    #[test]
+    fn raw_information_of_a_linear_sensor_is_h_h_over_r() {
+        let m = ObservationModel::Linear { h: [1.0, 0.0, 0.0, 0.0], r: 4.0 };
+        let j = expected_information(&m, Measurement::Raw, &State::zeros());
+        assert_eq!(j[(0, 0)], 0.25);
+        assert_eq!(j.sum(), 0.25);
+    }
+}

@@ -1,0 +1,67 @@
+//! The estimation mathematics of cqnet. No I/O, no clocks, no processes.
+//!
+//! - [`dynamics`]: the clockwise coordinated turn (and constant velocity),
+//!   its Jacobian and process noise;
+//! - [`observation`]: bearing, RSS, amplitude and linear observation models;
+//! - [`quantizer`]: N_L-bit quantizers, cell probabilities far into the tails,
+//!   encoding to bytes;
+//! - [`fisher`]: Fisher information of raw and quantized observations, and the
+//!   observed information at a received cell;
+//! - [`pcrlb`]: the conditional PCRLB recursion over particles, shared by the
+//!   local bound, the distributed CQ/dPCRLB and the auxiliary-FIM baseline,
+//!   plus the non-conditional PCRLB by Monte Carlo.
+
+pub mod dynamics;
+pub mod fisher;
+pub mod normal;
+pub mod observation;
+pub mod pcrlb;
+pub mod quantizer;
+
+#[cfg(test)]
+mod testing;
+
+pub use dynamics::{CoordinatedTurn, Dynamics};
+pub use fisher::{expected_information, observed_information, Measurement};
+pub use observation::{wrap_angle, ObservationModel};
+pub use pcrlb::{position_bound, ConditionalBound, DynamicsTerms, InformationStep, SensorTerm};
+pub use quantizer::{quantized_fisher_information, try_quantized_fisher_information, Quantizer};
+
+/// The target state `[p_x, p_y, v_x, v_y]ᵀ`, metres and metres per second.
+pub type State = nalgebra::SVector<f64, 4>;
+/// A 4×4 matrix over the state: covariances, information matrices, Jacobians.
+pub type Mat4 = nalgebra::SMatrix<f64, 4, 4>;
+
+/// Invalid quantizer parameters or encoded cell indices.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum QuantizerError {
+    #[error("quantizer bits must be between 1 and {max}, got {bits}", max = quantizer::MAX_BITS)]
+    BitsOutOfRange { bits: u64 },
+    #[error("quantizer range must be finite with lo < hi, got [{lo}, {hi}]")]
+    EmptyRange { lo: f64, hi: f64 },
+    #[error("a quantizer needs at least one threshold")]
+    NoThresholds,
+    #[error("threshold {index} is not finite")]
+    NonFiniteThreshold { index: usize },
+    #[error("threshold {index} is not greater than the one before it")]
+    ThresholdsNotIncreasing { index: usize },
+    #[error("sigma must be finite and positive, got {sigma}")]
+    BadSigma { sigma: f64 },
+    #[error("encoded cell index has {got} bytes, expected {expected}")]
+    WrongLength { expected: usize, got: usize },
+    #[error("cell index {index} is out of range for {cells} cells")]
+    IndexOutOfRange { index: u32, cells: usize },
+}
+
+/// A bound recursion that cannot proceed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BoundError {
+    #[error("no particles")]
+    NoParticles,
+    #[error("{particles} particles but {weights} weights")]
+    WeightCount { particles: usize, weights: usize },
+    #[error("{0} is not positive definite")]
+    NotPositiveDefinite(&'static str),
+    #[error("the information matrix is not finite")]
+    NonFinite,
+}

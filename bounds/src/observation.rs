@@ -1,0 +1,264 @@
+//! Sensor observation models: `z = g(x) + v`, `v ~ N(0, R(x))`.
+//!
+//! Every model gives g, ∇g, R and ∇R analytically in one evaluation, since the
+//! Fisher information of a quantized observation needs all four at once.
+
+use std::f64::consts::{LN_10, PI};
+
+use rand::Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+
+use crate::State;
+
+/// g, ∇g, R and ∇R at one state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Evaluation {
+    pub g: f64,
+    pub grad_g: State,
+    pub r: f64,
+    pub grad_r: State,
+}
+
+/// Distances below this are treated as this, so that a target passing over a
+/// sensor gives large but finite gradients instead of NaN.
+const MIN_DISTANCE: f64 = 1e-3;
+
+/// An observation model together with the sensor's position (X_s, Y_s).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ObservationModel {
+    /// `g = atan2(p_x − X_s, p_y − Y_s)` (from north, clockwise), wrapped to
+    /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`.
+    Bearing { sensor: [f64; 2], sigma_theta: f64, d0: f64 },
+    /// Received signal strength in dBm: `g = P_0 − 10 ζ log10(d/d_0)`, `R = σ_r²`.
+    Rss { sensor: [f64; 2], p0: f64, zeta: f64, d0: f64, sigma: f64 },
+    /// Amplitude, power law: `g = sqrt(P_0 / (1 + α dⁿ))`, `R = σ²`.
+    Amplitude { sensor: [f64; 2], p0: f64, alpha: f64, exponent: f64, sigma: f64 },
+    /// Linear Gaussian: `g = hᵀx`, `R = r`. The limiting case in which the
+    /// PCRLB must reproduce the Kalman filter's information matrix.
+    Linear { h: [f64; 4], r: f64 },
+}
+
+impl ObservationModel {
+    /// Whether g is an angle, so observations and quantizer cells wrap at ±π.
+    pub fn is_angular(&self) -> bool {
+        matches!(self, Self::Bearing { .. })
+    }
+
+    pub fn sensor_position(&self) -> Option<[f64; 2]> {
+        match self {
+            Self::Bearing { sensor, .. } | Self::Rss { sensor, .. } | Self::Amplitude { sensor, .. } => Some(*sensor),
+            Self::Linear { .. } => None,
+        }
+    }
+
+    /// Checks the parameters; the message names the offending one.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} must be a finite positive number, got {v}"))
+            }
+        };
+        let finite = |name: &str, v: f64| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!("{name} must be finite, got {v}"))
+            }
+        };
+        match *self {
+            Self::Bearing { sensor, sigma_theta, d0 } => {
+                finite("sensor", sensor[0] + sensor[1])?;
+                positive("sigma_theta", sigma_theta)?;
+                positive("d0", d0)
+            }
+            Self::Rss { sensor, p0, zeta, d0, sigma } => {
+                finite("sensor", sensor[0] + sensor[1])?;
+                finite("p0", p0)?;
+                positive("zeta", zeta)?;
+                positive("d0", d0)?;
+                positive("sigma", sigma)
+            }
+            Self::Amplitude { sensor, p0, alpha, exponent, sigma } => {
+                finite("sensor", sensor[0] + sensor[1])?;
+                positive("p0", p0)?;
+                positive("alpha", alpha)?;
+                positive("exponent", exponent)?;
+                positive("sigma", sigma)
+            }
+            Self::Linear { h, r } => {
+                finite("h", h.iter().sum())?;
+                positive("r", r)
+            }
+        }
+    }
+
+    /// g, ∇g, R and ∇R at `x`.
+    #[inline]
+    pub fn evaluate(&self, x: &State) -> Evaluation {
+        match *self {
+            Self::Bearing { sensor, sigma_theta, d0 } => {
+                let (dx, dy, d2) = offset(x, sensor);
+                let s2 = sigma_theta * sigma_theta;
+                Evaluation {
+                    g: dx.atan2(dy),
+                    grad_g: State::new(dy / d2, -dx / d2, 0.0, 0.0),
+                    r: s2 * (1.0 + d2 / (d0 * d0)),
+                    grad_r: State::new(2.0 * s2 * dx / (d0 * d0), 2.0 * s2 * dy / (d0 * d0), 0.0, 0.0),
+                }
+            }
+            Self::Rss { sensor, p0, zeta, d0, sigma } => {
+                let (dx, dy, d2) = offset(x, sensor);
+                // g = P0 − 5ζ log10(d²/d0²); ∂g/∂p = −10ζ/ln10 · (p − X)/d²
+                let k = -10.0 * zeta / LN_10 / d2;
+                Evaluation {
+                    g: p0 - 5.0 * zeta * (d2 / (d0 * d0)).log10(),
+                    grad_g: State::new(k * dx, k * dy, 0.0, 0.0),
+                    r: sigma * sigma,
+                    grad_r: State::zeros(),
+                }
+            }
+            Self::Amplitude { sensor, p0, alpha, exponent, sigma } => {
+                let (dx, dy, d2) = offset(x, sensor);
+                let d = d2.sqrt();
+                let dn = d.powf(exponent);
+                let denom = 1.0 + alpha * dn;
+                let g = (p0 / denom).sqrt();
+                // ∂g/∂d = −g α n d^{n−1} / (2 (1 + α dⁿ)); ∂d/∂p = (p − X)/d
+                let dg_dd = -g * alpha * exponent * dn / d / (2.0 * denom);
+                Evaluation {
+                    g,
+                    grad_g: State::new(dg_dd * dx / d, dg_dd * dy / d, 0.0, 0.0),
+                    r: sigma * sigma,
+                    grad_r: State::zeros(),
+                }
+            }
+            Self::Linear { h, r } => Evaluation {
+                g: h[0] * x[0] + h[1] * x[1] + h[2] * x[2] + h[3] * x[3],
+                grad_g: State::from(h),
+                r,
+                grad_r: State::zeros(),
+            },
+        }
+    }
+
+    /// One noisy, unquantized measurement of the true state (angles wrapped).
+    pub fn sample<R: Rng + ?Sized>(&self, x: &State, rng: &mut R) -> f64 {
+        let e = self.evaluate(x);
+        let z = e.g + e.r.sqrt() * rng.sample::<f64, _>(StandardNormal);
+        if self.is_angular() {
+            wrap_angle(z)
+        } else {
+            z
+        }
+    }
+}
+
+/// `(p_x − X, p_y − Y, d²)` with d floored at [`MIN_DISTANCE`].
+#[inline]
+fn offset(x: &State, sensor: [f64; 2]) -> (f64, f64, f64) {
+    let dx = x[0] - sensor[0];
+    let dy = x[1] - sensor[1];
+    (dx, dy, (dx * dx + dy * dy).max(MIN_DISTANCE * MIN_DISTANCE))
+}
+
+/// Wraps an angle into (−π, π].
+pub fn wrap_angle(a: f64) -> f64 {
+    let w = (a + PI).rem_euclid(2.0 * PI) - PI;
+    if w == -PI {
+        PI
+    } else {
+        w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::{central_gradient, random_state};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn models() -> Vec<ObservationModel> {
+        vec![
+            ObservationModel::Bearing { sensor: [250.0, 750.0], sigma_theta: 0.02, d0: 500.0 },
+            ObservationModel::Rss { sensor: [250.0, 750.0], p0: -30.0, zeta: 3.0, d0: 1.0, sigma: 2.0 },
+            ObservationModel::Amplitude { sensor: [250.0, 750.0], p0: 1e4, alpha: 1e-3, exponent: 2.0, sigma: 0.5 },
+            ObservationModel::Linear { h: [1.0, 0.5, -0.25, 2.0], r: 4.0 },
+        ]
+    }
+
+    /// The states the gradients are checked at: random over the region, some
+    /// within a few metres of the sensor, and some due south of it where the
+    /// bearing is ±π (the wrap).
+    fn states(rng: &mut ChaCha8Rng) -> Vec<State> {
+        let mut v: Vec<State> = (0..1000).map(|_| random_state(rng, 1500.0, 20.0)).collect();
+        for i in 0..200 {
+            let r = 0.5 + i as f64 * 0.05;
+            let a = i as f64 * 0.7;
+            v.push(State::new(250.0 + r * a.sin(), 750.0 + r * a.cos(), 1.0, 1.0));
+        }
+        for i in 0..100 {
+            // South of the sensor, slightly east and west: bearings near ±π.
+            let east = (i as f64 - 50.0) * 0.01;
+            v.push(State::new(250.0 + east + 1e-3, 750.0 - 100.0 - i as f64, 0.0, 0.0));
+        }
+        v
+    }
+
+    #[test]
+    fn gradients_match_central_differences() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let xs = states(&mut rng);
+        for m in models() {
+            for x in &xs {
+                let e = m.evaluate(x);
+                let d = x.xy_distance(m.sensor_position());
+                let h = 1e-4 * d.max(1.0).min(100.0);
+                let num_g = central_gradient(|y| m.evaluate(y).g, x, h, m.is_angular());
+                let num_r = central_gradient(|y| m.evaluate(y).r, x, h, false);
+                let scale_g = e.grad_g.abs().max().max(1e-12);
+                let scale_r = e.grad_r.abs().max().max(1e-12);
+                assert!((num_g - e.grad_g).abs().max() / scale_g < 1e-5, "{m:?} ∇g at {x:?}: {num_g:?} vs {:?}", e.grad_g);
+                assert!((num_r - e.grad_r).abs().max() / scale_r < 1e-5, "{m:?} ∇R at {x:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn bearing_is_measured_clockwise_from_north() {
+        let m = ObservationModel::Bearing { sensor: [0.0, 0.0], sigma_theta: 0.01, d0: 100.0 };
+        let at = |x, y| m.evaluate(&State::new(x, y, 0.0, 0.0)).g;
+        assert!((at(0.0, 10.0) - 0.0).abs() < 1e-15);
+        assert!((at(10.0, 0.0) - PI / 2.0).abs() < 1e-15);
+        assert!((at(-10.0, 0.0) + PI / 2.0).abs() < 1e-15);
+        assert!((at(0.0, -10.0).abs() - PI).abs() < 1e-15);
+    }
+
+    #[test]
+    fn wrap_angle_lands_in_half_open_interval() {
+        for a in [-7.0, -PI, -3.0, 0.0, 3.0, PI, 7.0, 100.0] {
+            let w = wrap_angle(a);
+            assert!(w > -PI && w <= PI, "{a} -> {w}");
+            assert!(((w - a) / (2.0 * PI)).fract().abs() < 1e-12 || ((w - a) / (2.0 * PI)).fract().abs() > 1.0 - 1e-12);
+        }
+    }
+
+    #[test]
+    fn validation_names_the_parameter() {
+        let bad = ObservationModel::Bearing { sensor: [0.0, 0.0], sigma_theta: -1.0, d0: 500.0 };
+        assert!(bad.validate().unwrap_err().contains("sigma_theta"));
+    }
+
+    trait Distance {
+        fn xy_distance(&self, s: Option<[f64; 2]>) -> f64;
+    }
+    impl Distance for State {
+        fn xy_distance(&self, s: Option<[f64; 2]>) -> f64 {
+            s.map_or(100.0, |s| (self[0] - s[0]).hypot(self[1] - s[1]))
+        }
+    }
+}

@@ -1,0 +1,498 @@
+//! The sensor's quantizer: cells, encoding to bytes, cell probabilities
+//! `h_i(x)` and their sensitivities, and the per-observation Fisher scalars.
+
+use std::f64::consts::FRAC_1_SQRT_2;
+
+use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
+use crate::QuantizerError;
+
+/// Half-width, in standard deviations, of the window of cells summed in the
+/// Fisher information. A cell whose nearer edge is `a` standard deviations
+/// away contributes about `a³ φ(a)` times the unquantized information `1/R`;
+/// at 9 that is below 1e-15. `fisher_window_drops_less_than_tolerance` checks
+/// that the dropped part stays below 1e-12 of the unquantized information.
+pub const WINDOW_SIGMAS: f64 = 9.0;
+
+/// Largest supported bit depth (2^20 cells).
+pub const MAX_BITS: u8 = 20;
+
+/// An N_L-bit quantizer with cell edges `e_0 < e_1 < … < e_L`.
+///
+/// Unwrapped quantizers have `e_0 = −∞`, `e_L = +∞`. Wrapped ones (bearings)
+/// have finite `e_0 = lo`, `e_L = hi`, and a cell's probability adds the
+/// Gaussian mass of the cell shifted by ±(hi − lo).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Quantizer {
+    bits: u8,
+    edges: Vec<f64>,
+    wrapped: bool,
+}
+
+/// `(h, ∂h/∂g, ∂h/∂R)` of one cell at one `(g, R)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellSensitivity {
+    pub probability: f64,
+    pub d_mean: f64,
+    pub d_variance: f64,
+}
+
+/// The three scalars that give the Fisher information of one quantized
+/// observation: with `∇h_i = (∂h_i/∂g) ∇g + (∂h_i/∂R) ∇R`,
+/// `J_Y = gg ∇g∇gᵀ + gr (∇g∇Rᵀ + ∇R∇gᵀ) + rr ∇R∇Rᵀ`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FisherScalars {
+    pub gg: f64,
+    pub gr: f64,
+    pub rr: f64,
+}
+
+impl FisherScalars {
+    /// The unquantized observation: `J_Z = ∇g∇gᵀ/R + ∇R∇Rᵀ/(2R²)`.
+    pub fn raw(r: f64) -> Self {
+        Self { gg: 1.0 / r, gr: 0.0, rr: 0.5 / (r * r) }
+    }
+}
+
+/// Standardized edge `t = (e − g)/σ` with the values every adjacent cell
+/// needs, so each edge costs one `erfc` and one `exp`.
+#[derive(Clone, Copy)]
+struct Edge {
+    t: f64,
+    pdf: f64,
+    x_pdf: f64,
+    /// `Q(t)` for `t ≥ 0`, `Φ(t)` for `t < 0`: the tail that is small.
+    tail: f64,
+}
+
+impl Edge {
+    #[inline]
+    fn at(t: f64) -> Self {
+        let tail = if t >= 0.0 { normal::upper_tail(t) } else { normal::cdf(t) };
+        Self { t, pdf: normal::pdf(t), x_pdf: normal::x_pdf(t), tail }
+    }
+
+    /// Mass between this edge and a higher one.
+    #[inline]
+    fn mass_to(&self, upper: &Edge) -> f64 {
+        if self.t >= 0.0 {
+            self.tail - upper.tail
+        } else if upper.t <= 0.0 {
+            upper.tail - self.tail
+        } else {
+            0.5 * (libm::erf(upper.t * FRAC_1_SQRT_2) - libm::erf(self.t * FRAC_1_SQRT_2))
+        }
+    }
+}
+
+impl Quantizer {
+    /// `2^bits` cells; edges `e_i = lo + i (hi − lo)/L` for `0 < i < L`, outer
+    /// cells unbounded.
+    pub fn uniform(bits: u8, lo: f64, hi: f64) -> Result<Self, QuantizerError> {
+        let edges = uniform_edges(bits, lo, hi)?;
+        let l = edges.len() - 1;
+        let mut edges = edges;
+        edges[0] = f64::NEG_INFINITY;
+        edges[l] = f64::INFINITY;
+        Ok(Self { bits, edges, wrapped: false })
+    }
+
+    /// `2^bits` equal cells covering `[lo, hi)` periodically (for angles:
+    /// `lo = −π`, `hi = π`).
+    pub fn uniform_wrapped(bits: u8, lo: f64, hi: f64) -> Result<Self, QuantizerError> {
+        Ok(Self { bits, edges: uniform_edges(bits, lo, hi)?, wrapped: true })
+    }
+
+    /// Cells separated by the given interior thresholds (strictly increasing,
+    /// finite); `thresholds.len() + 1` cells.
+    pub fn from_thresholds(thresholds: &[f64]) -> Result<Self, QuantizerError> {
+        if thresholds.is_empty() {
+            return Err(QuantizerError::NoThresholds);
+        }
+        for (i, t) in thresholds.iter().enumerate() {
+            if !t.is_finite() {
+                return Err(QuantizerError::NonFiniteThreshold { index: i });
+            }
+            if i > 0 && *t <= thresholds[i - 1] {
+                return Err(QuantizerError::ThresholdsNotIncreasing { index: i });
+            }
+        }
+        let cells = thresholds.len() + 1;
+        let bits = usize::BITS - (cells - 1).leading_zeros();
+        if bits > MAX_BITS as u32 {
+            return Err(QuantizerError::BitsOutOfRange { bits: bits as u64 });
+        }
+        let mut edges = Vec::with_capacity(cells + 1);
+        edges.push(f64::NEG_INFINITY);
+        edges.extend_from_slice(thresholds);
+        edges.push(f64::INFINITY);
+        Ok(Self { bits: bits as u8, edges, wrapped: false })
+    }
+
+    pub fn bits(&self) -> u8 {
+        self.bits
+    }
+
+    pub fn cells(&self) -> usize {
+        self.edges.len() - 1
+    }
+
+    pub fn is_wrapped(&self) -> bool {
+        self.wrapped
+    }
+
+    /// Bytes of one encoded cell index: `ceil(N_L / 8)`.
+    pub fn index_bytes(&self) -> usize {
+        (self.bits as usize).div_ceil(8)
+    }
+
+    fn period(&self) -> f64 {
+        self.edges[self.cells()] - self.edges[0]
+    }
+
+    /// The cell a value falls in (`e_i ≤ z < e_{i+1}`); wrapped quantizers
+    /// first wrap z into `[lo, hi)`. NaN maps to cell 0.
+    pub fn encode(&self, z: f64) -> u32 {
+        let z = if self.wrapped { self.edges[0] + (z - self.edges[0]).rem_euclid(self.period()) } else { z };
+        let l = self.cells();
+        let interior = &self.edges[1..l];
+        interior.partition_point(|e| *e <= z) as u32
+    }
+
+    /// Writes a cell index as `ceil(N_L/8)` little-endian bytes.
+    pub fn write_index(&self, index: u32, out: &mut Vec<u8>) {
+        out.extend_from_slice(&index.to_le_bytes()[..self.index_bytes()]);
+    }
+
+    /// Reads a cell index written by [`write_index`](Self::write_index),
+    /// rejecting a wrong length or an index past the last cell.
+    pub fn read_index(&self, bytes: &[u8]) -> Result<u32, QuantizerError> {
+        if bytes.len() != self.index_bytes() {
+            return Err(QuantizerError::WrongLength { expected: self.index_bytes(), got: bytes.len() });
+        }
+        let mut le = [0u8; 4];
+        le[..bytes.len()].copy_from_slice(bytes);
+        let index = u32::from_le_bytes(le);
+        if index as usize >= self.cells() {
+            return Err(QuantizerError::IndexOutOfRange { index, cells: self.cells() });
+        }
+        Ok(index)
+    }
+
+    /// A value inside the cell (its midpoint, or its finite edge for an
+    /// unbounded outer cell): what a node reads a cell as when it needs a number.
+    pub fn representative(&self, index: u32) -> f64 {
+        let (a, b) = (self.edges[index as usize], self.edges[index as usize + 1]);
+        match (a.is_finite(), b.is_finite()) {
+            (true, true) => 0.5 * (a + b),
+            (false, true) => b,
+            (true, false) => a,
+            (false, false) => 0.0,
+        }
+    }
+
+    /// Standardized edges of cell `index` shifted by `shift` periods.
+    #[inline]
+    fn standardized(&self, index: usize, shift: f64, mean: f64, sigma: f64) -> (f64, f64) {
+        let p = shift * if self.wrapped { self.period() } else { 0.0 };
+        ((self.edges[index] + p - mean) / sigma, (self.edges[index + 1] + p - mean) / sigma)
+    }
+
+    fn shifts(&self) -> &'static [f64] {
+        if self.wrapped {
+            &[-1.0, 0.0, 1.0]
+        } else {
+            &[0.0]
+        }
+    }
+
+    /// `h_i = P(Y = i)` for `Z ~ N(mean, variance)`.
+    pub fn probability(&self, index: u32, mean: f64, variance: f64) -> f64 {
+        let sigma = variance.sqrt();
+        self.shifts()
+            .iter()
+            .map(|&j| {
+                let (a, b) = self.standardized(index as usize, j, mean, sigma);
+                interval_mass(a, b)
+            })
+            .sum()
+    }
+
+    /// `ln h_i`, finite even when `h_i` is far below f64's smallest number.
+    /// This is what particle weights use.
+    pub fn ln_probability(&self, index: u32, mean: f64, variance: f64) -> f64 {
+        let sigma = variance.sqrt();
+        let mut terms = [f64::NEG_INFINITY; 3];
+        for (slot, &j) in terms.iter_mut().zip(self.shifts()) {
+            let (a, b) = self.standardized(index as usize, j, mean, sigma);
+            *slot = ln_interval_mass(a, b);
+        }
+        ln_sum_exp(&terms)
+    }
+
+    /// `(h_i, ∂h_i/∂g, ∂h_i/∂R)`, with `∂h/∂g = (φ(a) − φ(b))/σ` and
+    /// `∂h/∂R = (aφ(a) − bφ(b))/(2R)`.
+    pub fn sensitivity(&self, index: u32, mean: f64, variance: f64) -> CellSensitivity {
+        let sigma = variance.sqrt();
+        let mut s = CellSensitivity { probability: 0.0, d_mean: 0.0, d_variance: 0.0 };
+        for &j in self.shifts() {
+            let (a, b) = self.standardized(index as usize, j, mean, sigma);
+            s.probability += interval_mass(a, b);
+            s.d_mean += (normal::pdf(a) - normal::pdf(b)) / sigma;
+            s.d_variance += (normal::x_pdf(a) - normal::x_pdf(b)) / (2.0 * variance);
+        }
+        s
+    }
+
+    /// Fisher scalars summed over the cells within [`WINDOW_SIGMAS`] of the
+    /// mean. Allocation-free; this is the per-particle hot path.
+    pub fn fisher_scalars(&self, mean: f64, variance: f64) -> FisherScalars {
+        let sigma = variance.sqrt();
+        if self.wrapped && 2.0 * WINDOW_SIGMAS * sigma >= self.period() {
+            return self.fisher_scalars_all_cells(mean, variance);
+        }
+        let (first, last) = (self.unrolled_cell(mean - WINDOW_SIGMAS * sigma), self.unrolled_cell(mean + WINDOW_SIGMAS * sigma));
+        let mut sums = [0.0; 3];
+        let mut lower = Edge::at((self.unrolled_edge(first) - mean) / sigma);
+        for m in first..=last {
+            let upper = Edge::at((self.unrolled_edge(m + 1) - mean) / sigma);
+            accumulate(&mut sums, lower.mass_to(&upper), lower.pdf - upper.pdf, lower.x_pdf - upper.x_pdf);
+            lower = upper;
+        }
+        scalars_from_sums(sums, variance)
+    }
+
+    /// Fisher scalars summed over every cell (and every wrap shift). The
+    /// reference that the window is tested against.
+    pub fn fisher_scalars_all_cells(&self, mean: f64, variance: f64) -> FisherScalars {
+        let sigma = variance.sqrt();
+        let mut sums = [0.0; 3];
+        for i in 0..self.cells() {
+            let s = self.sensitivity(i as u32, mean, variance);
+            // Back to the standardized α = φ(a) − φ(b), β = aφ(a) − bφ(b).
+            accumulate(&mut sums, s.probability, s.d_mean * sigma, s.d_variance * 2.0 * variance);
+        }
+        scalars_from_sums(sums, variance)
+    }
+
+    /// Index of the cell containing z, counting cells of the periodic
+    /// extension for a wrapped quantizer (cell m is cell `m mod L` shifted by
+    /// `⌊m/L⌋` periods).
+    fn unrolled_cell(&self, z: f64) -> i64 {
+        let l = self.cells();
+        if !self.wrapped {
+            return self.edges[1..l].partition_point(|e| *e <= z) as i64;
+        }
+        let lo = self.edges[0];
+        let k = ((z - lo) / self.period()).floor();
+        let within = z - k * self.period();
+        let i = self.edges[1..l].partition_point(|e| *e <= within);
+        k as i64 * l as i64 + i as i64
+    }
+
+    /// Lower edge of unrolled cell m (so `unrolled_edge(m + 1)` is its upper).
+    #[inline]
+    fn unrolled_edge(&self, m: i64) -> f64 {
+        if !self.wrapped {
+            return self.edges[m as usize];
+        }
+        let l = self.cells() as i64;
+        self.edges[m.rem_euclid(l) as usize] + m.div_euclid(l) as f64 * self.period()
+    }
+}
+
+/// Adds one cell's `α²/h, αβ/h, β²/h` (standardized α, β).
+#[inline]
+fn accumulate(sums: &mut [f64; 3], h: f64, alpha: f64, beta: f64) {
+    if h > 0.0 {
+        // α/h before α·(α/h): 1/h alone overflows for a subnormal h.
+        let (a, b) = (alpha / h, beta / h);
+        sums[0] += alpha * a;
+        sums[1] += alpha * b;
+        sums[2] += beta * b;
+    }
+}
+
+/// `∂h/∂g = α/σ`, `∂h/∂R = β/(2R)`.
+#[inline]
+fn scalars_from_sums(sums: [f64; 3], variance: f64) -> FisherScalars {
+    let sigma = variance.sqrt();
+    FisherScalars {
+        gg: sums[0] / variance,
+        gr: sums[1] / (2.0 * variance * sigma),
+        rr: sums[2] / (4.0 * variance * variance),
+    }
+}
+
+fn uniform_edges(bits: u8, lo: f64, hi: f64) -> Result<Vec<f64>, QuantizerError> {
+    if bits == 0 || bits > MAX_BITS {
+        return Err(QuantizerError::BitsOutOfRange { bits: bits as u64 });
+    }
+    if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+        return Err(QuantizerError::EmptyRange { lo, hi });
+    }
+    let l = 1usize << bits;
+    let step = (hi - lo) / l as f64;
+    let mut edges: Vec<f64> = (0..=l).map(|i| lo + i as f64 * step).collect();
+    edges[l] = hi;
+    Ok(edges)
+}
+
+/// Fisher information of one quantized observation of a scalar
+/// `Z ~ N(mean, σ²)` about its mean: `Σ_i (φ(a_i) − φ(b_i))² / (σ² h_i)`.
+///
+/// Returns NaN for invalid input (thresholds not finite and strictly
+/// increasing, σ not positive), as f64 functions do for points outside their
+/// domain; [`try_quantized_fisher_information`] says what was wrong instead.
+pub fn quantized_fisher_information(thresholds: &[f64], mean: f64, sigma: f64) -> f64 {
+    try_quantized_fisher_information(thresholds, mean, sigma).unwrap_or(f64::NAN)
+}
+
+/// [`quantized_fisher_information`] with the reason for invalid input.
+pub fn try_quantized_fisher_information(thresholds: &[f64], mean: f64, sigma: f64) -> Result<f64, QuantizerError> {
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(QuantizerError::BadSigma { sigma });
+    }
+    let q = Quantizer::from_thresholds(thresholds)?;
+    Ok(q.fisher_scalars_all_cells(mean, sigma * sigma).gg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    #[test]
+    fn one_threshold_at_the_mean_gives_two_over_pi_sigma_squared() {
+        for sigma in [0.1, 1.0, 7.0] {
+            let j = quantized_fisher_information(&[3.0], 3.0, sigma);
+            let expected = 2.0 / (PI * sigma * sigma);
+            assert!((j / expected - 1.0).abs() < 1e-13, "{j} vs {expected}");
+        }
+    }
+
+    #[test]
+    fn information_grows_with_bits_towards_the_raw_value() {
+        let sigma = 2.0;
+        let raw = 1.0 / (sigma * sigma);
+        let mut previous = 0.0;
+        for bits in 1..=12u8 {
+            let q = Quantizer::uniform(bits, -6.0 * sigma, 6.0 * sigma).unwrap();
+            // Mean off-centre so that it is not special for any bit depth.
+            let j = q.fisher_scalars(0.37, sigma * sigma).gg;
+            assert!(j > previous, "{bits} bits: {j} <= {previous}");
+            assert!(j <= raw * (1.0 + 1e-12), "{bits} bits exceeds raw: {j}");
+            previous = j;
+        }
+        assert!(previous / raw > 0.999, "12 bits: {}", previous / raw);
+    }
+
+    #[test]
+    fn cell_probabilities_sum_to_one() {
+        for bits in 1..=16u8 {
+            let q = Quantizer::uniform(bits, -3.0, 3.0).unwrap();
+            let w = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
+            for (mean, var) in [(0.3, 1.0), (-2.9, 0.01), (5.0, 4.0)] {
+                let total: f64 = (0..q.cells() as u32).map(|i| q.probability(i, mean, var)).sum();
+                assert!((total - 1.0).abs() < 1e-12, "{bits} bits, {mean}: {total}");
+            }
+            for (mean, var) in [(0.3, 0.01), (3.1, 0.05), (-3.1, 0.3)] {
+                let total: f64 = (0..w.cells() as u32).map(|i| w.probability(i, mean, var)).sum();
+                assert!((total - 1.0).abs() < 1e-12, "wrapped {bits} bits, {mean}: {total}");
+            }
+        }
+    }
+
+    #[test]
+    fn ln_probability_is_finite_thirty_sigma_out() {
+        let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let sigma: f64 = 0.02;
+        let far = 30.0 * sigma;
+        let cell = q.encode(far);
+        let lp = q.ln_probability(cell, 0.0, sigma * sigma);
+        assert!(lp.is_finite(), "{lp}");
+        // The cell's lower edge a (in σ) dominates: h ≈ Q(a) ≈ φ(a)/a · (1 − 1/a²).
+        let width = 2.0 * PI / 256.0;
+        let a = (-PI + cell as f64 * width) / sigma;
+        assert!(a > 28.0 && a < 31.0, "{a}");
+        let leading = -0.5 * a * a - (a * (2.0 * PI).sqrt()).ln() - 1.0 / (a * a);
+        assert!((lp - leading).abs() < 1e-5, "{lp} vs {leading}");
+        // And at 100σ, where h itself underflows to zero.
+        let q = Quantizer::uniform(8, -200.0, 200.0).unwrap();
+        let lp = q.ln_probability(q.encode(100.0), 0.0, 1.0);
+        assert!(lp.is_finite() && lp < -4900.0, "{lp}");
+        assert_eq!(q.probability(q.encode(100.0), 0.0, 1.0), 0.0);
+    }
+
+    #[test]
+    fn ln_probability_agrees_with_probability() {
+        let q = Quantizer::uniform_wrapped(6, -PI, PI).unwrap();
+        for i in 0..q.cells() as u32 {
+            let p = q.probability(i, 3.0, 0.04);
+            if p > 1e-300 {
+                assert!((q.ln_probability(i, 3.0, 0.04) - p.ln()).abs() < 1e-9 * p.ln().abs().max(1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn fisher_window_drops_less_than_tolerance() {
+        let bearing = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let rss = Quantizer::uniform(8, -100.0, 0.0).unwrap();
+        let cases: Vec<(&Quantizer, f64, f64)> = vec![
+            (&bearing, 0.1, 0.02),
+            (&bearing, 3.13, 0.05),   // window crosses +π
+            (&bearing, -3.14, 0.09),  // window crosses −π
+            (&bearing, 1.0, 0.004),   // far narrower than a cell
+            (&rss, -50.0, 2.0),
+            (&rss, -99.0, 3.0),       // window reaches the unbounded cell
+            (&rss, 20.0, 1.0),        // mean beyond the last edge
+        ];
+        for (q, mean, sigma) in cases {
+            let v = sigma * sigma;
+            let (w, all) = (q.fisher_scalars(mean, v), q.fisher_scalars_all_cells(mean, v));
+            // Measured against the unquantized information of the same scalar,
+            // the ceiling any quantizer approaches.
+            let raw = FisherScalars::raw(v);
+            for (a, b, scale) in [(w.gg, all.gg, raw.gg), (w.gr, all.gr, raw.gg / sigma), (w.rr, all.rr, raw.rr)] {
+                assert!((a - b).abs() <= 1e-12 * scale, "{mean} {sigma}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn encoding_round_trips_through_bytes() {
+        for bits in [1u8, 4, 8, 9, 12, 16] {
+            let q = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
+            assert_eq!(q.index_bytes(), (bits as usize).div_ceil(8));
+            for z in [-PI, -1.0, 0.0, 0.5, PI - 1e-9, PI, 7.0] {
+                let i = q.encode(z);
+                assert!((i as usize) < q.cells());
+                let mut buf = Vec::new();
+                q.write_index(i, &mut buf);
+                assert_eq!(buf.len(), q.index_bytes());
+                assert_eq!(q.read_index(&buf).unwrap(), i);
+            }
+        }
+        let q = Quantizer::uniform(4, 0.0, 1.0).unwrap();
+        assert!(matches!(q.read_index(&[16]), Err(QuantizerError::IndexOutOfRange { .. })));
+        assert!(matches!(q.read_index(&[1, 2]), Err(QuantizerError::WrongLength { .. })));
+    }
+
+    #[test]
+    fn encode_puts_values_in_the_cell_that_contains_them() {
+        let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let width = 2.0 * PI / 256.0;
+        assert_eq!(q.encode(-PI), 0);
+        assert_eq!(q.encode(-PI + 1.5 * width), 1);
+        assert_eq!(q.encode(PI), 0, "π wraps onto −π");
+        assert!((q.representative(q.encode(0.3)) - 0.3).abs() <= width / 2.0);
+    }
+
+    #[test]
+    fn invalid_quantizers_are_rejected() {
+        assert!(matches!(Quantizer::uniform(0, 0.0, 1.0), Err(QuantizerError::BitsOutOfRange { .. })));
+        assert!(matches!(Quantizer::uniform(8, 1.0, 1.0), Err(QuantizerError::EmptyRange { .. })));
+        assert!(matches!(Quantizer::from_thresholds(&[1.0, 1.0]), Err(QuantizerError::ThresholdsNotIncreasing { index: 1 })));
+        assert!(quantized_fisher_information(&[0.0], 0.0, -1.0).is_nan());
+    }
+}

@@ -1,0 +1,41 @@
+//! Helpers shared by the unit tests: random states and central differences.
+
+use rand::Rng;
+
+use crate::{Mat4, State};
+
+/// A state uniform over `[0, extent]²` with velocity components uniform in
+/// `±speed`.
+pub fn random_state<R: Rng>(rng: &mut R, extent: f64, speed: f64) -> State {
+    State::new(rng.random_range(0.0..extent), rng.random_range(0.0..extent), rng.random_range(-speed..speed), rng.random_range(-speed..speed))
+}
+
+/// Central-difference Jacobian of a map from states to states.
+pub fn central_jacobian(f: impl Fn(&State) -> State, x: &State, rel_step: f64) -> Mat4 {
+    let mut jac = Mat4::zeros();
+    for k in 0..4 {
+        let h = rel_step * x[k].abs().max(1.0);
+        let (mut up, mut down) = (*x, *x);
+        up[k] += h;
+        down[k] -= h;
+        jac.set_column(k, &((f(&up) - f(&down)) / (2.0 * h)));
+    }
+    jac
+}
+
+/// Central-difference gradient of a scalar function; for an angle, the
+/// difference is wrapped so that crossing ±π does not look like a jump of 2π.
+pub fn central_gradient(f: impl Fn(&State) -> f64, x: &State, step: f64, angular: bool) -> State {
+    let mut g = State::zeros();
+    for k in 0..4 {
+        let (mut up, mut down) = (*x, *x);
+        up[k] += step;
+        down[k] -= step;
+        let mut diff = f(&up) - f(&down);
+        if angular {
+            diff = crate::wrap_angle(diff);
+        }
+        g[k] = diff / (2.0 * step);
+    }
+    g
+}

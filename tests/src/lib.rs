@@ -1,0 +1,1 @@
+//! Integration tests that launch real process networks live in tests/tests.
