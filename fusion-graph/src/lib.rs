@@ -1,1 +1,63 @@
-//! Placeholder; see the workspace README.
+//! The network of cqnet, with no estimation in it: scenarios, topology,
+//! consensus weights, wire messages, transports, link faults and byte
+//! accounting.
+
+pub mod accounting;
+pub mod actor;
+pub mod scenario;
+pub mod shaper;
+pub mod topology;
+pub mod transport;
+pub mod wire;
+
+pub use accounting::{Accounting, Counters};
+pub use actor::ActorId;
+pub use scenario::Scenario;
+pub use shaper::{LinkRule, LinkShaper};
+pub use topology::{MetropolisWeights, Topology};
+pub use transport::{Channel, Transport};
+pub use wire::{Message, MessageKind, Payload, WireFormat};
+
+/// A scenario that cannot be used, and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ScenarioError {
+    #[error("{file}: cannot read: {message}")]
+    Read { file: String, message: String },
+    #[error("{file}: {message}")]
+    Parse { file: String, message: String },
+    #[error("{file}: `{key}`: expected {expected}, got {got}")]
+    Invalid { file: String, key: String, expected: String, got: String },
+    #[error("--set {assignment}: {message}")]
+    Override { assignment: String, message: String },
+}
+
+/// A message that could not be decoded.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WireError {
+    #[error("message too long ({len} bytes)")]
+    TooLong { len: usize },
+    #[error("message truncated")]
+    Truncated,
+    #[error("wire format version {got}, expected {expected}", expected = wire::WIRE_VERSION)]
+    Version { got: u8 },
+    #[error("unknown message kind {kind}")]
+    UnknownKind { kind: u8 },
+    #[error("unknown sender kind {kind}")]
+    UnknownSender { kind: u8 },
+    #[error("payload has {got} bytes, expected {expected}")]
+    Length { expected: usize, got: usize },
+    #[error("{extra} bytes after the payload")]
+    TrailingBytes { extra: usize },
+    #[error("payload carries a non-finite number")]
+    NonFinite,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TransportError {
+    #[error("{actor} is not the publisher of channel {channel}")]
+    NotPublisher { channel: String, actor: String },
+    #[error("run id `{id}` must be 1-32 characters of a-z, 0-9 and -")]
+    BadRunId { id: String },
+    #[error("iceoryx2 {what}: {message}")]
+    Iceoryx { what: String, message: String },
+}

@@ -1,0 +1,171 @@
+//! Byte accounting per directed link and message kind.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::actor::ActorId;
+use crate::wire::MessageKind;
+
+/// Messages and encoded bytes on one directed link, of one kind.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Counters {
+    pub sent_messages: u64,
+    pub sent_bytes: u64,
+    pub received_messages: u64,
+    pub received_bytes: u64,
+    /// Dropped by an injected link fault (loss, partition).
+    pub dropped_messages: u64,
+    pub dropped_bytes: u64,
+    /// Failed to decode and were discarded.
+    pub malformed_messages: u64,
+    pub malformed_bytes: u64,
+}
+
+impl Counters {
+    pub fn add(&mut self, o: &Counters) {
+        self.sent_messages += o.sent_messages;
+        self.sent_bytes += o.sent_bytes;
+        self.received_messages += o.received_messages;
+        self.received_bytes += o.received_bytes;
+        self.dropped_messages += o.dropped_messages;
+        self.dropped_bytes += o.dropped_bytes;
+        self.malformed_messages += o.malformed_messages;
+        self.malformed_bytes += o.malformed_bytes;
+    }
+}
+
+/// Link `(from, to)` and kind.
+pub type LinkKey = (ActorId, ActorId, MessageKind);
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Accounting {
+    links: BTreeMap<LinkKey, Counters>,
+}
+
+impl Accounting {
+    fn entry(&mut self, from: ActorId, to: ActorId, kind: MessageKind) -> &mut Counters {
+        self.links.entry((from, to, kind)).or_default()
+    }
+
+    pub fn record_sent(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+        let c = self.entry(from, to, kind);
+        c.sent_messages += 1;
+        c.sent_bytes += bytes as u64;
+    }
+
+    pub fn record_received(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+        let c = self.entry(from, to, kind);
+        c.received_messages += 1;
+        c.received_bytes += bytes as u64;
+    }
+
+    pub fn record_dropped(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+        let c = self.entry(from, to, kind);
+        c.dropped_messages += 1;
+        c.dropped_bytes += bytes as u64;
+    }
+
+    pub fn record_malformed(&mut self, from: ActorId, to: ActorId, bytes: usize) {
+        let c = self.entry(from, to, MessageKind::Malformed);
+        c.malformed_messages += 1;
+        c.malformed_bytes += bytes as u64;
+    }
+
+    pub fn merge(&mut self, other: &Accounting) {
+        for (k, c) in &other.links {
+            self.links.entry(*k).or_default().add(c);
+        }
+    }
+
+    pub fn get(&self, from: ActorId, to: ActorId, kind: MessageKind) -> Counters {
+        self.links.get(&(from, to, kind)).copied().unwrap_or_default()
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = (&LinkKey, &Counters)> {
+        self.links.iter()
+    }
+
+    /// Totals over every link, per kind.
+    pub fn by_kind(&self) -> BTreeMap<MessageKind, Counters> {
+        let mut out: BTreeMap<MessageKind, Counters> = BTreeMap::new();
+        for ((_, _, kind), c) in &self.links {
+            out.entry(*kind).or_default().add(c);
+        }
+        out
+    }
+
+    /// `links.csv` rows, header first.
+    pub fn to_csv(&self) -> String {
+        let mut s = String::from("from,to,kind,sent_messages,sent_bytes,received_messages,received_bytes,dropped_messages,dropped_bytes,malformed_messages,malformed_bytes\n");
+        for ((from, to, kind), c) in &self.links {
+            s.push_str(&format!(
+                "{from},{to},{},{},{},{},{},{},{},{},{}\n",
+                kind.name(),
+                c.sent_messages,
+                c.sent_bytes,
+                c.received_messages,
+                c.received_bytes,
+                c.dropped_messages,
+                c.dropped_bytes,
+                c.malformed_messages,
+                c.malformed_bytes
+            ));
+        }
+        s
+    }
+
+    /// Reads back what [`to_csv`](Self::to_csv) wrote; `None` on any bad row.
+    pub fn from_csv(text: &str) -> Option<Self> {
+        let mut a = Accounting::default();
+        for line in text.lines().skip(1).filter(|l| !l.is_empty()) {
+            let f: Vec<&str> = line.split(',').collect();
+            if f.len() != 11 {
+                return None;
+            }
+            let kind = (1..=9).chain([255]).filter_map(MessageKind::from_u8_or_malformed).find(|k| k.name() == f[2])?;
+            let n: Vec<u64> = f[3..].iter().map(|v| v.parse().ok()).collect::<Option<_>>()?;
+            let c = Counters {
+                sent_messages: n[0],
+                sent_bytes: n[1],
+                received_messages: n[2],
+                received_bytes: n[3],
+                dropped_messages: n[4],
+                dropped_bytes: n[5],
+                malformed_messages: n[6],
+                malformed_bytes: n[7],
+            };
+            a.links.entry((f[0].parse().ok()?, f[1].parse().ok()?, kind)).or_default().add(&c);
+        }
+        Some(a)
+    }
+}
+
+impl MessageKind {
+    fn from_u8_or_malformed(v: u8) -> Option<Self> {
+        if v == 255 {
+            Some(MessageKind::Malformed)
+        } else {
+            MessageKind::from_u8(v)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_merge_and_survive_csv() {
+        let mut a = Accounting::default();
+        a.record_sent(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 203);
+        a.record_received(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 203);
+        a.record_malformed(ActorId::Node(0), ActorId::Node(1), 17);
+        let mut b = Accounting::default();
+        b.record_dropped(ActorId::Sensor(3), ActorId::Node(0), MessageKind::Observation, 12);
+        b.merge(&a);
+        assert_eq!(b.get(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus).sent_bytes, 203);
+        assert_eq!(b.by_kind()[&MessageKind::Malformed].malformed_messages, 1);
+        assert_eq!(Accounting::from_csv(&b.to_csv()).unwrap(), b);
+    }
+}

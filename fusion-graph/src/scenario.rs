@@ -1,0 +1,491 @@
+//! The scenario file: what network to build, what it observes, and how to
+//! break it. TOML, every key checked: an unknown key is an error.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::ScenarioError;
+
+/// The built-in default scenario (math.md's table).
+pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/default.toml");
+/// The scenario literal to seed 001.
+pub const SEED001_SCENARIO: &str = include_str!("../scenarios/seed001.toml");
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    pub name: String,
+    pub seed: u64,
+    pub steps: u32,
+    pub region: Region,
+    pub nodes: NodeLayout,
+    pub sensors: SensorLayout,
+    pub fusion_graph: FusionGraphConfig,
+    pub target: TargetConfig,
+    pub dynamics: DynamicsConfig,
+    pub observation: ObservationConfig,
+    pub quantizer: QuantizerConfig,
+    pub filter: FilterConfig,
+    pub consensus: ConsensusConfig,
+    pub clock: ClockConfig,
+    #[serde(default)]
+    pub reference: ReferenceConfig,
+    #[serde(default)]
+    pub faults: Vec<Fault>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Region {
+    pub width: f64,
+    pub height: f64,
+}
+
+/// Either a grid (one node at the centre of each cell) or explicit positions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NodeLayout {
+    pub grid: Option<[u32; 2]>,
+    pub positions: Option<Vec<[f64; 2]>>,
+}
+
+/// Either a grid inside each node's cell, or explicit positions (each sensor
+/// then belongs to the nearest node).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorLayout {
+    pub per_cell: Option<[u32; 2]>,
+    pub positions: Option<Vec<[f64; 2]>>,
+    pub active_per_node: u32,
+    pub max_active_total: Option<u32>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FusionGraphConfig {
+    pub radius: f64,
+    #[serde(default)]
+    pub allow_disconnected: bool,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetConfig {
+    pub position: [f64; 2],
+    /// Degrees from north, clockwise.
+    pub course_deg: f64,
+    pub speed: f64,
+}
+
+impl TargetConfig {
+    /// `[p_x, p_y, v_x, v_y]`.
+    pub fn initial_state(&self) -> [f64; 4] {
+        let c = self.course_deg.to_radians();
+        [self.position[0], self.position[1], self.speed * c.sin(), self.speed * c.cos()]
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicsConfig {
+    pub period: f64,
+    pub maneuver_accel: f64,
+    #[serde(default = "default_min_speed")]
+    pub min_speed: f64,
+    pub sigma_v: f64,
+}
+
+fn default_min_speed() -> f64 {
+    0.1
+}
+
+/// The observation model without the sensor position, which the topology supplies.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ObservationConfig {
+    Bearing { sigma_theta: f64, d0: f64 },
+    Rss { p0: f64, zeta: f64, d0: f64, sigma: f64 },
+    Amplitude { p0: f64, alpha: f64, exponent: f64, sigma: f64 },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuantizerConfig {
+    pub bits: u8,
+    #[serde(default)]
+    pub raw: bool,
+    /// Range of the uniform quantizer; bearings always use (−π, π].
+    pub lo: Option<f64>,
+    pub hi: Option<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FilterConfig {
+    pub particles: u32,
+    pub prior_std: [f64; 4],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConsensusProtocol {
+    /// N_c rounds of average consensus with Metropolis weights.
+    Average,
+    /// The exact network sum, as if consensus had converged: for checking.
+    Exact,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConsensusConfig {
+    pub rounds: u32,
+    pub protocol: ConsensusProtocol,
+    #[serde(default)]
+    pub auxiliary_fim: bool,
+    pub round_timeout_ms: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockMode {
+    Realtime,
+    Lockstep,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClockConfig {
+    pub mode: ClockMode,
+    pub step_period_ms: f64,
+    pub step_timeout_ms: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceConfig {
+    pub centralized: bool,
+}
+
+impl Default for ReferenceConfig {
+    fn default() -> Self {
+        Self { centralized: true }
+    }
+}
+
+/// A directed link selector; `"*"` on either side matches every actor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinkSelector {
+    pub from: String,
+    pub to: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Signal {
+    #[serde(rename = "SIGKILL")]
+    Kill,
+    #[serde(rename = "SIGTERM")]
+    Term,
+    #[serde(rename = "SIGSTOP")]
+    Stop,
+}
+
+/// One entry of the fault schedule. Steps count from 1; a missing duration
+/// means until the end of the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Fault {
+    Delay { links: Vec<LinkSelector>, at_step: u32, duration: Option<u32>, latency_ms: f64, #[serde(default)] jitter_ms: f64 },
+    Loss { links: Vec<LinkSelector>, at_step: u32, duration: Option<u32>, probability: f64 },
+    Partition { groups: Vec<Vec<String>>, at_step: u32, duration: Option<u32> },
+    Kill { actor: String, at_step: u32, signal: Signal, restart_after: Option<u32> },
+}
+
+impl Fault {
+    pub fn at_step(&self) -> u32 {
+        match self {
+            Fault::Delay { at_step, .. } | Fault::Loss { at_step, .. } | Fault::Partition { at_step, .. } | Fault::Kill { at_step, .. } => *at_step,
+        }
+    }
+
+    /// The step at which the fault ends (exclusive), if it ends.
+    pub fn end_step(&self) -> Option<u32> {
+        match self {
+            Fault::Delay { at_step, duration, .. } | Fault::Loss { at_step, duration, .. } | Fault::Partition { at_step, duration, .. } => duration.map(|d| at_step + d),
+            Fault::Kill { at_step, restart_after, .. } => restart_after.map(|d| at_step + d),
+        }
+    }
+
+    /// Every actor name the fault refers to (wildcards excluded).
+    pub fn actor_names(&self) -> Vec<&str> {
+        match self {
+            Fault::Delay { links, .. } | Fault::Loss { links, .. } => links.iter().flat_map(|l| [l.from.as_str(), l.to.as_str()]).filter(|n| *n != "*").collect(),
+            Fault::Partition { groups, .. } => groups.iter().flatten().map(String::as_str).collect(),
+            Fault::Kill { actor, .. } => vec![actor.as_str()],
+        }
+    }
+}
+
+impl Scenario {
+    /// The built-in default scenario.
+    pub fn default_scenario() -> Self {
+        Self::from_toml(DEFAULT_SCENARIO, "<built-in default>", &[]).expect("the built-in default scenario is valid")
+    }
+
+    /// Reads and validates a scenario file, applying `key=value` overrides.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ScenarioError::Read { file: file.clone(), message: e.to_string() })?;
+        Self::from_toml(&text, &file, overrides)
+    }
+
+    /// Parses and validates scenario text; `source` names it in errors.
+    pub fn from_toml(text: &str, source: &str, overrides: &[String]) -> Result<Self, ScenarioError> {
+        let mut value: toml::Table = toml::from_str(text).map_err(|e| ScenarioError::Parse { file: source.into(), message: e.to_string() })?;
+        for o in overrides {
+            apply_override(&mut value, o)?;
+        }
+        let text = toml::to_string(&value).map_err(|e| ScenarioError::Parse { file: source.into(), message: e.to_string() })?;
+        let scenario: Scenario = toml::from_str(&text).map_err(|e| ScenarioError::Parse { file: source.into(), message: e.to_string() })?;
+        scenario.validate(source)?;
+        Ok(scenario)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a scenario always serializes")
+    }
+
+    /// Checks every value's range; the error names the file and the key.
+    pub fn validate(&self, file: &str) -> Result<(), ScenarioError> {
+        let bad = |key: &str, expected: &str, got: String| Err(ScenarioError::Invalid { file: file.into(), key: key.into(), expected: expected.into(), got });
+        let positive = |key: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(()) } else { bad(key, "a finite number > 0", v.to_string()) };
+        let non_negative = |key: &str, v: f64| if v.is_finite() && v >= 0.0 { Ok(()) } else { bad(key, "a finite number >= 0", v.to_string()) };
+
+        if self.steps == 0 {
+            return bad("steps", "at least 1", "0".into());
+        }
+        positive("region.width", self.region.width)?;
+        positive("region.height", self.region.height)?;
+        match (&self.nodes.grid, &self.nodes.positions) {
+            (Some(g), None) if g[0] > 0 && g[1] > 0 => {}
+            (Some(g), None) => return bad("nodes.grid", "two counts >= 1", format!("{g:?}")),
+            (None, Some(p)) if !p.is_empty() => {}
+            _ => return bad("nodes", "exactly one of `grid` or `positions` (non-empty)", "neither or both".into()),
+        }
+        match (&self.sensors.per_cell, &self.sensors.positions) {
+            (Some(g), None) if g[0] > 0 && g[1] > 0 => {
+                if self.nodes.grid.is_none() {
+                    return bad("sensors.per_cell", "a node grid (nodes.grid) to place the sensors in", "explicit node positions".into());
+                }
+            }
+            (Some(g), None) => return bad("sensors.per_cell", "two counts >= 1", format!("{g:?}")),
+            (None, Some(p)) if !p.is_empty() => {}
+            _ => return bad("sensors", "exactly one of `per_cell` or `positions` (non-empty)", "neither or both".into()),
+        }
+        if self.sensors.active_per_node == 0 {
+            return bad("sensors.active_per_node", "at least 1", "0".into());
+        }
+        positive("fusion_graph.radius", self.fusion_graph.radius)?;
+        for (i, v) in self.target.position.iter().enumerate() {
+            if !v.is_finite() {
+                return bad(&format!("target.position[{i}]"), "a finite number", v.to_string());
+            }
+        }
+        if !self.target.course_deg.is_finite() {
+            return bad("target.course_deg", "a finite number", self.target.course_deg.to_string());
+        }
+        non_negative("target.speed", self.target.speed)?;
+        positive("dynamics.period", self.dynamics.period)?;
+        non_negative("dynamics.maneuver_accel", self.dynamics.maneuver_accel)?;
+        positive("dynamics.min_speed", self.dynamics.min_speed)?;
+        positive("dynamics.sigma_v", self.dynamics.sigma_v)?;
+        match self.observation {
+            ObservationConfig::Bearing { sigma_theta, d0 } => {
+                positive("observation.sigma_theta", sigma_theta)?;
+                positive("observation.d0", d0)?;
+            }
+            ObservationConfig::Rss { p0, zeta, d0, sigma } => {
+                if !p0.is_finite() {
+                    return bad("observation.p0", "a finite number", p0.to_string());
+                }
+                positive("observation.zeta", zeta)?;
+                positive("observation.d0", d0)?;
+                positive("observation.sigma", sigma)?;
+            }
+            ObservationConfig::Amplitude { p0, alpha, exponent, sigma } => {
+                positive("observation.p0", p0)?;
+                positive("observation.alpha", alpha)?;
+                positive("observation.exponent", exponent)?;
+                positive("observation.sigma", sigma)?;
+            }
+        }
+        if !(1..=16).contains(&self.quantizer.bits) {
+            return bad("quantizer.bits", "an integer from 1 to 16", self.quantizer.bits.to_string());
+        }
+        if !matches!(self.observation, ObservationConfig::Bearing { .. }) {
+            match (self.quantizer.lo, self.quantizer.hi) {
+                (Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {}
+                _ => return bad("quantizer.lo/quantizer.hi", "a finite range lo < hi for a non-bearing observation", format!("{:?}..{:?}", self.quantizer.lo, self.quantizer.hi)),
+            }
+        }
+        if self.filter.particles < 10 {
+            return bad("filter.particles", "at least 10", self.filter.particles.to_string());
+        }
+        for (i, s) in self.filter.prior_std.iter().enumerate() {
+            positive(&format!("filter.prior_std[{i}]"), *s)?;
+        }
+        if self.consensus.rounds == 0 {
+            return bad("consensus.rounds", "at least 1", "0".into());
+        }
+        positive("consensus.round_timeout_ms", self.consensus.round_timeout_ms)?;
+        positive("clock.step_period_ms", self.clock.step_period_ms)?;
+        positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
+        for (i, f) in self.faults.iter().enumerate() {
+            let key = |k: &str| format!("faults[{i}].{k}");
+            if f.at_step() == 0 || f.at_step() > self.steps {
+                return bad(&key("at_step"), &format!("a step from 1 to {}", self.steps), f.at_step().to_string());
+            }
+            match f {
+                Fault::Delay { links, latency_ms, jitter_ms, .. } => {
+                    non_empty(file, &key("links"), links.len())?;
+                    non_negative(&key("latency_ms"), *latency_ms)?;
+                    non_negative(&key("jitter_ms"), *jitter_ms)?;
+                }
+                Fault::Loss { links, probability, .. } => {
+                    non_empty(file, &key("links"), links.len())?;
+                    if !(0.0..=1.0).contains(probability) {
+                        return bad(&key("probability"), "a probability in [0, 1]", probability.to_string());
+                    }
+                }
+                Fault::Partition { groups, .. } => {
+                    if groups.len() < 2 {
+                        return bad(&key("groups"), "at least two groups", groups.len().to_string());
+                    }
+                }
+                Fault::Kill { restart_after, .. } => {
+                    if *restart_after == Some(0) {
+                        return bad(&key("restart_after"), "at least 1 step", "0".into());
+                    }
+                }
+            }
+            if matches!(f, Fault::Delay { duration: Some(0), .. } | Fault::Loss { duration: Some(0), .. } | Fault::Partition { duration: Some(0), .. }) {
+                return bad(&key("duration"), "at least 1 step", "0".into());
+            }
+        }
+        Ok(())
+    }
+}
+
+fn non_empty(file: &str, key: &str, len: usize) -> Result<(), ScenarioError> {
+    if len == 0 {
+        return Err(ScenarioError::Invalid { file: file.into(), key: key.into(), expected: "at least one entry".into(), got: "none".into() });
+    }
+    Ok(())
+}
+
+/// Applies `a.b.c=value`; the value is read as TOML (`8`, `true`, `"x"`,
+/// `[1, 2]`) or, failing that, as a bare string.
+pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioError> {
+    let bad = |message: &str| ScenarioError::Override { assignment: assignment.into(), message: message.into() };
+    let (key, raw) = assignment.split_once('=').ok_or_else(|| bad("expected key=value"))?;
+    let key = key.trim();
+    if key.is_empty() {
+        return Err(bad("the key is empty"));
+    }
+    let value = match toml::from_str::<toml::Table>(&format!("v = {}", raw.trim())) {
+        Ok(mut t) => t.remove("v").expect("parsed a table with key v"),
+        Err(_) => toml::Value::String(raw.trim().to_string()),
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut current = table;
+    for part in &parts[..parts.len() - 1] {
+        current = current
+            .get_mut(*part)
+            .ok_or_else(|| bad(&format!("no section `{part}` in the scenario")))?
+            .as_table_mut()
+            .ok_or_else(|| bad(&format!("`{part}` is not a section")))?;
+    }
+    let last = parts[parts.len() - 1];
+    if !current.contains_key(last) && !is_optional_key(last) {
+        return Err(bad(&format!("no key `{last}` in the scenario")));
+    }
+    current.insert(last.to_string(), value);
+    Ok(())
+}
+
+/// Keys that may be absent from a scenario file but can be set.
+fn is_optional_key(key: &str) -> bool {
+    matches!(key, "lo" | "hi" | "max_active_total" | "allow_disconnected" | "auxiliary_fim" | "raw" | "min_speed" | "centralized" | "grid" | "positions" | "per_cell")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_and_seed001_load() {
+        let d = Scenario::default_scenario();
+        assert_eq!(d.quantizer.bits, 8);
+        assert_eq!(d.filter.particles, 1000);
+        let s = Scenario::from_toml(SEED001_SCENARIO, "seed001.toml", &[]).unwrap();
+        assert_eq!(s.dynamics.sigma_v, 1.6);
+        assert_eq!(s.sensors.max_active_total, Some(18));
+        // Round trip through TOML.
+        assert_eq!(Scenario::from_toml(&d.to_toml(), "x", &[]).unwrap(), d);
+    }
+
+    #[test]
+    fn overrides_change_values_and_reject_unknown_keys() {
+        let s = Scenario::from_toml(DEFAULT_SCENARIO, "d", &["quantizer.bits=4".into(), "consensus.protocol=exact".into()]).unwrap();
+        assert_eq!(s.quantizer.bits, 4);
+        assert_eq!(s.consensus.protocol, ConsensusProtocol::Exact);
+        let e = Scenario::from_toml(DEFAULT_SCENARIO, "d", &["quantizer.bitz=4".into()]).unwrap_err().to_string();
+        assert!(e.contains("bitz"), "{e}");
+    }
+
+    /// Each broken file fails with a message naming the key that is wrong.
+    #[test]
+    fn broken_files_name_the_key() {
+        let cases: &[(&str, &str, &str)] = &[
+            ("bits = 8", "bits = 0", "quantizer.bits"),
+            ("bits = 8", "bits = 40", "quantizer.bits"),
+            ("bits = 8", "bits = \"eight\"", "bits"),
+            ("particles = 1000", "particles = 1000\nparticle_count = 5", "particle_count"),
+            ("sigma_v = 0.05", "sigma_v = -1.0", "dynamics.sigma_v"),
+            ("radius = 550.0", "radius = 0.0", "fusion_graph.radius"),
+            ("rounds = 10", "rounds = 0", "consensus.rounds"),
+            ("kind = \"bearing\"", "kind = \"sonar\"", "sonar"),
+            ("sigma_theta = 0.02", "sigma_theta = 0.0", "observation.sigma_theta"),
+            ("steps = 100", "steps = 0", "steps"),
+            ("mode = \"realtime\"", "mode = \"sometimes\"", "sometimes"),
+            ("active_per_node = 3", "active_per_node = 0", "sensors.active_per_node"),
+            ("prior_std = [50.0, 50.0, 2.0, 2.0]", "prior_std = [50.0, 50.0, 2.0]", "prior_std"),
+            ("grid = [3, 3]", "grid = [3, 3]\npositions = [[0.0, 0.0]]", "nodes"),
+        ];
+        for (from, to, key) in cases {
+            assert!(DEFAULT_SCENARIO.contains(from), "{from}");
+            let text = DEFAULT_SCENARIO.replacen(from, to, 1);
+            let err = Scenario::from_toml(&text, "broken.toml", &[]).unwrap_err().to_string();
+            assert!(err.contains(key), "`{to}`: error does not name `{key}`: {err}");
+            assert!(err.contains("broken.toml"), "error does not name the file: {err}");
+        }
+    }
+
+    #[test]
+    fn broken_faults_name_the_key() {
+        let text = format!("{DEFAULT_SCENARIO}\n[[faults]]\nkind = \"loss\"\nlinks = [{{ from = \"*\", to = \"*\" }}]\nat_step = 5\nprobability = 1.5\n");
+        let err = Scenario::from_toml(&text, "f.toml", &[]).unwrap_err().to_string();
+        assert!(err.contains("faults[0].probability"), "{err}");
+        let text = format!("{DEFAULT_SCENARIO}\n[[faults]]\nkind = \"kill\"\nactor = \"node-4\"\nat_step = 500\nsignal = \"SIGKILL\"\n");
+        let err = Scenario::from_toml(&text, "f.toml", &[]).unwrap_err().to_string();
+        assert!(err.contains("faults[0].at_step"), "{err}");
+    }
+
+    #[test]
+    fn initial_state_follows_course_from_north() {
+        let t = TargetConfig { position: [0.0, 0.0], course_deg: 90.0, speed: 10.0 };
+        let s = t.initial_state();
+        assert!((s[2] - 10.0).abs() < 1e-12 && s[3].abs() < 1e-12);
+    }
+}

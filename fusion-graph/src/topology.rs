@@ -1,0 +1,307 @@
+//! The network built from a scenario: where nodes and sensors are, which
+//! sensors each node owns, the fusion graph, and Metropolis consensus weights.
+
+use std::collections::VecDeque;
+
+use crate::actor::ActorId;
+use crate::scenario::{Fault, Scenario};
+use crate::ScenarioError;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Topology {
+    pub node_positions: Vec<[f64; 2]>,
+    pub sensor_positions: Vec<[f64; 2]>,
+    /// The node each sensor reports to.
+    pub sensor_owner: Vec<u16>,
+    /// Each node's sensors, in increasing order.
+    pub node_sensors: Vec<Vec<u16>>,
+    /// Fusion-graph neighbours of each node, in increasing order.
+    pub neighbours: Vec<Vec<u16>>,
+}
+
+/// Consensus weights of one node over its live closed neighbourhood.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetropolisWeights {
+    pub own: f64,
+    /// `(neighbour, W_lm)`.
+    pub neighbours: Vec<(u16, f64)>,
+}
+
+impl Topology {
+    /// Builds the topology and checks the fusion graph and the fault
+    /// schedule's actor names against it.
+    pub fn from_scenario(s: &Scenario, file: &str) -> Result<Self, ScenarioError> {
+        let (node_positions, cells) = place_nodes(s);
+        let (sensor_positions, sensor_owner) = place_sensors(s, &node_positions, cells.as_ref());
+        let mut node_sensors = vec![Vec::new(); node_positions.len()];
+        for (i, owner) in sensor_owner.iter().enumerate() {
+            node_sensors[*owner as usize].push(i as u16);
+        }
+        let r2 = s.fusion_graph.radius * s.fusion_graph.radius;
+        let neighbours = (0..node_positions.len())
+            .map(|a| {
+                (0..node_positions.len())
+                    .filter(|&b| b != a && dist2(node_positions[a], node_positions[b]) <= r2)
+                    .map(|b| b as u16)
+                    .collect()
+            })
+            .collect();
+        let topology = Self { node_positions, sensor_positions, sensor_owner, node_sensors, neighbours };
+        if !s.fusion_graph.allow_disconnected && topology.components(&topology.all_alive()).len() > 1 {
+            return Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: "fusion_graph.radius".into(),
+                expected: "a radius that connects every node (or fusion_graph.allow_disconnected = true)".into(),
+                got: format!("{} m gives a disconnected fusion graph", s.fusion_graph.radius),
+            });
+        }
+        for (i, f) in s.faults.iter().enumerate() {
+            for name in f.actor_names() {
+                let ok = name.parse::<ActorId>().ok().is_some_and(|a| topology.contains(a) && a != ActorId::Launcher);
+                if !ok {
+                    let key = match f {
+                        Fault::Kill { .. } => "actor",
+                        Fault::Partition { .. } => "groups",
+                        _ => "links",
+                    };
+                    return Err(ScenarioError::Invalid {
+                        file: file.into(),
+                        key: format!("faults[{i}].{key}"),
+                        expected: format!("an actor of this network (node-0..node-{}, sensor-0..sensor-{})", topology.nodes() - 1, topology.sensors() - 1),
+                        got: name.to_string(),
+                    });
+                }
+            }
+        }
+        Ok(topology)
+    }
+
+    pub fn nodes(&self) -> usize {
+        self.node_positions.len()
+    }
+
+    pub fn sensors(&self) -> usize {
+        self.sensor_positions.len()
+    }
+
+    pub fn contains(&self, a: ActorId) -> bool {
+        match a {
+            ActorId::Launcher => true,
+            ActorId::Node(i) => (i as usize) < self.nodes(),
+            ActorId::Sensor(i) => (i as usize) < self.sensors(),
+        }
+    }
+
+    /// Every actor: the nodes, then the sensors.
+    pub fn actors(&self) -> impl Iterator<Item = ActorId> + '_ {
+        (0..self.nodes() as u16).map(ActorId::Node).chain((0..self.sensors() as u16).map(ActorId::Sensor))
+    }
+
+    /// Undirected fusion-graph edges.
+    pub fn edge_count(&self) -> usize {
+        self.neighbours.iter().map(Vec::len).sum::<usize>() / 2
+    }
+
+    pub fn all_alive(&self) -> Vec<bool> {
+        vec![true; self.nodes()]
+    }
+
+    /// Connected components of the fusion graph restricted to live nodes.
+    pub fn components(&self, alive: &[bool]) -> Vec<Vec<u16>> {
+        let mut seen = vec![false; self.nodes()];
+        let mut out = Vec::new();
+        for start in 0..self.nodes() {
+            if seen[start] || !alive[start] {
+                continue;
+            }
+            let mut comp = Vec::new();
+            let mut queue = VecDeque::from([start]);
+            seen[start] = true;
+            while let Some(n) = queue.pop_front() {
+                comp.push(n as u16);
+                for &m in &self.neighbours[n] {
+                    if alive[m as usize] && !seen[m as usize] {
+                        seen[m as usize] = true;
+                        queue.push_back(m as usize);
+                    }
+                }
+            }
+            comp.sort_unstable();
+            out.push(comp);
+        }
+        out
+    }
+
+    /// Size of the live connected component containing `node`: the N_f that
+    /// turns an average into a network sum after failures.
+    pub fn component_size(&self, node: u16, alive: &[bool]) -> usize {
+        self.components(alive).into_iter().find(|c| c.contains(&node)).map_or(0, |c| c.len())
+    }
+
+    /// Metropolis weights `W_lm = 1/(1 + max(deg_l, deg_m))` over the
+    /// neighbours marked live, with degrees counted over live nodes only, and
+    /// `W_ll = 1 − Σ_m W_lm`. With the same `alive` everywhere the weights are
+    /// symmetric and doubly stochastic on the live graph.
+    pub fn metropolis_weights(&self, node: u16, alive: &[bool]) -> MetropolisWeights {
+        let degree = |n: u16| self.neighbours[n as usize].iter().filter(|m| alive[**m as usize]).count();
+        let own_degree = degree(node);
+        let neighbours: Vec<(u16, f64)> = self.neighbours[node as usize]
+            .iter()
+            .filter(|m| alive[**m as usize])
+            .map(|&m| (m, 1.0 / (1.0 + own_degree.max(degree(m)) as f64)))
+            .collect();
+        let own = 1.0 - neighbours.iter().map(|(_, w)| w).sum::<f64>();
+        MetropolisWeights { own, neighbours }
+    }
+}
+
+fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
+}
+
+/// Grid cell size and origin of each node, when nodes sit on a grid.
+struct Cells {
+    width: f64,
+    height: f64,
+    origins: Vec<[f64; 2]>,
+}
+
+fn place_nodes(s: &Scenario) -> (Vec<[f64; 2]>, Option<Cells>) {
+    if let Some(p) = &s.nodes.positions {
+        return (p.clone(), None);
+    }
+    let [cols, rows] = s.nodes.grid.expect("validated: grid or positions");
+    let (w, h) = (s.region.width / cols as f64, s.region.height / rows as f64);
+    let mut positions = Vec::new();
+    let mut origins = Vec::new();
+    for r in 0..rows {
+        for c in 0..cols {
+            let origin = [c as f64 * w, r as f64 * h];
+            origins.push(origin);
+            positions.push([origin[0] + w / 2.0, origin[1] + h / 2.0]);
+        }
+    }
+    (positions, Some(Cells { width: w, height: h, origins }))
+}
+
+fn place_sensors(s: &Scenario, nodes: &[[f64; 2]], cells: Option<&Cells>) -> (Vec<[f64; 2]>, Vec<u16>) {
+    if let (Some([nx, ny]), Some(cells)) = (s.sensors.per_cell, cells) {
+        let mut positions = Vec::new();
+        let mut owner = Vec::new();
+        for (n, origin) in cells.origins.iter().enumerate() {
+            for j in 0..ny {
+                for i in 0..nx {
+                    // Centres of an nx × ny sub-grid: 50, 150, …, 450 m in a 500 m cell.
+                    positions.push([origin[0] + (i as f64 + 0.5) * cells.width / nx as f64, origin[1] + (j as f64 + 0.5) * cells.height / ny as f64]);
+                    owner.push(n as u16);
+                }
+            }
+        }
+        return (positions, owner);
+    }
+    let positions = s.sensors.positions.clone().unwrap_or_default();
+    let owner = positions
+        .iter()
+        .map(|p| (0..nodes.len()).min_by(|&a, &b| dist2(*p, nodes[a]).total_cmp(&dist2(*p, nodes[b]))).unwrap_or(0) as u16)
+        .collect();
+    (positions, owner)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn default_topology() -> Topology {
+        Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
+    }
+
+    #[test]
+    fn default_scenario_shape() {
+        let t = default_topology();
+        assert_eq!(t.nodes(), 9);
+        assert_eq!(t.sensors(), 225);
+        assert!(t.node_sensors.iter().all(|s| s.len() == 25));
+        assert_eq!(t.edge_count(), 12);
+        assert_eq!(t.node_positions[4], [750.0, 750.0]);
+        assert_eq!(t.sensor_positions[0], [50.0, 50.0]);
+        assert_eq!(t.neighbours[4], vec![1, 3, 5, 7]);
+    }
+
+    fn weight_matrix(t: &Topology, alive: &[bool]) -> Vec<Vec<f64>> {
+        let n = t.nodes();
+        let mut w = vec![vec![0.0; n]; n];
+        for l in 0..n {
+            if !alive[l] {
+                continue;
+            }
+            let mw = t.metropolis_weights(l as u16, alive);
+            w[l][l] = mw.own;
+            for (m, v) in mw.neighbours {
+                w[l][m as usize] = v;
+            }
+        }
+        w
+    }
+
+    fn assert_doubly_stochastic(w: &[Vec<f64>], alive: &[bool]) {
+        for l in 0..w.len() {
+            if !alive[l] {
+                continue;
+            }
+            let row: f64 = w[l].iter().sum();
+            let col: f64 = (0..w.len()).map(|m| w[m][l]).sum();
+            assert!((row - 1.0).abs() < 1e-12 && (col - 1.0).abs() < 1e-12, "node {l}: row {row} col {col}");
+            for m in 0..w.len() {
+                assert_eq!(w[l][m], w[m][l], "asymmetric at {l},{m}");
+                assert!(w[l][m] >= 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn metropolis_weights_are_symmetric_doubly_stochastic_and_converge_to_the_average() {
+        let t = default_topology();
+        let alive = t.all_alive();
+        let w = weight_matrix(&t, &alive);
+        assert_doubly_stochastic(&w, &alive);
+        let mut v: Vec<f64> = (0..9).map(|i| (i * i) as f64).collect();
+        let avg = v.iter().sum::<f64>() / 9.0;
+        for _ in 0..200 {
+            v = (0..9).map(|l| (0..9).map(|m| w[l][m] * v[m]).sum()).collect();
+        }
+        assert!(v.iter().all(|x| (x - avg).abs() < 1e-9), "{v:?} vs {avg}");
+    }
+
+    #[test]
+    fn weights_recomputed_after_a_node_dies_stay_doubly_stochastic() {
+        let t = default_topology();
+        let mut alive = t.all_alive();
+        alive[4] = false;
+        let w = weight_matrix(&t, &alive);
+        assert_doubly_stochastic(&w, &alive);
+        assert_eq!(t.component_size(0, &alive), 8);
+        // A corner and its two neighbours gone: node 0 is cut off alone.
+        alive[1] = false;
+        alive[3] = false;
+        assert_eq!(t.component_size(0, &alive), 1);
+        assert_eq!(t.metropolis_weights(0, &alive).own, 1.0);
+    }
+
+    #[test]
+    fn disconnected_graph_is_an_error_unless_intended() {
+        let mut s = Scenario::default_scenario();
+        s.fusion_graph.radius = 100.0;
+        let e = Topology::from_scenario(&s, "x.toml").unwrap_err().to_string();
+        assert!(e.contains("fusion_graph.radius"), "{e}");
+        s.fusion_graph.allow_disconnected = true;
+        assert!(Topology::from_scenario(&s, "x.toml").is_ok());
+    }
+
+    #[test]
+    fn fault_naming_an_unknown_actor_is_an_error() {
+        let text = format!("{}\n[[faults]]\nkind = \"kill\"\nactor = \"node-42\"\nat_step = 5\nsignal = \"SIGKILL\"\n", crate::scenario::DEFAULT_SCENARIO);
+        let s = Scenario::from_toml(&text, "f.toml", &[]).unwrap();
+        let e = Topology::from_scenario(&s, "f.toml").unwrap_err().to_string();
+        assert!(e.contains("faults[0].actor") && e.contains("node-42"), "{e}");
+    }
+}

@@ -1,0 +1,351 @@
+//! The iceoryx2 transport: zero-copy shared-memory publish/subscribe between
+//! processes on one machine, one service per channel named
+//! `cqnet/<run>/<channel>`, and one event service per actor
+//! (`cqnet/<run>/wake/<actor>`) so an idle actor sleeps instead of polling.
+//!
+//! Every resource of a run lives under the prefix `cqnet_<run>_`, so two runs
+//! never see each other and cleanup is removing that prefix's files.
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+
+use super::{Channel, Inbound, Transport};
+use crate::accounting::Accounting;
+use crate::actor::ActorId;
+use crate::shaper::LinkShaper;
+use crate::topology::Topology;
+use crate::wire::{Message, WireFormat, HEADER_BYTES};
+use crate::TransportError;
+
+/// Where iceoryx2 keeps its files besides `/dev/shm`.
+const ICEORYX_ROOT: &str = "/tmp/iceoryx2";
+/// How often to retry opening a service that another process is creating.
+const OPEN_ATTEMPTS: u32 = 100;
+
+/// A run's identity: lowercase letters, digits and `-`, at most 32 characters.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct RunId(String);
+
+impl RunId {
+    pub fn new(id: &str) -> Result<Self, TransportError> {
+        let ok = !id.is_empty() && id.len() <= 32 && id.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
+        if !ok {
+            return Err(TransportError::BadRunId { id: id.into() });
+        }
+        Ok(Self(id.into()))
+    }
+
+    /// A fresh id from the process id and the clock.
+    pub fn generate() -> Self {
+        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+        Self(format!("r{}-{:x}", std::process::id(), nanos & 0xffff_ffff))
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    /// The file-name prefix of every iceoryx2 resource of this run.
+    pub fn prefix(&self) -> String {
+        format!("cqnet_{}_", self.0.replace('-', "_"))
+    }
+
+    fn config(&self) -> Result<Config, TransportError> {
+        let mut config = Config::default();
+        config.global.prefix = FileName::new(self.prefix().as_bytes()).map_err(|e| TransportError::Iceoryx { what: "run prefix".into(), message: format!("{e:?}") })?;
+        Ok(config)
+    }
+
+    fn service_name(&self, suffix: &str) -> Result<ServiceName, TransportError> {
+        ServiceName::new(&format!("cqnet/{}/{suffix}", self.0)).map_err(|e| TransportError::Iceoryx { what: suffix.into(), message: format!("{e:?}") })
+    }
+}
+
+impl std::fmt::Display for RunId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// Removes every file of a run's iceoryx2 resources (shared memory and the
+/// static service files). Returns how many were removed. Call it only once
+/// every process of the run has exited and been reaped.
+pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
+    let prefix = run.prefix();
+    let mut removed = 0;
+    for dir in ["/dev/shm", ICEORYX_ROOT] {
+        removed += remove_with_prefix(std::path::Path::new(dir), &prefix)?;
+    }
+    Ok(removed)
+}
+
+/// Files of the run that still exist (for cleanup checks).
+pub fn run_resources(run: &RunId) -> Vec<std::path::PathBuf> {
+    let prefix = run.prefix();
+    let mut found = Vec::new();
+    for dir in ["/dev/shm", ICEORYX_ROOT] {
+        collect_with_prefix(std::path::Path::new(dir), &prefix, &mut found);
+    }
+    found
+}
+
+fn collect_with_prefix(dir: &std::path::Path, prefix: &str, found: &mut Vec<std::path::PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for e in entries.flatten() {
+        let path = e.path();
+        if e.file_name().to_string_lossy().starts_with(prefix) {
+            found.push(path);
+        } else if path.is_dir() {
+            collect_with_prefix(&path, prefix, found);
+        }
+    }
+}
+
+fn remove_with_prefix(dir: &std::path::Path, prefix: &str) -> std::io::Result<usize> {
+    let mut found = Vec::new();
+    collect_with_prefix(dir, prefix, &mut found);
+    let mut n = 0;
+    for p in found {
+        let r = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+        match r {
+            Ok(()) => n += 1,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
+type Sub = Subscriber<ipc::Service, [u8], ()>;
+type Pub = Publisher<ipc::Service, [u8], ()>;
+
+pub struct IceoryxTransport {
+    me: ActorId,
+    run: RunId,
+    topology: Topology,
+    format: WireFormat,
+    start: Instant,
+    node: Node<ipc::Service>,
+    publishers: HashMap<Channel, Pub>,
+    subscribers: Vec<(Channel, Sub)>,
+    listener: Listener<ipc::Service>,
+    notifiers: HashMap<ActorId, Notifier<ipc::Service>>,
+    accounting: Accounting,
+    shaper: LinkShaper,
+    buffer: Vec<u8>,
+}
+
+/// Largest message each channel carries, which sizes its shared memory.
+fn max_message_len(channel: Channel) -> usize {
+    HEADER_BYTES
+        + match channel {
+            Channel::Tick | Channel::Activation(_) | Channel::Observation(_) => 48,
+            Channel::Consensus(_) => 300,
+            Channel::Control(_) | Channel::Telemetry(_) => 240,
+        }
+}
+
+/// Queue depth per subscriber: a consensus neighbour may be a step behind.
+fn buffer_len(channel: Channel) -> usize {
+    match channel {
+        Channel::Consensus(_) | Channel::Telemetry(_) => 64,
+        _ => 16,
+    }
+}
+
+impl IceoryxTransport {
+    /// Creates this actor's iceoryx2 node and its wake-up listener.
+    pub fn new(run: &RunId, me: ActorId, topology: &Topology, format: WireFormat, seed: u64) -> Result<Self, TransportError> {
+        let config = run.config()?;
+        let name = NodeName::new(&me.to_string()).map_err(|e| iox("node name", e))?;
+        let node = NodeBuilder::new()
+            .config(&config)
+            .name(&name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| iox("node", e))?;
+        let mut t = Self {
+            me,
+            run: run.clone(),
+            topology: topology.clone(),
+            format,
+            start: Instant::now(),
+            listener: open_wake(&node, run, me, topology)?.listener_builder().create().map_err(|e| iox("listener", e))?,
+            node,
+            publishers: HashMap::new(),
+            subscribers: Vec::new(),
+            notifiers: HashMap::new(),
+            accounting: Accounting::default(),
+            shaper: LinkShaper::new(seed),
+            buffer: Vec::with_capacity(512),
+        };
+        t.start = Instant::now();
+        Ok(t)
+    }
+
+    fn open_channel(&self, channel: Channel) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>, TransportError> {
+        let name = self.run.service_name(&channel.service_suffix())?;
+        let subs = channel.subscribers(&self.topology) + 1;
+        // +1 publisher: a test may inject raw bytes through a second one.
+        retry(|| {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<[u8]>()
+                .max_publishers(2)
+                .max_subscribers(subs)
+                .max_nodes(subs + 3)
+                .subscriber_max_buffer_size(buffer_len(channel))
+                .history_size(0)
+                .open_or_create()
+        })
+        .map_err(|e| iox(&channel.service_suffix(), e))
+    }
+
+    /// Becomes the publisher of one of this actor's channels.
+    pub fn publish_on(&mut self, channel: Channel) -> Result<(), TransportError> {
+        if channel.publisher() != self.me {
+            return Err(TransportError::NotPublisher { channel: channel.service_suffix(), actor: self.me.to_string() });
+        }
+        self.add_publisher(channel)
+    }
+
+    fn add_publisher(&mut self, channel: Channel) -> Result<(), TransportError> {
+        let service = self.open_channel(channel)?;
+        let publisher = service.publisher_builder().initial_max_slice_len(max_message_len(channel)).create().map_err(|e| iox("publisher", e))?;
+        self.publishers.insert(channel, publisher);
+        Ok(())
+    }
+
+    pub fn subscribe(&mut self, channel: Channel) -> Result<(), TransportError> {
+        let service = self.open_channel(channel)?;
+        let sub = service.subscriber_builder().create().map_err(|e| iox("subscriber", e))?;
+        self.subscribers.push((channel, sub));
+        Ok(())
+    }
+
+    /// Prepares to wake `actor` after sending to it.
+    pub fn notify(&mut self, actor: ActorId) -> Result<(), TransportError> {
+        if !self.notifiers.contains_key(&actor) {
+            let n = open_wake(&self.node, &self.run, actor, &self.topology)?.notifier_builder().create().map_err(|e| iox("notifier", e))?;
+            self.notifiers.insert(actor, n);
+        }
+        Ok(())
+    }
+
+    /// Connects publishers to subscribers that appeared since they were made.
+    pub fn update_connections(&mut self) {
+        for p in self.publishers.values() {
+            let _ = p.update_connections();
+        }
+    }
+
+    /// Publishes raw bytes on `channel` through a second publisher, bypassing
+    /// encoding: fault injection for tests of the malformed-message path.
+    pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) -> Result<(), TransportError> {
+        let service = self.open_channel(channel)?;
+        let p = service.publisher_builder().initial_max_slice_len(max_message_len(channel)).create().map_err(|e| iox("publisher", e))?;
+        // The subscribers already exist; connect before the one send.
+        let _ = p.update_connections();
+        let sample = p.loan_slice_uninit(bytes.len()).map_err(|e| iox("loan", e))?;
+        sample.write_from_slice(bytes).send().map_err(|e| iox("send", e))?;
+        Ok(())
+    }
+
+    pub fn run(&self) -> &RunId {
+        &self.run
+    }
+}
+
+impl Transport for IceoryxTransport {
+    fn me(&self) -> ActorId {
+        self.me
+    }
+
+    fn send(&mut self, channel: Channel, message: &Message, receivers: &[ActorId]) -> Result<(), TransportError> {
+        let publisher = self.publishers.get(&channel).ok_or_else(|| TransportError::NotPublisher { channel: channel.service_suffix(), actor: self.me.to_string() })?;
+        self.buffer.clear();
+        message.encode(&self.format, &mut self.buffer);
+        let sample = publisher.loan_slice_uninit(self.buffer.len()).map_err(|e| iox("loan", e))?;
+        sample.write_from_slice(&self.buffer).send().map_err(|e| iox("send", e))?;
+        for r in receivers {
+            self.accounting.record_sent(self.me, *r, message.header.kind, self.buffer.len());
+            if let Some(n) = self.notifiers.get(r) {
+                // A failed wake-up only delays the receiver until its timeout.
+                let _ = n.notify();
+            }
+        }
+        Ok(())
+    }
+
+    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError> {
+        let Self { me, format, accounting, shaper, subscribers, .. } = self;
+        let mut inbound = Inbound { me: *me, format, accounting, shaper };
+        for (channel, sub) in subscribers.iter() {
+            loop {
+                match sub.receive() {
+                    Ok(Some(sample)) => inbound.arrive(channel.publisher(), sample.payload(), now, out),
+                    Ok(None) => break,
+                    Err(e) => return Err(iox("receive", e)),
+                }
+            }
+        }
+        inbound.release(now, out);
+        Ok(())
+    }
+
+    fn wait(&mut self, timeout: Duration) -> Result<(), TransportError> {
+        // A held (delayed) message may fall due before anyone wakes us.
+        let timeout = match self.shaper.next_due() {
+            Some(due) => timeout.min(due.saturating_sub(self.now())),
+            None => timeout,
+        };
+        self.listener.timed_wait(|_| {}, timeout).map_err(|e| iox("wait", e))?;
+        Ok(())
+    }
+
+    fn now(&self) -> Duration {
+        self.start.elapsed()
+    }
+
+    fn accounting(&self) -> &Accounting {
+        &self.accounting
+    }
+
+    fn shaper(&mut self) -> &mut LinkShaper {
+        &mut self.shaper
+    }
+}
+
+fn open_wake(node: &Node<ipc::Service>, run: &RunId, actor: ActorId, topology: &Topology) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, TransportError> {
+    let name = run.service_name(&format!("wake/{actor}"))?;
+    // Anyone may wake anyone: the launcher, a node's sensors and neighbours.
+    let everyone = topology.nodes() + topology.sensors() + 2;
+    retry(|| node.service_builder(&name).event().max_notifiers(everyone).max_listeners(2).max_nodes(everyone + 2).open_or_create()).map_err(|e| iox("wake event", e))
+}
+
+/// Opens or creates, retrying while another process is half-way through
+/// creating the same service (a known race at start-up).
+fn retry<T, E: std::fmt::Debug>(mut f: impl FnMut() -> Result<T, E>) -> Result<T, E> {
+    let mut attempt = 0;
+    loop {
+        match f() {
+            Ok(v) => return Ok(v),
+            Err(e) if attempt + 1 >= OPEN_ATTEMPTS => return Err(e),
+            Err(_) => {
+                attempt += 1;
+                std::thread::sleep(Duration::from_millis(5 + (attempt as u64 % 7)));
+            }
+        }
+    }
+}
+
+fn iox(what: &str, e: impl std::fmt::Debug) -> TransportError {
+    TransportError::Iceoryx { what: what.into(), message: format!("{e:?}") }
+}

@@ -1,0 +1,210 @@
+//! How actors exchange messages. One trait, two implementations sharing one
+//! contract: in memory (the in-process driver) and iceoryx2 (the real
+//! multi-process runtime).
+
+use std::time::Duration;
+
+use crate::accounting::Accounting;
+use crate::actor::ActorId;
+use crate::shaper::{Admission, LinkShaper};
+use crate::topology::Topology;
+use crate::wire::{Message, WireFormat};
+use crate::TransportError;
+
+pub mod iceoryx;
+pub mod memory;
+
+pub use iceoryx::{IceoryxTransport, RunId};
+pub use memory::{MemoryBus, MemoryTransport};
+
+/// A publish/subscribe channel. Every channel has exactly one publisher, so a
+/// receiver always knows which directed link a message came over, even when
+/// the bytes are garbage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Channel {
+    /// Launcher → every actor: the step and the true state.
+    Tick,
+    /// Node → its sensors: which are active this step.
+    Activation(u16),
+    /// Sensor → its node (and the centralized reference).
+    Observation(u16),
+    /// Node → its fusion-graph neighbours.
+    Consensus(u16),
+    /// Launcher → one actor.
+    Control(ActorId),
+    /// Node → launcher.
+    Telemetry(u16),
+}
+
+impl Channel {
+    /// The one actor that publishes on this channel.
+    pub fn publisher(self) -> ActorId {
+        match self {
+            Channel::Tick | Channel::Control(_) => ActorId::Launcher,
+            Channel::Activation(n) | Channel::Consensus(n) | Channel::Telemetry(n) => ActorId::Node(n),
+            Channel::Observation(s) => ActorId::Sensor(s),
+        }
+    }
+
+    /// The part of the service name after `cqnet/<run>/`.
+    pub fn service_suffix(self) -> String {
+        match self {
+            Channel::Tick => "tick".into(),
+            Channel::Activation(n) => format!("act/node-{n}"),
+            Channel::Observation(s) => format!("obs/sensor-{s}"),
+            Channel::Consensus(n) => format!("cons/node-{n}"),
+            Channel::Control(a) => format!("ctl/{a}"),
+            Channel::Telemetry(n) => format!("telemetry/node-{n}"),
+        }
+    }
+
+    /// How many subscribers the channel has in a network of this topology
+    /// (the launcher's centralized reference reads every observation).
+    pub fn subscribers(self, t: &Topology) -> usize {
+        match self {
+            Channel::Tick => t.nodes() + t.sensors(),
+            Channel::Activation(n) => t.node_sensors[n as usize].len(),
+            Channel::Observation(_) => 2,
+            Channel::Consensus(n) => t.neighbours[n as usize].len(),
+            Channel::Control(_) | Channel::Telemetry(_) => 1,
+        }
+    }
+}
+
+/// The transport contract. Accounting: `send` records one sent message per
+/// intended receiver; `receive` records received, dropped-by-fault and
+/// malformed messages per link.
+pub trait Transport {
+    fn me(&self) -> ActorId;
+
+    /// Publishes `message` on `channel` (one of this actor's own) for
+    /// `receivers`, and wakes them.
+    fn send(&mut self, channel: Channel, message: &Message, receivers: &[ActorId]) -> Result<(), TransportError>;
+
+    /// Appends every message due at `now` (time since the transport was
+    /// created) to `out`: drains the subscriptions, applies link faults,
+    /// decodes, and counts and drops what does not decode.
+    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError>;
+
+    /// Sleeps until this actor is woken or `timeout` passes.
+    fn wait(&mut self, timeout: Duration) -> Result<(), TransportError>;
+
+    /// Time since the transport was created, the clock `receive` expects.
+    fn now(&self) -> Duration;
+
+    fn accounting(&self) -> &Accounting;
+
+    fn shaper(&mut self) -> &mut LinkShaper;
+}
+
+/// The receive path both transports share: link fault, then decode, then
+/// accounting. A malformed message is counted and dropped with a warning.
+pub(crate) struct Inbound<'a> {
+    pub me: ActorId,
+    pub format: &'a WireFormat,
+    pub accounting: &'a mut Accounting,
+    pub shaper: &'a mut LinkShaper,
+}
+
+impl Inbound<'_> {
+    /// A message arriving now from `from`.
+    pub fn arrive(&mut self, from: ActorId, bytes: &[u8], now: Duration, out: &mut Vec<Message>) {
+        match self.shaper.admit(from, bytes, now) {
+            Admission::Deliver => self.deliver(from, bytes, out),
+            Admission::Held => {}
+            Admission::Dropped => {
+                let kind = Message::decode(bytes, self.format).map_or(crate::wire::MessageKind::Malformed, |m| m.header.kind);
+                self.accounting.record_dropped(from, self.me, kind, bytes.len());
+            }
+        }
+    }
+
+    /// Delayed messages whose time has come.
+    pub fn release(&mut self, now: Duration, out: &mut Vec<Message>) {
+        let mut due = Vec::new();
+        self.shaper.release_due(now, |from, bytes| due.push((from, bytes)));
+        for (from, bytes) in due {
+            self.deliver(from, &bytes, out);
+        }
+    }
+
+    fn deliver(&mut self, from: ActorId, bytes: &[u8], out: &mut Vec<Message>) {
+        match Message::decode(bytes, self.format) {
+            Ok(m) if m.header.sender == from => {
+                self.accounting.record_received(from, self.me, m.header.kind, bytes.len());
+                out.push(m);
+            }
+            Ok(m) => {
+                tracing::warn!(link = %format!("{from}->{}", self.me), claimed = %m.header.sender, "message claims a sender other than its channel's publisher; dropped");
+                self.accounting.record_malformed(from, self.me, bytes.len());
+            }
+            Err(e) => {
+                tracing::warn!(link = %format!("{from}->{}", self.me), error = %e, len = bytes.len(), "malformed message dropped");
+                self.accounting.record_malformed(from, self.me, bytes.len());
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod contract {
+    //! The contract every transport must meet, run against each one.
+    use super::*;
+    use crate::shaper::LinkRule;
+    use crate::wire::{MessageKind, Payload};
+
+    pub const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+
+    pub fn obs(sensor: u16, step: u32) -> Message {
+        Message::new(ActorId::Sensor(sensor), step, 0, Payload::Observation { cell: step % 256 })
+    }
+
+    /// Receives until `n` messages arrived or a second passed.
+    pub fn receive_n<T: Transport>(t: &mut T, n: usize) -> Vec<Message> {
+        let mut out = Vec::new();
+        let start = std::time::Instant::now();
+        while out.len() < n && start.elapsed() < Duration::from_secs(1) {
+            let now = t.now();
+            t.receive(now, &mut out).unwrap();
+            if out.len() < n {
+                t.wait(Duration::from_millis(5)).unwrap();
+            }
+        }
+        out
+    }
+
+    /// A sensor sends 20 observations to a node; delivery, order and byte
+    /// counts on both sides.
+    pub fn delivers_and_counts<T: Transport>(sensor: &mut T, node: &mut T) {
+        for step in 1..=20 {
+            sensor.send(Channel::Observation(0), &obs(0, step), &[node.me()]).unwrap();
+        }
+        let got = receive_n(node, 20);
+        assert_eq!(got.len(), 20);
+        assert!(got.iter().enumerate().all(|(i, m)| m.header.step == i as u32 + 1));
+        let sent = sensor.accounting().get(sensor.me(), node.me(), MessageKind::Observation);
+        let recv = node.accounting().get(sensor.me(), node.me(), MessageKind::Observation);
+        assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 20 * 12));
+        assert_eq!((recv.received_messages, recv.received_bytes), (20, 20 * 12));
+    }
+
+    /// Loss on the link drops roughly its probability, and is counted.
+    pub fn loss_is_applied_and_counted<T: Transport>(sensor: &mut T, node: &mut T) {
+        node.shaper().set_rule(sensor.me(), LinkRule { loss: 0.5, ..Default::default() });
+        for step in 1..=400 {
+            sensor.send(Channel::Observation(0), &obs(0, step), &[node.me()]).unwrap();
+            if step % 50 == 0 {
+                let now = node.now();
+                let mut sink = Vec::new();
+                node.receive(now, &mut sink).unwrap();
+            }
+        }
+        let mut got = Vec::new();
+        let now = node.now();
+        node.receive(now, &mut got).unwrap();
+        let c = node.accounting().get(sensor.me(), node.me(), MessageKind::Observation);
+        assert_eq!(c.received_messages + c.dropped_messages, 400, "{c:?}");
+        assert!((150..=250).contains(&c.dropped_messages), "{c:?}");
+        node.shaper().clear_rules();
+    }
+}

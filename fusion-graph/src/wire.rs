@@ -1,0 +1,454 @@
+//! Wire messages: a small fixed header and a payload, bincode-encoded with
+//! fixed-width little-endian integers so a message's size depends only on its
+//! kind (and the scenario), never on its values.
+//!
+//! Decoding trusts nothing: a wrong version, an unknown kind or sender, a
+//! wrong length or a non-finite number is a typed [`WireError`], and random
+//! bytes never panic.
+
+use bincode::config::{Configuration, Fixint, LittleEndian, Limit};
+use serde::{Deserialize, Serialize};
+
+use crate::actor::ActorId;
+use crate::WireError;
+
+/// Bumped whenever the encoding changes.
+pub const WIRE_VERSION: u8 = 1;
+/// Encoded size of [`Header`].
+pub const HEADER_BYTES: usize = 11;
+/// No message is larger than this; it bounds every allocation in decoding.
+pub const MAX_MESSAGE_BYTES: usize = 1024;
+
+type Config = Configuration<LittleEndian, Fixint, Limit<MAX_MESSAGE_BYTES>>;
+
+fn config() -> Config {
+    bincode::config::standard().with_little_endian().with_fixed_int_encoding().with_limit::<MAX_MESSAGE_BYTES>()
+}
+
+/// Message kinds, also the unit of byte accounting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[repr(u8)]
+pub enum MessageKind {
+    /// The launcher's step tick with the true state (only sensors use the truth).
+    Tick = 1,
+    /// A node tells its sensors which of them are active this step.
+    Activate = 2,
+    /// A quantized observation: the cell index in `ceil(N_L/8)` bytes.
+    Observation = 3,
+    /// An unquantized observation (one f64).
+    RawObservation = 4,
+    /// One consensus round: δη (4), δΛ (10), ΔL (10).
+    Consensus = 5,
+    /// One round of the auxiliary-FIM baseline's second consensus (10).
+    ConsensusAux = 6,
+    Control = 7,
+    Telemetry = 8,
+    /// A node's fused posterior, sent to a neighbour that rejoins.
+    StateTransfer = 9,
+    /// Accounting only: bytes whose kind could not be read.
+    Malformed = 255,
+}
+
+impl MessageKind {
+    pub fn from_u8(v: u8) -> Option<Self> {
+        use MessageKind::*;
+        Some(match v {
+            1 => Tick,
+            2 => Activate,
+            3 => Observation,
+            4 => RawObservation,
+            5 => Consensus,
+            6 => ConsensusAux,
+            7 => Control,
+            8 => Telemetry,
+            9 => StateTransfer,
+            _ => return None,
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        use MessageKind::*;
+        match self {
+            Tick => "tick",
+            Activate => "activate",
+            Observation => "observation",
+            RawObservation => "raw_observation",
+            Consensus => "consensus",
+            ConsensusAux => "consensus_aux",
+            Control => "control",
+            Telemetry => "telemetry",
+            StateTransfer => "state_transfer",
+            Malformed => "malformed",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+struct WireHeader {
+    version: u8,
+    kind: u8,
+    sender_kind: u8,
+    sender_index: u16,
+    step: u32,
+    round: u16,
+}
+
+/// The header every message carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Header {
+    pub kind: MessageKind,
+    pub sender: ActorId,
+    pub step: u32,
+    pub round: u16,
+}
+
+/// Symmetric 4×4 matrices travel as their 10 upper-triangular entries.
+pub type Packed = [f64; 10];
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ConsensusValues {
+    pub delta_eta: [f64; 4],
+    pub delta_lambda: Packed,
+    pub delta_l: Packed,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Telemetry {
+    pub estimate: [f64; 4],
+    /// CQ/dPCRLB position bound, metres.
+    pub bound: Option<f64>,
+    pub local_bound: Option<f64>,
+    pub aux_bound: Option<f64>,
+    pub centralized_bound: Option<f64>,
+    pub centralized_estimate: Option<[f64; 4]>,
+    pub rounds_completed: u16,
+    pub live_neighbours: u16,
+    pub observations: u16,
+    pub deadline_missed: bool,
+    /// Microseconds in local filter, fusion filter, bounds, consensus.
+    pub stage_micros: [u32; 4],
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Control {
+    /// Finish the current step and exit.
+    Stop,
+    /// Which nodes are alive (bit i of byte i/8 is node i).
+    Membership { alive: Vec<u8> },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StateTransfer {
+    pub mean: [f64; 4],
+    pub covariance: Packed,
+    pub information: Packed,
+    pub aux_information: Packed,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Payload {
+    Tick { truth: [f64; 4] },
+    /// Bit i of byte i/8: the node's i-th sensor is active.
+    Activate { mask: Vec<u8> },
+    Observation { cell: u32 },
+    RawObservation { value: f64 },
+    Consensus(ConsensusValues),
+    ConsensusAux { s_obs: Packed },
+    Control(Control),
+    Telemetry(Telemetry),
+    StateTransfer(StateTransfer),
+}
+
+impl Payload {
+    pub fn kind(&self) -> MessageKind {
+        match self {
+            Payload::Tick { .. } => MessageKind::Tick,
+            Payload::Activate { .. } => MessageKind::Activate,
+            Payload::Observation { .. } => MessageKind::Observation,
+            Payload::RawObservation { .. } => MessageKind::RawObservation,
+            Payload::Consensus(_) => MessageKind::Consensus,
+            Payload::ConsensusAux { .. } => MessageKind::ConsensusAux,
+            Payload::Control(_) => MessageKind::Control,
+            Payload::Telemetry(_) => MessageKind::Telemetry,
+            Payload::StateTransfer(_) => MessageKind::StateTransfer,
+        }
+    }
+}
+
+/// What the receiver must know to read a message: the sizes the scenario fixes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WireFormat {
+    /// `ceil(N_L/8)`.
+    pub cell_bytes: usize,
+    /// `ceil(max sensors per node / 8)`.
+    pub activation_bytes: usize,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Message {
+    pub header: Header,
+    pub payload: Payload,
+}
+
+impl Message {
+    pub fn new(sender: ActorId, step: u32, round: u16, payload: Payload) -> Self {
+        Self { header: Header { kind: payload.kind(), sender, step, round }, payload }
+    }
+
+    /// Appends the encoded message to `out`.
+    pub fn encode(&self, format: &WireFormat, out: &mut Vec<u8>) {
+        let (sender_kind, sender_index) = self.header.sender.to_wire();
+        let h = WireHeader { version: WIRE_VERSION, kind: self.header.kind as u8, sender_kind, sender_index, step: self.header.step, round: self.header.round };
+        put(&h, out);
+        match &self.payload {
+            Payload::Tick { truth } => put(truth, out),
+            Payload::Activate { mask } => {
+                let mut m = mask.clone();
+                m.resize(format.activation_bytes, 0);
+                out.extend_from_slice(&m);
+            }
+            Payload::Observation { cell } => out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes]),
+            Payload::RawObservation { value } => put(value, out),
+            Payload::Consensus(v) => put(v, out),
+            Payload::ConsensusAux { s_obs } => put(s_obs, out),
+            Payload::Control(c) => put(c, out),
+            Payload::Telemetry(t) => put(t, out),
+            Payload::StateTransfer(s) => put(s, out),
+        }
+    }
+
+    pub fn to_bytes(&self, format: &WireFormat) -> Vec<u8> {
+        let mut v = Vec::with_capacity(256);
+        self.encode(format, &mut v);
+        v
+    }
+
+    /// Reads one message, rejecting anything that is not exactly a valid one.
+    pub fn decode(bytes: &[u8], format: &WireFormat) -> Result<Self, WireError> {
+        if bytes.len() > MAX_MESSAGE_BYTES {
+            return Err(WireError::TooLong { len: bytes.len() });
+        }
+        let (h, used): (WireHeader, usize) = bincode::serde::decode_from_slice(bytes, config()).map_err(|_| WireError::Truncated)?;
+        if h.version != WIRE_VERSION {
+            return Err(WireError::Version { got: h.version });
+        }
+        let kind = MessageKind::from_u8(h.kind).ok_or(WireError::UnknownKind { kind: h.kind })?;
+        let sender = ActorId::from_wire(h.sender_kind, h.sender_index).ok_or(WireError::UnknownSender { kind: h.sender_kind })?;
+        let body = &bytes[used..];
+        let payload = match kind {
+            MessageKind::Tick => Payload::Tick { truth: finite(take(body)?)? },
+            MessageKind::Activate => {
+                exact_len(body, format.activation_bytes)?;
+                Payload::Activate { mask: body.to_vec() }
+            }
+            MessageKind::Observation => {
+                exact_len(body, format.cell_bytes)?;
+                let mut le = [0u8; 4];
+                le[..body.len()].copy_from_slice(body);
+                Payload::Observation { cell: u32::from_le_bytes(le) }
+            }
+            MessageKind::RawObservation => {
+                let v: f64 = take(body)?;
+                Payload::RawObservation { value: finite([v])?[0] }
+            }
+            MessageKind::Consensus => {
+                let v: ConsensusValues = take(body)?;
+                finite(v.delta_eta)?;
+                finite(v.delta_lambda)?;
+                finite(v.delta_l)?;
+                Payload::Consensus(v)
+            }
+            MessageKind::ConsensusAux => Payload::ConsensusAux { s_obs: finite(take(body)?)? },
+            MessageKind::Control => Payload::Control(take(body)?),
+            MessageKind::Telemetry => {
+                let t: Telemetry = take(body)?;
+                finite(t.estimate)?;
+                for v in [t.bound, t.local_bound, t.aux_bound, t.centralized_bound].into_iter().flatten() {
+                    finite([v])?;
+                }
+                if let Some(c) = t.centralized_estimate {
+                    finite(c)?;
+                }
+                Payload::Telemetry(t)
+            }
+            MessageKind::StateTransfer => {
+                let s: StateTransfer = take(body)?;
+                finite(s.mean)?;
+                finite(s.covariance)?;
+                finite(s.information)?;
+                finite(s.aux_information)?;
+                Payload::StateTransfer(s)
+            }
+            MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
+        };
+        Ok(Self { header: Header { kind, sender, step: h.step, round: h.round }, payload })
+    }
+}
+
+/// Encoded size of a message of a fixed-size kind, for predicting traffic.
+pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
+    Some(
+        HEADER_BYTES
+            + match kind {
+                MessageKind::Tick => 32,
+                MessageKind::Activate => format.activation_bytes,
+                MessageKind::Observation => format.cell_bytes,
+                MessageKind::RawObservation => 8,
+                MessageKind::Consensus => 8 * 24,
+                MessageKind::ConsensusAux => 8 * 10,
+                MessageKind::StateTransfer => 8 * 34,
+                _ => return None,
+            },
+    )
+}
+
+fn put<T: Serialize>(v: &T, out: &mut Vec<u8>) {
+    bincode::serde::encode_into_std_write(v, out, config()).expect("writing to a Vec cannot fail");
+}
+
+/// Decodes a whole body as one value; trailing bytes are an error.
+fn take<T: for<'de> Deserialize<'de>>(body: &[u8]) -> Result<T, WireError> {
+    let (v, used) = bincode::serde::decode_from_slice(body, config()).map_err(|_| WireError::Truncated)?;
+    if used != body.len() {
+        return Err(WireError::TrailingBytes { extra: body.len() - used });
+    }
+    Ok(v)
+}
+
+fn exact_len(body: &[u8], expected: usize) -> Result<(), WireError> {
+    if body.len() != expected {
+        return Err(WireError::Length { expected, got: body.len() });
+    }
+    Ok(())
+}
+
+fn finite<const N: usize>(v: [f64; N]) -> Result<[f64; N], WireError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(v)
+    } else {
+        Err(WireError::NonFinite)
+    }
+}
+
+/// Packs the upper triangle of a symmetric 4×4 (row-major `m[r][c]`).
+pub fn pack_symmetric(m: &[[f64; 4]; 4]) -> Packed {
+    let mut out = [0.0; 10];
+    let mut k = 0;
+    for r in 0..4 {
+        for c in r..4 {
+            out[k] = m[r][c];
+            k += 1;
+        }
+    }
+    out
+}
+
+pub fn unpack_symmetric(p: &Packed) -> [[f64; 4]; 4] {
+    let mut m = [[0.0; 4]; 4];
+    let mut k = 0;
+    for r in 0..4 {
+        for c in r..4 {
+            m[r][c] = p[k];
+            m[c][r] = p[k];
+            k += 1;
+        }
+    }
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+
+    fn samples() -> Vec<Message> {
+        let c = ConsensusValues { delta_eta: [1.0, 2.0, 3.0, 4.0], delta_lambda: [0.5; 10], delta_l: [-0.25; 10] };
+        let t = Telemetry {
+            estimate: [1.0; 4],
+            bound: Some(1.5),
+            local_bound: None,
+            aux_bound: Some(2.0),
+            centralized_bound: None,
+            centralized_estimate: Some([0.0; 4]),
+            rounds_completed: 10,
+            live_neighbours: 4,
+            observations: 3,
+            deadline_missed: false,
+            stage_micros: [1, 2, 3, 4],
+        };
+        vec![
+            Message::new(ActorId::Launcher, 7, 0, Payload::Tick { truth: [1400.0, 1400.0, -6.4, -7.6] }),
+            Message::new(ActorId::Node(2), 7, 0, Payload::Activate { mask: vec![0b101, 0, 0, 1] }),
+            Message::new(ActorId::Sensor(117), 7, 0, Payload::Observation { cell: 201 }),
+            Message::new(ActorId::Sensor(3), 7, 0, Payload::RawObservation { value: -1.25 }),
+            Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c)),
+            Message::new(ActorId::Node(4), 7, 9, Payload::ConsensusAux { s_obs: [3.0; 10] }),
+            Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Stop)),
+            Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Membership { alive: vec![0xff, 1] })),
+            Message::new(ActorId::Node(0), 7, 0, Payload::Telemetry(t)),
+            Message::new(ActorId::Node(1), 7, 0, Payload::StateTransfer(StateTransfer { mean: [1.0; 4], covariance: [2.0; 10], information: [3.0; 10], aux_information: [4.0; 10] })),
+        ]
+    }
+
+    #[test]
+    fn every_kind_round_trips_and_has_its_predicted_size() {
+        for m in samples() {
+            let bytes = m.to_bytes(&FORMAT);
+            assert_eq!(Message::decode(&bytes, &FORMAT).unwrap(), m);
+            if let Some(n) = encoded_len(m.header.kind, &FORMAT) {
+                assert_eq!(bytes.len(), n, "{:?}", m.header.kind);
+            }
+        }
+    }
+
+    #[test]
+    fn observation_is_header_plus_ceil_bits_over_eight() {
+        let m = Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 0x1234 });
+        let f = WireFormat { cell_bytes: 2, activation_bytes: 4 };
+        assert_eq!(m.to_bytes(&f).len(), HEADER_BYTES + 2);
+        assert_eq!(Message::decode(&m.to_bytes(&f), &f).unwrap(), m);
+        assert_eq!(Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 200 }).to_bytes(&FORMAT).len(), 12);
+    }
+
+    #[test]
+    fn decoding_rejects_bad_versions_lengths_and_numbers() {
+        let tick = Message::new(ActorId::Launcher, 1, 0, Payload::Tick { truth: [0.0; 4] });
+        let mut b = tick.to_bytes(&FORMAT);
+        b[0] = 9;
+        assert_eq!(Message::decode(&b, &FORMAT), Err(WireError::Version { got: 9 }));
+        let b = tick.to_bytes(&FORMAT);
+        assert_eq!(Message::decode(&b[..b.len() - 1], &FORMAT), Err(WireError::Truncated));
+        let mut long = b.clone();
+        long.push(0);
+        assert!(matches!(Message::decode(&long, &FORMAT), Err(WireError::TrailingBytes { .. })));
+        let nan = Message::new(ActorId::Launcher, 1, 0, Payload::Tick { truth: [f64::NAN, 0.0, 0.0, 0.0] });
+        assert_eq!(Message::decode(&nan.to_bytes(&FORMAT), &FORMAT), Err(WireError::NonFinite));
+        let obs = Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 3 }).to_bytes(&WireFormat { cell_bytes: 2, activation_bytes: 4 });
+        assert!(matches!(Message::decode(&obs, &FORMAT), Err(WireError::Length { expected: 1, got: 2 })));
+    }
+
+    #[test]
+    fn symmetric_packing_round_trips() {
+        let m = [[1.0, 2.0, 3.0, 4.0], [2.0, 5.0, 6.0, 7.0], [3.0, 6.0, 8.0, 9.0], [4.0, 7.0, 9.0, 10.0]];
+        assert_eq!(unpack_symmetric(&pack_symmetric(&m)), m);
+    }
+
+    proptest! {
+        #[test]
+        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+            let _ = Message::decode(&bytes, &FORMAT);
+        }
+
+        #[test]
+        fn corrupted_messages_never_panic(index in 0usize..10, flips in proptest::collection::vec((0usize..300, any::<u8>()), 1..6)) {
+            let mut bytes = samples()[index].to_bytes(&FORMAT);
+            for (at, v) in flips {
+                let n = bytes.len();
+                bytes[at % n] = v;
+            }
+            let _ = Message::decode(&bytes, &FORMAT);
+        }
+    }
+}
