@@ -137,6 +137,8 @@ pub struct IceoryxTransport {
     subscribers: Vec<(Channel, Sub)>,
     listener: Listener<ipc::Service>,
     notifiers: HashMap<ActorId, Notifier<ipc::Service>>,
+    /// Second publishers used by [`inject_raw`](Self::inject_raw).
+    raw_publishers: HashMap<Channel, Pub>,
     accounting: Accounting,
     shaper: LinkShaper,
     buffer: Vec<u8>,
@@ -152,11 +154,14 @@ fn max_message_len(channel: Channel) -> usize {
         }
 }
 
-/// Queue depth per subscriber: a consensus neighbour may be a step behind.
+/// Queue depth per subscriber, well above any burst the protocol produces (a
+/// consensus neighbour may be a step ahead). Seen here with iceoryx2 0.10: a
+/// burst larger than the queue, sent before the subscriber's first receive,
+/// lost the whole burst rather than only the oldest samples.
 fn buffer_len(channel: Channel) -> usize {
     match channel {
         Channel::Consensus(_) | Channel::Telemetry(_) => 64,
-        _ => 16,
+        _ => 32,
     }
 }
 
@@ -182,6 +187,7 @@ impl IceoryxTransport {
             publishers: HashMap::new(),
             subscribers: Vec::new(),
             notifiers: HashMap::new(),
+            raw_publishers: HashMap::new(),
             accounting: Accounting::default(),
             shaper: LinkShaper::new(seed),
             buffer: Vec::with_capacity(512),
@@ -249,9 +255,13 @@ impl IceoryxTransport {
     /// Publishes raw bytes on `channel` through a second publisher, bypassing
     /// encoding: fault injection for tests of the malformed-message path.
     pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) -> Result<(), TransportError> {
-        let service = self.open_channel(channel)?;
-        let p = service.publisher_builder().initial_max_slice_len(max_message_len(channel)).create().map_err(|e| iox("publisher", e))?;
-        // The subscribers already exist; connect before the one send.
+        if !self.raw_publishers.contains_key(&channel) {
+            let service = self.open_channel(channel)?;
+            let p = service.publisher_builder().initial_max_slice_len(max_message_len(channel)).create().map_err(|e| iox("publisher", e))?;
+            // Kept: a publisher's samples vanish with it.
+            self.raw_publishers.insert(channel, p);
+        }
+        let p = &self.raw_publishers[&channel];
         let _ = p.update_connections();
         let sample = p.loan_slice_uninit(bytes.len()).map_err(|e| iox("loan", e))?;
         sample.write_from_slice(bytes).send().map_err(|e| iox("send", e))?;

@@ -1,0 +1,235 @@
+//! The iceoryx2 transport between two real processes. The test binary spawns
+//! itself as the child (selected by an environment variable), so nothing
+//! needs installing. Every test uses its own run id and removes its child
+//! process and shared memory, pass or fail.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use fusion_graph::accounting::Accounting;
+use fusion_graph::transport::iceoryx::{remove_run_resources, run_resources};
+use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
+use fusion_graph::wire::{Message, MessageKind, Payload, WireFormat};
+use fusion_graph::{ActorId, LinkRule, Scenario, Topology};
+
+const ROLE: &str = "CQNET_FG_CHILD_ROLE";
+const RUN: &str = "CQNET_FG_CHILD_RUN";
+const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+const SENSOR: ActorId = ActorId::Sensor(0);
+const NODE: ActorId = ActorId::Node(0);
+
+fn topology() -> Topology {
+    Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
+}
+
+fn unique_run(tag: &str) -> RunId {
+    let n = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().subsec_nanos();
+    RunId::new(&format!("t{}-{tag}-{n:x}", std::process::id())).unwrap()
+}
+
+/// The child process and the run's resources, removed on drop.
+struct Run {
+    id: RunId,
+    child: Option<Child>,
+}
+
+impl Run {
+    fn new(tag: &str) -> Self {
+        Self { id: unique_run(tag), child: None }
+    }
+
+    fn spawn(&mut self, role: &str) {
+        let child = Command::new(std::env::current_exe().unwrap())
+            .args(["child_process_entry", "--exact", "--nocapture", "--test-threads=1", "--quiet"])
+            .env(ROLE, role)
+            .env(RUN, self.id.as_str())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn the test binary as a child");
+        self.child = Some(child);
+    }
+
+    /// Waits for the child and returns the accounting it printed.
+    fn finish(&mut self) -> Accounting {
+        let out = self.child.take().unwrap().wait_with_output().unwrap();
+        assert!(out.status.success(), "child failed: {:?}", out.status);
+        let text = String::from_utf8_lossy(&out.stdout);
+        let csv = text.split("ACCOUNTING-BEGIN\n").nth(1).and_then(|s| s.split("ACCOUNTING-END").next()).expect("child printed its accounting");
+        Accounting::from_csv(csv).unwrap()
+    }
+}
+
+impl Drop for Run {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        let _ = remove_run_resources(&self.id);
+    }
+}
+
+fn node_transport(run: &RunId) -> IceoryxTransport {
+    let mut t = IceoryxTransport::new(run, NODE, &topology(), FORMAT, 7).unwrap();
+    t.subscribe(Channel::Observation(0)).unwrap();
+    t
+}
+
+/// Receives until `done` says so or ten seconds pass.
+fn receive_until(t: &mut IceoryxTransport, mut done: impl FnMut(&[Message], &IceoryxTransport) -> bool) -> Vec<Message> {
+    let mut got = Vec::new();
+    let start = Instant::now();
+    while !done(&got, t) && start.elapsed() < Duration::from_secs(10) {
+        let now = t.now();
+        t.receive(now, &mut got).unwrap();
+        t.wait(Duration::from_millis(20)).unwrap();
+    }
+    got
+}
+
+fn unix_now() -> f64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_secs_f64()
+}
+
+#[test]
+fn delivers_with_byte_counts_on_both_sides() {
+    let mut run = Run::new("deliver");
+    let mut node = node_transport(&run.id);
+    run.spawn("send-20");
+    let got = receive_until(&mut node, |g, _| g.len() >= 20);
+    let child = run.finish();
+    assert_eq!(got.len(), 20);
+    assert!(got.iter().enumerate().all(|(i, m)| m.header.step == i as u32 + 1 && m.header.sender == SENSOR));
+    let recv = node.accounting().get(SENSOR, NODE, MessageKind::Observation);
+    let sent = child.get(SENSOR, NODE, MessageKind::Observation);
+    assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 240));
+    assert_eq!((recv.received_messages, recv.received_bytes), (20, 240));
+    drop(node);
+    drop(run);
+}
+
+#[test]
+fn delay_holds_each_message_for_at_least_its_latency() {
+    let mut run = Run::new("delay");
+    let mut node = node_transport(&run.id);
+    node.shaper().set_rule(SENSOR, LinkRule { latency: Duration::from_millis(40), ..Default::default() });
+    run.spawn("send-timestamps");
+    let mut lateness = Vec::new();
+    let start = Instant::now();
+    while lateness.len() < 10 && start.elapsed() < Duration::from_secs(10) {
+        let mut got = Vec::new();
+        let now = node.now();
+        node.receive(now, &mut got).unwrap();
+        for m in got {
+            if let Payload::RawObservation { value } = m.payload {
+                lateness.push(unix_now() - value);
+            }
+        }
+        node.wait(Duration::from_millis(5)).unwrap();
+    }
+    run.finish();
+    assert_eq!(lateness.len(), 10);
+    assert!(lateness.iter().all(|l| *l >= 0.040), "{lateness:?}");
+}
+
+#[test]
+fn loss_drops_the_expected_fraction() {
+    let mut run = Run::new("loss");
+    let mut node = node_transport(&run.id);
+    node.shaper().set_rule(SENSOR, LinkRule { loss: 0.3, ..Default::default() });
+    run.spawn("send-1000");
+    receive_until(&mut node, |_, t| {
+        let c = t.accounting().get(SENSOR, NODE, MessageKind::Observation);
+        c.received_messages + c.dropped_messages >= 1000
+    });
+    run.finish();
+    let c = node.accounting().get(SENSOR, NODE, MessageKind::Observation);
+    assert_eq!(c.received_messages + c.dropped_messages, 1000);
+    // 3.5 standard deviations of a binomial(1000, 0.3).
+    assert!((c.dropped_messages as f64 - 300.0).abs() < 51.0, "{c:?}");
+}
+
+#[test]
+fn garbage_is_counted_as_malformed_and_dropped() {
+    let mut run = Run::new("garbage");
+    let mut node = node_transport(&run.id);
+    run.spawn("send-garbage");
+    let got = receive_until(&mut node, |_, t| t.accounting().get(SENSOR, NODE, MessageKind::Malformed).malformed_messages >= 50);
+    run.finish();
+    assert!(got.is_empty(), "garbage was delivered: {got:?}");
+    assert_eq!(node.accounting().get(SENSOR, NODE, MessageKind::Malformed).malformed_messages, 50);
+}
+
+#[test]
+fn runs_with_different_ids_never_see_each_other() {
+    let mut run = Run::new("iso-a");
+    let other = Run::new("iso-b");
+    let mut node_a = node_transport(&run.id);
+    let mut node_b = node_transport(&other.id);
+    run.spawn("send-20");
+    let got = receive_until(&mut node_a, |g, _| g.len() >= 20);
+    run.finish();
+    assert_eq!(got.len(), 20);
+    std::thread::sleep(Duration::from_millis(50));
+    let mut seen_by_b = Vec::new();
+    let now = node_b.now();
+    node_b.receive(now, &mut seen_by_b).unwrap();
+    assert!(seen_by_b.is_empty());
+    assert_eq!(node_b.accounting().iter().count(), 0);
+}
+
+#[test]
+fn cleanup_removes_every_resource_of_the_run() {
+    let id = {
+        let mut run = Run::new("cleanup");
+        let node = node_transport(&run.id);
+        run.spawn("send-20");
+        run.finish();
+        assert!(!run_resources(&run.id).is_empty(), "the run created no files under its prefix");
+        drop(node);
+        run.id.clone()
+    };
+    assert_eq!(run_resources(&id), Vec::<std::path::PathBuf>::new());
+}
+
+/// Not a test: the body of the child process, run when the parent spawns
+/// this binary with `CQNET_FG_CHILD_ROLE` set. Without it, it does nothing.
+#[test]
+fn child_process_entry() {
+    let Ok(role) = std::env::var(ROLE) else { return };
+    let run = RunId::new(&std::env::var(RUN).unwrap()).unwrap();
+    let mut t = IceoryxTransport::new(&run, SENSOR, &topology(), FORMAT, 1).unwrap();
+    t.publish_on(Channel::Observation(0)).unwrap();
+    t.notify(NODE).unwrap();
+    t.update_connections();
+    let send = |t: &mut IceoryxTransport, step: u32, payload: Payload| t.send(Channel::Observation(0), &Message::new(SENSOR, step, 0, payload), &[NODE]).unwrap();
+    match role.as_str() {
+        "send-20" => (1..=20).for_each(|s| send(&mut t, s, Payload::Observation { cell: s })),
+        "send-1000" => (1..=1000).for_each(|s| {
+            send(&mut t, s, Payload::Observation { cell: s % 256 });
+            if s % 10 == 0 {
+                // Stay within the subscriber's queue.
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }),
+        "send-timestamps" => (1..=10).for_each(|s| {
+            send(&mut t, s, Payload::RawObservation { value: unix_now() });
+            std::thread::sleep(Duration::from_millis(3));
+        }),
+        "send-garbage" => {
+            let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+            for i in 0..50 {
+                let len = 1 + i % 40;
+                let bytes: Vec<u8> = (0..len).map(|_| { x ^= x << 13; x ^= x >> 7; x ^= x << 17; x as u8 }).collect();
+                t.inject_raw(Channel::Observation(0), &bytes).unwrap();
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        other => panic!("unknown child role {other}"),
+    }
+    // A publisher's samples live in its own shared memory and vanish when it
+    // exits: stay until the parent has read them.
+    std::thread::sleep(Duration::from_millis(500));
+    print!("ACCOUNTING-BEGIN\n{}ACCOUNTING-END\n", t.accounting().to_csv());
+}
