@@ -4,6 +4,7 @@
 
 pub mod accounting;
 pub mod actor;
+pub mod faults;
 pub mod scenario;
 pub mod shaper;
 pub mod topology;

@@ -131,6 +131,8 @@ pub struct Telemetry {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Control {
+    /// Start the step in the header (launcher → node).
+    BeginStep,
     /// Finish the current step and exit.
     Stop,
     /// Which nodes are alive (bit i of byte i/8 is node i).

@@ -1,0 +1,137 @@
+//! The scenario's fault schedule, evaluated at a step: which link rules hold
+//! on each receiver's incoming links, and which actors die or come back.
+//! Every actor can evaluate it itself, so link faults need no control traffic.
+
+use std::time::Duration;
+
+use crate::actor::ActorId;
+use crate::scenario::{Fault, LinkSelector, Signal};
+use crate::shaper::LinkRule;
+use crate::topology::Topology;
+
+#[derive(Debug, Clone)]
+pub struct FaultSchedule {
+    faults: Vec<Fault>,
+}
+
+/// A process-level fault due at a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProcessEvent {
+    Kill { actor: ActorId, signal: Signal },
+    /// Restart a killed actor (SIGCONT for a stopped one).
+    Restart { actor: ActorId, signal: Signal },
+}
+
+fn active(at: u32, end: Option<u32>, step: u32) -> bool {
+    step >= at && end.is_none_or(|e| step < e)
+}
+
+fn matches(sel: &str, actor: ActorId) -> bool {
+    sel == "*" || sel.parse::<ActorId>().is_ok_and(|a| a == actor)
+}
+
+fn link_matches(links: &[LinkSelector], from: ActorId, to: ActorId) -> bool {
+    links.iter().any(|l| matches(&l.from, from) && matches(&l.to, to))
+}
+
+impl FaultSchedule {
+    pub fn new(faults: &[Fault]) -> Self {
+        Self { faults: faults.to_vec() }
+    }
+
+    pub fn faults(&self) -> &[Fault] {
+        &self.faults
+    }
+
+    /// The rule on the link `from → to` at `step` (clear when no fault holds).
+    pub fn link_rule(&self, step: u32, from: ActorId, to: ActorId) -> LinkRule {
+        let mut rule = LinkRule::default();
+        for f in &self.faults {
+            let on = active(f.at_step(), f.end_step(), step);
+            match f {
+                Fault::Delay { links, latency_ms, jitter_ms, .. } if on && link_matches(links, from, to) => {
+                    rule.latency = rule.latency.max(Duration::from_secs_f64(latency_ms / 1e3));
+                    rule.jitter = rule.jitter.max(Duration::from_secs_f64(jitter_ms / 1e3));
+                }
+                Fault::Loss { links, probability, .. } if on && link_matches(links, from, to) => {
+                    // Independent losses compose.
+                    rule.loss = 1.0 - (1.0 - rule.loss) * (1.0 - probability);
+                }
+                Fault::Partition { groups, .. } if on => {
+                    let group_of = |a: ActorId| groups.iter().position(|g| g.iter().any(|n| matches(n, a)));
+                    if let (Some(a), Some(b)) = (group_of(from), group_of(to)) {
+                        rule.blocked |= a != b;
+                    }
+                }
+                _ => {}
+            }
+        }
+        rule
+    }
+
+    /// Every non-clear rule on `to`'s incoming links at `step`, over the
+    /// actors that can send to it.
+    pub fn incoming_rules(&self, step: u32, to: ActorId, topology: &Topology) -> Vec<(ActorId, LinkRule)> {
+        if !self.faults.iter().any(|f| !matches!(f, Fault::Kill { .. })) {
+            return Vec::new();
+        }
+        std::iter::once(ActorId::Launcher).chain(topology.actors()).filter(|from| *from != to).map(|from| (from, self.link_rule(step, from, to))).filter(|(_, r)| !r.is_clear()).collect()
+    }
+
+    /// Kills and restarts due exactly at `step`.
+    pub fn process_events(&self, step: u32) -> Vec<ProcessEvent> {
+        let mut v = Vec::new();
+        for f in &self.faults {
+            if let Fault::Kill { actor, at_step, signal, restart_after } = f {
+                let Ok(actor) = actor.parse::<ActorId>() else { continue };
+                if *at_step == step {
+                    v.push(ProcessEvent::Kill { actor, signal: *signal });
+                }
+                if restart_after.is_some_and(|r| at_step + r == step) {
+                    v.push(ProcessEvent::Restart { actor, signal: *signal });
+                }
+            }
+        }
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::{Scenario, DEFAULT_SCENARIO};
+
+    fn schedule(extra: &str) -> (FaultSchedule, Topology) {
+        let s = Scenario::from_toml(&format!("{DEFAULT_SCENARIO}\n{extra}"), "f", &[]).unwrap();
+        let t = Topology::from_scenario(&s, "f").unwrap();
+        (FaultSchedule::new(&s.faults), t)
+    }
+
+    #[test]
+    fn rules_hold_only_during_their_window() {
+        let (f, t) = schedule("[[faults]]\nkind = \"delay\"\nlinks = [{ from = \"node-1\", to = \"*\" }]\nat_step = 5\nduration = 3\nlatency_ms = 80.0\n\n[[faults]]\nkind = \"loss\"\nlinks = [{ from = \"*\", to = \"*\" }]\nat_step = 6\nprobability = 0.3\n");
+        let (n0, n1) = (ActorId::Node(0), ActorId::Node(1));
+        assert!(f.link_rule(4, n1, n0).is_clear());
+        assert_eq!(f.link_rule(5, n1, n0).latency, Duration::from_millis(80));
+        assert!((f.link_rule(7, n1, n0).loss - 0.3).abs() < 1e-15);
+        assert_eq!(f.link_rule(8, n1, n0).latency, Duration::ZERO);
+        assert!(f.link_rule(5, n0, n1).is_clear());
+        assert_eq!(f.incoming_rules(5, n0, &t).len(), 1);
+    }
+
+    #[test]
+    fn partition_blocks_between_groups_and_heals() {
+        let (f, _) = schedule("[[faults]]\nkind = \"partition\"\ngroups = [[\"node-0\", \"node-1\"], [\"node-2\"]]\nat_step = 10\nduration = 5\n");
+        assert!(f.link_rule(10, ActorId::Node(0), ActorId::Node(2)).blocked);
+        assert!(!f.link_rule(10, ActorId::Node(0), ActorId::Node(1)).blocked);
+        assert!(!f.link_rule(15, ActorId::Node(0), ActorId::Node(2)).blocked);
+    }
+
+    #[test]
+    fn kill_and_restart_events() {
+        let (f, _) = schedule("[[faults]]\nkind = \"kill\"\nactor = \"node-4\"\nat_step = 20\nsignal = \"SIGSTOP\"\nrestart_after = 5\n");
+        assert_eq!(f.process_events(20), vec![ProcessEvent::Kill { actor: ActorId::Node(4), signal: Signal::Stop }]);
+        assert_eq!(f.process_events(25), vec![ProcessEvent::Restart { actor: ActorId::Node(4), signal: Signal::Stop }]);
+        assert!(f.process_events(21).is_empty());
+    }
+}

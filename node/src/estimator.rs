@@ -1,0 +1,285 @@
+//! The two filters of the CF/DPF and the bounds computed on them.
+//!
+//! - [`LocalFilter`]: a node's own sensors only. Gives the node's information
+//!   contribution (δη, δΛ) to the fusion filter, its observation information
+//!   ΔL for the CQ/dPCRLB, and its local conditional PCRLB. With every sensor
+//!   of the network it is also the centralized reference.
+//! - [`FusionFilter`]: the global posterior, weighted by the consensus sums,
+//!   with the global CQ/dPCRLB and the auxiliary-FIM baseline.
+
+use std::f64::consts::PI;
+
+use bounds::fisher::{ln_cell_probability, observed_information};
+use bounds::pcrlb::{dynamics_terms, information_update, observation_information};
+use bounds::{wrap_angle, BoundError, ConditionalBound, Dynamics, Mat4, Measurement, ObservationModel, Quantizer, SensorTerm, State};
+use nalgebra::{Cholesky, SymmetricEigen};
+use rand_chacha::ChaCha8Rng;
+
+use crate::filter::{Gaussian, ParticleFilter};
+
+/// One received observation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    pub sensor: u16,
+    pub value: ObservedValue,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ObservedValue {
+    Cell(u32),
+    Raw(f64),
+}
+
+/// What the estimators share: the dynamics, every sensor's model and the quantizer.
+#[derive(Debug, Clone)]
+pub struct SensingModel {
+    pub dynamics: Dynamics,
+    pub sensors: Vec<ObservationModel>,
+    pub quantizer: Option<Quantizer>,
+}
+
+impl SensingModel {
+    fn measurement(&self) -> Measurement<'_> {
+        match &self.quantizer {
+            Some(q) => Measurement::Quantized(q),
+            None => Measurement::Raw,
+        }
+    }
+
+    /// `ln p(y | x)` of one observation.
+    pub fn ln_likelihood(&self, obs: &Observation, x: &State) -> f64 {
+        let model = &self.sensors[obs.sensor as usize];
+        match (obs.value, &self.quantizer) {
+            (ObservedValue::Cell(cell), Some(q)) => ln_cell_probability(model, q, cell, x),
+            (ObservedValue::Raw(z), _) => {
+                let e = model.evaluate(x);
+                let r = if model.is_angular() { wrap_angle(z - e.g) } else { z - e.g };
+                -0.5 * (r * r / e.r + e.r.ln() + (2.0 * PI).ln())
+            }
+            (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
+        }
+    }
+
+    /// `−∇² ln p(y | x)`: the observed information at the received value.
+    pub fn observed_information(&self, obs: &Observation, x: &State) -> Mat4 {
+        let model = &self.sensors[obs.sensor as usize];
+        match (obs.value, &self.quantizer) {
+            (ObservedValue::Cell(cell), Some(q)) => observed_information(model, q, cell, x),
+            // For a raw Gaussian observation the expected and observed
+            // information differ only by terms with zero mean; use the expected one.
+            _ => bounds::expected_information(model, Measurement::Raw, x),
+        }
+    }
+}
+
+/// A node's information contribution for one step (math.md, "Estimator" and
+/// "Distributed bound"): everything that goes into consensus.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Contribution {
+    pub delta_eta: State,
+    pub delta_lambda: Mat4,
+    pub delta_l: Mat4,
+    /// Observed information at the received values (auxiliary-FIM baseline).
+    pub s_obs: Mat4,
+}
+
+impl Contribution {
+    pub fn zero() -> Self {
+        Self { delta_eta: State::zeros(), delta_lambda: Mat4::zeros(), delta_l: Mat4::zeros(), s_obs: Mat4::zeros() }
+    }
+}
+
+/// The local filter and its local conditional PCRLB.
+#[derive(Debug, Clone)]
+pub struct LocalFilter {
+    filter: ParticleFilter,
+    bound: ConditionalBound,
+    rng: ChaCha8Rng,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalUpdate {
+    pub contribution: Contribution,
+    pub estimate: State,
+    /// Position bound of the local conditional PCRLB, metres.
+    pub bound: Option<f64>,
+}
+
+impl LocalFilter {
+    pub fn new(particles: usize, prior: &Gaussian, mut rng: ChaCha8Rng) -> Result<Self, BoundError> {
+        let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
+        Ok(Self { filter, bound: ConditionalBound::from_prior(&prior.cov)?, rng })
+    }
+
+    /// Restarts from a Gaussian posterior and information matrix (rejoin).
+    pub fn reset(&mut self, posterior: &Gaussian, information: Mat4) {
+        if self.filter.reset_gaussian(posterior, &mut self.rng).is_some() {
+            self.bound = ConditionalBound::from_information(information);
+        }
+    }
+
+    /// One step with the observations received (sorted by sensor, so the
+    /// result does not depend on arrival order). `with_observed_information`
+    /// also computes the auxiliary-FIM term.
+    pub fn step(&mut self, model: &SensingModel, observations: &[Observation], with_observed_information: bool) -> Result<LocalUpdate, BoundError> {
+        let terms = dynamics_terms(&model.dynamics, self.filter.particles(), self.filter.uniform_weights())?;
+        self.filter.predict(&model.dynamics, &mut self.rng);
+        let predicted = self.filter.summary();
+
+        let sensors: Vec<SensorTerm> = observations.iter().map(|o| SensorTerm { model: &model.sensors[o.sensor as usize], measurement: model.measurement() }).collect();
+        let delta_l = if sensors.is_empty() { Mat4::zeros() } else { observation_information(&sensors, self.filter.particles(), self.filter.uniform_weights())? };
+        self.bound.advance(&terms, model.dynamics.q_inv(), &delta_l)?;
+
+        if observations.is_empty() {
+            // No news: the posterior is the prediction and the contribution is zero.
+            let estimate = predicted.mean;
+            self.filter.resample(&mut self.rng);
+            return Ok(LocalUpdate { contribution: Contribution { delta_l, ..Contribution::zero() }, estimate, bound: self.bound.position_bound() });
+        }
+        for o in observations {
+            self.filter.add_log_likelihood(|x| model.ln_likelihood(o, x));
+        }
+        if !self.filter.normalize() {
+            tracing::warn!("no particle explains this step's observations; keeping the prediction");
+        }
+        let posterior = self.filter.summary();
+        let mut s_obs = Mat4::zeros();
+        if with_observed_information {
+            for (x, w) in self.filter.particles().iter().zip(self.filter.weights()) {
+                for o in observations {
+                    s_obs += model.observed_information(o, x) * *w;
+                }
+            }
+        }
+        self.filter.resample(&mut self.rng);
+        let contribution = information_contribution(&predicted, &posterior).map_or(Contribution { delta_l, s_obs, ..Contribution::zero() }, |(delta_eta, delta_lambda)| Contribution { delta_eta, delta_lambda, delta_l, s_obs });
+        Ok(LocalUpdate { contribution, estimate: posterior.mean, bound: self.bound.position_bound() })
+    }
+
+    pub fn bound(&self) -> &ConditionalBound {
+        &self.bound
+    }
+}
+
+/// `δΛ = P⁻¹ − (P⁻)⁻¹`, `δη = P⁻¹μ − (P⁻)⁻¹μ⁻`; `None` if a covariance is singular.
+fn information_contribution(predicted: &Gaussian, posterior: &Gaussian) -> Option<(State, Mat4)> {
+    let prior_info = Cholesky::new(predicted.cov)?.inverse();
+    let post_info = Cholesky::new(posterior.cov)?.inverse();
+    Some((post_info * posterior.mean - prior_info * predicted.mean, post_info - prior_info))
+}
+
+/// Network sums from consensus: `Σδη`, `ΣδΛ`, `S = ΣΔL`, and `S_obs`.
+pub type NetworkSums = Contribution;
+
+/// The fusion filter, the global CQ/dPCRLB and the auxiliary-FIM baseline.
+#[derive(Debug, Clone)]
+pub struct FusionFilter {
+    filter: ParticleFilter,
+    bound: ConditionalBound,
+    /// `J_AUX(k)` and the baseline bound computed from it.
+    aux: Option<ConditionalBound>,
+    rng: ChaCha8Rng,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FusionUpdate {
+    pub estimate: State,
+    pub posterior: Gaussian,
+    pub bound: Option<f64>,
+    pub aux_bound: Option<f64>,
+}
+
+impl FusionFilter {
+    pub fn new(particles: usize, prior: &Gaussian, with_aux: bool, mut rng: ChaCha8Rng) -> Result<Self, BoundError> {
+        let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
+        let bound = ConditionalBound::from_prior(&prior.cov)?;
+        Ok(Self { filter, bound, aux: with_aux.then_some(bound), rng })
+    }
+
+    pub fn information(&self) -> &Mat4 {
+        self.bound.information()
+    }
+
+    pub fn aux_information(&self) -> Option<&Mat4> {
+        self.aux.as_ref().map(|a| a.information())
+    }
+
+    pub fn posterior(&self) -> Gaussian {
+        self.filter.summary()
+    }
+
+    /// Restarts from a neighbour's fused posterior and bounds (rejoin).
+    pub fn reset(&mut self, posterior: &Gaussian, information: Mat4, aux_information: Option<Mat4>) {
+        if self.filter.reset_gaussian(posterior, &mut self.rng).is_some() {
+            self.bound = ConditionalBound::from_information(information);
+            if let (Some(aux), Some(info)) = (self.aux.as_mut(), aux_information) {
+                *aux = ConditionalBound::from_information(info);
+            }
+        }
+    }
+
+    pub fn step(&mut self, model: &SensingModel, sums: &NetworkSums) -> Result<FusionUpdate, BoundError> {
+        let terms = dynamics_terms(&model.dynamics, self.filter.particles(), self.filter.uniform_weights())?;
+        self.filter.predict(&model.dynamics, &mut self.rng);
+        let centre = self.filter.summary().mean;
+        let lambda = clip_negative_eigenvalues(&sums.delta_lambda);
+        // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
+        // keeps the exponent's terms small: −½dᵀΛd + dᵀ(η − Λc) + const.
+        let linear = sums.delta_eta - lambda * centre;
+        self.filter.add_log_likelihood(|x| {
+            let d = x - centre;
+            -0.5 * d.dot(&(lambda * d)) + d.dot(&linear)
+        });
+        self.filter.normalize();
+        let posterior = self.filter.summary();
+        self.filter.resample(&mut self.rng);
+
+        let q_inv = model.dynamics.q_inv();
+        let aux_bound = match self.aux.as_mut() {
+            Some(j_aux) => {
+                // L_aux(k+1) uses J_AUX(k); then J_AUX advances with S_obs.
+                let baseline = information_update(j_aux.information(), &terms, q_inv, &sums.delta_l)?;
+                j_aux.advance(&terms, q_inv, &sums.s_obs)?;
+                bounds::position_bound(&baseline.updated)
+            }
+            None => None,
+        };
+        self.bound.advance(&terms, q_inv, &sums.delta_l)?;
+        Ok(FusionUpdate { estimate: posterior.mean, posterior, bound: self.bound.position_bound(), aux_bound })
+    }
+}
+
+/// Sets negative eigenvalues to zero (ΣδΛ may be indefinite after
+/// consensus on noisy estimates).
+pub fn clip_negative_eigenvalues(m: &Mat4) -> Mat4 {
+    let sym = (m + m.transpose()) * 0.5;
+    let eig = SymmetricEigen::new(sym);
+    if eig.eigenvalues.iter().all(|v| *v >= 0.0) {
+        return sym;
+    }
+    let clipped = eig.eigenvalues.map(|v| v.max(0.0));
+    eig.eigenvectors * Mat4::from_diagonal(&clipped) * eig.eigenvectors.transpose()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clipping_removes_only_negative_directions() {
+        let m = Mat4::from_diagonal(&State::new(2.0, -1.0, 0.5, -3.0));
+        let c = clip_negative_eigenvalues(&m);
+        assert!((c - Mat4::from_diagonal(&State::new(2.0, 0.0, 0.5, 0.0))).abs().max() < 1e-12);
+        let psd = Mat4::identity() * 3.0;
+        assert_eq!(clip_negative_eigenvalues(&psd), psd);
+    }
+
+    #[test]
+    fn information_contribution_of_a_scalar_update() {
+        let predicted = Gaussian { mean: State::new(0.0, 0.0, 0.0, 0.0), cov: Mat4::identity() * 4.0 };
+        let posterior = Gaussian { mean: State::new(1.0, 0.0, 0.0, 0.0), cov: Mat4::identity() * 2.0 };
+        let (eta, lambda) = information_contribution(&predicted, &posterior).unwrap();
+        assert!((lambda - Mat4::identity() * 0.25).abs().max() < 1e-12);
+        assert!((eta - State::new(0.5, 0.0, 0.0, 0.0)).abs().max() < 1e-12);
+    }
+}

@@ -1,0 +1,227 @@
+//! A bootstrap particle filter: predictor (the transition prior), updater
+//! (log-likelihood weights), systematic resampler, and Gaussian summaries.
+//! Buffers are allocated once; a step allocates nothing.
+
+use bounds::{Dynamics, Mat4, State};
+use nalgebra::Cholesky;
+use rand::Rng;
+use rand_distr::StandardNormal;
+
+/// Mean and covariance of a weighted particle set.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gaussian {
+    pub mean: State,
+    pub cov: Mat4,
+}
+
+#[derive(Debug, Clone)]
+pub struct ParticleFilter {
+    particles: Vec<State>,
+    /// The posterior particles of the previous step, kept for the bound's
+    /// dynamics terms (B11, B12), which are expectations at time k−1.
+    previous: Vec<State>,
+    log_weights: Vec<f64>,
+    weights: Vec<f64>,
+    uniform: Vec<f64>,
+    scratch: Vec<State>,
+}
+
+impl ParticleFilter {
+    /// `n` particles drawn from `N(mean, cov)`; `None` if cov is not positive definite.
+    pub fn from_gaussian<R: Rng + ?Sized>(n: usize, g: &Gaussian, rng: &mut R) -> Option<Self> {
+        let mut f = Self {
+            particles: vec![State::zeros(); n],
+            previous: vec![State::zeros(); n],
+            log_weights: vec![0.0; n],
+            weights: vec![1.0 / n as f64; n],
+            uniform: vec![1.0 / n as f64; n],
+            scratch: vec![State::zeros(); n],
+        };
+        f.reset_gaussian(g, rng)?;
+        Some(f)
+    }
+
+    /// Redraws every particle from `N(mean, cov)` with uniform weights.
+    pub fn reset_gaussian<R: Rng + ?Sized>(&mut self, g: &Gaussian, rng: &mut R) -> Option<()> {
+        let l = Cholesky::new(g.cov)?.l();
+        for p in self.particles.iter_mut() {
+            *p = g.mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
+        }
+        self.previous.copy_from_slice(&self.particles);
+        self.weights.copy_from_slice(&self.uniform);
+        Some(())
+    }
+
+    pub fn len(&self) -> usize {
+        self.particles.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.particles.is_empty()
+    }
+
+    pub fn particles(&self) -> &[State] {
+        &self.particles
+    }
+
+    pub fn previous(&self) -> &[State] {
+        &self.previous
+    }
+
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    pub fn uniform_weights(&self) -> &[f64] {
+        &self.uniform
+    }
+
+    /// Predictor: `x_j(k) ~ p(x(k) | x_j(k−1))`; weights become uniform (the
+    /// particles come from the previous step's resampler).
+    pub fn predict<R: Rng + ?Sized>(&mut self, dynamics: &Dynamics, rng: &mut R) {
+        self.previous.copy_from_slice(&self.particles);
+        for p in self.particles.iter_mut() {
+            *p = dynamics.propagate(p, rng);
+        }
+        self.log_weights.fill(0.0);
+        self.weights.copy_from_slice(&self.uniform);
+    }
+
+    /// Updater: adds a log-likelihood to every particle's log weight.
+    pub fn add_log_likelihood(&mut self, mut ln_likelihood: impl FnMut(&State) -> f64) {
+        for (lw, p) in self.log_weights.iter_mut().zip(&self.particles) {
+            *lw += ln_likelihood(p);
+        }
+    }
+
+    /// Turns log weights into normalized weights. Returns false, keeping the
+    /// weights uniform, when no particle has a finite likelihood.
+    pub fn normalize(&mut self) -> bool {
+        let max = self.log_weights.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if !max.is_finite() {
+            self.weights.copy_from_slice(&self.uniform);
+            return false;
+        }
+        let mut total = 0.0;
+        for (w, lw) in self.weights.iter_mut().zip(&self.log_weights) {
+            *w = (lw - max).exp();
+            total += *w;
+        }
+        for w in self.weights.iter_mut() {
+            *w /= total;
+        }
+        true
+    }
+
+    /// `1 / Σ w²`.
+    pub fn effective_sample_size(&self) -> f64 {
+        1.0 / self.weights.iter().map(|w| w * w).sum::<f64>()
+    }
+
+    /// Weighted mean and covariance of the current particles.
+    pub fn summary(&self) -> Gaussian {
+        summarize(&self.particles, &self.weights)
+    }
+
+    /// Systematic resampling: one uniform draw, N evenly spaced pointers.
+    pub fn resample<R: Rng + ?Sized>(&mut self, rng: &mut R) {
+        let n = self.particles.len();
+        let step = 1.0 / n as f64;
+        let mut u = rng.random::<f64>() * step;
+        let mut cumulative = self.weights[0];
+        let mut i = 0;
+        for slot in self.scratch.iter_mut() {
+            while u > cumulative && i + 1 < n {
+                i += 1;
+                cumulative += self.weights[i];
+            }
+            *slot = self.particles[i];
+            u += step;
+        }
+        std::mem::swap(&mut self.particles, &mut self.scratch);
+        self.weights.copy_from_slice(&self.uniform);
+    }
+}
+
+/// Weighted mean and covariance.
+pub fn summarize(particles: &[State], weights: &[f64]) -> Gaussian {
+    let mut mean = State::zeros();
+    for (p, w) in particles.iter().zip(weights) {
+        mean += p * *w;
+    }
+    let mut cov = Mat4::zeros();
+    for (p, w) in particles.iter().zip(weights) {
+        let d = p - mean;
+        cov += d * d.transpose() * *w;
+    }
+    Gaussian { mean, cov: (cov + cov.transpose()) * 0.5 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bounds::CoordinatedTurn;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn prior() -> Gaussian {
+        Gaussian { mean: State::new(100.0, 200.0, 3.0, -4.0), cov: Mat4::from_diagonal(&State::new(25.0, 16.0, 1.0, 0.25)) }
+    }
+
+    #[test]
+    fn draws_match_the_gaussian_they_came_from() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let f = ParticleFilter::from_gaussian(20_000, &prior(), &mut rng).unwrap();
+        let s = f.summary();
+        assert!((s.mean - prior().mean).abs().max() < 0.1);
+        assert!((s.cov - prior().cov).abs().max() < 0.6);
+    }
+
+    #[test]
+    fn systematic_resampling_keeps_expected_counts() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let mut f = ParticleFilter::from_gaussian(1000, &prior(), &mut rng).unwrap();
+        // Weight: particle 0 gets half the mass, the rest share the other half.
+        f.add_log_likelihood(|_| 0.0);
+        f.log_weights[0] = (999.0f64).ln();
+        assert!(f.normalize());
+        let heavy = f.particles[0];
+        f.resample(&mut rng);
+        let copies = f.particles().iter().filter(|p| **p == heavy).count();
+        assert!((499..=501).contains(&copies), "{copies}");
+        assert!(f.weights().iter().all(|w| *w == 1e-3));
+    }
+
+    #[test]
+    fn a_gaussian_likelihood_moves_the_mean_as_the_kalman_update_does() {
+        // Scalar check on p_x: prior N(100, 25), observation 110 with variance 25
+        // gives posterior mean 105 and variance 12.5.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut f = ParticleFilter::from_gaussian(50_000, &prior(), &mut rng).unwrap();
+        f.add_log_likelihood(|p| -0.5 * (p[0] - 110.0).powi(2) / 25.0);
+        assert!(f.normalize());
+        let s = f.summary();
+        assert!((s.mean[0] - 105.0).abs() < 0.1, "{}", s.mean[0]);
+        assert!((s.cov[(0, 0)] - 12.5).abs() < 0.4, "{}", s.cov[(0, 0)]);
+    }
+
+    #[test]
+    fn prediction_keeps_the_previous_particles_for_the_bound() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let d = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.1)).unwrap();
+        let mut f = ParticleFilter::from_gaussian(100, &prior(), &mut rng).unwrap();
+        let before = f.particles().to_vec();
+        f.predict(&d, &mut rng);
+        assert_eq!(f.previous(), &before[..]);
+        assert!((f.particles()[0][0] - before[0][0] - before[0][2]).abs() < 1.0);
+    }
+
+    #[test]
+    fn impossible_observations_leave_weights_uniform() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut f = ParticleFilter::from_gaussian(10, &prior(), &mut rng).unwrap();
+        f.add_log_likelihood(|_| f64::NEG_INFINITY);
+        assert!(!f.normalize());
+        assert!(f.weights().iter().all(|w| *w == 0.1));
+    }
+}
