@@ -46,6 +46,14 @@ impl ObservationModel {
         matches!(self, Self::Bearing { .. })
     }
 
+    /// Whether g and R depend on the position only (not on the velocity).
+    pub fn depends_on_position_only(&self) -> bool {
+        match self {
+            Self::Linear { h, .. } => h[2] == 0.0 && h[3] == 0.0,
+            _ => true,
+        }
+    }
+
     pub fn sensor_position(&self) -> Option<[f64; 2]> {
         match self {
             Self::Bearing { sensor, .. } | Self::Rss { sensor, .. } | Self::Amplitude { sensor, .. } => Some(*sensor),

@@ -89,6 +89,10 @@ impl Contribution {
     }
 }
 
+/// Fewest effective particles for which the importance-weighted posterior
+/// summary is trusted.
+const MIN_IMPORTANCE_ESS: f64 = 50.0;
+
 /// The local filter and its local conditional PCRLB.
 #[derive(Debug, Clone)]
 pub struct LocalFilter {
@@ -136,10 +140,7 @@ impl LocalFilter {
             self.filter.resample(&mut self.rng);
             return Ok(LocalUpdate { contribution: Contribution { delta_l, ..Contribution::zero() }, estimate, bound: self.bound.position_bound() });
         }
-        for o in observations {
-            self.filter.add_log_likelihood(|x| model.ln_likelihood(o, x));
-        }
-        if !self.filter.normalize() {
+        if self.filter.update(&mut self.rng, |x| observations.iter().map(|o| model.ln_likelihood(o, x)).sum()) == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
         }
         let posterior = self.filter.summary();
@@ -152,7 +153,16 @@ impl LocalFilter {
             }
         }
         self.filter.resample(&mut self.rng);
-        let contribution = information_contribution(&predicted, &posterior).map_or(Contribution { delta_l, s_obs, ..Contribution::zero() }, |(delta_eta, delta_lambda)| Contribution { delta_eta, delta_lambda, delta_l, s_obs });
+        self.filter.regularize(&posterior.cov, &mut self.rng);
+        // δΛ and δη from one particle set (see `importance_posterior`); the
+        // tempered population's summary only when the importance weights
+        // have degenerated (the first steps from a broad prior).
+        let summary_posterior = match self.filter.importance_posterior() {
+            Some((g, ess)) if ess >= MIN_IMPORTANCE_ESS => g,
+            _ => posterior,
+        };
+        let position_only = observations.iter().all(|o| model.sensors[o.sensor as usize].depends_on_position_only());
+        let contribution = information_contribution(&predicted, &summary_posterior, position_only).map_or(Contribution { delta_l, s_obs, ..Contribution::zero() }, |(delta_eta, delta_lambda)| Contribution { delta_eta, delta_lambda, delta_l, s_obs });
         Ok(LocalUpdate { contribution, estimate: posterior.mean, bound: self.bound.position_bound() })
     }
 
@@ -161,8 +171,24 @@ impl LocalFilter {
     }
 }
 
-/// `δΛ = P⁻¹ − (P⁻)⁻¹`, `δη = P⁻¹μ − (P⁻)⁻¹μ⁻`; `None` if a covariance is singular.
-fn information_contribution(predicted: &Gaussian, posterior: &Gaussian) -> Option<(State, Mat4)> {
+/// `δΛ = P⁻¹ − (P⁻)⁻¹`, `δη = P⁻¹μ − (P⁻)⁻¹μ⁻`; `None` if a covariance is
+/// singular.
+///
+/// When every observation depends on position only, the exact δΛ has a zero
+/// velocity block and its position block equals the difference of the
+/// position marginals' informations (the likelihood multiplies the position
+/// marginal alone). Estimating it that way avoids differencing two noisy
+/// velocity Schur complements, whose Monte Carlo error would otherwise act on
+/// the fusion filter as a spurious velocity measurement.
+fn information_contribution(predicted: &Gaussian, posterior: &Gaussian, position_only: bool) -> Option<(State, Mat4)> {
+    if position_only {
+        let prior_info = Cholesky::new(predicted.cov.fixed_view::<2, 2>(0, 0).into_owned())?.inverse();
+        let post_info = Cholesky::new(posterior.cov.fixed_view::<2, 2>(0, 0).into_owned())?.inverse();
+        let eta = post_info * posterior.mean.fixed_rows::<2>(0) - prior_info * predicted.mean.fixed_rows::<2>(0);
+        let mut lambda = Mat4::zeros();
+        lambda.fixed_view_mut::<2, 2>(0, 0).copy_from(&(post_info - prior_info));
+        return Some((State::new(eta[0], eta[1], 0.0, 0.0), lambda));
+    }
     let prior_info = Cholesky::new(predicted.cov)?.inverse();
     let post_info = Cholesky::new(posterior.cov)?.inverse();
     Some((post_info * posterior.mean - prior_info * predicted.mean, post_info - prior_info))
@@ -226,13 +252,13 @@ impl FusionFilter {
         // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
         // keeps the exponent's terms small: −½dᵀΛd + dᵀ(η − Λc) + const.
         let linear = sums.delta_eta - lambda * centre;
-        self.filter.add_log_likelihood(|x| {
+        self.filter.update(&mut self.rng, |x| {
             let d = x - centre;
             -0.5 * d.dot(&(lambda * d)) + d.dot(&linear)
         });
-        self.filter.normalize();
         let posterior = self.filter.summary();
         self.filter.resample(&mut self.rng);
+        self.filter.regularize(&posterior.cov, &mut self.rng);
 
         let q_inv = model.dynamics.q_inv();
         let aux_bound = match self.aux.as_mut() {
@@ -278,8 +304,29 @@ mod tests {
     fn information_contribution_of_a_scalar_update() {
         let predicted = Gaussian { mean: State::new(0.0, 0.0, 0.0, 0.0), cov: Mat4::identity() * 4.0 };
         let posterior = Gaussian { mean: State::new(1.0, 0.0, 0.0, 0.0), cov: Mat4::identity() * 2.0 };
-        let (eta, lambda) = information_contribution(&predicted, &posterior).unwrap();
+        let (eta, lambda) = information_contribution(&predicted, &posterior, false).unwrap();
         assert!((lambda - Mat4::identity() * 0.25).abs().max() < 1e-12);
         assert!((eta - State::new(0.5, 0.0, 0.0, 0.0)).abs().max() < 1e-12);
+        // Position marginal only: same position block, zero velocity block.
+        let (eta, lambda) = information_contribution(&predicted, &posterior, true).unwrap();
+        assert!((lambda - Mat4::from_diagonal(&State::new(0.25, 0.25, 0.0, 0.0))).abs().max() < 1e-12);
+        assert!((eta - State::new(0.5, 0.0, 0.0, 0.0)).abs().max() < 1e-12);
+    }
+
+    /// For a Gaussian prior with position-velocity correlation and a linear
+    /// position measurement, the position-marginal difference equals the full
+    /// information difference P⁻¹ − (P⁻)⁻¹ = HᵀR⁻¹H.
+    #[test]
+    fn position_marginal_difference_is_exact_for_position_measurements() {
+        let p_pred = Mat4::new(9.0, 1.0, 3.0, 0.5, 1.0, 8.0, 0.2, 2.5, 3.0, 0.2, 2.0, 0.1, 0.5, 2.5, 0.1, 1.5);
+        let h_r_h = Mat4::from_diagonal(&State::new(0.5, 0.25, 0.0, 0.0));
+        let p_post = (p_pred.try_inverse().unwrap() + h_r_h).try_inverse().unwrap();
+        let mu_pred = State::new(10.0, 20.0, 1.0, -1.0);
+        let z = State::new(12.0, 19.0, 0.0, 0.0);
+        // Posterior mean of the information filter: P (P⁻⁻¹ μ⁻ + HᵀR⁻¹ z).
+        let mu_post = p_post * (p_pred.try_inverse().unwrap() * mu_pred + h_r_h * z);
+        let (eta, lambda) = information_contribution(&Gaussian { mean: mu_pred, cov: p_pred }, &Gaussian { mean: mu_post, cov: p_post }, true).unwrap();
+        assert!((lambda - h_r_h).abs().max() < 1e-12, "{lambda}");
+        assert!((eta - h_r_h * z).abs().max() < 1e-10, "{eta}");
     }
 }

@@ -24,7 +24,18 @@ pub struct ParticleFilter {
     weights: Vec<f64>,
     uniform: Vec<f64>,
     scratch: Vec<State>,
+    /// Per-particle log-likelihood of the update in progress.
+    ln_likelihood: Vec<f64>,
+    /// The posterior as the predicted particles weighted by the whole
+    /// likelihood (before any tempering stage moved them), with its ESS.
+    importance_posterior: Option<(Gaussian, f64)>,
 }
+
+/// The tempered updater never lets the effective sample size fall below
+/// this fraction of N in one stage.
+const ESS_FLOOR: f64 = 0.2;
+/// At most this many tempering stages per update; the last takes the rest.
+const MAX_STAGES: usize = 12;
 
 impl ParticleFilter {
     /// `n` particles drawn from `N(mean, cov)`; `None` if cov is not positive definite.
@@ -36,6 +47,8 @@ impl ParticleFilter {
             weights: vec![1.0 / n as f64; n],
             uniform: vec![1.0 / n as f64; n],
             scratch: vec![State::zeros(); n],
+            ln_likelihood: vec![0.0; n],
+            importance_posterior: None,
         };
         f.reset_gaussian(g, rng)?;
         Some(f)
@@ -113,6 +126,90 @@ impl ParticleFilter {
         true
     }
 
+    /// Updater with adaptive tempering (progressive correction): the
+    /// likelihood is applied as `p(y|x)^δ₁ … p(y|x)^δ_m`, `Σδ = 1`, each δ the
+    /// largest that keeps the effective sample size above `ESS_FLOOR · N`,
+    /// with resampling and regularization between stages. A likelihood much
+    /// sharper than the prediction (the first steps from a 50 m prior, many
+    /// sensors at once) would otherwise leave a handful of particles carrying
+    /// all the weight. Leaves the particles weighted by the last stage;
+    /// returns the number of stages, 0 if no particle has a finite likelihood.
+    pub fn update<R: Rng + ?Sized>(&mut self, rng: &mut R, mut ln_likelihood: impl FnMut(&State) -> f64) -> usize {
+        let n = self.particles.len() as f64;
+        let mut done = 0.0;
+        for stage in 1..=MAX_STAGES {
+            for (l, p) in self.ln_likelihood.iter_mut().zip(&self.particles) {
+                *l = ln_likelihood(p);
+            }
+            let max = self.ln_likelihood.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if !max.is_finite() {
+                self.weights.copy_from_slice(&self.uniform);
+                return 0;
+            }
+            if stage == 1 {
+                self.record_importance_posterior(max);
+            }
+            let remaining = 1.0 - done;
+            let delta = if stage == MAX_STAGES || self.tempered_ess(remaining, max) >= ESS_FLOOR * n { remaining } else { self.largest_step(remaining, max, ESS_FLOOR * n) };
+            for (lw, l) in self.log_weights.iter_mut().zip(&self.ln_likelihood) {
+                *lw = delta * (l - max);
+            }
+            self.normalize();
+            done += delta;
+            if done >= 1.0 - 1e-12 {
+                return stage;
+            }
+            let cov = self.summary().cov;
+            self.resample(rng);
+            self.regularize(&cov, rng);
+        }
+        MAX_STAGES
+    }
+
+    /// The predicted particles weighted by the untempered likelihood.
+    fn record_importance_posterior(&mut self, max: f64) {
+        for (w, l) in self.weights.iter_mut().zip(&self.ln_likelihood) {
+            *w = (l - max).exp();
+        }
+        let total: f64 = self.weights.iter().sum();
+        self.weights.iter_mut().for_each(|w| *w /= total);
+        self.importance_posterior = Some((self.summary(), self.effective_sample_size()));
+        self.weights.copy_from_slice(&self.uniform);
+    }
+
+    /// The last update's posterior as importance weights on the predicted
+    /// particles, and its effective sample size. Its difference from the
+    /// predicted summary is what the CF/DPF exchanges; taking both from the
+    /// same particles keeps their Monte Carlo errors from adding up.
+    pub fn importance_posterior(&self) -> Option<(Gaussian, f64)> {
+        self.importance_posterior
+    }
+
+    /// ESS of weights `∝ exp(δ (ℓ_j − max))`.
+    fn tempered_ess(&self, delta: f64, max: f64) -> f64 {
+        let (mut s1, mut s2) = (0.0, 0.0);
+        for l in &self.ln_likelihood {
+            let w = (delta * (l - max)).exp();
+            s1 += w;
+            s2 += w * w;
+        }
+        s1 * s1 / s2
+    }
+
+    /// The largest δ ≤ `upper` whose tempered ESS stays above `floor`, by bisection.
+    fn largest_step(&self, upper: f64, max: f64, floor: f64) -> f64 {
+        let (mut lo, mut hi) = (0.0, upper);
+        for _ in 0..30 {
+            let mid = 0.5 * (lo + hi);
+            if self.tempered_ess(mid, max) >= floor {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        lo.max(upper * 1e-6)
+    }
+
     /// `1 / Σ w²`.
     pub fn effective_sample_size(&self) -> f64 {
         1.0 / self.weights.iter().map(|w| w * w).sum::<f64>()
@@ -140,6 +237,24 @@ impl ParticleFilter {
         }
         std::mem::swap(&mut self.particles, &mut self.scratch);
         self.weights.copy_from_slice(&self.uniform);
+    }
+}
+
+impl ParticleFilter {
+    /// Regularizer: after resampling, moves each particle by a draw from the
+    /// Gaussian kernel `N(0, h² Σ)`, with Σ the posterior covariance and
+    /// `h = (4 / (N (n_x + 2)))^{1/(n_x + 4)}` (the optimal bandwidth for a
+    /// Gaussian kernel, Musso et al. 2001). Without it the small process noise
+    /// of the default scenario cannot re-diversify resampled copies and the
+    /// filter collapses onto one trajectory. Skipped if Σ is not positive definite.
+    pub fn regularize<R: Rng + ?Sized>(&mut self, posterior_cov: &Mat4, rng: &mut R) {
+        let n = self.particles.len() as f64;
+        let h = (4.0 / (n * 6.0)).powf(1.0 / 8.0);
+        let Some(chol) = Cholesky::new(posterior_cov * (h * h)) else { return };
+        let l = chol.l();
+        for p in self.particles.iter_mut() {
+            *p += l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
+        }
     }
 }
 

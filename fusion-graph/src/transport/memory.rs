@@ -39,6 +39,11 @@ impl MemoryBus {
         self.now = now;
     }
 
+    /// Forgets whatever waits for `actor` (it died; its successor starts clean).
+    pub fn clear_inbox(&mut self, actor: ActorId) {
+        self.inboxes.remove(&actor);
+    }
+
     /// Writes raw bytes as if `channel`'s publisher had sent them: for
     /// testing how receivers cope with garbage.
     pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) {

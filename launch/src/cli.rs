@@ -1,0 +1,113 @@
+//! Command-line arguments and loading the scenario they name.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO};
+use fusion_graph::Topology;
+
+#[derive(Debug, Parser)]
+#[command(name = "cqnet", version, about = "Run a decentralized sensor network and compute its CQ/dPCRLB while it runs")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run a scenario in one process (in-memory transport, virtual clock).
+    Sim(SimArgs),
+    /// Run a scenario as a network of processes over iceoryx2.
+    Run(RunArgs),
+    /// Print a built-in scenario to copy and edit.
+    Scenario {
+        /// Print the scenario literal to seed 001 instead of the default.
+        #[arg(long)]
+        seed001: bool,
+    },
+    /// Internal: one actor of a `cqnet run` network.
+    #[command(hide = true)]
+    Actor(ActorArgs),
+}
+
+#[derive(Debug, Args, Clone)]
+pub struct ScenarioArgs {
+    /// Scenario file (TOML); the built-in default when omitted.
+    pub scenario: Option<PathBuf>,
+    /// Override a scenario value, e.g. `--set quantizer.bits=4`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Output folder.
+    #[arg(long, default_value = "out/sim")]
+    pub out: PathBuf,
+    /// Monte Carlo runs with seeds seed, seed+1, …, in parallel.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub runs: u32,
+    /// Worker threads for Monte Carlo runs (default: every core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Leave out the centralized reference.
+    #[arg(long)]
+    pub no_central: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Output folder.
+    #[arg(long, default_value = "out/run")]
+    pub out: PathBuf,
+    /// Start each step as soon as every live node reported (or a timeout).
+    #[arg(long)]
+    pub lockstep: bool,
+    /// Run id (a-z, 0-9, -); a fresh one when omitted.
+    #[arg(long)]
+    pub run_id: Option<String>,
+    /// Leave out the centralized reference.
+    #[arg(long)]
+    pub no_central: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ActorArgs {
+    #[arg(long)]
+    pub run_id: String,
+    #[arg(long)]
+    pub actor: String,
+    /// The run's effective scenario, written by the launcher.
+    #[arg(long)]
+    pub scenario: PathBuf,
+}
+
+/// The scenario the arguments name, validated, with its topology.
+pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)> {
+    let (scenario, source) = match &args.scenario {
+        Some(path) => (Scenario::load(path, &args.overrides)?, path.display().to_string()),
+        None => (Scenario::from_toml(DEFAULT_SCENARIO, "<built-in default>", &args.overrides)?, "<built-in default>".to_string()),
+    };
+    let topology = Topology::from_scenario(&scenario, &source)?;
+    Ok((scenario, topology))
+}
+
+pub fn builtin_scenario(seed001: bool) -> &'static str {
+    if seed001 {
+        SEED001_SCENARIO
+    } else {
+        DEFAULT_SCENARIO
+    }
+}
+
+/// Loads the scenario file a launcher wrote for its children.
+pub fn load_child_scenario(path: &std::path::Path) -> anyhow::Result<(Scenario, Topology)> {
+    let scenario = Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
+    let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
+    Ok((scenario, topology))
+}

@@ -1,0 +1,103 @@
+//! `cqnet sim --runs N`: independent runs with seeds seed, seed+1, …, spread
+//! over worker threads, each writing its own folder, and a summary that
+//! averages over runs.
+
+use std::io::IsTerminal;
+use std::path::Path;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Mutex;
+
+use fusion_graph::scenario::Scenario;
+use fusion_graph::Topology;
+use serde::{Deserialize, Serialize};
+
+use crate::results::{ResultsWriter, AVERAGE_FROM_STEP};
+use crate::sim::run_in_process;
+use crate::summary::Summary;
+
+/// Means over runs of each run's averages.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct MonteCarloSummary {
+    pub runs: u32,
+    pub from_step: u32,
+    pub rmse: Option<f64>,
+    pub mean_bound: Option<f64>,
+    pub mean_local_bound: Option<f64>,
+    pub mean_aux_bound: Option<f64>,
+    pub centralized_rmse: Option<f64>,
+    pub mean_centralized_bound: Option<f64>,
+    pub bound_bytes_cq_dpcrlb: f64,
+    pub bound_bytes_auxiliary_fim: Option<f64>,
+    pub steps_per_second_per_run: f64,
+    pub wall_seconds: f64,
+    pub per_run: Vec<Summary>,
+}
+
+fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
+    let v: Vec<f64> = values.collect::<Option<Vec<f64>>>()?;
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// A progress line on stderr: rewritten in place on a terminal, every tenth otherwise.
+pub struct Progress {
+    label: &'static str,
+    total: u32,
+    terminal: bool,
+}
+
+impl Progress {
+    pub fn new(label: &'static str, total: u32) -> Self {
+        Self { label, total, terminal: std::io::stderr().is_terminal() }
+    }
+
+    pub fn update(&self, done: u32) {
+        if self.terminal {
+            eprint!("\r{} {done}/{}", self.label, self.total);
+            if done == self.total {
+                eprintln!();
+            }
+        } else if done == self.total || (self.total >= 10 && done % (self.total / 10) == 0) {
+            eprintln!("{} {done}/{}", self.label, self.total);
+        }
+    }
+}
+
+pub fn run_monte_carlo(scenario: &Scenario, topology: &Topology, out: &Path, runs: u32, threads: usize, centralized: bool) -> anyhow::Result<MonteCarloSummary> {
+    let started = std::time::Instant::now();
+    let next = AtomicU32::new(0);
+    let done = AtomicU32::new(0);
+    let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> = Mutex::new((0..runs).map(|_| None).collect());
+    let progress = Progress::new("runs", runs);
+    std::thread::scope(|scope| {
+        for _ in 0..threads.max(1).min(runs as usize) {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::SeqCst);
+                if i >= runs {
+                    return;
+                }
+                let mut s = scenario.clone();
+                s.seed = scenario.seed.wrapping_add(i as u64);
+                let result = ResultsWriter::create(&out.join(format!("run-{i:03}"))).and_then(|mut w| run_in_process(&s, topology, &mut w, centralized, |_| {}));
+                results.lock().expect("no worker panics while holding the lock")[i as usize] = Some(result);
+                progress.update(done.fetch_add(1, Ordering::SeqCst) + 1);
+            });
+        }
+    });
+    let per_run: Vec<Summary> = results.into_inner().expect("workers finished").into_iter().map(|r| r.expect("every run ran")).collect::<anyhow::Result<_>>()?;
+    let e = |f: fn(&Summary) -> Option<f64>| mean_of(per_run.iter().map(f));
+    Ok(MonteCarloSummary {
+        runs,
+        from_step: AVERAGE_FROM_STEP,
+        rmse: e(|s| s.estimates.rmse),
+        mean_bound: e(|s| s.estimates.mean_bound),
+        mean_local_bound: e(|s| s.estimates.mean_local_bound),
+        mean_aux_bound: e(|s| s.estimates.mean_aux_bound),
+        centralized_rmse: e(|s| s.estimates.centralized_rmse),
+        mean_centralized_bound: e(|s| s.estimates.mean_centralized_bound),
+        bound_bytes_cq_dpcrlb: per_run.iter().map(|s| s.bound_traffic.cq_dpcrlb_bytes as f64).sum::<f64>() / runs as f64,
+        bound_bytes_auxiliary_fim: mean_of(per_run.iter().map(|s| s.bound_traffic.auxiliary_fim_bytes.map(|b| b as f64))),
+        steps_per_second_per_run: per_run.iter().map(|s| s.steps_per_second).sum::<f64>() / runs as f64,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        per_run,
+    })
+}

@@ -1,0 +1,423 @@
+//! The in-process driver: every actor in one process over the in-memory
+//! transport, on a virtual clock, deterministic for a given seed. It runs the
+//! same actor code as the multi-process runtime; it exists for Monte Carlo
+//! experiments, fast tests, and the exact-sum checking mode.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use bounds::State;
+use fusion_graph::accounting::Accounting;
+use fusion_graph::faults::{FaultSchedule, ProcessEvent};
+use fusion_graph::scenario::{ConsensusProtocol, Scenario};
+use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
+use fusion_graph::wire::{Control, Message, Payload, Telemetry};
+use fusion_graph::{ActorId, Topology};
+use node::{CentralizedReference, Contribution, NodeActor, Outgoing};
+use sensor::{SensorActor, SensorInput};
+
+use crate::results::{traffic, Averages, ResultsWriter, TickRow};
+use crate::summary::{AppliedFault, FaultCost, StageSums, Summary};
+use crate::world::World;
+
+struct SensorSlot {
+    actor: SensorActor,
+    transport: MemoryTransport,
+    alive: bool,
+}
+
+struct NodeSlot {
+    actor: NodeActor,
+    transport: MemoryTransport,
+    alive: bool,
+}
+
+pub struct InProcessNetwork {
+    scenario: Scenario,
+    topology: Topology,
+    bus: Rc<RefCell<MemoryBus>>,
+    launcher: MemoryTransport,
+    sensors: Vec<SensorSlot>,
+    nodes: Vec<NodeSlot>,
+    central: Option<CentralizedReference>,
+    world: World,
+    schedule: FaultSchedule,
+    /// Accounting of actors that died, kept so their bytes still count.
+    retired: Accounting,
+    outgoing: Vec<Outgoing>,
+    inbox: Vec<Message>,
+}
+
+impl InProcessNetwork {
+    pub fn new(scenario: &Scenario, topology: &Topology, centralized: bool) -> anyhow::Result<Self> {
+        let format = node::wire_format(scenario, topology);
+        let bus = MemoryBus::new();
+        let seed = scenario.seed;
+        let mut launcher = MemoryTransport::new(ActorId::Launcher, bus.clone(), format, seed);
+        for n in 0..topology.nodes() as u16 {
+            launcher.subscribe(Channel::Telemetry(n));
+        }
+        if centralized {
+            for s in 0..topology.sensors() as u16 {
+                launcher.subscribe(Channel::Observation(s));
+            }
+        }
+        let sensors = (0..topology.sensors() as u16)
+            .map(|i| {
+                let mut transport = MemoryTransport::new(ActorId::Sensor(i), bus.clone(), format, seed ^ (0x5000 + i as u64));
+                transport.subscribe(Channel::Tick);
+                transport.subscribe(Channel::Activation(topology.sensor_owner[i as usize]));
+                SensorSlot { actor: SensorActor::new(scenario, topology, i), transport, alive: true }
+            })
+            .collect();
+        let mut nodes = Vec::new();
+        for i in 0..topology.nodes() as u16 {
+            nodes.push(Self::make_node(scenario, topology, &bus, i)?);
+        }
+        let central = centralized.then(|| CentralizedReference::new(scenario, topology)).transpose().context("centralized reference")?;
+        Ok(Self {
+            scenario: scenario.clone(),
+            topology: topology.clone(),
+            bus,
+            launcher,
+            sensors,
+            nodes,
+            central,
+            world: World::new(scenario),
+            schedule: FaultSchedule::new(&scenario.faults),
+            retired: Accounting::default(),
+            outgoing: Vec::new(),
+            inbox: Vec::new(),
+        })
+    }
+
+    fn make_node(scenario: &Scenario, topology: &Topology, bus: &Rc<RefCell<MemoryBus>>, i: u16) -> anyhow::Result<NodeSlot> {
+        let actor = NodeActor::new(scenario, topology, i).with_context(|| format!("node-{i}"))?;
+        let mut transport = MemoryTransport::new(ActorId::Node(i), bus.clone(), node::wire_format(scenario, topology), scenario.seed ^ (0x1000 + i as u64));
+        for c in actor.subscriptions() {
+            transport.subscribe(c);
+        }
+        Ok(NodeSlot { actor, transport, alive: true })
+    }
+
+    /// Every byte counted by every actor, living or dead.
+    pub fn accounting(&self) -> Accounting {
+        let mut a = self.retired.clone();
+        a.merge(self.launcher.accounting());
+        for s in &self.sensors {
+            a.merge(s.transport.accounting());
+        }
+        for n in &self.nodes {
+            a.merge(n.transport.accounting());
+        }
+        a
+    }
+
+    fn alive_mask(&self) -> Vec<u8> {
+        let mut mask = vec![0u8; self.nodes.len().div_ceil(8)];
+        for (i, n) in self.nodes.iter().enumerate() {
+            if n.alive {
+                mask[i / 8] |= 1 << (i % 8);
+            }
+        }
+        mask
+    }
+
+    /// Applies the kills and restarts due at `step`; true if membership changed.
+    fn apply_process_faults(&mut self, step: u32) -> anyhow::Result<bool> {
+        let mut changed = false;
+        for event in self.schedule.process_events(step) {
+            match event {
+                ProcessEvent::Kill { actor: ActorId::Node(i), .. } => {
+                    let slot = &mut self.nodes[i as usize];
+                    slot.alive = false;
+                    changed = true;
+                }
+                ProcessEvent::Restart { actor: ActorId::Node(i), signal } => {
+                    if signal == fusion_graph::scenario::Signal::Stop {
+                        // SIGCONT: the same process resumes with its old state.
+                        self.nodes[i as usize].alive = true;
+                    } else {
+                        self.retired.merge(self.nodes[i as usize].transport.accounting());
+                        self.bus.borrow_mut().clear_inbox(ActorId::Node(i));
+                        self.nodes[i as usize] = Self::make_node(&self.scenario, &self.topology, &self.bus, i)?;
+                    }
+                    changed = true;
+                }
+                ProcessEvent::Kill { actor: ActorId::Sensor(i), .. } => self.sensors[i as usize].alive = false,
+                ProcessEvent::Restart { actor: ActorId::Sensor(i), .. } => self.sensors[i as usize].alive = true,
+                _ => {}
+            }
+        }
+        Ok(changed)
+    }
+
+    fn apply_link_faults(&mut self, step: u32) {
+        if self.schedule.faults().is_empty() {
+            return;
+        }
+        let t = &self.topology;
+        for n in &mut self.nodes {
+            let me = n.transport.me();
+            let rules = self.schedule.incoming_rules(step, me, t);
+            n.transport.shaper().clear_rules();
+            for (from, r) in rules {
+                n.transport.shaper().set_rule(from, r);
+            }
+        }
+        for s in &mut self.sensors {
+            let me = s.transport.me();
+            let rules = self.schedule.incoming_rules(step, me, t);
+            s.transport.shaper().clear_rules();
+            for (from, r) in rules {
+                s.transport.shaper().set_rule(from, r);
+            }
+        }
+    }
+
+    /// Runs one step on the virtual clock; returns the telemetry rows.
+    pub fn step(&mut self, step: u32) -> anyhow::Result<Vec<TickRow>> {
+        let period = Duration::from_secs_f64(self.scenario.clock.step_period_ms / 1e3);
+        let start = period * (step - 1);
+        self.bus.borrow_mut().set_now(start);
+        let membership_changed = self.apply_process_faults(step)?;
+        self.apply_link_faults(step);
+
+        let truth = self.world.advance();
+        let live_sensors: Vec<ActorId> = self.sensors.iter().filter(|s| s.alive).map(|s| s.transport.me()).collect();
+        let tick = Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth: truth.into() });
+        self.launcher.send(Channel::Tick, &tick, &live_sensors)?;
+        let mask = self.alive_mask();
+        for i in 0..self.nodes.len() {
+            if !self.nodes[i].alive {
+                continue;
+            }
+            let to = ActorId::Node(i as u16);
+            if membership_changed || step == 1 {
+                let m = Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive: mask.clone() }));
+                self.launcher.send(Channel::Control(to), &m, &[to])?;
+            }
+            self.launcher.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::BeginStep)), &[to])?;
+        }
+
+        let mut telemetry: Vec<(u16, Telemetry)> = Vec::new();
+        let deadline = start + Duration::from_secs_f64(self.scenario.clock.step_timeout_ms / 1e3);
+        let mut now = start;
+        loop {
+            let progressed = self.deliver_all(now, step, &mut telemetry)?;
+            if progressed {
+                continue;
+            }
+            if self.scenario.consensus.protocol == ConsensusProtocol::Exact && self.apply_exact_sums()? {
+                continue;
+            }
+            let live = self.nodes.iter().filter(|n| n.alive).count();
+            if telemetry.len() >= live {
+                break;
+            }
+            // Nothing moves: jump the clock to the next deadline or held message.
+            let next = self.next_event_time();
+            match next {
+                Some(t) if t <= deadline => {
+                    now = now.max(t);
+                    self.bus.borrow_mut().set_now(now);
+                    for n in self.nodes.iter_mut().filter(|n| n.alive) {
+                        self.outgoing.clear();
+                        n.actor.handle_deadline(now, &mut self.outgoing);
+                        for o in self.outgoing.drain(..) {
+                            n.transport.send(o.channel, &o.message, &o.receivers)?;
+                        }
+                    }
+                }
+                _ => break,
+            }
+        }
+
+        let mut rows: Vec<TickRow> = telemetry.into_iter().map(|(n, t)| TickRow { step, node: format!("node-{n}"), truth: truth.into(), telemetry: t }).collect();
+        rows.sort_by(|a, b| a.node.cmp(&b.node));
+        if let Some(central) = self.central.as_mut() {
+            let update = central.finish_step().context("centralized reference")?;
+            rows.push(TickRow { step, node: "central".into(), truth: truth.into(), telemetry: central_telemetry(update.estimate, update.bound, update.contribution) });
+        }
+        Ok(rows)
+    }
+
+    fn next_event_time(&mut self) -> Option<Duration> {
+        let mut next: Option<Duration> = None;
+        let mut consider = |t: Option<Duration>| {
+            if let Some(t) = t {
+                next = Some(next.map_or(t, |n: Duration| n.min(t)));
+            }
+        };
+        for n in self.nodes.iter_mut().filter(|n| n.alive) {
+            consider(n.actor.next_deadline());
+            consider(n.transport.shaper().next_due());
+        }
+        for s in self.sensors.iter_mut().filter(|s| s.alive) {
+            consider(s.transport.shaper().next_due());
+        }
+        next
+    }
+
+    /// One pass over every actor: receive, handle, send. True if anything moved.
+    fn deliver_all(&mut self, now: Duration, step: u32, telemetry: &mut Vec<(u16, Telemetry)>) -> anyhow::Result<bool> {
+        let mut progressed = false;
+        for s in self.sensors.iter_mut() {
+            self.inbox.clear();
+            s.transport.receive(now, &mut self.inbox)?;
+            if !s.alive {
+                continue;
+            }
+            for m in self.inbox.drain(..) {
+                progressed = true;
+                let input = match m.payload {
+                    Payload::Tick { truth } => SensorInput::Tick { step: m.header.step, truth: State::from(truth) },
+                    Payload::Activate { ref mask } => {
+                        let ActorId::Node(owner) = m.header.sender else { continue };
+                        let me = s.transport.me();
+                        let position = self.topology.node_sensors[owner as usize].iter().position(|x| ActorId::Sensor(*x) == me);
+                        let active = position.is_some_and(|p| mask.get(p / 8).is_some_and(|b| b & (1 << (p % 8)) != 0));
+                        SensorInput::Activation { step: m.header.step, active }
+                    }
+                    _ => continue,
+                };
+                if let Some(obs) = s.actor.handle(input) {
+                    let ActorId::Sensor(i) = s.transport.me() else { unreachable!() };
+                    let node = ActorId::Node(self.topology.sensor_owner[i as usize]);
+                    let receivers: &[ActorId] = if self.central.is_some() { &[node, ActorId::Launcher] } else { &[node] };
+                    s.transport.send(Channel::Observation(i), &obs, receivers)?;
+                }
+            }
+        }
+        for n in self.nodes.iter_mut() {
+            self.inbox.clear();
+            n.transport.receive(now, &mut self.inbox)?;
+            if !n.alive {
+                continue;
+            }
+            for m in self.inbox.drain(..) {
+                progressed = true;
+                self.outgoing.clear();
+                n.actor.handle(&m, now, &mut self.outgoing);
+                for o in self.outgoing.drain(..) {
+                    n.transport.send(o.channel, &o.message, &o.receivers)?;
+                }
+            }
+        }
+        self.inbox.clear();
+        self.launcher.receive(now, &mut self.inbox)?;
+        for m in self.inbox.drain(..) {
+            progressed = true;
+            match (&m.payload, m.header.sender) {
+                (Payload::Telemetry(t), ActorId::Node(n)) if m.header.step == step => telemetry.push((n, t.clone())),
+                (Payload::Observation { .. } | Payload::RawObservation { .. }, _) => {
+                    if let Some(c) = self.central.as_mut() {
+                        c.observe(&m);
+                    }
+                }
+                _ => {}
+            }
+        }
+        Ok(progressed)
+    }
+
+    /// Checking mode: once every live node waits for its sums, hands each the
+    /// exact sum over its live connected component. True if it did.
+    fn apply_exact_sums(&mut self) -> anyhow::Result<bool> {
+        let live: Vec<bool> = self.nodes.iter().map(|n| n.alive).collect();
+        let contributions: Vec<Option<Contribution>> = self.nodes.iter().map(|n| if n.alive { n.actor.pending_contribution() } else { None }).collect();
+        if contributions.iter().zip(&live).any(|(c, a)| *a && c.is_none()) || !live.iter().any(|a| *a) {
+            return Ok(false);
+        }
+        for component in self.topology.components(&live) {
+            let mut sum = Contribution::zero();
+            for &i in &component {
+                let c = contributions[i as usize].expect("checked above");
+                sum.delta_eta += c.delta_eta;
+                sum.delta_lambda += c.delta_lambda;
+                sum.delta_l += c.delta_l;
+                sum.s_obs += c.s_obs;
+            }
+            for &i in &component {
+                let n = &mut self.nodes[i as usize];
+                self.outgoing.clear();
+                n.actor.apply_exact_sums(&sum, &mut self.outgoing);
+                for o in self.outgoing.drain(..) {
+                    n.transport.send(o.channel, &o.message, &o.receivers)?;
+                }
+            }
+        }
+        Ok(true)
+    }
+}
+
+/// The centralized reference's step as a telemetry row.
+pub fn central_telemetry(estimate: State, bound: Option<f64>, _c: Contribution) -> Telemetry {
+    Telemetry {
+        estimate: estimate.into(),
+        bound,
+        local_bound: None,
+        aux_bound: None,
+        centralized_bound: None,
+        centralized_estimate: None,
+        rounds_completed: 0,
+        live_neighbours: 0,
+        observations: 0,
+        deadline_missed: false,
+        stage_micros: [0; 4],
+    }
+}
+
+/// Runs a whole scenario in one process and writes its results to `writer`.
+pub fn run_in_process(scenario: &Scenario, topology: &Topology, writer: &mut ResultsWriter, centralized: bool, mut progress: impl FnMut(u32)) -> anyhow::Result<Summary> {
+    let started = Instant::now();
+    let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
+    let mut averages = Averages::default();
+    let mut stages = StageSums::default();
+    let mut cost = FaultCost::default();
+    let degree: Vec<usize> = topology.neighbours.iter().map(Vec::len).collect();
+    for step in 1..=scenario.steps {
+        let rows = net.step(step)?;
+        let node_rows = rows.iter().filter(|r| r.node != "central").count();
+        cost.missing_node_steps += (topology.nodes() - node_rows) as u64;
+        for r in &rows {
+            averages.add(r);
+            if let Some(n) = r.node.strip_prefix("node-").and_then(|n| n.parse::<usize>().ok()) {
+                stages.add(r.telemetry.stage_micros);
+                if (r.telemetry.live_neighbours as usize) < degree[n] {
+                    cost.rounds_with_fewer_neighbours += 1;
+                }
+            }
+        }
+        writer.write_ticks(&rows)?;
+        progress(step);
+    }
+    let accounting = net.accounting();
+    writer.write_links(&accounting)?;
+    cost.dropped_messages = accounting.by_kind().values().map(|c| c.dropped_messages).sum();
+    cost.late_messages = net.nodes.iter().map(|n| n.actor.late_messages()).sum();
+    let wall = started.elapsed().as_secs_f64();
+    let (traffic, bound_traffic) = traffic(&accounting, scenario.steps);
+    let summary = Summary {
+        command: "sim".into(),
+        run_id: format!("sim-seed-{}", scenario.seed),
+        scenario: scenario.clone(),
+        steps: scenario.steps,
+        estimates: averages.estimates(),
+        traffic,
+        bound_traffic,
+        deadline_misses: averages.deadline_misses,
+        faults: scenario.faults.iter().map(AppliedFault::from_fault).collect(),
+        fault_cost: cost,
+        wall_seconds: wall,
+        steps_per_second: scenario.steps as f64 / wall,
+        stage_micros: stages.means(),
+        round_latency_micros: None,
+        processes: 1,
+        peak_memory_kb: crate::results::peak_memory_kb(),
+    };
+    writer.write_summary(&summary)?;
+    Ok(summary)
+}

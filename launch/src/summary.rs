@@ -1,0 +1,144 @@
+//! `summary.json`: what a run was, what it measured and what it cost.
+
+use serde::{Deserialize, Serialize};
+
+use fusion_graph::scenario::{Fault, Scenario};
+
+use crate::results::{BoundTraffic, Estimates, Traffic};
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct AppliedFault {
+    pub step: u32,
+    pub until_step: Option<u32>,
+    pub fault: String,
+}
+
+impl AppliedFault {
+    pub fn from_fault(f: &Fault) -> Self {
+        let fault = match f {
+            Fault::Delay { links, latency_ms, jitter_ms, .. } => format!("delay {latency_ms} ms ± {jitter_ms} ms on {}", links_text(links)),
+            Fault::Loss { links, probability, .. } => format!("loss {probability} on {}", links_text(links)),
+            Fault::Partition { groups, .. } => format!("partition {groups:?}"),
+            Fault::Kill { actor, signal, restart_after, .. } => format!("kill {actor} with {signal:?}{}", restart_after.map_or(String::new(), |r| format!(", restart after {r} steps"))),
+        };
+        Self { step: f.at_step(), until_step: f.end_step(), fault }
+    }
+}
+
+fn links_text(links: &[fusion_graph::scenario::LinkSelector]) -> String {
+    links.iter().map(|l| format!("{}->{}", l.from, l.to)).collect::<Vec<_>>().join(", ")
+}
+
+/// What the faults cost, over the whole run.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct FaultCost {
+    /// Messages dropped by injected loss and partitions.
+    pub dropped_messages: u64,
+    /// Messages that arrived after their round or step had passed.
+    pub late_messages: u64,
+    /// Node-steps whose last consensus round heard fewer neighbours than the topology has.
+    pub rounds_with_fewer_neighbours: u64,
+    /// Node-steps with no telemetry (dead, stopped or too late).
+    pub missing_node_steps: u64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Summary {
+    pub command: String,
+    pub run_id: String,
+    pub scenario: Scenario,
+    pub steps: u32,
+    pub estimates: Estimates,
+    pub traffic: Vec<Traffic>,
+    pub bound_traffic: BoundTraffic,
+    pub deadline_misses: u64,
+    pub faults: Vec<AppliedFault>,
+    pub fault_cost: FaultCost,
+    pub wall_seconds: f64,
+    pub steps_per_second: f64,
+    /// Mean microseconds per node-step: local filter (with local bound),
+    /// fusion filter (with global bound), consensus.
+    pub stage_micros: StageTimes,
+    /// Consensus round latency percentiles (multi-process runs).
+    pub round_latency_micros: Option<Percentiles>,
+    pub processes: usize,
+    pub peak_memory_kb: Option<u64>,
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct StageTimes {
+    pub local_filter: f64,
+    pub fusion_filter: f64,
+    pub consensus: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Percentiles {
+    pub p50: f64,
+    pub p99: f64,
+}
+
+impl Percentiles {
+    pub fn of(values: &mut [f64]) -> Option<Self> {
+        if values.is_empty() {
+            return None;
+        }
+        values.sort_by(f64::total_cmp);
+        let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+        Some(Self { p50: at(0.5), p99: at(0.99) })
+    }
+}
+
+/// Sums of stage times over node-steps, for [`StageTimes`].
+#[derive(Debug, Clone, Default)]
+pub struct StageSums {
+    sums: [f64; 4],
+    n: u64,
+}
+
+impl StageSums {
+    pub fn add(&mut self, micros: [u32; 4]) {
+        for (s, m) in self.sums.iter_mut().zip(micros) {
+            *s += m as f64;
+        }
+        self.n += 1;
+    }
+
+    pub fn means(&self) -> StageTimes {
+        let n = self.n.max(1) as f64;
+        StageTimes { local_filter: self.sums[0] / n, fusion_filter: self.sums[1] / n, consensus: self.sums[3] / n }
+    }
+}
+
+/// A one-screen table of the summary for the terminal.
+pub fn print_table(s: &Summary) {
+    let m = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
+    let e = &s.estimates;
+    println!("cqnet {} — scenario `{}`, run {}, {} steps", s.command, s.scenario.name, s.run_id, s.steps);
+    println!("  averages over steps {}..{}", e.from_step, s.steps);
+    println!("  {:<34} {:>12}", "position RMSE (fused), m", m(e.rmse));
+    println!("  {:<34} {:>12}", "CQ/dPCRLB bound, m", m(e.mean_bound));
+    println!("  {:<34} {:>12}", "local bound, m", m(e.mean_local_bound));
+    println!("  {:<34} {:>12}", "auxiliary-FIM baseline, m", m(e.mean_aux_bound));
+    println!("  {:<34} {:>12}", "centralized RMSE, m", m(e.centralized_rmse));
+    println!("  {:<34} {:>12}", "centralized bound, m", m(e.mean_centralized_bound));
+    println!("  bytes per step by kind:");
+    for t in &s.traffic {
+        println!("    {:<20} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages);
+    }
+    println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
+    for f in &s.faults {
+        println!("  fault at step {}{}: {}", f.step, f.until_step.map_or(String::new(), |u| format!("..{u}")), f.fault);
+    }
+    if !s.faults.is_empty() {
+        let c = &s.fault_cost;
+        println!("  fault cost: {} dropped, {} late, {} node-steps with fewer neighbours, {} node-steps missing", c.dropped_messages, c.late_messages, c.rounds_with_fewer_neighbours, c.missing_node_steps);
+    }
+    println!("  {:<34} {:>12.1}", "steps per second", s.steps_per_second);
+    let st = &s.stage_micros;
+    println!("  {:<34} {:>12}", "µs per node-step: local/fusion/cons", format!("{:.0}/{:.0}/{:.0}", st.local_filter, st.fusion_filter, st.consensus));
+    if let Some(p) = &s.round_latency_micros {
+        println!("  {:<34} {:>12}", "consensus round p50/p99, µs", format!("{:.0}/{:.0}", p.p50, p.p99));
+    }
+    println!("  {:<34} {:>12}", "processes", s.processes);
+}
