@@ -14,6 +14,9 @@ fn default_dynamics() -> Dynamics {
 }
 
 fn bench(c: &mut Criterion) {
+    let built = std::time::Instant::now();
+    bounds::fisher_table::table();
+    eprintln!("Fisher table built in {:.1} ms", built.elapsed().as_secs_f64() * 1e3);
     let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
     let model = ObservationModel::Bearing { sensor: [250.0, 350.0], sigma_theta: 0.02, d0: 500.0 };
     let x = State::new(700.0, 900.0, -6.0, -7.0);

@@ -13,6 +13,7 @@
 
 pub mod dynamics;
 pub mod fisher;
+pub mod fisher_table;
 pub mod normal;
 pub mod observation;
 pub mod pcrlb;

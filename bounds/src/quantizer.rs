@@ -26,6 +26,8 @@ pub struct Quantizer {
     bits: u8,
     edges: Vec<f64>,
     wrapped: bool,
+    /// `(lo, cell width)` of a uniform quantizer, for the Fisher table.
+    uniform: Option<(f64, f64)>,
 }
 
 /// `(h, ∂h/∂g, ∂h/∂R)` of one cell at one `(g, R)`.
@@ -93,13 +95,14 @@ impl Quantizer {
         let mut edges = edges;
         edges[0] = f64::NEG_INFINITY;
         edges[l] = f64::INFINITY;
-        Ok(Self { bits, edges, wrapped: false })
+        Ok(Self { bits, edges, wrapped: false, uniform: Some((lo, (hi - lo) / l as f64)) })
     }
 
     /// `2^bits` equal cells covering `[lo, hi)` periodically (for angles:
     /// `lo = −π`, `hi = π`).
     pub fn uniform_wrapped(bits: u8, lo: f64, hi: f64) -> Result<Self, QuantizerError> {
-        Ok(Self { bits, edges: uniform_edges(bits, lo, hi)?, wrapped: true })
+        let width = (hi - lo) / (1u64 << bits) as f64;
+        Ok(Self { bits, edges: uniform_edges(bits, lo, hi)?, wrapped: true, uniform: Some((lo, width)) })
     }
 
     /// Cells separated by the given interior thresholds (strictly increasing,
@@ -125,7 +128,7 @@ impl Quantizer {
         edges.push(f64::NEG_INFINITY);
         edges.extend_from_slice(thresholds);
         edges.push(f64::INFINITY);
-        Ok(Self { bits: bits as u8, edges, wrapped: false })
+        Ok(Self { bits: bits as u8, edges, wrapped: false, uniform: None })
     }
 
     pub fn bits(&self) -> u8 {
@@ -221,10 +224,29 @@ impl Quantizer {
     /// This is what particle weights use.
     pub fn ln_probability(&self, index: u32, mean: f64, variance: f64) -> f64 {
         let sigma = variance.sqrt();
-        let mut terms = [f64::NEG_INFINITY; 3];
-        for (slot, &j) in terms.iter_mut().zip(self.shifts()) {
+        if !self.wrapped {
+            let (a, b) = self.standardized(index as usize, 0.0, mean, sigma);
+            return ln_interval_mass(a, b);
+        }
+        // Of the three shifted copies of the cell, the nearest to the mean
+        // dominates; a copy whose nearest edge is 10σ farther contributes
+        // below e⁻⁵⁰ of it, so only copies within that margin are summed.
+        let distance = |j: f64| {
             let (a, b) = self.standardized(index as usize, j, mean, sigma);
-            *slot = ln_interval_mass(a, b);
+            if a <= 0.0 && b >= 0.0 {
+                0.0
+            } else {
+                a.abs().min(b.abs())
+            }
+        };
+        let d = [distance(-1.0), distance(0.0), distance(1.0)];
+        let nearest = d[0].min(d[1]).min(d[2]);
+        let mut terms = [f64::NEG_INFINITY; 3];
+        for (k, &j) in self.shifts().iter().enumerate() {
+            if d[k] <= nearest + 10.0 {
+                let (a, b) = self.standardized(index as usize, j, mean, sigma);
+                terms[k] = ln_interval_mass(a, b);
+            }
         }
         ln_sum_exp(&terms)
     }
@@ -243,21 +265,35 @@ impl Quantizer {
         s
     }
 
-    /// Fisher scalars summed over the cells within [`WINDOW_SIGMAS`] of the
-    /// mean. Allocation-free; this is the per-particle hot path.
+    /// Fisher scalars of one observation with mean g and variance R. For a
+    /// uniform quantizer whose outer cells are out of the window this reads
+    /// the shared table ([`crate::fisher_table`]); otherwise it sums the cells
+    /// within [`WINDOW_SIGMAS`] of the mean. Allocation-free: this is the
+    /// per-particle hot path.
+    #[inline]
     pub fn fisher_scalars(&self, mean: f64, variance: f64) -> FisherScalars {
+        if let Some((lo, width)) = self.uniform {
+            let sigma = variance.sqrt();
+            let reach = WINDOW_SIGMAS * sigma;
+            let inside = if self.wrapped { 2.0 * reach < self.period() } else { mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1] };
+            if inside {
+                if let Some(sums) = crate::fisher_table::table().lookup((mean - lo) / width, sigma / width) {
+                    return scalars_from_sums(sums, variance);
+                }
+            }
+        }
+        self.fisher_scalars_exact(mean, variance)
+    }
+
+    /// Fisher scalars summed exactly over the cells within [`WINDOW_SIGMAS`]
+    /// of the mean.
+    pub fn fisher_scalars_exact(&self, mean: f64, variance: f64) -> FisherScalars {
         let sigma = variance.sqrt();
         if self.wrapped && 2.0 * WINDOW_SIGMAS * sigma >= self.period() {
             return self.fisher_scalars_all_cells(mean, variance);
         }
         let (first, last) = (self.unrolled_cell(mean - WINDOW_SIGMAS * sigma), self.unrolled_cell(mean + WINDOW_SIGMAS * sigma));
-        let mut sums = [0.0; 3];
-        let mut lower = Edge::at((self.unrolled_edge(first) - mean) / sigma);
-        for m in first..=last {
-            let upper = Edge::at((self.unrolled_edge(m + 1) - mean) / sigma);
-            accumulate(&mut sums, lower.mass_to(&upper), lower.pdf - upper.pdf, lower.x_pdf - upper.x_pdf);
-            lower = upper;
-        }
+        let sums = window_sums((first..=last + 1).map(|m| (self.unrolled_edge(m) - mean) / sigma));
         scalars_from_sums(sums, variance)
     }
 
@@ -298,6 +334,21 @@ impl Quantizer {
         let l = self.cells() as i64;
         self.edges[m.rem_euclid(l) as usize] + m.div_euclid(l) as f64 * self.period()
     }
+}
+
+/// `Σα²/h, Σαβ/h, Σβ²/h` over the cells between consecutive standardized
+/// edges, each edge costing one `erfc` and one `exp`.
+#[inline]
+pub(crate) fn window_sums(mut edges: impl Iterator<Item = f64>) -> [f64; 3] {
+    let mut sums = [0.0; 3];
+    let Some(first) = edges.next() else { return sums };
+    let mut lower = Edge::at(first);
+    for t in edges {
+        let upper = Edge::at(t);
+        accumulate(&mut sums, lower.mass_to(&upper), lower.pdf - upper.pdf, lower.x_pdf - upper.x_pdf);
+        lower = upper;
+    }
+    sums
 }
 
 /// Adds one cell's `α²/h, αβ/h, β²/h` (standardized α, β).
@@ -446,15 +497,20 @@ mod tests {
             (&rss, -50.0, 2.0),
             (&rss, -99.0, 3.0),       // window reaches the unbounded cell
             (&rss, 20.0, 1.0),        // mean beyond the last edge
+            (&rss, -50.0, 0.3),       // table: interior, σ ≈ 0.8 cells
+            (&bearing, 2.0, 0.5),     // table: σ ≈ 20 cells
         ];
         for (q, mean, sigma) in cases {
             let v = sigma * sigma;
-            let (w, all) = (q.fisher_scalars(mean, v), q.fisher_scalars_all_cells(mean, v));
+            let all = q.fisher_scalars_all_cells(mean, v);
             // Measured against the unquantized information of the same scalar,
-            // the ceiling any quantizer approaches.
+            // the ceiling any quantizer approaches: the exact window drops
+            // below 1e-12 of it, the table (where it applies) errs below 1e-6.
             let raw = FisherScalars::raw(v);
-            for (a, b, scale) in [(w.gg, all.gg, raw.gg), (w.gr, all.gr, raw.gg / sigma), (w.rr, all.rr, raw.rr)] {
-                assert!((a - b).abs() <= 1e-12 * scale, "{mean} {sigma}: {a} vs {b}");
+            for (w, tolerance) in [(q.fisher_scalars_exact(mean, v), 1e-12), (q.fisher_scalars(mean, v), 1e-6)] {
+                for (a, b, scale) in [(w.gg, all.gg, raw.gg), (w.gr, all.gr, raw.gg / sigma), (w.rr, all.rr, raw.rr)] {
+                    assert!((a - b).abs() <= tolerance * scale, "{mean} {sigma}: {a} vs {b}");
+                }
             }
         }
     }

@@ -140,10 +140,15 @@ impl LocalFilter {
             self.filter.resample(&mut self.rng);
             return Ok(LocalUpdate { contribution: Contribution { delta_l, ..Contribution::zero() }, estimate, bound: self.bound.position_bound() });
         }
-        if self.filter.update(&mut self.rng, |x| observations.iter().map(|o| model.ln_likelihood(o, x)).sum()) == 0 {
+        let stages = self.filter.update(&mut self.rng, |x| observations.iter().map(|o| model.ln_likelihood(o, x)).sum());
+        if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
         }
-        let posterior = self.filter.summary();
+        // After a single stage the particles are still the importance-weighted prediction.
+        let posterior = match (stages, self.filter.importance_posterior()) {
+            (1, Some((g, _))) => g,
+            _ => self.filter.summary(),
+        };
         let mut s_obs = Mat4::zeros();
         if with_observed_information {
             for (x, w) in self.filter.particles().iter().zip(self.filter.weights()) {

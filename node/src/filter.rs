@@ -135,7 +135,7 @@ impl ParticleFilter {
     /// all the weight. Leaves the particles weighted by the last stage;
     /// returns the number of stages, 0 if no particle has a finite likelihood.
     pub fn update<R: Rng + ?Sized>(&mut self, rng: &mut R, mut ln_likelihood: impl FnMut(&State) -> f64) -> usize {
-        let n = self.particles.len() as f64;
+        let floor = ESS_FLOOR * self.particles.len() as f64;
         let mut done = 0.0;
         for stage in 1..=MAX_STAGES {
             for (l, p) in self.ln_likelihood.iter_mut().zip(&self.particles) {
@@ -146,19 +146,18 @@ impl ParticleFilter {
                 self.weights.copy_from_slice(&self.uniform);
                 return 0;
             }
-            if stage == 1 {
-                self.record_importance_posterior(max);
-            }
             let remaining = 1.0 - done;
-            let delta = if stage == MAX_STAGES || self.tempered_ess(remaining, max) >= ESS_FLOOR * n { remaining } else { self.largest_step(remaining, max, ESS_FLOOR * n) };
-            for (lw, l) in self.log_weights.iter_mut().zip(&self.ln_likelihood) {
-                *lw = delta * (l - max);
+            self.set_tempered_weights(remaining, max);
+            if stage == 1 {
+                // remaining = 1: these are the untempered importance weights.
+                self.importance_posterior = Some((self.summary(), self.effective_sample_size()));
             }
-            self.normalize();
-            done += delta;
-            if done >= 1.0 - 1e-12 {
+            if stage == MAX_STAGES || self.effective_sample_size() >= floor {
                 return stage;
             }
+            let delta = self.largest_step(remaining, max, floor);
+            self.set_tempered_weights(delta, max);
+            done += delta;
             let cov = self.summary().cov;
             self.resample(rng);
             self.regularize(&cov, rng);
@@ -166,15 +165,14 @@ impl ParticleFilter {
         MAX_STAGES
     }
 
-    /// The predicted particles weighted by the untempered likelihood.
-    fn record_importance_posterior(&mut self, max: f64) {
+    /// Normalized weights `∝ exp(δ (ℓ_j − max))`.
+    fn set_tempered_weights(&mut self, delta: f64, max: f64) {
+        let mut total = 0.0;
         for (w, l) in self.weights.iter_mut().zip(&self.ln_likelihood) {
-            *w = (l - max).exp();
+            *w = (delta * (l - max)).exp();
+            total += *w;
         }
-        let total: f64 = self.weights.iter().sum();
         self.weights.iter_mut().for_each(|w| *w /= total);
-        self.importance_posterior = Some((self.summary(), self.effective_sample_size()));
-        self.weights.copy_from_slice(&self.uniform);
     }
 
     /// The last update's posterior as importance weights on the predicted
@@ -199,7 +197,8 @@ impl ParticleFilter {
     /// The largest δ ≤ `upper` whose tempered ESS stays above `floor`, by bisection.
     fn largest_step(&self, upper: f64, max: f64, floor: f64) -> f64 {
         let (mut lo, mut hi) = (0.0, upper);
-        for _ in 0..30 {
+        // δ to within 2⁻¹⁴ of `upper` is plenty: the next stage takes the rest.
+        for _ in 0..14 {
             let mid = 0.5 * (lo + hi);
             if self.tempered_ess(mid, max) >= floor {
                 lo = mid;
