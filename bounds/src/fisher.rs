@@ -180,6 +180,30 @@ mod tests {
         }
     }
 
+    /// The information equality: averaged over the cells y ~ h(y | x), the
+    /// observed information at x is the expected information J_Y(x).
+    #[test]
+    fn observed_information_averages_to_the_expected_information() {
+        let model = bearing();
+        for bits in [3u8, 8] {
+            let q = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
+            for x in [State::new(900.0, 800.0, 3.0, -2.0), State::new(720.0, 360.0, 0.0, 0.0)] {
+                let e = model.evaluate(&x);
+                let mut average = Mat4::zeros();
+                for y in 0..q.cells() as u32 {
+                    let p = q.probability(y, e.g, e.r);
+                    if p > 1e-14 {
+                        average += observed_information(&model, &q, y, &x) * p;
+                    }
+                }
+                let expected = expected_information(&model, Measurement::Quantized(&q), &x);
+                let raw = expected_information(&model, Measurement::Raw, &x);
+                let err = (average - expected).abs().max() / raw.abs().max();
+                assert!(err < 1e-4, "{bits} bits at {x:?}: {err}\n{average}\n{expected}");
+            }
+        }
+    }
+
     #[test]
     fn raw_information_of_a_linear_sensor_is_h_h_over_r() {
         let m = ObservationModel::Linear { h: [1.0, 0.0, 0.0, 0.0], r: 4.0 };

@@ -416,7 +416,7 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), S
 
 /// Keys that may be absent from a scenario file but can be set.
 fn is_optional_key(key: &str) -> bool {
-    matches!(key, "lo" | "hi" | "max_active_total" | "allow_disconnected" | "auxiliary_fim" | "raw" | "min_speed" | "centralized" | "grid" | "positions" | "per_cell")
+    matches!(key, "faults" | "lo" | "hi" | "max_active_total" | "allow_disconnected" | "auxiliary_fim" | "raw" | "min_speed" | "centralized" | "grid" | "positions" | "per_cell")
 }
 
 #[cfg(test)]

@@ -253,10 +253,10 @@ impl FusionFilter {
         let terms = dynamics_terms(&model.dynamics, self.filter.particles(), self.filter.uniform_weights())?;
         self.filter.predict(&model.dynamics, &mut self.rng);
         let centre = self.filter.summary().mean;
-        let lambda = clip_negative_eigenvalues(&sums.delta_lambda);
+        let (lambda, eta) = clip_negative_eigenvalues(&sums.delta_lambda, &sums.delta_eta);
         // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
         // keeps the exponent's terms small: −½dᵀΛd + dᵀ(η − Λc) + const.
-        let linear = sums.delta_eta - lambda * centre;
+        let linear = eta - lambda * centre;
         self.filter.update(&mut self.rng, |x| {
             let d = x - centre;
             -0.5 * d.dot(&(lambda * d)) + d.dot(&linear)
@@ -280,16 +280,23 @@ impl FusionFilter {
     }
 }
 
-/// Sets negative eigenvalues to zero (ΣδΛ may be indefinite after
-/// consensus on noisy estimates).
-pub fn clip_negative_eigenvalues(m: &Mat4) -> Mat4 {
-    let sym = (m + m.transpose()) * 0.5;
+/// Sets the negative eigenvalues of ΣδΛ to zero (it may be indefinite after
+/// consensus on Monte Carlo estimates) and removes from Σδη its component
+/// along those directions. The factor `exp(−½xᵀΛx + xᵀη)` is a Gaussian only
+/// while η lies in the range of Λ; a component of η along a zeroed direction
+/// would be an unbounded linear tilt that drags every particle away.
+/// Eigenvalues below 1e-12 of the largest count as zero.
+pub fn clip_negative_eigenvalues(lambda: &Mat4, eta: &State) -> (Mat4, State) {
+    let sym = (lambda + lambda.transpose()) * 0.5;
     let eig = SymmetricEigen::new(sym);
-    if eig.eigenvalues.iter().all(|v| *v >= 0.0) {
-        return sym;
+    let floor = 1e-12 * eig.eigenvalues.abs().max();
+    if eig.eigenvalues.iter().all(|v| *v > floor) {
+        return (sym, *eta);
     }
-    let clipped = eig.eigenvalues.map(|v| v.max(0.0));
-    eig.eigenvectors * Mat4::from_diagonal(&clipped) * eig.eigenvectors.transpose()
+    let keep = eig.eigenvalues.map(|v| if v > floor { 1.0 } else { 0.0 });
+    let clipped = eig.eigenvalues.component_mul(&keep);
+    let v = &eig.eigenvectors;
+    (v * Mat4::from_diagonal(&clipped) * v.transpose(), v * Mat4::from_diagonal(&keep) * v.transpose() * eta)
 }
 
 #[cfg(test)]
@@ -297,12 +304,18 @@ mod tests {
     use super::*;
 
     #[test]
-    fn clipping_removes_only_negative_directions() {
+    fn clipping_removes_negative_directions_from_both_lambda_and_eta() {
         let m = Mat4::from_diagonal(&State::new(2.0, -1.0, 0.5, -3.0));
-        let c = clip_negative_eigenvalues(&m);
+        let (c, eta) = clip_negative_eigenvalues(&m, &State::new(1.0, 1.0, 1.0, 1.0));
         assert!((c - Mat4::from_diagonal(&State::new(2.0, 0.0, 0.5, 0.0))).abs().max() < 1e-12);
+        assert!((eta - State::new(1.0, 0.0, 1.0, 0.0)).abs().max() < 1e-12);
         let psd = Mat4::identity() * 3.0;
-        assert_eq!(clip_negative_eigenvalues(&psd), psd);
+        assert_eq!(clip_negative_eigenvalues(&psd, &State::zeros()).0, psd);
+        // A position-only (rank-2) Λ keeps only η's position part.
+        let pos = Mat4::from_diagonal(&State::new(1.0, 2.0, 0.0, 0.0));
+        let (c, eta) = clip_negative_eigenvalues(&pos, &State::new(3.0, 4.0, 5.0, 6.0));
+        assert!((c - pos).abs().max() < 1e-12);
+        assert!((eta - State::new(3.0, 4.0, 0.0, 0.0)).abs().max() < 1e-12);
     }
 
     #[test]
