@@ -85,6 +85,12 @@ pub struct ActorArgs {
     /// The run's effective scenario, written by the launcher.
     #[arg(long)]
     pub scenario: PathBuf,
+    /// Sensors: also send observations to the launcher's centralized reference.
+    #[arg(long)]
+    pub centralized: bool,
+    /// Nodes: started mid-run, rejoin from a neighbour's fused posterior.
+    #[arg(long)]
+    pub rejoin: bool,
 }
 
 /// The scenario the arguments name, validated, with its topology.

@@ -1,9 +1,12 @@
 //! The `cqnet` command's library: everything the binary does, so that
 //! integration tests can drive it too.
 
+pub mod actor_process;
 pub mod cli;
 pub mod montecarlo;
+pub mod network;
 pub mod results;
 pub mod sim;
 pub mod summary;
+pub mod supervisor;
 pub mod world;

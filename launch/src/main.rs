@@ -59,8 +59,21 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Run(_) => anyhow::bail!("`cqnet run` is not built yet"),
-        Command::Actor(_) => anyhow::bail!("`cqnet actor` is not built yet"),
+        Command::Run(args) => {
+            let (scenario, topology) = load_scenario(&args.scenario)?;
+            let run_id = match &args.run_id {
+                Some(id) => fusion_graph::transport::RunId::new(id)?,
+                None => fusion_graph::transport::RunId::generate(),
+            };
+            let options = launch::network::RunOptions { out: args.out.clone(), lockstep: args.lockstep, run_id, centralized: !args.no_central };
+            let steps = scenario.steps;
+            let progress = Progress::new("step", steps);
+            let summary = launch::network::run_network(&scenario, &topology, options, move |s| progress.update(s))?;
+            print_table(&summary);
+            println!("results in {}", args.out.display());
+            Ok(())
+        }
+        Command::Actor(args) => launch::actor_process::run_actor(&args),
     }
     .context("cqnet")
 }

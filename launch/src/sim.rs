@@ -143,6 +143,7 @@ impl InProcessNetwork {
                         self.retired.merge(self.nodes[i as usize].transport.accounting());
                         self.bus.borrow_mut().clear_inbox(ActorId::Node(i));
                         self.nodes[i as usize] = Self::make_node(&self.scenario, &self.topology, &self.bus, i)?;
+                        self.nodes[i as usize].actor.expect_rejoin();
                     }
                     changed = true;
                 }

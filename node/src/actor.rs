@@ -151,10 +151,13 @@ pub struct NodeActor {
     phase: Phase,
     heard: Vec<Heard>,
     flags: StepFlags,
-    /// Set when this node started mid-run (a restart): it takes the first
-    /// fused posterior a neighbour offers instead of its prior.
+    /// Set when this node restarted mid-run, or resumed after missing steps:
+    /// it takes the first fused posterior a neighbour offers instead of its
+    /// own stale or prior state.
     needs_state: bool,
-    started: bool,
+    /// The latest fused posterior a neighbour offered, and its step.
+    offered_state: Option<(u32, StateTransfer)>,
+    last_step: Option<u32>,
     late_messages: u64,
 }
 
@@ -183,13 +186,20 @@ impl NodeActor {
             heard: Vec::new(),
             flags: StepFlags::default(),
             needs_state: false,
-            started: false,
+            offered_state: None,
+            last_step: None,
             late_messages: 0,
         })
     }
 
     pub fn id(&self) -> ActorId {
         ActorId::Node(self.index)
+    }
+
+    /// Marks a node started in the middle of a run (a restart): it rejoins
+    /// from a neighbour's fused posterior.
+    pub fn expect_rejoin(&mut self) {
+        self.needs_state = true;
     }
 
     /// The channels this node reads.
@@ -246,7 +256,7 @@ impl NodeActor {
                 self.hear(step, message.header.round, m, Some(main), None, now, out);
             }
             (Payload::ConsensusAux { s_obs }, ActorId::Node(m)) => self.hear(step, message.header.round, m, None, Some(*s_obs), now, out),
-            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
+            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(step, s),
             (p, from) => tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a node"),
         }
     }
@@ -261,9 +271,17 @@ impl NodeActor {
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !self.started {
-            self.started = true;
-            self.needs_state = step > 1;
+        // Resumed after missing steps (SIGSTOP, SIGCONT): the state is stale.
+        if self.last_step.is_some_and(|last| step > last + 1) {
+            self.needs_state = true;
+        }
+        self.last_step = Some(step);
+        if self.needs_state {
+            if let Some((offered_at, state)) = self.offered_state.take() {
+                if offered_at + 2 >= step {
+                    self.apply_state(&state);
+                }
+            }
         }
         if !self.is_idle() {
             // The previous step overran: finish it with what we have.
@@ -497,7 +515,7 @@ impl NodeActor {
         self.alive[self.index as usize] = true;
         // A neighbour that came back gets our fused posterior to rejoin from.
         let returned: Vec<u16> = self.live_neighbours().into_iter().filter(|m| !before[*m as usize]).collect();
-        if !returned.is_empty() && self.started && !self.needs_state {
+        if let (false, Some(step), false) = (returned.is_empty(), self.last_step, self.needs_state) {
             let p = self.fusion.posterior();
             let state = StateTransfer {
                 mean: std::array::from_fn(|i| p.mean[i]),
@@ -506,14 +524,20 @@ impl NodeActor {
                 aux_information: self.fusion.aux_information().map_or([0.0; 10], pack_matrix),
             };
             let receivers = returned.into_iter().map(ActorId::Node).collect();
-            out.push(Outgoing { channel: Channel::Consensus(self.index), message: Message::new(self.id(), 0, 0, Payload::StateTransfer(state)), receivers });
+            out.push(Outgoing { channel: Channel::Consensus(self.index), message: Message::new(self.id(), step, 0, Payload::StateTransfer(state)), receivers });
         }
     }
 
-    fn take_state(&mut self, s: &StateTransfer) {
-        if !self.needs_state {
-            return;
+    fn take_state(&mut self, step: u32, s: &StateTransfer) {
+        if self.needs_state {
+            self.apply_state(s);
+        } else {
+            // Kept in case the next step shows this node fell behind.
+            self.offered_state = Some((step, s.clone()));
         }
+    }
+
+    fn apply_state(&mut self, s: &StateTransfer) {
         let posterior = Gaussian { mean: State::from(s.mean), cov: unpack_matrix(&s.covariance) };
         let info = unpack_matrix(&s.information);
         self.fusion.reset(&posterior, info, self.with_aux.then(|| unpack_matrix(&s.aux_information)));

@@ -1,0 +1,191 @@
+//! `cqnet actor`: one actor of a `cqnet run` network in its own process.
+//! The shell around the same state machines the in-process driver runs:
+//! iceoryx2 in, state machine, iceoryx2 out, and nothing else.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::Context;
+use bounds::State;
+use fusion_graph::faults::FaultSchedule;
+use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
+use fusion_graph::wire::{Control, Message, Payload};
+use fusion_graph::{ActorId, Scenario, Topology};
+use node::NodeActor;
+use sensor::{SensorActor, SensorInput};
+
+use crate::cli::{load_child_scenario, ActorArgs};
+use crate::results::write_atomically;
+
+/// Byte counters are flushed to disk this often, so a killed actor loses at
+/// most this many steps of its own counts.
+const FLUSH_EVERY_STEPS: u32 = 10;
+/// Longest sleep between checks that the launcher is still there.
+const IDLE_WAIT: Duration = Duration::from_millis(500);
+
+/// Test hook: an actor named in this variable fails at start, so the
+/// launcher's handling of a child that cannot start can be tested.
+pub const FAIL_AT_START_ENV: &str = "CQNET_FAIL_AT_START";
+
+pub fn accounting_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.csv"))
+}
+
+pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
+    // Die with the launcher, whatever happens to it.
+    nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL).context("prctl(PR_SET_PDEATHSIG)")?;
+    let actor: ActorId = args.actor.parse().map_err(anyhow::Error::msg)?;
+    if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {
+        anyhow::bail!("failing at start as {FAIL_AT_START_ENV} asks");
+    }
+    let (scenario, topology) = load_child_scenario(&args.scenario)?;
+    anyhow::ensure!(topology.contains(actor) && actor != ActorId::Launcher, "{actor} is not an actor of this scenario");
+    let run = RunId::new(&args.run_id)?;
+    let out = args.scenario.parent().map(Path::to_path_buf).unwrap_or_default();
+    std::fs::create_dir_all(out.join("accounting"))?;
+    match actor {
+        ActorId::Sensor(i) => sensor_loop(&scenario, &topology, &run, i, &out, args.centralized),
+        ActorId::Node(i) => node_loop(&scenario, &topology, &run, i, &out, args.rejoin),
+        ActorId::Launcher => unreachable!("checked above"),
+    }
+}
+
+fn announce_ready() {
+    // The launcher reads this line from our stdout.
+    println!("ready");
+}
+
+fn launcher_gone() -> bool {
+    nix::unistd::getppid() == nix::unistd::Pid::from_raw(1)
+}
+
+fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
+    write_atomically(&accounting_path(out, transport.me()), transport.accounting().to_csv().as_bytes())
+}
+
+/// Sets this actor's incoming link rules for `step` from the fault schedule.
+fn apply_link_faults(transport: &mut IceoryxTransport, schedule: &FaultSchedule, topology: &Topology, step: u32) {
+    if schedule.faults().is_empty() {
+        return;
+    }
+    let me = transport.me();
+    let rules = schedule.incoming_rules(step, me, topology);
+    transport.shaper().clear_rules();
+    for (from, rule) in rules {
+        transport.shaper().set_rule(from, rule);
+    }
+}
+
+fn sensor_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16, out: &Path, centralized: bool) -> anyhow::Result<()> {
+    let me = ActorId::Sensor(index);
+    let owner = ActorId::Node(topology.sensor_owner[index as usize]);
+    let ActorId::Node(owner_index) = owner else { unreachable!() };
+    let mut actor = SensorActor::new(scenario, topology, index);
+    let mut t = IceoryxTransport::new(run, me, topology, node::wire_format(scenario, topology), scenario.seed ^ (0x5000 + index as u64))?;
+    t.publish_on(Channel::Observation(index))?;
+    t.subscribe(Channel::Tick)?;
+    t.subscribe(Channel::Activation(owner_index))?;
+    t.notify(owner)?;
+    let receivers: Vec<ActorId> = if centralized {
+        t.notify(ActorId::Launcher)?;
+        vec![owner, ActorId::Launcher]
+    } else {
+        vec![owner]
+    };
+    let schedule = FaultSchedule::new(&scenario.faults);
+    let position = topology.node_sensors[owner_index as usize].iter().position(|s| *s == index).expect("a sensor belongs to its node");
+    announce_ready();
+    let mut inbox = Vec::new();
+    let mut step = 0;
+    loop {
+        t.wait(IDLE_WAIT)?;
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox)?;
+        for m in inbox.drain(..) {
+            let input = match m.payload {
+                Payload::Control(Control::Stop) => return flush_accounting(&t, out),
+                Payload::Tick { truth } => {
+                    if m.header.step != step {
+                        step = m.header.step;
+                        apply_link_faults(&mut t, &schedule, topology, step);
+                        t.update_connections();
+                        if step % FLUSH_EVERY_STEPS == 0 {
+                            flush_accounting(&t, out)?;
+                        }
+                    }
+                    SensorInput::Tick { step: m.header.step, truth: State::from(truth) }
+                }
+                Payload::Activate { mask } => SensorInput::Activation { step: m.header.step, active: mask.get(position / 8).is_some_and(|b| b & (1 << (position % 8)) != 0) },
+                _ => continue,
+            };
+            if let Some(obs) = actor.handle(input) {
+                t.send(Channel::Observation(index), &obs, &receivers)?;
+            }
+        }
+        if launcher_gone() {
+            return Ok(());
+        }
+    }
+}
+
+fn node_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16, out: &Path, rejoin: bool) -> anyhow::Result<()> {
+    let mut actor = NodeActor::new(scenario, topology, index).map_err(|e| anyhow::anyhow!("node-{index}: {e}"))?;
+    if rejoin {
+        actor.expect_rejoin();
+    }
+    let mut t = IceoryxTransport::new(run, actor.id(), topology, node::wire_format(scenario, topology), scenario.seed ^ (0x1000 + index as u64))?;
+    for c in actor.publications() {
+        t.publish_on(c)?;
+    }
+    for c in actor.subscriptions() {
+        t.subscribe(c)?;
+    }
+    for p in actor.peers() {
+        t.notify(p)?;
+    }
+    let schedule = FaultSchedule::new(&scenario.faults);
+    announce_ready();
+    let mut inbox = Vec::new();
+    let mut outgoing = Vec::new();
+    loop {
+        let now = t.now();
+        let timeout = actor.next_deadline().map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
+        t.wait(timeout)?;
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox)?;
+        for m in inbox.drain(..) {
+            match (&m.payload, m.header.sender) {
+                (Payload::Control(Control::Stop), ActorId::Launcher) => return flush_accounting(&t, out),
+                (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                    apply_link_faults(&mut t, &schedule, topology, m.header.step);
+                    t.update_connections();
+                    if m.header.step % FLUSH_EVERY_STEPS == 0 {
+                        flush_accounting(&t, out)?;
+                    }
+                }
+                _ => {}
+            }
+            actor.handle(&m, now, &mut outgoing);
+            send_all(&mut t, &mut outgoing)?;
+        }
+        actor.handle_deadline(t.now(), &mut outgoing);
+        send_all(&mut t, &mut outgoing)?;
+        if launcher_gone() {
+            return Ok(());
+        }
+    }
+}
+
+fn send_all(t: &mut IceoryxTransport, outgoing: &mut Vec<node::Outgoing>) -> anyhow::Result<()> {
+    for o in outgoing.drain(..) {
+        t.send(o.channel, &o.message, &o.receivers)?;
+    }
+    Ok(())
+}
+
+/// The message that tells every sensor to stop (sent on the tick channel).
+pub fn stop_message(step: u32) -> Message {
+    Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Stop))
+}

@@ -1,0 +1,414 @@
+//! `cqnet run`: the launcher's side of a multi-process network. The world
+//! thread owns the launcher's iceoryx2 ports (they are not `Send`): it ticks
+//! the world, applies the fault schedule, collects telemetry and the
+//! centralized reference, and writes results. The supervisor (tokio, on the
+//! main thread) owns the processes.
+
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use fusion_graph::accounting::Accounting;
+use fusion_graph::faults::{FaultSchedule, ProcessEvent};
+use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
+use fusion_graph::transport::iceoryx::remove_run_resources;
+use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
+use fusion_graph::wire::{Control, Message, Payload};
+use fusion_graph::{ActorId, Topology};
+use node::CentralizedReference;
+use tokio::sync::mpsc::UnboundedSender;
+
+use crate::actor_process::{accounting_path, stop_message};
+use crate::results::{traffic, write_atomically, Averages, ResultsWriter, TickRow};
+use crate::sim::central_telemetry;
+use crate::summary::{AppliedFault, FaultCost, Percentiles, StageSums, Summary};
+use crate::supervisor::{supervise, ChildSpec, Command, Event};
+use crate::world::World;
+
+/// How long children get to start and say `ready`.
+const START_TIMEOUT: Duration = Duration::from_secs(120);
+
+pub struct RunOptions {
+    pub out: PathBuf,
+    pub lockstep: bool,
+    pub run_id: RunId,
+    pub centralized: bool,
+}
+
+/// Runs the network: spawns every actor, runs the steps, stops and reaps
+/// every child and removes the run's shared memory, pass or fail.
+pub fn run_network(scenario: &Scenario, topology: &Topology, options: RunOptions, mut progress: impl FnMut(u32) + Send + 'static) -> anyhow::Result<Summary> {
+    if scenario.consensus.protocol == ConsensusProtocol::Exact {
+        bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
+    }
+    std::fs::create_dir_all(options.out.join("logs"))?;
+    std::fs::create_dir_all(options.out.join("accounting"))?;
+    let scenario_file = options.out.join("scenario.toml");
+    write_atomically(&scenario_file, scenario.to_toml().as_bytes())?;
+    let spec = ChildSpec {
+        executable: std::env::current_exe().context("finding the cqnet executable")?,
+        run_id: options.run_id.as_str().to_string(),
+        scenario_file,
+        log_dir: options.out.join("logs"),
+        centralized: options.centralized,
+    };
+    let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
+    let (event_tx, event_rx) = std::sync::mpsc::channel();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+
+    let world_scenario = scenario.clone();
+    let world_topology = topology.clone();
+    let run_id = options.run_id.clone();
+    let world = std::thread::Builder::new()
+        .name("world".into())
+        .spawn(move || {
+            let result = world_thread(&world_scenario, &world_topology, &options, &command_tx, &event_rx, &mut progress);
+            // Whatever happened, every child is told to go and is reaped.
+            let _ = command_tx.send(Command::Shutdown);
+            let reaped = wait_for(&event_rx, Duration::from_secs(30), |e| matches!(e, Event::AllReaped));
+            (result, reaped)
+        })
+        .context("starting the world thread")?;
+    // Children are spawned from this (the main) thread, which lives until
+    // they are all reaped: their parent-death signal is tied to it.
+    runtime.block_on(supervise(spec, command_rx, event_tx));
+    let (result, _) = world.join().map_err(|_| anyhow::anyhow!("the world thread panicked"))?;
+    remove_run_resources(&run_id).context("removing the run's shared memory")?;
+    result
+}
+
+/// Waits until an event matches, or the timeout passes.
+fn wait_for(events: &Receiver<Event>, timeout: Duration, mut matches: impl FnMut(&Event) -> bool) -> bool {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match events.recv_timeout(left) {
+            Ok(e) if matches(&e) => return true,
+            Ok(_) => {}
+            Err(_) => return false,
+        }
+    }
+}
+
+struct WorldState<'a> {
+    topology: &'a Topology,
+    transport: IceoryxTransport,
+    commands: &'a UnboundedSender<Command>,
+    events: &'a Receiver<Event>,
+    alive: Vec<bool>,
+    sensors_alive: Vec<bool>,
+    /// Actors we killed on purpose (their exit is not an error).
+    expected_exits: HashSet<ActorId>,
+    unexpected_exits: Vec<String>,
+    interrupted: bool,
+}
+
+/// The world thread: the launcher's network side, from spawning to results.
+fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, commands: &UnboundedSender<Command>, events: &Receiver<Event>, progress: &mut dyn FnMut(u32)) -> anyhow::Result<Summary> {
+    let started = Instant::now();
+    let mut writer = ResultsWriter::create(&options.out)?;
+    let mut t = IceoryxTransport::new(&options.run_id, ActorId::Launcher, topology, node::wire_format(scenario, topology), scenario.seed)?;
+    // The launcher creates the services everyone shares before anyone else opens them.
+    t.publish_on(Channel::Tick)?;
+    for n in 0..topology.nodes() as u16 {
+        t.publish_on(Channel::Control(ActorId::Node(n)))?;
+        t.subscribe(Channel::Telemetry(n))?;
+    }
+    if options.centralized {
+        for s in 0..topology.sensors() as u16 {
+            t.subscribe(Channel::Observation(s))?;
+        }
+    }
+    for a in topology.actors() {
+        t.notify(a)?;
+    }
+    let mut w = WorldState {
+        topology,
+        transport: t,
+        commands,
+        events,
+        alive: vec![true; topology.nodes()],
+        sensors_alive: vec![true; topology.sensors()],
+        expected_exits: HashSet::new(),
+        unexpected_exits: Vec::new(),
+        interrupted: false,
+    };
+    let actors: Vec<ActorId> = topology.actors().collect();
+    for a in &actors {
+        commands.send(Command::Spawn { actor: *a, rejoin: false })?;
+    }
+    w.await_ready(&actors)?;
+    w.transport.update_connections();
+
+    let mut world = World::new(scenario);
+    let mut central = options.centralized.then(|| CentralizedReference::new(scenario, topology)).transpose().context("centralized reference")?;
+    let schedule = FaultSchedule::new(&scenario.faults);
+    let period = Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3);
+    let step_timeout = Duration::from_secs_f64(scenario.clock.step_timeout_ms / 1e3);
+    let lockstep = options.lockstep || scenario.clock.mode == ClockMode::Lockstep;
+    let mut averages = Averages::default();
+    let mut stages = StageSums::default();
+    let mut cost = FaultCost::default();
+    let mut round_latency = Vec::new();
+    let mut reported: BTreeMap<u32, HashSet<u16>> = BTreeMap::new();
+    let mut truths: BTreeMap<u32, [f64; 4]> = BTreeMap::new();
+    let run_start = Instant::now();
+    let mut inbox = Vec::new();
+    let mut steps_done = 0;
+
+    for step in 1..=scenario.steps {
+        let membership_changed = w.apply_process_faults(&schedule, step)?;
+        w.apply_own_link_faults(&schedule, step);
+        let truth = world.advance();
+        truths.insert(step, truth.into());
+        w.begin_step(step, truth.into(), membership_changed)?;
+        let step_start = Instant::now();
+        let step_end = if lockstep { step_start + step_timeout } else { run_start + period * step };
+        loop {
+            let all_in = reported.get(&step).map_or(0, |s| s.len()) >= w.alive.iter().filter(|a| **a).count();
+            if (lockstep && all_in) || Instant::now() >= step_end || w.interrupted {
+                break;
+            }
+            let left = step_end.saturating_duration_since(Instant::now());
+            w.transport.wait(left.min(Duration::from_millis(50)))?;
+            inbox.clear();
+            let now = w.transport.now();
+            w.transport.receive(now, &mut inbox)?;
+            let mut rows = Vec::new();
+            for m in inbox.drain(..) {
+                match (m.payload, m.header.sender) {
+                    (Payload::Telemetry(tel), ActorId::Node(n)) => {
+                        let Some(truth) = truths.get(&m.header.step) else { continue };
+                        if !reported.entry(m.header.step).or_default().insert(n) {
+                            continue;
+                        }
+                        stages.add(tel.stage_micros);
+                        if tel.rounds_completed > 0 {
+                            round_latency.push(tel.stage_micros[3] as f64 / tel.rounds_completed as f64);
+                        }
+                        if (tel.live_neighbours as usize) < topology.neighbours[n as usize].len() {
+                            cost.rounds_with_fewer_neighbours += 1;
+                        }
+                        rows.push(TickRow { step: m.header.step, node: format!("node-{n}"), truth: *truth, telemetry: tel });
+                    }
+                    (payload @ (Payload::Observation { .. } | Payload::RawObservation { .. }), sender) => {
+                        if let Some(c) = central.as_mut() {
+                            c.observe(&Message { header: m.header, payload });
+                            let _ = sender;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            rows.iter().for_each(|r| averages.add(r));
+            writer.write_ticks(&rows)?;
+            w.poll_events();
+        }
+        if let Some(c) = central.as_mut() {
+            let update = c.finish_step().context("centralized reference")?;
+            let row = TickRow { step, node: "central".into(), truth: truth.into(), telemetry: central_telemetry(update.estimate, update.bound, update.contribution) };
+            averages.add(&row);
+            writer.write_ticks(&[row])?;
+        }
+        steps_done = step;
+        progress(step);
+        if w.interrupted {
+            break;
+        }
+    }
+    let wall_steps = run_start.elapsed().as_secs_f64();
+
+    // Stop everyone and gather their byte counts.
+    let last = steps_done;
+    for n in 0..topology.nodes() as u16 {
+        let to = ActorId::Node(n);
+        let _ = w.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, last, 0, Payload::Control(Control::Stop)), &[to]);
+    }
+    let sensors: Vec<ActorId> = (0..topology.sensors() as u16).map(ActorId::Sensor).collect();
+    let _ = w.transport.send(Channel::Tick, &stop_message(last), &sensors);
+    let mut exited: HashSet<ActorId> = HashSet::new();
+    let live: HashSet<ActorId> = topology.actors().filter(|a| w.is_alive(*a)).collect();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !live.is_subset(&exited) && Instant::now() < deadline {
+        match w.events.recv_timeout(Duration::from_millis(50)) {
+            Ok(Event::Exited { actor, .. }) => {
+                exited.insert(actor);
+            }
+            Ok(_) | Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
+        }
+    }
+    let accounting = merge_accounting(&options.out, topology, w.transport.accounting());
+    writer.write_links(&accounting)?;
+    // Node-steps without telemetry.
+    let expected_rows = steps_done as u64 * topology.nodes() as u64;
+    cost.missing_node_steps = expected_rows.saturating_sub(reported.values().map(|s| s.len() as u64).sum());
+    cost.dropped_messages = accounting.by_kind().values().map(|c| c.dropped_messages).sum();
+    let (traffic, bound_traffic) = traffic(&accounting, steps_done.max(1));
+    let summary = Summary {
+        command: if lockstep { "run --lockstep".into() } else { "run".into() },
+        run_id: options.run_id.to_string(),
+        scenario: scenario.clone(),
+        steps: steps_done,
+        estimates: averages.estimates(),
+        traffic,
+        bound_traffic,
+        deadline_misses: averages.deadline_misses,
+        faults: scenario.faults.iter().map(AppliedFault::from_fault).collect(),
+        fault_cost: cost,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        steps_per_second: steps_done as f64 / wall_steps,
+        stage_micros: stages.means(),
+        round_latency_micros: Percentiles::of(&mut round_latency),
+        processes: topology.nodes() + topology.sensors() + 1,
+        peak_memory_kb: crate::results::peak_memory_kb(),
+    };
+    writer.write_summary(&summary)?;
+    if w.interrupted {
+        bail!("interrupted at step {steps_done}; results so far are in {}", options.out.display());
+    }
+    for e in &w.unexpected_exits {
+        tracing::warn!("{e}");
+    }
+    Ok(summary)
+}
+
+impl WorldState<'_> {
+    fn is_alive(&self, a: ActorId) -> bool {
+        match a {
+            ActorId::Node(i) => self.alive[i as usize],
+            ActorId::Sensor(i) => self.sensors_alive[i as usize],
+            ActorId::Launcher => true,
+        }
+    }
+
+    /// Waits for every listed actor's `ready`; a child that exits first ends
+    /// the run with its name and the end of its stderr.
+    fn await_ready(&mut self, actors: &[ActorId]) -> anyhow::Result<()> {
+        let mut waiting: HashSet<ActorId> = actors.iter().copied().collect();
+        let deadline = Instant::now() + START_TIMEOUT;
+        while !waiting.is_empty() {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.events.recv_timeout(left) {
+                Ok(Event::Ready(a)) => {
+                    waiting.remove(&a);
+                }
+                Ok(Event::Exited { actor, status, stderr_tail }) => {
+                    bail!("{actor} exited ({status}) before it was ready; the end of its stderr:\n{stderr_tail}");
+                }
+                Ok(Event::Interrupted) => bail!("interrupted while starting"),
+                Ok(Event::AllReaped) => bail!("the supervisor stopped"),
+                Err(_) => {
+                    let mut names: Vec<String> = waiting.iter().map(|a| a.to_string()).collect();
+                    names.sort();
+                    bail!("{} actors were not ready after {:?}: {}", names.len(), START_TIMEOUT, names.join(", "));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Handles exits and interrupts reported since the last call.
+    fn poll_events(&mut self) {
+        while let Ok(e) = self.events.try_recv() {
+            match e {
+                Event::Exited { actor, status, stderr_tail } if !self.expected_exits.contains(&actor) => {
+                    self.unexpected_exits.push(format!("{actor} exited unexpectedly ({status}); its stderr ended with:\n{stderr_tail}"));
+                    match actor {
+                        ActorId::Node(i) => self.alive[i as usize] = false,
+                        ActorId::Sensor(i) => self.sensors_alive[i as usize] = false,
+                        ActorId::Launcher => {}
+                    }
+                }
+                Event::Interrupted => self.interrupted = true,
+                _ => {}
+            }
+        }
+    }
+
+    fn apply_process_faults(&mut self, schedule: &FaultSchedule, step: u32) -> anyhow::Result<bool> {
+        let mut changed = false;
+        for event in schedule.process_events(step) {
+            match event {
+                ProcessEvent::Kill { actor, signal } => {
+                    if signal != Signal::Stop {
+                        self.expected_exits.insert(actor);
+                    }
+                    self.commands.send(Command::Signal { actor, signal })?;
+                    self.set_alive(actor, false);
+                    changed = true;
+                }
+                ProcessEvent::Restart { actor, signal } => {
+                    if signal == Signal::Stop {
+                        self.commands.send(Command::Continue { actor })?;
+                    } else {
+                        // The old process must be reaped before its successor
+                        // opens the same services (iceoryx2 cleans up dead nodes then).
+                        self.expected_exits.remove(&actor);
+                        self.commands.send(Command::Spawn { actor, rejoin: matches!(actor, ActorId::Node(_)) })?;
+                        self.await_ready(&[actor])?;
+                        self.transport.update_connections();
+                    }
+                    self.set_alive(actor, true);
+                    changed = true;
+                }
+            }
+        }
+        Ok(changed)
+    }
+
+    fn set_alive(&mut self, actor: ActorId, alive: bool) {
+        match actor {
+            ActorId::Node(i) => self.alive[i as usize] = alive,
+            ActorId::Sensor(i) => self.sensors_alive[i as usize] = alive,
+            ActorId::Launcher => {}
+        }
+    }
+
+    fn apply_own_link_faults(&mut self, schedule: &FaultSchedule, step: u32) {
+        if schedule.faults().is_empty() {
+            return;
+        }
+        let rules = schedule.incoming_rules(step, ActorId::Launcher, self.topology);
+        self.transport.shaper().clear_rules();
+        for (from, rule) in rules {
+            self.transport.shaper().set_rule(from, rule);
+        }
+    }
+
+    fn begin_step(&mut self, step: u32, truth: [f64; 4], membership_changed: bool) -> anyhow::Result<()> {
+        let sensors: Vec<ActorId> = (0..self.topology.sensors() as u16).filter(|s| self.sensors_alive[*s as usize]).map(ActorId::Sensor).collect();
+        self.transport.send(Channel::Tick, &Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth }), &sensors)?;
+        let mut mask = vec![0u8; self.alive.len().div_ceil(8)];
+        for (i, a) in self.alive.iter().enumerate() {
+            if *a {
+                mask[i / 8] |= 1 << (i % 8);
+            }
+        }
+        for n in 0..self.topology.nodes() as u16 {
+            if !self.alive[n as usize] {
+                continue;
+            }
+            let to = ActorId::Node(n);
+            if membership_changed || step == 1 {
+                self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive: mask.clone() })), &[to])?;
+            }
+            self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::BeginStep)), &[to])?;
+        }
+        Ok(())
+    }
+}
+
+/// Every actor's byte counts (as last flushed) plus the launcher's own.
+fn merge_accounting(out: &Path, topology: &Topology, launcher: &Accounting) -> Accounting {
+    let mut total = launcher.clone();
+    for a in topology.actors() {
+        if let Some(acc) = std::fs::read_to_string(accounting_path(out, a)).ok().and_then(|t| Accounting::from_csv(&t)) {
+            total.merge(&acc);
+        }
+    }
+    total
+}
+

@@ -1,0 +1,176 @@
+//! Process supervision for `cqnet run`: spawns one child per actor (this same
+//! executable, hidden `actor` subcommand), watches for its `ready` line,
+//! keeps the tail of its stderr and a log file, delivers signals, restarts,
+//! and at the end stops and reaps every child, whatever happened.
+
+use std::collections::{HashMap, VecDeque};
+use std::path::PathBuf;
+use std::process::Stdio;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use fusion_graph::scenario::Signal;
+use fusion_graph::ActorId;
+use nix::sys::signal::{kill, Signal as NixSignal};
+use nix::unistd::Pid;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::sync::mpsc::UnboundedReceiver;
+
+/// Lines of a child's stderr kept for error messages.
+const STDERR_TAIL_LINES: usize = 20;
+/// After asking children to stop: wait this long, then SIGTERM, then SIGKILL.
+const GRACE: Duration = Duration::from_secs(3);
+
+/// What the world thread asks of the supervisor.
+#[derive(Debug)]
+pub enum Command {
+    Spawn { actor: ActorId, rejoin: bool },
+    Signal { actor: ActorId, signal: Signal },
+    /// SIGCONT a stopped child.
+    Continue { actor: ActorId },
+    /// Every child should be exiting now: wait, then terminate the rest.
+    Shutdown,
+}
+
+/// What the supervisor reports to the world thread.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    Ready(ActorId),
+    Exited { actor: ActorId, status: String, stderr_tail: String },
+    /// Every child has exited and been reaped.
+    AllReaped,
+    Interrupted,
+}
+
+/// How to start a child.
+#[derive(Debug, Clone)]
+pub struct ChildSpec {
+    pub executable: PathBuf,
+    pub run_id: String,
+    pub scenario_file: PathBuf,
+    pub log_dir: PathBuf,
+    pub centralized: bool,
+}
+
+struct Child {
+    pid: Option<u32>,
+    done: tokio::sync::watch::Receiver<bool>,
+}
+
+pub async fn supervise(spec: ChildSpec, mut commands: UnboundedReceiver<Command>, events: std::sync::mpsc::Sender<Event>) {
+    let mut children: HashMap<ActorId, Child> = HashMap::new();
+    loop {
+        let command = tokio::select! {
+            c = commands.recv() => c,
+            _ = tokio::signal::ctrl_c() => {
+                let _ = events.send(Event::Interrupted);
+                continue;
+            }
+        };
+        match command {
+            Some(Command::Spawn { actor, rejoin }) => match spawn(&spec, actor, rejoin, events.clone()) {
+                Ok(child) => {
+                    children.insert(actor, child);
+                }
+                Err(e) => {
+                    let _ = events.send(Event::Exited { actor, status: format!("could not start: {e}"), stderr_tail: String::new() });
+                }
+            },
+            Some(Command::Signal { actor, signal }) => {
+                if let Some(pid) = children.get(&actor).and_then(|c| c.pid) {
+                    let sig = match signal {
+                        Signal::Kill => NixSignal::SIGKILL,
+                        Signal::Term => NixSignal::SIGTERM,
+                        Signal::Stop => NixSignal::SIGSTOP,
+                    };
+                    let _ = kill(Pid::from_raw(pid as i32), sig);
+                }
+            }
+            Some(Command::Continue { actor }) => {
+                if let Some(pid) = children.get(&actor).and_then(|c| c.pid) {
+                    let _ = kill(Pid::from_raw(pid as i32), NixSignal::SIGCONT);
+                }
+            }
+            Some(Command::Shutdown) | None => break,
+        }
+    }
+    reap_all(&mut children).await;
+    let _ = events.send(Event::AllReaped);
+}
+
+/// Waits for every child; what has not exited after the grace period gets
+/// SIGTERM (stopped ones SIGCONT first), then SIGKILL.
+async fn reap_all(children: &mut HashMap<ActorId, Child>) {
+    let all_done = |children: &HashMap<ActorId, Child>| children.values().all(|c| *c.done.borrow());
+    for (signal, wait) in [(None, GRACE), (Some(NixSignal::SIGTERM), GRACE), (Some(NixSignal::SIGKILL), GRACE)] {
+        if let Some(sig) = signal {
+            for c in children.values().filter(|c| !*c.done.borrow()) {
+                if let Some(pid) = c.pid {
+                    let _ = kill(Pid::from_raw(pid as i32), NixSignal::SIGCONT);
+                    let _ = kill(Pid::from_raw(pid as i32), sig);
+                }
+            }
+        }
+        let deadline = tokio::time::Instant::now() + wait;
+        while !all_done(children) && tokio::time::Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        if all_done(children) {
+            return;
+        }
+    }
+}
+
+fn spawn(spec: &ChildSpec, actor: ActorId, rejoin: bool, events: std::sync::mpsc::Sender<Event>) -> std::io::Result<Child> {
+    let mut cmd = tokio::process::Command::new(&spec.executable);
+    cmd.arg("actor").arg("--run-id").arg(&spec.run_id).arg("--actor").arg(actor.to_string()).arg("--scenario").arg(&spec.scenario_file);
+    if spec.centralized {
+        cmd.arg("--centralized");
+    }
+    if rejoin {
+        cmd.arg("--rejoin");
+    }
+    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).kill_on_drop(true);
+    let mut child = cmd.spawn()?;
+    let pid = child.id();
+    let stdout = child.stdout.take().expect("piped");
+    let stderr = child.stderr.take().expect("piped");
+    let tail = Arc::new(Mutex::new(VecDeque::new()));
+    let (done_tx, done_rx) = tokio::sync::watch::channel(false);
+
+    let ready_events = events.clone();
+    tokio::spawn(async move {
+        let mut lines = BufReader::new(stdout).lines();
+        while let Ok(Some(line)) = lines.next_line().await {
+            if line.trim() == "ready" {
+                let _ = ready_events.send(Event::Ready(actor));
+            }
+        }
+    });
+    let log_path = spec.log_dir.join(format!("{actor}.log"));
+    let stderr_tail = tail.clone();
+    let stderr_done = tokio::spawn(async move {
+        let mut log = tokio::fs::OpenOptions::new().create(true).append(true).open(&log_path).await.ok();
+        let mut lines = BufReader::new(stderr).lines();
+        while let Ok(Some(line)) = lines.next_line().await {
+            if let Some(f) = log.as_mut() {
+                let _ = f.write_all(format!("{line}\n").as_bytes()).await;
+            }
+            let mut t = stderr_tail.lock().expect("tail lock");
+            if t.len() == STDERR_TAIL_LINES {
+                t.pop_front();
+            }
+            t.push_back(line);
+        }
+    });
+    let exit_tail = tail.clone();
+    tokio::spawn(async move {
+        let status = child.wait().await.map_or_else(|e| format!("wait failed: {e}"), |s| s.to_string());
+        // Let the stderr reader take the last lines before reporting.
+        let _ = tokio::time::timeout(Duration::from_millis(500), stderr_done).await;
+        let stderr_tail = exit_tail.lock().expect("tail lock").iter().cloned().collect::<Vec<_>>().join("\n");
+        let _ = done_tx.send(true);
+        let _ = events.send(Event::Exited { actor, status, stderr_tail });
+    });
+    Ok(Child { pid, done: done_rx })
+}
