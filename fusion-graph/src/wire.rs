@@ -125,6 +125,8 @@ pub struct Telemetry {
     pub live_neighbours: u16,
     pub observations: u16,
     pub deadline_missed: bool,
+    /// Messages that arrived after their round or step had passed, since the last telemetry.
+    pub late_messages: u32,
     /// Microseconds in local filter, fusion filter, bounds, consensus.
     pub stage_micros: [u32; 4],
 }
@@ -378,6 +380,7 @@ mod tests {
             live_neighbours: 4,
             observations: 3,
             deadline_missed: false,
+            late_messages: 2,
             stage_micros: [1, 2, 3, 4],
         };
         vec![

@@ -2,6 +2,7 @@
 //! integration tests can drive it too.
 
 pub mod actor_process;
+pub mod app;
 pub mod cli;
 pub mod montecarlo;
 pub mod network;

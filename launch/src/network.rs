@@ -141,6 +141,7 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
     }
     w.await_ready(&actors)?;
     w.transport.update_connections();
+    tracing::info!(actors = actors.len(), seconds = started.elapsed().as_secs_f64(), "every actor is ready");
 
     let mut world = World::new(scenario);
     let mut central = options.centralized.then(|| CentralizedReference::new(scenario, topology)).transpose().context("centralized reference")?;
@@ -185,6 +186,7 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
                             continue;
                         }
                         stages.add(tel.stage_micros);
+                        cost.late_messages += tel.late_messages as u64;
                         if tel.rounds_completed > 0 {
                             round_latency.push(tel.stage_micros[3] as f64 / tel.rounds_completed as f64);
                         }
@@ -219,6 +221,7 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
         }
     }
     let wall_steps = run_start.elapsed().as_secs_f64();
+    tracing::info!(steps = steps_done, seconds = started.elapsed().as_secs_f64(), "steps done");
 
     // Stop everyone and gather their byte counts.
     let last = steps_done;
@@ -240,6 +243,7 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
             Err(RecvTimeoutError::Disconnected) => break,
         }
     }
+    tracing::info!(exited = exited.len(), of = live.len(), seconds = started.elapsed().as_secs_f64(), "actors stopped");
     let accounting = merge_accounting(&options.out, topology, w.transport.accounting());
     writer.write_links(&accounting)?;
     // Node-steps without telemetry.

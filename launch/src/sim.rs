@@ -367,6 +367,7 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>, _c: Contribution) 
         live_neighbours: 0,
         observations: 0,
         deadline_missed: false,
+        late_messages: 0,
         stage_micros: [0; 4],
     }
 }

@@ -159,6 +159,8 @@ pub struct NodeActor {
     offered_state: Option<(u32, StateTransfer)>,
     last_step: Option<u32>,
     late_messages: u64,
+    /// `late_messages` as of the last telemetry.
+    late_reported: u64,
 }
 
 impl NodeActor {
@@ -189,6 +191,7 @@ impl NodeActor {
             offered_state: None,
             last_step: None,
             late_messages: 0,
+            late_reported: 0,
         })
     }
 
@@ -484,11 +487,13 @@ impl NodeActor {
             live_neighbours: live,
             observations: self.flags.observations,
             deadline_missed: self.flags.deadline_missed,
+            late_messages: (self.late_messages - self.late_reported) as u32,
             // The bounds are computed inside the two filter steps; the split
             // reported here is filter-with-bound time.
             stage_micros: [local_micros, fusion_micros, 0, consensus_micros],
         };
         self.flags = StepFlags::default();
+        self.late_reported = self.late_messages;
         out.push(Outgoing { channel: Channel::Telemetry(self.index), message: Message::new(self.id(), step, 0, Payload::Telemetry(telemetry)), receivers: vec![ActorId::Launcher] });
     }
 
