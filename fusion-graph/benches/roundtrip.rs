@@ -1,1 +1,199 @@
-fn main(){}
+//! Round trip of one consensus-sized message between two processes: through
+//! cqnet's iceoryx2 transport (encode, link shaper, decode, accounting,
+//! wake-up event), and through bare iceoryx2 publish/subscribe with the same
+//! wake-up event, so the cost of our layer is visible.
+//!
+//! `cargo bench -p fusion-graph --bench roundtrip` prints p50 and p99.
+//! The benchmark spawns itself as the echoing process.
+
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use fusion_graph::transport::iceoryx::remove_run_resources;
+use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
+use fusion_graph::wire::{ConsensusValues, Message, Payload, WireFormat};
+use fusion_graph::{ActorId, Scenario, Topology};
+use iceoryx2::prelude::*;
+
+const ROLE: &str = "CQNET_ROUNDTRIP_ROLE";
+const RUN: &str = "CQNET_ROUNDTRIP_RUN";
+const ROUNDS: usize = 5000;
+const WARMUP: usize = 200;
+const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+
+fn topology() -> Topology {
+    Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
+}
+
+fn consensus(step: u32) -> Message {
+    Message::new(ActorId::Node(0), step, 1, Payload::Consensus(ConsensusValues { delta_eta: [1.0; 4], delta_lambda: [2.0; 10], delta_l: [3.0; 10] }))
+}
+
+fn percentiles(mut v: Vec<f64>) -> (f64, f64) {
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[(v.len() as f64 * 0.99) as usize])
+}
+
+struct Echo(Child, RunId);
+
+impl Drop for Echo {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+        let _ = remove_run_resources(&self.1);
+    }
+}
+
+fn spawn(role: &str, run: &RunId) -> Echo {
+    let child = Command::new(std::env::current_exe().unwrap()).env(ROLE, role).env(RUN, run.as_str()).spawn().unwrap();
+    Echo(child, run.clone())
+}
+
+/// Node 0 sends on its consensus channel; node 1 echoes on its own.
+fn cqnet_transport() -> (f64, f64) {
+    let run = RunId::new(&format!("bench-cq-{}", std::process::id())).unwrap();
+    let mut t = IceoryxTransport::new(&run, ActorId::Node(0), &topology(), FORMAT, 1).unwrap();
+    t.publish_on(Channel::Consensus(0)).unwrap();
+    t.subscribe(Channel::Consensus(1)).unwrap();
+    t.notify(ActorId::Node(1)).unwrap();
+    let _echo = spawn("cqnet", &run);
+    let mut inbox = Vec::new();
+    let mut times = Vec::with_capacity(ROUNDS);
+    // Until the echo is up, resend.
+    'connect: loop {
+        t.update_connections();
+        t.send(Channel::Consensus(0), &consensus(0), &[ActorId::Node(1)]).unwrap();
+        let deadline = Instant::now() + Duration::from_millis(50);
+        while Instant::now() < deadline {
+            let now = t.now();
+            t.receive(now, &mut inbox).unwrap();
+            if !inbox.is_empty() {
+                break 'connect;
+            }
+            t.wait(Duration::from_millis(5)).unwrap();
+        }
+    }
+    for i in 1..=(ROUNDS + WARMUP) as u32 {
+        inbox.clear();
+        let start = Instant::now();
+        t.send(Channel::Consensus(0), &consensus(i), &[ActorId::Node(1)]).unwrap();
+        loop {
+            let now = t.now();
+            t.receive(now, &mut inbox).unwrap();
+            if inbox.iter().any(|m| m.header.step == i) {
+                break;
+            }
+            t.wait(Duration::from_millis(100)).unwrap();
+        }
+        if i as usize > WARMUP {
+            times.push(start.elapsed().as_secs_f64() * 1e6);
+        }
+    }
+    percentiles(times)
+}
+
+fn cqnet_echo(run: &RunId) {
+    let mut t = IceoryxTransport::new(run, ActorId::Node(1), &topology(), FORMAT, 2).unwrap();
+    t.publish_on(Channel::Consensus(1)).unwrap();
+    t.subscribe(Channel::Consensus(0)).unwrap();
+    t.notify(ActorId::Node(0)).unwrap();
+    let mut inbox = Vec::new();
+    loop {
+        t.wait(Duration::from_millis(100)).unwrap();
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox).unwrap();
+        t.update_connections();
+        for m in &inbox {
+            let reply = Message::new(ActorId::Node(1), m.header.step, 1, m.payload.clone());
+            t.send(Channel::Consensus(1), &reply, &[ActorId::Node(0)]).unwrap();
+        }
+    }
+}
+
+type Ports = (Node<ipc::Service>, iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>, iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], ()>, iceoryx2::port::notifier::Notifier<ipc::Service>, iceoryx2::port::listener::Listener<ipc::Service>);
+
+/// Bare iceoryx2: `[u8]` publish/subscribe plus an event to wake the peer.
+fn bare_ports(run: &RunId, me: &str, peer: &str) -> Ports {
+    let mut config = Config::default();
+    config.global.prefix = FileName::new(format!("cqnet_{}_", run.as_str().replace('-', "_")).as_bytes()).unwrap();
+    let node = NodeBuilder::new().config(&config).create::<ipc::Service>().unwrap();
+    let open = |name: &str| node.service_builder(&ServiceName::new(&format!("bare/{}/{name}", run.as_str())).unwrap()).publish_subscribe::<[u8]>().open_or_create().unwrap();
+    let event = |name: &str| node.service_builder(&ServiceName::new(&format!("bare/{}/wake/{name}", run.as_str())).unwrap()).event().open_or_create().unwrap();
+    let publisher = open(me).publisher_builder().initial_max_slice_len(256).create().unwrap();
+    let subscriber = open(peer).subscriber_builder().create().unwrap();
+    let notifier = event(peer).notifier_builder().create().unwrap();
+    let listener = event(me).listener_builder().create().unwrap();
+    (node, publisher, subscriber, notifier, listener)
+}
+
+fn bare_send(p: &iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>, bytes: &[u8]) {
+    p.loan_slice_uninit(bytes.len()).unwrap().write_from_slice(bytes).send().unwrap();
+}
+
+fn bare() -> (f64, f64) {
+    let run = RunId::new(&format!("bench-bare-{}", std::process::id())).unwrap();
+    let (_node, publisher, subscriber, notifier, listener) = bare_ports(&run, "a", "b");
+    let _echo = spawn("bare", &run);
+    let bytes = consensus(0).to_bytes(&FORMAT);
+    'connect: loop {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        let _ = publisher.update_connections();
+        bare_send(&publisher, &bytes);
+        let _ = notifier.notify();
+        let deadline = Instant::now() + Duration::from_millis(50);
+        while Instant::now() < deadline {
+            if subscriber.receive().unwrap().is_some() {
+                break 'connect;
+            }
+            let _ = listener.timed_wait(|_| {}, Duration::from_millis(5));
+        }
+    }
+    while subscriber.receive().unwrap().is_some() {}
+    let mut times = Vec::with_capacity(ROUNDS);
+    for i in 0..ROUNDS + WARMUP {
+        let start = Instant::now();
+        bare_send(&publisher, &bytes);
+        let _ = notifier.notify();
+        loop {
+            if subscriber.receive().unwrap().is_some() {
+                break;
+            }
+            let _ = listener.timed_wait(|_| {}, Duration::from_millis(100));
+        }
+        if i >= WARMUP {
+            times.push(start.elapsed().as_secs_f64() * 1e6);
+        }
+    }
+    percentiles(times)
+}
+
+fn bare_echo(run: &RunId) {
+    let (_node, publisher, subscriber, notifier, listener) = bare_ports(run, "b", "a");
+    loop {
+        let _ = listener.timed_wait(|_| {}, Duration::from_millis(100));
+        use iceoryx2::port::update_connections::UpdateConnections;
+        let _ = publisher.update_connections();
+        while let Some(sample) = subscriber.receive().unwrap() {
+            bare_send(&publisher, sample.payload());
+            let _ = notifier.notify();
+        }
+    }
+}
+
+fn main() {
+    if let Ok(role) = std::env::var(ROLE) {
+        let run = RunId::new(&std::env::var(RUN).unwrap()).unwrap();
+        match role.as_str() {
+            "cqnet" => cqnet_echo(&run),
+            _ => bare_echo(&run),
+        }
+        return;
+    }
+    let bytes = consensus(0).to_bytes(&FORMAT).len();
+    let (b50, b99) = bare();
+    let (c50, c99) = cqnet_transport();
+    println!("round trip of a {bytes}-byte consensus message between two processes, {ROUNDS} rounds:");
+    println!("  bare iceoryx2 pub/sub + event:   p50 {b50:7.1} µs   p99 {b99:7.1} µs");
+    println!("  cqnet iceoryx2 transport:        p50 {c50:7.1} µs   p99 {c99:7.1} µs");
+}

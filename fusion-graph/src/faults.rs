@@ -78,6 +78,34 @@ impl FaultSchedule {
         std::iter::once(ActorId::Launcher).chain(topology.actors()).filter(|from| *from != to).map(|from| (from, self.link_rule(step, from, to))).filter(|(_, r)| !r.is_clear()).collect()
     }
 
+    /// What the membership service tells each node at `step`: the live nodes
+    /// it can reach over fusion-graph links not cut by a partition. Its size
+    /// is the node's N_f; its members are the neighbours it mixes with.
+    pub fn membership_views(&self, step: u32, topology: &Topology, alive: &[bool]) -> Vec<Vec<bool>> {
+        let n = topology.nodes();
+        let cut = |a: usize, b: usize| self.link_rule(step, ActorId::Node(a as u16), ActorId::Node(b as u16)).blocked || self.link_rule(step, ActorId::Node(b as u16), ActorId::Node(a as u16)).blocked;
+        let mut views = vec![vec![false; n]; n];
+        for start in 0..n {
+            if !alive[start] {
+                continue;
+            }
+            let mut seen = vec![false; n];
+            let mut stack = vec![start];
+            seen[start] = true;
+            while let Some(a) = stack.pop() {
+                for &b in &topology.neighbours[a] {
+                    let b = b as usize;
+                    if alive[b] && !seen[b] && !cut(a, b) {
+                        seen[b] = true;
+                        stack.push(b);
+                    }
+                }
+            }
+            views[start] = seen;
+        }
+        views
+    }
+
     /// Kills and restarts due exactly at `step`.
     pub fn process_events(&self, step: u32) -> Vec<ProcessEvent> {
         let mut v = Vec::new();
@@ -125,6 +153,24 @@ mod tests {
         assert!(f.link_rule(10, ActorId::Node(0), ActorId::Node(2)).blocked);
         assert!(!f.link_rule(10, ActorId::Node(0), ActorId::Node(1)).blocked);
         assert!(!f.link_rule(15, ActorId::Node(0), ActorId::Node(2)).blocked);
+    }
+
+    #[test]
+    fn membership_views_follow_partitions_and_deaths() {
+        let (f, t) = schedule("[[faults]]\nkind = \"partition\"\ngroups = [[\"node-0\", \"node-1\", \"node-3\", \"node-4\"], [\"node-2\", \"node-5\", \"node-6\", \"node-7\", \"node-8\"]]\nat_step = 10\nduration = 5\n");
+        let alive = vec![true; 9];
+        let count = |v: &Vec<bool>| v.iter().filter(|x| **x).count();
+        let whole = f.membership_views(9, &t, &alive);
+        assert!(whole.iter().all(|v| count(v) == 9));
+        let split = f.membership_views(10, &t, &alive);
+        assert_eq!(count(&split[0]), 4);
+        assert_eq!(count(&split[8]), 5);
+        assert!(!split[0][2] && split[0][4]);
+        let mut dead = alive.clone();
+        dead[4] = false;
+        let views = f.membership_views(15, &t, &dead);
+        assert_eq!(count(&views[0]), 8);
+        assert!(views[4].iter().all(|x| !x));
     }
 
     #[test]

@@ -103,6 +103,8 @@ struct WorldState<'a> {
     expected_exits: HashSet<ActorId>,
     unexpected_exits: Vec<String>,
     interrupted: bool,
+    /// The membership view each node was last told.
+    views: Vec<Vec<bool>>,
 }
 
 /// The world thread: the launcher's network side, from spawning to results.
@@ -134,6 +136,7 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
         expected_exits: HashSet::new(),
         unexpected_exits: Vec::new(),
         interrupted: false,
+        views: Vec::new(),
     };
     let actors: Vec<ActorId> = topology.actors().collect();
     for a in &actors {
@@ -160,11 +163,12 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
     let mut steps_done = 0;
 
     for step in 1..=scenario.steps {
-        let membership_changed = w.apply_process_faults(&schedule, step)?;
+        let restarted = w.apply_process_faults(&schedule, step)?;
         w.apply_own_link_faults(&schedule, step);
+        let views = schedule.membership_views(step, topology, &w.alive);
         let truth = world.advance();
         truths.insert(step, truth.into());
-        w.begin_step(step, truth.into(), membership_changed)?;
+        w.begin_step(step, truth.into(), &views, restarted)?;
         let step_start = Instant::now();
         let step_end = if lockstep { step_start + step_timeout } else { run_start + period * step };
         loop {
@@ -382,25 +386,23 @@ impl WorldState<'_> {
         }
     }
 
-    fn begin_step(&mut self, step: u32, truth: [f64; 4], membership_changed: bool) -> anyhow::Result<()> {
+    /// Ticks the sensors and starts the step at every live node, telling
+    /// each node its membership view when it changed (or it restarted).
+    fn begin_step(&mut self, step: u32, truth: [f64; 4], views: &[Vec<bool>], restarted: bool) -> anyhow::Result<()> {
         let sensors: Vec<ActorId> = (0..self.topology.sensors() as u16).filter(|s| self.sensors_alive[*s as usize]).map(ActorId::Sensor).collect();
         self.transport.send(Channel::Tick, &Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth }), &sensors)?;
-        let mut mask = vec![0u8; self.alive.len().div_ceil(8)];
-        for (i, a) in self.alive.iter().enumerate() {
-            if *a {
-                mask[i / 8] |= 1 << (i % 8);
-            }
-        }
         for n in 0..self.topology.nodes() as u16 {
             if !self.alive[n as usize] {
                 continue;
             }
             let to = ActorId::Node(n);
-            if membership_changed || step == 1 {
-                self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive: mask.clone() })), &[to])?;
+            if restarted || self.views.get(n as usize) != Some(&views[n as usize]) {
+                let alive = crate::membership_mask(&views[n as usize]);
+                self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive })), &[to])?;
             }
             self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::BeginStep)), &[to])?;
         }
+        self.views = views.to_vec();
         Ok(())
     }
 }

@@ -48,6 +48,8 @@ pub struct InProcessNetwork {
     retired: Accounting,
     outgoing: Vec<Outgoing>,
     inbox: Vec<Message>,
+    /// The membership view each node was last told.
+    views: Vec<Vec<bool>>,
 }
 
 impl InProcessNetwork {
@@ -90,6 +92,7 @@ impl InProcessNetwork {
             retired: Accounting::default(),
             outgoing: Vec::new(),
             inbox: Vec::new(),
+            views: Vec::new(),
         })
     }
 
@@ -115,14 +118,10 @@ impl InProcessNetwork {
         a
     }
 
-    fn alive_mask(&self) -> Vec<u8> {
-        let mut mask = vec![0u8; self.nodes.len().div_ceil(8)];
-        for (i, n) in self.nodes.iter().enumerate() {
-            if n.alive {
-                mask[i / 8] |= 1 << (i % 8);
-            }
-        }
-        mask
+    /// Each node's membership view at `step` (see `FaultSchedule::membership_views`).
+    fn membership_views(&self, step: u32) -> Vec<Vec<bool>> {
+        let alive: Vec<bool> = self.nodes.iter().map(|n| n.alive).collect();
+        self.schedule.membership_views(step, &self.topology, &alive)
     }
 
     /// Applies the kills and restarts due at `step`; true if membership changed.
@@ -183,26 +182,27 @@ impl InProcessNetwork {
         let period = Duration::from_secs_f64(self.scenario.clock.step_period_ms / 1e3);
         let start = period * (step - 1);
         self.bus.borrow_mut().set_now(start);
-        let membership_changed = self.apply_process_faults(step)?;
+        let restarted = self.apply_process_faults(step)?;
         self.apply_link_faults(step);
+        let views = self.membership_views(step);
 
         let truth = self.world.advance();
         let live_sensors: Vec<ActorId> = self.sensors.iter().filter(|s| s.alive).map(|s| s.transport.me()).collect();
         let tick = Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth: truth.into() });
         self.launcher.send(Channel::Tick, &tick, &live_sensors)?;
-        let mask = self.alive_mask();
         for i in 0..self.nodes.len() {
             if !self.nodes[i].alive {
                 continue;
             }
             let to = ActorId::Node(i as u16);
-            if membership_changed || step == 1 {
-                let m = Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive: mask.clone() }));
+            if restarted || self.views.get(i) != Some(&views[i]) {
+                let m = Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive: crate::membership_mask(&views[i]) }));
                 self.launcher.send(Channel::Control(to), &m, &[to])?;
             }
             self.launcher.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::BeginStep)), &[to])?;
         }
 
+        self.views = views;
         let mut telemetry: Vec<(u16, Telemetry)> = Vec::new();
         let deadline = start + Duration::from_secs_f64(self.scenario.clock.step_timeout_ms / 1e3);
         let mut now = start;

@@ -151,12 +151,9 @@ pub struct NodeActor {
     phase: Phase,
     heard: Vec<Heard>,
     flags: StepFlags,
-    /// Set when this node restarted mid-run, or resumed after missing steps:
-    /// it takes the first fused posterior a neighbour offers instead of its
-    /// own stale or prior state.
+    /// Set when this node restarted mid-run: it takes the first fused
+    /// posterior a neighbour offers instead of starting from the prior.
     needs_state: bool,
-    /// The latest fused posterior a neighbour offered, and its step.
-    offered_state: Option<(u32, StateTransfer)>,
     last_step: Option<u32>,
     late_messages: u64,
     /// `late_messages` as of the last telemetry.
@@ -188,7 +185,6 @@ impl NodeActor {
             heard: Vec::new(),
             flags: StepFlags::default(),
             needs_state: false,
-            offered_state: None,
             last_step: None,
             late_messages: 0,
             late_reported: 0,
@@ -259,7 +255,7 @@ impl NodeActor {
                 self.hear(step, message.header.round, m, Some(main), None, now, out);
             }
             (Payload::ConsensusAux { s_obs }, ActorId::Node(m)) => self.hear(step, message.header.round, m, None, Some(*s_obs), now, out),
-            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(step, s),
+            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
             (p, from) => tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a node"),
         }
     }
@@ -274,18 +270,16 @@ impl NodeActor {
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        // Resumed after missing steps (SIGSTOP, SIGCONT): the state is stale.
-        if self.last_step.is_some_and(|last| step > last + 1) {
-            self.needs_state = true;
-        }
-        self.last_step = Some(step);
-        if self.needs_state {
-            if let Some((offered_at, state)) = self.offered_state.take() {
-                if offered_at + 2 >= step {
-                    self.apply_state(&state);
+        // Missed steps (a lost BeginStep, or SIGSTOP and SIGCONT): the filters
+        // and bounds coast through them so that they are at the right time.
+        if let Some(last) = self.last_step {
+            for _ in last + 1..step {
+                if let Err(e) = self.local.coast(&self.model).and_then(|_| self.fusion.coast(&self.model)) {
+                    tracing::error!(node = self.index, error = %e, "coasting through a missed step failed");
                 }
             }
         }
+        self.last_step = Some(step);
         if !self.is_idle() {
             // The previous step overran: finish it with what we have.
             self.flags.deadline_missed = true;
@@ -533,16 +527,10 @@ impl NodeActor {
         }
     }
 
-    fn take_state(&mut self, step: u32, s: &StateTransfer) {
-        if self.needs_state {
-            self.apply_state(s);
-        } else {
-            // Kept in case the next step shows this node fell behind.
-            self.offered_state = Some((step, s.clone()));
+    fn take_state(&mut self, s: &StateTransfer) {
+        if !self.needs_state {
+            return;
         }
-    }
-
-    fn apply_state(&mut self, s: &StateTransfer) {
         let posterior = Gaussian { mean: State::from(s.mean), cov: unpack_matrix(&s.covariance) };
         let info = unpack_matrix(&s.information);
         self.fusion.reset(&posterior, info, self.with_aux.then(|| unpack_matrix(&s.aux_information)));
