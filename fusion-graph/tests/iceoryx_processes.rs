@@ -143,11 +143,18 @@ fn loss_drops_the_expected_fraction() {
         let c = t.accounting().get(SENSOR, NODE, MessageKind::Observation);
         c.received_messages + c.dropped_messages >= 1000
     });
-    run.finish();
+    let child = run.finish();
     let c = node.accounting().get(SENSOR, NODE, MessageKind::Observation);
-    assert_eq!(c.received_messages + c.dropped_messages, 1000);
-    // 3.5 standard deviations of a binomial(1000, 0.3).
-    assert!((c.dropped_messages as f64 - 300.0).abs() < 51.0, "{c:?}");
+    assert_eq!(child.get(SENSOR, NODE, MessageKind::Observation).sent_messages, 1000);
+    // What reached the receiver went through the shaper; on a loaded machine
+    // a few may have been overwritten in a full queue before that, and show
+    // as sent but not accounted for.
+    let arrived = c.received_messages + c.dropped_messages;
+    assert!(arrived >= 950, "{c:?}");
+    // 3.5 standard deviations of a binomial(arrived, 0.3).
+    let expected = 0.3 * arrived as f64;
+    let sd = (arrived as f64 * 0.3 * 0.7).sqrt();
+    assert!((c.dropped_messages as f64 - expected).abs() < 3.5 * sd, "{c:?}");
 }
 
 #[test]

@@ -181,6 +181,10 @@ pub struct Traffic {
     pub bytes_per_step: f64,
     pub dropped_messages: u64,
     pub malformed_messages: u64,
+    /// Sent but neither received, dropped by an injected fault nor rejected as
+    /// malformed: lost to a full subscriber queue or to a receiver that died
+    /// (whose counts since its last flush are gone with it).
+    pub unaccounted_messages: i64,
 }
 
 /// Bytes of bound information carried by consensus: ΔL (10 numbers) per
@@ -203,6 +207,7 @@ pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraff
             bytes_per_step: c.sent_bytes as f64 / steps.max(1) as f64,
             dropped_messages: c.dropped_messages,
             malformed_messages: c.malformed_messages,
+            unaccounted_messages: c.sent_messages as i64 - (c.received_messages + c.dropped_messages) as i64,
         })
         .collect();
     let consensus = kinds.get(&MessageKind::Consensus).map_or(0, |c| c.sent_messages);

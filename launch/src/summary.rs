@@ -124,7 +124,7 @@ pub fn print_table(s: &Summary) {
     println!("  {:<34} {:>12}", "centralized bound, m", m(e.mean_centralized_bound));
     println!("  bytes per step by kind:");
     for t in &s.traffic {
-        println!("    {:<20} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages);
+        println!("    {:<20} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
     }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
     for f in &s.faults {

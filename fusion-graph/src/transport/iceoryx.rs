@@ -155,14 +155,14 @@ fn max_message_len(channel: Channel) -> usize {
 }
 
 /// Queue depth per subscriber, well above any burst the protocol produces (a
-/// consensus neighbour may be a step ahead). Seen here with iceoryx2 0.10: a
-/// burst larger than the queue, sent before the subscriber's first receive,
-/// lost the whole burst rather than only the oldest samples.
-fn buffer_len(channel: Channel) -> usize {
-    match channel {
-        Channel::Consensus(_) | Channel::Telemetry(_) => 64,
-        _ => 32,
-    }
+/// consensus neighbour may be a step ahead). A full queue overwrites its
+/// oldest sample rather than blocking the sender, so that a stopped receiver
+/// cannot stall the network; such losses show as sent-but-unaccounted
+/// messages in the results. Seen here with iceoryx2 0.10: a burst larger than
+/// the queue, sent before the subscriber's first receive, lost the whole
+/// burst rather than only the oldest samples.
+fn buffer_len(_channel: Channel) -> usize {
+    64
 }
 
 impl IceoryxTransport {
