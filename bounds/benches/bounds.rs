@@ -5,29 +5,66 @@ use std::f64::consts::PI;
 use std::hint::black_box;
 
 use bounds::pcrlb::{dynamics_terms, observation_information};
-use bounds::{expected_information, ConditionalBound, CoordinatedTurn, Dynamics, Mat4, Measurement, ObservationModel, Quantizer, SensorTerm, State};
+use bounds::{
+    expected_information, ConditionalBound, CoordinatedTurn, Dynamics, Mat4, Measurement,
+    ObservationModel, Quantizer, SensorTerm, State,
+};
 use criterion::{criterion_group, criterion_main, Criterion};
 use rand::{Rng, SeedableRng};
 
 fn default_dynamics() -> Dynamics {
-    Dynamics::new(CoordinatedTurn { period: 1.0, maneuver_accel: 0.1, min_speed: 0.1, sigma_v: 0.05 }).unwrap()
+    Dynamics::new(CoordinatedTurn {
+        period: 1.0,
+        maneuver_accel: 0.1,
+        min_speed: 0.1,
+        sigma_v: 0.05,
+    })
+    .unwrap()
 }
 
 fn bench(c: &mut Criterion) {
-    let built = std::time::Instant::now();
-    bounds::fisher_table::table();
-    eprintln!("Fisher table built in {:.1} ms", built.elapsed().as_secs_f64() * 1e3);
     let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
-    let model = ObservationModel::Bearing { sensor: [250.0, 350.0], sigma_theta: 0.02, d0: 500.0 };
+    let model = ObservationModel::Bearing {
+        sensor: [250.0, 350.0],
+        sigma_theta: 0.02,
+        d0: 500.0,
+    };
     let x = State::new(700.0, 900.0, -6.0, -7.0);
-    c.bench_function("J_Y one particle, 8-bit bearing", |b| b.iter(|| expected_information(black_box(&model), Measurement::Quantized(&q), black_box(&x))));
+    c.bench_function("J_Y one particle, 8-bit bearing", |b| {
+        b.iter(|| {
+            expected_information(black_box(&model), Measurement::Quantized(&q), black_box(&x))
+        })
+    });
 
     let dynamics = default_dynamics();
-    let models = [[250.0, 350.0], [50.0, 150.0], [450.0, 450.0]].map(|s| ObservationModel::Bearing { sensor: s, sigma_theta: 0.02, d0: 500.0 });
-    let sensors: Vec<SensorTerm> = models.iter().map(|m| SensorTerm { model: m, measurement: Measurement::Quantized(&q) }).collect();
+    let models =
+        [[250.0, 350.0], [50.0, 150.0], [450.0, 450.0]].map(|s| ObservationModel::Bearing {
+            sensor: s,
+            sigma_theta: 0.02,
+            d0: 500.0,
+        });
+    let sensors: Vec<SensorTerm> = models
+        .iter()
+        .map(|m| SensorTerm {
+            model: m,
+            measurement: Measurement::Quantized(&q),
+        })
+        .collect();
     let mut rng = rand::rngs::StdRng::seed_from_u64(1);
-    let posterior: Vec<State> = (0..1000).map(|_| x + State::new(rng.random_range(-20.0..20.0), rng.random_range(-20.0..20.0), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5))).collect();
-    let predicted: Vec<State> = posterior.iter().map(|p| dynamics.propagate(p, &mut rng)).collect();
+    let posterior: Vec<State> = (0..1000)
+        .map(|_| {
+            x + State::new(
+                rng.random_range(-20.0..20.0),
+                rng.random_range(-20.0..20.0),
+                rng.random_range(-0.5..0.5),
+                rng.random_range(-0.5..0.5),
+            )
+        })
+        .collect();
+    let predicted: Vec<State> = posterior
+        .iter()
+        .map(|p| dynamics.propagate(p, &mut rng))
+        .collect();
     let weights = vec![1e-3; 1000];
     let prior = Mat4::from_diagonal(&State::new(2500.0, 2500.0, 4.0, 4.0));
     c.bench_function("local bound update, 1000 particles, 3 sensors", |b| {

@@ -37,7 +37,12 @@ pub struct Dynamics {
 
 impl CoordinatedTurn {
     pub fn constant_velocity(period: f64, sigma_v: f64) -> Self {
-        Self { period, maneuver_accel: 0.0, min_speed: 1.0, sigma_v }
+        Self {
+            period,
+            maneuver_accel: 0.0,
+            min_speed: 1.0,
+            sigma_v,
+        }
     }
 
     /// Turn rate Ω(x), rad/s (negative: clockwise).
@@ -91,9 +96,12 @@ impl CoordinatedTurn {
         let q = self.sigma_v * self.sigma_v;
         let block = |c: f64| Matrix2::identity() * (q * c);
         let mut m = Mat4::zeros();
-        m.fixed_view_mut::<2, 2>(0, 0).copy_from(&block(t * t * t / 3.0));
-        m.fixed_view_mut::<2, 2>(0, 2).copy_from(&block(t * t / 2.0));
-        m.fixed_view_mut::<2, 2>(2, 0).copy_from(&block(t * t / 2.0));
+        m.fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&block(t * t * t / 3.0));
+        m.fixed_view_mut::<2, 2>(0, 2)
+            .copy_from(&block(t * t / 2.0));
+        m.fixed_view_mut::<2, 2>(2, 0)
+            .copy_from(&block(t * t / 2.0));
         m.fixed_view_mut::<2, 2>(2, 2).copy_from(&block(t));
         m
     }
@@ -102,13 +110,22 @@ impl CoordinatedTurn {
 impl Dynamics {
     /// `None` when Q is not positive definite (σ_v or T not positive).
     pub fn new(model: CoordinatedTurn) -> Option<Self> {
-        if !(model.period > 0.0 && model.sigma_v > 0.0 && model.min_speed > 0.0 && model.maneuver_accel >= 0.0) {
+        if !(model.period > 0.0
+            && model.sigma_v > 0.0
+            && model.min_speed > 0.0
+            && model.maneuver_accel >= 0.0)
+        {
             return None;
         }
         let q = model.process_noise();
         let chol = Cholesky::new(q)?;
         let q_inv = chol.inverse();
-        Some(Self { model, q, q_inv, q_chol: chol.l() })
+        Some(Self {
+            model,
+            q,
+            q_inv,
+            q_chol: chol.l(),
+        })
     }
 
     pub fn q(&self) -> &Mat4 {
@@ -208,13 +225,24 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn turning() -> CoordinatedTurn {
-        CoordinatedTurn { period: 1.0, maneuver_accel: 0.1, min_speed: 0.1, sigma_v: 0.05 }
+        CoordinatedTurn {
+            period: 1.0,
+            maneuver_accel: 0.1,
+            min_speed: 0.1,
+            sigma_v: 0.05,
+        }
     }
 
     #[test]
     fn jacobian_matches_central_differences_over_random_states() {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        for model in [turning(), CoordinatedTurn { maneuver_accel: 2.0, ..turning() }] {
+        for model in [
+            turning(),
+            CoordinatedTurn {
+                maneuver_accel: 2.0,
+                ..turning()
+            },
+        ] {
             for i in 0..2000 {
                 // A third of the states are slow targets (but above v_min,
                 // where Ω is smooth).
@@ -226,7 +254,10 @@ mod tests {
                 let numeric = central_jacobian(|y| model.transition(y), &x, 1e-6);
                 let analytic = model.jacobian(&x);
                 let err = (numeric - analytic).abs().max();
-                assert!(err < 1e-6, "state {x:?}: error {err}\n{analytic}\n{numeric}");
+                assert!(
+                    err < 1e-6,
+                    "state {x:?}: error {err}\n{analytic}\n{numeric}"
+                );
             }
         }
     }
@@ -238,11 +269,25 @@ mod tests {
         let expected = State::new(16.0, 3.0, 3.0, 4.0);
         assert!((cv.transition(&x) - expected).norm() < 1e-12);
         // A barely turning target agrees with the series branch continuously.
-        let slow_turn = CoordinatedTurn { maneuver_accel: 1e-7, ..cv };
-        let fast_turn = CoordinatedTurn { maneuver_accel: 1.1e-3, ..cv };
+        let slow_turn = CoordinatedTurn {
+            maneuver_accel: 1e-7,
+            ..cv
+        };
+        let fast_turn = CoordinatedTurn {
+            maneuver_accel: 1.1e-3,
+            ..cv
+        };
         assert!((slow_turn.transition(&x) - expected).norm() < 1e-6);
-        let err = (fast_turn.jacobian(&x) - central_jacobian(|y| fast_turn.transition(y), &x, 1e-6)).abs().max();
-        assert!(err < 1e-7, "{err}\n{}\n{}", fast_turn.jacobian(&x), central_jacobian(|y| fast_turn.transition(y), &x, 1e-6));
+        let err = (fast_turn.jacobian(&x)
+            - central_jacobian(|y| fast_turn.transition(y), &x, 1e-6))
+        .abs()
+        .max();
+        assert!(
+            err < 1e-7,
+            "{err}\n{}\n{}",
+            fast_turn.jacobian(&x),
+            central_jacobian(|y| fast_turn.transition(y), &x, 1e-6)
+        );
     }
 
     #[test]

@@ -15,7 +15,11 @@ pub enum Measurement<'q> {
 /// `J_Y(x) = Σ_i ∇h_i ∇h_iᵀ / h_i` for a quantized observation, or
 /// `J_Z(x) = ∇g∇gᵀ/R + ∇R∇Rᵀ/(2R²)` for a raw one.
 #[inline]
-pub fn expected_information(model: &ObservationModel, measurement: Measurement<'_>, x: &State) -> Mat4 {
+pub fn expected_information(
+    model: &ObservationModel,
+    measurement: Measurement<'_>,
+    x: &State,
+) -> Mat4 {
     let e = model.evaluate(x);
     let scalars = match measurement {
         Measurement::Raw => FisherScalars::raw(e.r),
@@ -36,7 +40,12 @@ fn assemble(s: &FisherScalars, e: &Evaluation) -> Mat4 {
 }
 
 /// `∇_x h_i(x) = (∂h/∂g) ∇g + (∂h/∂R) ∇R` for cell `index`.
-pub fn cell_probability_gradient(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> State {
+pub fn cell_probability_gradient(
+    model: &ObservationModel,
+    q: &Quantizer,
+    index: u32,
+    x: &State,
+) -> State {
     let e = model.evaluate(x);
     let s = q.sensitivity(index, e.g, e.r);
     e.grad_g * s.d_mean + e.grad_r * s.d_variance
@@ -61,7 +70,12 @@ pub fn score(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> 
 ///
 /// The models give first derivatives only; differencing the analytic score
 /// keeps one order of accuracy over differencing `ln h` twice.
-pub fn observed_information(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> Mat4 {
+pub fn observed_information(
+    model: &ObservationModel,
+    q: &Quantizer,
+    index: u32,
+    x: &State,
+) -> Mat4 {
     let mut hess = Mat4::zeros();
     for k in 0..4 {
         let step = 1e-5 * x[k].abs().max(1.0);
@@ -84,7 +98,11 @@ mod tests {
     use std::f64::consts::PI;
 
     fn bearing() -> ObservationModel {
-        ObservationModel::Bearing { sensor: [700.0, 300.0], sigma_theta: 0.02, d0: 500.0 }
+        ObservationModel::Bearing {
+            sensor: [700.0, 300.0],
+            sigma_theta: 0.02,
+            d0: 500.0,
+        }
     }
 
     #[test]
@@ -92,7 +110,13 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let q8 = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
         let q3 = Quantizer::uniform_wrapped(3, -PI, PI).unwrap();
-        let rss = ObservationModel::Rss { sensor: [700.0, 300.0], p0: -30.0, zeta: 3.0, d0: 1.0, sigma: 4.0 };
+        let rss = ObservationModel::Rss {
+            sensor: [700.0, 300.0],
+            p0: -30.0,
+            zeta: 3.0,
+            d0: 1.0,
+            sigma: 4.0,
+        };
         let qr = Quantizer::uniform(4, -110.0, -40.0).unwrap();
         let mut checked = 0;
         for n in 0..3000 {
@@ -112,9 +136,20 @@ mod tests {
                         continue;
                     }
                     let analytic = cell_probability_gradient(&model, q, i, &x);
-                    let numeric = central_gradient(|y| { let e = model.evaluate(y); q.probability(i, e.g, e.r) }, &x, 1e-3, false);
+                    let numeric = central_gradient(
+                        |y| {
+                            let e = model.evaluate(y);
+                            q.probability(i, e.g, e.r)
+                        },
+                        &x,
+                        1e-3,
+                        false,
+                    );
                     let scale = analytic.abs().max().max(1e-9);
-                    assert!((analytic - numeric).abs().max() / scale < 1e-4, "cell {i} at {x:?}: {analytic:?} vs {numeric:?}");
+                    assert!(
+                        (analytic - numeric).abs().max() / scale < 1e-4,
+                        "cell {i} at {x:?}: {analytic:?} vs {numeric:?}"
+                    );
                     checked += 1;
                 }
             }
@@ -166,15 +201,26 @@ mod tests {
             let h = 0.05;
             for a in 0..2 {
                 for b in 0..2 {
-                    let mut pp = x; pp[a] += h; pp[b] += h;
-                    let mut pm = x; pm[a] += h; pm[b] -= h;
-                    let mut mp = x; mp[a] -= h; mp[b] += h;
-                    let mut mm = x; mm[a] -= h; mm[b] -= h;
+                    let mut pp = x;
+                    pp[a] += h;
+                    pp[b] += h;
+                    let mut pm = x;
+                    pm[a] += h;
+                    pm[b] -= h;
+                    let mut mp = x;
+                    mp[a] -= h;
+                    mp[b] += h;
+                    let mut mm = x;
+                    mm[a] -= h;
+                    mm[b] -= h;
                     numeric[(a, b)] = -(f(&pp) - f(&pm) - f(&mp) + f(&mm)) / (4.0 * h * h);
                 }
             }
             let scale = analytic.abs().max().max(1e-9);
-            assert!((analytic - numeric).abs().max() / scale < 1e-3, "{analytic}\n{numeric}");
+            assert!(
+                (analytic - numeric).abs().max() / scale < 1e-3,
+                "{analytic}\n{numeric}"
+            );
             // Velocity does not enter a bearing: that block is exactly zero.
             assert_eq!(analytic.fixed_view::<2, 2>(2, 2).abs().max(), 0.0);
         }
@@ -187,7 +233,10 @@ mod tests {
         let model = bearing();
         for bits in [3u8, 8] {
             let q = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
-            for x in [State::new(900.0, 800.0, 3.0, -2.0), State::new(720.0, 360.0, 0.0, 0.0)] {
+            for x in [
+                State::new(900.0, 800.0, 3.0, -2.0),
+                State::new(720.0, 360.0, 0.0, 0.0),
+            ] {
                 let e = model.evaluate(&x);
                 let mut average = Mat4::zeros();
                 for y in 0..q.cells() as u32 {
@@ -199,14 +248,20 @@ mod tests {
                 let expected = expected_information(&model, Measurement::Quantized(&q), &x);
                 let raw = expected_information(&model, Measurement::Raw, &x);
                 let err = (average - expected).abs().max() / raw.abs().max();
-                assert!(err < 1e-4, "{bits} bits at {x:?}: {err}\n{average}\n{expected}");
+                assert!(
+                    err < 1e-4,
+                    "{bits} bits at {x:?}: {err}\n{average}\n{expected}"
+                );
             }
         }
     }
 
     #[test]
     fn raw_information_of_a_linear_sensor_is_h_h_over_r() {
-        let m = ObservationModel::Linear { h: [1.0, 0.0, 0.0, 0.0], r: 4.0 };
+        let m = ObservationModel::Linear {
+            h: [1.0, 0.0, 0.0, 0.0],
+            r: 4.0,
+        };
         let j = expected_information(&m, Measurement::Raw, &State::zeros());
         assert_eq!(j[(0, 0)], 0.25);
         assert_eq!(j.sum(), 0.25);

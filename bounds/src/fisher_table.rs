@@ -48,13 +48,19 @@ impl FisherTable {
     fn build() -> Self {
         let ln_s_min = S_MIN.ln();
         let ln_s_step = (S_MAX.ln() - ln_s_min) / (S_POINTS - 1) as f64;
-        Self { ln_s_min, ln_s_step, rows: (0..S_POINTS).map(|_| OnceLock::new()).collect() }
+        Self {
+            ln_s_min,
+            ln_s_step,
+            rows: (0..S_POINTS).map(|_| OnceLock::new()).collect(),
+        }
     }
 
     fn row(&self, is: usize) -> &Row {
         self.rows[is].get_or_init(|| {
             let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
-            Box::new(std::array::from_fn(|iu| grid_sums(iu as f64 / U_POINTS as f64, s)))
+            Box::new(std::array::from_fn(|iu| {
+                grid_sums(iu as f64 / U_POINTS as f64, s)
+            }))
         })
     }
 
@@ -94,7 +100,12 @@ impl FisherTable {
 #[inline]
 fn lagrange_weights(t: f64) -> [f64; 4] {
     let (tm1, tp1, tm2) = (t - 1.0, t + 1.0, t - 2.0);
-    [-t * tm1 * tm2 / 6.0, tp1 * tm1 * tm2 / 2.0, -tp1 * t * tm2 / 2.0, tp1 * t * tm1 / 6.0]
+    [
+        -t * tm1 * tm2 / 6.0,
+        tp1 * tm1 * tm2 / 2.0,
+        -tp1 * t * tm2 / 2.0,
+        tp1 * t * tm1 / 6.0,
+    ]
 }
 
 #[cfg(test)]
@@ -114,7 +125,11 @@ mod tests {
             let exact = grid_sums(u, s);
             let table = t.lookup(u, s).unwrap();
             // Scale: the unquantized sums are (1, 0, 2) in standardized units.
-            for (a, b, scale) in [(table[0], exact[0], 1.0), (table[1], exact[1], 1.0), (table[2], exact[2], 2.0)] {
+            for (a, b, scale) in [
+                (table[0], exact[0], 1.0),
+                (table[1], exact[1], 1.0),
+                (table[2], exact[2], 2.0),
+            ] {
                 worst = worst.max((a - b).abs() / scale);
             }
         }
@@ -126,7 +141,11 @@ mod tests {
         let f = |x: f64| 2.0 * x * x * x - x * x + 3.0 * x - 5.0;
         let t = 0.37;
         let w = lagrange_weights(t);
-        let v: f64 = w.iter().zip([-1.0, 0.0, 1.0, 2.0]).map(|(w, x)| w * f(x)).sum();
+        let v: f64 = w
+            .iter()
+            .zip([-1.0, 0.0, 1.0, 2.0])
+            .map(|(w, x)| w * f(x))
+            .sum();
         assert!((v - f(t)).abs() < 1e-12);
     }
 }

@@ -148,9 +148,16 @@ mod tests {
     #[test]
     fn ln_upper_tail_matches_reference_values_on_both_sides_of_the_series_switch() {
         // ln Q(x) from mpmath at 40 digits.
-        for (x, reference) in [(34.5, -599.585_736_259_472_36), (35.5, -634.614_263_155_088_4), (50.0, -1254.831_361_139_42)] {
+        for (x, reference) in [
+            (34.5, -599.585_736_259_472_36),
+            (35.5, -634.614_263_155_088_4),
+            (50.0, -1254.831_361_139_42),
+        ] {
             let v = ln_upper_tail(x);
-            assert!((v - reference).abs() < 1e-11 * reference.abs(), "x = {x}: {v} vs {reference}");
+            assert!(
+                (v - reference).abs() < 1e-11 * reference.abs(),
+                "x = {x}: {v} vs {reference}"
+            );
         }
     }
 
@@ -167,7 +174,11 @@ mod tests {
         for &(a, b) in &[(-3.0, -1.0), (-0.5, 0.25), (0.1, 7.0), (2.0, f64::INFINITY)] {
             let m = interval_mass(a, b);
             assert!((m - interval_mass(-b, -a)).abs() < 1e-16);
-            let mid = if b.is_finite() { 0.5 * (a + b) } else { a + 1.0 };
+            let mid = if b.is_finite() {
+                0.5 * (a + b)
+            } else {
+                a + 1.0
+            };
             assert!((m - interval_mass(a, mid) - interval_mass(mid, b)).abs() < 1e-15);
         }
         assert!((interval_mass(f64::NEG_INFINITY, f64::INFINITY) - 1.0).abs() < 1e-16);

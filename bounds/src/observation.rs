@@ -30,11 +30,27 @@ const MIN_DISTANCE: f64 = 1e-3;
 pub enum ObservationModel {
     /// `g = atan2(p_x − X_s, p_y − Y_s)` (from north, clockwise), wrapped to
     /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`.
-    Bearing { sensor: [f64; 2], sigma_theta: f64, d0: f64 },
+    Bearing {
+        sensor: [f64; 2],
+        sigma_theta: f64,
+        d0: f64,
+    },
     /// Received signal strength in dBm: `g = P_0 − 10 ζ log10(d/d_0)`, `R = σ_r²`.
-    Rss { sensor: [f64; 2], p0: f64, zeta: f64, d0: f64, sigma: f64 },
+    Rss {
+        sensor: [f64; 2],
+        p0: f64,
+        zeta: f64,
+        d0: f64,
+        sigma: f64,
+    },
     /// Amplitude, power law: `g = sqrt(P_0 / (1 + α dⁿ))`, `R = σ²`.
-    Amplitude { sensor: [f64; 2], p0: f64, alpha: f64, exponent: f64, sigma: f64 },
+    Amplitude {
+        sensor: [f64; 2],
+        p0: f64,
+        alpha: f64,
+        exponent: f64,
+        sigma: f64,
+    },
     /// Linear Gaussian: `g = hᵀx`, `R = r`. The limiting case in which the
     /// PCRLB must reproduce the Kalman filter's information matrix.
     Linear { h: [f64; 4], r: f64 },
@@ -56,7 +72,9 @@ impl ObservationModel {
 
     pub fn sensor_position(&self) -> Option<[f64; 2]> {
         match self {
-            Self::Bearing { sensor, .. } | Self::Rss { sensor, .. } | Self::Amplitude { sensor, .. } => Some(*sensor),
+            Self::Bearing { sensor, .. }
+            | Self::Rss { sensor, .. }
+            | Self::Amplitude { sensor, .. } => Some(*sensor),
             Self::Linear { .. } => None,
         }
     }
@@ -78,19 +96,35 @@ impl ObservationModel {
             }
         };
         match *self {
-            Self::Bearing { sensor, sigma_theta, d0 } => {
+            Self::Bearing {
+                sensor,
+                sigma_theta,
+                d0,
+            } => {
                 finite("sensor", sensor[0] + sensor[1])?;
                 positive("sigma_theta", sigma_theta)?;
                 positive("d0", d0)
             }
-            Self::Rss { sensor, p0, zeta, d0, sigma } => {
+            Self::Rss {
+                sensor,
+                p0,
+                zeta,
+                d0,
+                sigma,
+            } => {
                 finite("sensor", sensor[0] + sensor[1])?;
                 finite("p0", p0)?;
                 positive("zeta", zeta)?;
                 positive("d0", d0)?;
                 positive("sigma", sigma)
             }
-            Self::Amplitude { sensor, p0, alpha, exponent, sigma } => {
+            Self::Amplitude {
+                sensor,
+                p0,
+                alpha,
+                exponent,
+                sigma,
+            } => {
                 finite("sensor", sensor[0] + sensor[1])?;
                 positive("p0", p0)?;
                 positive("alpha", alpha)?;
@@ -108,17 +142,32 @@ impl ObservationModel {
     #[inline]
     pub fn evaluate(&self, x: &State) -> Evaluation {
         match *self {
-            Self::Bearing { sensor, sigma_theta, d0 } => {
+            Self::Bearing {
+                sensor,
+                sigma_theta,
+                d0,
+            } => {
                 let (dx, dy, d2) = offset(x, sensor);
                 let s2 = sigma_theta * sigma_theta;
                 Evaluation {
                     g: dx.atan2(dy),
                     grad_g: State::new(dy / d2, -dx / d2, 0.0, 0.0),
                     r: s2 * (1.0 + d2 / (d0 * d0)),
-                    grad_r: State::new(2.0 * s2 * dx / (d0 * d0), 2.0 * s2 * dy / (d0 * d0), 0.0, 0.0),
+                    grad_r: State::new(
+                        2.0 * s2 * dx / (d0 * d0),
+                        2.0 * s2 * dy / (d0 * d0),
+                        0.0,
+                        0.0,
+                    ),
                 }
             }
-            Self::Rss { sensor, p0, zeta, d0, sigma } => {
+            Self::Rss {
+                sensor,
+                p0,
+                zeta,
+                d0,
+                sigma,
+            } => {
                 let (dx, dy, d2) = offset(x, sensor);
                 // g = P0 − 5ζ log10(d²/d0²); ∂g/∂p = −10ζ/ln10 · (p − X)/d²
                 let k = -10.0 * zeta / LN_10 / d2;
@@ -129,7 +178,13 @@ impl ObservationModel {
                     grad_r: State::zeros(),
                 }
             }
-            Self::Amplitude { sensor, p0, alpha, exponent, sigma } => {
+            Self::Amplitude {
+                sensor,
+                p0,
+                alpha,
+                exponent,
+                sigma,
+            } => {
                 let (dx, dy, d2) = offset(x, sensor);
                 let d = d2.sqrt();
                 let dn = d.powf(exponent);
@@ -192,10 +247,29 @@ mod tests {
 
     fn models() -> Vec<ObservationModel> {
         vec![
-            ObservationModel::Bearing { sensor: [250.0, 750.0], sigma_theta: 0.02, d0: 500.0 },
-            ObservationModel::Rss { sensor: [250.0, 750.0], p0: -30.0, zeta: 3.0, d0: 1.0, sigma: 2.0 },
-            ObservationModel::Amplitude { sensor: [250.0, 750.0], p0: 1e4, alpha: 1e-3, exponent: 2.0, sigma: 0.5 },
-            ObservationModel::Linear { h: [1.0, 0.5, -0.25, 2.0], r: 4.0 },
+            ObservationModel::Bearing {
+                sensor: [250.0, 750.0],
+                sigma_theta: 0.02,
+                d0: 500.0,
+            },
+            ObservationModel::Rss {
+                sensor: [250.0, 750.0],
+                p0: -30.0,
+                zeta: 3.0,
+                d0: 1.0,
+                sigma: 2.0,
+            },
+            ObservationModel::Amplitude {
+                sensor: [250.0, 750.0],
+                p0: 1e4,
+                alpha: 1e-3,
+                exponent: 2.0,
+                sigma: 0.5,
+            },
+            ObservationModel::Linear {
+                h: [1.0, 0.5, -0.25, 2.0],
+                r: 4.0,
+            },
         ]
     }
 
@@ -207,12 +281,22 @@ mod tests {
         for i in 0..200 {
             let r = 0.5 + i as f64 * 0.05;
             let a = i as f64 * 0.7;
-            v.push(State::new(250.0 + r * a.sin(), 750.0 + r * a.cos(), 1.0, 1.0));
+            v.push(State::new(
+                250.0 + r * a.sin(),
+                750.0 + r * a.cos(),
+                1.0,
+                1.0,
+            ));
         }
         for i in 0..100 {
             // South of the sensor, slightly east and west: bearings near ±π.
             let east = (i as f64 - 50.0) * 0.01;
-            v.push(State::new(250.0 + east + 1e-3, 750.0 - 100.0 - i as f64, 0.0, 0.0));
+            v.push(State::new(
+                250.0 + east + 1e-3,
+                750.0 - 100.0 - i as f64,
+                0.0,
+                0.0,
+            ));
         }
         v
     }
@@ -230,15 +314,26 @@ mod tests {
                 let num_r = central_gradient(|y| m.evaluate(y).r, x, h, false);
                 let scale_g = e.grad_g.abs().max().max(1e-12);
                 let scale_r = e.grad_r.abs().max().max(1e-12);
-                assert!((num_g - e.grad_g).abs().max() / scale_g < 1e-5, "{m:?} ∇g at {x:?}: {num_g:?} vs {:?}", e.grad_g);
-                assert!((num_r - e.grad_r).abs().max() / scale_r < 1e-5, "{m:?} ∇R at {x:?}");
+                assert!(
+                    (num_g - e.grad_g).abs().max() / scale_g < 1e-5,
+                    "{m:?} ∇g at {x:?}: {num_g:?} vs {:?}",
+                    e.grad_g
+                );
+                assert!(
+                    (num_r - e.grad_r).abs().max() / scale_r < 1e-5,
+                    "{m:?} ∇R at {x:?}"
+                );
             }
         }
     }
 
     #[test]
     fn bearing_is_measured_clockwise_from_north() {
-        let m = ObservationModel::Bearing { sensor: [0.0, 0.0], sigma_theta: 0.01, d0: 100.0 };
+        let m = ObservationModel::Bearing {
+            sensor: [0.0, 0.0],
+            sigma_theta: 0.01,
+            d0: 100.0,
+        };
         let at = |x, y| m.evaluate(&State::new(x, y, 0.0, 0.0)).g;
         assert!((at(0.0, 10.0) - 0.0).abs() < 1e-15);
         assert!((at(10.0, 0.0) - PI / 2.0).abs() < 1e-15);
@@ -251,13 +346,20 @@ mod tests {
         for a in [-7.0, -PI, -3.0, 0.0, 3.0, PI, 7.0, 100.0] {
             let w = wrap_angle(a);
             assert!(w > -PI && w <= PI, "{a} -> {w}");
-            assert!(((w - a) / (2.0 * PI)).fract().abs() < 1e-12 || ((w - a) / (2.0 * PI)).fract().abs() > 1.0 - 1e-12);
+            assert!(
+                ((w - a) / (2.0 * PI)).fract().abs() < 1e-12
+                    || ((w - a) / (2.0 * PI)).fract().abs() > 1.0 - 1e-12
+            );
         }
     }
 
     #[test]
     fn validation_names_the_parameter() {
-        let bad = ObservationModel::Bearing { sensor: [0.0, 0.0], sigma_theta: -1.0, d0: 500.0 };
+        let bad = ObservationModel::Bearing {
+            sensor: [0.0, 0.0],
+            sigma_theta: -1.0,
+            d0: 500.0,
+        };
         assert!(bad.validate().unwrap_err().contains("sigma_theta"));
     }
 

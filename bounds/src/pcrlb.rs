@@ -51,7 +51,11 @@ impl InformationStep {
 }
 
 /// B11 and B12 over the posterior particles at time k.
-pub fn dynamics_terms(dynamics: &Dynamics, particles: &[State], weights: &[f64]) -> Result<DynamicsTerms, BoundError> {
+pub fn dynamics_terms(
+    dynamics: &Dynamics,
+    particles: &[State],
+    weights: &[f64],
+) -> Result<DynamicsTerms, BoundError> {
     check_weights(particles.len(), weights)?;
     let mut b11 = Mat4::zeros();
     let mut mean_jac_t = Mat4::zeros();
@@ -61,12 +65,19 @@ pub fn dynamics_terms(dynamics: &Dynamics, particles: &[State], weights: &[f64])
         b11 += (jac_t * dynamics.q_inv() * jac_t.transpose()) * w;
         mean_jac_t += jac_t * w;
     }
-    Ok(DynamicsTerms { b11, b12: -(mean_jac_t * dynamics.q_inv()) })
+    Ok(DynamicsTerms {
+        b11,
+        b12: -(mean_jac_t * dynamics.q_inv()),
+    })
 }
 
 /// `Σ_j w_j Σ_s J_s(x_j)`: expected observation information of the given
 /// sensors over a weighted particle set (the predicted particles).
-pub fn observation_information(sensors: &[SensorTerm<'_>], particles: &[State], weights: &[f64]) -> Result<Mat4, BoundError> {
+pub fn observation_information(
+    sensors: &[SensorTerm<'_>],
+    particles: &[State],
+    weights: &[f64],
+) -> Result<Mat4, BoundError> {
     check_weights(particles.len(), weights)?;
     let mut total = Mat4::zeros();
     for (x, &w) in particles.iter().zip(weights) {
@@ -80,8 +91,14 @@ pub fn observation_information(sensors: &[SensorTerm<'_>], particles: &[State], 
 }
 
 /// One step: `L(k+1|k) = Q⁻¹ − B21 (L(k) + B11)⁻¹ B12`, `L(k+1) = L(k+1|k) + obs`.
-pub fn information_update(previous: &Mat4, terms: &DynamicsTerms, q_inv: &Mat4, observation_info: &Mat4) -> Result<InformationStep, BoundError> {
-    let inner = Cholesky::new(symmetrized(previous + terms.b11)).ok_or(BoundError::NotPositiveDefinite("L(k) + B11"))?;
+pub fn information_update(
+    previous: &Mat4,
+    terms: &DynamicsTerms,
+    q_inv: &Mat4,
+    observation_info: &Mat4,
+) -> Result<InformationStep, BoundError> {
+    let inner = Cholesky::new(symmetrized(previous + terms.b11))
+        .ok_or(BoundError::NotPositiveDefinite("L(k) + B11"))?;
     let b21 = terms.b12.transpose();
     let predicted = symmetrized(q_inv - b21 * inner.solve(&terms.b12));
     let updated = symmetrized(predicted + observation_info);
@@ -108,7 +125,9 @@ pub struct ConditionalBound {
 
 impl ConditionalBound {
     pub fn from_prior(prior_cov: &Mat4) -> Result<Self, BoundError> {
-        let inv = Cholesky::new(*prior_cov).ok_or(BoundError::NotPositiveDefinite("P_0"))?.inverse();
+        let inv = Cholesky::new(*prior_cov)
+            .ok_or(BoundError::NotPositiveDefinite("P_0"))?
+            .inverse();
         Ok(Self { information: inv })
     }
 
@@ -128,7 +147,12 @@ impl ConditionalBound {
     /// posterior particles at k) and observation information (the local
     /// `Σ_j w_j Σ_s J_s`, or a network sum S for the distributed bounds).
     /// The bound is left unchanged on error.
-    pub fn advance(&mut self, terms: &DynamicsTerms, q_inv: &Mat4, observation_info: &Mat4) -> Result<InformationStep, BoundError> {
+    pub fn advance(
+        &mut self,
+        terms: &DynamicsTerms,
+        q_inv: &Mat4,
+        observation_info: &Mat4,
+    ) -> Result<InformationStep, BoundError> {
         let step = information_update(&self.information, terms, q_inv, observation_info)?;
         self.information = step.updated;
         Ok(step)
@@ -154,7 +178,9 @@ pub fn nonconditional_pcrlb<R: Rng + ?Sized>(
     let chol = Cholesky::new(*prior_cov).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
     let l = chol.l();
     let mut states: Vec<State> = (0..trajectories)
-        .map(|_| prior_mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(rand_distr::StandardNormal)))
+        .map(|_| {
+            prior_mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(rand_distr::StandardNormal))
+        })
         .collect();
     let weights = vec![1.0 / trajectories as f64; trajectories];
     let mut bound = ConditionalBound::from_information(chol.inverse());
@@ -177,7 +203,10 @@ fn check_weights(particles: usize, weights: &[f64]) -> Result<(), BoundError> {
         return Err(BoundError::NoParticles);
     }
     if weights.len() != particles {
-        return Err(BoundError::WeightCount { particles, weights: weights.len() });
+        return Err(BoundError::WeightCount {
+            particles,
+            weights: weights.len(),
+        });
     }
     Ok(())
 }
@@ -197,7 +226,16 @@ mod tests {
     use std::f64::consts::PI;
 
     fn position_sensors() -> [ObservationModel; 2] {
-        [ObservationModel::Linear { h: [1.0, 0.0, 0.0, 0.0], r: 25.0 }, ObservationModel::Linear { h: [0.0, 1.0, 0.0, 0.0], r: 16.0 }]
+        [
+            ObservationModel::Linear {
+                h: [1.0, 0.0, 0.0, 0.0],
+                r: 25.0,
+            },
+            ObservationModel::Linear {
+                h: [0.0, 1.0, 0.0, 0.0],
+                r: 16.0,
+            },
+        ]
     }
 
     fn prior_cov() -> Mat4 {
@@ -206,7 +244,11 @@ mod tests {
 
     /// The Kalman filter's information recursion for F, Q, H, R:
     /// `J(k+1) = (F J(k)⁻¹ Fᵀ + Q)⁻¹ + Hᵀ R⁻¹ H`.
-    fn kalman_information(dynamics: &Dynamics, models: &[ObservationModel], steps: usize) -> Vec<Mat4> {
+    fn kalman_information(
+        dynamics: &Dynamics,
+        models: &[ObservationModel],
+        steps: usize,
+    ) -> Vec<Mat4> {
         let f = dynamics.jacobian(&State::new(0.0, 0.0, 1.0, 1.0));
         let mut hrh = Mat4::zeros();
         for m in models {
@@ -233,7 +275,13 @@ mod tests {
     fn linear_gaussian_limit_reproduces_the_kalman_information() {
         let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
         let models = position_sensors();
-        let sensors: Vec<SensorTerm> = models.iter().map(|m| SensorTerm { model: m, measurement: Measurement::Raw }).collect();
+        let sensors: Vec<SensorTerm> = models
+            .iter()
+            .map(|m| SensorTerm {
+                model: m,
+                measurement: Measurement::Raw,
+            })
+            .collect();
         let kalman = kalman_information(&dynamics, &models, 60);
 
         // Exact expectations: F̃ and J are constant, so one particle of weight 1 is exact.
@@ -243,26 +291,58 @@ mod tests {
             let terms = dynamics_terms(&dynamics, &one, &[1.0]).unwrap();
             let obs = observation_information(&sensors, &one, &[1.0]).unwrap();
             bound.advance(&terms, dynamics.q_inv(), &obs).unwrap();
-            assert!(relative_error(bound.information(), &kalman[k]) < 1e-9, "step {k}");
+            assert!(
+                relative_error(bound.information(), &kalman[k]) < 1e-9,
+                "step {k}"
+            );
         }
 
         // The particle version (Monte Carlo over trajectories) agrees too;
         // with a linear model its Monte Carlo error is zero up to rounding.
         let mut rng = ChaCha8Rng::seed_from_u64(2);
-        let mc = nonconditional_pcrlb(&dynamics, &sensors, &State::new(0.0, 0.0, 5.0, 5.0), &prior_cov(), 60, 500, &mut rng).unwrap();
+        let mc = nonconditional_pcrlb(
+            &dynamics,
+            &sensors,
+            &State::new(0.0, 0.0, 5.0, 5.0),
+            &prior_cov(),
+            60,
+            500,
+            &mut rng,
+        )
+        .unwrap();
         for k in 0..=60 {
-            assert!(relative_error(&mc[k], &kalman[k]) < 1e-9, "Monte Carlo step {k}");
+            assert!(
+                relative_error(&mc[k], &kalman[k]) < 1e-9,
+                "Monte Carlo step {k}"
+            );
         }
     }
 
     #[test]
     fn observation_information_is_the_difference_of_updated_and_predicted() {
-        let dynamics = Dynamics::new(CoordinatedTurn { period: 1.0, maneuver_accel: 0.1, min_speed: 0.1, sigma_v: 0.05 }).unwrap();
+        let dynamics = Dynamics::new(CoordinatedTurn {
+            period: 1.0,
+            maneuver_accel: 0.1,
+            min_speed: 0.1,
+            sigma_v: 0.05,
+        })
+        .unwrap();
         let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
-        let model = ObservationModel::Bearing { sensor: [250.0, 250.0], sigma_theta: 0.02, d0: 500.0 };
-        let sensors = [SensorTerm { model: &model, measurement: Measurement::Quantized(&q) }];
+        let model = ObservationModel::Bearing {
+            sensor: [250.0, 250.0],
+            sigma_theta: 0.02,
+            d0: 500.0,
+        };
+        let sensors = [SensorTerm {
+            model: &model,
+            measurement: Measurement::Quantized(&q),
+        }];
         let mut rng = ChaCha8Rng::seed_from_u64(4);
-        let particles: Vec<State> = (0..200).map(|_| State::new(1000.0, 1000.0, -6.0, -7.0) + dynamics.sample_noise(&mut rng) * 50.0).collect();
+        let particles: Vec<State> = (0..200)
+            .map(|_| {
+                State::new(1000.0, 1000.0, -6.0, -7.0) + dynamics.sample_noise(&mut rng) * 50.0
+            })
+            .collect();
         let w = vec![1.0 / 200.0; 200];
         let terms = dynamics_terms(&dynamics, &particles, &w).unwrap();
         let obs = observation_information(&sensors, &particles, &w).unwrap();
@@ -274,17 +354,42 @@ mod tests {
 
     #[test]
     fn more_bits_give_a_tighter_bearing_bound() {
-        let dynamics = Dynamics::new(CoordinatedTurn { period: 1.0, maneuver_accel: 0.1, min_speed: 0.1, sigma_v: 0.05 }).unwrap();
+        let dynamics = Dynamics::new(CoordinatedTurn {
+            period: 1.0,
+            maneuver_accel: 0.1,
+            min_speed: 0.1,
+            sigma_v: 0.05,
+        })
+        .unwrap();
         let models: Vec<ObservationModel> = [[250.0, 250.0], [750.0, 250.0], [500.0, 900.0]]
             .iter()
-            .map(|s| ObservationModel::Bearing { sensor: *s, sigma_theta: 0.02, d0: 500.0 })
+            .map(|s| ObservationModel::Bearing {
+                sensor: *s,
+                sigma_theta: 0.02,
+                d0: 500.0,
+            })
             .collect();
         let mut bounds = Vec::new();
         for bits in [2u8, 4, 8] {
             let q = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
-            let sensors: Vec<SensorTerm> = models.iter().map(|m| SensorTerm { model: m, measurement: Measurement::Quantized(&q) }).collect();
+            let sensors: Vec<SensorTerm> = models
+                .iter()
+                .map(|m| SensorTerm {
+                    model: m,
+                    measurement: Measurement::Quantized(&q),
+                })
+                .collect();
             let mut rng = ChaCha8Rng::seed_from_u64(8);
-            let j = nonconditional_pcrlb(&dynamics, &sensors, &State::new(600.0, 600.0, -5.0, -5.0), &prior_cov(), 20, 200, &mut rng).unwrap();
+            let j = nonconditional_pcrlb(
+                &dynamics,
+                &sensors,
+                &State::new(600.0, 600.0, -5.0, -5.0),
+                &prior_cov(),
+                20,
+                200,
+                &mut rng,
+            )
+            .unwrap();
             bounds.push(position_bound(&j[20]).unwrap());
         }
         assert!(bounds[0] > bounds[1] && bounds[1] > bounds[2], "{bounds:?}");
@@ -293,8 +398,14 @@ mod tests {
     #[test]
     fn bad_inputs_are_errors_not_panics() {
         let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
-        assert!(matches!(dynamics_terms(&dynamics, &[], &[]), Err(BoundError::NoParticles)));
-        assert!(matches!(dynamics_terms(&dynamics, &[State::zeros()], &[0.5, 0.5]), Err(BoundError::WeightCount { .. })));
+        assert!(matches!(
+            dynamics_terms(&dynamics, &[], &[]),
+            Err(BoundError::NoParticles)
+        ));
+        assert!(matches!(
+            dynamics_terms(&dynamics, &[State::zeros()], &[0.5, 0.5]),
+            Err(BoundError::WeightCount { .. })
+        ));
         assert!(ConditionalBound::from_prior(&(-Mat4::identity())).is_err());
         assert_eq!(position_bound(&Mat4::zeros()), None);
     }

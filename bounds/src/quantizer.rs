@@ -51,7 +51,11 @@ pub struct FisherScalars {
 impl FisherScalars {
     /// The unquantized observation: `J_Z = ∇g∇gᵀ/R + ∇R∇Rᵀ/(2R²)`.
     pub fn raw(r: f64) -> Self {
-        Self { gg: 1.0 / r, gr: 0.0, rr: 0.5 / (r * r) }
+        Self {
+            gg: 1.0 / r,
+            gr: 0.0,
+            rr: 0.5 / (r * r),
+        }
     }
 }
 
@@ -69,8 +73,17 @@ struct Edge {
 impl Edge {
     #[inline]
     fn at(t: f64) -> Self {
-        let tail = if t >= 0.0 { normal::upper_tail(t) } else { normal::cdf(t) };
-        Self { t, pdf: normal::pdf(t), x_pdf: normal::x_pdf(t), tail }
+        let tail = if t >= 0.0 {
+            normal::upper_tail(t)
+        } else {
+            normal::cdf(t)
+        };
+        Self {
+            t,
+            pdf: normal::pdf(t),
+            x_pdf: normal::x_pdf(t),
+            tail,
+        }
     }
 
     /// Mass between this edge and a higher one.
@@ -95,14 +108,24 @@ impl Quantizer {
         let mut edges = edges;
         edges[0] = f64::NEG_INFINITY;
         edges[l] = f64::INFINITY;
-        Ok(Self { bits, edges, wrapped: false, uniform: Some((lo, (hi - lo) / l as f64)) })
+        Ok(Self {
+            bits,
+            edges,
+            wrapped: false,
+            uniform: Some((lo, (hi - lo) / l as f64)),
+        })
     }
 
     /// `2^bits` equal cells covering `[lo, hi)` periodically (for angles:
     /// `lo = −π`, `hi = π`).
     pub fn uniform_wrapped(bits: u8, lo: f64, hi: f64) -> Result<Self, QuantizerError> {
         let width = (hi - lo) / (1u64 << bits) as f64;
-        Ok(Self { bits, edges: uniform_edges(bits, lo, hi)?, wrapped: true, uniform: Some((lo, width)) })
+        Ok(Self {
+            bits,
+            edges: uniform_edges(bits, lo, hi)?,
+            wrapped: true,
+            uniform: Some((lo, width)),
+        })
     }
 
     /// Cells separated by the given interior thresholds (strictly increasing,
@@ -128,7 +151,12 @@ impl Quantizer {
         edges.push(f64::NEG_INFINITY);
         edges.extend_from_slice(thresholds);
         edges.push(f64::INFINITY);
-        Ok(Self { bits: bits as u8, edges, wrapped: false, uniform: None })
+        Ok(Self {
+            bits: bits as u8,
+            edges,
+            wrapped: false,
+            uniform: None,
+        })
     }
 
     pub fn bits(&self) -> u8 {
@@ -155,7 +183,11 @@ impl Quantizer {
     /// The cell a value falls in (`e_i ≤ z < e_{i+1}`); wrapped quantizers
     /// first wrap z into `[lo, hi)`. NaN maps to cell 0.
     pub fn encode(&self, z: f64) -> u32 {
-        let z = if self.wrapped { self.edges[0] + (z - self.edges[0]).rem_euclid(self.period()) } else { z };
+        let z = if self.wrapped {
+            self.edges[0] + (z - self.edges[0]).rem_euclid(self.period())
+        } else {
+            z
+        };
         let l = self.cells();
         let interior = &self.edges[1..l];
         interior.partition_point(|e| *e <= z) as u32
@@ -170,13 +202,19 @@ impl Quantizer {
     /// rejecting a wrong length or an index past the last cell.
     pub fn read_index(&self, bytes: &[u8]) -> Result<u32, QuantizerError> {
         if bytes.len() != self.index_bytes() {
-            return Err(QuantizerError::WrongLength { expected: self.index_bytes(), got: bytes.len() });
+            return Err(QuantizerError::WrongLength {
+                expected: self.index_bytes(),
+                got: bytes.len(),
+            });
         }
         let mut le = [0u8; 4];
         le[..bytes.len()].copy_from_slice(bytes);
         let index = u32::from_le_bytes(le);
         if index as usize >= self.cells() {
-            return Err(QuantizerError::IndexOutOfRange { index, cells: self.cells() });
+            return Err(QuantizerError::IndexOutOfRange {
+                index,
+                cells: self.cells(),
+            });
         }
         Ok(index)
     }
@@ -197,7 +235,10 @@ impl Quantizer {
     #[inline]
     fn standardized(&self, index: usize, shift: f64, mean: f64, sigma: f64) -> (f64, f64) {
         let p = shift * if self.wrapped { self.period() } else { 0.0 };
-        ((self.edges[index] + p - mean) / sigma, (self.edges[index + 1] + p - mean) / sigma)
+        (
+            (self.edges[index] + p - mean) / sigma,
+            (self.edges[index + 1] + p - mean) / sigma,
+        )
     }
 
     fn shifts(&self) -> &'static [f64] {
@@ -255,7 +296,11 @@ impl Quantizer {
     /// `∂h/∂R = (aφ(a) − bφ(b))/(2R)`.
     pub fn sensitivity(&self, index: u32, mean: f64, variance: f64) -> CellSensitivity {
         let sigma = variance.sqrt();
-        let mut s = CellSensitivity { probability: 0.0, d_mean: 0.0, d_variance: 0.0 };
+        let mut s = CellSensitivity {
+            probability: 0.0,
+            d_mean: 0.0,
+            d_variance: 0.0,
+        };
         for &j in self.shifts() {
             let (a, b) = self.standardized(index as usize, j, mean, sigma);
             s.probability += interval_mass(a, b);
@@ -275,9 +320,15 @@ impl Quantizer {
         if let Some((lo, width)) = self.uniform {
             let sigma = variance.sqrt();
             let reach = WINDOW_SIGMAS * sigma;
-            let inside = if self.wrapped { 2.0 * reach < self.period() } else { mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1] };
+            let inside = if self.wrapped {
+                2.0 * reach < self.period()
+            } else {
+                mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1]
+            };
             if inside {
-                if let Some(sums) = crate::fisher_table::table().lookup((mean - lo) / width, sigma / width) {
+                if let Some(sums) =
+                    crate::fisher_table::table().lookup((mean - lo) / width, sigma / width)
+                {
                     return scalars_from_sums(sums, variance);
                 }
             }
@@ -292,7 +343,10 @@ impl Quantizer {
         if self.wrapped && 2.0 * WINDOW_SIGMAS * sigma >= self.period() {
             return self.fisher_scalars_all_cells(mean, variance);
         }
-        let (first, last) = (self.unrolled_cell(mean - WINDOW_SIGMAS * sigma), self.unrolled_cell(mean + WINDOW_SIGMAS * sigma));
+        let (first, last) = (
+            self.unrolled_cell(mean - WINDOW_SIGMAS * sigma),
+            self.unrolled_cell(mean + WINDOW_SIGMAS * sigma),
+        );
         let sums = window_sums((first..=last + 1).map(|m| (self.unrolled_edge(m) - mean) / sigma));
         scalars_from_sums(sums, variance)
     }
@@ -305,7 +359,12 @@ impl Quantizer {
         for i in 0..self.cells() {
             let s = self.sensitivity(i as u32, mean, variance);
             // Back to the standardized α = φ(a) − φ(b), β = aφ(a) − bφ(b).
-            accumulate(&mut sums, s.probability, s.d_mean * sigma, s.d_variance * 2.0 * variance);
+            accumulate(
+                &mut sums,
+                s.probability,
+                s.d_mean * sigma,
+                s.d_variance * 2.0 * variance,
+            );
         }
         scalars_from_sums(sums, variance)
     }
@@ -341,11 +400,18 @@ impl Quantizer {
 #[inline]
 pub(crate) fn window_sums(mut edges: impl Iterator<Item = f64>) -> [f64; 3] {
     let mut sums = [0.0; 3];
-    let Some(first) = edges.next() else { return sums };
+    let Some(first) = edges.next() else {
+        return sums;
+    };
     let mut lower = Edge::at(first);
     for t in edges {
         let upper = Edge::at(t);
-        accumulate(&mut sums, lower.mass_to(&upper), lower.pdf - upper.pdf, lower.x_pdf - upper.x_pdf);
+        accumulate(
+            &mut sums,
+            lower.mass_to(&upper),
+            lower.pdf - upper.pdf,
+            lower.x_pdf - upper.x_pdf,
+        );
         lower = upper;
     }
     sums
@@ -399,7 +465,11 @@ pub fn quantized_fisher_information(thresholds: &[f64], mean: f64, sigma: f64) -
 }
 
 /// [`quantized_fisher_information`] with the reason for invalid input.
-pub fn try_quantized_fisher_information(thresholds: &[f64], mean: f64, sigma: f64) -> Result<f64, QuantizerError> {
+pub fn try_quantized_fisher_information(
+    thresholds: &[f64],
+    mean: f64,
+    sigma: f64,
+) -> Result<f64, QuantizerError> {
     if !(sigma.is_finite() && sigma > 0.0) {
         return Err(QuantizerError::BadSigma { sigma });
     }
@@ -443,12 +513,19 @@ mod tests {
             let q = Quantizer::uniform(bits, -3.0, 3.0).unwrap();
             let w = Quantizer::uniform_wrapped(bits, -PI, PI).unwrap();
             for (mean, var) in [(0.3, 1.0), (-2.9, 0.01), (5.0, 4.0)] {
-                let total: f64 = (0..q.cells() as u32).map(|i| q.probability(i, mean, var)).sum();
+                let total: f64 = (0..q.cells() as u32)
+                    .map(|i| q.probability(i, mean, var))
+                    .sum();
                 assert!((total - 1.0).abs() < 1e-12, "{bits} bits, {mean}: {total}");
             }
             for (mean, var) in [(0.3, 0.01), (3.1, 0.05), (-3.1, 0.3)] {
-                let total: f64 = (0..w.cells() as u32).map(|i| w.probability(i, mean, var)).sum();
-                assert!((total - 1.0).abs() < 1e-12, "wrapped {bits} bits, {mean}: {total}");
+                let total: f64 = (0..w.cells() as u32)
+                    .map(|i| w.probability(i, mean, var))
+                    .sum();
+                assert!(
+                    (total - 1.0).abs() < 1e-12,
+                    "wrapped {bits} bits, {mean}: {total}"
+                );
             }
         }
     }
@@ -480,7 +557,9 @@ mod tests {
         for i in 0..q.cells() as u32 {
             let p = q.probability(i, 3.0, 0.04);
             if p > 1e-300 {
-                assert!((q.ln_probability(i, 3.0, 0.04) - p.ln()).abs() < 1e-9 * p.ln().abs().max(1.0));
+                assert!(
+                    (q.ln_probability(i, 3.0, 0.04) - p.ln()).abs() < 1e-9 * p.ln().abs().max(1.0)
+                );
             }
         }
     }
@@ -491,14 +570,14 @@ mod tests {
         let rss = Quantizer::uniform(8, -100.0, 0.0).unwrap();
         let cases: Vec<(&Quantizer, f64, f64)> = vec![
             (&bearing, 0.1, 0.02),
-            (&bearing, 3.13, 0.05),   // window crosses +π
-            (&bearing, -3.14, 0.09),  // window crosses −π
-            (&bearing, 1.0, 0.004),   // far narrower than a cell
+            (&bearing, 3.13, 0.05),  // window crosses +π
+            (&bearing, -3.14, 0.09), // window crosses −π
+            (&bearing, 1.0, 0.004),  // far narrower than a cell
             (&rss, -50.0, 2.0),
-            (&rss, -99.0, 3.0),       // window reaches the unbounded cell
-            (&rss, 20.0, 1.0),        // mean beyond the last edge
-            (&rss, -50.0, 0.3),       // table: interior, σ ≈ 0.8 cells
-            (&bearing, 2.0, 0.5),     // table: σ ≈ 20 cells
+            (&rss, -99.0, 3.0),   // window reaches the unbounded cell
+            (&rss, 20.0, 1.0),    // mean beyond the last edge
+            (&rss, -50.0, 0.3),   // table: interior, σ ≈ 0.8 cells
+            (&bearing, 2.0, 0.5), // table: σ ≈ 20 cells
         ];
         for (q, mean, sigma) in cases {
             let v = sigma * sigma;
@@ -507,9 +586,19 @@ mod tests {
             // the ceiling any quantizer approaches: the exact window drops
             // below 1e-12 of it, the table (where it applies) errs below 1e-6.
             let raw = FisherScalars::raw(v);
-            for (w, tolerance) in [(q.fisher_scalars_exact(mean, v), 1e-12), (q.fisher_scalars(mean, v), 1e-6)] {
-                for (a, b, scale) in [(w.gg, all.gg, raw.gg), (w.gr, all.gr, raw.gg / sigma), (w.rr, all.rr, raw.rr)] {
-                    assert!((a - b).abs() <= tolerance * scale, "{mean} {sigma}: {a} vs {b}");
+            for (w, tolerance) in [
+                (q.fisher_scalars_exact(mean, v), 1e-12),
+                (q.fisher_scalars(mean, v), 1e-6),
+            ] {
+                for (a, b, scale) in [
+                    (w.gg, all.gg, raw.gg),
+                    (w.gr, all.gr, raw.gg / sigma),
+                    (w.rr, all.rr, raw.rr),
+                ] {
+                    assert!(
+                        (a - b).abs() <= tolerance * scale,
+                        "{mean} {sigma}: {a} vs {b}"
+                    );
                 }
             }
         }
@@ -530,8 +619,14 @@ mod tests {
             }
         }
         let q = Quantizer::uniform(4, 0.0, 1.0).unwrap();
-        assert!(matches!(q.read_index(&[16]), Err(QuantizerError::IndexOutOfRange { .. })));
-        assert!(matches!(q.read_index(&[1, 2]), Err(QuantizerError::WrongLength { .. })));
+        assert!(matches!(
+            q.read_index(&[16]),
+            Err(QuantizerError::IndexOutOfRange { .. })
+        ));
+        assert!(matches!(
+            q.read_index(&[1, 2]),
+            Err(QuantizerError::WrongLength { .. })
+        ));
     }
 
     #[test]
@@ -546,9 +641,18 @@ mod tests {
 
     #[test]
     fn invalid_quantizers_are_rejected() {
-        assert!(matches!(Quantizer::uniform(0, 0.0, 1.0), Err(QuantizerError::BitsOutOfRange { .. })));
-        assert!(matches!(Quantizer::uniform(8, 1.0, 1.0), Err(QuantizerError::EmptyRange { .. })));
-        assert!(matches!(Quantizer::from_thresholds(&[1.0, 1.0]), Err(QuantizerError::ThresholdsNotIncreasing { index: 1 })));
+        assert!(matches!(
+            Quantizer::uniform(0, 0.0, 1.0),
+            Err(QuantizerError::BitsOutOfRange { .. })
+        ));
+        assert!(matches!(
+            Quantizer::uniform(8, 1.0, 1.0),
+            Err(QuantizerError::EmptyRange { .. })
+        ));
+        assert!(matches!(
+            Quantizer::from_thresholds(&[1.0, 1.0]),
+            Err(QuantizerError::ThresholdsNotIncreasing { index: 1 })
+        ));
         assert!(quantized_fisher_information(&[0.0], 0.0, -1.0).is_nan());
     }
 }

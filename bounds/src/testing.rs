@@ -7,7 +7,12 @@ use crate::{Mat4, State};
 /// A state uniform over `[0, extent]²` with velocity components uniform in
 /// `±speed`.
 pub fn random_state<R: Rng>(rng: &mut R, extent: f64, speed: f64) -> State {
-    State::new(rng.random_range(0.0..extent), rng.random_range(0.0..extent), rng.random_range(-speed..speed), rng.random_range(-speed..speed))
+    State::new(
+        rng.random_range(0.0..extent),
+        rng.random_range(0.0..extent),
+        rng.random_range(-speed..speed),
+        rng.random_range(-speed..speed),
+    )
 }
 
 /// Central-difference Jacobian of a map from states to states.

@@ -19,14 +19,26 @@ const ROLE: &str = "CQNET_ROUNDTRIP_ROLE";
 const RUN: &str = "CQNET_ROUNDTRIP_RUN";
 const ROUNDS: usize = 5000;
 const WARMUP: usize = 200;
-const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+const FORMAT: WireFormat = WireFormat {
+    cell_bytes: 1,
+    activation_bytes: 4,
+};
 
 fn topology() -> Topology {
     Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
 }
 
 fn consensus(step: u32) -> Message {
-    Message::new(ActorId::Node(0), step, 1, Payload::Consensus(ConsensusValues { delta_eta: [1.0; 4], delta_lambda: [2.0; 10], delta_l: [3.0; 10] }))
+    Message::new(
+        ActorId::Node(0),
+        step,
+        1,
+        Payload::Consensus(ConsensusValues {
+            delta_eta: [1.0; 4],
+            delta_lambda: [2.0; 10],
+            delta_l: [3.0; 10],
+        }),
+    )
 }
 
 fn percentiles(mut v: Vec<f64>) -> (f64, f64) {
@@ -45,24 +57,30 @@ impl Drop for Echo {
 }
 
 fn spawn(role: &str, run: &RunId) -> Echo {
-    let child = Command::new(std::env::current_exe().unwrap()).env(ROLE, role).env(RUN, run.as_str()).spawn().unwrap();
+    let child = Command::new(std::env::current_exe().unwrap())
+        .env(ROLE, role)
+        .env(RUN, run.as_str())
+        .spawn()
+        .unwrap();
     Echo(child, run.clone())
 }
 
 /// Node 0 sends on its consensus channel; node 1 echoes on its own.
 fn cqnet_transport() -> (f64, f64) {
     let run = RunId::new(&format!("bench-cq-{}", std::process::id())).unwrap();
+    let _echo;
     let mut t = IceoryxTransport::new(&run, ActorId::Node(0), &topology(), FORMAT, 1).unwrap();
     t.publish_on(Channel::Consensus(0)).unwrap();
     t.subscribe(Channel::Consensus(1)).unwrap();
     t.notify(ActorId::Node(1)).unwrap();
-    let _echo = spawn("cqnet", &run);
+    _echo = spawn("cqnet", &run);
     let mut inbox = Vec::new();
     let mut times = Vec::with_capacity(ROUNDS);
     // Until the echo is up, resend.
     'connect: loop {
         t.update_connections();
-        t.send(Channel::Consensus(0), &consensus(0), &[ActorId::Node(1)]).unwrap();
+        t.send(Channel::Consensus(0), &consensus(0), &[ActorId::Node(1)])
+            .unwrap();
         let deadline = Instant::now() + Duration::from_millis(50);
         while Instant::now() < deadline {
             let now = t.now();
@@ -76,7 +94,8 @@ fn cqnet_transport() -> (f64, f64) {
     for i in 1..=(ROUNDS + WARMUP) as u32 {
         inbox.clear();
         let start = Instant::now();
-        t.send(Channel::Consensus(0), &consensus(i), &[ActorId::Node(1)]).unwrap();
+        t.send(Channel::Consensus(0), &consensus(i), &[ActorId::Node(1)])
+            .unwrap();
         loop {
             let now = t.now();
             t.receive(now, &mut inbox).unwrap();
@@ -89,6 +108,8 @@ fn cqnet_transport() -> (f64, f64) {
             times.push(start.elapsed().as_secs_f64() * 1e6);
         }
     }
+    // Our ports go before the echo's guard removes the run's files.
+    drop(t);
     percentiles(times)
 }
 
@@ -106,21 +127,48 @@ fn cqnet_echo(run: &RunId) {
         t.update_connections();
         for m in &inbox {
             let reply = Message::new(ActorId::Node(1), m.header.step, 1, m.payload.clone());
-            t.send(Channel::Consensus(1), &reply, &[ActorId::Node(0)]).unwrap();
+            t.send(Channel::Consensus(1), &reply, &[ActorId::Node(0)])
+                .unwrap();
         }
     }
 }
 
-type Ports = (Node<ipc::Service>, iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>, iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], ()>, iceoryx2::port::notifier::Notifier<ipc::Service>, iceoryx2::port::listener::Listener<ipc::Service>);
+type Ports = (
+    Node<ipc::Service>,
+    iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>,
+    iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], ()>,
+    iceoryx2::port::notifier::Notifier<ipc::Service>,
+    iceoryx2::port::listener::Listener<ipc::Service>,
+);
 
 /// Bare iceoryx2: `[u8]` publish/subscribe plus an event to wake the peer.
 fn bare_ports(run: &RunId, me: &str, peer: &str) -> Ports {
     let mut config = Config::default();
-    config.global.prefix = FileName::new(format!("cqnet_{}_", run.as_str().replace('-', "_")).as_bytes()).unwrap();
-    let node = NodeBuilder::new().config(&config).create::<ipc::Service>().unwrap();
-    let open = |name: &str| node.service_builder(&ServiceName::new(&format!("bare/{}/{name}", run.as_str())).unwrap()).publish_subscribe::<[u8]>().open_or_create().unwrap();
-    let event = |name: &str| node.service_builder(&ServiceName::new(&format!("bare/{}/wake/{name}", run.as_str())).unwrap()).event().open_or_create().unwrap();
-    let publisher = open(me).publisher_builder().initial_max_slice_len(256).create().unwrap();
+    config.global.prefix =
+        FileName::new(format!("cqnet_{}_", run.as_str().replace('-', "_")).as_bytes()).unwrap();
+    let node = NodeBuilder::new()
+        .config(&config)
+        .create::<ipc::Service>()
+        .unwrap();
+    let open = |name: &str| {
+        node.service_builder(&ServiceName::new(&format!("bare/{}/{name}", run.as_str())).unwrap())
+            .publish_subscribe::<[u8]>()
+            .open_or_create()
+            .unwrap()
+    };
+    let event = |name: &str| {
+        node.service_builder(
+            &ServiceName::new(&format!("bare/{}/wake/{name}", run.as_str())).unwrap(),
+        )
+        .event()
+        .open_or_create()
+        .unwrap()
+    };
+    let publisher = open(me)
+        .publisher_builder()
+        .initial_max_slice_len(256)
+        .create()
+        .unwrap();
     let subscriber = open(peer).subscriber_builder().create().unwrap();
     let notifier = event(peer).notifier_builder().create().unwrap();
     let listener = event(me).listener_builder().create().unwrap();
@@ -128,13 +176,19 @@ fn bare_ports(run: &RunId, me: &str, peer: &str) -> Ports {
 }
 
 fn bare_send(p: &iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>, bytes: &[u8]) {
-    p.loan_slice_uninit(bytes.len()).unwrap().write_from_slice(bytes).send().unwrap();
+    p.loan_slice_uninit(bytes.len())
+        .unwrap()
+        .write_from_slice(bytes)
+        .send()
+        .unwrap();
 }
 
 fn bare() -> (f64, f64) {
     let run = RunId::new(&format!("bench-bare-{}", std::process::id())).unwrap();
+    // Declared first so that it drops last, after our ports.
+    let _echo;
     let (_node, publisher, subscriber, notifier, listener) = bare_ports(&run, "a", "b");
-    let _echo = spawn("bare", &run);
+    _echo = spawn("bare", &run);
     let bytes = consensus(0).to_bytes(&FORMAT);
     'connect: loop {
         use iceoryx2::port::update_connections::UpdateConnections;
@@ -193,7 +247,9 @@ fn main() {
     let bytes = consensus(0).to_bytes(&FORMAT).len();
     let (b50, b99) = bare();
     let (c50, c99) = cqnet_transport();
-    println!("round trip of a {bytes}-byte consensus message between two processes, {ROUNDS} rounds:");
+    println!(
+        "round trip of a {bytes}-byte consensus message between two processes, {ROUNDS} rounds:"
+    );
     println!("  bare iceoryx2 pub/sub + event:   p50 {b50:7.1} µs   p99 {b99:7.1} µs");
     println!("  cqnet iceoryx2 transport:        p50 {c50:7.1} µs   p99 {c99:7.1} µs");
 }

@@ -79,7 +79,10 @@ impl Accounting {
     }
 
     pub fn get(&self, from: ActorId, to: ActorId, kind: MessageKind) -> Counters {
-        self.links.get(&(from, to, kind)).copied().unwrap_or_default()
+        self.links
+            .get(&(from, to, kind))
+            .copied()
+            .unwrap_or_default()
     }
 
     pub fn iter(&self) -> impl Iterator<Item = (&LinkKey, &Counters)> {
@@ -123,8 +126,14 @@ impl Accounting {
             if f.len() != 11 {
                 return None;
             }
-            let kind = (1..=9).chain([255]).filter_map(MessageKind::from_u8_or_malformed).find(|k| k.name() == f[2])?;
-            let n: Vec<u64> = f[3..].iter().map(|v| v.parse().ok()).collect::<Option<_>>()?;
+            let kind = (1..=9)
+                .chain([255])
+                .filter_map(MessageKind::from_u8_or_malformed)
+                .find(|k| k.name() == f[2])?;
+            let n: Vec<u64> = f[3..]
+                .iter()
+                .map(|v| v.parse().ok())
+                .collect::<Option<_>>()?;
             let c = Counters {
                 sent_messages: n[0],
                 sent_bytes: n[1],
@@ -135,7 +144,10 @@ impl Accounting {
                 malformed_messages: n[6],
                 malformed_bytes: n[7],
             };
-            a.links.entry((f[0].parse().ok()?, f[1].parse().ok()?, kind)).or_default().add(&c);
+            a.links
+                .entry((f[0].parse().ok()?, f[1].parse().ok()?, kind))
+                .or_default()
+                .add(&c);
         }
         Some(a)
     }
@@ -158,13 +170,32 @@ mod tests {
     #[test]
     fn counts_merge_and_survive_csv() {
         let mut a = Accounting::default();
-        a.record_sent(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 203);
-        a.record_received(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 203);
+        a.record_sent(
+            ActorId::Node(0),
+            ActorId::Node(1),
+            MessageKind::Consensus,
+            203,
+        );
+        a.record_received(
+            ActorId::Node(0),
+            ActorId::Node(1),
+            MessageKind::Consensus,
+            203,
+        );
         a.record_malformed(ActorId::Node(0), ActorId::Node(1), 17);
         let mut b = Accounting::default();
-        b.record_dropped(ActorId::Sensor(3), ActorId::Node(0), MessageKind::Observation, 12);
+        b.record_dropped(
+            ActorId::Sensor(3),
+            ActorId::Node(0),
+            MessageKind::Observation,
+            12,
+        );
         b.merge(&a);
-        assert_eq!(b.get(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus).sent_bytes, 203);
+        assert_eq!(
+            b.get(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus)
+                .sent_bytes,
+            203
+        );
         assert_eq!(b.by_kind()[&MessageKind::Malformed].malformed_messages, 1);
         assert_eq!(Accounting::from_csv(&b.to_csv()).unwrap(), b);
     }

@@ -50,13 +50,18 @@ impl FromStr for ActorId {
         if s == "launcher" {
             return Ok(ActorId::Launcher);
         }
-        let parse = |rest: &str| rest.parse::<u16>().map_err(|_| format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>)"));
+        let parse = |rest: &str| {
+            rest.parse::<u16>()
+                .map_err(|_| format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>)"))
+        };
         if let Some(rest) = s.strip_prefix("node-") {
             Ok(ActorId::Node(parse(rest)?))
         } else if let Some(rest) = s.strip_prefix("sensor-") {
             Ok(ActorId::Sensor(parse(rest)?))
         } else {
-            Err(format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>)"))
+            Err(format!(
+                "`{s}` is not an actor name (launcher, node-<i>, sensor-<i>)"
+            ))
         }
     }
 }

@@ -17,9 +17,15 @@ pub struct FaultSchedule {
 /// A process-level fault due at a step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ProcessEvent {
-    Kill { actor: ActorId, signal: Signal },
+    Kill {
+        actor: ActorId,
+        signal: Signal,
+    },
     /// Restart a killed actor (SIGCONT for a stopped one).
-    Restart { actor: ActorId, signal: Signal },
+    Restart {
+        actor: ActorId,
+        signal: Signal,
+    },
 }
 
 fn active(at: u32, end: Option<u32>, step: u32) -> bool {
@@ -31,12 +37,16 @@ fn matches(sel: &str, actor: ActorId) -> bool {
 }
 
 fn link_matches(links: &[LinkSelector], from: ActorId, to: ActorId) -> bool {
-    links.iter().any(|l| matches(&l.from, from) && matches(&l.to, to))
+    links
+        .iter()
+        .any(|l| matches(&l.from, from) && matches(&l.to, to))
 }
 
 impl FaultSchedule {
     pub fn new(faults: &[Fault]) -> Self {
-        Self { faults: faults.to_vec() }
+        Self {
+            faults: faults.to_vec(),
+        }
     }
 
     pub fn faults(&self) -> &[Fault] {
@@ -49,16 +59,24 @@ impl FaultSchedule {
         for f in &self.faults {
             let on = active(f.at_step(), f.end_step(), step);
             match f {
-                Fault::Delay { links, latency_ms, jitter_ms, .. } if on && link_matches(links, from, to) => {
+                Fault::Delay {
+                    links,
+                    latency_ms,
+                    jitter_ms,
+                    ..
+                } if on && link_matches(links, from, to) => {
                     rule.latency = rule.latency.max(Duration::from_secs_f64(latency_ms / 1e3));
                     rule.jitter = rule.jitter.max(Duration::from_secs_f64(jitter_ms / 1e3));
                 }
-                Fault::Loss { links, probability, .. } if on && link_matches(links, from, to) => {
+                Fault::Loss {
+                    links, probability, ..
+                } if on && link_matches(links, from, to) => {
                     // Independent losses compose.
                     rule.loss = 1.0 - (1.0 - rule.loss) * (1.0 - probability);
                 }
                 Fault::Partition { groups, .. } if on => {
-                    let group_of = |a: ActorId| groups.iter().position(|g| g.iter().any(|n| matches(n, a)));
+                    let group_of =
+                        |a: ActorId| groups.iter().position(|g| g.iter().any(|n| matches(n, a)));
                     if let (Some(a), Some(b)) = (group_of(from), group_of(to)) {
                         rule.blocked |= a != b;
                     }
@@ -71,19 +89,40 @@ impl FaultSchedule {
 
     /// Every non-clear rule on `to`'s incoming links at `step`, over the
     /// actors that can send to it.
-    pub fn incoming_rules(&self, step: u32, to: ActorId, topology: &Topology) -> Vec<(ActorId, LinkRule)> {
+    pub fn incoming_rules(
+        &self,
+        step: u32,
+        to: ActorId,
+        topology: &Topology,
+    ) -> Vec<(ActorId, LinkRule)> {
         if !self.faults.iter().any(|f| !matches!(f, Fault::Kill { .. })) {
             return Vec::new();
         }
-        std::iter::once(ActorId::Launcher).chain(topology.actors()).filter(|from| *from != to).map(|from| (from, self.link_rule(step, from, to))).filter(|(_, r)| !r.is_clear()).collect()
+        std::iter::once(ActorId::Launcher)
+            .chain(topology.actors())
+            .filter(|from| *from != to)
+            .map(|from| (from, self.link_rule(step, from, to)))
+            .filter(|(_, r)| !r.is_clear())
+            .collect()
     }
 
     /// What the membership service tells each node at `step`: the live nodes
     /// it can reach over fusion-graph links not cut by a partition. Its size
     /// is the node's N_f; its members are the neighbours it mixes with.
-    pub fn membership_views(&self, step: u32, topology: &Topology, alive: &[bool]) -> Vec<Vec<bool>> {
+    pub fn membership_views(
+        &self,
+        step: u32,
+        topology: &Topology,
+        alive: &[bool],
+    ) -> Vec<Vec<bool>> {
         let n = topology.nodes();
-        let cut = |a: usize, b: usize| self.link_rule(step, ActorId::Node(a as u16), ActorId::Node(b as u16)).blocked || self.link_rule(step, ActorId::Node(b as u16), ActorId::Node(a as u16)).blocked;
+        let cut = |a: usize, b: usize| {
+            self.link_rule(step, ActorId::Node(a as u16), ActorId::Node(b as u16))
+                .blocked
+                || self
+                    .link_rule(step, ActorId::Node(b as u16), ActorId::Node(a as u16))
+                    .blocked
+        };
         let mut views = vec![vec![false; n]; n];
         for start in 0..n {
             if !alive[start] {
@@ -110,13 +149,27 @@ impl FaultSchedule {
     pub fn process_events(&self, step: u32) -> Vec<ProcessEvent> {
         let mut v = Vec::new();
         for f in &self.faults {
-            if let Fault::Kill { actor, at_step, signal, restart_after } = f {
-                let Ok(actor) = actor.parse::<ActorId>() else { continue };
+            if let Fault::Kill {
+                actor,
+                at_step,
+                signal,
+                restart_after,
+            } = f
+            {
+                let Ok(actor) = actor.parse::<ActorId>() else {
+                    continue;
+                };
                 if *at_step == step {
-                    v.push(ProcessEvent::Kill { actor, signal: *signal });
+                    v.push(ProcessEvent::Kill {
+                        actor,
+                        signal: *signal,
+                    });
                 }
                 if restart_after.is_some_and(|r| at_step + r == step) {
-                    v.push(ProcessEvent::Restart { actor, signal: *signal });
+                    v.push(ProcessEvent::Restart {
+                        actor,
+                        signal: *signal,
+                    });
                 }
             }
         }
@@ -176,8 +229,20 @@ mod tests {
     #[test]
     fn kill_and_restart_events() {
         let (f, _) = schedule("[[faults]]\nkind = \"kill\"\nactor = \"node-4\"\nat_step = 20\nsignal = \"SIGSTOP\"\nrestart_after = 5\n");
-        assert_eq!(f.process_events(20), vec![ProcessEvent::Kill { actor: ActorId::Node(4), signal: Signal::Stop }]);
-        assert_eq!(f.process_events(25), vec![ProcessEvent::Restart { actor: ActorId::Node(4), signal: Signal::Stop }]);
+        assert_eq!(
+            f.process_events(20),
+            vec![ProcessEvent::Kill {
+                actor: ActorId::Node(4),
+                signal: Signal::Stop
+            }]
+        );
+        assert_eq!(
+            f.process_events(25),
+            vec![ProcessEvent::Restart {
+                actor: ActorId::Node(4),
+                signal: Signal::Stop
+            }]
+        );
         assert!(f.process_events(21).is_empty());
     }
 }

@@ -27,7 +27,12 @@ pub enum ScenarioError {
     #[error("{file}: {message}")]
     Parse { file: String, message: String },
     #[error("{file}: `{key}`: expected {expected}, got {got}")]
-    Invalid { file: String, key: String, expected: String, got: String },
+    Invalid {
+        file: String,
+        key: String,
+        expected: String,
+        got: String,
+    },
     #[error("--set {assignment}: {message}")]
     Override { assignment: String, message: String },
 }

@@ -82,7 +82,12 @@ impl TargetConfig {
     /// `[p_x, p_y, v_x, v_y]`.
     pub fn initial_state(&self) -> [f64; 4] {
         let c = self.course_deg.to_radians();
-        [self.position[0], self.position[1], self.speed * c.sin(), self.speed * c.cos()]
+        [
+            self.position[0],
+            self.position[1],
+            self.speed * c.sin(),
+            self.speed * c.cos(),
+        ]
     }
 }
 
@@ -104,9 +109,22 @@ fn default_min_speed() -> f64 {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ObservationConfig {
-    Bearing { sigma_theta: f64, d0: f64 },
-    Rss { p0: f64, zeta: f64, d0: f64, sigma: f64 },
-    Amplitude { p0: f64, alpha: f64, exponent: f64, sigma: f64 },
+    Bearing {
+        sigma_theta: f64,
+        d0: f64,
+    },
+    Rss {
+        p0: f64,
+        zeta: f64,
+        d0: f64,
+        sigma: f64,
+    },
+    Amplitude {
+        p0: f64,
+        alpha: f64,
+        exponent: f64,
+        sigma: f64,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -196,32 +214,74 @@ pub enum Signal {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Fault {
-    Delay { links: Vec<LinkSelector>, at_step: u32, duration: Option<u32>, latency_ms: f64, #[serde(default)] jitter_ms: f64 },
-    Loss { links: Vec<LinkSelector>, at_step: u32, duration: Option<u32>, probability: f64 },
-    Partition { groups: Vec<Vec<String>>, at_step: u32, duration: Option<u32> },
-    Kill { actor: String, at_step: u32, signal: Signal, restart_after: Option<u32> },
+    Delay {
+        links: Vec<LinkSelector>,
+        at_step: u32,
+        duration: Option<u32>,
+        latency_ms: f64,
+        #[serde(default)]
+        jitter_ms: f64,
+    },
+    Loss {
+        links: Vec<LinkSelector>,
+        at_step: u32,
+        duration: Option<u32>,
+        probability: f64,
+    },
+    Partition {
+        groups: Vec<Vec<String>>,
+        at_step: u32,
+        duration: Option<u32>,
+    },
+    Kill {
+        actor: String,
+        at_step: u32,
+        signal: Signal,
+        restart_after: Option<u32>,
+    },
 }
 
 impl Fault {
     pub fn at_step(&self) -> u32 {
         match self {
-            Fault::Delay { at_step, .. } | Fault::Loss { at_step, .. } | Fault::Partition { at_step, .. } | Fault::Kill { at_step, .. } => *at_step,
+            Fault::Delay { at_step, .. }
+            | Fault::Loss { at_step, .. }
+            | Fault::Partition { at_step, .. }
+            | Fault::Kill { at_step, .. } => *at_step,
         }
     }
 
     /// The step at which the fault ends (exclusive), if it ends.
     pub fn end_step(&self) -> Option<u32> {
         match self {
-            Fault::Delay { at_step, duration, .. } | Fault::Loss { at_step, duration, .. } | Fault::Partition { at_step, duration, .. } => duration.map(|d| at_step + d),
-            Fault::Kill { at_step, restart_after, .. } => restart_after.map(|d| at_step + d),
+            Fault::Delay {
+                at_step, duration, ..
+            }
+            | Fault::Loss {
+                at_step, duration, ..
+            }
+            | Fault::Partition {
+                at_step, duration, ..
+            } => duration.map(|d| at_step + d),
+            Fault::Kill {
+                at_step,
+                restart_after,
+                ..
+            } => restart_after.map(|d| at_step + d),
         }
     }
 
     /// Every actor name the fault refers to (wildcards excluded).
     pub fn actor_names(&self) -> Vec<&str> {
         match self {
-            Fault::Delay { links, .. } | Fault::Loss { links, .. } => links.iter().flat_map(|l| [l.from.as_str(), l.to.as_str()]).filter(|n| *n != "*").collect(),
-            Fault::Partition { groups, .. } => groups.iter().flatten().map(String::as_str).collect(),
+            Fault::Delay { links, .. } | Fault::Loss { links, .. } => links
+                .iter()
+                .flat_map(|l| [l.from.as_str(), l.to.as_str()])
+                .filter(|n| *n != "*")
+                .collect(),
+            Fault::Partition { groups, .. } => {
+                groups.iter().flatten().map(String::as_str).collect()
+            }
             Fault::Kill { actor, .. } => vec![actor.as_str()],
         }
     }
@@ -230,24 +290,41 @@ impl Fault {
 impl Scenario {
     /// The built-in default scenario.
     pub fn default_scenario() -> Self {
-        Self::from_toml(DEFAULT_SCENARIO, "<built-in default>", &[]).expect("the built-in default scenario is valid")
+        Self::from_toml(DEFAULT_SCENARIO, "<built-in default>", &[])
+            .expect("the built-in default scenario is valid")
     }
 
     /// Reads and validates a scenario file, applying `key=value` overrides.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ScenarioError::Read { file: file.clone(), message: e.to_string() })?;
+        let text = std::fs::read_to_string(path).map_err(|e| ScenarioError::Read {
+            file: file.clone(),
+            message: e.to_string(),
+        })?;
         Self::from_toml(&text, &file, overrides)
     }
 
     /// Parses and validates scenario text; `source` names it in errors.
-    pub fn from_toml(text: &str, source: &str, overrides: &[String]) -> Result<Self, ScenarioError> {
-        let mut value: toml::Table = toml::from_str(text).map_err(|e| ScenarioError::Parse { file: source.into(), message: e.to_string() })?;
+    pub fn from_toml(
+        text: &str,
+        source: &str,
+        overrides: &[String],
+    ) -> Result<Self, ScenarioError> {
+        let mut value: toml::Table = toml::from_str(text).map_err(|e| ScenarioError::Parse {
+            file: source.into(),
+            message: e.to_string(),
+        })?;
         for o in overrides {
             apply_override(&mut value, o)?;
         }
-        let text = toml::to_string(&value).map_err(|e| ScenarioError::Parse { file: source.into(), message: e.to_string() })?;
-        let scenario: Scenario = toml::from_str(&text).map_err(|e| ScenarioError::Parse { file: source.into(), message: e.to_string() })?;
+        let text = toml::to_string(&value).map_err(|e| ScenarioError::Parse {
+            file: source.into(),
+            message: e.to_string(),
+        })?;
+        let scenario: Scenario = toml::from_str(&text).map_err(|e| ScenarioError::Parse {
+            file: source.into(),
+            message: e.to_string(),
+        })?;
         scenario.validate(source)?;
         Ok(scenario)
     }
@@ -258,9 +335,28 @@ impl Scenario {
 
     /// Checks every value's range; the error names the file and the key.
     pub fn validate(&self, file: &str) -> Result<(), ScenarioError> {
-        let bad = |key: &str, expected: &str, got: String| Err(ScenarioError::Invalid { file: file.into(), key: key.into(), expected: expected.into(), got });
-        let positive = |key: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(()) } else { bad(key, "a finite number > 0", v.to_string()) };
-        let non_negative = |key: &str, v: f64| if v.is_finite() && v >= 0.0 { Ok(()) } else { bad(key, "a finite number >= 0", v.to_string()) };
+        let bad = |key: &str, expected: &str, got: String| {
+            Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: key.into(),
+                expected: expected.into(),
+                got,
+            })
+        };
+        let positive = |key: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                bad(key, "a finite number > 0", v.to_string())
+            }
+        };
+        let non_negative = |key: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                bad(key, "a finite number >= 0", v.to_string())
+            }
+        };
 
         if self.steps == 0 {
             return bad("steps", "at least 1", "0".into());
@@ -271,17 +367,33 @@ impl Scenario {
             (Some(g), None) if g[0] > 0 && g[1] > 0 => {}
             (Some(g), None) => return bad("nodes.grid", "two counts >= 1", format!("{g:?}")),
             (None, Some(p)) if !p.is_empty() => {}
-            _ => return bad("nodes", "exactly one of `grid` or `positions` (non-empty)", "neither or both".into()),
+            _ => {
+                return bad(
+                    "nodes",
+                    "exactly one of `grid` or `positions` (non-empty)",
+                    "neither or both".into(),
+                )
+            }
         }
         match (&self.sensors.per_cell, &self.sensors.positions) {
             (Some(g), None) if g[0] > 0 && g[1] > 0 => {
                 if self.nodes.grid.is_none() {
-                    return bad("sensors.per_cell", "a node grid (nodes.grid) to place the sensors in", "explicit node positions".into());
+                    return bad(
+                        "sensors.per_cell",
+                        "a node grid (nodes.grid) to place the sensors in",
+                        "explicit node positions".into(),
+                    );
                 }
             }
             (Some(g), None) => return bad("sensors.per_cell", "two counts >= 1", format!("{g:?}")),
             (None, Some(p)) if !p.is_empty() => {}
-            _ => return bad("sensors", "exactly one of `per_cell` or `positions` (non-empty)", "neither or both".into()),
+            _ => {
+                return bad(
+                    "sensors",
+                    "exactly one of `per_cell` or `positions` (non-empty)",
+                    "neither or both".into(),
+                )
+            }
         }
         if self.sensors.active_per_node == 0 {
             return bad("sensors.active_per_node", "at least 1", "0".into());
@@ -289,11 +401,19 @@ impl Scenario {
         positive("fusion_graph.radius", self.fusion_graph.radius)?;
         for (i, v) in self.target.position.iter().enumerate() {
             if !v.is_finite() {
-                return bad(&format!("target.position[{i}]"), "a finite number", v.to_string());
+                return bad(
+                    &format!("target.position[{i}]"),
+                    "a finite number",
+                    v.to_string(),
+                );
             }
         }
         if !self.target.course_deg.is_finite() {
-            return bad("target.course_deg", "a finite number", self.target.course_deg.to_string());
+            return bad(
+                "target.course_deg",
+                "a finite number",
+                self.target.course_deg.to_string(),
+            );
         }
         non_negative("target.speed", self.target.speed)?;
         positive("dynamics.period", self.dynamics.period)?;
@@ -305,7 +425,12 @@ impl Scenario {
                 positive("observation.sigma_theta", sigma_theta)?;
                 positive("observation.d0", d0)?;
             }
-            ObservationConfig::Rss { p0, zeta, d0, sigma } => {
+            ObservationConfig::Rss {
+                p0,
+                zeta,
+                d0,
+                sigma,
+            } => {
                 if !p0.is_finite() {
                     return bad("observation.p0", "a finite number", p0.to_string());
                 }
@@ -313,7 +438,12 @@ impl Scenario {
                 positive("observation.d0", d0)?;
                 positive("observation.sigma", sigma)?;
             }
-            ObservationConfig::Amplitude { p0, alpha, exponent, sigma } => {
+            ObservationConfig::Amplitude {
+                p0,
+                alpha,
+                exponent,
+                sigma,
+            } => {
                 positive("observation.p0", p0)?;
                 positive("observation.alpha", alpha)?;
                 positive("observation.exponent", exponent)?;
@@ -321,16 +451,30 @@ impl Scenario {
             }
         }
         if !(1..=16).contains(&self.quantizer.bits) {
-            return bad("quantizer.bits", "an integer from 1 to 16", self.quantizer.bits.to_string());
+            return bad(
+                "quantizer.bits",
+                "an integer from 1 to 16",
+                self.quantizer.bits.to_string(),
+            );
         }
         if !matches!(self.observation, ObservationConfig::Bearing { .. }) {
             match (self.quantizer.lo, self.quantizer.hi) {
                 (Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {}
-                _ => return bad("quantizer.lo/quantizer.hi", "a finite range lo < hi for a non-bearing observation", format!("{:?}..{:?}", self.quantizer.lo, self.quantizer.hi)),
+                _ => {
+                    return bad(
+                        "quantizer.lo/quantizer.hi",
+                        "a finite range lo < hi for a non-bearing observation",
+                        format!("{:?}..{:?}", self.quantizer.lo, self.quantizer.hi),
+                    )
+                }
             }
         }
         if self.filter.particles < 10 {
-            return bad("filter.particles", "at least 10", self.filter.particles.to_string());
+            return bad(
+                "filter.particles",
+                "at least 10",
+                self.filter.particles.to_string(),
+            );
         }
         for (i, s) in self.filter.prior_std.iter().enumerate() {
             positive(&format!("filter.prior_std[{i}]"), *s)?;
@@ -338,29 +482,51 @@ impl Scenario {
         if self.consensus.rounds == 0 {
             return bad("consensus.rounds", "at least 1", "0".into());
         }
-        positive("consensus.round_timeout_ms", self.consensus.round_timeout_ms)?;
+        positive(
+            "consensus.round_timeout_ms",
+            self.consensus.round_timeout_ms,
+        )?;
         positive("clock.step_period_ms", self.clock.step_period_ms)?;
         positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
         for (i, f) in self.faults.iter().enumerate() {
             let key = |k: &str| format!("faults[{i}].{k}");
             if f.at_step() == 0 || f.at_step() > self.steps {
-                return bad(&key("at_step"), &format!("a step from 1 to {}", self.steps), f.at_step().to_string());
+                return bad(
+                    &key("at_step"),
+                    &format!("a step from 1 to {}", self.steps),
+                    f.at_step().to_string(),
+                );
             }
             match f {
-                Fault::Delay { links, latency_ms, jitter_ms, .. } => {
+                Fault::Delay {
+                    links,
+                    latency_ms,
+                    jitter_ms,
+                    ..
+                } => {
                     non_empty(file, &key("links"), links.len())?;
                     non_negative(&key("latency_ms"), *latency_ms)?;
                     non_negative(&key("jitter_ms"), *jitter_ms)?;
                 }
-                Fault::Loss { links, probability, .. } => {
+                Fault::Loss {
+                    links, probability, ..
+                } => {
                     non_empty(file, &key("links"), links.len())?;
                     if !(0.0..=1.0).contains(probability) {
-                        return bad(&key("probability"), "a probability in [0, 1]", probability.to_string());
+                        return bad(
+                            &key("probability"),
+                            "a probability in [0, 1]",
+                            probability.to_string(),
+                        );
                     }
                 }
                 Fault::Partition { groups, .. } => {
                     if groups.len() < 2 {
-                        return bad(&key("groups"), "at least two groups", groups.len().to_string());
+                        return bad(
+                            &key("groups"),
+                            "at least two groups",
+                            groups.len().to_string(),
+                        );
                     }
                 }
                 Fault::Kill { restart_after, .. } => {
@@ -369,7 +535,19 @@ impl Scenario {
                     }
                 }
             }
-            if matches!(f, Fault::Delay { duration: Some(0), .. } | Fault::Loss { duration: Some(0), .. } | Fault::Partition { duration: Some(0), .. }) {
+            if matches!(
+                f,
+                Fault::Delay {
+                    duration: Some(0),
+                    ..
+                } | Fault::Loss {
+                    duration: Some(0),
+                    ..
+                } | Fault::Partition {
+                    duration: Some(0),
+                    ..
+                }
+            ) {
                 return bad(&key("duration"), "at least 1 step", "0".into());
             }
         }
@@ -379,7 +557,12 @@ impl Scenario {
 
 fn non_empty(file: &str, key: &str, len: usize) -> Result<(), ScenarioError> {
     if len == 0 {
-        return Err(ScenarioError::Invalid { file: file.into(), key: key.into(), expected: "at least one entry".into(), got: "none".into() });
+        return Err(ScenarioError::Invalid {
+            file: file.into(),
+            key: key.into(),
+            expected: "at least one entry".into(),
+            got: "none".into(),
+        });
     }
     Ok(())
 }
@@ -387,8 +570,13 @@ fn non_empty(file: &str, key: &str, len: usize) -> Result<(), ScenarioError> {
 /// Applies `a.b.c=value`; the value is read as TOML (`8`, `true`, `"x"`,
 /// `[1, 2]`) or, failing that, as a bare string.
 pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioError> {
-    let bad = |message: &str| ScenarioError::Override { assignment: assignment.into(), message: message.into() };
-    let (key, raw) = assignment.split_once('=').ok_or_else(|| bad("expected key=value"))?;
+    let bad = |message: &str| ScenarioError::Override {
+        assignment: assignment.into(),
+        message: message.into(),
+    };
+    let (key, raw) = assignment
+        .split_once('=')
+        .ok_or_else(|| bad("expected key=value"))?;
     let key = key.trim();
     if key.is_empty() {
         return Err(bad("the key is empty"));
@@ -416,7 +604,21 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), S
 
 /// Keys that may be absent from a scenario file but can be set.
 fn is_optional_key(key: &str) -> bool {
-    matches!(key, "faults" | "lo" | "hi" | "max_active_total" | "allow_disconnected" | "auxiliary_fim" | "raw" | "min_speed" | "centralized" | "grid" | "positions" | "per_cell")
+    matches!(
+        key,
+        "faults"
+            | "lo"
+            | "hi"
+            | "max_active_total"
+            | "allow_disconnected"
+            | "auxiliary_fim"
+            | "raw"
+            | "min_speed"
+            | "centralized"
+            | "grid"
+            | "positions"
+            | "per_cell"
+    )
 }
 
 #[cfg(test)]
@@ -437,10 +639,17 @@ mod tests {
 
     #[test]
     fn overrides_change_values_and_reject_unknown_keys() {
-        let s = Scenario::from_toml(DEFAULT_SCENARIO, "d", &["quantizer.bits=4".into(), "consensus.protocol=exact".into()]).unwrap();
+        let s = Scenario::from_toml(
+            DEFAULT_SCENARIO,
+            "d",
+            &["quantizer.bits=4".into(), "consensus.protocol=exact".into()],
+        )
+        .unwrap();
         assert_eq!(s.quantizer.bits, 4);
         assert_eq!(s.consensus.protocol, ConsensusProtocol::Exact);
-        let e = Scenario::from_toml(DEFAULT_SCENARIO, "d", &["quantizer.bitz=4".into()]).unwrap_err().to_string();
+        let e = Scenario::from_toml(DEFAULT_SCENARIO, "d", &["quantizer.bitz=4".into()])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bitz"), "{e}");
     }
 
@@ -451,40 +660,76 @@ mod tests {
             ("bits = 8", "bits = 0", "quantizer.bits"),
             ("bits = 8", "bits = 40", "quantizer.bits"),
             ("bits = 8", "bits = \"eight\"", "bits"),
-            ("particles = 1000", "particles = 1000\nparticle_count = 5", "particle_count"),
+            (
+                "particles = 1000",
+                "particles = 1000\nparticle_count = 5",
+                "particle_count",
+            ),
             ("sigma_v = 0.05", "sigma_v = -1.0", "dynamics.sigma_v"),
             ("radius = 550.0", "radius = 0.0", "fusion_graph.radius"),
             ("rounds = 10", "rounds = 0", "consensus.rounds"),
             ("kind = \"bearing\"", "kind = \"sonar\"", "sonar"),
-            ("sigma_theta = 0.02", "sigma_theta = 0.0", "observation.sigma_theta"),
+            (
+                "sigma_theta = 0.02",
+                "sigma_theta = 0.0",
+                "observation.sigma_theta",
+            ),
             ("steps = 100", "steps = 0", "steps"),
             ("mode = \"realtime\"", "mode = \"sometimes\"", "sometimes"),
-            ("active_per_node = 3", "active_per_node = 0", "sensors.active_per_node"),
-            ("prior_std = [50.0, 50.0, 2.0, 2.0]", "prior_std = [50.0, 50.0, 2.0]", "prior_std"),
-            ("grid = [3, 3]", "grid = [3, 3]\npositions = [[0.0, 0.0]]", "nodes"),
+            (
+                "active_per_node = 3",
+                "active_per_node = 0",
+                "sensors.active_per_node",
+            ),
+            (
+                "prior_std = [50.0, 50.0, 2.0, 2.0]",
+                "prior_std = [50.0, 50.0, 2.0]",
+                "prior_std",
+            ),
+            (
+                "grid = [3, 3]",
+                "grid = [3, 3]\npositions = [[0.0, 0.0]]",
+                "nodes",
+            ),
         ];
         for (from, to, key) in cases {
             assert!(DEFAULT_SCENARIO.contains(from), "{from}");
             let text = DEFAULT_SCENARIO.replacen(from, to, 1);
-            let err = Scenario::from_toml(&text, "broken.toml", &[]).unwrap_err().to_string();
-            assert!(err.contains(key), "`{to}`: error does not name `{key}`: {err}");
-            assert!(err.contains("broken.toml"), "error does not name the file: {err}");
+            let err = Scenario::from_toml(&text, "broken.toml", &[])
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains(key),
+                "`{to}`: error does not name `{key}`: {err}"
+            );
+            assert!(
+                err.contains("broken.toml"),
+                "error does not name the file: {err}"
+            );
         }
     }
 
     #[test]
     fn broken_faults_name_the_key() {
         let text = format!("{DEFAULT_SCENARIO}\n[[faults]]\nkind = \"loss\"\nlinks = [{{ from = \"*\", to = \"*\" }}]\nat_step = 5\nprobability = 1.5\n");
-        let err = Scenario::from_toml(&text, "f.toml", &[]).unwrap_err().to_string();
+        let err = Scenario::from_toml(&text, "f.toml", &[])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("faults[0].probability"), "{err}");
         let text = format!("{DEFAULT_SCENARIO}\n[[faults]]\nkind = \"kill\"\nactor = \"node-4\"\nat_step = 500\nsignal = \"SIGKILL\"\n");
-        let err = Scenario::from_toml(&text, "f.toml", &[]).unwrap_err().to_string();
+        let err = Scenario::from_toml(&text, "f.toml", &[])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("faults[0].at_step"), "{err}");
     }
 
     #[test]
     fn initial_state_follows_course_from_north() {
-        let t = TargetConfig { position: [0.0, 0.0], course_deg: 90.0, speed: 10.0 };
+        let t = TargetConfig {
+            position: [0.0, 0.0],
+            course_deg: 90.0,
+            speed: 10.0,
+        };
         let s = t.initial_state();
         assert!((s[2] - 10.0).abs() < 1e-12 && s[3].abs() < 1e-12);
     }

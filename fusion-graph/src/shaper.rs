@@ -49,7 +49,12 @@ pub struct LinkShaper {
 
 impl LinkShaper {
     pub fn new(seed: u64) -> Self {
-        Self { rules: HashMap::new(), rng: ChaCha8Rng::seed_from_u64(seed), held: BinaryHeap::new(), sequence: 0 }
+        Self {
+            rules: HashMap::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            held: BinaryHeap::new(),
+            sequence: 0,
+        }
     }
 
     /// Replaces the rule on the link from `from`; a clear rule removes it.
@@ -81,10 +86,15 @@ impl LinkShaper {
         if rule.latency.is_zero() && rule.jitter.is_zero() {
             return Admission::Deliver;
         }
-        let jitter = if rule.jitter.is_zero() { 0.0 } else { self.rng.random_range(-1.0..=1.0) * rule.jitter.as_secs_f64() };
+        let jitter = if rule.jitter.is_zero() {
+            0.0
+        } else {
+            self.rng.random_range(-1.0..=1.0) * rule.jitter.as_secs_f64()
+        };
         let delay = Duration::from_secs_f64((rule.latency.as_secs_f64() + jitter).max(0.0));
         self.sequence += 1;
-        self.held.push(Reverse((now + delay, self.sequence, from, bytes.to_vec())));
+        self.held
+            .push(Reverse((now + delay, self.sequence, from, bytes.to_vec())));
         Admission::Held
     }
 
@@ -117,7 +127,13 @@ mod tests {
     fn delay_holds_until_due_and_loss_drops_the_expected_fraction() {
         let mut s = LinkShaper::new(1);
         let a = ActorId::Node(1);
-        s.set_rule(a, LinkRule { latency: Duration::from_millis(30), ..Default::default() });
+        s.set_rule(
+            a,
+            LinkRule {
+                latency: Duration::from_millis(30),
+                ..Default::default()
+            },
+        );
         assert_eq!(s.admit(a, b"x", Duration::ZERO), Admission::Held);
         let mut out = Vec::new();
         s.release_due(Duration::from_millis(29), |f, b| out.push((f, b)));
@@ -125,13 +141,30 @@ mod tests {
         s.release_due(Duration::from_millis(30), |f, b| out.push((f, b)));
         assert_eq!(out, vec![(a, b"x".to_vec())]);
 
-        s.set_rule(a, LinkRule { loss: 0.3, ..Default::default() });
-        let dropped = (0..20_000).filter(|_| s.admit(a, b"y", Duration::ZERO) == Admission::Dropped).count();
+        s.set_rule(
+            a,
+            LinkRule {
+                loss: 0.3,
+                ..Default::default()
+            },
+        );
+        let dropped = (0..20_000)
+            .filter(|_| s.admit(a, b"y", Duration::ZERO) == Admission::Dropped)
+            .count();
         let frac = dropped as f64 / 20_000.0;
         assert!((frac - 0.3).abs() < 0.015, "{frac}");
         // Other links are untouched; a partition drops everything.
-        assert_eq!(s.admit(ActorId::Node(2), b"z", Duration::ZERO), Admission::Deliver);
-        s.set_rule(a, LinkRule { blocked: true, ..Default::default() });
+        assert_eq!(
+            s.admit(ActorId::Node(2), b"z", Duration::ZERO),
+            Admission::Deliver
+        );
+        s.set_rule(
+            a,
+            LinkRule {
+                blocked: true,
+                ..Default::default()
+            },
+        );
         assert_eq!(s.admit(a, b"z", Duration::ZERO), Admission::Dropped);
         s.set_rule(a, LinkRule::default());
         assert_eq!(s.admit(a, b"z", Duration::ZERO), Admission::Deliver);

@@ -46,18 +46,34 @@ impl Topology {
                     .collect()
             })
             .collect();
-        let topology = Self { node_positions, sensor_positions, sensor_owner, node_sensors, neighbours };
-        if !s.fusion_graph.allow_disconnected && topology.components(&topology.all_alive()).len() > 1 {
+        let topology = Self {
+            node_positions,
+            sensor_positions,
+            sensor_owner,
+            node_sensors,
+            neighbours,
+        };
+        if !s.fusion_graph.allow_disconnected
+            && topology.components(&topology.all_alive()).len() > 1
+        {
             return Err(ScenarioError::Invalid {
                 file: file.into(),
                 key: "fusion_graph.radius".into(),
-                expected: "a radius that connects every node (or fusion_graph.allow_disconnected = true)".into(),
-                got: format!("{} m gives a disconnected fusion graph", s.fusion_graph.radius),
+                expected:
+                    "a radius that connects every node (or fusion_graph.allow_disconnected = true)"
+                        .into(),
+                got: format!(
+                    "{} m gives a disconnected fusion graph",
+                    s.fusion_graph.radius
+                ),
             });
         }
         for (i, f) in s.faults.iter().enumerate() {
             for name in f.actor_names() {
-                let ok = name.parse::<ActorId>().ok().is_some_and(|a| topology.contains(a) && a != ActorId::Launcher);
+                let ok = name
+                    .parse::<ActorId>()
+                    .ok()
+                    .is_some_and(|a| topology.contains(a) && a != ActorId::Launcher);
                 if !ok {
                     let key = match f {
                         Fault::Kill { .. } => "actor",
@@ -67,7 +83,11 @@ impl Topology {
                     return Err(ScenarioError::Invalid {
                         file: file.into(),
                         key: format!("faults[{i}].{key}"),
-                        expected: format!("an actor of this network (node-0..node-{}, sensor-0..sensor-{})", topology.nodes() - 1, topology.sensors() - 1),
+                        expected: format!(
+                            "an actor of this network (node-0..node-{}, sensor-0..sensor-{})",
+                            topology.nodes() - 1,
+                            topology.sensors() - 1
+                        ),
                         got: name.to_string(),
                     });
                 }
@@ -94,7 +114,9 @@ impl Topology {
 
     /// Every actor: the nodes, then the sensors.
     pub fn actors(&self) -> impl Iterator<Item = ActorId> + '_ {
-        (0..self.nodes() as u16).map(ActorId::Node).chain((0..self.sensors() as u16).map(ActorId::Sensor))
+        (0..self.nodes() as u16)
+            .map(ActorId::Node)
+            .chain((0..self.sensors() as u16).map(ActorId::Sensor))
     }
 
     /// Undirected fusion-graph edges.
@@ -135,7 +157,10 @@ impl Topology {
     /// Size of the live connected component containing `node`: the N_f that
     /// turns an average into a network sum after failures.
     pub fn component_size(&self, node: u16, alive: &[bool]) -> usize {
-        self.components(alive).into_iter().find(|c| c.contains(&node)).map_or(0, |c| c.len())
+        self.components(alive)
+            .into_iter()
+            .find(|c| c.contains(&node))
+            .map_or(0, |c| c.len())
     }
 
     /// Metropolis weights `W_lm = 1/(1 + max(deg_l, deg_m))` over the
@@ -143,7 +168,12 @@ impl Topology {
     /// `W_ll = 1 − Σ_m W_lm`. With the same `alive` everywhere the weights are
     /// symmetric and doubly stochastic on the live graph.
     pub fn metropolis_weights(&self, node: u16, alive: &[bool]) -> MetropolisWeights {
-        let degree = |n: u16| self.neighbours[n as usize].iter().filter(|m| alive[**m as usize]).count();
+        let degree = |n: u16| {
+            self.neighbours[n as usize]
+                .iter()
+                .filter(|m| alive[**m as usize])
+                .count()
+        };
         let own_degree = degree(node);
         let neighbours: Vec<(u16, f64)> = self.neighbours[node as usize]
             .iter()
@@ -181,10 +211,21 @@ fn place_nodes(s: &Scenario) -> (Vec<[f64; 2]>, Option<Cells>) {
             positions.push([origin[0] + w / 2.0, origin[1] + h / 2.0]);
         }
     }
-    (positions, Some(Cells { width: w, height: h, origins }))
+    (
+        positions,
+        Some(Cells {
+            width: w,
+            height: h,
+            origins,
+        }),
+    )
 }
 
-fn place_sensors(s: &Scenario, nodes: &[[f64; 2]], cells: Option<&Cells>) -> (Vec<[f64; 2]>, Vec<u16>) {
+fn place_sensors(
+    s: &Scenario,
+    nodes: &[[f64; 2]],
+    cells: Option<&Cells>,
+) -> (Vec<[f64; 2]>, Vec<u16>) {
     if let (Some([nx, ny]), Some(cells)) = (s.sensors.per_cell, cells) {
         let mut positions = Vec::new();
         let mut owner = Vec::new();
@@ -192,7 +233,10 @@ fn place_sensors(s: &Scenario, nodes: &[[f64; 2]], cells: Option<&Cells>) -> (Ve
             for j in 0..ny {
                 for i in 0..nx {
                     // Centres of an nx × ny sub-grid: 50, 150, …, 450 m in a 500 m cell.
-                    positions.push([origin[0] + (i as f64 + 0.5) * cells.width / nx as f64, origin[1] + (j as f64 + 0.5) * cells.height / ny as f64]);
+                    positions.push([
+                        origin[0] + (i as f64 + 0.5) * cells.width / nx as f64,
+                        origin[1] + (j as f64 + 0.5) * cells.height / ny as f64,
+                    ]);
                     owner.push(n as u16);
                 }
             }
@@ -202,7 +246,11 @@ fn place_sensors(s: &Scenario, nodes: &[[f64; 2]], cells: Option<&Cells>) -> (Ve
     let positions = s.sensors.positions.clone().unwrap_or_default();
     let owner = positions
         .iter()
-        .map(|p| (0..nodes.len()).min_by(|&a, &b| dist2(*p, nodes[a]).total_cmp(&dist2(*p, nodes[b]))).unwrap_or(0) as u16)
+        .map(|p| {
+            (0..nodes.len())
+                .min_by(|&a, &b| dist2(*p, nodes[a]).total_cmp(&dist2(*p, nodes[b])))
+                .unwrap_or(0) as u16
+        })
         .collect();
     (positions, owner)
 }
@@ -250,7 +298,10 @@ mod tests {
             }
             let row: f64 = w[l].iter().sum();
             let col: f64 = (0..w.len()).map(|m| w[m][l]).sum();
-            assert!((row - 1.0).abs() < 1e-12 && (col - 1.0).abs() < 1e-12, "node {l}: row {row} col {col}");
+            assert!(
+                (row - 1.0).abs() < 1e-12 && (col - 1.0).abs() < 1e-12,
+                "node {l}: row {row} col {col}"
+            );
             for m in 0..w.len() {
                 assert_eq!(w[l][m], w[m][l], "asymmetric at {l},{m}");
                 assert!(w[l][m] >= 0.0);
@@ -267,7 +318,9 @@ mod tests {
         let mut v: Vec<f64> = (0..9).map(|i| (i * i) as f64).collect();
         let avg = v.iter().sum::<f64>() / 9.0;
         for _ in 0..200 {
-            v = (0..9).map(|l| (0..9).map(|m| w[l][m] * v[m]).sum()).collect();
+            v = (0..9)
+                .map(|l| (0..9).map(|m| w[l][m] * v[m]).sum())
+                .collect();
         }
         assert!(v.iter().all(|x| (x - avg).abs() < 1e-9), "{v:?} vs {avg}");
     }
@@ -291,7 +344,9 @@ mod tests {
     fn disconnected_graph_is_an_error_unless_intended() {
         let mut s = Scenario::default_scenario();
         s.fusion_graph.radius = 100.0;
-        let e = Topology::from_scenario(&s, "x.toml").unwrap_err().to_string();
+        let e = Topology::from_scenario(&s, "x.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("fusion_graph.radius"), "{e}");
         s.fusion_graph.allow_disconnected = true;
         assert!(Topology::from_scenario(&s, "x.toml").is_ok());
@@ -301,7 +356,12 @@ mod tests {
     fn fault_naming_an_unknown_actor_is_an_error() {
         let text = format!("{}\n[[faults]]\nkind = \"kill\"\nactor = \"node-42\"\nat_step = 5\nsignal = \"SIGKILL\"\n", crate::scenario::DEFAULT_SCENARIO);
         let s = Scenario::from_toml(&text, "f.toml", &[]).unwrap();
-        let e = Topology::from_scenario(&s, "f.toml").unwrap_err().to_string();
-        assert!(e.contains("faults[0].actor") && e.contains("node-42"), "{e}");
+        let e = Topology::from_scenario(&s, "f.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("faults[0].actor") && e.contains("node-42"),
+            "{e}"
+        );
     }
 }

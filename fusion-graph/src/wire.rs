@@ -6,7 +6,7 @@
 //! wrong length or a non-finite number is a typed [`WireError`], and random
 //! bytes never panic.
 
-use bincode::config::{Configuration, Fixint, LittleEndian, Limit};
+use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
@@ -22,7 +22,10 @@ pub const MAX_MESSAGE_BYTES: usize = 1024;
 type Config = Configuration<LittleEndian, Fixint, Limit<MAX_MESSAGE_BYTES>>;
 
 fn config() -> Config {
-    bincode::config::standard().with_little_endian().with_fixed_int_encoding().with_limit::<MAX_MESSAGE_BYTES>()
+    bincode::config::standard()
+        .with_little_endian()
+        .with_fixed_int_encoding()
+        .with_limit::<MAX_MESSAGE_BYTES>()
 }
 
 /// Message kinds, also the unit of byte accounting.
@@ -127,7 +130,10 @@ pub struct Telemetry {
     pub deadline_missed: bool,
     /// Messages that arrived after their round or step had passed, since the last telemetry.
     pub late_messages: u32,
-    /// Microseconds in local filter, fusion filter, bounds, consensus.
+    /// Microseconds in: the local filter (with the local bound), the fusion
+    /// filter (with the global bounds), consensus rounds 2..N_c (when every
+    /// neighbour is already exchanging: the rounds' own latency), and the
+    /// whole consensus (round 1 also waits for the slowest neighbour's filter).
     pub stage_micros: [u32; 4],
 }
 
@@ -151,13 +157,23 @@ pub struct StateTransfer {
 
 #[derive(Debug, Clone, PartialEq)]
 pub enum Payload {
-    Tick { truth: [f64; 4] },
+    Tick {
+        truth: [f64; 4],
+    },
     /// Bit i of byte i/8: the node's i-th sensor is active.
-    Activate { mask: Vec<u8> },
-    Observation { cell: u32 },
-    RawObservation { value: f64 },
+    Activate {
+        mask: Vec<u8>,
+    },
+    Observation {
+        cell: u32,
+    },
+    RawObservation {
+        value: f64,
+    },
     Consensus(ConsensusValues),
-    ConsensusAux { s_obs: Packed },
+    ConsensusAux {
+        s_obs: Packed,
+    },
     Control(Control),
     Telemetry(Telemetry),
     StateTransfer(StateTransfer),
@@ -196,13 +212,28 @@ pub struct Message {
 
 impl Message {
     pub fn new(sender: ActorId, step: u32, round: u16, payload: Payload) -> Self {
-        Self { header: Header { kind: payload.kind(), sender, step, round }, payload }
+        Self {
+            header: Header {
+                kind: payload.kind(),
+                sender,
+                step,
+                round,
+            },
+            payload,
+        }
     }
 
     /// Appends the encoded message to `out`.
     pub fn encode(&self, format: &WireFormat, out: &mut Vec<u8>) {
         let (sender_kind, sender_index) = self.header.sender.to_wire();
-        let h = WireHeader { version: WIRE_VERSION, kind: self.header.kind as u8, sender_kind, sender_index, step: self.header.step, round: self.header.round };
+        let h = WireHeader {
+            version: WIRE_VERSION,
+            kind: self.header.kind as u8,
+            sender_kind,
+            sender_index,
+            step: self.header.step,
+            round: self.header.round,
+        };
         put(&h, out);
         match &self.payload {
             Payload::Tick { truth } => put(truth, out),
@@ -211,7 +242,9 @@ impl Message {
                 m.resize(format.activation_bytes, 0);
                 out.extend_from_slice(&m);
             }
-            Payload::Observation { cell } => out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes]),
+            Payload::Observation { cell } => {
+                out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes])
+            }
             Payload::RawObservation { value } => put(value, out),
             Payload::Consensus(v) => put(v, out),
             Payload::ConsensusAux { s_obs } => put(s_obs, out),
@@ -232,28 +265,40 @@ impl Message {
         if bytes.len() > MAX_MESSAGE_BYTES {
             return Err(WireError::TooLong { len: bytes.len() });
         }
-        let (h, used): (WireHeader, usize) = bincode::serde::decode_from_slice(bytes, config()).map_err(|_| WireError::Truncated)?;
+        let (h, used): (WireHeader, usize) =
+            bincode::serde::decode_from_slice(bytes, config()).map_err(|_| WireError::Truncated)?;
         if h.version != WIRE_VERSION {
             return Err(WireError::Version { got: h.version });
         }
         let kind = MessageKind::from_u8(h.kind).ok_or(WireError::UnknownKind { kind: h.kind })?;
-        let sender = ActorId::from_wire(h.sender_kind, h.sender_index).ok_or(WireError::UnknownSender { kind: h.sender_kind })?;
+        let sender =
+            ActorId::from_wire(h.sender_kind, h.sender_index).ok_or(WireError::UnknownSender {
+                kind: h.sender_kind,
+            })?;
         let body = &bytes[used..];
         let payload = match kind {
-            MessageKind::Tick => Payload::Tick { truth: finite(take(body)?)? },
+            MessageKind::Tick => Payload::Tick {
+                truth: finite(take(body)?)?,
+            },
             MessageKind::Activate => {
                 exact_len(body, format.activation_bytes)?;
-                Payload::Activate { mask: body.to_vec() }
+                Payload::Activate {
+                    mask: body.to_vec(),
+                }
             }
             MessageKind::Observation => {
                 exact_len(body, format.cell_bytes)?;
                 let mut le = [0u8; 4];
                 le[..body.len()].copy_from_slice(body);
-                Payload::Observation { cell: u32::from_le_bytes(le) }
+                Payload::Observation {
+                    cell: u32::from_le_bytes(le),
+                }
             }
             MessageKind::RawObservation => {
                 let v: f64 = take(body)?;
-                Payload::RawObservation { value: finite([v])?[0] }
+                Payload::RawObservation {
+                    value: finite([v])?[0],
+                }
             }
             MessageKind::Consensus => {
                 let v: ConsensusValues = take(body)?;
@@ -262,12 +307,17 @@ impl Message {
                 finite(v.delta_l)?;
                 Payload::Consensus(v)
             }
-            MessageKind::ConsensusAux => Payload::ConsensusAux { s_obs: finite(take(body)?)? },
+            MessageKind::ConsensusAux => Payload::ConsensusAux {
+                s_obs: finite(take(body)?)?,
+            },
             MessageKind::Control => Payload::Control(take(body)?),
             MessageKind::Telemetry => {
                 let t: Telemetry = take(body)?;
                 finite(t.estimate)?;
-                for v in [t.bound, t.local_bound, t.aux_bound, t.centralized_bound].into_iter().flatten() {
+                for v in [t.bound, t.local_bound, t.aux_bound, t.centralized_bound]
+                    .into_iter()
+                    .flatten()
+                {
                     finite([v])?;
                 }
                 if let Some(c) = t.centralized_estimate {
@@ -285,7 +335,15 @@ impl Message {
             }
             MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
         };
-        Ok(Self { header: Header { kind, sender, step: h.step, round: h.round }, payload })
+        Ok(Self {
+            header: Header {
+                kind,
+                sender,
+                step: h.step,
+                round: h.round,
+            },
+            payload,
+        })
     }
 }
 
@@ -312,16 +370,22 @@ fn put<T: Serialize>(v: &T, out: &mut Vec<u8>) {
 
 /// Decodes a whole body as one value; trailing bytes are an error.
 fn take<T: for<'de> Deserialize<'de>>(body: &[u8]) -> Result<T, WireError> {
-    let (v, used) = bincode::serde::decode_from_slice(body, config()).map_err(|_| WireError::Truncated)?;
+    let (v, used) =
+        bincode::serde::decode_from_slice(body, config()).map_err(|_| WireError::Truncated)?;
     if used != body.len() {
-        return Err(WireError::TrailingBytes { extra: body.len() - used });
+        return Err(WireError::TrailingBytes {
+            extra: body.len() - used,
+        });
     }
     Ok(v)
 }
 
 fn exact_len(body: &[u8], expected: usize) -> Result<(), WireError> {
     if body.len() != expected {
-        return Err(WireError::Length { expected, got: body.len() });
+        return Err(WireError::Length {
+            expected,
+            got: body.len(),
+        });
     }
     Ok(())
 }
@@ -365,10 +429,17 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+    const FORMAT: WireFormat = WireFormat {
+        cell_bytes: 1,
+        activation_bytes: 4,
+    };
 
     fn samples() -> Vec<Message> {
-        let c = ConsensusValues { delta_eta: [1.0, 2.0, 3.0, 4.0], delta_lambda: [0.5; 10], delta_l: [-0.25; 10] };
+        let c = ConsensusValues {
+            delta_eta: [1.0, 2.0, 3.0, 4.0],
+            delta_lambda: [0.5; 10],
+            delta_l: [-0.25; 10],
+        };
         let t = Telemetry {
             estimate: [1.0; 4],
             bound: Some(1.5),
@@ -384,16 +455,62 @@ mod tests {
             stage_micros: [1, 2, 3, 4],
         };
         vec![
-            Message::new(ActorId::Launcher, 7, 0, Payload::Tick { truth: [1400.0, 1400.0, -6.4, -7.6] }),
-            Message::new(ActorId::Node(2), 7, 0, Payload::Activate { mask: vec![0b101, 0, 0, 1] }),
-            Message::new(ActorId::Sensor(117), 7, 0, Payload::Observation { cell: 201 }),
-            Message::new(ActorId::Sensor(3), 7, 0, Payload::RawObservation { value: -1.25 }),
+            Message::new(
+                ActorId::Launcher,
+                7,
+                0,
+                Payload::Tick {
+                    truth: [1400.0, 1400.0, -6.4, -7.6],
+                },
+            ),
+            Message::new(
+                ActorId::Node(2),
+                7,
+                0,
+                Payload::Activate {
+                    mask: vec![0b101, 0, 0, 1],
+                },
+            ),
+            Message::new(
+                ActorId::Sensor(117),
+                7,
+                0,
+                Payload::Observation { cell: 201 },
+            ),
+            Message::new(
+                ActorId::Sensor(3),
+                7,
+                0,
+                Payload::RawObservation { value: -1.25 },
+            ),
             Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c)),
-            Message::new(ActorId::Node(4), 7, 9, Payload::ConsensusAux { s_obs: [3.0; 10] }),
+            Message::new(
+                ActorId::Node(4),
+                7,
+                9,
+                Payload::ConsensusAux { s_obs: [3.0; 10] },
+            ),
             Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Stop)),
-            Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Membership { alive: vec![0xff, 1] })),
+            Message::new(
+                ActorId::Launcher,
+                7,
+                0,
+                Payload::Control(Control::Membership {
+                    alive: vec![0xff, 1],
+                }),
+            ),
             Message::new(ActorId::Node(0), 7, 0, Payload::Telemetry(t)),
-            Message::new(ActorId::Node(1), 7, 0, Payload::StateTransfer(StateTransfer { mean: [1.0; 4], covariance: [2.0; 10], information: [3.0; 10], aux_information: [4.0; 10] })),
+            Message::new(
+                ActorId::Node(1),
+                7,
+                0,
+                Payload::StateTransfer(StateTransfer {
+                    mean: [1.0; 4],
+                    covariance: [2.0; 10],
+                    information: [3.0; 10],
+                    aux_information: [4.0; 10],
+                }),
+            ),
         ]
     }
 
@@ -410,11 +527,24 @@ mod tests {
 
     #[test]
     fn observation_is_header_plus_ceil_bits_over_eight() {
-        let m = Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 0x1234 });
-        let f = WireFormat { cell_bytes: 2, activation_bytes: 4 };
+        let m = Message::new(
+            ActorId::Sensor(1),
+            1,
+            0,
+            Payload::Observation { cell: 0x1234 },
+        );
+        let f = WireFormat {
+            cell_bytes: 2,
+            activation_bytes: 4,
+        };
         assert_eq!(m.to_bytes(&f).len(), HEADER_BYTES + 2);
         assert_eq!(Message::decode(&m.to_bytes(&f), &f).unwrap(), m);
-        assert_eq!(Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 200 }).to_bytes(&FORMAT).len(), 12);
+        assert_eq!(
+            Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 200 })
+                .to_bytes(&FORMAT)
+                .len(),
+            12
+        );
     }
 
     #[test]
@@ -422,21 +552,55 @@ mod tests {
         let tick = Message::new(ActorId::Launcher, 1, 0, Payload::Tick { truth: [0.0; 4] });
         let mut b = tick.to_bytes(&FORMAT);
         b[0] = 9;
-        assert_eq!(Message::decode(&b, &FORMAT), Err(WireError::Version { got: 9 }));
+        assert_eq!(
+            Message::decode(&b, &FORMAT),
+            Err(WireError::Version { got: 9 })
+        );
         let b = tick.to_bytes(&FORMAT);
-        assert_eq!(Message::decode(&b[..b.len() - 1], &FORMAT), Err(WireError::Truncated));
+        assert_eq!(
+            Message::decode(&b[..b.len() - 1], &FORMAT),
+            Err(WireError::Truncated)
+        );
         let mut long = b.clone();
         long.push(0);
-        assert!(matches!(Message::decode(&long, &FORMAT), Err(WireError::TrailingBytes { .. })));
-        let nan = Message::new(ActorId::Launcher, 1, 0, Payload::Tick { truth: [f64::NAN, 0.0, 0.0, 0.0] });
-        assert_eq!(Message::decode(&nan.to_bytes(&FORMAT), &FORMAT), Err(WireError::NonFinite));
-        let obs = Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 3 }).to_bytes(&WireFormat { cell_bytes: 2, activation_bytes: 4 });
-        assert!(matches!(Message::decode(&obs, &FORMAT), Err(WireError::Length { expected: 1, got: 2 })));
+        assert!(matches!(
+            Message::decode(&long, &FORMAT),
+            Err(WireError::TrailingBytes { .. })
+        ));
+        let nan = Message::new(
+            ActorId::Launcher,
+            1,
+            0,
+            Payload::Tick {
+                truth: [f64::NAN, 0.0, 0.0, 0.0],
+            },
+        );
+        assert_eq!(
+            Message::decode(&nan.to_bytes(&FORMAT), &FORMAT),
+            Err(WireError::NonFinite)
+        );
+        let obs = Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 3 })
+            .to_bytes(&WireFormat {
+                cell_bytes: 2,
+                activation_bytes: 4,
+            });
+        assert!(matches!(
+            Message::decode(&obs, &FORMAT),
+            Err(WireError::Length {
+                expected: 1,
+                got: 2
+            })
+        ));
     }
 
     #[test]
     fn symmetric_packing_round_trips() {
-        let m = [[1.0, 2.0, 3.0, 4.0], [2.0, 5.0, 6.0, 7.0], [3.0, 6.0, 8.0, 9.0], [4.0, 7.0, 9.0, 10.0]];
+        let m = [
+            [1.0, 2.0, 3.0, 4.0],
+            [2.0, 5.0, 6.0, 7.0],
+            [3.0, 6.0, 8.0, 9.0],
+            [4.0, 7.0, 9.0, 10.0],
+        ];
         assert_eq!(unpack_symmetric(&pack_symmetric(&m)), m);
     }
 

@@ -14,7 +14,10 @@ use fusion_graph::{ActorId, LinkRule, Scenario, Topology};
 
 const ROLE: &str = "CQNET_FG_CHILD_ROLE";
 const RUN: &str = "CQNET_FG_CHILD_RUN";
-const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+const FORMAT: WireFormat = WireFormat {
+    cell_bytes: 1,
+    activation_bytes: 4,
+};
 const SENSOR: ActorId = ActorId::Sensor(0);
 const NODE: ActorId = ActorId::Node(0);
 
@@ -23,7 +26,10 @@ fn topology() -> Topology {
 }
 
 fn unique_run(tag: &str) -> RunId {
-    let n = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().subsec_nanos();
+    let n = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos();
     RunId::new(&format!("t{}-{tag}-{n:x}", std::process::id())).unwrap()
 }
 
@@ -35,12 +41,21 @@ struct Run {
 
 impl Run {
     fn new(tag: &str) -> Self {
-        Self { id: unique_run(tag), child: None }
+        Self {
+            id: unique_run(tag),
+            child: None,
+        }
     }
 
     fn spawn(&mut self, role: &str) {
         let child = Command::new(std::env::current_exe().unwrap())
-            .args(["child_process_entry", "--exact", "--nocapture", "--test-threads=1", "--quiet"])
+            .args([
+                "child_process_entry",
+                "--exact",
+                "--nocapture",
+                "--test-threads=1",
+                "--quiet",
+            ])
             .env(ROLE, role)
             .env(RUN, self.id.as_str())
             .stdout(Stdio::piped())
@@ -55,7 +70,11 @@ impl Run {
         let out = self.child.take().unwrap().wait_with_output().unwrap();
         assert!(out.status.success(), "child failed: {:?}", out.status);
         let text = String::from_utf8_lossy(&out.stdout);
-        let csv = text.split("ACCOUNTING-BEGIN\n").nth(1).and_then(|s| s.split("ACCOUNTING-END").next()).expect("child printed its accounting");
+        let csv = text
+            .split("ACCOUNTING-BEGIN\n")
+            .nth(1)
+            .and_then(|s| s.split("ACCOUNTING-END").next())
+            .expect("child printed its accounting");
         Accounting::from_csv(csv).unwrap()
     }
 }
@@ -77,7 +96,10 @@ fn node_transport(run: &RunId) -> IceoryxTransport {
 }
 
 /// Receives until `done` says so or ten seconds pass.
-fn receive_until(t: &mut IceoryxTransport, mut done: impl FnMut(&[Message], &IceoryxTransport) -> bool) -> Vec<Message> {
+fn receive_until(
+    t: &mut IceoryxTransport,
+    mut done: impl FnMut(&[Message], &IceoryxTransport) -> bool,
+) -> Vec<Message> {
     let mut got = Vec::new();
     let start = Instant::now();
     while !done(&got, t) && start.elapsed() < Duration::from_secs(10) {
@@ -89,7 +111,10 @@ fn receive_until(t: &mut IceoryxTransport, mut done: impl FnMut(&[Message], &Ice
 }
 
 fn unix_now() -> f64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_secs_f64()
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
 }
 
 #[test]
@@ -100,8 +125,13 @@ fn delivers_with_byte_counts_on_both_sides() {
     let got = receive_until(&mut node, |g, _| g.len() >= 20);
     let child = run.finish();
     assert_eq!(got.len(), 20);
-    assert!(got.iter().enumerate().all(|(i, m)| m.header.step == i as u32 + 1 && m.header.sender == SENSOR));
-    let recv = node.accounting().get(SENSOR, NODE, MessageKind::Observation);
+    assert!(got
+        .iter()
+        .enumerate()
+        .all(|(i, m)| m.header.step == i as u32 + 1 && m.header.sender == SENSOR));
+    let recv = node
+        .accounting()
+        .get(SENSOR, NODE, MessageKind::Observation);
     let sent = child.get(SENSOR, NODE, MessageKind::Observation);
     assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 240));
     assert_eq!((recv.received_messages, recv.received_bytes), (20, 240));
@@ -113,7 +143,13 @@ fn delivers_with_byte_counts_on_both_sides() {
 fn delay_holds_each_message_for_at_least_its_latency() {
     let mut run = Run::new("delay");
     let mut node = node_transport(&run.id);
-    node.shaper().set_rule(SENSOR, LinkRule { latency: Duration::from_millis(40), ..Default::default() });
+    node.shaper().set_rule(
+        SENSOR,
+        LinkRule {
+            latency: Duration::from_millis(40),
+            ..Default::default()
+        },
+    );
     run.spawn("send-timestamps");
     let mut lateness = Vec::new();
     let start = Instant::now();
@@ -137,15 +173,28 @@ fn delay_holds_each_message_for_at_least_its_latency() {
 fn loss_drops_the_expected_fraction() {
     let mut run = Run::new("loss");
     let mut node = node_transport(&run.id);
-    node.shaper().set_rule(SENSOR, LinkRule { loss: 0.3, ..Default::default() });
+    node.shaper().set_rule(
+        SENSOR,
+        LinkRule {
+            loss: 0.3,
+            ..Default::default()
+        },
+    );
     run.spawn("send-1000");
     receive_until(&mut node, |_, t| {
         let c = t.accounting().get(SENSOR, NODE, MessageKind::Observation);
         c.received_messages + c.dropped_messages >= 1000
     });
     let child = run.finish();
-    let c = node.accounting().get(SENSOR, NODE, MessageKind::Observation);
-    assert_eq!(child.get(SENSOR, NODE, MessageKind::Observation).sent_messages, 1000);
+    let c = node
+        .accounting()
+        .get(SENSOR, NODE, MessageKind::Observation);
+    assert_eq!(
+        child
+            .get(SENSOR, NODE, MessageKind::Observation)
+            .sent_messages,
+        1000
+    );
     // What reached the receiver went through the shaper; on a loaded machine
     // a few may have been overwritten in a full queue before that, and show
     // as sent but not accounted for.
@@ -154,7 +203,10 @@ fn loss_drops_the_expected_fraction() {
     // 3.5 standard deviations of a binomial(arrived, 0.3).
     let expected = 0.3 * arrived as f64;
     let sd = (arrived as f64 * 0.3 * 0.7).sqrt();
-    assert!((c.dropped_messages as f64 - expected).abs() < 3.5 * sd, "{c:?}");
+    assert!(
+        (c.dropped_messages as f64 - expected).abs() < 3.5 * sd,
+        "{c:?}"
+    );
 }
 
 #[test]
@@ -162,10 +214,20 @@ fn garbage_is_counted_as_malformed_and_dropped() {
     let mut run = Run::new("garbage");
     let mut node = node_transport(&run.id);
     run.spawn("send-garbage");
-    let got = receive_until(&mut node, |_, t| t.accounting().get(SENSOR, NODE, MessageKind::Malformed).malformed_messages >= 50);
+    let got = receive_until(&mut node, |_, t| {
+        t.accounting()
+            .get(SENSOR, NODE, MessageKind::Malformed)
+            .malformed_messages
+            >= 50
+    });
     run.finish();
     assert!(got.is_empty(), "garbage was delivered: {got:?}");
-    assert_eq!(node.accounting().get(SENSOR, NODE, MessageKind::Malformed).malformed_messages, 50);
+    assert_eq!(
+        node.accounting()
+            .get(SENSOR, NODE, MessageKind::Malformed)
+            .malformed_messages,
+        50
+    );
 }
 
 #[test]
@@ -193,7 +255,10 @@ fn cleanup_removes_every_resource_of_the_run() {
         let node = node_transport(&run.id);
         run.spawn("send-20");
         run.finish();
-        assert!(!run_resources(&run.id).is_empty(), "the run created no files under its prefix");
+        assert!(
+            !run_resources(&run.id).is_empty(),
+            "the run created no files under its prefix"
+        );
         drop(node);
         run.id.clone()
     };
@@ -204,13 +269,22 @@ fn cleanup_removes_every_resource_of_the_run() {
 /// this binary with `CQNET_FG_CHILD_ROLE` set. Without it, it does nothing.
 #[test]
 fn child_process_entry() {
-    let Ok(role) = std::env::var(ROLE) else { return };
+    let Ok(role) = std::env::var(ROLE) else {
+        return;
+    };
     let run = RunId::new(&std::env::var(RUN).unwrap()).unwrap();
     let mut t = IceoryxTransport::new(&run, SENSOR, &topology(), FORMAT, 1).unwrap();
     t.publish_on(Channel::Observation(0)).unwrap();
     t.notify(NODE).unwrap();
     t.update_connections();
-    let send = |t: &mut IceoryxTransport, step: u32, payload: Payload| t.send(Channel::Observation(0), &Message::new(SENSOR, step, 0, payload), &[NODE]).unwrap();
+    let send = |t: &mut IceoryxTransport, step: u32, payload: Payload| {
+        t.send(
+            Channel::Observation(0),
+            &Message::new(SENSOR, step, 0, payload),
+            &[NODE],
+        )
+        .unwrap()
+    };
     match role.as_str() {
         "send-20" => (1..=20).for_each(|s| send(&mut t, s, Payload::Observation { cell: s })),
         "send-1000" => (1..=1000).for_each(|s| {
@@ -228,7 +302,14 @@ fn child_process_entry() {
             let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
             for i in 0..50 {
                 let len = 1 + i % 40;
-                let bytes: Vec<u8> = (0..len).map(|_| { x ^= x << 13; x ^= x >> 7; x ^= x << 17; x as u8 }).collect();
+                let bytes: Vec<u8> = (0..len)
+                    .map(|_| {
+                        x ^= x << 13;
+                        x ^= x >> 7;
+                        x ^= x << 17;
+                        x as u8
+                    })
+                    .collect();
                 t.inject_raw(Channel::Observation(0), &bytes).unwrap();
                 std::thread::sleep(Duration::from_millis(1));
             }
@@ -238,5 +319,8 @@ fn child_process_entry() {
     // A publisher's samples live in its own shared memory and vanish when it
     // exits: stay until the parent has read them.
     std::thread::sleep(Duration::from_millis(500));
-    print!("ACCOUNTING-BEGIN\n{}ACCOUNTING-END\n", t.accounting().to_csv());
+    print!(
+        "ACCOUNTING-BEGIN\n{}ACCOUNTING-END\n",
+        t.accounting().to_csv()
+    );
 }

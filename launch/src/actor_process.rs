@@ -33,15 +33,23 @@ pub fn accounting_path(out: &Path, actor: ActorId) -> PathBuf {
 
 pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
     // Die with the launcher, whatever happens to it.
-    nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL).context("prctl(PR_SET_PDEATHSIG)")?;
+    nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL)
+        .context("prctl(PR_SET_PDEATHSIG)")?;
     let actor: ActorId = args.actor.parse().map_err(anyhow::Error::msg)?;
     if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {
         anyhow::bail!("failing at start as {FAIL_AT_START_ENV} asks");
     }
     let (scenario, topology) = load_child_scenario(&args.scenario)?;
-    anyhow::ensure!(topology.contains(actor) && actor != ActorId::Launcher, "{actor} is not an actor of this scenario");
+    anyhow::ensure!(
+        topology.contains(actor) && actor != ActorId::Launcher,
+        "{actor} is not an actor of this scenario"
+    );
     let run = RunId::new(&args.run_id)?;
-    let out = args.scenario.parent().map(Path::to_path_buf).unwrap_or_default();
+    let out = args
+        .scenario
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
     std::fs::create_dir_all(out.join("accounting"))?;
     match actor {
         ActorId::Sensor(i) => sensor_loop(&scenario, &topology, &run, i, &out, args.centralized),
@@ -60,11 +68,19 @@ fn launcher_gone() -> bool {
 }
 
 fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
-    write_atomically(&accounting_path(out, transport.me()), transport.accounting().to_csv().as_bytes())
+    write_atomically(
+        &accounting_path(out, transport.me()),
+        transport.accounting().to_csv().as_bytes(),
+    )
 }
 
 /// Sets this actor's incoming link rules for `step` from the fault schedule.
-fn apply_link_faults(transport: &mut IceoryxTransport, schedule: &FaultSchedule, topology: &Topology, step: u32) {
+fn apply_link_faults(
+    transport: &mut IceoryxTransport,
+    schedule: &FaultSchedule,
+    topology: &Topology,
+    step: u32,
+) {
     if schedule.faults().is_empty() {
         return;
     }
@@ -76,12 +92,27 @@ fn apply_link_faults(transport: &mut IceoryxTransport, schedule: &FaultSchedule,
     }
 }
 
-fn sensor_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16, out: &Path, centralized: bool) -> anyhow::Result<()> {
+fn sensor_loop(
+    scenario: &Scenario,
+    topology: &Topology,
+    run: &RunId,
+    index: u16,
+    out: &Path,
+    centralized: bool,
+) -> anyhow::Result<()> {
     let me = ActorId::Sensor(index);
     let owner = ActorId::Node(topology.sensor_owner[index as usize]);
-    let ActorId::Node(owner_index) = owner else { unreachable!() };
+    let ActorId::Node(owner_index) = owner else {
+        unreachable!()
+    };
     let mut actor = SensorActor::new(scenario, topology, index);
-    let mut t = IceoryxTransport::new(run, me, topology, node::wire_format(scenario, topology), scenario.seed ^ (0x5000 + index as u64))?;
+    let mut t = IceoryxTransport::new(
+        run,
+        me,
+        topology,
+        node::wire_format(scenario, topology),
+        scenario.seed ^ (0x5000 + index as u64),
+    )?;
     t.publish_on(Channel::Observation(index))?;
     t.subscribe(Channel::Tick)?;
     t.subscribe(Channel::Activation(owner_index))?;
@@ -93,7 +124,10 @@ fn sensor_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16
         vec![owner]
     };
     let schedule = FaultSchedule::new(&scenario.faults);
-    let position = topology.node_sensors[owner_index as usize].iter().position(|s| *s == index).expect("a sensor belongs to its node");
+    let position = topology.node_sensors[owner_index as usize]
+        .iter()
+        .position(|s| *s == index)
+        .expect("a sensor belongs to its node");
     announce_ready();
     let mut inbox = Vec::new();
     let mut step = 0;
@@ -114,9 +148,17 @@ fn sensor_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16
                             flush_accounting(&t, out)?;
                         }
                     }
-                    SensorInput::Tick { step: m.header.step, truth: State::from(truth) }
+                    SensorInput::Tick {
+                        step: m.header.step,
+                        truth: State::from(truth),
+                    }
                 }
-                Payload::Activate { mask } => SensorInput::Activation { step: m.header.step, active: mask.get(position / 8).is_some_and(|b| b & (1 << (position % 8)) != 0) },
+                Payload::Activate { mask } => SensorInput::Activation {
+                    step: m.header.step,
+                    active: mask
+                        .get(position / 8)
+                        .is_some_and(|b| b & (1 << (position % 8)) != 0),
+                },
                 _ => continue,
             };
             if let Some(obs) = actor.handle(input) {
@@ -129,12 +171,26 @@ fn sensor_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16
     }
 }
 
-fn node_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16, out: &Path, rejoin: bool) -> anyhow::Result<()> {
-    let mut actor = NodeActor::new(scenario, topology, index).map_err(|e| anyhow::anyhow!("node-{index}: {e}"))?;
+fn node_loop(
+    scenario: &Scenario,
+    topology: &Topology,
+    run: &RunId,
+    index: u16,
+    out: &Path,
+    rejoin: bool,
+) -> anyhow::Result<()> {
+    let mut actor = NodeActor::new(scenario, topology, index)
+        .map_err(|e| anyhow::anyhow!("node-{index}: {e}"))?;
     if rejoin {
         actor.expect_rejoin();
     }
-    let mut t = IceoryxTransport::new(run, actor.id(), topology, node::wire_format(scenario, topology), scenario.seed ^ (0x1000 + index as u64))?;
+    let mut t = IceoryxTransport::new(
+        run,
+        actor.id(),
+        topology,
+        node::wire_format(scenario, topology),
+        scenario.seed ^ (0x1000 + index as u64),
+    )?;
     for c in actor.publications() {
         t.publish_on(c)?;
     }
@@ -150,14 +206,18 @@ fn node_loop(scenario: &Scenario, topology: &Topology, run: &RunId, index: u16, 
     let mut outgoing = Vec::new();
     loop {
         let now = t.now();
-        let timeout = actor.next_deadline().map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
+        let timeout = actor
+            .next_deadline()
+            .map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
         t.wait(timeout)?;
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
         for m in inbox.drain(..) {
             match (&m.payload, m.header.sender) {
-                (Payload::Control(Control::Stop), ActorId::Launcher) => return flush_accounting(&t, out),
+                (Payload::Control(Control::Stop), ActorId::Launcher) => {
+                    return flush_accounting(&t, out)
+                }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     apply_link_faults(&mut t, &schedule, topology, m.header.step);
                     t.update_connections();

@@ -27,8 +27,13 @@ pub fn main() -> std::process::ExitCode {
 }
 
 fn init_logging(actor: Option<&str>) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
     if let Some(name) = actor {
         // A span held for the whole process names the actor on every line.
         let span = tracing::error_span!("actor", name = %name);
@@ -47,18 +52,54 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             if args.runs == 1 {
                 let mut writer = ResultsWriter::create(&args.out)?;
                 let progress = Progress::new("step", scenario.steps);
-                let summary = crate::sim::run_in_process(&scenario, &topology, &mut writer, !args.no_central, |s| progress.update(s))?;
+                let summary = crate::sim::run_in_process(
+                    &scenario,
+                    &topology,
+                    &mut writer,
+                    !args.no_central,
+                    |s| progress.update(s),
+                )?;
                 print_table(&summary);
                 println!("results in {}", args.out.display());
             } else {
-                let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-                let mc = run_monte_carlo(&scenario, &topology, &args.out, args.runs, threads, !args.no_central)?;
-                write_atomically(&args.out.join("summary.json"), serde_json::to_string_pretty(&mc)?.as_bytes())?;
+                let threads = args
+                    .threads
+                    .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+                let mc = run_monte_carlo(
+                    &scenario,
+                    &topology,
+                    &args.out,
+                    args.runs,
+                    threads,
+                    !args.no_central,
+                )?;
+                write_atomically(
+                    &args.out.join("summary.json"),
+                    serde_json::to_string_pretty(&mc)?.as_bytes(),
+                )?;
                 let m = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
-                println!("cqnet sim — {} runs of `{}`, averages over steps {}..{}", mc.runs, scenario.name, mc.from_step, scenario.steps);
-                println!("  RMSE {} m, CQ/dPCRLB {} m, local {} m, aux-FIM {} m", m(mc.rmse), m(mc.mean_bound), m(mc.mean_local_bound), m(mc.mean_aux_bound));
-                println!("  centralized: RMSE {} m, bound {} m", m(mc.centralized_rmse), m(mc.mean_centralized_bound));
-                println!("  {:.1} steps/s per run, {:.1} s wall; results in {}", mc.steps_per_second_per_run, mc.wall_seconds, args.out.display());
+                println!(
+                    "cqnet sim — {} runs of `{}`, averages over steps {}..{}",
+                    mc.runs, scenario.name, mc.from_step, scenario.steps
+                );
+                println!(
+                    "  RMSE {} m, CQ/dPCRLB {} m, local {} m, aux-FIM {} m",
+                    m(mc.rmse),
+                    m(mc.mean_bound),
+                    m(mc.mean_local_bound),
+                    m(mc.mean_aux_bound)
+                );
+                println!(
+                    "  centralized: RMSE {} m, bound {} m",
+                    m(mc.centralized_rmse),
+                    m(mc.mean_centralized_bound)
+                );
+                println!(
+                    "  {:.1} steps/s per run, {:.1} s wall; results in {}",
+                    mc.steps_per_second_per_run,
+                    mc.wall_seconds,
+                    args.out.display()
+                );
             }
             Ok(())
         }
@@ -68,10 +109,17 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 Some(id) => fusion_graph::transport::RunId::new(id)?,
                 None => fusion_graph::transport::RunId::generate(),
             };
-            let options = crate::network::RunOptions { out: args.out.clone(), lockstep: args.lockstep, run_id, centralized: !args.no_central };
+            let options = crate::network::RunOptions {
+                out: args.out.clone(),
+                lockstep: args.lockstep,
+                run_id,
+                centralized: !args.no_central,
+            };
             let steps = scenario.steps;
             let progress = Progress::new("step", steps);
-            let summary = crate::network::run_network(&scenario, &topology, options, move |s| progress.update(s))?;
+            let summary = crate::network::run_network(&scenario, &topology, options, move |s| {
+                progress.update(s)
+            })?;
             print_table(&summary);
             println!("results in {}", args.out.display());
             Ok(())

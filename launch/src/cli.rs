@@ -8,7 +8,11 @@ use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO};
 use fusion_graph::Topology;
 
 #[derive(Debug, Parser)]
-#[command(name = "cqnet", version, about = "Run a decentralized sensor network and compute its CQ/dPCRLB while it runs")]
+#[command(
+    name = "cqnet",
+    version,
+    about = "Run a decentralized sensor network and compute its CQ/dPCRLB while it runs"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -96,8 +100,14 @@ pub struct ActorArgs {
 /// The scenario the arguments name, validated, with its topology.
 pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)> {
     let (scenario, source) = match &args.scenario {
-        Some(path) => (Scenario::load(path, &args.overrides)?, path.display().to_string()),
-        None => (Scenario::from_toml(DEFAULT_SCENARIO, "<built-in default>", &args.overrides)?, "<built-in default>".to_string()),
+        Some(path) => (
+            Scenario::load(path, &args.overrides)?,
+            path.display().to_string(),
+        ),
+        None => (
+            Scenario::from_toml(DEFAULT_SCENARIO, "<built-in default>", &args.overrides)?,
+            "<built-in default>".to_string(),
+        ),
     };
     let topology = Topology::from_scenario(&scenario, &source)?;
     Ok((scenario, topology))
@@ -113,7 +123,8 @@ pub fn builtin_scenario(seed001: bool) -> &'static str {
 
 /// Loads the scenario file a launcher wrote for its children.
 pub fn load_child_scenario(path: &std::path::Path) -> anyhow::Result<(Scenario, Topology)> {
-    let scenario = Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
+    let scenario =
+        Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
     let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
     Ok((scenario, topology))
 }

@@ -47,7 +47,11 @@ pub struct Progress {
 
 impl Progress {
     pub fn new(label: &'static str, total: u32) -> Self {
-        Self { label, total, terminal: std::io::stderr().is_terminal() }
+        Self {
+            label,
+            total,
+            terminal: std::io::stderr().is_terminal(),
+        }
     }
 
     pub fn update(&self, done: u32) {
@@ -62,11 +66,19 @@ impl Progress {
     }
 }
 
-pub fn run_monte_carlo(scenario: &Scenario, topology: &Topology, out: &Path, runs: u32, threads: usize, centralized: bool) -> anyhow::Result<MonteCarloSummary> {
+pub fn run_monte_carlo(
+    scenario: &Scenario,
+    topology: &Topology,
+    out: &Path,
+    runs: u32,
+    threads: usize,
+    centralized: bool,
+) -> anyhow::Result<MonteCarloSummary> {
     let started = std::time::Instant::now();
     let next = AtomicU32::new(0);
     let done = AtomicU32::new(0);
-    let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> = Mutex::new((0..runs).map(|_| None).collect());
+    let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> =
+        Mutex::new((0..runs).map(|_| None).collect());
     let progress = Progress::new("runs", runs);
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1).min(runs as usize) {
@@ -77,13 +89,21 @@ pub fn run_monte_carlo(scenario: &Scenario, topology: &Topology, out: &Path, run
                 }
                 let mut s = scenario.clone();
                 s.seed = scenario.seed.wrapping_add(i as u64);
-                let result = ResultsWriter::create(&out.join(format!("run-{i:03}"))).and_then(|mut w| run_in_process(&s, topology, &mut w, centralized, |_| {}));
-                results.lock().expect("no worker panics while holding the lock")[i as usize] = Some(result);
+                let result = ResultsWriter::create(&out.join(format!("run-{i:03}")))
+                    .and_then(|mut w| run_in_process(&s, topology, &mut w, centralized, |_| {}));
+                results
+                    .lock()
+                    .expect("no worker panics while holding the lock")[i as usize] = Some(result);
                 progress.update(done.fetch_add(1, Ordering::SeqCst) + 1);
             });
         }
     });
-    let per_run: Vec<Summary> = results.into_inner().expect("workers finished").into_iter().map(|r| r.expect("every run ran")).collect::<anyhow::Result<_>>()?;
+    let per_run: Vec<Summary> = results
+        .into_inner()
+        .expect("workers finished")
+        .into_iter()
+        .map(|r| r.expect("every run ran"))
+        .collect::<anyhow::Result<_>>()?;
     let e = |f: fn(&Summary) -> Option<f64>| mean_of(per_run.iter().map(f));
     Ok(MonteCarloSummary {
         runs,
@@ -94,9 +114,18 @@ pub fn run_monte_carlo(scenario: &Scenario, topology: &Topology, out: &Path, run
         mean_aux_bound: e(|s| s.estimates.mean_aux_bound),
         centralized_rmse: e(|s| s.estimates.centralized_rmse),
         mean_centralized_bound: e(|s| s.estimates.mean_centralized_bound),
-        bound_bytes_cq_dpcrlb: per_run.iter().map(|s| s.bound_traffic.cq_dpcrlb_bytes as f64).sum::<f64>() / runs as f64,
-        bound_bytes_auxiliary_fim: mean_of(per_run.iter().map(|s| s.bound_traffic.auxiliary_fim_bytes.map(|b| b as f64))),
-        steps_per_second_per_run: per_run.iter().map(|s| s.steps_per_second).sum::<f64>() / runs as f64,
+        bound_bytes_cq_dpcrlb: per_run
+            .iter()
+            .map(|s| s.bound_traffic.cq_dpcrlb_bytes as f64)
+            .sum::<f64>()
+            / runs as f64,
+        bound_bytes_auxiliary_fim: mean_of(
+            per_run
+                .iter()
+                .map(|s| s.bound_traffic.auxiliary_fim_bytes.map(|b| b as f64)),
+        ),
+        steps_per_second_per_run: per_run.iter().map(|s| s.steps_per_second).sum::<f64>()
+            / runs as f64,
         wall_seconds: started.elapsed().as_secs_f64(),
         per_run,
     })

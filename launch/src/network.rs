@@ -39,7 +39,12 @@ pub struct RunOptions {
 
 /// Runs the network: spawns every actor, runs the steps, stops and reaps
 /// every child and removes the run's shared memory, pass or fail.
-pub fn run_network(scenario: &Scenario, topology: &Topology, options: RunOptions, mut progress: impl FnMut(u32) + Send + 'static) -> anyhow::Result<Summary> {
+pub fn run_network(
+    scenario: &Scenario,
+    topology: &Topology,
+    options: RunOptions,
+    mut progress: impl FnMut(u32) + Send + 'static,
+) -> anyhow::Result<Summary> {
     if scenario.consensus.protocol == ConsensusProtocol::Exact {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
     }
@@ -56,7 +61,9 @@ pub fn run_network(scenario: &Scenario, topology: &Topology, options: RunOptions
     };
     let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
     let (event_tx, event_rx) = std::sync::mpsc::channel();
-    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
 
     let world_scenario = scenario.clone();
     let world_topology = topology.clone();
@@ -64,23 +71,38 @@ pub fn run_network(scenario: &Scenario, topology: &Topology, options: RunOptions
     let world = std::thread::Builder::new()
         .name("world".into())
         .spawn(move || {
-            let result = world_thread(&world_scenario, &world_topology, &options, &command_tx, &event_rx, &mut progress);
+            let result = world_thread(
+                &world_scenario,
+                &world_topology,
+                &options,
+                &command_tx,
+                &event_rx,
+                &mut progress,
+            );
             // Whatever happened, every child is told to go and is reaped.
             let _ = command_tx.send(Command::Shutdown);
-            let reaped = wait_for(&event_rx, Duration::from_secs(30), |e| matches!(e, Event::AllReaped));
+            let reaped = wait_for(&event_rx, Duration::from_secs(30), |e| {
+                matches!(e, Event::AllReaped)
+            });
             (result, reaped)
         })
         .context("starting the world thread")?;
     // Children are spawned from this (the main) thread, which lives until
     // they are all reaped: their parent-death signal is tied to it.
     runtime.block_on(supervise(spec, command_rx, event_tx));
-    let (result, _) = world.join().map_err(|_| anyhow::anyhow!("the world thread panicked"))?;
+    let (result, _) = world
+        .join()
+        .map_err(|_| anyhow::anyhow!("the world thread panicked"))?;
     remove_run_resources(&run_id).context("removing the run's shared memory")?;
     result
 }
 
 /// Waits until an event matches, or the timeout passes.
-fn wait_for(events: &Receiver<Event>, timeout: Duration, mut matches: impl FnMut(&Event) -> bool) -> bool {
+fn wait_for(
+    events: &Receiver<Event>,
+    timeout: Duration,
+    mut matches: impl FnMut(&Event) -> bool,
+) -> bool {
     let deadline = Instant::now() + timeout;
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
@@ -108,10 +130,23 @@ struct WorldState<'a> {
 }
 
 /// The world thread: the launcher's network side, from spawning to results.
-fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, commands: &UnboundedSender<Command>, events: &Receiver<Event>, progress: &mut dyn FnMut(u32)) -> anyhow::Result<Summary> {
+fn world_thread(
+    scenario: &Scenario,
+    topology: &Topology,
+    options: &RunOptions,
+    commands: &UnboundedSender<Command>,
+    events: &Receiver<Event>,
+    progress: &mut dyn FnMut(u32),
+) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut writer = ResultsWriter::create(&options.out)?;
-    let mut t = IceoryxTransport::new(&options.run_id, ActorId::Launcher, topology, node::wire_format(scenario, topology), scenario.seed)?;
+    let mut t = IceoryxTransport::new(
+        &options.run_id,
+        ActorId::Launcher,
+        topology,
+        node::wire_format(scenario, topology),
+        scenario.seed,
+    )?;
     // The launcher creates the services everyone shares before anyone else opens them.
     t.publish_on(Channel::Tick)?;
     for n in 0..topology.nodes() as u16 {
@@ -140,14 +175,25 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
     };
     let actors: Vec<ActorId> = topology.actors().collect();
     for a in &actors {
-        commands.send(Command::Spawn { actor: *a, rejoin: false })?;
+        commands.send(Command::Spawn {
+            actor: *a,
+            rejoin: false,
+        })?;
     }
     w.await_ready(&actors)?;
     w.transport.update_connections();
-    tracing::info!(actors = actors.len(), seconds = started.elapsed().as_secs_f64(), "every actor is ready");
+    tracing::info!(
+        actors = actors.len(),
+        seconds = started.elapsed().as_secs_f64(),
+        "every actor is ready"
+    );
 
     let mut world = World::new(scenario);
-    let mut central = options.centralized.then(|| CentralizedReference::new(scenario, topology)).transpose().context("centralized reference")?;
+    let mut central = options
+        .centralized
+        .then(|| CentralizedReference::new(scenario, topology))
+        .transpose()
+        .context("centralized reference")?;
     let schedule = FaultSchedule::new(&scenario.faults);
     let period = Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3);
     let step_timeout = Duration::from_secs_f64(scenario.clock.step_timeout_ms / 1e3);
@@ -170,9 +216,14 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
         truths.insert(step, truth.into());
         w.begin_step(step, truth.into(), &views, restarted)?;
         let step_start = Instant::now();
-        let step_end = if lockstep { step_start + step_timeout } else { run_start + period * step };
+        let step_end = if lockstep {
+            step_start + step_timeout
+        } else {
+            run_start + period * step
+        };
         loop {
-            let all_in = reported.get(&step).map_or(0, |s| s.len()) >= w.alive.iter().filter(|a| **a).count();
+            let all_in = reported.get(&step).map_or(0, |s| s.len())
+                >= w.alive.iter().filter(|a| **a).count();
             if (lockstep && all_in) || Instant::now() >= step_end || w.interrupted {
                 break;
             }
@@ -185,23 +236,39 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
             for m in inbox.drain(..) {
                 match (m.payload, m.header.sender) {
                     (Payload::Telemetry(tel), ActorId::Node(n)) => {
-                        let Some(truth) = truths.get(&m.header.step) else { continue };
+                        let Some(truth) = truths.get(&m.header.step) else {
+                            continue;
+                        };
                         if !reported.entry(m.header.step).or_default().insert(n) {
                             continue;
                         }
                         stages.add(tel.stage_micros);
                         cost.late_messages += tel.late_messages as u64;
-                        if tel.rounds_completed > 0 {
-                            round_latency.push(tel.stage_micros[3] as f64 / tel.rounds_completed as f64);
+                        if tel.rounds_completed > 1 {
+                            // Rounds 2..N_c: every neighbour is exchanging by then.
+                            round_latency.push(
+                                tel.stage_micros[2] as f64 / (tel.rounds_completed - 1) as f64,
+                            );
                         }
                         if (tel.live_neighbours as usize) < topology.neighbours[n as usize].len() {
                             cost.rounds_with_fewer_neighbours += 1;
                         }
-                        rows.push(TickRow { step: m.header.step, node: format!("node-{n}"), truth: *truth, telemetry: tel });
+                        rows.push(TickRow {
+                            step: m.header.step,
+                            node: format!("node-{n}"),
+                            truth: *truth,
+                            telemetry: tel,
+                        });
                     }
-                    (payload @ (Payload::Observation { .. } | Payload::RawObservation { .. }), sender) => {
+                    (
+                        payload @ (Payload::Observation { .. } | Payload::RawObservation { .. }),
+                        sender,
+                    ) => {
                         if let Some(c) = central.as_mut() {
-                            c.observe(&Message { header: m.header, payload });
+                            c.observe(&Message {
+                                header: m.header,
+                                payload,
+                            });
                             let _ = sender;
                         }
                     }
@@ -214,7 +281,12 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
         }
         if let Some(c) = central.as_mut() {
             let update = c.finish_step().context("centralized reference")?;
-            let row = TickRow { step, node: "central".into(), truth: truth.into(), telemetry: central_telemetry(update.estimate, update.bound, update.contribution) };
+            let row = TickRow {
+                step,
+                node: "central".into(),
+                truth: truth.into(),
+                telemetry: central_telemetry(update.estimate, update.bound, update.contribution),
+            };
             averages.add(&row);
             writer.write_ticks(&[row])?;
         }
@@ -225,16 +297,28 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
         }
     }
     let wall_steps = run_start.elapsed().as_secs_f64();
-    tracing::info!(steps = steps_done, seconds = started.elapsed().as_secs_f64(), "steps done");
+    tracing::info!(
+        steps = steps_done,
+        seconds = started.elapsed().as_secs_f64(),
+        "steps done"
+    );
 
     // Stop everyone and gather their byte counts.
     let last = steps_done;
     for n in 0..topology.nodes() as u16 {
         let to = ActorId::Node(n);
-        let _ = w.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, last, 0, Payload::Control(Control::Stop)), &[to]);
+        let _ = w.transport.send(
+            Channel::Control(to),
+            &Message::new(ActorId::Launcher, last, 0, Payload::Control(Control::Stop)),
+            &[to],
+        );
     }
-    let sensors: Vec<ActorId> = (0..topology.sensors() as u16).map(ActorId::Sensor).collect();
-    let _ = w.transport.send(Channel::Tick, &stop_message(last), &sensors);
+    let sensors: Vec<ActorId> = (0..topology.sensors() as u16)
+        .map(ActorId::Sensor)
+        .collect();
+    let _ = w
+        .transport
+        .send(Channel::Tick, &stop_message(last), &sensors);
     let mut exited: HashSet<ActorId> = HashSet::new();
     let live: HashSet<ActorId> = topology.actors().filter(|a| w.is_alive(*a)).collect();
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -247,16 +331,30 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
             Err(RecvTimeoutError::Disconnected) => break,
         }
     }
-    tracing::info!(exited = exited.len(), of = live.len(), seconds = started.elapsed().as_secs_f64(), "actors stopped");
+    tracing::info!(
+        exited = exited.len(),
+        of = live.len(),
+        seconds = started.elapsed().as_secs_f64(),
+        "actors stopped"
+    );
     let accounting = merge_accounting(&options.out, topology, w.transport.accounting());
     writer.write_links(&accounting)?;
     // Node-steps without telemetry.
     let expected_rows = steps_done as u64 * topology.nodes() as u64;
-    cost.missing_node_steps = expected_rows.saturating_sub(reported.values().map(|s| s.len() as u64).sum());
-    cost.dropped_messages = accounting.by_kind().values().map(|c| c.dropped_messages).sum();
+    cost.missing_node_steps =
+        expected_rows.saturating_sub(reported.values().map(|s| s.len() as u64).sum());
+    cost.dropped_messages = accounting
+        .by_kind()
+        .values()
+        .map(|c| c.dropped_messages)
+        .sum();
     let (traffic, bound_traffic) = traffic(&accounting, steps_done.max(1));
     let summary = Summary {
-        command: if lockstep { "run --lockstep".into() } else { "run".into() },
+        command: if lockstep {
+            "run --lockstep".into()
+        } else {
+            "run".into()
+        },
         run_id: options.run_id.to_string(),
         scenario: scenario.clone(),
         steps: steps_done,
@@ -264,7 +362,11 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
         traffic,
         bound_traffic,
         deadline_misses: averages.deadline_misses,
-        faults: scenario.faults.iter().map(AppliedFault::from_fault).collect(),
+        faults: scenario
+            .faults
+            .iter()
+            .map(AppliedFault::from_fault)
+            .collect(),
         fault_cost: cost,
         wall_seconds: started.elapsed().as_secs_f64(),
         steps_per_second: steps_done as f64 / wall_steps,
@@ -275,7 +377,10 @@ fn world_thread(scenario: &Scenario, topology: &Topology, options: &RunOptions, 
     };
     writer.write_summary(&summary)?;
     if w.interrupted {
-        bail!("interrupted at step {steps_done}; results so far are in {}", options.out.display());
+        bail!(
+            "interrupted at step {steps_done}; results so far are in {}",
+            options.out.display()
+        );
     }
     for e in &w.unexpected_exits {
         tracing::warn!("{e}");
@@ -303,7 +408,11 @@ impl WorldState<'_> {
                 Ok(Event::Ready(a)) => {
                     waiting.remove(&a);
                 }
-                Ok(Event::Exited { actor, status, stderr_tail }) => {
+                Ok(Event::Exited {
+                    actor,
+                    status,
+                    stderr_tail,
+                }) => {
                     bail!("{actor} exited ({status}) before it was ready; the end of its stderr:\n{stderr_tail}");
                 }
                 Ok(Event::Interrupted) => bail!("interrupted while starting"),
@@ -311,7 +420,12 @@ impl WorldState<'_> {
                 Err(_) => {
                     let mut names: Vec<String> = waiting.iter().map(|a| a.to_string()).collect();
                     names.sort();
-                    bail!("{} actors were not ready after {:?}: {}", names.len(), START_TIMEOUT, names.join(", "));
+                    bail!(
+                        "{} actors were not ready after {:?}: {}",
+                        names.len(),
+                        START_TIMEOUT,
+                        names.join(", ")
+                    );
                 }
             }
         }
@@ -322,7 +436,11 @@ impl WorldState<'_> {
     fn poll_events(&mut self) {
         while let Ok(e) = self.events.try_recv() {
             match e {
-                Event::Exited { actor, status, stderr_tail } if !self.expected_exits.contains(&actor) => {
+                Event::Exited {
+                    actor,
+                    status,
+                    stderr_tail,
+                } if !self.expected_exits.contains(&actor) => {
                     self.unexpected_exits.push(format!("{actor} exited unexpectedly ({status}); its stderr ended with:\n{stderr_tail}"));
                     match actor {
                         ActorId::Node(i) => self.alive[i as usize] = false,
@@ -336,7 +454,11 @@ impl WorldState<'_> {
         }
     }
 
-    fn apply_process_faults(&mut self, schedule: &FaultSchedule, step: u32) -> anyhow::Result<bool> {
+    fn apply_process_faults(
+        &mut self,
+        schedule: &FaultSchedule,
+        step: u32,
+    ) -> anyhow::Result<bool> {
         let mut changed = false;
         for event in schedule.process_events(step) {
             match event {
@@ -355,7 +477,10 @@ impl WorldState<'_> {
                         // The old process must be reaped before its successor
                         // opens the same services (iceoryx2 cleans up dead nodes then).
                         self.expected_exits.remove(&actor);
-                        self.commands.send(Command::Spawn { actor, rejoin: matches!(actor, ActorId::Node(_)) })?;
+                        self.commands.send(Command::Spawn {
+                            actor,
+                            rejoin: matches!(actor, ActorId::Node(_)),
+                        })?;
                         self.await_ready(&[actor])?;
                         self.transport.update_connections();
                     }
@@ -388,9 +513,22 @@ impl WorldState<'_> {
 
     /// Ticks the sensors and starts the step at every live node, telling
     /// each node its membership view when it changed (or it restarted).
-    fn begin_step(&mut self, step: u32, truth: [f64; 4], views: &[Vec<bool>], restarted: bool) -> anyhow::Result<()> {
-        let sensors: Vec<ActorId> = (0..self.topology.sensors() as u16).filter(|s| self.sensors_alive[*s as usize]).map(ActorId::Sensor).collect();
-        self.transport.send(Channel::Tick, &Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth }), &sensors)?;
+    fn begin_step(
+        &mut self,
+        step: u32,
+        truth: [f64; 4],
+        views: &[Vec<bool>],
+        restarted: bool,
+    ) -> anyhow::Result<()> {
+        let sensors: Vec<ActorId> = (0..self.topology.sensors() as u16)
+            .filter(|s| self.sensors_alive[*s as usize])
+            .map(ActorId::Sensor)
+            .collect();
+        self.transport.send(
+            Channel::Tick,
+            &Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth }),
+            &sensors,
+        )?;
         for n in 0..self.topology.nodes() as u16 {
             if !self.alive[n as usize] {
                 continue;
@@ -398,9 +536,27 @@ impl WorldState<'_> {
             let to = ActorId::Node(n);
             if restarted || self.views.get(n as usize) != Some(&views[n as usize]) {
                 let alive = crate::membership_mask(&views[n as usize]);
-                self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive })), &[to])?;
+                self.transport.send(
+                    Channel::Control(to),
+                    &Message::new(
+                        ActorId::Launcher,
+                        step,
+                        0,
+                        Payload::Control(Control::Membership { alive }),
+                    ),
+                    &[to],
+                )?;
             }
-            self.transport.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::BeginStep)), &[to])?;
+            self.transport.send(
+                Channel::Control(to),
+                &Message::new(
+                    ActorId::Launcher,
+                    step,
+                    0,
+                    Payload::Control(Control::BeginStep),
+                ),
+                &[to],
+            )?;
         }
         self.views = views.to_vec();
         Ok(())
@@ -411,10 +567,12 @@ impl WorldState<'_> {
 fn merge_accounting(out: &Path, topology: &Topology, launcher: &Accounting) -> Accounting {
     let mut total = launcher.clone();
     for a in topology.actors() {
-        if let Some(acc) = std::fs::read_to_string(accounting_path(out, a)).ok().and_then(|t| Accounting::from_csv(&t)) {
+        if let Some(acc) = std::fs::read_to_string(accounting_path(out, a))
+            .ok()
+            .and_then(|t| Accounting::from_csv(&t))
+        {
             total.merge(&acc);
         }
     }
     total
 }
-

@@ -25,7 +25,8 @@ pub struct TickRow {
 
 impl TickRow {
     pub fn error(&self) -> f64 {
-        (self.telemetry.estimate[0] - self.truth[0]).hypot(self.telemetry.estimate[1] - self.truth[1])
+        (self.telemetry.estimate[0] - self.truth[0])
+            .hypot(self.telemetry.estimate[1] - self.truth[1])
     }
 }
 
@@ -42,11 +43,17 @@ fn opt(v: Option<f64>) -> String {
 
 impl ResultsWriter {
     pub fn create(dir: &Path) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating the output folder {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("creating the output folder {}", dir.display()))?;
         let path = dir.join("ticks.csv");
-        let mut ticks = BufWriter::new(File::create(&path).with_context(|| format!("creating {}", path.display()))?);
+        let mut ticks = BufWriter::new(
+            File::create(&path).with_context(|| format!("creating {}", path.display()))?,
+        );
         ticks.write_all(TICKS_HEADER.as_bytes())?;
-        Ok(Self { dir: dir.to_path_buf(), ticks })
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            ticks,
+        })
     }
 
     pub fn dir(&self) -> &Path {
@@ -85,7 +92,10 @@ impl ResultsWriter {
     }
 
     pub fn write_summary<S: Serialize>(&self, summary: &S) -> anyhow::Result<()> {
-        write_atomically(&self.dir.join("summary.json"), serde_json::to_string_pretty(summary)?.as_bytes())
+        write_atomically(
+            &self.dir.join("summary.json"),
+            serde_json::to_string_pretty(summary)?.as_bytes(),
+        )
     }
 }
 
@@ -151,7 +161,8 @@ impl Averages {
             mean_bound: mean(self.bound),
             mean_local_bound: mean(self.local_bound),
             mean_aux_bound: mean(self.aux_bound),
-            centralized_rmse: (self.central_errors > 0).then(|| (self.central_sq_error / self.central_errors as f64).sqrt()),
+            centralized_rmse: (self.central_errors > 0)
+                .then(|| (self.central_sq_error / self.central_errors as f64).sqrt()),
             mean_centralized_bound: mean(self.central_bound),
         }
     }
@@ -207,17 +218,31 @@ pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraff
             bytes_per_step: c.sent_bytes as f64 / steps.max(1) as f64,
             dropped_messages: c.dropped_messages,
             malformed_messages: c.malformed_messages,
-            unaccounted_messages: c.sent_messages as i64 - (c.received_messages + c.dropped_messages) as i64,
+            unaccounted_messages: c.sent_messages as i64
+                - (c.received_messages + c.dropped_messages) as i64,
         })
         .collect();
-    let consensus = kinds.get(&MessageKind::Consensus).map_or(0, |c| c.sent_messages);
-    let aux = kinds.get(&MessageKind::ConsensusAux).map(|c| c.sent_messages);
-    let bound = BoundTraffic { cq_dpcrlb_bytes: consensus * 80, auxiliary_fim_bytes: aux.map(|a| consensus * 80 + a * 80) };
+    let consensus = kinds
+        .get(&MessageKind::Consensus)
+        .map_or(0, |c| c.sent_messages);
+    let aux = kinds
+        .get(&MessageKind::ConsensusAux)
+        .map(|c| c.sent_messages);
+    let bound = BoundTraffic {
+        cq_dpcrlb_bytes: consensus * 80,
+        auxiliary_fim_bytes: aux.map(|a| consensus * 80 + a * 80),
+    };
     (rows, bound)
 }
 
 /// Peak resident memory of this process, kilobytes (Linux `VmHWM`).
 pub fn peak_memory_kb() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    status.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse().ok()
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
 }

@@ -53,7 +53,11 @@ pub struct InProcessNetwork {
 }
 
 impl InProcessNetwork {
-    pub fn new(scenario: &Scenario, topology: &Topology, centralized: bool) -> anyhow::Result<Self> {
+    pub fn new(
+        scenario: &Scenario,
+        topology: &Topology,
+        centralized: bool,
+    ) -> anyhow::Result<Self> {
         let format = node::wire_format(scenario, topology);
         let bus = MemoryBus::new();
         let seed = scenario.seed;
@@ -68,17 +72,29 @@ impl InProcessNetwork {
         }
         let sensors = (0..topology.sensors() as u16)
             .map(|i| {
-                let mut transport = MemoryTransport::new(ActorId::Sensor(i), bus.clone(), format, seed ^ (0x5000 + i as u64));
+                let mut transport = MemoryTransport::new(
+                    ActorId::Sensor(i),
+                    bus.clone(),
+                    format,
+                    seed ^ (0x5000 + i as u64),
+                );
                 transport.subscribe(Channel::Tick);
                 transport.subscribe(Channel::Activation(topology.sensor_owner[i as usize]));
-                SensorSlot { actor: SensorActor::new(scenario, topology, i), transport, alive: true }
+                SensorSlot {
+                    actor: SensorActor::new(scenario, topology, i),
+                    transport,
+                    alive: true,
+                }
             })
             .collect();
         let mut nodes = Vec::new();
         for i in 0..topology.nodes() as u16 {
             nodes.push(Self::make_node(scenario, topology, &bus, i)?);
         }
-        let central = centralized.then(|| CentralizedReference::new(scenario, topology)).transpose().context("centralized reference")?;
+        let central = centralized
+            .then(|| CentralizedReference::new(scenario, topology))
+            .transpose()
+            .context("centralized reference")?;
         Ok(Self {
             scenario: scenario.clone(),
             topology: topology.clone(),
@@ -96,13 +112,27 @@ impl InProcessNetwork {
         })
     }
 
-    fn make_node(scenario: &Scenario, topology: &Topology, bus: &Rc<RefCell<MemoryBus>>, i: u16) -> anyhow::Result<NodeSlot> {
+    fn make_node(
+        scenario: &Scenario,
+        topology: &Topology,
+        bus: &Rc<RefCell<MemoryBus>>,
+        i: u16,
+    ) -> anyhow::Result<NodeSlot> {
         let actor = NodeActor::new(scenario, topology, i).with_context(|| format!("node-{i}"))?;
-        let mut transport = MemoryTransport::new(ActorId::Node(i), bus.clone(), node::wire_format(scenario, topology), scenario.seed ^ (0x1000 + i as u64));
+        let mut transport = MemoryTransport::new(
+            ActorId::Node(i),
+            bus.clone(),
+            node::wire_format(scenario, topology),
+            scenario.seed ^ (0x1000 + i as u64),
+        );
         for c in actor.subscriptions() {
             transport.subscribe(c);
         }
-        Ok(NodeSlot { actor, transport, alive: true })
+        Ok(NodeSlot {
+            actor,
+            transport,
+            alive: true,
+        })
     }
 
     /// Every byte counted by every actor, living or dead.
@@ -129,25 +159,39 @@ impl InProcessNetwork {
         let mut changed = false;
         for event in self.schedule.process_events(step) {
             match event {
-                ProcessEvent::Kill { actor: ActorId::Node(i), .. } => {
+                ProcessEvent::Kill {
+                    actor: ActorId::Node(i),
+                    ..
+                } => {
                     let slot = &mut self.nodes[i as usize];
                     slot.alive = false;
                     changed = true;
                 }
-                ProcessEvent::Restart { actor: ActorId::Node(i), signal } => {
+                ProcessEvent::Restart {
+                    actor: ActorId::Node(i),
+                    signal,
+                } => {
                     if signal == fusion_graph::scenario::Signal::Stop {
                         // SIGCONT: the same process resumes with its old state.
                         self.nodes[i as usize].alive = true;
                     } else {
-                        self.retired.merge(self.nodes[i as usize].transport.accounting());
+                        self.retired
+                            .merge(self.nodes[i as usize].transport.accounting());
                         self.bus.borrow_mut().clear_inbox(ActorId::Node(i));
-                        self.nodes[i as usize] = Self::make_node(&self.scenario, &self.topology, &self.bus, i)?;
+                        self.nodes[i as usize] =
+                            Self::make_node(&self.scenario, &self.topology, &self.bus, i)?;
                         self.nodes[i as usize].actor.expect_rejoin();
                     }
                     changed = true;
                 }
-                ProcessEvent::Kill { actor: ActorId::Sensor(i), .. } => self.sensors[i as usize].alive = false,
-                ProcessEvent::Restart { actor: ActorId::Sensor(i), .. } => self.sensors[i as usize].alive = true,
+                ProcessEvent::Kill {
+                    actor: ActorId::Sensor(i),
+                    ..
+                } => self.sensors[i as usize].alive = false,
+                ProcessEvent::Restart {
+                    actor: ActorId::Sensor(i),
+                    ..
+                } => self.sensors[i as usize].alive = true,
                 _ => {}
             }
         }
@@ -187,8 +231,20 @@ impl InProcessNetwork {
         let views = self.membership_views(step);
 
         let truth = self.world.advance();
-        let live_sensors: Vec<ActorId> = self.sensors.iter().filter(|s| s.alive).map(|s| s.transport.me()).collect();
-        let tick = Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth: truth.into() });
+        let live_sensors: Vec<ActorId> = self
+            .sensors
+            .iter()
+            .filter(|s| s.alive)
+            .map(|s| s.transport.me())
+            .collect();
+        let tick = Message::new(
+            ActorId::Launcher,
+            step,
+            0,
+            Payload::Tick {
+                truth: truth.into(),
+            },
+        );
         self.launcher.send(Channel::Tick, &tick, &live_sensors)?;
         for i in 0..self.nodes.len() {
             if !self.nodes[i].alive {
@@ -196,10 +252,26 @@ impl InProcessNetwork {
             }
             let to = ActorId::Node(i as u16);
             if restarted || self.views.get(i) != Some(&views[i]) {
-                let m = Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Membership { alive: crate::membership_mask(&views[i]) }));
+                let m = Message::new(
+                    ActorId::Launcher,
+                    step,
+                    0,
+                    Payload::Control(Control::Membership {
+                        alive: crate::membership_mask(&views[i]),
+                    }),
+                );
                 self.launcher.send(Channel::Control(to), &m, &[to])?;
             }
-            self.launcher.send(Channel::Control(to), &Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::BeginStep)), &[to])?;
+            self.launcher.send(
+                Channel::Control(to),
+                &Message::new(
+                    ActorId::Launcher,
+                    step,
+                    0,
+                    Payload::Control(Control::BeginStep),
+                ),
+                &[to],
+            )?;
         }
 
         self.views = views;
@@ -211,7 +283,9 @@ impl InProcessNetwork {
             if progressed {
                 continue;
             }
-            if self.scenario.consensus.protocol == ConsensusProtocol::Exact && self.apply_exact_sums()? {
+            if self.scenario.consensus.protocol == ConsensusProtocol::Exact
+                && self.apply_exact_sums()?
+            {
                 continue;
             }
             let live = self.nodes.iter().filter(|n| n.alive).count();
@@ -236,11 +310,24 @@ impl InProcessNetwork {
             }
         }
 
-        let mut rows: Vec<TickRow> = telemetry.into_iter().map(|(n, t)| TickRow { step, node: format!("node-{n}"), truth: truth.into(), telemetry: t }).collect();
+        let mut rows: Vec<TickRow> = telemetry
+            .into_iter()
+            .map(|(n, t)| TickRow {
+                step,
+                node: format!("node-{n}"),
+                truth: truth.into(),
+                telemetry: t,
+            })
+            .collect();
         rows.sort_by(|a, b| a.node.cmp(&b.node));
         if let Some(central) = self.central.as_mut() {
             let update = central.finish_step().context("centralized reference")?;
-            rows.push(TickRow { step, node: "central".into(), truth: truth.into(), telemetry: central_telemetry(update.estimate, update.bound, update.contribution) });
+            rows.push(TickRow {
+                step,
+                node: "central".into(),
+                truth: truth.into(),
+                telemetry: central_telemetry(update.estimate, update.bound, update.contribution),
+            });
         }
         Ok(rows)
     }
@@ -263,7 +350,12 @@ impl InProcessNetwork {
     }
 
     /// One pass over every actor: receive, handle, send. True if anything moved.
-    fn deliver_all(&mut self, now: Duration, step: u32, telemetry: &mut Vec<(u16, Telemetry)>) -> anyhow::Result<bool> {
+    fn deliver_all(
+        &mut self,
+        now: Duration,
+        step: u32,
+        telemetry: &mut Vec<(u16, Telemetry)>,
+    ) -> anyhow::Result<bool> {
         let mut progressed = false;
         for s in self.sensors.iter_mut() {
             self.inbox.clear();
@@ -274,20 +366,38 @@ impl InProcessNetwork {
             for m in self.inbox.drain(..) {
                 progressed = true;
                 let input = match m.payload {
-                    Payload::Tick { truth } => SensorInput::Tick { step: m.header.step, truth: State::from(truth) },
+                    Payload::Tick { truth } => SensorInput::Tick {
+                        step: m.header.step,
+                        truth: State::from(truth),
+                    },
                     Payload::Activate { ref mask } => {
-                        let ActorId::Node(owner) = m.header.sender else { continue };
+                        let ActorId::Node(owner) = m.header.sender else {
+                            continue;
+                        };
                         let me = s.transport.me();
-                        let position = self.topology.node_sensors[owner as usize].iter().position(|x| ActorId::Sensor(*x) == me);
-                        let active = position.is_some_and(|p| mask.get(p / 8).is_some_and(|b| b & (1 << (p % 8)) != 0));
-                        SensorInput::Activation { step: m.header.step, active }
+                        let position = self.topology.node_sensors[owner as usize]
+                            .iter()
+                            .position(|x| ActorId::Sensor(*x) == me);
+                        let active = position.is_some_and(|p| {
+                            mask.get(p / 8).is_some_and(|b| b & (1 << (p % 8)) != 0)
+                        });
+                        SensorInput::Activation {
+                            step: m.header.step,
+                            active,
+                        }
                     }
                     _ => continue,
                 };
                 if let Some(obs) = s.actor.handle(input) {
-                    let ActorId::Sensor(i) = s.transport.me() else { unreachable!() };
+                    let ActorId::Sensor(i) = s.transport.me() else {
+                        unreachable!()
+                    };
                     let node = ActorId::Node(self.topology.sensor_owner[i as usize]);
-                    let receivers: &[ActorId] = if self.central.is_some() { &[node, ActorId::Launcher] } else { &[node] };
+                    let receivers: &[ActorId] = if self.central.is_some() {
+                        &[node, ActorId::Launcher]
+                    } else {
+                        &[node]
+                    };
                     s.transport.send(Channel::Observation(i), &obs, receivers)?;
                 }
             }
@@ -312,7 +422,9 @@ impl InProcessNetwork {
         for m in self.inbox.drain(..) {
             progressed = true;
             match (&m.payload, m.header.sender) {
-                (Payload::Telemetry(t), ActorId::Node(n)) if m.header.step == step => telemetry.push((n, t.clone())),
+                (Payload::Telemetry(t), ActorId::Node(n)) if m.header.step == step => {
+                    telemetry.push((n, t.clone()))
+                }
                 (Payload::Observation { .. } | Payload::RawObservation { .. }, _) => {
                     if let Some(c) = self.central.as_mut() {
                         c.observe(&m);
@@ -328,8 +440,23 @@ impl InProcessNetwork {
     /// exact sum over its live connected component. True if it did.
     fn apply_exact_sums(&mut self) -> anyhow::Result<bool> {
         let live: Vec<bool> = self.nodes.iter().map(|n| n.alive).collect();
-        let contributions: Vec<Option<Contribution>> = self.nodes.iter().map(|n| if n.alive { n.actor.pending_contribution() } else { None }).collect();
-        if contributions.iter().zip(&live).any(|(c, a)| *a && c.is_none()) || !live.iter().any(|a| *a) {
+        let contributions: Vec<Option<Contribution>> = self
+            .nodes
+            .iter()
+            .map(|n| {
+                if n.alive {
+                    n.actor.pending_contribution()
+                } else {
+                    None
+                }
+            })
+            .collect();
+        if contributions
+            .iter()
+            .zip(&live)
+            .any(|(c, a)| *a && c.is_none())
+            || !live.iter().any(|a| *a)
+        {
             return Ok(false);
         }
         for component in self.topology.components(&live) {
@@ -373,7 +500,13 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>, _c: Contribution) 
 }
 
 /// Runs a whole scenario in one process and writes its results to `writer`.
-pub fn run_in_process(scenario: &Scenario, topology: &Topology, writer: &mut ResultsWriter, centralized: bool, mut progress: impl FnMut(u32)) -> anyhow::Result<Summary> {
+pub fn run_in_process(
+    scenario: &Scenario,
+    topology: &Topology,
+    writer: &mut ResultsWriter,
+    centralized: bool,
+    mut progress: impl FnMut(u32),
+) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
     let mut averages = Averages::default();
@@ -386,7 +519,11 @@ pub fn run_in_process(scenario: &Scenario, topology: &Topology, writer: &mut Res
         cost.missing_node_steps += (topology.nodes() - node_rows) as u64;
         for r in &rows {
             averages.add(r);
-            if let Some(n) = r.node.strip_prefix("node-").and_then(|n| n.parse::<usize>().ok()) {
+            if let Some(n) = r
+                .node
+                .strip_prefix("node-")
+                .and_then(|n| n.parse::<usize>().ok())
+            {
                 stages.add(r.telemetry.stage_micros);
                 if (r.telemetry.live_neighbours as usize) < degree[n] {
                     cost.rounds_with_fewer_neighbours += 1;
@@ -398,7 +535,11 @@ pub fn run_in_process(scenario: &Scenario, topology: &Topology, writer: &mut Res
     }
     let accounting = net.accounting();
     writer.write_links(&accounting)?;
-    cost.dropped_messages = accounting.by_kind().values().map(|c| c.dropped_messages).sum();
+    cost.dropped_messages = accounting
+        .by_kind()
+        .values()
+        .map(|c| c.dropped_messages)
+        .sum();
     cost.late_messages = net.nodes.iter().map(|n| n.actor.late_messages()).sum();
     let wall = started.elapsed().as_secs_f64();
     let (traffic, bound_traffic) = traffic(&accounting, scenario.steps);
@@ -411,7 +552,11 @@ pub fn run_in_process(scenario: &Scenario, topology: &Topology, writer: &mut Res
         traffic,
         bound_traffic,
         deadline_misses: averages.deadline_misses,
-        faults: scenario.faults.iter().map(AppliedFault::from_fault).collect(),
+        faults: scenario
+            .faults
+            .iter()
+            .map(AppliedFault::from_fault)
+            .collect(),
         fault_cost: cost,
         wall_seconds: wall,
         steps_per_second: scenario.steps as f64 / wall,

@@ -16,17 +16,43 @@ pub struct AppliedFault {
 impl AppliedFault {
     pub fn from_fault(f: &Fault) -> Self {
         let fault = match f {
-            Fault::Delay { links, latency_ms, jitter_ms, .. } => format!("delay {latency_ms} ms ± {jitter_ms} ms on {}", links_text(links)),
-            Fault::Loss { links, probability, .. } => format!("loss {probability} on {}", links_text(links)),
+            Fault::Delay {
+                links,
+                latency_ms,
+                jitter_ms,
+                ..
+            } => format!(
+                "delay {latency_ms} ms ± {jitter_ms} ms on {}",
+                links_text(links)
+            ),
+            Fault::Loss {
+                links, probability, ..
+            } => format!("loss {probability} on {}", links_text(links)),
             Fault::Partition { groups, .. } => format!("partition {groups:?}"),
-            Fault::Kill { actor, signal, restart_after, .. } => format!("kill {actor} with {signal:?}{}", restart_after.map_or(String::new(), |r| format!(", restart after {r} steps"))),
+            Fault::Kill {
+                actor,
+                signal,
+                restart_after,
+                ..
+            } => format!(
+                "kill {actor} with {signal:?}{}",
+                restart_after.map_or(String::new(), |r| format!(", restart after {r} steps"))
+            ),
         };
-        Self { step: f.at_step(), until_step: f.end_step(), fault }
+        Self {
+            step: f.at_step(),
+            until_step: f.end_step(),
+            fault,
+        }
     }
 }
 
 fn links_text(links: &[fusion_graph::scenario::LinkSelector]) -> String {
-    links.iter().map(|l| format!("{}->{}", l.from, l.to)).collect::<Vec<_>>().join(", ")
+    links
+        .iter()
+        .map(|l| format!("{}->{}", l.from, l.to))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// What the faults cost, over the whole run.
@@ -57,9 +83,12 @@ pub struct Summary {
     pub wall_seconds: f64,
     pub steps_per_second: f64,
     /// Mean microseconds per node-step: local filter (with local bound),
-    /// fusion filter (with global bound), consensus.
+    /// fusion filter (with global bound), the whole consensus (round 1
+    /// included, which waits for the slowest neighbour's local filter).
     pub stage_micros: StageTimes,
-    /// Consensus round latency percentiles (multi-process runs).
+    /// Latency of one consensus round once every neighbour is exchanging
+    /// (rounds 2..N_c of each node-step), percentiles over node-steps
+    /// (multi-process runs).
     pub round_latency_micros: Option<Percentiles>,
     pub processes: usize,
     pub peak_memory_kb: Option<u64>,
@@ -85,7 +114,10 @@ impl Percentiles {
         }
         values.sort_by(f64::total_cmp);
         let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
-        Some(Self { p50: at(0.5), p99: at(0.99) })
+        Some(Self {
+            p50: at(0.5),
+            p99: at(0.99),
+        })
     }
 }
 
@@ -106,7 +138,11 @@ impl StageSums {
 
     pub fn means(&self) -> StageTimes {
         let n = self.n.max(1) as f64;
-        StageTimes { local_filter: self.sums[0] / n, fusion_filter: self.sums[1] / n, consensus: self.sums[3] / n }
+        StageTimes {
+            local_filter: self.sums[0] / n,
+            fusion_filter: self.sums[1] / n,
+            consensus: self.sums[3] / n,
+        }
     }
 }
 
@@ -114,21 +150,41 @@ impl StageSums {
 pub fn print_table(s: &Summary) {
     let m = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
     let e = &s.estimates;
-    println!("cqnet {} — scenario `{}`, run {}, {} steps", s.command, s.scenario.name, s.run_id, s.steps);
+    println!(
+        "cqnet {} — scenario `{}`, run {}, {} steps",
+        s.command, s.scenario.name, s.run_id, s.steps
+    );
     println!("  averages over steps {}..{}", e.from_step, s.steps);
     println!("  {:<34} {:>12}", "position RMSE (fused), m", m(e.rmse));
     println!("  {:<34} {:>12}", "CQ/dPCRLB bound, m", m(e.mean_bound));
     println!("  {:<34} {:>12}", "local bound, m", m(e.mean_local_bound));
-    println!("  {:<34} {:>12}", "auxiliary-FIM baseline, m", m(e.mean_aux_bound));
-    println!("  {:<34} {:>12}", "centralized RMSE, m", m(e.centralized_rmse));
-    println!("  {:<34} {:>12}", "centralized bound, m", m(e.mean_centralized_bound));
+    println!(
+        "  {:<34} {:>12}",
+        "auxiliary-FIM baseline, m",
+        m(e.mean_aux_bound)
+    );
+    println!(
+        "  {:<34} {:>12}",
+        "centralized RMSE, m",
+        m(e.centralized_rmse)
+    );
+    println!(
+        "  {:<34} {:>12}",
+        "centralized bound, m",
+        m(e.mean_centralized_bound)
+    );
     println!("  bytes per step by kind:");
     for t in &s.traffic {
         println!("    {:<20} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
     }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
     for f in &s.faults {
-        println!("  fault at step {}{}: {}", f.step, f.until_step.map_or(String::new(), |u| format!("..{u}")), f.fault);
+        println!(
+            "  fault at step {}{}: {}",
+            f.step,
+            f.until_step.map_or(String::new(), |u| format!("..{u}")),
+            f.fault
+        );
     }
     if !s.faults.is_empty() {
         let c = &s.fault_cost;
@@ -136,9 +192,20 @@ pub fn print_table(s: &Summary) {
     }
     println!("  {:<34} {:>12.1}", "steps per second", s.steps_per_second);
     let st = &s.stage_micros;
-    println!("  {:<34} {:>12}", "µs per node-step: local/fusion/cons", format!("{:.0}/{:.0}/{:.0}", st.local_filter, st.fusion_filter, st.consensus));
+    println!(
+        "  {:<34} {:>12}",
+        "µs per node-step: local/fusion/cons",
+        format!(
+            "{:.0}/{:.0}/{:.0}",
+            st.local_filter, st.fusion_filter, st.consensus
+        )
+    );
     if let Some(p) = &s.round_latency_micros {
-        println!("  {:<34} {:>12}", "consensus round p50/p99, µs", format!("{:.0}/{:.0}", p.p50, p.p99));
+        println!(
+            "  {:<34} {:>12}",
+            "consensus round p50/p99, µs",
+            format!("{:.0}/{:.0}", p.p50, p.p99)
+        );
     }
     println!("  {:<34} {:>12}", "processes", s.processes);
 }

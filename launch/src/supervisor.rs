@@ -24,10 +24,18 @@ const GRACE: Duration = Duration::from_secs(3);
 /// What the world thread asks of the supervisor.
 #[derive(Debug)]
 pub enum Command {
-    Spawn { actor: ActorId, rejoin: bool },
-    Signal { actor: ActorId, signal: Signal },
+    Spawn {
+        actor: ActorId,
+        rejoin: bool,
+    },
+    Signal {
+        actor: ActorId,
+        signal: Signal,
+    },
     /// SIGCONT a stopped child.
-    Continue { actor: ActorId },
+    Continue {
+        actor: ActorId,
+    },
     /// Every child should be exiting now: wait, then terminate the rest.
     Shutdown,
 }
@@ -36,7 +44,11 @@ pub enum Command {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
     Ready(ActorId),
-    Exited { actor: ActorId, status: String, stderr_tail: String },
+    Exited {
+        actor: ActorId,
+        status: String,
+        stderr_tail: String,
+    },
     /// Every child has exited and been reaped.
     AllReaped,
     Interrupted,
@@ -57,7 +69,11 @@ struct Child {
     done: tokio::sync::watch::Receiver<bool>,
 }
 
-pub async fn supervise(spec: ChildSpec, mut commands: UnboundedReceiver<Command>, events: std::sync::mpsc::Sender<Event>) {
+pub async fn supervise(
+    spec: ChildSpec,
+    mut commands: UnboundedReceiver<Command>,
+    events: std::sync::mpsc::Sender<Event>,
+) {
     let mut children: HashMap<ActorId, Child> = HashMap::new();
     loop {
         let command = tokio::select! {
@@ -68,14 +84,20 @@ pub async fn supervise(spec: ChildSpec, mut commands: UnboundedReceiver<Command>
             }
         };
         match command {
-            Some(Command::Spawn { actor, rejoin }) => match spawn(&spec, actor, rejoin, events.clone()) {
-                Ok(child) => {
-                    children.insert(actor, child);
+            Some(Command::Spawn { actor, rejoin }) => {
+                match spawn(&spec, actor, rejoin, events.clone()) {
+                    Ok(child) => {
+                        children.insert(actor, child);
+                    }
+                    Err(e) => {
+                        let _ = events.send(Event::Exited {
+                            actor,
+                            status: format!("could not start: {e}"),
+                            stderr_tail: String::new(),
+                        });
+                    }
                 }
-                Err(e) => {
-                    let _ = events.send(Event::Exited { actor, status: format!("could not start: {e}"), stderr_tail: String::new() });
-                }
-            },
+            }
             Some(Command::Signal { actor, signal }) => {
                 if let Some(pid) = children.get(&actor).and_then(|c| c.pid) {
                     let sig = match signal {
@@ -102,7 +124,11 @@ pub async fn supervise(spec: ChildSpec, mut commands: UnboundedReceiver<Command>
 /// SIGTERM (stopped ones SIGCONT first), then SIGKILL.
 async fn reap_all(children: &mut HashMap<ActorId, Child>) {
     let all_done = |children: &HashMap<ActorId, Child>| children.values().all(|c| *c.done.borrow());
-    for (signal, wait) in [(None, GRACE), (Some(NixSignal::SIGTERM), GRACE), (Some(NixSignal::SIGKILL), GRACE)] {
+    for (signal, wait) in [
+        (None, GRACE),
+        (Some(NixSignal::SIGTERM), GRACE),
+        (Some(NixSignal::SIGKILL), GRACE),
+    ] {
         if let Some(sig) = signal {
             for c in children.values().filter(|c| !*c.done.borrow()) {
                 if let Some(pid) = c.pid {
@@ -121,16 +147,30 @@ async fn reap_all(children: &mut HashMap<ActorId, Child>) {
     }
 }
 
-fn spawn(spec: &ChildSpec, actor: ActorId, rejoin: bool, events: std::sync::mpsc::Sender<Event>) -> std::io::Result<Child> {
+fn spawn(
+    spec: &ChildSpec,
+    actor: ActorId,
+    rejoin: bool,
+    events: std::sync::mpsc::Sender<Event>,
+) -> std::io::Result<Child> {
     let mut cmd = tokio::process::Command::new(&spec.executable);
-    cmd.arg("actor").arg("--run-id").arg(&spec.run_id).arg("--actor").arg(actor.to_string()).arg("--scenario").arg(&spec.scenario_file);
+    cmd.arg("actor")
+        .arg("--run-id")
+        .arg(&spec.run_id)
+        .arg("--actor")
+        .arg(actor.to_string())
+        .arg("--scenario")
+        .arg(&spec.scenario_file);
     if spec.centralized {
         cmd.arg("--centralized");
     }
     if rejoin {
         cmd.arg("--rejoin");
     }
-    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).kill_on_drop(true);
+    cmd.stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .kill_on_drop(true);
     let mut child = cmd.spawn()?;
     let pid = child.id();
     let stdout = child.stdout.take().expect("piped");
@@ -150,7 +190,12 @@ fn spawn(spec: &ChildSpec, actor: ActorId, rejoin: bool, events: std::sync::mpsc
     let log_path = spec.log_dir.join(format!("{actor}.log"));
     let stderr_tail = tail.clone();
     let stderr_done = tokio::spawn(async move {
-        let mut log = tokio::fs::OpenOptions::new().create(true).append(true).open(&log_path).await.ok();
+        let mut log = tokio::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&log_path)
+            .await
+            .ok();
         let mut lines = BufReader::new(stderr).lines();
         while let Ok(Some(line)) = lines.next_line().await {
             if let Some(f) = log.as_mut() {
@@ -165,12 +210,25 @@ fn spawn(spec: &ChildSpec, actor: ActorId, rejoin: bool, events: std::sync::mpsc
     });
     let exit_tail = tail.clone();
     tokio::spawn(async move {
-        let status = child.wait().await.map_or_else(|e| format!("wait failed: {e}"), |s| s.to_string());
+        let status = child
+            .wait()
+            .await
+            .map_or_else(|e| format!("wait failed: {e}"), |s| s.to_string());
         // Let the stderr reader take the last lines before reporting.
         let _ = tokio::time::timeout(Duration::from_millis(500), stderr_done).await;
-        let stderr_tail = exit_tail.lock().expect("tail lock").iter().cloned().collect::<Vec<_>>().join("\n");
+        let stderr_tail = exit_tail
+            .lock()
+            .expect("tail lock")
+            .iter()
+            .cloned()
+            .collect::<Vec<_>>()
+            .join("\n");
         let _ = done_tx.send(true);
-        let _ = events.send(Event::Exited { actor, status, stderr_tail });
+        let _ = events.send(Event::Exited {
+            actor,
+            status,
+            stderr_tail,
+        });
     });
     Ok(Child { pid, done: done_rx })
 }

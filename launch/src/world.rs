@@ -17,7 +17,16 @@ pub struct World {
 
 impl World {
     pub fn new(s: &Scenario) -> Self {
-        Self { dynamics: node::actor::dynamics(s), state: State::from(s.target.initial_state()), rng: ChaCha8Rng::seed_from_u64(sensor::stream_seed(s.seed, ActorId::Launcher, 0, TRUTH_STREAM)) }
+        Self {
+            dynamics: node::actor::dynamics(s),
+            state: State::from(s.target.initial_state()),
+            rng: ChaCha8Rng::seed_from_u64(sensor::stream_seed(
+                s.seed,
+                ActorId::Launcher,
+                0,
+                TRUTH_STREAM,
+            )),
+        }
     }
 
     /// `x(k) = f(x(k−1)) + ξ(k)`: the truth of the next step.

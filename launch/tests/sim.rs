@@ -26,7 +26,10 @@ fn run(name: &str, overrides: &[&str], central: bool) -> (Summary, PathBuf) {
     let (s, t) = scenario(overrides);
     let dir = out_dir(name);
     let mut w = ResultsWriter::create(&dir).unwrap();
-    (run_in_process(&s, &t, &mut w, central, |_| {}).unwrap(), dir)
+    (
+        run_in_process(&s, &t, &mut w, central, |_| {}).unwrap(),
+        dir,
+    )
 }
 
 /// Mean over seeds of one figure.
@@ -47,8 +50,14 @@ fn distributed_bound_comes_close_to_the_centralized_one() {
     let (s, _) = run("closeness", &["steps=60"], true);
     let e = &s.estimates;
     let (dist, central) = (e.mean_bound.unwrap(), e.mean_centralized_bound.unwrap());
-    assert!((dist / central - 1.0).abs() < 0.05, "CQ/dPCRLB {dist} vs centralized {central}");
-    assert!(dist > 0.5 && dist < 3.0, "bound {dist} m is outside math.md's 1-2 m ballpark");
+    assert!(
+        (dist / central - 1.0).abs() < 0.05,
+        "CQ/dPCRLB {dist} vs centralized {central}"
+    );
+    assert!(
+        dist > 0.5 && dist < 3.0,
+        "bound {dist} m is outside math.md's 1-2 m ballpark"
+    );
     // RMSE: at most twice the centralized filter's, and not far below the bound
     // (one 60-step run: allow 25 % of Monte Carlo slack below it).
     let (rmse, crmse) = (e.rmse.unwrap(), e.centralized_rmse.unwrap());
@@ -61,7 +70,10 @@ fn exact_sums_bring_the_distributed_bound_within_two_percent() {
     let (s, _) = run("exact", &["steps=60", "consensus.protocol=exact"], true);
     let e = &s.estimates;
     let (dist, central) = (e.mean_bound.unwrap(), e.mean_centralized_bound.unwrap());
-    assert!((dist / central - 1.0).abs() < 0.02, "exact-sum CQ/dPCRLB {dist} vs centralized {central}");
+    assert!(
+        (dist / central - 1.0).abs() < 0.02,
+        "exact-sum CQ/dPCRLB {dist} vs centralized {central}"
+    );
 }
 
 #[test]
@@ -70,19 +82,40 @@ fn auxiliary_fim_baseline_is_close_and_costs_twice_the_bound_traffic() {
     let (s, dir) = run("aux", &["consensus.auxiliary_fim=true"], false);
     let e = &s.estimates;
     let (cq, aux) = (e.mean_bound.unwrap(), e.mean_aux_bound.unwrap());
-    assert!((aux / cq - 1.0).abs() < 0.05, "aux-FIM {aux} vs CQ/dPCRLB {cq}");
-    assert_eq!(s.bound_traffic.auxiliary_fim_bytes, Some(2 * s.bound_traffic.cq_dpcrlb_bytes));
+    assert!(
+        (aux / cq - 1.0).abs() < 0.05,
+        "aux-FIM {aux} vs CQ/dPCRLB {cq}"
+    );
+    assert_eq!(
+        s.bound_traffic.auxiliary_fim_bytes,
+        Some(2 * s.bound_traffic.cq_dpcrlb_bytes)
+    );
     // The same from links.csv: one aux message (10 numbers) per consensus message.
-    let links = Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
+    let links =
+        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
     let kinds = links.by_kind();
-    assert_eq!(kinds[&MessageKind::Consensus].sent_messages, kinds[&MessageKind::ConsensusAux].sent_messages);
+    assert_eq!(
+        kinds[&MessageKind::Consensus].sent_messages,
+        kinds[&MessageKind::ConsensusAux].sent_messages
+    );
     assert!(kinds[&MessageKind::Consensus].sent_messages > 0);
 }
 
 #[test]
 fn the_bound_falls_from_four_to_eight_bits_and_eight_bits_is_near_raw() {
-    let bound = |bits: &str| mean_over_seeds(bits, &["steps=40", "consensus.protocol=exact", bits], 2, |s| s.estimates.mean_bound.unwrap());
-    let (b4, b8, raw) = (bound("quantizer.bits=4"), bound("quantizer.bits=8"), bound("quantizer.raw=true"));
+    let bound = |bits: &str| {
+        mean_over_seeds(
+            bits,
+            &["steps=40", "consensus.protocol=exact", bits],
+            2,
+            |s| s.estimates.mean_bound.unwrap(),
+        )
+    };
+    let (b4, b8, raw) = (
+        bound("quantizer.bits=4"),
+        bound("quantizer.bits=8"),
+        bound("quantizer.raw=true"),
+    );
     assert!(b4 > 1.2 * b8, "4-bit {b4} vs 8-bit {b8}");
     assert!(b8 <= 1.15 * raw, "8-bit {b8} vs raw {raw}");
     assert!(b8 >= raw * 0.98, "8-bit {b8} below raw {raw}");
@@ -93,18 +126,29 @@ fn links_csv_bytes_are_the_encoded_message_sizes() {
     let (s, dir) = run("bytes", &["steps=12"], true);
     let (scenario, topology) = scenario(&["steps=12"]);
     let format = node::wire_format(&scenario, &topology);
-    let links = Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
+    let links =
+        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
     for (kind, c) in links.by_kind() {
         if let Some(size) = encoded_len(kind, &format) {
             assert_eq!(c.sent_bytes, c.sent_messages * size as u64, "{kind:?}");
-            assert_eq!(c.received_bytes, c.received_messages * size as u64, "{kind:?}");
+            assert_eq!(
+                c.received_bytes,
+                c.received_messages * size as u64,
+                "{kind:?}"
+            );
         }
     }
     let kinds = links.by_kind();
     // Per step: 27 observations of 12 bytes to the node and the centralized
     // reference; 24 directed fusion-graph links × 10 rounds of 203 bytes.
-    assert_eq!(kinds[&MessageKind::Observation].sent_bytes, 12 * 27 * 2 * 12);
-    assert_eq!(kinds[&MessageKind::Consensus].sent_bytes, 12 * 24 * 10 * 203);
+    assert_eq!(
+        kinds[&MessageKind::Observation].sent_bytes,
+        12 * 27 * 2 * 12
+    );
+    assert_eq!(
+        kinds[&MessageKind::Consensus].sent_bytes,
+        12 * 24 * 10 * 203
+    );
     assert_eq!(s.deadline_misses, 0);
 }
 
@@ -123,9 +167,25 @@ fn nodes_go_on_after_the_centre_node_is_killed() {
     let kill = "faults=[{kind=\"kill\", actor=\"node-4\", at_step=10, signal=\"SIGKILL\"}]";
     let (s, dir) = run("kill", &["steps=30", kill], false);
     let ticks = std::fs::read_to_string(dir.join("ticks.csv")).unwrap();
-    let after: Vec<&str> = ticks.lines().filter(|l| l.split(',').next().and_then(|v| v.parse::<u32>().ok()).is_some_and(|k| k >= 10)).collect();
-    assert_eq!(after.len(), 21 * 8, "eight nodes report every step after the kill");
+    let after: Vec<&str> = ticks
+        .lines()
+        .filter(|l| {
+            l.split(',')
+                .next()
+                .and_then(|v| v.parse::<u32>().ok())
+                .is_some_and(|k| k >= 10)
+        })
+        .collect();
+    assert_eq!(
+        after.len(),
+        21 * 8,
+        "eight nodes report every step after the kill"
+    );
     assert!(!after.iter().any(|l| l.contains(",node-4,")));
-    assert!(s.estimates.rmse.unwrap() < 10.0, "RMSE {:?}", s.estimates.rmse);
+    assert!(
+        s.estimates.rmse.unwrap() < 10.0,
+        "RMSE {:?}",
+        s.estimates.rmse
+    );
     assert_eq!(s.fault_cost.missing_node_steps, 21);
 }

@@ -27,14 +27,29 @@ fn bench(c: &mut Criterion) {
         .map(|&s| {
             let mut a = SensorActor::new(&scenario, &topology, s);
             a.handle(SensorInput::Tick { step: 1, truth });
-            let Payload::Observation { cell } = a.handle(SensorInput::Activation { step: 1, active: true }).unwrap().payload else { unreachable!() };
-            Observation { sensor: s, value: ObservedValue::Cell(cell) }
+            let Payload::Observation { cell } = a
+                .handle(SensorInput::Activation {
+                    step: 1,
+                    active: true,
+                })
+                .unwrap()
+                .payload
+            else {
+                unreachable!()
+            };
+            Observation {
+                sensor: s,
+                value: ObservedValue::Cell(cell),
+            }
         })
         .collect();
     let mut local = LocalFilter::new(1000, &prior, ChaCha8Rng::seed_from_u64(1)).unwrap();
     let mut contribution = Contribution::zero();
     for _ in 0..5 {
-        contribution = local.step(&model, &observations, false).unwrap().contribution;
+        contribution = local
+            .step(&model, &observations, false)
+            .unwrap()
+            .contribution;
     }
     let mut sums = contribution;
     sums.delta_l *= 9.0;
@@ -42,10 +57,26 @@ fn bench(c: &mut Criterion) {
     sums.delta_eta *= 9.0;
     let fusion = FusionFilter::new(1000, &prior, false, ChaCha8Rng::seed_from_u64(2)).unwrap();
 
-    c.bench_function("node step: local filter + local bound, 1000 particles, 3 sensors", |b| {
-        b.iter_batched(|| local.clone(), |mut l| black_box(l.step(&model, &observations, false).unwrap()), BatchSize::LargeInput)
-    });
-    c.bench_function("node step: fusion filter + CQ/dPCRLB, 1000 particles", |b| b.iter_batched(|| fusion.clone(), |mut f| black_box(f.step(&model, &sums).unwrap()), BatchSize::LargeInput));
+    c.bench_function(
+        "node step: local filter + local bound, 1000 particles, 3 sensors",
+        |b| {
+            b.iter_batched(
+                || local.clone(),
+                |mut l| black_box(l.step(&model, &observations, false).unwrap()),
+                BatchSize::LargeInput,
+            )
+        },
+    );
+    c.bench_function(
+        "node step: fusion filter + CQ/dPCRLB, 1000 particles",
+        |b| {
+            b.iter_batched(
+                || fusion.clone(),
+                |mut f| black_box(f.step(&model, &sums).unwrap()),
+                BatchSize::LargeInput,
+            )
+        },
+    );
 }
 
 criterion_group!(benches, bench);

@@ -11,7 +11,10 @@ use std::f64::consts::PI;
 
 use bounds::fisher::{ln_cell_probability, observed_information};
 use bounds::pcrlb::{dynamics_terms, information_update, observation_information};
-use bounds::{wrap_angle, BoundError, ConditionalBound, Dynamics, Mat4, Measurement, ObservationModel, Quantizer, SensorTerm, State};
+use bounds::{
+    wrap_angle, BoundError, ConditionalBound, Dynamics, Mat4, Measurement, ObservationModel,
+    Quantizer, SensorTerm, State,
+};
 use nalgebra::{Cholesky, SymmetricEigen};
 use rand_chacha::ChaCha8Rng;
 
@@ -53,7 +56,11 @@ impl SensingModel {
             (ObservedValue::Cell(cell), Some(q)) => ln_cell_probability(model, q, cell, x),
             (ObservedValue::Raw(z), _) => {
                 let e = model.evaluate(x);
-                let r = if model.is_angular() { wrap_angle(z - e.g) } else { z - e.g };
+                let r = if model.is_angular() {
+                    wrap_angle(z - e.g)
+                } else {
+                    z - e.g
+                };
                 -0.5 * (r * r / e.r + e.r.ln() + (2.0 * PI).ln())
             }
             (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
@@ -85,7 +92,12 @@ pub struct Contribution {
 
 impl Contribution {
     pub fn zero() -> Self {
-        Self { delta_eta: State::zeros(), delta_lambda: Mat4::zeros(), delta_l: Mat4::zeros(), s_obs: Mat4::zeros() }
+        Self {
+            delta_eta: State::zeros(),
+            delta_lambda: Mat4::zeros(),
+            delta_l: Mat4::zeros(),
+            s_obs: Mat4::zeros(),
+        }
     }
 }
 
@@ -110,14 +122,27 @@ pub struct LocalUpdate {
 }
 
 impl LocalFilter {
-    pub fn new(particles: usize, prior: &Gaussian, mut rng: ChaCha8Rng) -> Result<Self, BoundError> {
-        let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
-        Ok(Self { filter, bound: ConditionalBound::from_prior(&prior.cov)?, rng })
+    pub fn new(
+        particles: usize,
+        prior: &Gaussian,
+        mut rng: ChaCha8Rng,
+    ) -> Result<Self, BoundError> {
+        let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng)
+            .ok_or(BoundError::NotPositiveDefinite("P_0"))?;
+        Ok(Self {
+            filter,
+            bound: ConditionalBound::from_prior(&prior.cov)?,
+            rng,
+        })
     }
 
     /// Restarts from a Gaussian posterior and information matrix (rejoin).
     pub fn reset(&mut self, posterior: &Gaussian, information: Mat4) {
-        if self.filter.reset_gaussian(posterior, &mut self.rng).is_some() {
+        if self
+            .filter
+            .reset_gaussian(posterior, &mut self.rng)
+            .is_some()
+        {
             self.bound = ConditionalBound::from_information(information);
         }
     }
@@ -125,22 +150,55 @@ impl LocalFilter {
     /// One step with the observations received (sorted by sensor, so the
     /// result does not depend on arrival order). `with_observed_information`
     /// also computes the auxiliary-FIM term.
-    pub fn step(&mut self, model: &SensingModel, observations: &[Observation], with_observed_information: bool) -> Result<LocalUpdate, BoundError> {
-        let terms = dynamics_terms(&model.dynamics, self.filter.particles(), self.filter.uniform_weights())?;
+    pub fn step(
+        &mut self,
+        model: &SensingModel,
+        observations: &[Observation],
+        with_observed_information: bool,
+    ) -> Result<LocalUpdate, BoundError> {
+        let terms = dynamics_terms(
+            &model.dynamics,
+            self.filter.particles(),
+            self.filter.uniform_weights(),
+        )?;
         self.filter.predict(&model.dynamics, &mut self.rng);
         let predicted = self.filter.summary();
 
-        let sensors: Vec<SensorTerm> = observations.iter().map(|o| SensorTerm { model: &model.sensors[o.sensor as usize], measurement: model.measurement() }).collect();
-        let delta_l = if sensors.is_empty() { Mat4::zeros() } else { observation_information(&sensors, self.filter.particles(), self.filter.uniform_weights())? };
-        self.bound.advance(&terms, model.dynamics.q_inv(), &delta_l)?;
+        let sensors: Vec<SensorTerm> = observations
+            .iter()
+            .map(|o| SensorTerm {
+                model: &model.sensors[o.sensor as usize],
+                measurement: model.measurement(),
+            })
+            .collect();
+        let delta_l = if sensors.is_empty() {
+            Mat4::zeros()
+        } else {
+            observation_information(
+                &sensors,
+                self.filter.particles(),
+                self.filter.uniform_weights(),
+            )?
+        };
+        self.bound
+            .advance(&terms, model.dynamics.q_inv(), &delta_l)?;
 
         if observations.is_empty() {
             // No news: the posterior is the prediction and the contribution is zero.
             let estimate = predicted.mean;
             self.filter.resample(&mut self.rng);
-            return Ok(LocalUpdate { contribution: Contribution { delta_l, ..Contribution::zero() }, estimate, bound: self.bound.position_bound() });
+            return Ok(LocalUpdate {
+                contribution: Contribution {
+                    delta_l,
+                    ..Contribution::zero()
+                },
+                estimate,
+                bound: self.bound.position_bound(),
+            });
         }
-        let stages = self.filter.update(&mut self.rng, |x| observations.iter().map(|o| model.ln_likelihood(o, x)).sum());
+        let stages = self.filter.update(&mut self.rng, |x| {
+            observations.iter().map(|o| model.ln_likelihood(o, x)).sum()
+        });
         if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
         }
@@ -166,9 +224,28 @@ impl LocalFilter {
             Some((g, ess)) if ess >= MIN_IMPORTANCE_ESS => g,
             _ => posterior,
         };
-        let position_only = observations.iter().all(|o| model.sensors[o.sensor as usize].depends_on_position_only());
-        let contribution = information_contribution(&predicted, &summary_posterior, position_only).map_or(Contribution { delta_l, s_obs, ..Contribution::zero() }, |(delta_eta, delta_lambda)| Contribution { delta_eta, delta_lambda, delta_l, s_obs });
-        Ok(LocalUpdate { contribution, estimate: posterior.mean, bound: self.bound.position_bound() })
+        let position_only = observations
+            .iter()
+            .all(|o| model.sensors[o.sensor as usize].depends_on_position_only());
+        let contribution = information_contribution(&predicted, &summary_posterior, position_only)
+            .map_or(
+                Contribution {
+                    delta_l,
+                    s_obs,
+                    ..Contribution::zero()
+                },
+                |(delta_eta, delta_lambda)| Contribution {
+                    delta_eta,
+                    delta_lambda,
+                    delta_l,
+                    s_obs,
+                },
+            );
+        Ok(LocalUpdate {
+            contribution,
+            estimate: posterior.mean,
+            bound: self.bound.position_bound(),
+        })
     }
 
     pub fn bound(&self) -> &ConditionalBound {
@@ -190,18 +267,30 @@ impl LocalFilter {
 /// marginal alone). Estimating it that way avoids differencing two noisy
 /// velocity Schur complements, whose Monte Carlo error would otherwise act on
 /// the fusion filter as a spurious velocity measurement.
-fn information_contribution(predicted: &Gaussian, posterior: &Gaussian, position_only: bool) -> Option<(State, Mat4)> {
+fn information_contribution(
+    predicted: &Gaussian,
+    posterior: &Gaussian,
+    position_only: bool,
+) -> Option<(State, Mat4)> {
     if position_only {
-        let prior_info = Cholesky::new(predicted.cov.fixed_view::<2, 2>(0, 0).into_owned())?.inverse();
-        let post_info = Cholesky::new(posterior.cov.fixed_view::<2, 2>(0, 0).into_owned())?.inverse();
-        let eta = post_info * posterior.mean.fixed_rows::<2>(0) - prior_info * predicted.mean.fixed_rows::<2>(0);
+        let prior_info =
+            Cholesky::new(predicted.cov.fixed_view::<2, 2>(0, 0).into_owned())?.inverse();
+        let post_info =
+            Cholesky::new(posterior.cov.fixed_view::<2, 2>(0, 0).into_owned())?.inverse();
+        let eta = post_info * posterior.mean.fixed_rows::<2>(0)
+            - prior_info * predicted.mean.fixed_rows::<2>(0);
         let mut lambda = Mat4::zeros();
-        lambda.fixed_view_mut::<2, 2>(0, 0).copy_from(&(post_info - prior_info));
+        lambda
+            .fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&(post_info - prior_info));
         return Some((State::new(eta[0], eta[1], 0.0, 0.0), lambda));
     }
     let prior_info = Cholesky::new(predicted.cov)?.inverse();
     let post_info = Cholesky::new(posterior.cov)?.inverse();
-    Some((post_info * posterior.mean - prior_info * predicted.mean, post_info - prior_info))
+    Some((
+        post_info * posterior.mean - prior_info * predicted.mean,
+        post_info - prior_info,
+    ))
 }
 
 /// Network sums from consensus: `Σδη`, `ΣδΛ`, `S = ΣΔL`, and `S_obs`.
@@ -226,10 +315,21 @@ pub struct FusionUpdate {
 }
 
 impl FusionFilter {
-    pub fn new(particles: usize, prior: &Gaussian, with_aux: bool, mut rng: ChaCha8Rng) -> Result<Self, BoundError> {
-        let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
+    pub fn new(
+        particles: usize,
+        prior: &Gaussian,
+        with_aux: bool,
+        mut rng: ChaCha8Rng,
+    ) -> Result<Self, BoundError> {
+        let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng)
+            .ok_or(BoundError::NotPositiveDefinite("P_0"))?;
         let bound = ConditionalBound::from_prior(&prior.cov)?;
-        Ok(Self { filter, bound, aux: with_aux.then_some(bound), rng })
+        Ok(Self {
+            filter,
+            bound,
+            aux: with_aux.then_some(bound),
+            rng,
+        })
     }
 
     pub fn information(&self) -> &Mat4 {
@@ -245,8 +345,17 @@ impl FusionFilter {
     }
 
     /// Restarts from a neighbour's fused posterior and bounds (rejoin).
-    pub fn reset(&mut self, posterior: &Gaussian, information: Mat4, aux_information: Option<Mat4>) {
-        if self.filter.reset_gaussian(posterior, &mut self.rng).is_some() {
+    pub fn reset(
+        &mut self,
+        posterior: &Gaussian,
+        information: Mat4,
+        aux_information: Option<Mat4>,
+    ) {
+        if self
+            .filter
+            .reset_gaussian(posterior, &mut self.rng)
+            .is_some()
+        {
             self.bound = ConditionalBound::from_information(information);
             if let (Some(aux), Some(info)) = (self.aux.as_mut(), aux_information) {
                 *aux = ConditionalBound::from_information(info);
@@ -254,8 +363,16 @@ impl FusionFilter {
         }
     }
 
-    pub fn step(&mut self, model: &SensingModel, sums: &NetworkSums) -> Result<FusionUpdate, BoundError> {
-        let terms = dynamics_terms(&model.dynamics, self.filter.particles(), self.filter.uniform_weights())?;
+    pub fn step(
+        &mut self,
+        model: &SensingModel,
+        sums: &NetworkSums,
+    ) -> Result<FusionUpdate, BoundError> {
+        let terms = dynamics_terms(
+            &model.dynamics,
+            self.filter.particles(),
+            self.filter.uniform_weights(),
+        )?;
         self.filter.predict(&model.dynamics, &mut self.rng);
         let predicted = self.filter.summary();
         let (lambda, eta) = clip_negative_eigenvalues(&sums.delta_lambda, &sums.delta_eta);
@@ -276,14 +393,20 @@ impl FusionFilter {
         let aux_bound = match self.aux.as_mut() {
             Some(j_aux) => {
                 // L_aux(k+1) uses J_AUX(k); then J_AUX advances with S_obs.
-                let baseline = information_update(j_aux.information(), &terms, q_inv, &sums.delta_l)?;
+                let baseline =
+                    information_update(j_aux.information(), &terms, q_inv, &sums.delta_l)?;
                 j_aux.advance(&terms, q_inv, &sums.s_obs)?;
                 bounds::position_bound(&baseline.updated)
             }
             None => None,
         };
         self.bound.advance(&terms, q_inv, &sums.delta_l)?;
-        Ok(FusionUpdate { estimate: posterior.mean, posterior, bound: self.bound.position_bound(), aux_bound })
+        Ok(FusionUpdate {
+            estimate: posterior.mean,
+            posterior,
+            bound: self.bound.position_bound(),
+            aux_bound,
+        })
     }
 }
 
@@ -301,7 +424,10 @@ impl FusionFilter {
     /// velocities, and the update proceeds from there.
     fn recover_if_diverged(&mut self, predicted: &Gaussian, lambda: &Mat4, eta: &State) {
         let lp = lambda.fixed_view::<2, 2>(0, 0).into_owned();
-        let Some(measurement_cov) = lp.try_inverse().filter(|c| c.iter().all(|v| v.is_finite())) else { return };
+        let Some(measurement_cov) = lp.try_inverse().filter(|c| c.iter().all(|v| v.is_finite()))
+        else {
+            return;
+        };
         if lp.determinant() <= 0.0 {
             return;
         }
@@ -309,9 +435,14 @@ impl FusionFilter {
         let prior_cov = predicted.cov.fixed_view::<2, 2>(0, 0).into_owned();
         let combined = prior_cov + measurement_cov;
         let d = m - predicted.mean.fixed_rows::<2>(0);
-        let Some(inv) = combined.try_inverse() else { return };
+        let Some(inv) = combined.try_inverse() else {
+            return;
+        };
         if d.dot(&(inv * d)) > DIVERGENCE_CHI2 {
-            tracing::warn!(offset_m = d.norm(), "fusion filter lost the target; re-centring it on the network's information");
+            tracing::warn!(
+                offset_m = d.norm(),
+                "fusion filter lost the target; re-centring it on the network's information"
+            );
             self.filter.recenter_positions(&d, &prior_cov, &combined);
         }
     }
@@ -337,7 +468,10 @@ pub fn clip_negative_eigenvalues(lambda: &Mat4, eta: &State) -> (Mat4, State) {
     let keep = eig.eigenvalues.map(|v| if v > floor { 1.0 } else { 0.0 });
     let clipped = eig.eigenvalues.component_mul(&keep);
     let v = &eig.eigenvectors;
-    (v * Mat4::from_diagonal(&clipped) * v.transpose(), v * Mat4::from_diagonal(&keep) * v.transpose() * eta)
+    (
+        v * Mat4::from_diagonal(&clipped) * v.transpose(),
+        v * Mat4::from_diagonal(&keep) * v.transpose() * eta,
+    )
 }
 
 #[cfg(test)]
@@ -348,7 +482,12 @@ mod tests {
     fn clipping_removes_negative_directions_from_both_lambda_and_eta() {
         let m = Mat4::from_diagonal(&State::new(2.0, -1.0, 0.5, -3.0));
         let (c, eta) = clip_negative_eigenvalues(&m, &State::new(1.0, 1.0, 1.0, 1.0));
-        assert!((c - Mat4::from_diagonal(&State::new(2.0, 0.0, 0.5, 0.0))).abs().max() < 1e-12);
+        assert!(
+            (c - Mat4::from_diagonal(&State::new(2.0, 0.0, 0.5, 0.0)))
+                .abs()
+                .max()
+                < 1e-12
+        );
         assert!((eta - State::new(1.0, 0.0, 1.0, 0.0)).abs().max() < 1e-12);
         let psd = Mat4::identity() * 3.0;
         assert_eq!(clip_negative_eigenvalues(&psd, &State::zeros()).0, psd);
@@ -361,14 +500,25 @@ mod tests {
 
     #[test]
     fn information_contribution_of_a_scalar_update() {
-        let predicted = Gaussian { mean: State::new(0.0, 0.0, 0.0, 0.0), cov: Mat4::identity() * 4.0 };
-        let posterior = Gaussian { mean: State::new(1.0, 0.0, 0.0, 0.0), cov: Mat4::identity() * 2.0 };
+        let predicted = Gaussian {
+            mean: State::new(0.0, 0.0, 0.0, 0.0),
+            cov: Mat4::identity() * 4.0,
+        };
+        let posterior = Gaussian {
+            mean: State::new(1.0, 0.0, 0.0, 0.0),
+            cov: Mat4::identity() * 2.0,
+        };
         let (eta, lambda) = information_contribution(&predicted, &posterior, false).unwrap();
         assert!((lambda - Mat4::identity() * 0.25).abs().max() < 1e-12);
         assert!((eta - State::new(0.5, 0.0, 0.0, 0.0)).abs().max() < 1e-12);
         // Position marginal only: same position block, zero velocity block.
         let (eta, lambda) = information_contribution(&predicted, &posterior, true).unwrap();
-        assert!((lambda - Mat4::from_diagonal(&State::new(0.25, 0.25, 0.0, 0.0))).abs().max() < 1e-12);
+        assert!(
+            (lambda - Mat4::from_diagonal(&State::new(0.25, 0.25, 0.0, 0.0)))
+                .abs()
+                .max()
+                < 1e-12
+        );
         assert!((eta - State::new(0.5, 0.0, 0.0, 0.0)).abs().max() < 1e-12);
     }
 
@@ -377,14 +527,29 @@ mod tests {
     /// information difference P⁻¹ − (P⁻)⁻¹ = HᵀR⁻¹H.
     #[test]
     fn position_marginal_difference_is_exact_for_position_measurements() {
-        let p_pred = Mat4::new(9.0, 1.0, 3.0, 0.5, 1.0, 8.0, 0.2, 2.5, 3.0, 0.2, 2.0, 0.1, 0.5, 2.5, 0.1, 1.5);
+        let p_pred = Mat4::new(
+            9.0, 1.0, 3.0, 0.5, 1.0, 8.0, 0.2, 2.5, 3.0, 0.2, 2.0, 0.1, 0.5, 2.5, 0.1, 1.5,
+        );
         let h_r_h = Mat4::from_diagonal(&State::new(0.5, 0.25, 0.0, 0.0));
-        let p_post = (p_pred.try_inverse().unwrap() + h_r_h).try_inverse().unwrap();
+        let p_post = (p_pred.try_inverse().unwrap() + h_r_h)
+            .try_inverse()
+            .unwrap();
         let mu_pred = State::new(10.0, 20.0, 1.0, -1.0);
         let z = State::new(12.0, 19.0, 0.0, 0.0);
         // Posterior mean of the information filter: P (P⁻⁻¹ μ⁻ + HᵀR⁻¹ z).
         let mu_post = p_post * (p_pred.try_inverse().unwrap() * mu_pred + h_r_h * z);
-        let (eta, lambda) = information_contribution(&Gaussian { mean: mu_pred, cov: p_pred }, &Gaussian { mean: mu_post, cov: p_post }, true).unwrap();
+        let (eta, lambda) = information_contribution(
+            &Gaussian {
+                mean: mu_pred,
+                cov: p_pred,
+            },
+            &Gaussian {
+                mean: mu_post,
+                cov: p_post,
+            },
+            true,
+        )
+        .unwrap();
         assert!((lambda - h_r_h).abs().max() < 1e-12, "{lambda}");
         assert!((eta - h_r_h * z).abs().max() < 1e-10, "{eta}");
     }

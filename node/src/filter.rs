@@ -110,7 +110,11 @@ impl ParticleFilter {
     /// Turns log weights into normalized weights. Returns false, keeping the
     /// weights uniform, when no particle has a finite likelihood.
     pub fn normalize(&mut self) -> bool {
-        let max = self.log_weights.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let max = self
+            .log_weights
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
         if !max.is_finite() {
             self.weights.copy_from_slice(&self.uniform);
             return false;
@@ -134,14 +138,22 @@ impl ParticleFilter {
     /// sensors at once) would otherwise leave a handful of particles carrying
     /// all the weight. Leaves the particles weighted by the last stage;
     /// returns the number of stages, 0 if no particle has a finite likelihood.
-    pub fn update<R: Rng + ?Sized>(&mut self, rng: &mut R, mut ln_likelihood: impl FnMut(&State) -> f64) -> usize {
+    pub fn update<R: Rng + ?Sized>(
+        &mut self,
+        rng: &mut R,
+        mut ln_likelihood: impl FnMut(&State) -> f64,
+    ) -> usize {
         let floor = ESS_FLOOR * self.particles.len() as f64;
         let mut done = 0.0;
         for stage in 1..=MAX_STAGES {
             for (l, p) in self.ln_likelihood.iter_mut().zip(&self.particles) {
                 *l = ln_likelihood(p);
             }
-            let max = self.ln_likelihood.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let max = self
+                .ln_likelihood
+                .iter()
+                .copied()
+                .fold(f64::NEG_INFINITY, f64::max);
             if !max.is_finite() {
                 self.weights.copy_from_slice(&self.uniform);
                 return 0;
@@ -212,12 +224,25 @@ impl ParticleFilter {
     /// Moves every particle's position by `shift` and widens the position
     /// spread so that its covariance becomes `target_cov` (velocities kept).
     /// Divergence recovery: see `FusionFilter::step`.
-    pub fn recenter_positions(&mut self, shift: &nalgebra::Vector2<f64>, current_cov: &nalgebra::Matrix2<f64>, target_cov: &nalgebra::Matrix2<f64>) {
-        let (Some(from), Some(to)) = (Cholesky::new(*current_cov), Cholesky::new(*target_cov)) else { return };
+    pub fn recenter_positions(
+        &mut self,
+        shift: &nalgebra::Vector2<f64>,
+        current_cov: &nalgebra::Matrix2<f64>,
+        target_cov: &nalgebra::Matrix2<f64>,
+    ) {
+        let (Some(from), Some(to)) = (Cholesky::new(*current_cov), Cholesky::new(*target_cov))
+        else {
+            return;
+        };
         // x ↦ μ + shift + L_to L_from⁻¹ (x − μ) maps N(μ, C) onto N(μ + shift, T).
-        let Some(from_inv) = from.l().try_inverse() else { return };
+        let Some(from_inv) = from.l().try_inverse() else {
+            return;
+        };
         let map = to.l() * from_inv;
-        let mean = summarize(&self.particles, &self.uniform).mean.fixed_rows::<2>(0).into_owned();
+        let mean = summarize(&self.particles, &self.uniform)
+            .mean
+            .fixed_rows::<2>(0)
+            .into_owned();
         for p in self.particles.iter_mut() {
             let d = p.fixed_rows::<2>(0) - mean;
             let moved = mean + shift + map * d;
@@ -266,7 +291,9 @@ impl ParticleFilter {
     pub fn regularize<R: Rng + ?Sized>(&mut self, posterior_cov: &Mat4, rng: &mut R) {
         let n = self.particles.len() as f64;
         let h = (4.0 / (n * 6.0)).powf(1.0 / 8.0);
-        let Some(chol) = Cholesky::new(posterior_cov * (h * h)) else { return };
+        let Some(chol) = Cholesky::new(posterior_cov * (h * h)) else {
+            return;
+        };
         let l = chol.l();
         for p in self.particles.iter_mut() {
             *p += l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
@@ -285,7 +312,10 @@ pub fn summarize(particles: &[State], weights: &[f64]) -> Gaussian {
         let d = p - mean;
         cov += d * d.transpose() * *w;
     }
-    Gaussian { mean, cov: (cov + cov.transpose()) * 0.5 }
+    Gaussian {
+        mean,
+        cov: (cov + cov.transpose()) * 0.5,
+    }
 }
 
 #[cfg(test)]
@@ -296,7 +326,10 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn prior() -> Gaussian {
-        Gaussian { mean: State::new(100.0, 200.0, 3.0, -4.0), cov: Mat4::from_diagonal(&State::new(25.0, 16.0, 1.0, 0.25)) }
+        Gaussian {
+            mean: State::new(100.0, 200.0, 3.0, -4.0),
+            cov: Mat4::from_diagonal(&State::new(25.0, 16.0, 1.0, 0.25)),
+        }
     }
 
     #[test]
@@ -357,8 +390,15 @@ mod tests {
         let target = Matrix2::new(100.0, 10.0, 10.0, 50.0);
         f.recenter_positions(&Vector2::new(30.0, -40.0), &current, &target);
         let after = f.summary();
-        assert!((after.mean[0] - before.mean[0] - 30.0).abs() < 1e-9 && (after.mean[1] - before.mean[1] + 40.0).abs() < 1e-9);
-        assert!((after.cov.fixed_view::<2, 2>(0, 0) - target).abs().max() < 1e-6 * 100.0, "{}", after.cov);
+        assert!(
+            (after.mean[0] - before.mean[0] - 30.0).abs() < 1e-9
+                && (after.mean[1] - before.mean[1] + 40.0).abs() < 1e-9
+        );
+        assert!(
+            (after.cov.fixed_view::<2, 2>(0, 0) - target).abs().max() < 1e-6 * 100.0,
+            "{}",
+            after.cov
+        );
         assert_eq!(after.mean[2], before.mean[2], "velocities untouched");
     }
 

@@ -9,4 +9,6 @@ pub mod filter;
 
 pub use actor::{network_prior, sensing_model, wire_format, NodeActor, Outgoing};
 pub use centralized::CentralizedReference;
-pub use estimator::{Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel};
+pub use estimator::{
+    Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
+};

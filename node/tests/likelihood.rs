@@ -17,11 +17,26 @@ fn summed_log_likelihood_peaks_at_the_truth() {
     for i in 0..t.sensors() as u16 {
         let mut a = SensorActor::new(&s, &t, i);
         a.handle(SensorInput::Tick { step: 5, truth });
-        let m = a.handle(SensorInput::Activation { step: 5, active: true }).unwrap();
-        let Payload::Observation { cell } = m.payload else { panic!() };
-        observations.push(Observation { sensor: i, value: ObservedValue::Cell(cell) });
+        let m = a
+            .handle(SensorInput::Activation {
+                step: 5,
+                active: true,
+            })
+            .unwrap();
+        let Payload::Observation { cell } = m.payload else {
+            panic!()
+        };
+        observations.push(Observation {
+            sensor: i,
+            value: ObservedValue::Cell(cell),
+        });
     }
-    let ll = |x: &State| observations.iter().map(|o| model.ln_likelihood(o, x)).sum::<f64>();
+    let ll = |x: &State| {
+        observations
+            .iter()
+            .map(|o| model.ln_likelihood(o, x))
+            .sum::<f64>()
+    };
     let mut best = (f64::NEG_INFINITY, State::zeros());
     for dx in -40..=40 {
         for dy in -40..=40 {
@@ -33,5 +48,9 @@ fn summed_log_likelihood_peaks_at_the_truth() {
         }
     }
     let miss = (best.1 - truth).norm();
-    assert!(miss < 3.0, "likelihood peaks {miss:.1} m from the truth, at {:?}", best.1);
+    assert!(
+        miss < 3.0,
+        "likelihood peaks {miss:.1} m from the truth, at {:?}",
+        best.1
+    );
 }

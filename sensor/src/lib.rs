@@ -20,9 +20,35 @@ use rand_chacha::ChaCha8Rng;
 /// The observation model of the scenario, placed at `position`.
 pub fn observation_model(config: &ObservationConfig, position: [f64; 2]) -> ObservationModel {
     match *config {
-        ObservationConfig::Bearing { sigma_theta, d0 } => ObservationModel::Bearing { sensor: position, sigma_theta, d0 },
-        ObservationConfig::Rss { p0, zeta, d0, sigma } => ObservationModel::Rss { sensor: position, p0, zeta, d0, sigma },
-        ObservationConfig::Amplitude { p0, alpha, exponent, sigma } => ObservationModel::Amplitude { sensor: position, p0, alpha, exponent, sigma },
+        ObservationConfig::Bearing { sigma_theta, d0 } => ObservationModel::Bearing {
+            sensor: position,
+            sigma_theta,
+            d0,
+        },
+        ObservationConfig::Rss {
+            p0,
+            zeta,
+            d0,
+            sigma,
+        } => ObservationModel::Rss {
+            sensor: position,
+            p0,
+            zeta,
+            d0,
+            sigma,
+        },
+        ObservationConfig::Amplitude {
+            p0,
+            alpha,
+            exponent,
+            sigma,
+        } => ObservationModel::Amplitude {
+            sensor: position,
+            p0,
+            alpha,
+            exponent,
+            sigma,
+        },
     }
 }
 
@@ -33,7 +59,11 @@ pub fn quantizer(s: &Scenario) -> Option<Quantizer> {
     }
     let q = match s.observation {
         ObservationConfig::Bearing { .. } => Quantizer::uniform_wrapped(s.quantizer.bits, -PI, PI),
-        _ => Quantizer::uniform(s.quantizer.bits, s.quantizer.lo.unwrap_or(0.0), s.quantizer.hi.unwrap_or(1.0)),
+        _ => Quantizer::uniform(
+            s.quantizer.bits,
+            s.quantizer.lo.unwrap_or(0.0),
+            s.quantizer.hi.unwrap_or(1.0),
+        ),
     };
     Some(q.expect("validated with the scenario"))
 }
@@ -45,7 +75,9 @@ pub fn stream_seed(scenario_seed: u64, actor: ActorId, step: u32, purpose: u64) 
     let mut x = scenario_seed ^ 0x9e37_79b9_7f4a_7c15;
     for v in [kind as u64, index as u64, step as u64, purpose] {
         // splitmix64
-        x = x.wrapping_add(v.wrapping_mul(0xbf58_476d_1ce4_e5b9)).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        x = x
+            .wrapping_add(v.wrapping_mul(0xbf58_476d_1ce4_e5b9))
+            .wrapping_add(0x9e37_79b9_7f4a_7c15);
         let mut z = x;
         z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
@@ -82,7 +114,10 @@ impl SensorActor {
     pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Self {
         Self {
             index,
-            model: observation_model(&scenario.observation, topology.sensor_positions[index as usize]),
+            model: observation_model(
+                &scenario.observation,
+                topology.sensor_positions[index as usize],
+            ),
             quantizer: quantizer(scenario),
             seed: scenario.seed,
             truth: None,
@@ -114,7 +149,8 @@ impl SensorActor {
     }
 
     fn measure(&self, step: u32, truth: &State) -> Payload {
-        let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(self.seed, self.id(), step, NOISE_STREAM));
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(stream_seed(self.seed, self.id(), step, NOISE_STREAM));
         let z = self.model.sample(truth, &mut rng);
         match &self.quantizer {
             Some(q) => Payload::Observation { cell: q.encode(z) },
@@ -138,15 +174,38 @@ mod tests {
         let truth = State::new(1000.0, 900.0, -6.0, -7.0);
         let mut a = actor();
         assert!(a.handle(SensorInput::Tick { step: 1, truth }).is_none());
-        let first = a.handle(SensorInput::Activation { step: 1, active: true }).unwrap();
-        assert!(a.handle(SensorInput::Activation { step: 1, active: true }).is_none(), "one observation per step");
+        let first = a
+            .handle(SensorInput::Activation {
+                step: 1,
+                active: true,
+            })
+            .unwrap();
+        assert!(
+            a.handle(SensorInput::Activation {
+                step: 1,
+                active: true
+            })
+            .is_none(),
+            "one observation per step"
+        );
         let mut b = actor();
-        b.handle(SensorInput::Activation { step: 1, active: true });
+        b.handle(SensorInput::Activation {
+            step: 1,
+            active: true,
+        });
         let second = b.handle(SensorInput::Tick { step: 1, truth }).unwrap();
-        assert_eq!(first, second, "arrival order must not change the observation");
+        assert_eq!(
+            first, second,
+            "arrival order must not change the observation"
+        );
         // Not activated: silent.
         assert!(a.handle(SensorInput::Tick { step: 2, truth }).is_none());
-        assert!(a.handle(SensorInput::Activation { step: 2, active: false }).is_none());
+        assert!(a
+            .handle(SensorInput::Activation {
+                step: 2,
+                active: false
+            })
+            .is_none());
     }
 
     #[test]
@@ -158,7 +217,13 @@ mod tests {
         let mut misses = 0;
         for step in 1..=200 {
             a.handle(SensorInput::Tick { step, truth });
-            let Some(Message { payload: Payload::Observation { cell }, .. }) = a.handle(SensorInput::Activation { step, active: true }) else { panic!("no observation") };
+            let Some(Message {
+                payload: Payload::Observation { cell },
+                ..
+            }) = a.handle(SensorInput::Activation { step, active: true })
+            else {
+                panic!("no observation")
+            };
             let err = bounds::wrap_angle(q.representative(cell) - e.g).abs();
             if err > 4.0 * e.r.sqrt() + 0.025 {
                 misses += 1;

@@ -27,7 +27,13 @@ pub struct Invocation {
 }
 
 impl Invocation {
-    pub fn new(executable: &str, tag: &str, subcommand: &str, args: &[&str], env: &[(&str, &str)]) -> Self {
+    pub fn new(
+        executable: &str,
+        tag: &str,
+        subcommand: &str,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
         let run_id = format!("t{}-{tag}", std::process::id());
         let out = std::env::temp_dir().join(format!("cqnet-tests/{run_id}"));
         let _ = std::fs::remove_dir_all(&out);
@@ -41,7 +47,11 @@ impl Invocation {
             cmd.env(k, v);
         }
         let output = cmd.output().expect("run the program");
-        Self { run_id, out, output: Some(output) }
+        Self {
+            run_id,
+            out,
+            output: Some(output),
+        }
     }
 
     pub fn output(&self) -> &Output {
@@ -54,12 +64,21 @@ impl Invocation {
 
     /// Panics with the program's stderr unless it exited successfully.
     pub fn assert_success(&self) -> &Self {
-        assert!(self.output().status.success(), "{} failed: {}\n{}", self.run_id, self.output().status, self.stderr());
+        assert!(
+            self.output().status.success(),
+            "{} failed: {}\n{}",
+            self.run_id,
+            self.output().status,
+            self.stderr()
+        );
         self
     }
 
     pub fn summary(&self) -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(self.out.join("summary.json")).expect("summary.json")).expect("valid JSON")
+        serde_json::from_str(
+            &std::fs::read_to_string(self.out.join("summary.json")).expect("summary.json"),
+        )
+        .expect("valid JSON")
     }
 
     pub fn ticks(&self) -> Vec<Tick> {
@@ -67,7 +86,10 @@ impl Invocation {
     }
 
     pub fn links(&self) -> Accounting {
-        Accounting::from_csv(&std::fs::read_to_string(self.out.join("links.csv")).expect("links.csv")).expect("valid links.csv")
+        Accounting::from_csv(
+            &std::fs::read_to_string(self.out.join("links.csv")).expect("links.csv"),
+        )
+        .expect("valid links.csv")
     }
 
     /// Processes still running with this run's id on their command line.
@@ -77,7 +99,9 @@ impl Invocation {
 
     /// Files of this run's iceoryx2 resources that still exist.
     pub fn leftover_shared_memory(&self) -> Vec<PathBuf> {
-        RunId::new(&self.run_id).map(|r| run_resources(&r)).unwrap_or_default()
+        RunId::new(&self.run_id)
+            .map(|r| run_resources(&r))
+            .unwrap_or_default()
     }
 }
 
@@ -94,9 +118,13 @@ impl Drop for Invocation {
 
 fn processes_with(needle: &str) -> Vec<u32> {
     let mut pids = Vec::new();
-    let Ok(entries) = std::fs::read_dir("/proc") else { return pids };
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return pids;
+    };
     for e in entries.flatten() {
-        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else { continue };
+        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+            continue;
+        };
         if pid == std::process::id() {
             continue;
         }
@@ -126,14 +154,24 @@ pub fn read_ticks(path: &Path) -> Vec<Tick> {
         .skip(1)
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
-            Tick { step: f[0].parse().unwrap(), node: f[1].to_string(), error: f[6].parse().unwrap(), bound: f[7].parse().ok(), line: l.to_string() }
+            Tick {
+                step: f[0].parse().unwrap(),
+                node: f[1].to_string(),
+                error: f[6].parse().unwrap(),
+                bound: f[7].parse().ok(),
+                line: l.to_string(),
+            }
         })
         .collect()
 }
 
 /// Position RMSE of the nodes' rows (not the centralized reference) over `steps`.
 pub fn rmse(ticks: &[Tick], steps: std::ops::RangeInclusive<u32>) -> f64 {
-    let e: Vec<f64> = ticks.iter().filter(|t| t.node != "central" && steps.contains(&t.step)).map(|t| t.error * t.error).collect();
+    let e: Vec<f64> = ticks
+        .iter()
+        .filter(|t| t.node != "central" && steps.contains(&t.step))
+        .map(|t| t.error * t.error)
+        .collect();
     (e.iter().sum::<f64>() / e.len() as f64).sqrt()
 }
 

@@ -9,7 +9,12 @@ const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
 
 /// Generous timeouts: with 235 processes on two cores a round can take a while,
 /// and a timeout that fires changes the answer.
-const PATIENT: [&str; 4] = ["--set", "consensus.round_timeout_ms=20000", "--set", "clock.step_timeout_ms=60000"];
+const PATIENT: [&str; 4] = [
+    "--set",
+    "consensus.round_timeout_ms=20000",
+    "--set",
+    "clock.step_timeout_ms=60000",
+];
 
 fn run(tag: &str, args: &[&str]) -> Invocation {
     let mut all: Vec<&str> = vec!["--lockstep"];
@@ -18,8 +23,18 @@ fn run(tag: &str, args: &[&str]) -> Invocation {
 }
 
 fn assert_clean(i: &Invocation) {
-    assert_eq!(i.leftover_processes(), Vec::<u32>::new(), "processes of {} survived", i.run_id);
-    assert_eq!(i.leftover_shared_memory(), Vec::<std::path::PathBuf>::new(), "shared memory of {} survived", i.run_id);
+    assert_eq!(
+        i.leftover_processes(),
+        Vec::<u32>::new(),
+        "processes of {} survived",
+        i.run_id
+    );
+    assert_eq!(
+        i.leftover_shared_memory(),
+        Vec::<std::path::PathBuf>::new(),
+        "shared memory of {} survived",
+        i.run_id
+    );
 }
 
 #[test]
@@ -34,7 +49,11 @@ fn lockstep_run_reproduces_sim_bit_for_bit() {
     let mut b: Vec<String> = s.ticks().into_iter().map(|t| t.line).collect();
     a.sort();
     b.sort();
-    assert_eq!(a.len(), 10 * 10, "nine nodes and the centralized reference, ten steps");
+    assert_eq!(
+        a.len(),
+        10 * 10,
+        "nine nodes and the centralized reference, ten steps"
+    );
     assert_eq!(a, b);
     assert_clean(&r);
 }
@@ -42,7 +61,11 @@ fn lockstep_run_reproduces_sim_bit_for_bit() {
 #[test]
 fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     let _guard = exclusive();
-    let args = [&PATIENT[..], &["--set", "steps=6", "--set", "consensus.auxiliary_fim=true"]].concat();
+    let args = [
+        &PATIENT[..],
+        &["--set", "steps=6", "--set", "consensus.auxiliary_fim=true"],
+    ]
+    .concat();
     let r = run("bytes", &args);
     r.assert_success();
     let kinds = r.links().by_kind();
@@ -57,14 +80,27 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     // The launcher's tick (11 + 32) and the nodes' activation (11 + 4) reach all 225 sensors.
     assert_eq!(sent(MessageKind::Tick), steps * 225 * 43);
     assert_eq!(sent(MessageKind::Activate), steps * 225 * 15);
-    for k in [MessageKind::Observation, MessageKind::Consensus, MessageKind::ConsensusAux, MessageKind::Tick, MessageKind::Activate] {
+    for k in [
+        MessageKind::Observation,
+        MessageKind::Consensus,
+        MessageKind::ConsensusAux,
+        MessageKind::Tick,
+        MessageKind::Activate,
+    ] {
         assert_eq!(received(k), sent(k), "{k:?}: every byte sent was received");
     }
     // Bound traffic: ΔL (80 bytes a message) against ΔL and S_obs: 1 : 2.
     let summary = r.summary();
-    let cq = summary["bound_traffic"]["cq_dpcrlb_bytes"].as_u64().unwrap();
+    let cq = summary["bound_traffic"]["cq_dpcrlb_bytes"]
+        .as_u64()
+        .unwrap();
     assert_eq!(cq, steps * 24 * 10 * 80);
-    assert_eq!(summary["bound_traffic"]["auxiliary_fim_bytes"].as_u64().unwrap(), 2 * cq);
+    assert_eq!(
+        summary["bound_traffic"]["auxiliary_fim_bytes"]
+            .as_u64()
+            .unwrap(),
+        2 * cq
+    );
     assert_clean(&r);
 }
 
@@ -74,18 +110,39 @@ fn the_network_survives_sigkill_of_the_centre_node() {
     let base = ["--set", "steps=30", "--no-central"];
     let healthy = run("healthy", &base);
     healthy.assert_success();
-    let kill = [&base[..], &["--set", "faults=[{kind=\"kill\", actor=\"node-4\", at_step=10, signal=\"SIGKILL\"}]"]].concat();
+    let kill = [
+        &base[..],
+        &[
+            "--set",
+            "faults=[{kind=\"kill\", actor=\"node-4\", at_step=10, signal=\"SIGKILL\"}]",
+        ],
+    ]
+    .concat();
     let r = run("kill", &kill);
     r.assert_success();
     let ticks = r.ticks();
     for step in 10..=30 {
         let rows: Vec<_> = ticks.iter().filter(|t| t.step == step).collect();
-        assert_eq!(rows.len(), 8, "step {step}: {:?}", rows.iter().map(|t| &t.node).collect::<Vec<_>>());
-        assert!(rows.iter().all(|t| t.node != "node-4" && t.bound.is_some()), "step {step}");
+        assert_eq!(
+            rows.len(),
+            8,
+            "step {step}: {:?}",
+            rows.iter().map(|t| &t.node).collect::<Vec<_>>()
+        );
+        assert!(
+            rows.iter().all(|t| t.node != "node-4" && t.bound.is_some()),
+            "step {step}"
+        );
     }
     let (after, before) = (rmse(&ticks, 10..=30), rmse(&healthy.ticks(), 10..=30));
-    assert!(after <= 3.0 * before, "RMSE after the kill {after} vs {before} without it");
-    assert_eq!(r.summary()["fault_cost"]["missing_node_steps"].as_u64(), Some(21));
+    assert!(
+        after <= 3.0 * before,
+        "RMSE after the kill {after} vs {before} without it"
+    );
+    assert_eq!(
+        r.summary()["fault_cost"]["missing_node_steps"].as_u64(),
+        Some(21)
+    );
     assert_clean(&r);
     assert_clean(&healthy);
 }
@@ -97,14 +154,30 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
         {kind=\"delay\", links=[{from=\"node-0\", to=\"node-1\"}], at_step=5, duration=10, latency_ms=200.0},\
         {kind=\"loss\", links=[{from=\"*\", to=\"*\"}], at_step=10, duration=10, probability=0.3},\
         {kind=\"partition\", groups=[[\"node-0\", \"node-1\", \"node-3\", \"node-4\"], [\"node-2\", \"node-5\", \"node-6\", \"node-7\", \"node-8\"]], at_step=20, duration=10}]";
-    let r = run("linkfaults", &["--set", "steps=45", "--no-central", "--set", "consensus.round_timeout_ms=100", "--set", "clock.step_timeout_ms=1500", "--set", faults]);
+    let r = run(
+        "linkfaults",
+        &[
+            "--set",
+            "steps=45",
+            "--no-central",
+            "--set",
+            "consensus.round_timeout_ms=100",
+            "--set",
+            "clock.step_timeout_ms=1500",
+            "--set",
+            faults,
+        ],
+    );
     r.assert_success();
     let s = r.summary();
     assert_eq!(s["steps"].as_u64(), Some(45));
     let cost = &s["fault_cost"];
     assert!(cost["dropped_messages"].as_u64().unwrap() > 100, "{cost}");
     assert!(cost["late_messages"].as_u64().unwrap() > 0, "{cost}");
-    assert!(cost["rounds_with_fewer_neighbours"].as_u64().unwrap() > 0, "{cost}");
+    assert!(
+        cost["rounds_with_fewer_neighbours"].as_u64().unwrap() > 0,
+        "{cost}"
+    );
     assert_eq!(s["faults"].as_array().unwrap().len(), 3);
     // Tracking recovers once the partition has healed.
     let late = rmse(&r.ticks(), 38..=45);
@@ -116,16 +189,37 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
 fn a_restarted_node_rejoins_and_tracks_again() {
     let _guard = exclusive();
     let faults = "faults=[{kind=\"kill\", actor=\"node-4\", at_step=8, signal=\"SIGKILL\", restart_after=6}]";
-    let r = run("restart", &["--set", "steps=30", "--no-central", "--set", faults]);
+    let r = run(
+        "restart",
+        &["--set", "steps=30", "--no-central", "--set", faults],
+    );
     r.assert_success();
     let ticks = r.ticks();
     let node4: Vec<_> = ticks.iter().filter(|t| t.node == "node-4").collect();
-    assert!(node4.iter().all(|t| t.step < 8 || t.step >= 14), "node-4 reported while dead");
-    let first_back = node4.iter().map(|t| t.step).filter(|s| *s >= 14).min().expect("node-4 came back");
-    assert!(first_back <= 16, "node-4 first reported again at step {first_back}");
-    let back: Vec<f64> = node4.iter().filter(|t| t.step >= 18).map(|t| t.error).collect();
+    assert!(
+        node4.iter().all(|t| t.step < 8 || t.step >= 14),
+        "node-4 reported while dead"
+    );
+    let first_back = node4
+        .iter()
+        .map(|t| t.step)
+        .filter(|s| *s >= 14)
+        .min()
+        .expect("node-4 came back");
+    assert!(
+        first_back <= 16,
+        "node-4 first reported again at step {first_back}"
+    );
+    let back: Vec<f64> = node4
+        .iter()
+        .filter(|t| t.step >= 18)
+        .map(|t| t.error)
+        .collect();
     let worst = back.iter().cloned().fold(0.0, f64::max);
-    assert!(!back.is_empty() && worst < 15.0, "node-4's error after rejoining: {back:?}");
+    assert!(
+        !back.is_empty() && worst < 15.0,
+        "node-4's error after rejoining: {back:?}"
+    );
     assert_clean(&r);
 }
 
@@ -142,7 +236,14 @@ fn two_runs_at_once_count_the_same_bytes_as_one_alone_and_leave_nothing() {
     });
     a.assert_success();
     b.assert_success();
-    let sent = |i: &Invocation| i.links().by_kind().into_iter().filter(|(k, _)| *k != MessageKind::Control).map(|(k, c)| (k, c.sent_bytes, c.received_bytes)).collect::<Vec<_>>();
+    let sent = |i: &Invocation| {
+        i.links()
+            .by_kind()
+            .into_iter()
+            .filter(|(k, _)| *k != MessageKind::Control)
+            .map(|(k, c)| (k, c.sent_bytes, c.received_bytes))
+            .collect::<Vec<_>>()
+    };
     assert_eq!(sent(&a), sent(&alone));
     assert_eq!(sent(&b), sent(&alone));
     for i in [&alone, &a, &b] {
@@ -157,20 +258,49 @@ fn bad_input_ends_the_run_with_a_clear_error() {
     let dir = std::env::temp_dir().join(format!("cqnet-tests/bad-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("broken.toml");
-    std::fs::write(&file, fusion_graph::scenario::DEFAULT_SCENARIO.replace("bits = 8", "bits = 99")).unwrap();
+    std::fs::write(
+        &file,
+        fusion_graph::scenario::DEFAULT_SCENARIO.replace("bits = 8", "bits = 99"),
+    )
+    .unwrap();
     let r = run("badfile", &[file.to_str().unwrap()]);
     assert!(!r.output().status.success());
-    assert!(r.stderr().contains("quantizer.bits") && r.stderr().contains("broken.toml"), "{}", r.stderr());
+    assert!(
+        r.stderr().contains("quantizer.bits") && r.stderr().contains("broken.toml"),
+        "{}",
+        r.stderr()
+    );
 
     // A fault naming an actor the network does not have.
-    let r = run("badactor", &["--set", "faults=[{kind=\"kill\", actor=\"node-42\", at_step=3, signal=\"SIGKILL\"}]"]);
+    let r = run(
+        "badactor",
+        &[
+            "--set",
+            "faults=[{kind=\"kill\", actor=\"node-42\", at_step=3, signal=\"SIGKILL\"}]",
+        ],
+    );
     assert!(!r.output().status.success());
-    assert!(r.stderr().contains("faults[0].actor") && r.stderr().contains("node-42"), "{}", r.stderr());
+    assert!(
+        r.stderr().contains("faults[0].actor") && r.stderr().contains("node-42"),
+        "{}",
+        r.stderr()
+    );
 
     // A child that fails at start: its name and the end of its stderr.
-    let r = Invocation::new(CQNET, "badchild", "run", &["--lockstep", "--set", "steps=3"], &[("CQNET_FAIL_AT_START", "node-3")]);
+    let r = Invocation::new(
+        CQNET,
+        "badchild",
+        "run",
+        &["--lockstep", "--set", "steps=3"],
+        &[("CQNET_FAIL_AT_START", "node-3")],
+    );
     assert!(!r.output().status.success());
     let err = r.stderr();
-    assert!(err.contains("node-3") && err.contains("before it was ready") && err.contains("failing at start"), "{err}");
+    assert!(
+        err.contains("node-3")
+            && err.contains("before it was ready")
+            && err.contains("failing at start"),
+        "{err}"
+    );
     assert_clean(&r);
 }

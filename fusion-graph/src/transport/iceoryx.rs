@@ -35,7 +35,11 @@ pub struct RunId(String);
 
 impl RunId {
     pub fn new(id: &str) -> Result<Self, TransportError> {
-        let ok = !id.is_empty() && id.len() <= 32 && id.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
+        let ok = !id.is_empty()
+            && id.len() <= 32
+            && id
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
         if !ok {
             return Err(TransportError::BadRunId { id: id.into() });
         }
@@ -44,7 +48,9 @@ impl RunId {
 
     /// A fresh id from the process id and the clock.
     pub fn generate() -> Self {
-        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
         Self(format!("r{}-{:x}", std::process::id(), nanos & 0xffff_ffff))
     }
 
@@ -59,12 +65,21 @@ impl RunId {
 
     fn config(&self) -> Result<Config, TransportError> {
         let mut config = Config::default();
-        config.global.prefix = FileName::new(self.prefix().as_bytes()).map_err(|e| TransportError::Iceoryx { what: "run prefix".into(), message: format!("{e:?}") })?;
+        config.global.prefix =
+            FileName::new(self.prefix().as_bytes()).map_err(|e| TransportError::Iceoryx {
+                what: "run prefix".into(),
+                message: format!("{e:?}"),
+            })?;
         Ok(config)
     }
 
     fn service_name(&self, suffix: &str) -> Result<ServiceName, TransportError> {
-        ServiceName::new(&format!("cqnet/{}/{suffix}", self.0)).map_err(|e| TransportError::Iceoryx { what: suffix.into(), message: format!("{e:?}") })
+        ServiceName::new(&format!("cqnet/{}/{suffix}", self.0)).map_err(|e| {
+            TransportError::Iceoryx {
+                what: suffix.into(),
+                message: format!("{e:?}"),
+            }
+        })
     }
 }
 
@@ -97,7 +112,9 @@ pub fn run_resources(run: &RunId) -> Vec<std::path::PathBuf> {
 }
 
 fn collect_with_prefix(dir: &std::path::Path, prefix: &str, found: &mut Vec<std::path::PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
     for e in entries.flatten() {
         let path = e.path();
         if e.file_name().to_string_lossy().starts_with(prefix) {
@@ -113,7 +130,11 @@ fn remove_with_prefix(dir: &std::path::Path, prefix: &str) -> std::io::Result<us
     collect_with_prefix(dir, prefix, &mut found);
     let mut n = 0;
     for p in found {
-        let r = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+        let r = if p.is_dir() {
+            std::fs::remove_dir_all(&p)
+        } else {
+            std::fs::remove_file(&p)
+        };
         match r {
             Ok(()) => n += 1,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
@@ -167,7 +188,13 @@ fn buffer_len(_channel: Channel) -> usize {
 
 impl IceoryxTransport {
     /// Creates this actor's iceoryx2 node and its wake-up listener.
-    pub fn new(run: &RunId, me: ActorId, topology: &Topology, format: WireFormat, seed: u64) -> Result<Self, TransportError> {
+    pub fn new(
+        run: &RunId,
+        me: ActorId,
+        topology: &Topology,
+        format: WireFormat,
+        seed: u64,
+    ) -> Result<Self, TransportError> {
         let config = run.config()?;
         let name = NodeName::new(&me.to_string()).map_err(|e| iox("node name", e))?;
         let node = NodeBuilder::new()
@@ -182,7 +209,10 @@ impl IceoryxTransport {
             topology: topology.clone(),
             format,
             start: Instant::now(),
-            listener: open_wake(&node, run, me, topology)?.listener_builder().create().map_err(|e| iox("listener", e))?,
+            listener: open_wake(&node, run, me, topology)?
+                .listener_builder()
+                .create()
+                .map_err(|e| iox("listener", e))?,
             node,
             publishers: HashMap::new(),
             subscribers: Vec::new(),
@@ -196,7 +226,13 @@ impl IceoryxTransport {
         Ok(t)
     }
 
-    fn open_channel(&self, channel: Channel) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>, TransportError> {
+    fn open_channel(
+        &self,
+        channel: Channel,
+    ) -> Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>,
+        TransportError,
+    > {
         let name = self.run.service_name(&channel.service_suffix())?;
         let subs = channel.subscribers(&self.topology) + 1;
         // +1 publisher: a test may inject raw bytes through a second one.
@@ -217,21 +253,31 @@ impl IceoryxTransport {
     /// Becomes the publisher of one of this actor's channels.
     pub fn publish_on(&mut self, channel: Channel) -> Result<(), TransportError> {
         if channel.publisher() != self.me {
-            return Err(TransportError::NotPublisher { channel: channel.service_suffix(), actor: self.me.to_string() });
+            return Err(TransportError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: self.me.to_string(),
+            });
         }
         self.add_publisher(channel)
     }
 
     fn add_publisher(&mut self, channel: Channel) -> Result<(), TransportError> {
         let service = self.open_channel(channel)?;
-        let publisher = service.publisher_builder().initial_max_slice_len(max_message_len(channel)).create().map_err(|e| iox("publisher", e))?;
+        let publisher = service
+            .publisher_builder()
+            .initial_max_slice_len(max_message_len(channel))
+            .create()
+            .map_err(|e| iox("publisher", e))?;
         self.publishers.insert(channel, publisher);
         Ok(())
     }
 
     pub fn subscribe(&mut self, channel: Channel) -> Result<(), TransportError> {
         let service = self.open_channel(channel)?;
-        let sub = service.subscriber_builder().create().map_err(|e| iox("subscriber", e))?;
+        let sub = service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| iox("subscriber", e))?;
         self.subscribers.push((channel, sub));
         Ok(())
     }
@@ -239,7 +285,10 @@ impl IceoryxTransport {
     /// Prepares to wake `actor` after sending to it.
     pub fn notify(&mut self, actor: ActorId) -> Result<(), TransportError> {
         if !self.notifiers.contains_key(&actor) {
-            let n = open_wake(&self.node, &self.run, actor, &self.topology)?.notifier_builder().create().map_err(|e| iox("notifier", e))?;
+            let n = open_wake(&self.node, &self.run, actor, &self.topology)?
+                .notifier_builder()
+                .create()
+                .map_err(|e| iox("notifier", e))?;
             self.notifiers.insert(actor, n);
         }
         Ok(())
@@ -257,14 +306,23 @@ impl IceoryxTransport {
     pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) -> Result<(), TransportError> {
         if !self.raw_publishers.contains_key(&channel) {
             let service = self.open_channel(channel)?;
-            let p = service.publisher_builder().initial_max_slice_len(max_message_len(channel)).create().map_err(|e| iox("publisher", e))?;
+            let p = service
+                .publisher_builder()
+                .initial_max_slice_len(max_message_len(channel))
+                .create()
+                .map_err(|e| iox("publisher", e))?;
             // Kept: a publisher's samples vanish with it.
             self.raw_publishers.insert(channel, p);
         }
         let p = &self.raw_publishers[&channel];
         let _ = p.update_connections();
-        let sample = p.loan_slice_uninit(bytes.len()).map_err(|e| iox("loan", e))?;
-        sample.write_from_slice(bytes).send().map_err(|e| iox("send", e))?;
+        let sample = p
+            .loan_slice_uninit(bytes.len())
+            .map_err(|e| iox("loan", e))?;
+        sample
+            .write_from_slice(bytes)
+            .send()
+            .map_err(|e| iox("send", e))?;
         Ok(())
     }
 
@@ -278,14 +336,31 @@ impl Transport for IceoryxTransport {
         self.me
     }
 
-    fn send(&mut self, channel: Channel, message: &Message, receivers: &[ActorId]) -> Result<(), TransportError> {
-        let publisher = self.publishers.get(&channel).ok_or_else(|| TransportError::NotPublisher { channel: channel.service_suffix(), actor: self.me.to_string() })?;
+    fn send(
+        &mut self,
+        channel: Channel,
+        message: &Message,
+        receivers: &[ActorId],
+    ) -> Result<(), TransportError> {
+        let publisher =
+            self.publishers
+                .get(&channel)
+                .ok_or_else(|| TransportError::NotPublisher {
+                    channel: channel.service_suffix(),
+                    actor: self.me.to_string(),
+                })?;
         self.buffer.clear();
         message.encode(&self.format, &mut self.buffer);
-        let sample = publisher.loan_slice_uninit(self.buffer.len()).map_err(|e| iox("loan", e))?;
-        sample.write_from_slice(&self.buffer).send().map_err(|e| iox("send", e))?;
+        let sample = publisher
+            .loan_slice_uninit(self.buffer.len())
+            .map_err(|e| iox("loan", e))?;
+        sample
+            .write_from_slice(&self.buffer)
+            .send()
+            .map_err(|e| iox("send", e))?;
         for r in receivers {
-            self.accounting.record_sent(self.me, *r, message.header.kind, self.buffer.len());
+            self.accounting
+                .record_sent(self.me, *r, message.header.kind, self.buffer.len());
             if let Some(n) = self.notifiers.get(r) {
                 // A failed wake-up only delays the receiver until its timeout.
                 let _ = n.notify();
@@ -295,12 +370,26 @@ impl Transport for IceoryxTransport {
     }
 
     fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError> {
-        let Self { me, format, accounting, shaper, subscribers, .. } = self;
-        let mut inbound = Inbound { me: *me, format, accounting, shaper };
+        let Self {
+            me,
+            format,
+            accounting,
+            shaper,
+            subscribers,
+            ..
+        } = self;
+        let mut inbound = Inbound {
+            me: *me,
+            format,
+            accounting,
+            shaper,
+        };
         for (channel, sub) in subscribers.iter() {
             loop {
                 match sub.receive() {
-                    Ok(Some(sample)) => inbound.arrive(channel.publisher(), sample.payload(), now, out),
+                    Ok(Some(sample)) => {
+                        inbound.arrive(channel.publisher(), sample.payload(), now, out)
+                    }
                     Ok(None) => break,
                     Err(e) => return Err(iox("receive", e)),
                 }
@@ -316,7 +405,9 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        self.listener.timed_wait(|_| {}, timeout).map_err(|e| iox("wait", e))?;
+        self.listener
+            .timed_wait(|_| {}, timeout)
+            .map_err(|e| iox("wait", e))?;
         Ok(())
     }
 
@@ -333,11 +424,24 @@ impl Transport for IceoryxTransport {
     }
 }
 
-fn open_wake(node: &Node<ipc::Service>, run: &RunId, actor: ActorId, topology: &Topology) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, TransportError> {
+fn open_wake(
+    node: &Node<ipc::Service>,
+    run: &RunId,
+    actor: ActorId,
+    topology: &Topology,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, TransportError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
     // Anyone may wake anyone: the launcher, a node's sensors and neighbours.
     let everyone = topology.nodes() + topology.sensors() + 2;
-    retry(|| node.service_builder(&name).event().max_notifiers(everyone).max_listeners(2).max_nodes(everyone + 2).open_or_create()).map_err(|e| iox("wake event", e))
+    retry(|| {
+        node.service_builder(&name)
+            .event()
+            .max_notifiers(everyone)
+            .max_listeners(2)
+            .max_nodes(everyone + 2)
+            .open_or_create()
+    })
+    .map_err(|e| iox("wake event", e))
 }
 
 /// Opens or creates, retrying while another process is half-way through
@@ -357,5 +461,8 @@ fn retry<T, E: std::fmt::Debug>(mut f: impl FnMut() -> Result<T, E>) -> Result<T
 }
 
 fn iox(what: &str, e: impl std::fmt::Debug) -> TransportError {
-    TransportError::Iceoryx { what: what.into(), message: format!("{e:?}") }
+    TransportError::Iceoryx {
+        what: what.into(),
+        message: format!("{e:?}"),
+    }
 }

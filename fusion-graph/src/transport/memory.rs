@@ -48,7 +48,10 @@ impl MemoryBus {
     /// testing how receivers cope with garbage.
     pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) {
         for to in self.subscribers.get(&channel).cloned().unwrap_or_default() {
-            self.inboxes.entry(to).or_default().push_back((channel.publisher(), bytes.to_vec()));
+            self.inboxes
+                .entry(to)
+                .or_default()
+                .push_back((channel.publisher(), bytes.to_vec()));
         }
     }
 }
@@ -64,7 +67,14 @@ pub struct MemoryTransport {
 
 impl MemoryTransport {
     pub fn new(me: ActorId, bus: Rc<RefCell<MemoryBus>>, format: WireFormat, seed: u64) -> Self {
-        Self { me, bus, format, accounting: Accounting::default(), shaper: LinkShaper::new(seed), buffer: Vec::with_capacity(512) }
+        Self {
+            me,
+            bus,
+            format,
+            accounting: Accounting::default(),
+            shaper: LinkShaper::new(seed),
+            buffer: Vec::with_capacity(512),
+        }
     }
 
     pub fn subscribe(&mut self, channel: Channel) {
@@ -77,25 +87,48 @@ impl Transport for MemoryTransport {
         self.me
     }
 
-    fn send(&mut self, channel: Channel, message: &Message, receivers: &[ActorId]) -> Result<(), TransportError> {
+    fn send(
+        &mut self,
+        channel: Channel,
+        message: &Message,
+        receivers: &[ActorId],
+    ) -> Result<(), TransportError> {
         if channel.publisher() != self.me {
-            return Err(TransportError::NotPublisher { channel: channel.service_suffix(), actor: self.me.to_string() });
+            return Err(TransportError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: self.me.to_string(),
+            });
         }
         self.buffer.clear();
         message.encode(&self.format, &mut self.buffer);
         let mut bus = self.bus.borrow_mut();
         for to in bus.subscribers.get(&channel).cloned().unwrap_or_default() {
-            bus.inboxes.entry(to).or_default().push_back((self.me, self.buffer.clone()));
+            bus.inboxes
+                .entry(to)
+                .or_default()
+                .push_back((self.me, self.buffer.clone()));
         }
         for r in receivers {
-            self.accounting.record_sent(self.me, *r, message.header.kind, self.buffer.len());
+            self.accounting
+                .record_sent(self.me, *r, message.header.kind, self.buffer.len());
         }
         Ok(())
     }
 
     fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError> {
-        let arrived: Vec<(ActorId, Vec<u8>)> = self.bus.borrow_mut().inboxes.get_mut(&self.me).map(|q| q.drain(..).collect()).unwrap_or_default();
-        let mut inbound = Inbound { me: self.me, format: &self.format, accounting: &mut self.accounting, shaper: &mut self.shaper };
+        let arrived: Vec<(ActorId, Vec<u8>)> = self
+            .bus
+            .borrow_mut()
+            .inboxes
+            .get_mut(&self.me)
+            .map(|q| q.drain(..).collect())
+            .unwrap_or_default();
+        let mut inbound = Inbound {
+            me: self.me,
+            format: &self.format,
+            accounting: &mut self.accounting,
+            shaper: &mut self.shaper,
+        };
         for (from, bytes) in arrived {
             inbound.arrive(from, &bytes, now, out);
         }
@@ -150,16 +183,24 @@ mod tests {
     #[test]
     fn garbage_is_counted_as_malformed_and_dropped() {
         let (_, mut n, bus) = pair();
-        bus.borrow_mut().inject_raw(Channel::Observation(0), &[1, 2, 3, 4, 5]);
+        bus.borrow_mut()
+            .inject_raw(Channel::Observation(0), &[1, 2, 3, 4, 5]);
         let mut out = Vec::new();
         n.receive(Duration::ZERO, &mut out).unwrap();
         assert!(out.is_empty());
-        assert_eq!(n.accounting().get(ActorId::Sensor(0), ActorId::Node(0), MessageKind::Malformed).malformed_messages, 1);
+        assert_eq!(
+            n.accounting()
+                .get(ActorId::Sensor(0), ActorId::Node(0), MessageKind::Malformed)
+                .malformed_messages,
+            1
+        );
     }
 
     #[test]
     fn only_the_publisher_may_send_on_a_channel() {
         let (mut s, _, _) = pair();
-        assert!(s.send(Channel::Observation(1), &contract::obs(0, 1), &[]).is_err());
+        assert!(s
+            .send(Channel::Observation(1), &contract::obs(0, 1), &[])
+            .is_err());
     }
 }

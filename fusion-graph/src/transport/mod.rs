@@ -41,7 +41,9 @@ impl Channel {
     pub fn publisher(self) -> ActorId {
         match self {
             Channel::Tick | Channel::Control(_) => ActorId::Launcher,
-            Channel::Activation(n) | Channel::Consensus(n) | Channel::Telemetry(n) => ActorId::Node(n),
+            Channel::Activation(n) | Channel::Consensus(n) | Channel::Telemetry(n) => {
+                ActorId::Node(n)
+            }
             Channel::Observation(s) => ActorId::Sensor(s),
         }
     }
@@ -79,7 +81,12 @@ pub trait Transport {
 
     /// Publishes `message` on `channel` (one of this actor's own) for
     /// `receivers`, and wakes them.
-    fn send(&mut self, channel: Channel, message: &Message, receivers: &[ActorId]) -> Result<(), TransportError>;
+    fn send(
+        &mut self,
+        channel: Channel,
+        message: &Message,
+        receivers: &[ActorId],
+    ) -> Result<(), TransportError>;
 
     /// Appends every message due at `now` (time since the transport was
     /// created) to `out`: drains the subscriptions, applies link faults,
@@ -113,8 +120,10 @@ impl Inbound<'_> {
             Admission::Deliver => self.deliver(from, bytes, out),
             Admission::Held => {}
             Admission::Dropped => {
-                let kind = Message::decode(bytes, self.format).map_or(crate::wire::MessageKind::Malformed, |m| m.header.kind);
-                self.accounting.record_dropped(from, self.me, kind, bytes.len());
+                let kind = Message::decode(bytes, self.format)
+                    .map_or(crate::wire::MessageKind::Malformed, |m| m.header.kind);
+                self.accounting
+                    .record_dropped(from, self.me, kind, bytes.len());
             }
         }
     }
@@ -122,7 +131,8 @@ impl Inbound<'_> {
     /// Delayed messages whose time has come.
     pub fn release(&mut self, now: Duration, out: &mut Vec<Message>) {
         let mut due = Vec::new();
-        self.shaper.release_due(now, |from, bytes| due.push((from, bytes)));
+        self.shaper
+            .release_due(now, |from, bytes| due.push((from, bytes)));
         for (from, bytes) in due {
             self.deliver(from, &bytes, out);
         }
@@ -131,7 +141,8 @@ impl Inbound<'_> {
     fn deliver(&mut self, from: ActorId, bytes: &[u8], out: &mut Vec<Message>) {
         match Message::decode(bytes, self.format) {
             Ok(m) if m.header.sender == from => {
-                self.accounting.record_received(from, self.me, m.header.kind, bytes.len());
+                self.accounting
+                    .record_received(from, self.me, m.header.kind, bytes.len());
                 out.push(m);
             }
             Ok(m) => {
@@ -153,10 +164,18 @@ pub(crate) mod contract {
     use crate::shaper::LinkRule;
     use crate::wire::{MessageKind, Payload};
 
-    pub const FORMAT: WireFormat = WireFormat { cell_bytes: 1, activation_bytes: 4 };
+    pub const FORMAT: WireFormat = WireFormat {
+        cell_bytes: 1,
+        activation_bytes: 4,
+    };
 
     pub fn obs(sensor: u16, step: u32) -> Message {
-        Message::new(ActorId::Sensor(sensor), step, 0, Payload::Observation { cell: step % 256 })
+        Message::new(
+            ActorId::Sensor(sensor),
+            step,
+            0,
+            Payload::Observation { cell: step % 256 },
+        )
     }
 
     /// Receives until `n` messages arrived or a second passed.
@@ -177,22 +196,39 @@ pub(crate) mod contract {
     /// counts on both sides.
     pub fn delivers_and_counts<T: Transport>(sensor: &mut T, node: &mut T) {
         for step in 1..=20 {
-            sensor.send(Channel::Observation(0), &obs(0, step), &[node.me()]).unwrap();
+            sensor
+                .send(Channel::Observation(0), &obs(0, step), &[node.me()])
+                .unwrap();
         }
         let got = receive_n(node, 20);
         assert_eq!(got.len(), 20);
-        assert!(got.iter().enumerate().all(|(i, m)| m.header.step == i as u32 + 1));
-        let sent = sensor.accounting().get(sensor.me(), node.me(), MessageKind::Observation);
-        let recv = node.accounting().get(sensor.me(), node.me(), MessageKind::Observation);
+        assert!(got
+            .iter()
+            .enumerate()
+            .all(|(i, m)| m.header.step == i as u32 + 1));
+        let sent = sensor
+            .accounting()
+            .get(sensor.me(), node.me(), MessageKind::Observation);
+        let recv = node
+            .accounting()
+            .get(sensor.me(), node.me(), MessageKind::Observation);
         assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 20 * 12));
         assert_eq!((recv.received_messages, recv.received_bytes), (20, 20 * 12));
     }
 
     /// Loss on the link drops roughly its probability, and is counted.
     pub fn loss_is_applied_and_counted<T: Transport>(sensor: &mut T, node: &mut T) {
-        node.shaper().set_rule(sensor.me(), LinkRule { loss: 0.5, ..Default::default() });
+        node.shaper().set_rule(
+            sensor.me(),
+            LinkRule {
+                loss: 0.5,
+                ..Default::default()
+            },
+        );
         for step in 1..=400 {
-            sensor.send(Channel::Observation(0), &obs(0, step), &[node.me()]).unwrap();
+            sensor
+                .send(Channel::Observation(0), &obs(0, step), &[node.me()])
+                .unwrap();
             if step % 50 == 0 {
                 let now = node.now();
                 let mut sink = Vec::new();
@@ -202,7 +238,9 @@ pub(crate) mod contract {
         let mut got = Vec::new();
         let now = node.now();
         node.receive(now, &mut got).unwrap();
-        let c = node.accounting().get(sensor.me(), node.me(), MessageKind::Observation);
+        let c = node
+            .accounting()
+            .get(sensor.me(), node.me(), MessageKind::Observation);
         assert_eq!(c.received_messages + c.dropped_messages, 400, "{c:?}");
         assert!((150..=250).contains(&c.dropped_messages), "{c:?}");
         node.shaper().clear_rules();
