@@ -37,13 +37,16 @@ pub enum Admission {
     Dropped,
 }
 
+/// A delayed message: release time, arrival order (ties), sender, bytes.
+type Held = Reverse<(Duration, u64, ActorId, Vec<u8>)>;
+
 /// Per-receiver shaper: rules per sender, seeded randomness, and the queue of
 /// delayed messages ordered by release time.
 #[derive(Debug)]
 pub struct LinkShaper {
     rules: HashMap<ActorId, LinkRule>,
     rng: ChaCha8Rng,
-    held: BinaryHeap<Reverse<(Duration, u64, ActorId, Vec<u8>)>>,
+    held: BinaryHeap<Held>,
     sequence: u64,
 }
 

@@ -60,7 +60,7 @@ impl Progress {
             if done == self.total {
                 eprintln!();
             }
-        } else if done == self.total || (self.total >= 10 && done % (self.total / 10) == 0) {
+        } else if done == self.total || (self.total >= 10 && done.is_multiple_of(self.total / 10)) {
             eprintln!("{} {done}/{}", self.label, self.total);
         }
     }
