@@ -10,7 +10,7 @@
 use std::f64::consts::PI;
 
 use bounds::fisher::{ln_cell_probability, observed_information};
-use bounds::pcrlb::{dynamics_terms, information_update, observation_information};
+use bounds::pcrlb::{information_update, observation_information};
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, Mat4, Measurement, ObservationModel,
     Quantizer, SensorTerm, State,
@@ -156,13 +156,9 @@ impl LocalFilter {
         observations: &[Observation],
         with_observed_information: bool,
     ) -> Result<LocalUpdate, BoundError> {
-        let terms = dynamics_terms(
-            &model.dynamics,
-            self.filter.particles(),
-            self.filter.uniform_weights(),
-        )?;
-        self.filter.predict(&model.dynamics, &mut self.rng);
-        let predicted = self.filter.summary();
+        let (terms, predicted) = self
+            .filter
+            .predict_for_bound(&model.dynamics, &mut self.rng)?;
 
         let sensors: Vec<SensorTerm> = observations
             .iter()
@@ -368,13 +364,9 @@ impl FusionFilter {
         model: &SensingModel,
         sums: &NetworkSums,
     ) -> Result<FusionUpdate, BoundError> {
-        let terms = dynamics_terms(
-            &model.dynamics,
-            self.filter.particles(),
-            self.filter.uniform_weights(),
-        )?;
-        self.filter.predict(&model.dynamics, &mut self.rng);
-        let predicted = self.filter.summary();
+        let (terms, predicted) = self
+            .filter
+            .predict_for_bound(&model.dynamics, &mut self.rng)?;
         let (lambda, eta) = clip_negative_eigenvalues(&sums.delta_lambda, &sums.delta_eta);
         self.recover_if_diverged(&predicted, &lambda, &eta);
         let centre = self.filter.summary().mean;

@@ -2,7 +2,8 @@
 //! (log-likelihood weights), systematic resampler, and Gaussian summaries.
 //! Buffers are allocated once; a step allocates nothing.
 
-use bounds::{Dynamics, Mat4, State};
+use bounds::pcrlb::dynamics_terms;
+use bounds::{BoundError, Dynamics, DynamicsTerms, Mat4, State};
 use nalgebra::Cholesky;
 use rand::Rng;
 use rand_distr::StandardNormal;
@@ -98,6 +99,19 @@ impl ParticleFilter {
         }
         self.log_weights.fill(0.0);
         self.weights.copy_from_slice(&self.uniform);
+    }
+
+    /// Predictor step for a filter that also carries a bound: B11 and B12
+    /// over the particles before the prediction, then the prediction and its
+    /// summary.
+    pub fn predict_for_bound<R: Rng + ?Sized>(
+        &mut self,
+        dynamics: &Dynamics,
+        rng: &mut R,
+    ) -> Result<(DynamicsTerms, Gaussian), BoundError> {
+        let terms = dynamics_terms(dynamics, &self.particles, &self.uniform)?;
+        self.predict(dynamics, rng);
+        Ok((terms, self.summary()))
     }
 
     /// Updater: adds a log-likelihood to every particle's log weight.
