@@ -368,8 +368,7 @@ impl FusionFilter {
             .filter
             .predict_for_bound(&model.dynamics, &mut self.rng)?;
         let (lambda, eta) = clip_negative_eigenvalues(&sums.delta_lambda, &sums.delta_eta);
-        self.recover_if_diverged(&predicted, &lambda, &eta);
-        let centre = self.filter.summary().mean;
+        let centre = predicted.mean;
         // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
         // keeps the exponent's terms small: −½dᵀΛd + dᵀ(η − Λc) + const.
         let linear = eta - lambda * centre;
@@ -407,42 +406,7 @@ impl FusionFilter {
     pub fn coast(&mut self, model: &SensingModel) -> Result<(), BoundError> {
         self.step(model, &Contribution::zero()).map(|_| ())
     }
-
-    /// Divergence recovery. If the position the network's information points
-    /// to, `m = Λ_pp⁻¹ η_p`, lies beyond 5σ (χ², 2 dof) of the predicted
-    /// cloud, the cloud has lost the target (after a partition, or a run of
-    /// lost messages) and no reweighting can bring it back: its positions
-    /// are re-centred on m with covariance `P⁻_pp + Λ_pp⁻¹`, keeping the
-    /// velocities, and the update proceeds from there.
-    fn recover_if_diverged(&mut self, predicted: &Gaussian, lambda: &Mat4, eta: &State) {
-        let lp = lambda.fixed_view::<2, 2>(0, 0).into_owned();
-        let Some(measurement_cov) = lp.try_inverse().filter(|c| c.iter().all(|v| v.is_finite()))
-        else {
-            return;
-        };
-        if lp.determinant() <= 0.0 {
-            return;
-        }
-        let m = measurement_cov * eta.fixed_rows::<2>(0);
-        let prior_cov = predicted.cov.fixed_view::<2, 2>(0, 0).into_owned();
-        let combined = prior_cov + measurement_cov;
-        let d = m - predicted.mean.fixed_rows::<2>(0);
-        let Some(inv) = combined.try_inverse() else {
-            return;
-        };
-        if d.dot(&(inv * d)) > DIVERGENCE_CHI2 {
-            tracing::warn!(
-                offset_m = d.norm(),
-                "fusion filter lost the target; re-centring it on the network's information"
-            );
-            self.filter.recenter_positions(&d, &prior_cov, &combined);
-        }
-    }
 }
-
-/// χ² with 2 degrees of freedom beyond which the fusion filter is taken to
-/// have lost the target (about 5σ; p ≈ 4e-6 for a consistent filter).
-const DIVERGENCE_CHI2: f64 = 25.0;
 
 /// Sets the negative eigenvalues of ΣδΛ to zero (it may be indefinite after
 /// consensus on Monte Carlo estimates) and removes from Σδη its component

@@ -235,36 +235,6 @@ impl ParticleFilter {
         lo.max(upper * 1e-6)
     }
 
-    /// Moves every particle's position by `shift` and widens the position
-    /// spread so that its covariance becomes `target_cov` (velocities kept).
-    /// Divergence recovery: see `FusionFilter::step`.
-    pub fn recenter_positions(
-        &mut self,
-        shift: &nalgebra::Vector2<f64>,
-        current_cov: &nalgebra::Matrix2<f64>,
-        target_cov: &nalgebra::Matrix2<f64>,
-    ) {
-        let (Some(from), Some(to)) = (Cholesky::new(*current_cov), Cholesky::new(*target_cov))
-        else {
-            return;
-        };
-        // x ↦ μ + shift + L_to L_from⁻¹ (x − μ) maps N(μ, C) onto N(μ + shift, T).
-        let Some(from_inv) = from.l().try_inverse() else {
-            return;
-        };
-        let map = to.l() * from_inv;
-        let mean = summarize(&self.particles, &self.uniform)
-            .mean
-            .fixed_rows::<2>(0)
-            .into_owned();
-        for p in self.particles.iter_mut() {
-            let d = p.fixed_rows::<2>(0) - mean;
-            let moved = mean + shift + map * d;
-            p[0] = moved[0];
-            p[1] = moved[1];
-        }
-    }
-
     /// `1 / Σ w²`.
     pub fn effective_sample_size(&self) -> f64 {
         1.0 / self.weights.iter().map(|w| w * w).sum::<f64>()
@@ -392,28 +362,6 @@ mod tests {
         f.predict(&d, &mut rng);
         assert_eq!(f.previous(), &before[..]);
         assert!((f.particles()[0][0] - before[0][0] - before[0][2]).abs() < 1.0);
-    }
-
-    #[test]
-    fn recentring_moves_the_position_mean_and_sets_its_covariance() {
-        use nalgebra::{Matrix2, Vector2};
-        let mut rng = ChaCha8Rng::seed_from_u64(6);
-        let mut f = ParticleFilter::from_gaussian(20_000, &prior(), &mut rng).unwrap();
-        let before = f.summary();
-        let current = before.cov.fixed_view::<2, 2>(0, 0).into_owned();
-        let target = Matrix2::new(100.0, 10.0, 10.0, 50.0);
-        f.recenter_positions(&Vector2::new(30.0, -40.0), &current, &target);
-        let after = f.summary();
-        assert!(
-            (after.mean[0] - before.mean[0] - 30.0).abs() < 1e-9
-                && (after.mean[1] - before.mean[1] + 40.0).abs() < 1e-9
-        );
-        assert!(
-            (after.cov.fixed_view::<2, 2>(0, 0) - target).abs().max() < 1e-6 * 100.0,
-            "{}",
-            after.cov
-        );
-        assert_eq!(after.mean[2], before.mean[2], "velocities untouched");
     }
 
     #[test]
