@@ -56,7 +56,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     &scenario,
                     &topology,
                     &mut writer,
-                    !args.no_central,
+                    scenario.reference.centralized && !args.no_central,
                     |s| progress.update(s),
                 )?;
                 print_table(&summary);
@@ -71,7 +71,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     &args.out,
                     args.runs,
                     threads,
-                    !args.no_central,
+                    scenario.reference.centralized && !args.no_central,
                 )?;
                 write_atomically(
                     &args.out.join("summary.json"),
@@ -113,7 +113,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 out: args.out.clone(),
                 lockstep: args.lockstep,
                 run_id,
-                centralized: !args.no_central,
+                centralized: scenario.reference.centralized && !args.no_central,
             };
             let steps = scenario.steps;
             let progress = Progress::new("step", steps);

@@ -57,7 +57,7 @@ pub struct SimArgs {
     /// Worker threads for Monte Carlo runs (default: every core).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Leave out the centralized reference.
+    /// Leave out the centralized reference (also `reference.centralized = false`).
     #[arg(long)]
     pub no_central: bool,
 }
@@ -75,7 +75,7 @@ pub struct RunArgs {
     /// Run id (a-z, 0-9, -); a fresh one when omitted.
     #[arg(long)]
     pub run_id: Option<String>,
-    /// Leave out the centralized reference.
+    /// Leave out the centralized reference (also `reference.centralized = false`).
     #[arg(long)]
     pub no_central: bool,
 }

@@ -466,3 +466,65 @@ fn iox(what: &str, e: impl std::fmt::Debug) -> TransportError {
         message: format!("{e:?}"),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! The transport contract (`transport::contract`), run here with both
+    //! ends in this process; `tests/iceoryx_processes.rs` runs the same
+    //! checks across two processes.
+    use super::super::contract::{self, FORMAT};
+    use super::*;
+    use crate::scenario::Scenario;
+
+    struct Pair {
+        run: RunId,
+        sensor: Option<IceoryxTransport>,
+        node: Option<IceoryxTransport>,
+    }
+
+    impl Drop for Pair {
+        fn drop(&mut self) {
+            self.sensor.take();
+            self.node.take();
+            let _ = remove_run_resources(&self.run);
+        }
+    }
+
+    fn pair(tag: &str) -> Pair {
+        let run = RunId::new(&format!("u{}-{tag}", std::process::id())).unwrap();
+        let topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
+        let mut node = IceoryxTransport::new(&run, ActorId::Node(0), &topology, FORMAT, 2).unwrap();
+        node.subscribe(Channel::Observation(0)).unwrap();
+        let mut sensor =
+            IceoryxTransport::new(&run, ActorId::Sensor(0), &topology, FORMAT, 1).unwrap();
+        sensor.publish_on(Channel::Observation(0)).unwrap();
+        sensor.notify(ActorId::Node(0)).unwrap();
+        sensor.update_connections();
+        Pair {
+            run,
+            sensor: Some(sensor),
+            node: Some(node),
+        }
+    }
+
+    #[test]
+    fn contract_delivery_and_counts() {
+        let mut p = pair("deliver");
+        let Pair { sensor, node, .. } = &mut p;
+        contract::delivers_and_counts(sensor.as_mut().unwrap(), node.as_mut().unwrap());
+    }
+
+    #[test]
+    fn contract_loss() {
+        let mut p = pair("loss");
+        let Pair { sensor, node, .. } = &mut p;
+        contract::loss_is_applied_and_counted(sensor.as_mut().unwrap(), node.as_mut().unwrap());
+    }
+
+    #[test]
+    fn run_ids_are_validated() {
+        assert!(RunId::new("ok-run-1").is_ok());
+        assert!(RunId::new("Bad Id").is_err());
+        assert!(RunId::new("").is_err());
+    }
+}
