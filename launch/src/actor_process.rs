@@ -35,6 +35,16 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
     // Die with the launcher, whatever happens to it.
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL)
         .context("prctl(PR_SET_PDEATHSIG)")?;
+    // Ctrl-C in a terminal reaches the whole process group: leave it to the
+    // launcher, which stops every actor in order (their byte counts flushed).
+    // SAFETY: ignoring a signal installs no handler code.
+    unsafe {
+        nix::sys::signal::signal(
+            nix::sys::signal::Signal::SIGINT,
+            nix::sys::signal::SigHandler::SigIgn,
+        )
+    }
+    .context("ignoring SIGINT")?;
     let actor: ActorId = args.actor.parse().map_err(anyhow::Error::msg)?;
     if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {
         anyhow::bail!("failing at start as {FAIL_AT_START_ENV} asks");
