@@ -28,6 +28,25 @@ pub fn expected_information(
     assemble(&scalars, &e)
 }
 
+/// The position block of [`expected_information`], for models whose g and R
+/// depend on the position only (the velocity rows and columns are zero).
+#[inline]
+pub fn expected_position_information(
+    model: &ObservationModel,
+    measurement: Measurement<'_>,
+    x: &State,
+) -> nalgebra::Matrix2<f64> {
+    let e = model.evaluate(x);
+    let s = match measurement {
+        Measurement::Raw => FisherScalars::raw(e.r),
+        Measurement::Quantized(q) => q.fisher_scalars(e.g, e.r),
+    };
+    let g = e.grad_g.fixed_rows::<2>(0);
+    let r = e.grad_r.fixed_rows::<2>(0);
+    let gr = g * r.transpose();
+    g * g.transpose() * s.gg + (gr + gr.transpose()) * s.gr + r * r.transpose() * s.rr
+}
+
 /// `gg ∇g∇gᵀ + gr (∇g∇Rᵀ + ∇R∇gᵀ) + rr ∇R∇Rᵀ`.
 #[inline]
 fn assemble(s: &FisherScalars, e: &Evaluation) -> Mat4 {
@@ -253,6 +272,20 @@ mod tests {
                     "{bits} bits at {x:?}: {err}\n{average}\n{expected}"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn position_block_is_the_whole_information_of_a_bearing() {
+        let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let x = State::new(900.0, 800.0, 3.0, -2.0);
+        for m in [Measurement::Quantized(&q), Measurement::Raw] {
+            let full = expected_information(&bearing(), m, &x);
+            let block = expected_position_information(&bearing(), m, &x);
+            assert!(
+                (full.fixed_view::<2, 2>(0, 0) - block).abs().max() <= 1e-15 * block.abs().max()
+            );
+            assert_eq!(full.fixed_view::<2, 2>(2, 2).abs().max(), 0.0);
         }
     }
 

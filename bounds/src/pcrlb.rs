@@ -18,7 +18,7 @@ use nalgebra::Cholesky;
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
-use crate::fisher::{expected_information, Measurement};
+use crate::fisher::{expected_information, expected_position_information, Measurement};
 use crate::observation::ObservationModel;
 use crate::{BoundError, Mat4, State};
 
@@ -79,6 +79,20 @@ pub fn observation_information(
     weights: &[f64],
 ) -> Result<Mat4, BoundError> {
     check_weights(particles.len(), weights)?;
+    if sensors.iter().all(|s| s.model.depends_on_position_only()) {
+        // Only the 2×2 position block is non-zero: accumulate just that.
+        let mut total = nalgebra::Matrix2::zeros();
+        for (x, &w) in particles.iter().zip(weights) {
+            let mut per_particle = nalgebra::Matrix2::zeros();
+            for s in sensors {
+                per_particle += expected_position_information(s.model, s.measurement, x);
+            }
+            total += per_particle * w;
+        }
+        let mut full = Mat4::zeros();
+        full.fixed_view_mut::<2, 2>(0, 0).copy_from(&total);
+        return Ok(symmetrized(full));
+    }
     let mut total = Mat4::zeros();
     for (x, &w) in particles.iter().zip(weights) {
         let mut per_particle = Mat4::zeros();
