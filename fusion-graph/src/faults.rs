@@ -8,6 +8,7 @@ use crate::actor::ActorId;
 use crate::scenario::{Fault, LinkSelector, Signal};
 use crate::shaper::LinkRule;
 use crate::topology::Topology;
+use crate::transport::Transport;
 
 #[derive(Debug, Clone)]
 pub struct FaultSchedule {
@@ -104,6 +105,24 @@ impl FaultSchedule {
             .map(|from| (from, self.link_rule(step, from, to)))
             .filter(|(_, r)| !r.is_clear())
             .collect()
+    }
+
+    /// Sets `transport`'s incoming link rules to those in force at `step`.
+    pub fn apply_link_faults<T: Transport + ?Sized>(
+        &self,
+        step: u32,
+        transport: &mut T,
+        topology: &Topology,
+    ) {
+        if self.faults.iter().all(|f| matches!(f, Fault::Kill { .. })) {
+            return;
+        }
+        let rules = self.incoming_rules(step, transport.me(), topology);
+        let shaper = transport.shaper();
+        shaper.clear_rules();
+        for (from, rule) in rules {
+            shaper.set_rule(from, rule);
+        }
     }
 
     /// What the membership service tells each node at `step`: the live nodes

@@ -84,24 +84,6 @@ fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<
     )
 }
 
-/// Sets this actor's incoming link rules for `step` from the fault schedule.
-fn apply_link_faults(
-    transport: &mut IceoryxTransport,
-    schedule: &FaultSchedule,
-    topology: &Topology,
-    step: u32,
-) {
-    if schedule.faults().is_empty() {
-        return;
-    }
-    let me = transport.me();
-    let rules = schedule.incoming_rules(step, me, topology);
-    transport.shaper().clear_rules();
-    for (from, rule) in rules {
-        transport.shaper().set_rule(from, rule);
-    }
-}
-
 fn sensor_loop(
     scenario: &Scenario,
     topology: &Topology,
@@ -152,7 +134,7 @@ fn sensor_loop(
                 Payload::Tick { truth } => {
                     if m.header.step != step {
                         step = m.header.step;
-                        apply_link_faults(&mut t, &schedule, topology, step);
+                        schedule.apply_link_faults(step, &mut t, topology);
                         t.update_connections();
                         if step % FLUSH_EVERY_STEPS == 0 {
                             flush_accounting(&t, out)?;
@@ -229,7 +211,7 @@ fn node_loop(
                     return flush_accounting(&t, out)
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                    apply_link_faults(&mut t, &schedule, topology, m.header.step);
+                    schedule.apply_link_faults(m.header.step, &mut t, topology);
                     t.update_connections();
                     if m.header.step % FLUSH_EVERY_STEPS == 0 {
                         flush_accounting(&t, out)?;

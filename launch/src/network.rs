@@ -210,7 +210,7 @@ fn world_thread(
 
     for step in 1..=scenario.steps {
         let restarted = w.apply_process_faults(&schedule, step)?;
-        w.apply_own_link_faults(&schedule, step);
+        schedule.apply_link_faults(step, &mut w.transport, topology);
         let views = schedule.membership_views(step, topology, &w.alive);
         let truth = world.advance();
         truths.insert(step, truth.into());
@@ -497,17 +497,6 @@ impl WorldState<'_> {
             ActorId::Node(i) => self.alive[i as usize] = alive,
             ActorId::Sensor(i) => self.sensors_alive[i as usize] = alive,
             ActorId::Launcher => {}
-        }
-    }
-
-    fn apply_own_link_faults(&mut self, schedule: &FaultSchedule, step: u32) {
-        if schedule.faults().is_empty() {
-            return;
-        }
-        let rules = schedule.incoming_rules(step, ActorId::Launcher, self.topology);
-        self.transport.shaper().clear_rules();
-        for (from, rule) in rules {
-            self.transport.shaper().set_rule(from, rule);
         }
     }
 

@@ -199,25 +199,13 @@ impl InProcessNetwork {
     }
 
     fn apply_link_faults(&mut self, step: u32) {
-        if self.schedule.faults().is_empty() {
-            return;
-        }
-        let t = &self.topology;
         for n in &mut self.nodes {
-            let me = n.transport.me();
-            let rules = self.schedule.incoming_rules(step, me, t);
-            n.transport.shaper().clear_rules();
-            for (from, r) in rules {
-                n.transport.shaper().set_rule(from, r);
-            }
+            self.schedule
+                .apply_link_faults(step, &mut n.transport, &self.topology);
         }
         for s in &mut self.sensors {
-            let me = s.transport.me();
-            let rules = self.schedule.incoming_rules(step, me, t);
-            s.transport.shaper().clear_rules();
-            for (from, r) in rules {
-                s.transport.shaper().set_rule(from, r);
-            }
+            self.schedule
+                .apply_link_faults(step, &mut s.transport, &self.topology);
         }
     }
 

@@ -1,15 +1,13 @@
 //! Helpers for tests that launch whole process networks: run the program,
 //! read its results, and make sure nothing of a run survives it.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::{Mutex, MutexGuard};
 
-use fusion_graph::accounting::{Accounting, Counters};
+use fusion_graph::accounting::Accounting;
 use fusion_graph::transport::iceoryx::{remove_run_resources, run_resources};
 use fusion_graph::transport::RunId;
-use fusion_graph::wire::MessageKind;
 
 /// Network tests take the machine's cores; they run one at a time.
 pub fn exclusive() -> MutexGuard<'static, ()> {
@@ -173,9 +171,4 @@ pub fn rmse(ticks: &[Tick], steps: std::ops::RangeInclusive<u32>) -> f64 {
         .map(|t| t.error * t.error)
         .collect();
     (e.iter().sum::<f64>() / e.len() as f64).sqrt()
-}
-
-/// Sent counters per kind.
-pub fn sent_by_kind(a: &Accounting) -> BTreeMap<MessageKind, Counters> {
-    a.by_kind()
 }
