@@ -20,8 +20,10 @@ use crate::results::write_atomically;
 /// Byte counters are flushed to disk this often, so a killed actor loses at
 /// most this many steps of its own counts.
 const FLUSH_EVERY_STEPS: u32 = 10;
-/// Longest sleep between checks that the launcher is still there.
-const IDLE_WAIT: Duration = Duration::from_millis(500);
+/// Longest sleep between checks that the launcher is still there. Sensors
+/// are not woken by ticks, only by their activation, so an idle sensor also
+/// drains its queues this often.
+const IDLE_WAIT: Duration = Duration::from_millis(100);
 
 /// Test hook: an actor named in this variable fails at start, so the
 /// launcher's handling of a child that cannot start can be tested.
@@ -232,7 +234,8 @@ fn node_loop(
 
 fn send_all(t: &mut IceoryxTransport, outgoing: &mut Vec<node::Outgoing>) -> anyhow::Result<()> {
     for o in outgoing.drain(..) {
-        t.send(o.channel, &o.message, &o.receivers)?;
+        let wake = o.wake.as_deref().unwrap_or(&o.receivers);
+        t.send_waking(o.channel, &o.message, &o.receivers, wake)?;
     }
     Ok(())
 }

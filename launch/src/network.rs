@@ -513,10 +513,14 @@ impl WorldState<'_> {
             .filter(|s| self.sensors_alive[*s as usize])
             .map(ActorId::Sensor)
             .collect();
-        self.transport.send(
+        // No wake-up: a sensor needs the truth only when its node activates
+        // it, and that activation wakes it; waking all 225 for every tick
+        // would cost more than the filters.
+        self.transport.send_waking(
             Channel::Tick,
             &Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth }),
             &sensors,
+            &[],
         )?;
         for n in 0..self.topology.nodes() as u16 {
             if !self.alive[n as usize] {

@@ -40,6 +40,9 @@ pub struct Outgoing {
     pub channel: Channel,
     pub message: Message,
     pub receivers: Vec<ActorId>,
+    /// Whom to wake, when not every receiver: the activation reaches all of
+    /// a node's sensors but wakes only the active ones.
+    pub wake: Option<Vec<ActorId>>,
 }
 
 /// The dynamics of a scenario.
@@ -399,12 +402,13 @@ impl NodeActor {
             mask[i / 8] |= 1 << (i % 8);
         }
         let receivers = own.iter().map(|s| ActorId::Sensor(*s)).collect();
+        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
         out.push(Outgoing {
             channel: Channel::Activation(self.index),
             message: Message::new(self.id(), step, 0, Payload::Activate { mask }),
             receivers,
+            wake: Some(active.iter().map(|s| ActorId::Sensor(*s)).collect()),
         });
-        let active = picks.iter().map(|&i| own[i]).collect();
         self.phase = Phase::Collecting {
             step,
             active,
@@ -528,6 +532,7 @@ impl NodeActor {
             channel: Channel::Consensus(self.index),
             message: Message::new(self.id(), r.step, r.round, Payload::Consensus(values)),
             receivers: receivers.clone(),
+            wake: None,
         });
         if self.with_aux {
             out.push(Outgoing {
@@ -541,6 +546,7 @@ impl NodeActor {
                     },
                 ),
                 receivers,
+                wake: None,
             });
         }
     }
@@ -766,6 +772,7 @@ impl NodeActor {
             channel: Channel::Telemetry(self.index),
             message: Message::new(self.id(), step, 0, Payload::Telemetry(telemetry)),
             receivers: vec![ActorId::Launcher],
+            wake: None,
         });
     }
 
@@ -810,6 +817,7 @@ impl NodeActor {
                 channel: Channel::Consensus(self.index),
                 message: Message::new(self.id(), step, 0, Payload::StateTransfer(state)),
                 receivers,
+                wake: None,
             });
         }
     }

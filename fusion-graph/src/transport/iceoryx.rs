@@ -336,11 +336,12 @@ impl Transport for IceoryxTransport {
         self.me
     }
 
-    fn send(
+    fn send_waking(
         &mut self,
         channel: Channel,
         message: &Message,
         receivers: &[ActorId],
+        wake: &[ActorId],
     ) -> Result<(), TransportError> {
         let publisher =
             self.publishers
@@ -361,7 +362,9 @@ impl Transport for IceoryxTransport {
         for r in receivers {
             self.accounting
                 .record_sent(self.me, *r, message.header.kind, self.buffer.len());
-            if let Some(n) = self.notifiers.get(r) {
+        }
+        for w in wake {
+            if let Some(n) = self.notifiers.get(w) {
                 // A failed wake-up only delays the receiver until its timeout.
                 let _ = n.notify();
             }

@@ -87,11 +87,13 @@ impl Transport for MemoryTransport {
         self.me
     }
 
-    fn send(
+    /// Nothing sleeps in one process, so `wake` does not matter here.
+    fn send_waking(
         &mut self,
         channel: Channel,
         message: &Message,
         receivers: &[ActorId],
+        _wake: &[ActorId],
     ) -> Result<(), TransportError> {
         if channel.publisher() != self.me {
             return Err(TransportError::NotPublisher {

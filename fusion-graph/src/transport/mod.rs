@@ -86,6 +86,20 @@ pub trait Transport {
         channel: Channel,
         message: &Message,
         receivers: &[ActorId],
+    ) -> Result<(), TransportError> {
+        self.send_waking(channel, message, receivers, receivers)
+    }
+
+    /// Publishes `message` for `receivers` but wakes only `wake`; the others
+    /// find it in their queue when something else wakes them. A wake-up is a
+    /// process switch: the node's activation reaches all its sensors but
+    /// wakes only the active ones.
+    fn send_waking(
+        &mut self,
+        channel: Channel,
+        message: &Message,
+        receivers: &[ActorId],
+        wake: &[ActorId],
     ) -> Result<(), TransportError>;
 
     /// Appends every message due at `now` (time since the transport was
