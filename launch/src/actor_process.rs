@@ -20,6 +20,13 @@ use crate::results::write_atomically;
 /// Byte counters are flushed to disk this often, so a killed actor loses at
 /// most this many steps of its own counts.
 const FLUSH_EVERY_STEPS: u32 = 10;
+
+/// Whether `actor` flushes its counters at `step`: staggered by actor, so
+/// that 234 processes do not write files in the same step, and done after
+/// the step's messages are out.
+fn flush_due(step: u32, actor_index: u16) -> bool {
+    step % FLUSH_EVERY_STEPS == actor_index as u32 % FLUSH_EVERY_STEPS
+}
 /// Longest sleep between checks that the launcher is still there. Sensors
 /// are not woken by ticks, only by their activation, so an idle sensor also
 /// drains its queues this often.
@@ -130,6 +137,7 @@ fn sensor_loop(
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
+        let mut flush = false;
         for m in inbox.drain(..) {
             let input = match m.payload {
                 Payload::Control(Control::Stop) => return flush_accounting(&t, out),
@@ -138,9 +146,7 @@ fn sensor_loop(
                         step = m.header.step;
                         schedule.apply_link_faults(step, &mut t, topology);
                         t.update_connections();
-                        if step % FLUSH_EVERY_STEPS == 0 {
-                            flush_accounting(&t, out)?;
-                        }
+                        flush |= flush_due(step, index);
                     }
                     SensorInput::Tick {
                         step: m.header.step,
@@ -158,6 +164,9 @@ fn sensor_loop(
             if let Some(obs) = actor.handle(input) {
                 t.send(Channel::Observation(index), &obs, &receivers)?;
             }
+        }
+        if flush {
+            flush_accounting(&t, out)?;
         }
         if launcher_gone() {
             return Ok(());
@@ -207,6 +216,7 @@ fn node_loop(
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
+        let mut flush = false;
         for m in inbox.drain(..) {
             match (&m.payload, m.header.sender) {
                 (Payload::Control(Control::Stop), ActorId::Launcher) => {
@@ -215,9 +225,7 @@ fn node_loop(
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     schedule.apply_link_faults(m.header.step, &mut t, topology);
                     t.update_connections();
-                    if m.header.step % FLUSH_EVERY_STEPS == 0 {
-                        flush_accounting(&t, out)?;
-                    }
+                    flush |= flush_due(m.header.step, index);
                 }
                 _ => {}
             }
@@ -226,6 +234,9 @@ fn node_loop(
         }
         actor.handle_deadline(t.now(), &mut outgoing);
         send_all(&mut t, &mut outgoing)?;
+        if flush {
+            flush_accounting(&t, out)?;
+        }
         if launcher_gone() {
             return Ok(());
         }
