@@ -122,8 +122,6 @@ pub struct Telemetry {
     pub bound: Option<f64>,
     pub local_bound: Option<f64>,
     pub aux_bound: Option<f64>,
-    pub centralized_bound: Option<f64>,
-    pub centralized_estimate: Option<[f64; 4]>,
     pub rounds_completed: u16,
     pub live_neighbours: u16,
     pub observations: u16,
@@ -314,14 +312,8 @@ impl Message {
             MessageKind::Telemetry => {
                 let t: Telemetry = take(body)?;
                 finite(t.estimate)?;
-                for v in [t.bound, t.local_bound, t.aux_bound, t.centralized_bound]
-                    .into_iter()
-                    .flatten()
-                {
+                for v in [t.bound, t.local_bound, t.aux_bound].into_iter().flatten() {
                     finite([v])?;
-                }
-                if let Some(c) = t.centralized_estimate {
-                    finite(c)?;
                 }
                 Payload::Telemetry(t)
             }
@@ -445,8 +437,6 @@ mod tests {
             bound: Some(1.5),
             local_bound: None,
             aux_bound: Some(2.0),
-            centralized_bound: None,
-            centralized_estimate: Some([0.0; 4]),
             rounds_completed: 10,
             live_neighbours: 4,
             observations: 3,

@@ -285,7 +285,7 @@ fn world_thread(
                 step,
                 node: "central".into(),
                 truth: truth.into(),
-                telemetry: central_telemetry(update.estimate, update.bound, update.contribution),
+                telemetry: central_telemetry(update.estimate, update.bound),
             };
             averages.add(&row);
             writer.write_ticks(&[row])?;

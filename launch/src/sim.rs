@@ -314,7 +314,7 @@ impl InProcessNetwork {
                 step,
                 node: "central".into(),
                 truth: truth.into(),
-                telemetry: central_telemetry(update.estimate, update.bound, update.contribution),
+                telemetry: central_telemetry(update.estimate, update.bound),
             });
         }
         Ok(rows)
@@ -470,14 +470,12 @@ impl InProcessNetwork {
 }
 
 /// The centralized reference's step as a telemetry row.
-pub fn central_telemetry(estimate: State, bound: Option<f64>, _c: Contribution) -> Telemetry {
+pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
     Telemetry {
         estimate: estimate.into(),
         bound,
         local_bound: None,
         aux_bound: None,
-        centralized_bound: None,
-        centralized_estimate: None,
         rounds_completed: 0,
         live_neighbours: 0,
         observations: 0,

@@ -752,8 +752,6 @@ impl NodeActor {
             bound: finite(fused.and_then(|f| f.bound)),
             local_bound: finite(local.bound),
             aux_bound: finite(fused.and_then(|f| f.aux_bound)),
-            centralized_bound: None,
-            centralized_estimate: None,
             rounds_completed: rounds,
             live_neighbours: live,
             observations: self.flags.observations,
