@@ -86,9 +86,22 @@ fn launcher_gone() -> bool {
     nix::unistd::getppid() == nix::unistd::Pid::from_raw(1)
 }
 
+/// Where an actor writes `<peak RSS kB> <PSS kB>`.
+pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.memory"))
+}
+
+/// Writes this actor's byte counts, and its memory use beside them.
 fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
+    let me = transport.me();
+    if let (Some(peak), Some(pss)) = (
+        crate::results::peak_memory_kb(),
+        crate::results::proportional_memory_kb(),
+    ) {
+        write_atomically(&memory_path(out, me), format!("{peak} {pss}").as_bytes())?;
+    }
     write_atomically(
-        &accounting_path(out, transport.me()),
+        &accounting_path(out, me),
         transport.accounting().to_csv().as_bytes(),
     )
 }

@@ -20,10 +20,10 @@ use fusion_graph::{ActorId, Topology};
 use node::CentralizedReference;
 use tokio::sync::mpsc::UnboundedSender;
 
-use crate::actor_process::{accounting_path, stop_message};
+use crate::actor_process::{accounting_path, memory_path, stop_message};
 use crate::results::{traffic, write_atomically, Averages, ResultsWriter, TickRow};
 use crate::sim::central_telemetry;
-use crate::summary::{AppliedFault, FaultCost, Percentiles, StageSums, Summary};
+use crate::summary::{AppliedFault, ChildrenMemory, FaultCost, Percentiles, StageSums, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
 use crate::world::World;
 
@@ -374,6 +374,7 @@ fn world_thread(
         round_latency_micros: Percentiles::of(&mut round_latency),
         processes: topology.nodes() + topology.sensors() + 1,
         peak_memory_kb: crate::results::peak_memory_kb(),
+        children_memory_kb: children_memory(&options.out, topology),
     };
     writer.write_summary(&summary)?;
     if w.interrupted {
@@ -554,6 +555,20 @@ impl WorldState<'_> {
         self.views = views.to_vec();
         Ok(())
     }
+}
+
+/// The children's memory, as each last wrote it.
+fn children_memory(out: &Path, topology: &Topology) -> Option<ChildrenMemory> {
+    let read = |a| -> Option<(u64, u64)> {
+        let text = std::fs::read_to_string(memory_path(out, a)).ok()?;
+        let mut f = text.split_whitespace().map(|v| v.parse::<u64>().ok());
+        Some((f.next()??, f.next()??))
+    };
+    let all: Vec<(u64, u64)> = topology.actors().filter_map(read).collect();
+    (!all.is_empty()).then(|| ChildrenMemory {
+        largest_peak_rss: all.iter().map(|m| m.0).max().unwrap_or(0),
+        total_pss: all.iter().map(|m| m.1).sum(),
+    })
 }
 
 /// Every actor's byte counts (as last flushed) plus the launcher's own.

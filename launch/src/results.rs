@@ -235,6 +235,20 @@ pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraff
     (rows, bound)
 }
 
+/// Proportional set size of this process now, kilobytes (Linux
+/// `smaps_rollup`): shared pages divided among the processes sharing them,
+/// so that summing it over processes gives their joint footprint.
+pub fn proportional_memory_kb() -> Option<u64> {
+    let rollup = std::fs::read_to_string("/proc/self/smaps_rollup").ok()?;
+    rollup
+        .lines()
+        .find(|l| l.starts_with("Pss:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
 /// Peak resident memory of this process, kilobytes (Linux `VmHWM`).
 pub fn peak_memory_kb() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;

@@ -550,6 +550,7 @@ pub fn run_in_process(
         round_latency_micros: None,
         processes: 1,
         peak_memory_kb: crate::results::peak_memory_kb(),
+        children_memory_kb: None,
     };
     writer.write_summary(&summary)?;
     Ok(summary)

@@ -91,7 +91,10 @@ pub struct Summary {
     /// (multi-process runs).
     pub round_latency_micros: Option<Percentiles>,
     pub processes: usize,
+    /// Peak resident memory of the launcher (or the one `sim` process), kB.
     pub peak_memory_kb: Option<u64>,
+    /// `run`: the children's memory, kB.
+    pub children_memory_kb: Option<ChildrenMemory>,
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
@@ -99,6 +102,15 @@ pub struct StageTimes {
     pub local_filter: f64,
     pub fusion_filter: f64,
     pub consensus: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ChildrenMemory {
+    /// The largest peak resident set of one child.
+    pub largest_peak_rss: u64,
+    /// The children's proportional set sizes, summed: their joint footprint
+    /// (shared pages counted once), as of each child's last flush.
+    pub total_pss: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -208,4 +220,15 @@ pub fn print_table(s: &Summary) {
         );
     }
     println!("  {:<34} {:>12}", "processes", s.processes);
+    if let Some(m) = &s.children_memory_kb {
+        println!(
+            "  {:<34} {:>12}",
+            "children: largest RSS, total PSS",
+            format!(
+                "{} MB, {} MB",
+                m.largest_peak_rss / 1024,
+                m.total_pss / 1024
+            )
+        );
+    }
 }
