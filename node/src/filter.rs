@@ -18,10 +18,6 @@ pub struct Gaussian {
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {
     particles: Vec<State>,
-    /// The posterior particles of the previous step, kept for the bound's
-    /// dynamics terms (B11, B12), which are expectations at time k−1.
-    previous: Vec<State>,
-    log_weights: Vec<f64>,
     weights: Vec<f64>,
     uniform: Vec<f64>,
     scratch: Vec<State>,
@@ -43,8 +39,6 @@ impl ParticleFilter {
     pub fn from_gaussian<R: Rng + ?Sized>(n: usize, g: &Gaussian, rng: &mut R) -> Option<Self> {
         let mut f = Self {
             particles: vec![State::zeros(); n],
-            previous: vec![State::zeros(); n],
-            log_weights: vec![0.0; n],
             weights: vec![1.0 / n as f64; n],
             uniform: vec![1.0 / n as f64; n],
             scratch: vec![State::zeros(); n],
@@ -61,7 +55,6 @@ impl ParticleFilter {
         for p in self.particles.iter_mut() {
             *p = g.mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
         }
-        self.previous.copy_from_slice(&self.particles);
         self.weights.copy_from_slice(&self.uniform);
         Some(())
     }
@@ -78,10 +71,6 @@ impl ParticleFilter {
         &self.particles
     }
 
-    pub fn previous(&self) -> &[State] {
-        &self.previous
-    }
-
     pub fn weights(&self) -> &[f64] {
         &self.weights
     }
@@ -93,11 +82,9 @@ impl ParticleFilter {
     /// Predictor: `x_j(k) ~ p(x(k) | x_j(k−1))`; weights become uniform (the
     /// particles come from the previous step's resampler).
     pub fn predict<R: Rng + ?Sized>(&mut self, dynamics: &Dynamics, rng: &mut R) {
-        self.previous.copy_from_slice(&self.particles);
         for p in self.particles.iter_mut() {
             *p = dynamics.propagate(p, rng);
         }
-        self.log_weights.fill(0.0);
         self.weights.copy_from_slice(&self.uniform);
     }
 
@@ -112,36 +99,6 @@ impl ParticleFilter {
         let terms = dynamics_terms(dynamics, &self.particles, &self.uniform)?;
         self.predict(dynamics, rng);
         Ok((terms, self.summary()))
-    }
-
-    /// Updater: adds a log-likelihood to every particle's log weight.
-    pub fn add_log_likelihood(&mut self, mut ln_likelihood: impl FnMut(&State) -> f64) {
-        for (lw, p) in self.log_weights.iter_mut().zip(&self.particles) {
-            *lw += ln_likelihood(p);
-        }
-    }
-
-    /// Turns log weights into normalized weights. Returns false, keeping the
-    /// weights uniform, when no particle has a finite likelihood.
-    pub fn normalize(&mut self) -> bool {
-        let max = self
-            .log_weights
-            .iter()
-            .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
-        if !max.is_finite() {
-            self.weights.copy_from_slice(&self.uniform);
-            return false;
-        }
-        let mut total = 0.0;
-        for (w, lw) in self.weights.iter_mut().zip(&self.log_weights) {
-            *w = (lw - max).exp();
-            total += *w;
-        }
-        for w in self.weights.iter_mut() {
-            *w /= total;
-        }
-        true
     }
 
     /// Updater with adaptive tempering (progressive correction): the
@@ -329,10 +286,9 @@ mod tests {
     fn systematic_resampling_keeps_expected_counts() {
         let mut rng = ChaCha8Rng::seed_from_u64(2);
         let mut f = ParticleFilter::from_gaussian(1000, &prior(), &mut rng).unwrap();
-        // Weight: particle 0 gets half the mass, the rest share the other half.
-        f.add_log_likelihood(|_| 0.0);
-        f.log_weights[0] = (999.0f64).ln();
-        assert!(f.normalize());
+        // Particle 0 gets half the mass, the rest share the other half.
+        f.weights.fill(0.5 / 999.0);
+        f.weights[0] = 0.5;
         let heavy = f.particles[0];
         f.resample(&mut rng);
         let copies = f.particles().iter().filter(|p| **p == heavy).count();
@@ -346,21 +302,49 @@ mod tests {
         // gives posterior mean 105 and variance 12.5.
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut f = ParticleFilter::from_gaussian(50_000, &prior(), &mut rng).unwrap();
-        f.add_log_likelihood(|p| -0.5 * (p[0] - 110.0).powi(2) / 25.0);
-        assert!(f.normalize());
+        let stages = f.update(&mut rng, |p| -0.5 * (p[0] - 110.0).powi(2) / 25.0);
+        assert_eq!(
+            stages, 1,
+            "a likelihood as broad as the prior needs no tempering"
+        );
         let s = f.summary();
         assert!((s.mean[0] - 105.0).abs() < 0.1, "{}", s.mean[0]);
         assert!((s.cov[(0, 0)] - 12.5).abs() < 0.4, "{}", s.cov[(0, 0)]);
     }
 
     #[test]
-    fn prediction_keeps_the_previous_particles_for_the_bound() {
+    fn a_sharp_likelihood_is_tempered_and_still_lands_on_the_posterior() {
+        // Prior N(100, 25) on p_x, observation 112 with variance 0.01: one
+        // reweighting would leave a handful of particles; tempering keeps the
+        // cloud and finds the posterior N(111.9952, 0.009996).
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut f = ParticleFilter::from_gaussian(5_000, &prior(), &mut rng).unwrap();
+        let stages = f.update(&mut rng, |p| -0.5 * (p[0] - 112.0).powi(2) / 0.01);
+        assert!(stages > 1, "{stages} stages");
+        let s = f.summary();
+        assert!((s.mean[0] - 111.9952).abs() < 0.02, "{}", s.mean[0]);
+        assert!(
+            (s.cov[(0, 0)].sqrt() - 0.09998).abs() < 0.03,
+            "{}",
+            s.cov[(0, 0)].sqrt()
+        );
+        assert!(
+            f.effective_sample_size() > 0.2 * 5_000.0 * 0.99,
+            "{}",
+            f.effective_sample_size()
+        );
+    }
+
+    #[test]
+    fn the_bound_terms_come_from_the_particles_before_prediction() {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let d = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.1)).unwrap();
         let mut f = ParticleFilter::from_gaussian(100, &prior(), &mut rng).unwrap();
         let before = f.particles().to_vec();
-        f.predict(&d, &mut rng);
-        assert_eq!(f.previous(), &before[..]);
+        let expected = dynamics_terms(&d, &before, f.uniform_weights()).unwrap();
+        let (terms, predicted) = f.predict_for_bound(&d, &mut rng).unwrap();
+        assert_eq!(terms, expected);
+        assert_eq!(predicted, f.summary());
         assert!((f.particles()[0][0] - before[0][0] - before[0][2]).abs() < 1.0);
     }
 
@@ -368,8 +352,7 @@ mod tests {
     fn impossible_observations_leave_weights_uniform() {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let mut f = ParticleFilter::from_gaussian(10, &prior(), &mut rng).unwrap();
-        f.add_log_likelihood(|_| f64::NEG_INFINITY);
-        assert!(!f.normalize());
+        assert_eq!(f.update(&mut rng, |_| f64::NEG_INFINITY), 0);
         assert!(f.weights().iter().all(|w| *w == 0.1));
     }
 }
