@@ -79,65 +79,6 @@ impl ObservationModel {
         }
     }
 
-    /// Checks the parameters; the message names the offending one.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name} must be a finite positive number, got {v}"))
-            }
-        };
-        let finite = |name: &str, v: f64| {
-            if v.is_finite() {
-                Ok(())
-            } else {
-                Err(format!("{name} must be finite, got {v}"))
-            }
-        };
-        match *self {
-            Self::Bearing {
-                sensor,
-                sigma_theta,
-                d0,
-            } => {
-                finite("sensor", sensor[0] + sensor[1])?;
-                positive("sigma_theta", sigma_theta)?;
-                positive("d0", d0)
-            }
-            Self::Rss {
-                sensor,
-                p0,
-                zeta,
-                d0,
-                sigma,
-            } => {
-                finite("sensor", sensor[0] + sensor[1])?;
-                finite("p0", p0)?;
-                positive("zeta", zeta)?;
-                positive("d0", d0)?;
-                positive("sigma", sigma)
-            }
-            Self::Amplitude {
-                sensor,
-                p0,
-                alpha,
-                exponent,
-                sigma,
-            } => {
-                finite("sensor", sensor[0] + sensor[1])?;
-                positive("p0", p0)?;
-                positive("alpha", alpha)?;
-                positive("exponent", exponent)?;
-                positive("sigma", sigma)
-            }
-            Self::Linear { h, r } => {
-                finite("h", h.iter().sum())?;
-                positive("r", r)
-            }
-        }
-    }
-
     /// g, ∇g, R and ∇R at `x`.
     #[inline]
     pub fn evaluate(&self, x: &State) -> Evaluation {
@@ -351,16 +292,6 @@ mod tests {
                     || ((w - a) / (2.0 * PI)).fract().abs() > 1.0 - 1e-12
             );
         }
-    }
-
-    #[test]
-    fn validation_names_the_parameter() {
-        let bad = ObservationModel::Bearing {
-            sensor: [0.0, 0.0],
-            sigma_theta: -1.0,
-            d0: 500.0,
-        };
-        assert!(bad.validate().unwrap_err().contains("sigma_theta"));
     }
 
     trait Distance {
