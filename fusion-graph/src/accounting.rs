@@ -54,6 +54,20 @@ impl Accounting {
         c.sent_bytes += bytes as u64;
     }
 
+    /// One message of `bytes` published once for several receivers: one sent
+    /// message per directed link.
+    pub fn record_sent_to(
+        &mut self,
+        from: ActorId,
+        receivers: &[ActorId],
+        kind: MessageKind,
+        bytes: usize,
+    ) {
+        for to in receivers {
+            self.record_sent(from, *to, kind, bytes);
+        }
+    }
+
     pub fn record_received(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
         let c = self.entry(from, to, kind);
         c.received_messages += 1;

@@ -359,10 +359,8 @@ impl Transport for IceoryxTransport {
             .write_from_slice(&self.buffer)
             .send()
             .map_err(|e| iox("send", e))?;
-        for r in receivers {
-            self.accounting
-                .record_sent(self.me, *r, message.header.kind, self.buffer.len());
-        }
+        self.accounting
+            .record_sent_to(self.me, receivers, message.header.kind, self.buffer.len());
         for w in wake {
             if let Some(n) = self.notifiers.get(w) {
                 // A failed wake-up only delays the receiver until its timeout.

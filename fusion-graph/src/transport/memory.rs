@@ -104,16 +104,19 @@ impl Transport for MemoryTransport {
         self.buffer.clear();
         message.encode(&self.format, &mut self.buffer);
         let mut bus = self.bus.borrow_mut();
-        for to in bus.subscribers.get(&channel).cloned().unwrap_or_default() {
-            bus.inboxes
-                .entry(to)
+        let MemoryBus {
+            subscribers,
+            inboxes,
+            ..
+        } = &mut *bus;
+        for to in subscribers.get(&channel).into_iter().flatten() {
+            inboxes
+                .entry(*to)
                 .or_default()
                 .push_back((self.me, self.buffer.clone()));
         }
-        for r in receivers {
-            self.accounting
-                .record_sent(self.me, *r, message.header.kind, self.buffer.len());
-        }
+        self.accounting
+            .record_sent_to(self.me, receivers, message.header.kind, self.buffer.len());
         Ok(())
     }
 
