@@ -80,19 +80,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 let m = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
                 println!(
                     "cqnet sim — {} runs of `{}`, averages over steps {}..{}",
-                    mc.runs, scenario.name, mc.from_step, scenario.steps
+                    mc.runs, scenario.name, mc.estimates.from_step, scenario.steps
                 );
                 println!(
                     "  RMSE {} m, CQ/dPCRLB {} m, local {} m, aux-FIM {} m",
-                    m(mc.rmse),
-                    m(mc.mean_bound),
-                    m(mc.mean_local_bound),
-                    m(mc.mean_aux_bound)
+                    m(mc.estimates.rmse),
+                    m(mc.estimates.mean_bound),
+                    m(mc.estimates.mean_local_bound),
+                    m(mc.estimates.mean_aux_bound)
                 );
                 println!(
                     "  centralized: RMSE {} m, bound {} m",
-                    m(mc.centralized_rmse),
-                    m(mc.mean_centralized_bound)
+                    m(mc.estimates.centralized_rmse),
+                    m(mc.estimates.mean_centralized_bound)
                 );
                 println!(
                     "  {:.1} steps/s per run, {:.1} s wall; results in {}",

@@ -11,7 +11,7 @@ use fusion_graph::scenario::Scenario;
 use fusion_graph::Topology;
 use serde::{Deserialize, Serialize};
 
-use crate::results::{ResultsWriter, AVERAGE_FROM_STEP};
+use crate::results::{Estimates, ResultsWriter, AVERAGE_FROM_STEP};
 use crate::sim::run_in_process;
 use crate::summary::Summary;
 
@@ -19,13 +19,9 @@ use crate::summary::Summary;
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct MonteCarloSummary {
     pub runs: u32,
-    pub from_step: u32,
-    pub rmse: Option<f64>,
-    pub mean_bound: Option<f64>,
-    pub mean_local_bound: Option<f64>,
-    pub mean_aux_bound: Option<f64>,
-    pub centralized_rmse: Option<f64>,
-    pub mean_centralized_bound: Option<f64>,
+    /// Each figure the mean over runs of that run's figure (a run's RMSE is
+    /// over its nodes and steps; these are not pooled over runs).
+    pub estimates: Estimates,
     pub bound_bytes_cq_dpcrlb: f64,
     pub bound_bytes_auxiliary_fim: Option<f64>,
     pub steps_per_second_per_run: f64,
@@ -105,8 +101,7 @@ pub fn run_monte_carlo(
         .map(|r| r.expect("every run ran"))
         .collect::<anyhow::Result<_>>()?;
     let e = |f: fn(&Summary) -> Option<f64>| mean_of(per_run.iter().map(f));
-    Ok(MonteCarloSummary {
-        runs,
+    let estimates = Estimates {
         from_step: AVERAGE_FROM_STEP,
         rmse: e(|s| s.estimates.rmse),
         mean_bound: e(|s| s.estimates.mean_bound),
@@ -114,6 +109,10 @@ pub fn run_monte_carlo(
         mean_aux_bound: e(|s| s.estimates.mean_aux_bound),
         centralized_rmse: e(|s| s.estimates.centralized_rmse),
         mean_centralized_bound: e(|s| s.estimates.mean_centralized_bound),
+    };
+    Ok(MonteCarloSummary {
+        runs,
+        estimates,
         bound_bytes_cq_dpcrlb: per_run
             .iter()
             .map(|s| s.bound_traffic.cq_dpcrlb_bytes as f64)
