@@ -115,7 +115,6 @@ fn wait_for(
 }
 
 struct WorldState<'a> {
-    topology: &'a Topology,
     transport: IceoryxTransport,
     commands: &'a UnboundedSender<Command>,
     events: &'a Receiver<Event>,
@@ -162,7 +161,6 @@ fn world_thread(
         t.notify(a)?;
     }
     let mut w = WorldState {
-        topology,
         transport: t,
         commands,
         events,
@@ -209,12 +207,21 @@ fn world_thread(
     let mut steps_done = 0;
 
     for step in 1..=scenario.steps {
-        let restarted = w.apply_process_faults(&schedule, step)?;
+        let process_faults = w.apply_process_faults(&schedule, step)?;
         schedule.apply_link_faults(step, &mut w.transport, topology);
         let views = schedule.membership_views(step, topology, &w.alive);
         let truth = world.advance();
         truths.insert(step, truth.into());
-        w.begin_step(step, truth.into(), &views, restarted)?;
+        crate::world::begin_step(
+            &mut w.transport,
+            step,
+            truth,
+            &w.sensors_alive,
+            &views,
+            &w.views,
+            process_faults,
+        )?;
+        w.views = views;
         let step_start = Instant::now();
         let step_end = if lockstep {
             step_start + step_timeout
@@ -499,61 +506,6 @@ impl WorldState<'_> {
             ActorId::Sensor(i) => self.sensors_alive[i as usize] = alive,
             ActorId::Launcher => {}
         }
-    }
-
-    /// Ticks the sensors and starts the step at every live node, telling
-    /// each node its membership view when it changed (or it restarted).
-    fn begin_step(
-        &mut self,
-        step: u32,
-        truth: [f64; 4],
-        views: &[Vec<bool>],
-        restarted: bool,
-    ) -> anyhow::Result<()> {
-        let sensors: Vec<ActorId> = (0..self.topology.sensors() as u16)
-            .filter(|s| self.sensors_alive[*s as usize])
-            .map(ActorId::Sensor)
-            .collect();
-        // No wake-up: a sensor needs the truth only when its node activates
-        // it, and that activation wakes it; waking all 225 for every tick
-        // would cost more than the filters.
-        self.transport.send_waking(
-            Channel::Tick,
-            &Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth }),
-            &sensors,
-            &[],
-        )?;
-        for n in 0..self.topology.nodes() as u16 {
-            if !self.alive[n as usize] {
-                continue;
-            }
-            let to = ActorId::Node(n);
-            if restarted || self.views.get(n as usize) != Some(&views[n as usize]) {
-                let alive = crate::membership_mask(&views[n as usize]);
-                self.transport.send(
-                    Channel::Control(to),
-                    &Message::new(
-                        ActorId::Launcher,
-                        step,
-                        0,
-                        Payload::Control(Control::Membership { alive }),
-                    ),
-                    &[to],
-                )?;
-            }
-            self.transport.send(
-                Channel::Control(to),
-                &Message::new(
-                    ActorId::Launcher,
-                    step,
-                    0,
-                    Payload::Control(Control::BeginStep),
-                ),
-                &[to],
-            )?;
-        }
-        self.views = views.to_vec();
-        Ok(())
     }
 }
 

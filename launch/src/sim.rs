@@ -13,7 +13,7 @@ use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::scenario::{ConsensusProtocol, Scenario};
 use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
-use fusion_graph::wire::{Control, Message, Payload, Telemetry};
+use fusion_graph::wire::{Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
 use node::{CentralizedReference, Contribution, NodeActor, Outgoing};
 use sensor::{SensorActor, SensorInput};
@@ -214,54 +214,20 @@ impl InProcessNetwork {
         let period = Duration::from_secs_f64(self.scenario.clock.step_period_ms / 1e3);
         let start = period * (step - 1);
         self.bus.borrow_mut().set_now(start);
-        let restarted = self.apply_process_faults(step)?;
+        let process_faults = self.apply_process_faults(step)?;
         self.apply_link_faults(step);
         let views = self.membership_views(step);
-
         let truth = self.world.advance();
-        let live_sensors: Vec<ActorId> = self
-            .sensors
-            .iter()
-            .filter(|s| s.alive)
-            .map(|s| s.transport.me())
-            .collect();
-        let tick = Message::new(
-            ActorId::Launcher,
+        let sensors_alive: Vec<bool> = self.sensors.iter().map(|s| s.alive).collect();
+        crate::world::begin_step(
+            &mut self.launcher,
             step,
-            0,
-            Payload::Tick {
-                truth: truth.into(),
-            },
-        );
-        self.launcher.send(Channel::Tick, &tick, &live_sensors)?;
-        for i in 0..self.nodes.len() {
-            if !self.nodes[i].alive {
-                continue;
-            }
-            let to = ActorId::Node(i as u16);
-            if restarted || self.views.get(i) != Some(&views[i]) {
-                let m = Message::new(
-                    ActorId::Launcher,
-                    step,
-                    0,
-                    Payload::Control(Control::Membership {
-                        alive: crate::membership_mask(&views[i]),
-                    }),
-                );
-                self.launcher.send(Channel::Control(to), &m, &[to])?;
-            }
-            self.launcher.send(
-                Channel::Control(to),
-                &Message::new(
-                    ActorId::Launcher,
-                    step,
-                    0,
-                    Payload::Control(Control::BeginStep),
-                ),
-                &[to],
-            )?;
-        }
-
+            truth,
+            &sensors_alive,
+            &views,
+            &self.views,
+            process_faults,
+        )?;
         self.views = views;
         let mut telemetry: Vec<(u16, Telemetry)> = Vec::new();
         let deadline = start + Duration::from_secs_f64(self.scenario.clock.step_timeout_ms / 1e3);

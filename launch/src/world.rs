@@ -3,7 +3,9 @@
 
 use bounds::{Dynamics, State};
 use fusion_graph::scenario::Scenario;
-use fusion_graph::ActorId;
+use fusion_graph::transport::{Channel, Transport};
+use fusion_graph::wire::{Control, Message, Payload};
+use fusion_graph::{ActorId, TransportError};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -38,4 +40,64 @@ impl World {
     pub fn state(&self) -> State {
         self.state
     }
+}
+
+/// The launcher's start of a step, the same in `sim` and `run`: the tick
+/// with the truth to every live sensor (waking none: an active sensor is
+/// woken by its activation and finds the tick queued), then, to every live
+/// node, its membership view when it differs from the one it was last told
+/// (or after any kill or restart), and `BeginStep`.
+pub fn begin_step<T: Transport + ?Sized>(
+    launcher: &mut T,
+    step: u32,
+    truth: State,
+    sensors_alive: &[bool],
+    views: &[Vec<bool>],
+    told: &[Vec<bool>],
+    process_faults: bool,
+) -> Result<(), TransportError> {
+    let sensors: Vec<ActorId> = (0..sensors_alive.len() as u16)
+        .filter(|s| sensors_alive[*s as usize])
+        .map(ActorId::Sensor)
+        .collect();
+    let tick = Message::new(
+        ActorId::Launcher,
+        step,
+        0,
+        Payload::Tick {
+            truth: truth.into(),
+        },
+    );
+    launcher.send_waking(Channel::Tick, &tick, &sensors, &[])?;
+    for (n, view) in views.iter().enumerate() {
+        // A node is alive when its own view holds it.
+        if !view.get(n).copied().unwrap_or(false) {
+            continue;
+        }
+        let to = ActorId::Node(n as u16);
+        if process_faults || told.get(n) != Some(view) {
+            let alive = crate::membership_mask(view);
+            launcher.send(
+                Channel::Control(to),
+                &Message::new(
+                    ActorId::Launcher,
+                    step,
+                    0,
+                    Payload::Control(Control::Membership { alive }),
+                ),
+                &[to],
+            )?;
+        }
+        launcher.send(
+            Channel::Control(to),
+            &Message::new(
+                ActorId::Launcher,
+                step,
+                0,
+                Payload::Control(Control::BeginStep),
+            ),
+            &[to],
+        )?;
+    }
+    Ok(())
 }
