@@ -86,20 +86,30 @@ fn launcher_gone() -> bool {
     nix::unistd::getppid() == nix::unistd::Pid::from_raw(1)
 }
 
+/// The last flush, on the launcher's Stop: byte counts and memory use.
+/// Memory is measured only here: reading `smaps_rollup` walks every mapping
+/// (about 0.3 ms), too much to do every few steps in 234 processes.
+fn final_flush(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
+    if let (Some(peak), Some(pss)) = (
+        crate::results::peak_memory_kb(),
+        crate::results::proportional_memory_kb(),
+    ) {
+        write_atomically(
+            &memory_path(out, transport.me()),
+            format!("{peak} {pss}").as_bytes(),
+        )?;
+    }
+    flush_accounting(transport, out)
+}
+
 /// Where an actor writes `<peak RSS kB> <PSS kB>`.
 pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
     out.join("accounting").join(format!("{actor}.memory"))
 }
 
-/// Writes this actor's byte counts, and its memory use beside them.
+/// Writes this actor's byte counts (every few steps, and at the end).
 fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
     let me = transport.me();
-    if let (Some(peak), Some(pss)) = (
-        crate::results::peak_memory_kb(),
-        crate::results::proportional_memory_kb(),
-    ) {
-        write_atomically(&memory_path(out, me), format!("{peak} {pss}").as_bytes())?;
-    }
     write_atomically(
         &accounting_path(out, me),
         transport.accounting().to_csv().as_bytes(),
@@ -153,7 +163,7 @@ fn sensor_loop(
         let mut flush = false;
         for m in inbox.drain(..) {
             let input = match m.payload {
-                Payload::Control(Control::Stop) => return flush_accounting(&t, out),
+                Payload::Control(Control::Stop) => return final_flush(&t, out),
                 Payload::Tick { truth } => {
                     if m.header.step != step {
                         step = m.header.step;
@@ -233,7 +243,7 @@ fn node_loop(
         for m in inbox.drain(..) {
             match (&m.payload, m.header.sender) {
                 (Payload::Control(Control::Stop), ActorId::Launcher) => {
-                    return flush_accounting(&t, out)
+                    return final_flush(&t, out)
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     schedule.apply_link_faults(m.header.step, &mut t, topology);
