@@ -7,7 +7,7 @@ use std::hint::black_box;
 use bounds::pcrlb::{dynamics_terms, observation_information};
 use bounds::{
     expected_information, ConditionalBound, CoordinatedTurn, Dynamics, Mat4, Measurement,
-    ObservationModel, Quantizer, SensorTerm, State,
+    Quantizer, SensorLaw, SensorTerm, State,
 };
 use criterion::{criterion_group, criterion_main, Criterion};
 use rand::{Rng, SeedableRng};
@@ -24,11 +24,11 @@ fn default_dynamics() -> Dynamics {
 
 fn bench(c: &mut Criterion) {
     let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
-    let model = ObservationModel::Bearing {
-        sensor: [250.0, 350.0],
+    let model = SensorLaw::Bearing {
         sigma_theta: 0.02,
         d0: 500.0,
-    };
+    }
+    .at([250.0, 350.0]);
     let x = State::new(700.0, 900.0, -6.0, -7.0);
     c.bench_function("J_Y one particle, 8-bit bearing", |b| {
         b.iter(|| {
@@ -37,12 +37,13 @@ fn bench(c: &mut Criterion) {
     });
 
     let dynamics = default_dynamics();
-    let models =
-        [[250.0, 350.0], [50.0, 150.0], [450.0, 450.0]].map(|s| ObservationModel::Bearing {
-            sensor: s,
+    let models = [[250.0, 350.0], [50.0, 150.0], [450.0, 450.0]].map(|s| {
+        SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
-        });
+        }
+        .at(s)
+    });
     let sensors: Vec<SensorTerm> = models
         .iter()
         .map(|m| SensorTerm {

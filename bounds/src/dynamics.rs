@@ -6,7 +6,10 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::{Mat4, State};
+use crate::{Mat4, ParameterError, State};
+
+const POSITIVE: &str = "a finite number > 0";
+const NON_NEGATIVE: &str = "a finite number >= 0";
 
 /// Below this |ωT| the trigonometric ratios use their Taylor series, whose
 /// truncation error (~(ωT)⁴) is then far below f64 precision.
@@ -108,19 +111,38 @@ impl CoordinatedTurn {
 }
 
 impl Dynamics {
-    /// `None` when Q is not positive definite (σ_v or T not positive).
-    pub fn new(model: CoordinatedTurn) -> Option<Self> {
-        if !(model.period > 0.0
-            && model.sigma_v > 0.0
-            && model.min_speed > 0.0
-            && model.maneuver_accel >= 0.0)
-        {
-            return None;
-        }
+    /// The model's parameters checked: T, σ_v and v_min positive, a_m ≥ 0
+    /// (which makes Q positive definite).
+    pub fn new(model: CoordinatedTurn) -> Result<Self, ParameterError> {
+        let check = |parameter, value: f64, expected| {
+            let ok = value.is_finite()
+                && if expected == POSITIVE {
+                    value > 0.0
+                } else {
+                    value >= 0.0
+                };
+            if ok {
+                Ok(())
+            } else {
+                Err(ParameterError {
+                    parameter,
+                    expected,
+                    value,
+                })
+            }
+        };
+        check("period", model.period, POSITIVE)?;
+        check("sigma_v", model.sigma_v, POSITIVE)?;
+        check("min_speed", model.min_speed, POSITIVE)?;
+        check("maneuver_accel", model.maneuver_accel, NON_NEGATIVE)?;
         let q = model.process_noise();
-        let chol = Cholesky::new(q)?;
+        let chol = Cholesky::new(q).ok_or(ParameterError {
+            parameter: "sigma_v",
+            expected: "a value that makes Q positive definite",
+            value: model.sigma_v,
+        })?;
         let q_inv = chol.inverse();
-        Some(Self {
+        Ok(Self {
             model,
             q,
             q_inv,

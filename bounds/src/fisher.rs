@@ -111,17 +111,18 @@ pub fn observed_information(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::observation::SensorLaw;
     use crate::testing::{central_gradient, random_state};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use std::f64::consts::PI;
 
     fn bearing() -> ObservationModel {
-        ObservationModel::Bearing {
-            sensor: [700.0, 300.0],
+        SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
         }
+        .at([700.0, 300.0])
     }
 
     #[test]
@@ -129,13 +130,13 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let q8 = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
         let q3 = Quantizer::uniform_wrapped(3, -PI, PI).unwrap();
-        let rss = ObservationModel::Rss {
-            sensor: [700.0, 300.0],
+        let rss = SensorLaw::Rss {
             p0: -30.0,
             zeta: 3.0,
             d0: 1.0,
             sigma: 4.0,
-        };
+        }
+        .at([700.0, 300.0]);
         let qr = Quantizer::uniform(4, -110.0, -40.0).unwrap();
         let mut checked = 0;
         for n in 0..3000 {
@@ -291,10 +292,11 @@ mod tests {
 
     #[test]
     fn raw_information_of_a_linear_sensor_is_h_h_over_r() {
-        let m = ObservationModel::Linear {
+        let m = SensorLaw::Linear {
             h: [1.0, 0.0, 0.0, 0.0],
             r: 4.0,
-        };
+        }
+        .at([0.0, 0.0]);
         let j = expected_information(&m, Measurement::Raw, &State::zeros());
         assert_eq!(j[(0, 0)], 0.25);
         assert_eq!(j.sum(), 0.25);

@@ -24,7 +24,7 @@ mod testing;
 
 pub use dynamics::{CoordinatedTurn, Dynamics};
 pub use fisher::{expected_information, observed_information, Measurement};
-pub use observation::{wrap_angle, ObservationModel};
+pub use observation::{wrap_angle, ObservationModel, SensorLaw};
 pub use pcrlb::{position_bound, ConditionalBound, DynamicsTerms, InformationStep, SensorTerm};
 pub use quantizer::{quantized_fisher_information, try_quantized_fisher_information, Quantizer};
 
@@ -32,6 +32,23 @@ pub use quantizer::{quantized_fisher_information, try_quantized_fisher_informati
 pub type State = nalgebra::SVector<f64, 4>;
 /// A 4×4 matrix over the state: covariances, information matrices, Jacobians.
 pub type Mat4 = nalgebra::SMatrix<f64, 4, 4>;
+
+/// A Gaussian over the state: a prior, or a particle set's summary.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gaussian {
+    pub mean: State,
+    pub cov: Mat4,
+}
+
+/// A model parameter out of its range: what the scenario must name.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("`{parameter}` must be {expected}, got {value}")]
+pub struct ParameterError {
+    /// The parameter's name, as a scenario file spells it.
+    pub parameter: &'static str,
+    pub expected: &'static str,
+    pub value: f64,
+}
 
 /// Invalid quantizer parameters or encoded cell indices.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -9,7 +9,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::State;
+use crate::{ParameterError, State};
 
 /// g, ∇g, R and ∇R at one state.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -24,20 +24,16 @@ pub struct Evaluation {
 /// sensor gives large but finite gradients instead of NaN.
 const MIN_DISTANCE: f64 = 1e-3;
 
-/// An observation model together with the sensor's position (X_s, Y_s).
+/// What a sensor measures and how noisily, wherever it stands: the part of
+/// an observation model a scenario states once for every sensor.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum ObservationModel {
+pub enum SensorLaw {
     /// `g = atan2(p_x − X_s, p_y − Y_s)` (from north, clockwise), wrapped to
     /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`.
-    Bearing {
-        sensor: [f64; 2],
-        sigma_theta: f64,
-        d0: f64,
-    },
+    Bearing { sigma_theta: f64, d0: f64 },
     /// Received signal strength in dBm: `g = P_0 − 10 ζ log10(d/d_0)`, `R = σ_r²`.
     Rss {
-        sensor: [f64; 2],
         p0: f64,
         zeta: f64,
         d0: f64,
@@ -45,49 +41,113 @@ pub enum ObservationModel {
     },
     /// Amplitude, power law: `g = sqrt(P_0 / (1 + α dⁿ))`, `R = σ²`.
     Amplitude {
-        sensor: [f64; 2],
         p0: f64,
         alpha: f64,
         exponent: f64,
         sigma: f64,
     },
-    /// Linear Gaussian: `g = hᵀx`, `R = r`. The limiting case in which the
-    /// PCRLB must reproduce the Kalman filter's information matrix.
+    /// Linear Gaussian: `g = hᵀx`, `R = r`; the sensor's position plays no
+    /// part. The limiting case in which the PCRLB must reproduce the Kalman
+    /// filter's information matrix.
     Linear { h: [f64; 4], r: f64 },
+}
+
+impl SensorLaw {
+    /// This law at the sensor position `sensor`.
+    pub fn at(self, sensor: [f64; 2]) -> ObservationModel {
+        ObservationModel { sensor, law: self }
+    }
+
+    /// Every parameter in its range: noise and distances positive, levels finite.
+    pub fn validate(&self) -> Result<(), ParameterError> {
+        let check = |parameter, value: f64, positive: bool| {
+            let ok = value.is_finite() && (!positive || value > 0.0);
+            if ok {
+                Ok(())
+            } else {
+                Err(ParameterError {
+                    parameter,
+                    expected: if positive {
+                        "a finite number > 0"
+                    } else {
+                        "a finite number"
+                    },
+                    value,
+                })
+            }
+        };
+        match *self {
+            Self::Bearing { sigma_theta, d0 } => {
+                check("sigma_theta", sigma_theta, true)?;
+                check("d0", d0, true)
+            }
+            Self::Rss {
+                p0,
+                zeta,
+                d0,
+                sigma,
+            } => {
+                check("p0", p0, false)?;
+                check("zeta", zeta, true)?;
+                check("d0", d0, true)?;
+                check("sigma", sigma, true)
+            }
+            Self::Amplitude {
+                p0,
+                alpha,
+                exponent,
+                sigma,
+            } => {
+                check("p0", p0, true)?;
+                check("alpha", alpha, true)?;
+                check("exponent", exponent, true)?;
+                check("sigma", sigma, true)
+            }
+            Self::Linear { h, r } => {
+                for v in h {
+                    check("h", v, false)?;
+                }
+                check("r", r, true)
+            }
+        }
+    }
+}
+
+/// A sensor's observation model: its law at its position (X_s, Y_s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObservationModel {
+    pub sensor: [f64; 2],
+    pub law: SensorLaw,
 }
 
 impl ObservationModel {
     /// Whether g is an angle, so observations and quantizer cells wrap at ±π.
     pub fn is_angular(&self) -> bool {
-        matches!(self, Self::Bearing { .. })
+        matches!(self.law, SensorLaw::Bearing { .. })
     }
 
     /// Whether g and R depend on the position only (not on the velocity).
     pub fn depends_on_position_only(&self) -> bool {
-        match self {
-            Self::Linear { h, .. } => h[2] == 0.0 && h[3] == 0.0,
+        match self.law {
+            SensorLaw::Linear { h, .. } => h[2] == 0.0 && h[3] == 0.0,
             _ => true,
         }
     }
 
+    /// Where the sensor stands, when its law depends on it.
     pub fn sensor_position(&self) -> Option<[f64; 2]> {
-        match self {
-            Self::Bearing { sensor, .. }
-            | Self::Rss { sensor, .. }
-            | Self::Amplitude { sensor, .. } => Some(*sensor),
-            Self::Linear { .. } => None,
+        match self.law {
+            SensorLaw::Linear { .. } => None,
+            _ => Some(self.sensor),
         }
     }
 
     /// g, ∇g, R and ∇R at `x`.
     #[inline]
     pub fn evaluate(&self, x: &State) -> Evaluation {
-        match *self {
-            Self::Bearing {
-                sensor,
-                sigma_theta,
-                d0,
-            } => {
+        let sensor = self.sensor;
+        match self.law {
+            SensorLaw::Bearing { sigma_theta, d0 } => {
                 let (dx, dy, d2) = offset(x, sensor);
                 let s2 = sigma_theta * sigma_theta;
                 Evaluation {
@@ -102,8 +162,7 @@ impl ObservationModel {
                     ),
                 }
             }
-            Self::Rss {
-                sensor,
+            SensorLaw::Rss {
                 p0,
                 zeta,
                 d0,
@@ -119,8 +178,7 @@ impl ObservationModel {
                     grad_r: State::zeros(),
                 }
             }
-            Self::Amplitude {
-                sensor,
+            SensorLaw::Amplitude {
                 p0,
                 alpha,
                 exponent,
@@ -140,7 +198,7 @@ impl ObservationModel {
                     grad_r: State::zeros(),
                 }
             }
-            Self::Linear { h, r } => Evaluation {
+            SensorLaw::Linear { h, r } => Evaluation {
                 g: h[0] * x[0] + h[1] * x[1] + h[2] * x[2] + h[3] * x[3],
                 grad_g: State::from(h),
                 r,
@@ -188,29 +246,30 @@ mod tests {
 
     fn models() -> Vec<ObservationModel> {
         vec![
-            ObservationModel::Bearing {
-                sensor: [250.0, 750.0],
+            SensorLaw::Bearing {
                 sigma_theta: 0.02,
                 d0: 500.0,
-            },
-            ObservationModel::Rss {
-                sensor: [250.0, 750.0],
+            }
+            .at([250.0, 750.0]),
+            SensorLaw::Rss {
                 p0: -30.0,
                 zeta: 3.0,
                 d0: 1.0,
                 sigma: 2.0,
-            },
-            ObservationModel::Amplitude {
-                sensor: [250.0, 750.0],
+            }
+            .at([250.0, 750.0]),
+            SensorLaw::Amplitude {
                 p0: 1e4,
                 alpha: 1e-3,
                 exponent: 2.0,
                 sigma: 0.5,
-            },
-            ObservationModel::Linear {
+            }
+            .at([250.0, 750.0]),
+            SensorLaw::Linear {
                 h: [1.0, 0.5, -0.25, 2.0],
                 r: 4.0,
-            },
+            }
+            .at([0.0, 0.0]),
         ]
     }
 
@@ -270,11 +329,11 @@ mod tests {
 
     #[test]
     fn bearing_is_measured_clockwise_from_north() {
-        let m = ObservationModel::Bearing {
-            sensor: [0.0, 0.0],
+        let m = SensorLaw::Bearing {
             sigma_theta: 0.01,
             d0: 100.0,
-        };
+        }
+        .at([0.0, 0.0]);
         let at = |x, y| m.evaluate(&State::new(x, y, 0.0, 0.0)).g;
         assert!((at(0.0, 10.0) - 0.0).abs() < 1e-15);
         assert!((at(10.0, 0.0) - PI / 2.0).abs() < 1e-15);

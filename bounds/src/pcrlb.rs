@@ -234,6 +234,7 @@ fn symmetrized(m: Mat4) -> Mat4 {
 mod tests {
     use super::*;
     use crate::dynamics::CoordinatedTurn;
+    use crate::observation::SensorLaw;
     use crate::quantizer::Quantizer;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
@@ -241,14 +242,16 @@ mod tests {
 
     fn position_sensors() -> [ObservationModel; 2] {
         [
-            ObservationModel::Linear {
+            SensorLaw::Linear {
                 h: [1.0, 0.0, 0.0, 0.0],
                 r: 25.0,
-            },
-            ObservationModel::Linear {
+            }
+            .at([0.0, 0.0]),
+            SensorLaw::Linear {
                 h: [0.0, 1.0, 0.0, 0.0],
                 r: 16.0,
-            },
+            }
+            .at([0.0, 0.0]),
         ]
     }
 
@@ -266,9 +269,9 @@ mod tests {
         let f = dynamics.jacobian(&State::new(0.0, 0.0, 1.0, 1.0));
         let mut hrh = Mat4::zeros();
         for m in models {
-            if let ObservationModel::Linear { h, r } = m {
-                let h = State::from(*h);
-                hrh += h * h.transpose() / *r;
+            if let SensorLaw::Linear { h, r } = m.law {
+                let h = State::from(h);
+                hrh += h * h.transpose() / r;
             }
         }
         let mut j = prior_cov().try_inverse().unwrap();
@@ -342,11 +345,11 @@ mod tests {
         })
         .unwrap();
         let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
-        let model = ObservationModel::Bearing {
-            sensor: [250.0, 250.0],
+        let model = SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
-        };
+        }
+        .at([250.0, 250.0]);
         let sensors = [SensorTerm {
             model: &model,
             measurement: Measurement::Quantized(&q),
@@ -377,10 +380,12 @@ mod tests {
         .unwrap();
         let models: Vec<ObservationModel> = [[250.0, 250.0], [750.0, 250.0], [500.0, 900.0]]
             .iter()
-            .map(|s| ObservationModel::Bearing {
-                sensor: *s,
-                sigma_theta: 0.02,
-                d0: 500.0,
+            .map(|s| {
+                SensorLaw::Bearing {
+                    sigma_theta: 0.02,
+                    d0: 500.0,
+                }
+                .at(*s)
             })
             .collect();
         let mut bounds = Vec::new();

@@ -1,10 +1,11 @@
-//! The network of cqnet, with no estimation in it: scenarios, topology,
-//! consensus weights, wire messages, transports, link faults and byte
-//! accounting.
+//! The network of cqnet, with no estimation in it: scenarios and the models
+//! they mean, topology, consensus weights, wire messages, transports, link
+//! faults and byte accounting.
 
 pub mod accounting;
 pub mod actor;
 pub mod faults;
+pub mod models;
 pub mod scenario;
 pub mod shaper;
 pub mod topology;
@@ -17,7 +18,9 @@ pub use scenario::Scenario;
 pub use shaper::{LinkRule, LinkShaper};
 pub use topology::{MetropolisWeights, Topology};
 pub use transport::{Channel, Transport};
-pub use wire::{Message, MessageKind, Payload, WireFormat};
+
+pub use models::{link_fault_seed, stream_rng, stream_seed, Models, Stream};
+pub use wire::{BitMask, Message, MessageKind, Payload, WireFormat};
 
 /// A scenario that cannot be used, and why.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -58,12 +61,63 @@ pub enum WireError {
     NonFinite,
 }
 
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum TransportError {
-    #[error("{actor} is not the publisher of channel {channel}")]
-    NotPublisher { channel: String, actor: String },
+/// What a transport's backend (iceoryx2, or another) reported.
+pub type BackendError = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// Setting up a transport: the run, its services and this actor's ports.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
     #[error("run id `{id}` must be 1-32 characters of a-z, 0-9 and -")]
     BadRunId { id: String },
-    #[error("iceoryx2 {what}: {message}")]
-    Iceoryx { what: String, message: String },
+    #[error("{actor} is not the publisher of channel {channel}")]
+    NotPublisher { channel: String, actor: String },
+    #[error("setting up {what}")]
+    Backend {
+        what: String,
+        #[source]
+        source: BackendError,
+    },
+}
+
+/// Publishing one message.
+#[derive(Debug, thiserror::Error)]
+pub enum SendError {
+    #[error("{actor} does not publish on channel {channel}")]
+    NotPublisher { channel: String, actor: String },
+    #[error("publishing on {channel}")]
+    Backend {
+        channel: String,
+        #[source]
+        source: BackendError,
+    },
+}
+
+/// Draining this actor's subscriptions.
+#[derive(Debug, thiserror::Error)]
+#[error("receiving on {channel}")]
+pub struct ReceiveError {
+    pub channel: String,
+    #[source]
+    pub source: BackendError,
+}
+
+/// Sleeping until woken.
+#[derive(Debug, thiserror::Error)]
+#[error("waiting for a wake-up")]
+pub struct WaitError {
+    #[source]
+    pub source: BackendError,
+}
+
+/// Any transport operation's error, for callers that do several.
+#[derive(Debug, thiserror::Error)]
+pub enum TransportError {
+    #[error(transparent)]
+    Setup(#[from] SetupError),
+    #[error(transparent)]
+    Send(#[from] SendError),
+    #[error(transparent)]
+    Receive(#[from] ReceiveError),
+    #[error(transparent)]
+    Wait(#[from] WaitError),
 }

@@ -24,7 +24,9 @@ pub struct Scenario {
     pub fusion_graph: FusionGraphConfig,
     pub target: TargetConfig,
     pub dynamics: DynamicsConfig,
-    pub observation: ObservationConfig,
+    /// What every sensor measures (`kind = "bearing"`, `"rss"`,
+    /// `"amplitude"` or `"linear"`); the topology says where each stands.
+    pub observation: bounds::SensorLaw,
     pub quantizer: QuantizerConfig,
     pub filter: FilterConfig,
     pub consensus: ConsensusConfig,
@@ -103,28 +105,6 @@ pub struct DynamicsConfig {
 
 fn default_min_speed() -> f64 {
     0.1
-}
-
-/// The observation model without the sensor position, which the topology supplies.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum ObservationConfig {
-    Bearing {
-        sigma_theta: f64,
-        d0: f64,
-    },
-    Rss {
-        p0: f64,
-        zeta: f64,
-        d0: f64,
-        sigma: f64,
-    },
-    Amplitude {
-        p0: f64,
-        alpha: f64,
-        exponent: f64,
-        sigma: f64,
-    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -416,59 +396,6 @@ impl Scenario {
             );
         }
         non_negative("target.speed", self.target.speed)?;
-        positive("dynamics.period", self.dynamics.period)?;
-        non_negative("dynamics.maneuver_accel", self.dynamics.maneuver_accel)?;
-        positive("dynamics.min_speed", self.dynamics.min_speed)?;
-        positive("dynamics.sigma_v", self.dynamics.sigma_v)?;
-        match self.observation {
-            ObservationConfig::Bearing { sigma_theta, d0 } => {
-                positive("observation.sigma_theta", sigma_theta)?;
-                positive("observation.d0", d0)?;
-            }
-            ObservationConfig::Rss {
-                p0,
-                zeta,
-                d0,
-                sigma,
-            } => {
-                if !p0.is_finite() {
-                    return bad("observation.p0", "a finite number", p0.to_string());
-                }
-                positive("observation.zeta", zeta)?;
-                positive("observation.d0", d0)?;
-                positive("observation.sigma", sigma)?;
-            }
-            ObservationConfig::Amplitude {
-                p0,
-                alpha,
-                exponent,
-                sigma,
-            } => {
-                positive("observation.p0", p0)?;
-                positive("observation.alpha", alpha)?;
-                positive("observation.exponent", exponent)?;
-                positive("observation.sigma", sigma)?;
-            }
-        }
-        if !(1..=16).contains(&self.quantizer.bits) {
-            return bad(
-                "quantizer.bits",
-                "an integer from 1 to 16",
-                self.quantizer.bits.to_string(),
-            );
-        }
-        if !matches!(self.observation, ObservationConfig::Bearing { .. }) {
-            match (self.quantizer.lo, self.quantizer.hi) {
-                (Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {}
-                _ => {
-                    return bad(
-                        "quantizer.lo/quantizer.hi",
-                        "a finite range lo < hi for a non-bearing observation",
-                        format!("{:?}..{:?}", self.quantizer.lo, self.quantizer.hi),
-                    )
-                }
-            }
-        }
         if self.filter.particles < 10 {
             return bad(
                 "filter.particles",
@@ -476,9 +403,9 @@ impl Scenario {
                 self.filter.particles.to_string(),
             );
         }
-        for (i, s) in self.filter.prior_std.iter().enumerate() {
-            positive(&format!("filter.prior_std[{i}]"), *s)?;
-        }
+        // The dynamics, the observation law, the quantizer and the prior,
+        // through the constructors the actors use.
+        self.models_named(file)?;
         if self.consensus.rounds == 0 {
             return bad("consensus.rounds", "at least 1", "0".into());
         }

@@ -48,6 +48,8 @@ pub enum MessageKind {
     Telemetry = 8,
     /// A node's fused posterior, sent to a neighbour that rejoins.
     StateTransfer = 9,
+    /// One round of min-consensus on a proposal `(cost, node, sensor)`.
+    MinConsensus = 10,
     /// Accounting only: bytes whose kind could not be read.
     Malformed = 255,
 }
@@ -65,6 +67,7 @@ impl MessageKind {
             7 => Control,
             8 => Telemetry,
             9 => StateTransfer,
+            10 => MinConsensus,
             _ => return None,
         })
     }
@@ -81,6 +84,7 @@ impl MessageKind {
             Control => "control",
             Telemetry => "telemetry",
             StateTransfer => "state_transfer",
+            MinConsensus => "min_consensus",
             Malformed => "malformed",
         }
     }
@@ -103,6 +107,47 @@ pub struct Header {
     pub sender: ActorId,
     pub step: u32,
     pub round: u16,
+}
+
+/// A set of small indices as a bit mask, bit i of byte i/8: which of a
+/// node's sensors are active, or which nodes are alive.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BitMask(Vec<u8>);
+
+impl BitMask {
+    pub fn from_indices(indices: impl IntoIterator<Item = usize>) -> Self {
+        let mut bytes = Vec::new();
+        for i in indices {
+            if bytes.len() <= i / 8 {
+                bytes.resize(i / 8 + 1, 0);
+            }
+            bytes[i / 8] |= 1 << (i % 8);
+        }
+        Self(bytes)
+    }
+
+    pub fn from_bools(set: &[bool]) -> Self {
+        let mut m = Self::from_indices(set.iter().enumerate().filter(|(_, b)| **b).map(|(i, _)| i));
+        m.0.resize(set.len().div_ceil(8), 0);
+        m
+    }
+
+    pub fn from_bytes(bytes: Vec<u8>) -> Self {
+        Self(bytes)
+    }
+
+    pub fn contains(&self, i: usize) -> bool {
+        self.0.get(i / 8).is_some_and(|b| b & (1 << (i % 8)) != 0)
+    }
+
+    /// Membership of indices `0..n`.
+    pub fn to_bools(&self, n: usize) -> Vec<bool> {
+        (0..n).map(|i| self.contains(i)).collect()
+    }
+
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.0
+    }
 }
 
 /// Symmetric 4×4 matrices travel as their 10 upper-triangular entries.
@@ -141,8 +186,8 @@ pub enum Control {
     BeginStep,
     /// Finish the current step and exit.
     Stop,
-    /// Which nodes are alive (bit i of byte i/8 is node i).
-    Membership { alive: Vec<u8> },
+    /// The nodes this node can reach (bit i is node i).
+    Membership { alive: BitMask },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -158,9 +203,9 @@ pub enum Payload {
     Tick {
         truth: [f64; 4],
     },
-    /// Bit i of byte i/8: the node's i-th sensor is active.
+    /// Bit i: the node's i-th sensor is active.
     Activate {
-        mask: Vec<u8>,
+        mask: BitMask,
     },
     Observation {
         cell: u32,
@@ -175,6 +220,16 @@ pub enum Payload {
     Control(Control),
     Telemetry(Telemetry),
     StateTransfer(StateTransfer),
+    MinConsensus(Proposal),
+}
+
+/// A proposal in min-consensus: the smallest `cost` wins, ties going to the
+/// smaller node, then the smaller sensor.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Proposal {
+    pub cost: f64,
+    pub node: u16,
+    pub sensor: u16,
 }
 
 impl Payload {
@@ -189,6 +244,7 @@ impl Payload {
             Payload::Control(_) => MessageKind::Control,
             Payload::Telemetry(_) => MessageKind::Telemetry,
             Payload::StateTransfer(_) => MessageKind::StateTransfer,
+            Payload::MinConsensus(_) => MessageKind::MinConsensus,
         }
     }
 }
@@ -236,9 +292,10 @@ impl Message {
         match &self.payload {
             Payload::Tick { truth } => put(truth, out),
             Payload::Activate { mask } => {
-                let mut m = mask.clone();
-                m.resize(format.activation_bytes, 0);
-                out.extend_from_slice(&m);
+                let bytes = mask.as_bytes();
+                let n = bytes.len().min(format.activation_bytes);
+                out.extend_from_slice(&bytes[..n]);
+                out.resize(out.len() + format.activation_bytes - n, 0);
             }
             Payload::Observation { cell } => {
                 out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes])
@@ -249,6 +306,7 @@ impl Message {
             Payload::Control(c) => put(c, out),
             Payload::Telemetry(t) => put(t, out),
             Payload::StateTransfer(s) => put(s, out),
+            Payload::MinConsensus(p) => put(p, out),
         }
     }
 
@@ -281,7 +339,7 @@ impl Message {
             MessageKind::Activate => {
                 exact_len(body, format.activation_bytes)?;
                 Payload::Activate {
-                    mask: body.to_vec(),
+                    mask: BitMask::from_bytes(body.to_vec()),
                 }
             }
             MessageKind::Observation => {
@@ -325,6 +383,11 @@ impl Message {
                 finite(s.aux_information)?;
                 Payload::StateTransfer(s)
             }
+            MessageKind::MinConsensus => {
+                let p: Proposal = take(body)?;
+                finite([p.cost])?;
+                Payload::MinConsensus(p)
+            }
             MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
         };
         Ok(Self {
@@ -351,6 +414,7 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::Consensus => 8 * 24,
                 MessageKind::ConsensusAux => 8 * 10,
                 MessageKind::StateTransfer => 8 * 34,
+                MessageKind::MinConsensus => 8 + 2 + 2,
                 _ => return None,
             },
     )
@@ -458,7 +522,7 @@ mod tests {
                 7,
                 0,
                 Payload::Activate {
-                    mask: vec![0b101, 0, 0, 1],
+                    mask: BitMask::from_bytes(vec![0b101, 0, 0, 1]),
                 },
             ),
             Message::new(
@@ -486,7 +550,7 @@ mod tests {
                 7,
                 0,
                 Payload::Control(Control::Membership {
-                    alive: vec![0xff, 1],
+                    alive: BitMask::from_bytes(vec![0xff, 1]),
                 }),
             ),
             Message::new(ActorId::Node(0), 7, 0, Payload::Telemetry(t)),
@@ -499,6 +563,16 @@ mod tests {
                     covariance: [2.0; 10],
                     information: [3.0; 10],
                     aux_information: [4.0; 10],
+                }),
+            ),
+            Message::new(
+                ActorId::Node(3),
+                7,
+                2,
+                Payload::MinConsensus(Proposal {
+                    cost: 2.5,
+                    node: 3,
+                    sensor: 77,
                 }),
             ),
         ]
@@ -584,6 +658,19 @@ mod tests {
     }
 
     #[test]
+    fn bit_masks_hold_exactly_their_indices() {
+        let m = BitMask::from_indices([0, 3, 9]);
+        assert_eq!(m.as_bytes(), &[0b1001, 0b10]);
+        assert_eq!(m.to_bools(11).iter().filter(|b| **b).count(), 3);
+        assert!(m.contains(9) && !m.contains(8) && !m.contains(100));
+        let v = [
+            true, false, false, true, true, false, false, false, false, true,
+        ];
+        assert_eq!(BitMask::from_bools(&v).to_bools(10), v);
+        assert_eq!(BitMask::from_bools(&[false; 9]).as_bytes(), &[0, 0]);
+    }
+
+    #[test]
     fn symmetric_packing_round_trips() {
         let m = [
             [1.0, 2.0, 3.0, 4.0],
@@ -601,7 +688,7 @@ mod tests {
         }
 
         #[test]
-        fn corrupted_messages_never_panic(index in 0usize..10, flips in proptest::collection::vec((0usize..300, any::<u8>()), 1..6)) {
+        fn corrupted_messages_never_panic(index in 0usize..11, flips in proptest::collection::vec((0usize..300, any::<u8>()), 1..6)) {
             let mut bytes = samples()[index].to_bytes(&FORMAT);
             for (at, v) in flips {
                 let n = bytes.len();

@@ -6,15 +6,15 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::Context;
-use bounds::State;
 use fusion_graph::faults::FaultSchedule;
-use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
+use fusion_graph::transport::{IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
-use fusion_graph::{ActorId, Scenario, Topology};
+use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::NodeActor;
-use sensor::{SensorActor, SensorInput};
+use sensor::SensorActor;
 
 use crate::cli::{load_child_scenario, ActorArgs};
+use crate::drive::{run_pending_work, send_all};
 use crate::results::write_atomically;
 
 /// Byte counters are flushed to disk this often, so a killed actor loses at
@@ -70,9 +70,18 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
         .map(Path::to_path_buf)
         .unwrap_or_default();
     std::fs::create_dir_all(out.join("accounting"))?;
+    let transport = IceoryxTransport::new(
+        &run,
+        actor,
+        &topology,
+        scenario.wire_format(&topology),
+        link_fault_seed(scenario.seed, actor),
+    )?;
     match actor {
-        ActorId::Sensor(i) => sensor_loop(&scenario, &topology, &run, i, &out, args.centralized),
-        ActorId::Node(i) => node_loop(&scenario, &topology, &run, i, &out, args.rejoin),
+        ActorId::Sensor(i) => {
+            sensor_loop(&scenario, &topology, transport, i, &out, args.centralized)
+        }
+        ActorId::Node(i) => node_loop(&scenario, &topology, transport, i, &out, args.rejoin),
         ActorId::Launcher => unreachable!("checked above"),
     }
 }
@@ -89,7 +98,7 @@ fn launcher_gone() -> bool {
 /// The last flush, on the launcher's Stop: byte counts and memory use.
 /// Memory is measured only here: reading `smaps_rollup` walks every mapping
 /// (about 0.3 ms), too much to do every few steps in 234 processes.
-fn final_flush(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
+fn final_flush<T: Transport>(transport: &T, out: &Path) -> anyhow::Result<()> {
     if let (Some(peak), Some(pss)) = (
         crate::results::peak_memory_kb(),
         crate::results::proportional_memory_kb(),
@@ -108,7 +117,7 @@ pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
 }
 
 /// Writes this actor's byte counts (every few steps, and at the end).
-fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<()> {
+fn flush_accounting<T: Transport>(transport: &T, out: &Path) -> anyhow::Result<()> {
     let me = transport.me();
     write_atomically(
         &accounting_path(out, me),
@@ -116,42 +125,27 @@ fn flush_accounting(transport: &IceoryxTransport, out: &Path) -> anyhow::Result<
     )
 }
 
-fn sensor_loop(
+fn sensor_loop<T: Transport>(
     scenario: &Scenario,
     topology: &Topology,
-    run: &RunId,
+    mut t: T,
     index: u16,
     out: &Path,
     centralized: bool,
 ) -> anyhow::Result<()> {
-    let me = ActorId::Sensor(index);
-    let owner = ActorId::Node(topology.sensor_owner[index as usize]);
-    let ActorId::Node(owner_index) = owner else {
-        unreachable!()
-    };
-    let mut actor = SensorActor::new(scenario, topology, index);
-    let mut t = IceoryxTransport::new(
-        run,
-        me,
-        topology,
-        node::wire_format(scenario, topology),
-        scenario.seed ^ (0x5000 + index as u64),
-    )?;
-    t.publish_on(Channel::Observation(index))?;
-    t.subscribe(Channel::Tick)?;
-    t.subscribe(Channel::Activation(owner_index))?;
-    t.notify(owner)?;
+    let mut actor = SensorActor::new(scenario, topology, index)?;
+    t.publish_on(actor.publication())?;
+    for c in actor.subscriptions() {
+        t.subscribe(c)?;
+    }
+    t.notify(actor.owner())?;
     let receivers: Vec<ActorId> = if centralized {
         t.notify(ActorId::Launcher)?;
-        vec![owner, ActorId::Launcher]
+        vec![actor.owner(), ActorId::Launcher]
     } else {
-        vec![owner]
+        vec![actor.owner()]
     };
     let schedule = FaultSchedule::new(&scenario.faults);
-    let position = topology.node_sensors[owner_index as usize]
-        .iter()
-        .position(|s| *s == index)
-        .expect("a sensor belongs to its node");
     announce_ready();
     let mut inbox = Vec::new();
     let mut step = 0;
@@ -162,30 +156,18 @@ fn sensor_loop(
         t.receive(now, &mut inbox)?;
         let mut flush = false;
         for m in inbox.drain(..) {
-            let input = match m.payload {
+            match m.payload {
                 Payload::Control(Control::Stop) => return final_flush(&t, out),
-                Payload::Tick { truth } => {
-                    if m.header.step != step {
-                        step = m.header.step;
-                        schedule.apply_link_faults(step, &mut t, topology);
-                        t.update_connections();
-                        flush |= flush_due(step, index);
-                    }
-                    SensorInput::Tick {
-                        step: m.header.step,
-                        truth: State::from(truth),
-                    }
+                Payload::Tick { .. } if m.header.step != step => {
+                    step = m.header.step;
+                    schedule.apply_link_faults(step, &mut t, topology);
+                    t.update_connections();
+                    flush |= flush_due(step, index);
                 }
-                Payload::Activate { mask } => SensorInput::Activation {
-                    step: m.header.step,
-                    active: mask
-                        .get(position / 8)
-                        .is_some_and(|b| b & (1 << (position % 8)) != 0),
-                },
-                _ => continue,
-            };
-            if let Some(obs) = actor.handle(input) {
-                t.send(Channel::Observation(index), &obs, &receivers)?;
+                _ => {}
+            }
+            if let Some(obs) = actor.handle(&m) {
+                t.send(actor.publication(), &obs, &receivers)?;
             }
         }
         if flush {
@@ -197,26 +179,18 @@ fn sensor_loop(
     }
 }
 
-fn node_loop(
+fn node_loop<T: Transport>(
     scenario: &Scenario,
     topology: &Topology,
-    run: &RunId,
+    mut t: T,
     index: u16,
     out: &Path,
     rejoin: bool,
 ) -> anyhow::Result<()> {
-    let mut actor = NodeActor::new(scenario, topology, index)
-        .map_err(|e| anyhow::anyhow!("node-{index}: {e}"))?;
+    let mut actor = NodeActor::new(scenario, topology, index)?;
     if rejoin {
         actor.expect_rejoin();
     }
-    let mut t = IceoryxTransport::new(
-        run,
-        actor.id(),
-        topology,
-        node::wire_format(scenario, topology),
-        scenario.seed ^ (0x1000 + index as u64),
-    )?;
     for c in actor.publications() {
         t.publish_on(c)?;
     }
@@ -233,7 +207,7 @@ fn node_loop(
     loop {
         let now = t.now();
         let timeout = actor
-            .next_deadline()
+            .poll_timeout()
             .map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
         t.wait(timeout)?;
         inbox.clear();
@@ -253,9 +227,11 @@ fn node_loop(
                 _ => {}
             }
             actor.handle(&m, now, &mut outgoing);
+            run_pending_work(&mut actor, || t.now(), &mut outgoing);
             send_all(&mut t, &mut outgoing)?;
         }
-        actor.handle_deadline(t.now(), &mut outgoing);
+        actor.handle_timeout(t.now(), &mut outgoing);
+        run_pending_work(&mut actor, || t.now(), &mut outgoing);
         send_all(&mut t, &mut outgoing)?;
         if flush {
             flush_accounting(&t, out)?;
@@ -264,14 +240,6 @@ fn node_loop(
             return Ok(());
         }
     }
-}
-
-fn send_all(t: &mut IceoryxTransport, outgoing: &mut Vec<node::Outgoing>) -> anyhow::Result<()> {
-    for o in outgoing.drain(..) {
-        let wake = o.wake.as_deref().unwrap_or(&o.receivers);
-        t.send_waking(o.channel, &o.message, &o.receivers, wake)?;
-    }
-    Ok(())
 }
 
 /// The message that tells every sensor to stop (sent on the tick channel).

@@ -4,6 +4,7 @@
 pub mod actor_process;
 pub mod app;
 pub mod cli;
+pub mod drive;
 pub mod montecarlo;
 pub mod network;
 pub mod results;
@@ -11,14 +12,3 @@ pub mod sim;
 pub mod summary;
 pub mod supervisor;
 pub mod world;
-
-/// A membership view as the bit mask the `Membership` message carries.
-pub fn membership_mask(view: &[bool]) -> Vec<u8> {
-    let mut mask = vec![0u8; view.len().div_ceil(8)];
-    for (i, a) in view.iter().enumerate() {
-        if *a {
-            mask[i / 8] |= 1 << (i % 8);
-        }
-    }
-    mask
-}

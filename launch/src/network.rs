@@ -16,14 +16,14 @@ use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
 use fusion_graph::transport::iceoryx::remove_run_resources;
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
-use fusion_graph::{ActorId, Topology};
+use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::CentralizedReference;
 use tokio::sync::mpsc::UnboundedSender;
 
 use crate::actor_process::{accounting_path, memory_path, stop_message};
-use crate::results::{traffic, write_atomically, Averages, ResultsWriter, TickRow};
+use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::sim::central_telemetry;
-use crate::summary::{AppliedFault, ChildrenMemory, FaultCost, Percentiles, StageSums, Summary};
+use crate::summary::{ChildrenMemory, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
 use crate::world::World;
 
@@ -139,12 +139,13 @@ fn world_thread(
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut writer = ResultsWriter::create(&options.out)?;
+    let mut recorder = Recorder::new(&mut writer, scenario, topology);
     let mut t = IceoryxTransport::new(
         &options.run_id,
         ActorId::Launcher,
         topology,
-        node::wire_format(scenario, topology),
-        scenario.seed,
+        scenario.wire_format(topology),
+        link_fault_seed(scenario.seed, ActorId::Launcher),
     )?;
     // The launcher creates the services everyone shares before anyone else opens them.
     t.publish_on(Channel::Tick)?;
@@ -186,7 +187,7 @@ fn world_thread(
         "every actor is ready"
     );
 
-    let mut world = World::new(scenario);
+    let mut world = World::new(scenario)?;
     let mut central = options
         .centralized
         .then(|| CentralizedReference::new(scenario, topology))
@@ -196,11 +197,6 @@ fn world_thread(
     let period = Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3);
     let step_timeout = Duration::from_secs_f64(scenario.clock.step_timeout_ms / 1e3);
     let lockstep = options.lockstep || scenario.clock.mode == ClockMode::Lockstep;
-    let mut averages = Averages::default();
-    let mut stages = StageSums::default();
-    let mut cost = FaultCost::default();
-    let mut round_latency = Vec::new();
-    let mut reported: BTreeMap<u32, HashSet<u16>> = BTreeMap::new();
     let mut truths: BTreeMap<u32, [f64; 4]> = BTreeMap::new();
     let run_start = Instant::now();
     let mut inbox = Vec::new();
@@ -229,8 +225,7 @@ fn world_thread(
             run_start + period * step
         };
         loop {
-            let all_in = reported.get(&step).map_or(0, |s| s.len())
-                >= w.alive.iter().filter(|a| **a).count();
+            let all_in = recorder.reports(step) >= w.alive.iter().filter(|a| **a).count();
             if (lockstep && all_in) || Instant::now() >= step_end || w.interrupted {
                 break;
             }
@@ -246,20 +241,6 @@ fn world_thread(
                         let Some(truth) = truths.get(&m.header.step) else {
                             continue;
                         };
-                        if !reported.entry(m.header.step).or_default().insert(n) {
-                            continue;
-                        }
-                        stages.add(tel.stage_micros);
-                        cost.late_messages += tel.late_messages as u64;
-                        if tel.rounds_completed > 1 {
-                            // Rounds 2..N_c: every neighbour is exchanging by then.
-                            round_latency.push(
-                                tel.stage_micros[2] as f64 / (tel.rounds_completed - 1) as f64,
-                            );
-                        }
-                        if (tel.live_neighbours as usize) < topology.neighbours[n as usize].len() {
-                            cost.rounds_with_fewer_neighbours += 1;
-                        }
                         rows.push(TickRow {
                             step: m.header.step,
                             node: format!("node-{n}"),
@@ -282,8 +263,7 @@ fn world_thread(
                     _ => {}
                 }
             }
-            rows.iter().for_each(|r| averages.add(r));
-            writer.write_ticks(&rows)?;
+            recorder.record(rows)?;
             w.poll_events();
         }
         if let Some(c) = central.as_mut() {
@@ -294,8 +274,7 @@ fn world_thread(
                 truth: truth.into(),
                 telemetry: central_telemetry(update.estimate, update.bound),
             };
-            averages.add(&row);
-            writer.write_ticks(&[row])?;
+            recorder.record(vec![row])?;
         }
         steps_done = step;
         progress(step);
@@ -345,45 +324,23 @@ fn world_thread(
         "actors stopped"
     );
     let accounting = merge_accounting(&options.out, topology, w.transport.accounting());
-    writer.write_links(&accounting)?;
-    // Node-steps without telemetry.
-    let expected_rows = steps_done as u64 * topology.nodes() as u64;
-    cost.missing_node_steps =
-        expected_rows.saturating_sub(reported.values().map(|s| s.len() as u64).sum());
-    cost.dropped_messages = accounting
-        .by_kind()
-        .values()
-        .map(|c| c.dropped_messages)
-        .sum();
-    let (traffic, bound_traffic) = traffic(&accounting, steps_done.max(1));
-    let summary = Summary {
-        command: if lockstep {
-            "run --lockstep".into()
-        } else {
-            "run".into()
+    let summary = recorder.finish(
+        &accounting,
+        RunFacts {
+            command: if lockstep {
+                "run --lockstep".into()
+            } else {
+                "run".into()
+            },
+            run_id: options.run_id.to_string(),
+            steps_done,
+            wall_seconds: started.elapsed().as_secs_f64(),
+            steps_per_second: steps_done as f64 / wall_steps,
+            processes: topology.nodes() + topology.sensors() + 1,
+            children_memory_kb: children_memory(&options.out, topology),
+            real_time_rounds: true,
         },
-        run_id: options.run_id.to_string(),
-        scenario: scenario.clone(),
-        steps: steps_done,
-        estimates: averages.estimates(),
-        traffic,
-        bound_traffic,
-        deadline_misses: averages.deadline_misses,
-        faults: scenario
-            .faults
-            .iter()
-            .map(AppliedFault::from_fault)
-            .collect(),
-        fault_cost: cost,
-        wall_seconds: started.elapsed().as_secs_f64(),
-        steps_per_second: steps_done as f64 / wall_steps,
-        stage_micros: stages.means(),
-        round_latency_micros: Percentiles::of(&mut round_latency),
-        processes: topology.nodes() + topology.sensors() + 1,
-        peak_memory_kb: crate::results::peak_memory_kb(),
-        children_memory_kb: children_memory(&options.out, topology),
-    };
-    writer.write_summary(&summary)?;
+    )?;
     if w.interrupted {
         bail!(
             "interrupted at step {steps_done}; results so far are in {}",

@@ -260,3 +260,143 @@ pub fn peak_memory_kb() -> Option<u64> {
         .parse()
         .ok()
 }
+
+/// What a run knows about itself beyond its rows, for the summary.
+pub struct RunFacts {
+    pub command: String,
+    pub run_id: String,
+    pub steps_done: u32,
+    pub wall_seconds: f64,
+    pub steps_per_second: f64,
+    pub processes: usize,
+    pub children_memory_kb: Option<crate::summary::ChildrenMemory>,
+    /// Whether the consensus round latency means anything: in `sim` the
+    /// rounds run on the virtual clock.
+    pub real_time_rounds: bool,
+}
+
+/// One recorder for `sim` and `run`: takes the rows as they come, writes
+/// `ticks.csv` as it goes, and at the end `links.csv` and `summary.json`.
+pub struct Recorder<'w> {
+    writer: &'w mut ResultsWriter,
+    scenario: fusion_graph::Scenario,
+    degree: Vec<usize>,
+    averages: Averages,
+    stages: crate::summary::StageSums,
+    cost: crate::summary::FaultCost,
+    round_latency: Vec<f64>,
+    /// Which nodes reported each step: a node's row counts once.
+    reported: std::collections::BTreeMap<u32, std::collections::BTreeSet<u16>>,
+}
+
+impl<'w> Recorder<'w> {
+    pub fn new(
+        writer: &'w mut ResultsWriter,
+        scenario: &fusion_graph::Scenario,
+        topology: &fusion_graph::Topology,
+    ) -> Self {
+        Self {
+            writer,
+            scenario: scenario.clone(),
+            degree: topology.neighbours.iter().map(Vec::len).collect(),
+            averages: Averages::default(),
+            stages: Default::default(),
+            cost: Default::default(),
+            round_latency: Vec::new(),
+            reported: Default::default(),
+        }
+    }
+
+    pub fn dir(&self) -> &Path {
+        self.writer.dir()
+    }
+
+    /// Whether `node` already reported `step`.
+    pub fn has_reported(&self, step: u32, node: u16) -> bool {
+        self.reported.get(&step).is_some_and(|s| s.contains(&node))
+    }
+
+    /// How many nodes reported `step`.
+    pub fn reports(&self, step: u32) -> usize {
+        self.reported.get(&step).map_or(0, |s| s.len())
+    }
+
+    /// Node rows (a repeated one is ignored) and the centralized
+    /// reference's, written at once.
+    pub fn record(&mut self, rows: Vec<TickRow>) -> anyhow::Result<()> {
+        let mut kept = Vec::with_capacity(rows.len());
+        for r in rows {
+            if let Some(n) = r
+                .node
+                .strip_prefix("node-")
+                .and_then(|n| n.parse::<u16>().ok())
+            {
+                if !self.reported.entry(r.step).or_default().insert(n) {
+                    continue;
+                }
+                let t = &r.telemetry;
+                self.stages.add(t.stage_micros);
+                self.cost.late_messages += t.late_messages as u64;
+                if t.rounds_completed > 1 {
+                    // Rounds 2..N_c: every neighbour is exchanging by then.
+                    self.round_latency
+                        .push(t.stage_micros[2] as f64 / (t.rounds_completed - 1) as f64);
+                }
+                if (t.live_neighbours as usize) < self.degree[n as usize] {
+                    self.cost.rounds_with_fewer_neighbours += 1;
+                }
+            }
+            self.averages.add(&r);
+            kept.push(r);
+        }
+        self.writer.write_ticks(&kept)
+    }
+
+    /// Writes `links.csv` and `summary.json`, and returns the summary.
+    pub fn finish(
+        mut self,
+        accounting: &Accounting,
+        facts: RunFacts,
+    ) -> anyhow::Result<crate::summary::Summary> {
+        self.writer.write_links(accounting)?;
+        let nodes = self.degree.len() as u64;
+        let reported: u64 = self.reported.values().map(|s| s.len() as u64).sum();
+        self.cost.missing_node_steps = (facts.steps_done as u64 * nodes).saturating_sub(reported);
+        self.cost.dropped_messages = accounting
+            .by_kind()
+            .values()
+            .map(|c| c.dropped_messages)
+            .sum();
+        let (traffic, bound_traffic) = traffic(accounting, facts.steps_done.max(1));
+        let summary = crate::summary::Summary {
+            command: facts.command,
+            run_id: facts.run_id,
+            scenario: self.scenario.clone(),
+            steps: facts.steps_done,
+            estimates: self.averages.estimates(),
+            traffic,
+            bound_traffic,
+            deadline_misses: self.averages.deadline_misses,
+            faults: self
+                .scenario
+                .faults
+                .iter()
+                .map(crate::summary::AppliedFault::from_fault)
+                .collect(),
+            fault_cost: self.cost,
+            wall_seconds: facts.wall_seconds,
+            steps_per_second: facts.steps_per_second,
+            stage_micros: self.stages.means(),
+            round_latency_micros: if facts.real_time_rounds {
+                crate::summary::Percentiles::of(&mut self.round_latency)
+            } else {
+                None
+            },
+            processes: facts.processes,
+            peak_memory_kb: peak_memory_kb(),
+            children_memory_kb: facts.children_memory_kb,
+        };
+        self.writer.write_summary(&summary)?;
+        Ok(summary)
+    }
+}

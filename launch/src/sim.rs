@@ -14,12 +14,15 @@ use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::scenario::{ConsensusProtocol, Scenario};
 use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
 use fusion_graph::wire::{Message, Payload, Telemetry};
-use fusion_graph::{ActorId, Topology};
-use node::{CentralizedReference, Contribution, NodeActor, Outgoing};
-use sensor::{SensorActor, SensorInput};
+use fusion_graph::{link_fault_seed, ActorId, Topology};
+use node::fusion::{ExactSumOracle, ExactSums};
+use node::sensor_manager::UniformRandom;
+use node::{CentralizedReference, NodeActor, Outgoing};
+use sensor::SensorActor;
 
-use crate::results::{traffic, Averages, ResultsWriter, TickRow};
-use crate::summary::{AppliedFault, FaultCost, StageSums, Summary};
+use crate::drive::{run_pending_work, send_all};
+use crate::results::{Recorder, ResultsWriter, RunFacts, TickRow};
+use crate::summary::Summary;
 use crate::world::World;
 
 struct SensorSlot {
@@ -50,6 +53,8 @@ pub struct InProcessNetwork {
     inbox: Vec<Message>,
     /// The membership view each node was last told.
     views: Vec<Vec<bool>>,
+    /// The exact sums' oracle, in the checking mode.
+    oracle: Option<Rc<RefCell<ExactSumOracle>>>,
 }
 
 impl InProcessNetwork {
@@ -58,38 +63,49 @@ impl InProcessNetwork {
         topology: &Topology,
         centralized: bool,
     ) -> anyhow::Result<Self> {
-        let format = node::wire_format(scenario, topology);
+        let format = scenario.wire_format(topology);
         let bus = MemoryBus::new();
-        let seed = scenario.seed;
-        let mut launcher = MemoryTransport::new(ActorId::Launcher, bus.clone(), format, seed);
+        let transport = |actor: ActorId| {
+            MemoryTransport::new(
+                actor,
+                bus.clone(),
+                format,
+                link_fault_seed(scenario.seed, actor),
+            )
+        };
+        let mut launcher = transport(ActorId::Launcher);
         for n in 0..topology.nodes() as u16 {
-            launcher.subscribe(Channel::Telemetry(n));
+            launcher.subscribe(Channel::Telemetry(n))?;
         }
         if centralized {
             for s in 0..topology.sensors() as u16 {
-                launcher.subscribe(Channel::Observation(s));
+                launcher.subscribe(Channel::Observation(s))?;
             }
         }
-        let sensors = (0..topology.sensors() as u16)
-            .map(|i| {
-                let mut transport = MemoryTransport::new(
-                    ActorId::Sensor(i),
-                    bus.clone(),
-                    format,
-                    seed ^ (0x5000 + i as u64),
-                );
-                transport.subscribe(Channel::Tick);
-                transport.subscribe(Channel::Activation(topology.sensor_owner[i as usize]));
-                SensorSlot {
-                    actor: SensorActor::new(scenario, topology, i),
-                    transport,
-                    alive: true,
-                }
-            })
-            .collect();
+        let mut sensors = Vec::new();
+        for i in 0..topology.sensors() as u16 {
+            let actor = SensorActor::new(scenario, topology, i)?;
+            let mut transport = transport(ActorId::Sensor(i));
+            for c in actor.subscriptions() {
+                transport.subscribe(c)?;
+            }
+            sensors.push(SensorSlot {
+                actor,
+                transport,
+                alive: true,
+            });
+        }
+        let oracle =
+            (scenario.consensus.protocol == ConsensusProtocol::Exact).then(ExactSumOracle::shared);
         let mut nodes = Vec::new();
         for i in 0..topology.nodes() as u16 {
-            nodes.push(Self::make_node(scenario, topology, &bus, i)?);
+            nodes.push(Self::make_node(
+                scenario,
+                topology,
+                &bus,
+                oracle.as_ref(),
+                i,
+            )?);
         }
         let central = centralized
             .then(|| CentralizedReference::new(scenario, topology))
@@ -103,30 +119,52 @@ impl InProcessNetwork {
             sensors,
             nodes,
             central,
-            world: World::new(scenario),
+            world: World::new(scenario)?,
             schedule: FaultSchedule::new(&scenario.faults),
             retired: Accounting::default(),
             outgoing: Vec::new(),
             inbox: Vec::new(),
             views: Vec::new(),
+            oracle,
         })
     }
 
+    /// Node `i`; with the exact-sum oracle in the checking mode.
     fn make_node(
         scenario: &Scenario,
         topology: &Topology,
         bus: &Rc<RefCell<MemoryBus>>,
+        oracle: Option<&Rc<RefCell<ExactSumOracle>>>,
         i: u16,
     ) -> anyhow::Result<NodeSlot> {
-        let actor = NodeActor::new(scenario, topology, i).with_context(|| format!("node-{i}"))?;
+        let actor = match oracle {
+            None => NodeActor::new(scenario, topology, i),
+            Some(oracle) => NodeActor::with_parts(
+                scenario,
+                topology,
+                i,
+                Box::new(UniformRandom::new(
+                    scenario.seed,
+                    scenario.sensors.active_per_node as usize,
+                    scenario.sensors.max_active_total.map(|m| m as usize),
+                )),
+                Box::new(ExactSums::new(
+                    i,
+                    topology,
+                    oracle.clone(),
+                    Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3),
+                )),
+            ),
+        }
+        .with_context(|| format!("node-{i}"))?;
         let mut transport = MemoryTransport::new(
             ActorId::Node(i),
             bus.clone(),
-            node::wire_format(scenario, topology),
-            scenario.seed ^ (0x1000 + i as u64),
+            scenario.wire_format(topology),
+            link_fault_seed(scenario.seed, ActorId::Node(i)),
         );
         for c in actor.subscriptions() {
-            transport.subscribe(c);
+            transport.subscribe(c)?;
         }
         Ok(NodeSlot {
             actor,
@@ -178,8 +216,13 @@ impl InProcessNetwork {
                         self.retired
                             .merge(self.nodes[i as usize].transport.accounting());
                         self.bus.borrow_mut().clear_inbox(ActorId::Node(i));
-                        self.nodes[i as usize] =
-                            Self::make_node(&self.scenario, &self.topology, &self.bus, i)?;
+                        self.nodes[i as usize] = Self::make_node(
+                            &self.scenario,
+                            &self.topology,
+                            &self.bus,
+                            self.oracle.as_ref(),
+                            i,
+                        )?;
                         self.nodes[i as usize].actor.expect_rejoin();
                     }
                     changed = true;
@@ -237,11 +280,6 @@ impl InProcessNetwork {
             if progressed {
                 continue;
             }
-            if self.scenario.consensus.protocol == ConsensusProtocol::Exact
-                && self.apply_exact_sums()?
-            {
-                continue;
-            }
             let live = self.nodes.iter().filter(|n| n.alive).count();
             if telemetry.len() >= live {
                 break;
@@ -254,10 +292,9 @@ impl InProcessNetwork {
                     self.bus.borrow_mut().set_now(now);
                     for n in self.nodes.iter_mut().filter(|n| n.alive) {
                         self.outgoing.clear();
-                        n.actor.handle_deadline(now, &mut self.outgoing);
-                        for o in self.outgoing.drain(..) {
-                            n.transport.send(o.channel, &o.message, &o.receivers)?;
-                        }
+                        n.actor.handle_timeout(now, &mut self.outgoing);
+                        run_pending_work(&mut n.actor, || now, &mut self.outgoing);
+                        send_all(&mut n.transport, &mut self.outgoing)?;
                     }
                 }
                 _ => break,
@@ -294,7 +331,7 @@ impl InProcessNetwork {
             }
         };
         for n in self.nodes.iter_mut().filter(|n| n.alive) {
-            consider(n.actor.next_deadline());
+            consider(n.actor.poll_timeout());
             consider(n.transport.shaper().next_due());
         }
         for s in self.sensors.iter_mut().filter(|s| s.alive) {
@@ -319,40 +356,13 @@ impl InProcessNetwork {
             }
             for m in self.inbox.drain(..) {
                 progressed = true;
-                let input = match m.payload {
-                    Payload::Tick { truth } => SensorInput::Tick {
-                        step: m.header.step,
-                        truth: State::from(truth),
-                    },
-                    Payload::Activate { ref mask } => {
-                        let ActorId::Node(owner) = m.header.sender else {
-                            continue;
-                        };
-                        let me = s.transport.me();
-                        let position = self.topology.node_sensors[owner as usize]
-                            .iter()
-                            .position(|x| ActorId::Sensor(*x) == me);
-                        let active = position.is_some_and(|p| {
-                            mask.get(p / 8).is_some_and(|b| b & (1 << (p % 8)) != 0)
-                        });
-                        SensorInput::Activation {
-                            step: m.header.step,
-                            active,
-                        }
-                    }
-                    _ => continue,
-                };
-                if let Some(obs) = s.actor.handle(input) {
-                    let ActorId::Sensor(i) = s.transport.me() else {
-                        unreachable!()
-                    };
-                    let node = ActorId::Node(self.topology.sensor_owner[i as usize]);
+                if let Some(obs) = s.actor.handle(&m) {
                     let receivers: &[ActorId] = if self.central.is_some() {
-                        &[node, ActorId::Launcher]
+                        &[s.actor.owner(), ActorId::Launcher]
                     } else {
-                        &[node]
+                        &[s.actor.owner()]
                     };
-                    s.transport.send(Channel::Observation(i), &obs, receivers)?;
+                    s.transport.send(s.actor.publication(), &obs, receivers)?;
                 }
             }
         }
@@ -366,9 +376,8 @@ impl InProcessNetwork {
                 progressed = true;
                 self.outgoing.clear();
                 n.actor.handle(&m, now, &mut self.outgoing);
-                for o in self.outgoing.drain(..) {
-                    n.transport.send(o.channel, &o.message, &o.receivers)?;
-                }
+                run_pending_work(&mut n.actor, || now, &mut self.outgoing);
+                send_all(&mut n.transport, &mut self.outgoing)?;
             }
         }
         self.inbox.clear();
@@ -388,50 +397,6 @@ impl InProcessNetwork {
             }
         }
         Ok(progressed)
-    }
-
-    /// Checking mode: once every live node waits for its sums, hands each the
-    /// exact sum over its live connected component. True if it did.
-    fn apply_exact_sums(&mut self) -> anyhow::Result<bool> {
-        let live: Vec<bool> = self.nodes.iter().map(|n| n.alive).collect();
-        let contributions: Vec<Option<Contribution>> = self
-            .nodes
-            .iter()
-            .map(|n| {
-                if n.alive {
-                    n.actor.pending_contribution()
-                } else {
-                    None
-                }
-            })
-            .collect();
-        if contributions
-            .iter()
-            .zip(&live)
-            .any(|(c, a)| *a && c.is_none())
-            || !live.iter().any(|a| *a)
-        {
-            return Ok(false);
-        }
-        for component in self.topology.components(&live) {
-            let mut sum = Contribution::zero();
-            for &i in &component {
-                let c = contributions[i as usize].expect("checked above");
-                sum.delta_eta += c.delta_eta;
-                sum.delta_lambda += c.delta_lambda;
-                sum.delta_l += c.delta_l;
-                sum.s_obs += c.s_obs;
-            }
-            for &i in &component {
-                let n = &mut self.nodes[i as usize];
-                self.outgoing.clear();
-                n.actor.apply_exact_sums(&sum, &mut self.outgoing);
-                for o in self.outgoing.drain(..) {
-                    n.transport.send(o.channel, &o.message, &o.receivers)?;
-                }
-            }
-        }
-        Ok(true)
     }
 }
 
@@ -461,63 +426,23 @@ pub fn run_in_process(
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
-    let mut averages = Averages::default();
-    let mut stages = StageSums::default();
-    let mut cost = FaultCost::default();
-    let degree: Vec<usize> = topology.neighbours.iter().map(Vec::len).collect();
+    let mut recorder = Recorder::new(writer, scenario, topology);
     for step in 1..=scenario.steps {
-        let rows = net.step(step)?;
-        let node_rows = rows.iter().filter(|r| r.node != "central").count();
-        cost.missing_node_steps += (topology.nodes() - node_rows) as u64;
-        for r in &rows {
-            averages.add(r);
-            if let Some(n) = r
-                .node
-                .strip_prefix("node-")
-                .and_then(|n| n.parse::<usize>().ok())
-            {
-                stages.add(r.telemetry.stage_micros);
-                if (r.telemetry.live_neighbours as usize) < degree[n] {
-                    cost.rounds_with_fewer_neighbours += 1;
-                }
-            }
-        }
-        writer.write_ticks(&rows)?;
+        recorder.record(net.step(step)?)?;
         progress(step);
     }
-    let accounting = net.accounting();
-    writer.write_links(&accounting)?;
-    cost.dropped_messages = accounting
-        .by_kind()
-        .values()
-        .map(|c| c.dropped_messages)
-        .sum();
-    cost.late_messages = net.nodes.iter().map(|n| n.actor.late_messages()).sum();
     let wall = started.elapsed().as_secs_f64();
-    let (traffic, bound_traffic) = traffic(&accounting, scenario.steps);
-    let summary = Summary {
-        command: "sim".into(),
-        run_id: format!("sim-seed-{}", scenario.seed),
-        scenario: scenario.clone(),
-        steps: scenario.steps,
-        estimates: averages.estimates(),
-        traffic,
-        bound_traffic,
-        deadline_misses: averages.deadline_misses,
-        faults: scenario
-            .faults
-            .iter()
-            .map(AppliedFault::from_fault)
-            .collect(),
-        fault_cost: cost,
-        wall_seconds: wall,
-        steps_per_second: scenario.steps as f64 / wall,
-        stage_micros: stages.means(),
-        round_latency_micros: None,
-        processes: 1,
-        peak_memory_kb: crate::results::peak_memory_kb(),
-        children_memory_kb: None,
-    };
-    writer.write_summary(&summary)?;
-    Ok(summary)
+    recorder.finish(
+        &net.accounting(),
+        RunFacts {
+            command: "sim".into(),
+            run_id: format!("sim-seed-{}", scenario.seed),
+            steps_done: scenario.steps,
+            wall_seconds: wall,
+            steps_per_second: scenario.steps as f64 / wall,
+            processes: 1,
+            children_memory_kb: None,
+            real_time_rounds: false,
+        },
+    )
 }

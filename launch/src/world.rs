@@ -4,12 +4,9 @@
 use bounds::{Dynamics, State};
 use fusion_graph::scenario::Scenario;
 use fusion_graph::transport::{Channel, Transport};
-use fusion_graph::wire::{Control, Message, Payload};
-use fusion_graph::{ActorId, TransportError};
-use rand::SeedableRng;
+use fusion_graph::wire::{BitMask, Control, Message, Payload};
+use fusion_graph::{stream_rng, ActorId, ScenarioError, SendError, Stream};
 use rand_chacha::ChaCha8Rng;
-
-const TRUTH_STREAM: u64 = 7;
 
 pub struct World {
     dynamics: Dynamics,
@@ -18,17 +15,12 @@ pub struct World {
 }
 
 impl World {
-    pub fn new(s: &Scenario) -> Self {
-        Self {
-            dynamics: node::actor::dynamics(s),
+    pub fn new(s: &Scenario) -> Result<Self, ScenarioError> {
+        Ok(Self {
+            dynamics: s.models()?.dynamics,
             state: State::from(s.target.initial_state()),
-            rng: ChaCha8Rng::seed_from_u64(sensor::stream_seed(
-                s.seed,
-                ActorId::Launcher,
-                0,
-                TRUTH_STREAM,
-            )),
-        }
+            rng: stream_rng(s.seed, ActorId::Launcher, 0, Stream::Truth),
+        })
     }
 
     /// `x(k) = f(x(k−1)) + ξ(k)`: the truth of the next step.
@@ -55,7 +47,7 @@ pub fn begin_step<T: Transport + ?Sized>(
     views: &[Vec<bool>],
     told: &[Vec<bool>],
     process_faults: bool,
-) -> Result<(), TransportError> {
+) -> Result<(), SendError> {
     let sensors: Vec<ActorId> = (0..sensors_alive.len() as u16)
         .filter(|s| sensors_alive[*s as usize])
         .map(ActorId::Sensor)
@@ -76,7 +68,7 @@ pub fn begin_step<T: Transport + ?Sized>(
         }
         let to = ActorId::Node(n as u16);
         if process_faults || told.get(n) != Some(view) {
-            let alive = crate::membership_mask(view);
+            let alive = BitMask::from_bools(view);
             launcher.send(
                 Channel::Control(to),
                 &Message::new(

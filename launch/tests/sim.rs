@@ -125,7 +125,7 @@ fn the_bound_falls_from_four_to_eight_bits_and_eight_bits_is_near_raw() {
 fn links_csv_bytes_are_the_encoded_message_sizes() {
     let (s, dir) = run("bytes", &["steps=12"], true);
     let (scenario, topology) = scenario(&["steps=12"]);
-    let format = node::wire_format(&scenario, &topology);
+    let format = scenario.wire_format(&topology);
     let links =
         Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
     for (kind, c) in links.by_kind() {

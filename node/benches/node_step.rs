@@ -7,39 +7,30 @@ use std::hint::black_box;
 
 use bounds::State;
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
-use fusion_graph::wire::Payload;
-use fusion_graph::{Scenario, Topology};
-use node::actor::{network_prior, sensing_model};
-use node::estimator::{Contribution, FusionFilter, LocalFilter, Observation, ObservedValue};
+use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
+use node::estimator::{
+    Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
+};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sensor::{SensorActor, SensorInput};
 
 fn bench(c: &mut Criterion) {
     let scenario = Scenario::default_scenario();
     let topology = Topology::from_scenario(&scenario, "default").unwrap();
-    let model = sensing_model(&scenario, &topology);
-    let prior = network_prior(&scenario);
+    let model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+    let prior = scenario.network_prior(&scenario.models().unwrap());
     let truth = State::from(scenario.target.initial_state());
-    // Three sensors of node 8 (the cell the target starts in).
+    let quantizer = model.quantizer.as_ref().unwrap();
+    // Three sensors of node 8 (the cell the target starts in), measured as
+    // the sensors themselves would at step 1.
     let observations: Vec<Observation> = topology.node_sensors[8][..3]
         .iter()
         .map(|&s| {
-            let mut a = SensorActor::new(&scenario, &topology, s);
-            a.handle(SensorInput::Tick { step: 1, truth });
-            let Payload::Observation { cell } = a
-                .handle(SensorInput::Activation {
-                    step: 1,
-                    active: true,
-                })
-                .unwrap()
-                .payload
-            else {
-                unreachable!()
-            };
+            let mut noise = stream_rng(scenario.seed, ActorId::Sensor(s), 1, Stream::SensorNoise);
+            let z = model.sensors[s as usize].sample(&truth, &mut noise);
             Observation {
                 sensor: s,
-                value: ObservedValue::Cell(cell),
+                value: ObservedValue::Cell(quantizer.encode(z)),
             }
         })
         .collect();

@@ -5,15 +5,10 @@
 use bounds::BoundError;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::wire::{Message, Payload};
-use fusion_graph::{ActorId, Topology};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use sensor::stream_seed;
+use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 
-use crate::actor::{network_prior, sensing_model};
+use crate::actor::NodeError;
 use crate::estimator::{LocalFilter, LocalUpdate, Observation, ObservedValue, SensingModel};
-
-const CENTRAL_STREAM: u64 = 6;
 
 pub struct CentralizedReference {
     model: SensingModel,
@@ -23,20 +18,13 @@ pub struct CentralizedReference {
 }
 
 impl CentralizedReference {
-    pub fn new(scenario: &Scenario, topology: &Topology) -> Result<Self, BoundError> {
-        let rng = ChaCha8Rng::seed_from_u64(stream_seed(
-            scenario.seed,
-            ActorId::Launcher,
-            0,
-            CENTRAL_STREAM,
-        ));
+    pub fn new(scenario: &Scenario, topology: &Topology) -> Result<Self, NodeError> {
+        let rng = stream_rng(scenario.seed, ActorId::Launcher, 0, Stream::CentralFilter);
+        let prior = scenario.network_prior(&scenario.models()?);
         Ok(Self {
-            model: sensing_model(scenario, topology),
-            filter: LocalFilter::new(
-                scenario.filter.particles as usize,
-                &network_prior(scenario),
-                rng,
-            )?,
+            model: SensingModel::from_scenario(scenario, topology)?,
+            filter: LocalFilter::new(scenario.filter.particles as usize, &prior, rng)
+                .map_err(NodeError::Reference)?,
             step: 0,
             received: Vec::new(),
         })

@@ -12,9 +12,10 @@ use std::f64::consts::PI;
 use bounds::fisher::{ln_cell_probability, observed_information};
 use bounds::pcrlb::{information_update, observation_information};
 use bounds::{
-    wrap_angle, BoundError, ConditionalBound, Dynamics, Mat4, Measurement, ObservationModel,
-    Quantizer, SensorTerm, State,
+    wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
+    ObservationModel, Quantizer, SensorTerm, State,
 };
+use fusion_graph::{Scenario, ScenarioError, Topology};
 use nalgebra::{Cholesky, SymmetricEigen};
 use rand_chacha::ChaCha8Rng;
 
@@ -42,6 +43,20 @@ pub struct SensingModel {
 }
 
 impl SensingModel {
+    /// The scenario's models, with every sensor of the topology.
+    pub fn from_scenario(scenario: &Scenario, topology: &Topology) -> Result<Self, ScenarioError> {
+        let models = scenario.models()?;
+        Ok(Self {
+            sensors: topology
+                .sensor_positions
+                .iter()
+                .map(|p| models.law.at(*p))
+                .collect(),
+            dynamics: models.dynamics,
+            quantizer: models.quantizer,
+        })
+    }
+
     fn measurement(&self) -> Measurement<'_> {
         match &self.quantizer {
             Some(q) => Measurement::Quantized(q),
@@ -105,12 +120,17 @@ impl Contribution {
 /// summary is trusted.
 const MIN_IMPORTANCE_ESS: f64 = 50.0;
 
-/// The local filter and its local conditional PCRLB.
+/// The local filter and its local conditional PCRLB. Its step is split in
+/// two, the predictor and the updater, so that a sensor manager can score
+/// candidate sensors on the predicted particles before any is activated.
 #[derive(Debug, Clone)]
 pub struct LocalFilter {
     filter: ParticleFilter,
     bound: ConditionalBound,
     rng: ChaCha8Rng,
+    /// The bound's dynamics terms and the predicted summary, between
+    /// [`predict`](Self::predict) and [`update`](Self::update).
+    prediction: Option<(DynamicsTerms, Gaussian)>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -133,11 +153,13 @@ impl LocalFilter {
             filter,
             bound: ConditionalBound::from_prior(&prior.cov)?,
             rng,
+            prediction: None,
         })
     }
 
     /// Restarts from a Gaussian posterior and information matrix (rejoin).
     pub fn reset(&mut self, posterior: &Gaussian, information: Mat4) {
+        self.prediction = None;
         if self
             .filter
             .reset_gaussian(posterior, &mut self.rng)
@@ -147,18 +169,42 @@ impl LocalFilter {
         }
     }
 
-    /// One step with the observations received (sorted by sensor, so the
-    /// result does not depend on arrival order). `with_observed_information`
-    /// also computes the auxiliary-FIM term.
+    /// Predictor: propagates the particles to this step (once; a second
+    /// call before [`update`](Self::update) changes nothing) and returns them.
+    pub fn predict(&mut self, model: &SensingModel) -> Result<&[State], BoundError> {
+        if self.prediction.is_none() {
+            self.prediction = Some(
+                self.filter
+                    .predict_for_bound(&model.dynamics, &mut self.rng)?,
+            );
+        }
+        Ok(self.filter.particles())
+    }
+
+    /// One whole step: [`predict`](Self::predict), then [`update`](Self::update).
     pub fn step(
         &mut self,
         model: &SensingModel,
         observations: &[Observation],
         with_observed_information: bool,
     ) -> Result<LocalUpdate, BoundError> {
-        let (terms, predicted) = self
-            .filter
-            .predict_for_bound(&model.dynamics, &mut self.rng)?;
+        self.predict(model)?;
+        self.update(model, observations, with_observed_information)
+    }
+
+    /// Updater: weights the predicted particles by the observations received
+    /// (sorted by sensor, so the result does not depend on arrival order),
+    /// resamples, and advances the local bound. Predicts first if
+    /// [`predict`](Self::predict) was not called. `with_observed_information`
+    /// also computes the auxiliary-FIM term.
+    pub fn update(
+        &mut self,
+        model: &SensingModel,
+        observations: &[Observation],
+        with_observed_information: bool,
+    ) -> Result<LocalUpdate, BoundError> {
+        self.predict(model)?;
+        let (terms, predicted) = self.prediction.take().expect("predicted above");
 
         let sensors: Vec<SensorTerm> = observations
             .iter()

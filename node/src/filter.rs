@@ -3,17 +3,11 @@
 //! Buffers are allocated once; a step allocates nothing.
 
 use bounds::pcrlb::dynamics_terms;
+pub use bounds::Gaussian;
 use bounds::{BoundError, Dynamics, DynamicsTerms, Mat4, State};
 use nalgebra::Cholesky;
 use rand::Rng;
 use rand_distr::StandardNormal;
-
-/// Mean and covariance of a weighted particle set.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Gaussian {
-    pub mean: State,
-    pub cov: Mat4,
-}
 
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {

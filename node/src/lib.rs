@@ -1,14 +1,45 @@
 //! The processing-node actor of cqnet: the consensus-based distributed
 //! particle filter (CF/DPF) with the distributed CQ/dPCRLB, as a state
 //! machine with no I/O; and the centralized reference it is compared with.
+//!
+//! Rooms, by estimation role:
+//! - [`filter`]: the particle filter's predictor, updater, resampler and
+//!   regulariser;
+//! - [`estimator`]: the CF/DPF's local and fusion filters with their bounds;
+//! - [`sensor_manager`]: which sensors a node activates;
+//! - [`collector`]: a step's observations, and which sensors stayed silent;
+//! - [`fusion`]: the fusion protocols (average consensus, exact sums,
+//!   min-consensus) over a shared round engine;
+//! - [`actor`]: the node's state machine, tying them together.
 
 pub mod actor;
 pub mod centralized;
+pub mod collector;
 pub mod estimator;
 pub mod filter;
+pub mod fusion;
+pub mod sensor_manager;
 
-pub use actor::{network_prior, sensing_model, wire_format, NodeActor, Outgoing};
+#[cfg(test)]
+mod harness;
+
+pub use actor::{NodeActor, NodeError, Work};
 pub use centralized::CentralizedReference;
 pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
+
+use fusion_graph::transport::Channel;
+use fusion_graph::wire::Message;
+use fusion_graph::ActorId;
+
+/// A message to publish.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outgoing {
+    pub channel: Channel,
+    pub message: Message,
+    pub receivers: Vec<ActorId>,
+    /// Whom to wake, when not every receiver: the activation reaches all of
+    /// a node's sensors but wakes only the active ones.
+    pub wake: Option<Vec<ActorId>>,
+}

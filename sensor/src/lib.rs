@@ -1,105 +1,25 @@
 //! The sensor actor as an I/O-free state machine.
 //!
 //! A sensor learns the true state of step k from the launcher's tick and
-//! whether it is active from its node's activation message; the two arrive in
-//! either order. When it has both, it measures through its observation model,
+//! whether it is active from its node's activation message: decoded
+//! messages, in either order. When it has both, it measures through its observation model,
 //! quantizes (or not) and emits one observation message. The noise of step k
 //! is drawn from a generator seeded by (scenario seed, sensor, k), so the
 //! observation does not depend on message timing: the in-process driver and
 //! the multi-process runtime see the same values.
 
-use std::f64::consts::PI;
-
 use bounds::{ObservationModel, Quantizer, State};
-use fusion_graph::scenario::{ObservationConfig, Scenario};
+use fusion_graph::scenario::Scenario;
+use fusion_graph::transport::Channel;
 use fusion_graph::wire::{Message, Payload};
-use fusion_graph::{ActorId, Topology};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-
-/// The observation model of the scenario, placed at `position`.
-pub fn observation_model(config: &ObservationConfig, position: [f64; 2]) -> ObservationModel {
-    match *config {
-        ObservationConfig::Bearing { sigma_theta, d0 } => ObservationModel::Bearing {
-            sensor: position,
-            sigma_theta,
-            d0,
-        },
-        ObservationConfig::Rss {
-            p0,
-            zeta,
-            d0,
-            sigma,
-        } => ObservationModel::Rss {
-            sensor: position,
-            p0,
-            zeta,
-            d0,
-            sigma,
-        },
-        ObservationConfig::Amplitude {
-            p0,
-            alpha,
-            exponent,
-            sigma,
-        } => ObservationModel::Amplitude {
-            sensor: position,
-            p0,
-            alpha,
-            exponent,
-            sigma,
-        },
-    }
-}
-
-/// The scenario's quantizer, or `None` when sensors send raw values.
-pub fn quantizer(s: &Scenario) -> Option<Quantizer> {
-    if s.quantizer.raw {
-        return None;
-    }
-    let q = match s.observation {
-        ObservationConfig::Bearing { .. } => Quantizer::uniform_wrapped(s.quantizer.bits, -PI, PI),
-        _ => Quantizer::uniform(
-            s.quantizer.bits,
-            s.quantizer.lo.unwrap_or(0.0),
-            s.quantizer.hi.unwrap_or(1.0),
-        ),
-    };
-    Some(q.expect("validated with the scenario"))
-}
-
-/// A seed for one purpose of one actor at one step, so that streams of
-/// randomness never depend on the order in which messages arrive.
-pub fn stream_seed(scenario_seed: u64, actor: ActorId, step: u32, purpose: u64) -> u64 {
-    let (kind, index) = actor.to_wire();
-    let mut x = scenario_seed ^ 0x9e37_79b9_7f4a_7c15;
-    for v in [kind as u64, index as u64, step as u64, purpose] {
-        // splitmix64
-        x = x
-            .wrapping_add(v.wrapping_mul(0xbf58_476d_1ce4_e5b9))
-            .wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = x;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        x = z ^ (z >> 31);
-    }
-    x
-}
-
-const NOISE_STREAM: u64 = 1;
-
-/// What a sensor is told.
-#[derive(Debug, Clone, PartialEq)]
-pub enum SensorInput {
-    /// The launcher's tick: the step and the true state.
-    Tick { step: u32, truth: State },
-    /// The node's activation for a step.
-    Activation { step: u32, active: bool },
-}
+use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 
 #[derive(Debug, Clone)]
 pub struct SensorActor {
     index: u16,
+    owner: u16,
+    /// This sensor's place in its node's list: its bit in the activation mask.
+    slot: usize,
     model: ObservationModel,
     quantizer: Option<Quantizer>,
     seed: u64,
@@ -111,34 +31,64 @@ pub struct SensorActor {
 }
 
 impl SensorActor {
-    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Self {
-        Self {
+    pub fn new(
+        scenario: &Scenario,
+        topology: &Topology,
+        index: u16,
+    ) -> Result<Self, ScenarioError> {
+        let models = scenario.models()?;
+        let owner = topology.sensor_owner[index as usize];
+        let slot = topology.node_sensors[owner as usize]
+            .iter()
+            .position(|s| *s == index)
+            .expect("the topology lists every sensor under its owner");
+        Ok(Self {
             index,
-            model: observation_model(
-                &scenario.observation,
-                topology.sensor_positions[index as usize],
-            ),
-            quantizer: quantizer(scenario),
+            owner,
+            slot,
+            model: models.law.at(topology.sensor_positions[index as usize]),
+            quantizer: models.quantizer,
             seed: scenario.seed,
             truth: None,
             activated: None,
             last_sent: None,
-        }
+        })
     }
 
     pub fn id(&self) -> ActorId {
         ActorId::Sensor(self.index)
     }
 
-    /// Handles one input; returns the observation to send, if this completes one.
-    pub fn handle(&mut self, input: SensorInput) -> Option<Message> {
-        match input {
-            SensorInput::Tick { step, truth } => self.truth = Some((step, truth)),
-            SensorInput::Activation { step, active } => {
-                if active {
+    /// The node this sensor reports to.
+    pub fn owner(&self) -> ActorId {
+        ActorId::Node(self.owner)
+    }
+
+    /// The channels this sensor reads: the launcher's tick and its node's activations.
+    pub fn subscriptions(&self) -> [Channel; 2] {
+        [Channel::Tick, Channel::Activation(self.owner)]
+    }
+
+    /// The channel its observations go out on.
+    pub fn publication(&self) -> Channel {
+        Channel::Observation(self.index)
+    }
+
+    /// Handles one message: the launcher's tick (the step and the true
+    /// state) or its node's activation. Returns the observation to send, if
+    /// this completes one; anything else is ignored.
+    pub fn handle(&mut self, message: &Message) -> Option<Message> {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Tick { truth }, ActorId::Launcher) => {
+                self.truth = Some((step, State::from(*truth)))
+            }
+            (Payload::Activate { mask }, ActorId::Node(n)) if n == self.owner => {
+                if mask.contains(self.slot) {
                     self.activated = Some(step);
                 }
             }
+            _ => return None,
         }
         let (step, truth) = self.truth?;
         if self.activated != Some(step) || self.last_sent == Some(step) {
@@ -149,8 +99,7 @@ impl SensorActor {
     }
 
     fn measure(&self, step: u32, truth: &State) -> Payload {
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(stream_seed(self.seed, self.id(), step, NOISE_STREAM));
+        let mut rng = stream_rng(self.seed, self.id(), step, Stream::SensorNoise);
         let z = self.model.sample(truth, &mut rng);
         match &self.quantizer {
             Some(q) => Payload::Observation { cell: q.encode(z) },
@@ -163,64 +112,70 @@ impl SensorActor {
 mod tests {
     use super::*;
 
+    use fusion_graph::BitMask;
+
     fn actor() -> SensorActor {
         let s = Scenario::default_scenario();
         let t = Topology::from_scenario(&s, "d").unwrap();
-        SensorActor::new(&s, &t, 12)
+        SensorActor::new(&s, &t, 12).unwrap()
+    }
+
+    fn tick(step: u32, truth: State) -> Message {
+        Message::new(
+            ActorId::Launcher,
+            step,
+            0,
+            Payload::Tick {
+                truth: truth.into(),
+            },
+        )
+    }
+
+    /// Sensor 12 is the 13th of node 0's sensors.
+    fn activation(step: u32, active: bool) -> Message {
+        let mask = BitMask::from_indices(active.then_some(12));
+        Message::new(ActorId::Node(0), step, 0, Payload::Activate { mask })
     }
 
     #[test]
     fn measures_once_per_step_when_both_inputs_arrived_in_either_order() {
         let truth = State::new(1000.0, 900.0, -6.0, -7.0);
         let mut a = actor();
-        assert!(a.handle(SensorInput::Tick { step: 1, truth }).is_none());
-        let first = a
-            .handle(SensorInput::Activation {
-                step: 1,
-                active: true,
-            })
-            .unwrap();
+        assert!(a.handle(&tick(1, truth)).is_none());
+        let first = a.handle(&activation(1, true)).unwrap();
         assert!(
-            a.handle(SensorInput::Activation {
-                step: 1,
-                active: true
-            })
-            .is_none(),
+            a.handle(&activation(1, true)).is_none(),
             "one observation per step"
         );
         let mut b = actor();
-        b.handle(SensorInput::Activation {
-            step: 1,
-            active: true,
-        });
-        let second = b.handle(SensorInput::Tick { step: 1, truth }).unwrap();
+        b.handle(&activation(1, true));
+        let second = b.handle(&tick(1, truth)).unwrap();
         assert_eq!(
             first, second,
             "arrival order must not change the observation"
         );
         // Not activated: silent.
-        assert!(a.handle(SensorInput::Tick { step: 2, truth }).is_none());
-        assert!(a
-            .handle(SensorInput::Activation {
-                step: 2,
-                active: false
-            })
-            .is_none());
+        assert!(a.handle(&tick(2, truth)).is_none());
+        assert!(a.handle(&activation(2, false)).is_none());
     }
 
     #[test]
     fn quantized_observation_lands_near_the_true_bearing() {
         let truth = State::new(1000.0, 900.0, -6.0, -7.0);
         let mut a = actor();
-        let q = quantizer(&Scenario::default_scenario()).unwrap();
+        let q = Scenario::default_scenario()
+            .models()
+            .unwrap()
+            .quantizer
+            .unwrap();
         let e = a.model.evaluate(&truth);
         let mut misses = 0;
         for step in 1..=200 {
-            a.handle(SensorInput::Tick { step, truth });
+            a.handle(&tick(step, truth));
             let Some(Message {
                 payload: Payload::Observation { cell },
                 ..
-            }) = a.handle(SensorInput::Activation { step, active: true })
+            }) = a.handle(&activation(step, true))
             else {
                 panic!("no observation")
             };

@@ -16,13 +16,13 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 
-use super::{Channel, Inbound, Transport};
+use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
 use crate::shaper::LinkShaper;
 use crate::topology::Topology;
 use crate::wire::{Message, WireFormat, HEADER_BYTES};
-use crate::TransportError;
+use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 /// Where iceoryx2 keeps its files besides `/dev/shm`.
 const ICEORYX_ROOT: &str = "/tmp/iceoryx2";
@@ -34,14 +34,14 @@ const OPEN_ATTEMPTS: u32 = 100;
 pub struct RunId(String);
 
 impl RunId {
-    pub fn new(id: &str) -> Result<Self, TransportError> {
+    pub fn new(id: &str) -> Result<Self, SetupError> {
         let ok = !id.is_empty()
             && id.len() <= 32
             && id
                 .bytes()
                 .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
         if !ok {
-            return Err(TransportError::BadRunId { id: id.into() });
+            return Err(SetupError::BadRunId { id: id.into() });
         }
         Ok(Self(id.into()))
     }
@@ -63,23 +63,15 @@ impl RunId {
         format!("cqnet_{}_", self.0.replace('-', "_"))
     }
 
-    fn config(&self) -> Result<Config, TransportError> {
+    fn config(&self) -> Result<Config, SetupError> {
         let mut config = Config::default();
         config.global.prefix =
-            FileName::new(self.prefix().as_bytes()).map_err(|e| TransportError::Iceoryx {
-                what: "run prefix".into(),
-                message: format!("{e:?}"),
-            })?;
+            FileName::new(self.prefix().as_bytes()).map_err(|e| setup("run prefix", e))?;
         Ok(config)
     }
 
-    fn service_name(&self, suffix: &str) -> Result<ServiceName, TransportError> {
-        ServiceName::new(&format!("cqnet/{}/{suffix}", self.0)).map_err(|e| {
-            TransportError::Iceoryx {
-                what: suffix.into(),
-                message: format!("{e:?}"),
-            }
-        })
+    fn service_name(&self, suffix: &str) -> Result<ServiceName, SetupError> {
+        ServiceName::new(&format!("cqnet/{}/{suffix}", self.0)).map_err(|e| setup(suffix, e))
     }
 }
 
@@ -194,15 +186,15 @@ impl IceoryxTransport {
         topology: &Topology,
         format: WireFormat,
         seed: u64,
-    ) -> Result<Self, TransportError> {
+    ) -> Result<Self, SetupError> {
         let config = run.config()?;
-        let name = NodeName::new(&me.to_string()).map_err(|e| iox("node name", e))?;
+        let name = NodeName::new(&me.to_string()).map_err(|e| setup("node name", e))?;
         let node = NodeBuilder::new()
             .config(&config)
             .name(&name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
-            .map_err(|e| iox("node", e))?;
+            .map_err(|e| setup("node", e))?;
         let mut t = Self {
             me,
             run: run.clone(),
@@ -212,7 +204,7 @@ impl IceoryxTransport {
             listener: open_wake(&node, run, me, topology)?
                 .listener_builder()
                 .create()
-                .map_err(|e| iox("listener", e))?,
+                .map_err(|e| setup("listener", e))?,
             node,
             publishers: HashMap::new(),
             subscribers: Vec::new(),
@@ -231,7 +223,7 @@ impl IceoryxTransport {
         channel: Channel,
     ) -> Result<
         iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>,
-        TransportError,
+        SetupError,
     > {
         let name = self.run.service_name(&channel.service_suffix())?;
         let subs = channel.subscribers(&self.topology) + 1;
@@ -247,83 +239,46 @@ impl IceoryxTransport {
                 .history_size(0)
                 .open_or_create()
         })
-        .map_err(|e| iox(&channel.service_suffix(), e))
+        .map_err(|e| setup(&channel.service_suffix(), e))
     }
 
-    /// Becomes the publisher of one of this actor's channels.
-    pub fn publish_on(&mut self, channel: Channel) -> Result<(), TransportError> {
-        if channel.publisher() != self.me {
-            return Err(TransportError::NotPublisher {
-                channel: channel.service_suffix(),
-                actor: self.me.to_string(),
-            });
-        }
-        self.add_publisher(channel)
-    }
-
-    fn add_publisher(&mut self, channel: Channel) -> Result<(), TransportError> {
+    fn add_publisher(&mut self, channel: Channel) -> Result<(), SetupError> {
         let service = self.open_channel(channel)?;
         let publisher = service
             .publisher_builder()
             .initial_max_slice_len(max_message_len(channel))
             .create()
-            .map_err(|e| iox("publisher", e))?;
+            .map_err(|e| setup("publisher", e))?;
         self.publishers.insert(channel, publisher);
         Ok(())
     }
 
-    pub fn subscribe(&mut self, channel: Channel) -> Result<(), TransportError> {
-        let service = self.open_channel(channel)?;
-        let sub = service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| iox("subscriber", e))?;
-        self.subscribers.push((channel, sub));
-        Ok(())
-    }
-
-    /// Prepares to wake `actor` after sending to it.
-    pub fn notify(&mut self, actor: ActorId) -> Result<(), TransportError> {
-        if !self.notifiers.contains_key(&actor) {
-            let n = open_wake(&self.node, &self.run, actor, &self.topology)?
-                .notifier_builder()
-                .create()
-                .map_err(|e| iox("notifier", e))?;
-            self.notifiers.insert(actor, n);
-        }
-        Ok(())
-    }
-
-    /// Connects publishers to subscribers that appeared since they were made.
-    pub fn update_connections(&mut self) {
-        for p in self.publishers.values() {
-            let _ = p.update_connections();
-        }
-    }
-
     /// Publishes raw bytes on `channel` through a second publisher, bypassing
     /// encoding: fault injection for tests of the malformed-message path.
-    pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) -> Result<(), TransportError> {
+    pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) -> Result<(), SendError> {
         if !self.raw_publishers.contains_key(&channel) {
-            let service = self.open_channel(channel)?;
-            let p = service
-                .publisher_builder()
-                .initial_max_slice_len(max_message_len(channel))
-                .create()
-                .map_err(|e| iox("publisher", e))?;
+            let p = self
+                .open_channel(channel)
+                .and_then(|service| {
+                    service
+                        .publisher_builder()
+                        .initial_max_slice_len(max_message_len(channel))
+                        .create()
+                        .map_err(|e| setup("publisher", e))
+                })
+                .map_err(|e| SendError::Backend {
+                    channel: channel.service_suffix(),
+                    source: Box::new(e),
+                })?;
             // Kept: a publisher's samples vanish with it.
             self.raw_publishers.insert(channel, p);
         }
         let p = &self.raw_publishers[&channel];
         let _ = p.update_connections();
-        let sample = p
-            .loan_slice_uninit(bytes.len())
-            .map_err(|e| iox("loan", e))?;
-        sample
-            .write_from_slice(bytes)
-            .send()
-            .map_err(|e| iox("send", e))?;
-        Ok(())
+        publish(p, bytes).map_err(|source| SendError::Backend {
+            channel: channel.service_suffix(),
+            source,
+        })
     }
 
     pub fn run(&self) -> &RunId {
@@ -336,31 +291,69 @@ impl Transport for IceoryxTransport {
         self.me
     }
 
+    /// Becomes the publisher of one of this actor's channels.
+    fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
+        if channel.publisher() != self.me {
+            return Err(SetupError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: self.me.to_string(),
+            });
+        }
+        self.add_publisher(channel)
+    }
+
+    fn subscribe(&mut self, channel: Channel) -> Result<(), SetupError> {
+        let service = self.open_channel(channel)?;
+        let sub = service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| setup("subscriber", e))?;
+        self.subscribers.push((channel, sub));
+        Ok(())
+    }
+
+    /// Prepares to wake `actor` after sending to it.
+    fn notify(&mut self, actor: ActorId) -> Result<(), SetupError> {
+        if !self.notifiers.contains_key(&actor) {
+            let n = open_wake(&self.node, &self.run, actor, &self.topology)?
+                .notifier_builder()
+                .create()
+                .map_err(|e| setup("notifier", e))?;
+            self.notifiers.insert(actor, n);
+        }
+        Ok(())
+    }
+
+    /// Connects publishers to subscribers that appeared since they were made.
+    fn update_connections(&mut self) {
+        for p in self.publishers.values() {
+            let _ = p.update_connections();
+        }
+    }
+
     fn send_waking(
         &mut self,
         channel: Channel,
         message: &Message,
         receivers: &[ActorId],
         wake: &[ActorId],
-    ) -> Result<(), TransportError> {
-        let publisher =
-            self.publishers
-                .get(&channel)
-                .ok_or_else(|| TransportError::NotPublisher {
-                    channel: channel.service_suffix(),
-                    actor: self.me.to_string(),
-                })?;
-        self.buffer.clear();
-        message.encode(&self.format, &mut self.buffer);
-        let sample = publisher
-            .loan_slice_uninit(self.buffer.len())
-            .map_err(|e| iox("loan", e))?;
-        sample
-            .write_from_slice(&self.buffer)
-            .send()
-            .map_err(|e| iox("send", e))?;
-        self.accounting
-            .record_sent_to(self.me, receivers, message.header.kind, self.buffer.len());
+    ) -> Result<(), SendError> {
+        let publisher = self
+            .publishers
+            .get(&channel)
+            .ok_or_else(|| SendError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: self.me.to_string(),
+            })?;
+        Outbound {
+            me: self.me,
+            format: &self.format,
+            accounting: &mut self.accounting,
+            buffer: &mut self.buffer,
+        }
+        .send(channel, message, receivers, |bytes| {
+            publish(publisher, bytes)
+        })?;
         for w in wake {
             if let Some(n) = self.notifiers.get(w) {
                 // A failed wake-up only delays the receiver until its timeout.
@@ -370,7 +363,7 @@ impl Transport for IceoryxTransport {
         Ok(())
     }
 
-    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError> {
+    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), ReceiveError> {
         let Self {
             me,
             format,
@@ -392,7 +385,12 @@ impl Transport for IceoryxTransport {
                         inbound.arrive(channel.publisher(), sample.payload(), now, out)
                     }
                     Ok(None) => break,
-                    Err(e) => return Err(iox("receive", e)),
+                    Err(e) => {
+                        return Err(ReceiveError {
+                            channel: channel.service_suffix(),
+                            source: Box::new(e),
+                        })
+                    }
                 }
             }
         }
@@ -400,7 +398,7 @@ impl Transport for IceoryxTransport {
         Ok(())
     }
 
-    fn wait(&mut self, timeout: Duration) -> Result<(), TransportError> {
+    fn wait(&mut self, timeout: Duration) -> Result<(), WaitError> {
         // A held (delayed) message may fall due before anyone wakes us.
         let timeout = match self.shaper.next_due() {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
@@ -408,7 +406,9 @@ impl Transport for IceoryxTransport {
         };
         self.listener
             .timed_wait(|_| {}, timeout)
-            .map_err(|e| iox("wait", e))?;
+            .map_err(|e| WaitError {
+                source: Box::new(e),
+            })?;
         Ok(())
     }
 
@@ -430,7 +430,7 @@ fn open_wake(
     run: &RunId,
     actor: ActorId,
     topology: &Topology,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, TransportError> {
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
     // Anyone may wake anyone: the launcher, a node's sensors and neighbours.
     let everyone = topology.nodes() + topology.sensors() + 2;
@@ -442,7 +442,7 @@ fn open_wake(
             .max_nodes(everyone + 2)
             .open_or_create()
     })
-    .map_err(|e| iox("wake event", e))
+    .map_err(|e| setup("wake event", e))
 }
 
 /// Opens or creates, retrying while another process is half-way through
@@ -461,11 +461,18 @@ fn retry<T, E: std::fmt::Debug>(mut f: impl FnMut() -> Result<T, E>) -> Result<T
     }
 }
 
-fn iox(what: &str, e: impl std::fmt::Debug) -> TransportError {
-    TransportError::Iceoryx {
+fn setup<E: std::error::Error + Send + Sync + 'static>(what: &str, e: E) -> SetupError {
+    SetupError::Backend {
         what: what.into(),
-        message: format!("{e:?}"),
+        source: Box::new(e),
     }
+}
+
+/// Moves one message's bytes into shared memory.
+fn publish(publisher: &Pub, bytes: &[u8]) -> Result<(), BackendError> {
+    let sample = publisher.loan_slice_uninit(bytes.len())?;
+    sample.write_from_slice(bytes).send()?;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -7,12 +7,12 @@ use std::collections::{HashMap, VecDeque};
 use std::rc::Rc;
 use std::time::Duration;
 
-use super::{Channel, Inbound, Transport};
+use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
 use crate::shaper::LinkShaper;
 use crate::wire::{Message, WireFormat};
-use crate::TransportError;
+use crate::{ReceiveError, SendError, SetupError, WaitError};
 
 /// The shared medium: who subscribes to what, and each actor's inbox.
 #[derive(Debug, Default)]
@@ -76,15 +76,31 @@ impl MemoryTransport {
             buffer: Vec::with_capacity(512),
         }
     }
-
-    pub fn subscribe(&mut self, channel: Channel) {
-        self.bus.borrow_mut().subscribe(self.me, channel);
-    }
 }
 
 impl Transport for MemoryTransport {
     fn me(&self) -> ActorId {
         self.me
+    }
+
+    fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
+        if channel.publisher() != self.me {
+            return Err(SetupError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: self.me.to_string(),
+            });
+        }
+        Ok(())
+    }
+
+    fn subscribe(&mut self, channel: Channel) -> Result<(), SetupError> {
+        self.bus.borrow_mut().subscribe(self.me, channel);
+        Ok(())
+    }
+
+    /// Nothing sleeps in one process: there is no one to wake.
+    fn notify(&mut self, _actor: ActorId) -> Result<(), SetupError> {
+        Ok(())
     }
 
     /// Nothing sleeps in one process, so `wake` does not matter here.
@@ -94,33 +110,33 @@ impl Transport for MemoryTransport {
         message: &Message,
         receivers: &[ActorId],
         _wake: &[ActorId],
-    ) -> Result<(), TransportError> {
-        if channel.publisher() != self.me {
-            return Err(TransportError::NotPublisher {
-                channel: channel.service_suffix(),
-                actor: self.me.to_string(),
-            });
-        }
-        self.buffer.clear();
-        message.encode(&self.format, &mut self.buffer);
-        let mut bus = self.bus.borrow_mut();
-        let MemoryBus {
-            subscribers,
-            inboxes,
-            ..
-        } = &mut *bus;
-        for to in subscribers.get(&channel).into_iter().flatten() {
-            inboxes
-                .entry(*to)
-                .or_default()
-                .push_back((self.me, self.buffer.clone()));
-        }
-        self.accounting
-            .record_sent_to(self.me, receivers, message.header.kind, self.buffer.len());
-        Ok(())
+    ) -> Result<(), SendError> {
+        let mut outbound = Outbound {
+            me: self.me,
+            format: &self.format,
+            accounting: &mut self.accounting,
+            buffer: &mut self.buffer,
+        };
+        let bus = &self.bus;
+        let me = self.me;
+        outbound.send(channel, message, receivers, |bytes| {
+            let mut bus = bus.borrow_mut();
+            let MemoryBus {
+                subscribers,
+                inboxes,
+                ..
+            } = &mut *bus;
+            for to in subscribers.get(&channel).into_iter().flatten() {
+                inboxes
+                    .entry(*to)
+                    .or_default()
+                    .push_back((me, bytes.to_vec()));
+            }
+            Ok(())
+        })
     }
 
-    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError> {
+    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), ReceiveError> {
         let arrived: Vec<(ActorId, Vec<u8>)> = self
             .bus
             .borrow_mut()
@@ -142,7 +158,7 @@ impl Transport for MemoryTransport {
     }
 
     /// Nothing to wait for in one process: the driver decides when things happen.
-    fn wait(&mut self, _timeout: Duration) -> Result<(), TransportError> {
+    fn wait(&mut self, _timeout: Duration) -> Result<(), WaitError> {
         Ok(())
     }
 
@@ -169,7 +185,7 @@ mod tests {
         let bus = MemoryBus::new();
         let sensor = MemoryTransport::new(ActorId::Sensor(0), bus.clone(), FORMAT, 1);
         let mut node = MemoryTransport::new(ActorId::Node(0), bus.clone(), FORMAT, 2);
-        node.subscribe(Channel::Observation(0));
+        node.subscribe(Channel::Observation(0)).unwrap();
         (sensor, node, bus)
     }
 

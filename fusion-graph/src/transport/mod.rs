@@ -9,7 +9,7 @@ use crate::actor::ActorId;
 use crate::shaper::{Admission, LinkShaper};
 use crate::topology::Topology;
 use crate::wire::{Message, WireFormat};
-use crate::TransportError;
+use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 pub mod iceoryx;
 pub mod memory;
@@ -73,11 +73,26 @@ impl Channel {
     }
 }
 
-/// The transport contract. Accounting: `send` records one sent message per
-/// intended receiver; `receive` records received, dropped-by-fault and
-/// malformed messages per link.
+/// The transport contract: setup, then send, receive and wait. Accounting:
+/// `send` records one sent message per intended receiver; `receive` records
+/// received, dropped-by-fault and malformed messages per link. A backend
+/// implements it with [`Outbound`] and [`Inbound`], which hold everything
+/// but the moving of bytes, so that every backend encodes, shapes and counts
+/// alike.
 pub trait Transport {
     fn me(&self) -> ActorId;
+
+    /// Becomes the publisher of one of this actor's own channels.
+    fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError>;
+
+    /// Receives what is published on `channel` from now on.
+    fn subscribe(&mut self, channel: Channel) -> Result<(), SetupError>;
+
+    /// Prepares to wake `actor` after sending to it.
+    fn notify(&mut self, actor: ActorId) -> Result<(), SetupError>;
+
+    /// Connects this actor's publishers to subscribers that appeared since.
+    fn update_connections(&mut self) {}
 
     /// Publishes `message` on `channel` (one of this actor's own) for
     /// `receivers`, and wakes them.
@@ -86,7 +101,7 @@ pub trait Transport {
         channel: Channel,
         message: &Message,
         receivers: &[ActorId],
-    ) -> Result<(), TransportError> {
+    ) -> Result<(), SendError> {
         self.send_waking(channel, message, receivers, receivers)
     }
 
@@ -100,15 +115,15 @@ pub trait Transport {
         message: &Message,
         receivers: &[ActorId],
         wake: &[ActorId],
-    ) -> Result<(), TransportError>;
+    ) -> Result<(), SendError>;
 
     /// Appends every message due at `now` (time since the transport was
     /// created) to `out`: drains the subscriptions, applies link faults,
     /// decodes, and counts and drops what does not decode.
-    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), TransportError>;
+    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), ReceiveError>;
 
     /// Sleeps until this actor is woken or `timeout` passes.
-    fn wait(&mut self, timeout: Duration) -> Result<(), TransportError>;
+    fn wait(&mut self, timeout: Duration) -> Result<(), WaitError>;
 
     /// Time since the transport was created, the clock `receive` expects.
     fn now(&self) -> Duration;
@@ -118,15 +133,52 @@ pub trait Transport {
     fn shaper(&mut self) -> &mut LinkShaper;
 }
 
-/// The receive path both transports share: link fault, then decode, then
+/// The send path every backend shares: the publisher check, encoding, and
+/// accounting once the backend has moved the bytes.
+pub struct Outbound<'a> {
+    pub me: ActorId,
+    pub format: &'a WireFormat,
+    pub accounting: &'a mut Accounting,
+    /// Reused between messages: sending allocates nothing.
+    pub buffer: &'a mut Vec<u8>,
+}
+
+impl Outbound<'_> {
+    /// Encodes `message`, hands the bytes to `publish`, and counts them
+    /// once per receiver when `publish` succeeds.
+    pub fn send(
+        &mut self,
+        channel: Channel,
+        message: &Message,
+        receivers: &[ActorId],
+        publish: impl FnOnce(&[u8]) -> Result<(), BackendError>,
+    ) -> Result<(), SendError> {
+        if channel.publisher() != self.me {
+            return Err(SendError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: self.me.to_string(),
+            });
+        }
+        self.buffer.clear();
+        message.encode(self.format, self.buffer);
+        publish(self.buffer).map_err(|source| SendError::Backend {
+            channel: channel.service_suffix(),
+            source,
+        })?;
+        self.accounting
+            .record_sent_to(self.me, receivers, message.header.kind, self.buffer.len());
+        Ok(())
+    }
+}
+
+/// The receive path every backend shares: link fault, then decode, then
 /// accounting. A malformed message is counted and dropped with a warning.
-pub(crate) struct Inbound<'a> {
+pub struct Inbound<'a> {
     pub me: ActorId,
     pub format: &'a WireFormat,
     pub accounting: &'a mut Accounting,
     pub shaper: &'a mut LinkShaper,
 }
-
 impl Inbound<'_> {
     /// A message arriving now from `from`.
     pub fn arrive(&mut self, from: ActorId, bytes: &[u8], now: Duration, out: &mut Vec<Message>) {

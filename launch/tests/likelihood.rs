@@ -2,26 +2,34 @@
 //! log-likelihood of many quantized bearings peaks at the true state.
 
 use bounds::State;
-use fusion_graph::wire::Payload;
-use fusion_graph::{Scenario, Topology};
-use node::{sensing_model, Observation, ObservedValue};
-use sensor::{SensorActor, SensorInput};
+use fusion_graph::wire::{BitMask, Message, Payload};
+use fusion_graph::{ActorId, Scenario, Topology};
+use node::{Observation, ObservedValue, SensingModel};
+use sensor::SensorActor;
 
 #[test]
 fn summed_log_likelihood_peaks_at_the_truth() {
     let s = Scenario::default_scenario();
     let t = Topology::from_scenario(&s, "d").unwrap();
-    let model = sensing_model(&s, &t);
+    let model = SensingModel::from_scenario(&s, &t).unwrap();
     let truth = State::new(1230.0, 1170.0, -6.0, -7.0);
     let mut observations = Vec::new();
     for i in 0..t.sensors() as u16 {
-        let mut a = SensorActor::new(&s, &t, i);
-        a.handle(SensorInput::Tick { step: 5, truth });
+        let mut a = SensorActor::new(&s, &t, i).unwrap();
+        let tick = Payload::Tick {
+            truth: truth.into(),
+        };
+        a.handle(&Message::new(ActorId::Launcher, 5, 0, tick));
+        // Activate every sensor of the owner: this one's bit is among them.
+        let owner = t.sensor_owner[i as usize];
+        let mask = BitMask::from_indices(0..t.node_sensors[owner as usize].len());
         let m = a
-            .handle(SensorInput::Activation {
-                step: 5,
-                active: true,
-            })
+            .handle(&Message::new(
+                ActorId::Node(owner),
+                5,
+                0,
+                Payload::Activate { mask },
+            ))
             .unwrap();
         let Payload::Observation { cell } = m.payload else {
             panic!()

@@ -1,0 +1,257 @@
+//! What a scenario means, defined once: the dynamics, the sensors'
+//! observation law, the quantizer, the prior, the wire sizes and the streams
+//! of randomness. Validation builds these through the `bounds` constructors,
+//! and every actor builds its own from the same functions, so nothing is
+//! mapped field by field twice and nothing is assumed valid.
+
+use std::f64::consts::PI;
+
+use bounds::{CoordinatedTurn, Dynamics, Gaussian, Mat4, ParameterError, Quantizer, State};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::actor::ActorId;
+use crate::scenario::Scenario;
+use crate::topology::Topology;
+use crate::wire::WireFormat;
+use crate::ScenarioError;
+
+/// The models of a scenario, built from its values by the `bounds`
+/// constructors.
+#[derive(Debug, Clone)]
+pub struct Models {
+    pub dynamics: Dynamics,
+    pub law: bounds::SensorLaw,
+    /// `None` when sensors send raw values.
+    pub quantizer: Option<Quantizer>,
+    /// `P_0`.
+    pub prior_cov: Mat4,
+}
+
+/// What a scenario's models are called in errors when no file is at hand.
+const VALIDATED: &str = "<scenario>";
+
+impl Scenario {
+    /// The scenario's models. Fails, naming the key, on a value the models
+    /// refuse; validation calls this, so a loaded scenario always succeeds.
+    pub fn models(&self) -> Result<Models, ScenarioError> {
+        self.models_named(VALIDATED)
+    }
+
+    pub(crate) fn models_named(&self, file: &str) -> Result<Models, ScenarioError> {
+        let invalid = |section: &str, e: ParameterError| ScenarioError::Invalid {
+            file: file.into(),
+            key: format!("{section}.{}", e.parameter),
+            expected: e.expected.into(),
+            got: e.value.to_string(),
+        };
+        let d = &self.dynamics;
+        let dynamics = Dynamics::new(CoordinatedTurn {
+            period: d.period,
+            maneuver_accel: d.maneuver_accel,
+            min_speed: d.min_speed,
+            sigma_v: d.sigma_v,
+        })
+        .map_err(|e| invalid("dynamics", e))?;
+        self.observation
+            .validate()
+            .map_err(|e| invalid("observation", e))?;
+        let quantizer = self.quantizer_model(file)?;
+        let sd = self.filter.prior_std;
+        for (i, s) in sd.iter().enumerate() {
+            if !(s.is_finite() && *s > 0.0) {
+                return Err(ScenarioError::Invalid {
+                    file: file.into(),
+                    key: format!("filter.prior_std[{i}]"),
+                    expected: "a finite number > 0".into(),
+                    got: s.to_string(),
+                });
+            }
+        }
+        let prior_cov = Mat4::from_diagonal(&State::from(sd.map(|s| s * s)));
+        Ok(Models {
+            dynamics,
+            law: self.observation,
+            quantizer,
+            prior_cov,
+        })
+    }
+
+    fn quantizer_model(&self, file: &str) -> Result<Option<Quantizer>, ScenarioError> {
+        let q = &self.quantizer;
+        let bearing = matches!(self.observation, bounds::SensorLaw::Bearing { .. });
+        let built = if bearing {
+            Quantizer::uniform_wrapped(q.bits, -PI, PI)
+        } else {
+            match (q.lo, q.hi) {
+                (Some(lo), Some(hi)) => Quantizer::uniform(q.bits, lo, hi),
+                _ => {
+                    return Err(ScenarioError::Invalid {
+                        file: file.into(),
+                        key: "quantizer.lo/quantizer.hi".into(),
+                        expected: "a finite range lo < hi for a non-bearing observation".into(),
+                        got: format!("{:?}..{:?}", q.lo, q.hi),
+                    })
+                }
+            }
+        };
+        // The quantizer is built (and its bits checked) even when sensors
+        // send raw values: `raw` is a switch, not a licence for a bad value.
+        let built = built.map_err(|e| {
+            let (key, expected) = match e {
+                bounds::QuantizerError::BitsOutOfRange { .. } => (
+                    "quantizer.bits",
+                    format!("an integer from 1 to {}", bounds::quantizer::MAX_BITS),
+                ),
+                _ => (
+                    "quantizer.lo/quantizer.hi",
+                    "a finite range lo < hi".to_string(),
+                ),
+            };
+            ScenarioError::Invalid {
+                file: file.into(),
+                key: key.into(),
+                expected,
+                got: match e {
+                    bounds::QuantizerError::BitsOutOfRange { bits } => bits.to_string(),
+                    _ => format!("{:?}..{:?}", q.lo, q.hi),
+                },
+            }
+        })?;
+        Ok((!q.raw).then_some(built))
+    }
+
+    /// The prior every filter starts from: `N(m_0, P_0)` with `m_0` drawn
+    /// once per run from `N(x_true(0), P_0)` (math.md's default scenario).
+    pub fn network_prior(&self, models: &Models) -> Gaussian {
+        let sd = State::from(self.filter.prior_std);
+        let truth = State::from(self.target.initial_state());
+        let mut rng = stream_rng(self.seed, ActorId::Launcher, 0, Stream::Prior);
+        let noise = State::from_fn(|_, _| {
+            rand::Rng::sample::<f64, _>(&mut rng, rand_distr::StandardNormal)
+        });
+        Gaussian {
+            mean: truth + sd.component_mul(&noise),
+            cov: models.prior_cov,
+        }
+    }
+
+    /// The wire sizes this scenario fixes on this topology.
+    pub fn wire_format(&self, topology: &Topology) -> WireFormat {
+        let max_sensors = topology
+            .node_sensors
+            .iter()
+            .map(Vec::len)
+            .max()
+            .unwrap_or(1);
+        WireFormat {
+            cell_bytes: (self.quantizer.bits as usize).div_ceil(8),
+            activation_bytes: max_sensors.div_ceil(8).max(1),
+        }
+    }
+}
+
+/// The streams of randomness of a run, one per purpose. Each actor draws
+/// each purpose at each step from its own generator, so results never depend
+/// on the order in which messages arrive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u64)]
+pub enum Stream {
+    /// A sensor's measurement noise.
+    SensorNoise = 1,
+    /// A node's random choice of sensors.
+    Activation = 2,
+    LocalFilter = 3,
+    FusionFilter = 4,
+    /// The prior mean `m_0`.
+    Prior = 5,
+    /// The centralized reference's filter.
+    CentralFilter = 6,
+    /// The true trajectory's process noise.
+    Truth = 7,
+}
+
+/// The seed of `stream` for `actor` at `step`: splitmix64 over the four.
+pub fn stream_seed(scenario_seed: u64, actor: ActorId, step: u32, stream: Stream) -> u64 {
+    let (kind, index) = actor.to_wire();
+    let mut x = scenario_seed ^ 0x9e37_79b9_7f4a_7c15;
+    for v in [kind as u64, index as u64, step as u64, stream as u64] {
+        x = x
+            .wrapping_add(v.wrapping_mul(0xbf58_476d_1ce4_e5b9))
+            .wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = x;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        x = z ^ (z >> 31);
+    }
+    x
+}
+
+/// A generator for `stream` of `actor` at `step`.
+pub fn stream_rng(scenario_seed: u64, actor: ActorId, step: u32, stream: Stream) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(stream_seed(scenario_seed, actor, step, stream))
+}
+
+/// The seed of an actor's link shaper (injected loss and jitter on its
+/// incoming links). `sim` and `run` must agree on it for `run --lockstep`
+/// to reproduce `sim` under link faults, so it is defined here only.
+pub fn link_fault_seed(scenario_seed: u64, actor: ActorId) -> u64 {
+    match actor {
+        ActorId::Launcher => scenario_seed,
+        ActorId::Node(i) => scenario_seed ^ (0x1000 + i as u64),
+        ActorId::Sensor(i) => scenario_seed ^ (0x5000 + i as u64),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::DEFAULT_SCENARIO;
+
+    #[test]
+    fn the_default_scenario_builds_its_models() {
+        let s = Scenario::default_scenario();
+        let m = s.models().unwrap();
+        assert_eq!(m.quantizer.as_ref().unwrap().cells(), 256);
+        assert_eq!(m.prior_cov[(0, 0)], 2500.0);
+        let p = s.network_prior(&m);
+        assert_eq!(
+            p,
+            s.network_prior(&m),
+            "the prior is drawn from its own stream"
+        );
+    }
+
+    #[test]
+    fn a_value_the_models_refuse_names_its_key_even_after_loading() {
+        let mut s = Scenario::from_toml(DEFAULT_SCENARIO, "d", &[]).unwrap();
+        s.quantizer.bits = 17;
+        let e = s.models().unwrap_err().to_string();
+        assert!(e.contains("quantizer.bits") && e.contains("1 to 16"), "{e}");
+        s.quantizer.bits = 8;
+        s.dynamics.maneuver_accel = -1.0;
+        let e = s.models().unwrap_err().to_string();
+        assert!(e.contains("dynamics.maneuver_accel"), "{e}");
+    }
+
+    #[test]
+    fn streams_differ_by_every_coordinate() {
+        let base = stream_seed(1, ActorId::Node(2), 3, Stream::Activation);
+        assert_ne!(
+            base,
+            stream_seed(2, ActorId::Node(2), 3, Stream::Activation)
+        );
+        assert_ne!(
+            base,
+            stream_seed(1, ActorId::Sensor(2), 3, Stream::Activation)
+        );
+        assert_ne!(
+            base,
+            stream_seed(1, ActorId::Node(2), 4, Stream::Activation)
+        );
+        assert_ne!(
+            base,
+            stream_seed(1, ActorId::Node(2), 3, Stream::LocalFilter)
+        );
+    }
+}

@@ -1,0 +1,173 @@
+//! The information vector a node brings to fusion, in the form consensus
+//! mixes and the wire carries: symmetric matrices as their 10
+//! upper-triangular entries, so that every node's arithmetic is on exactly
+//! the numbers its neighbours receive.
+
+use bounds::{Mat4, State};
+use fusion_graph::wire::{pack_symmetric, unpack_symmetric, ConsensusValues, Packed, Payload};
+
+use crate::estimator::{Contribution, NetworkSums};
+
+/// `(δη, δΛ, ΔL)` and, with the auxiliary-FIM baseline, `S_obs`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InformationVector {
+    pub delta_eta: [f64; 4],
+    pub delta_lambda: Packed,
+    pub delta_l: Packed,
+    /// Present only when the auxiliary-FIM baseline runs: it doubles the
+    /// bound traffic.
+    pub s_obs: Option<Packed>,
+}
+
+pub fn pack_matrix(m: &Mat4) -> Packed {
+    pack_symmetric(&std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])))
+}
+
+pub fn unpack_matrix(p: &Packed) -> Mat4 {
+    let a = unpack_symmetric(p);
+    Mat4::from_fn(|r, c| a[r][c])
+}
+
+fn scale<const N: usize>(v: &[f64; N], w: f64) -> [f64; N] {
+    v.map(|x| x * w)
+}
+
+fn add_scaled<const N: usize>(acc: &mut [f64; N], w: f64, v: &[f64; N]) {
+    for (a, b) in acc.iter_mut().zip(v) {
+        *a += w * b;
+    }
+}
+
+impl InformationVector {
+    /// A node's contribution; `S_obs` travels only `with_aux`.
+    pub fn from_contribution(c: &Contribution, with_aux: bool) -> Self {
+        Self {
+            delta_eta: c.delta_eta.into(),
+            delta_lambda: pack_matrix(&c.delta_lambda),
+            delta_l: pack_matrix(&c.delta_l),
+            s_obs: with_aux.then(|| pack_matrix(&c.s_obs)),
+        }
+    }
+
+    /// The vector as network sums (after scaling an average by N_f).
+    pub fn to_sums(&self) -> NetworkSums {
+        Contribution {
+            delta_eta: State::from(self.delta_eta),
+            delta_lambda: unpack_matrix(&self.delta_lambda),
+            delta_l: unpack_matrix(&self.delta_l),
+            s_obs: self.s_obs.as_ref().map_or(Mat4::zeros(), unpack_matrix),
+        }
+    }
+
+    /// `w · self`.
+    pub fn scaled(&self, w: f64) -> Self {
+        Self {
+            delta_eta: scale(&self.delta_eta, w),
+            delta_lambda: scale(&self.delta_lambda, w),
+            delta_l: scale(&self.delta_l, w),
+            s_obs: self.s_obs.map(|s| scale(&s, w)),
+        }
+    }
+
+    /// `self += w · other`; a part `other` lacks is left as it is.
+    pub fn add_scaled(&mut self, w: f64, other: &Self) {
+        add_scaled(&mut self.delta_eta, w, &other.delta_eta);
+        add_scaled(&mut self.delta_lambda, w, &other.delta_lambda);
+        add_scaled(&mut self.delta_l, w, &other.delta_l);
+        if let (Some(a), Some(b)) = (self.s_obs.as_mut(), other.s_obs.as_ref()) {
+            add_scaled(a, w, b);
+        }
+    }
+
+    /// The payloads one round of it travels in: the consensus message, and
+    /// the auxiliary one when `S_obs` is present.
+    pub fn payloads(&self, out: &mut Vec<Payload>) {
+        out.push(Payload::Consensus(ConsensusValues {
+            delta_eta: self.delta_eta,
+            delta_lambda: self.delta_lambda,
+            delta_l: self.delta_l,
+        }));
+        if let Some(s_obs) = self.s_obs {
+            out.push(Payload::ConsensusAux { s_obs });
+        }
+    }
+}
+
+/// A neighbour's information vector as its payloads arrive.
+#[derive(Debug, Clone, Default)]
+pub struct InformationPieces {
+    main: Option<ConsensusValues>,
+    aux: Option<Packed>,
+}
+
+impl InformationPieces {
+    /// Takes a payload of the information vector; false for any other.
+    pub fn absorb(&mut self, payload: &Payload) -> bool {
+        match payload {
+            Payload::Consensus(v) => self.main = Some(v.clone()),
+            Payload::ConsensusAux { s_obs } => self.aux = Some(*s_obs),
+            _ => return false,
+        }
+        true
+    }
+
+    /// The whole vector once its parts are in (`S_obs` too when `with_aux`).
+    pub fn assemble(&self, with_aux: bool) -> Option<InformationVector> {
+        let main = self.main.as_ref()?;
+        if with_aux && self.aux.is_none() {
+            return None;
+        }
+        Some(InformationVector {
+            delta_eta: main.delta_eta,
+            delta_lambda: main.delta_lambda,
+            delta_l: main.delta_l,
+            s_obs: if with_aux { self.aux } else { None },
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn contribution(k: f64) -> Contribution {
+        let m = Mat4::from_fn(|r, c| k + (r * 4 + c) as f64);
+        Contribution {
+            delta_eta: State::new(k, 2.0 * k, 0.0, -k),
+            delta_lambda: m + m.transpose(),
+            delta_l: m * m.transpose(),
+            s_obs: Mat4::identity() * k,
+        }
+    }
+
+    #[test]
+    fn the_vector_round_trips_through_its_payloads() {
+        for with_aux in [false, true] {
+            let v = InformationVector::from_contribution(&contribution(1.5), with_aux);
+            let mut payloads = Vec::new();
+            v.payloads(&mut payloads);
+            assert_eq!(payloads.len(), 1 + with_aux as usize);
+            let mut pieces = InformationPieces::default();
+            assert!(pieces.assemble(with_aux).is_none());
+            for p in &payloads {
+                assert!(pieces.absorb(p));
+            }
+            assert_eq!(pieces.assemble(with_aux), Some(v));
+            assert!(!pieces.absorb(&Payload::Observation { cell: 1 }));
+        }
+    }
+
+    #[test]
+    fn arithmetic_is_part_by_part() {
+        let a = InformationVector::from_contribution(&contribution(1.0), true);
+        let b = InformationVector::from_contribution(&contribution(3.0), true);
+        let mut mix = a.scaled(0.25);
+        mix.add_scaled(0.75, &b);
+        let sums = mix.to_sums();
+        let (ca, cb) = (contribution(1.0), contribution(3.0));
+        let expected_l = ca.delta_l * 0.25 + cb.delta_l * 0.75;
+        assert!((sums.delta_l - expected_l).abs().max() < 1e-12);
+        assert!((sums.s_obs - Mat4::identity() * 2.5).abs().max() < 1e-12);
+        assert_eq!(sums.delta_eta, State::new(2.5, 5.0, 0.0, -2.5));
+    }
+}

@@ -1,0 +1,115 @@
+//! Min-consensus (math.md, "Average consensus"): `v ← min over the closed
+//! neighbourhood`. After as many rounds as the fusion graph's diameter every
+//! node of a connected component holds its smallest proposal. Sensor
+//! selection (seed 001) agrees on the network's best (node, sensor) with it.
+
+use std::cmp::Ordering;
+use std::time::Duration;
+
+use fusion_graph::wire::{Message, Payload, Proposal};
+use fusion_graph::{MetropolisWeights, Topology};
+
+use super::{FusionProtocol, Handled, RoundEngine, RoundRule};
+use crate::Outgoing;
+
+/// Smallest cost first; ties to the smaller node, then the smaller sensor
+/// (math.md, "PCRLB sensor selection").
+pub fn proposal_order(a: &Proposal, b: &Proposal) -> Ordering {
+    a.cost
+        .total_cmp(&b.cost)
+        .then(a.node.cmp(&b.node))
+        .then(a.sensor.cmp(&b.sensor))
+}
+
+pub struct Minimum;
+
+impl RoundRule for Minimum {
+    type Value = Proposal;
+    type Pieces = Option<Proposal>;
+
+    fn payloads(&self, value: &Proposal, out: &mut Vec<Payload>) {
+        out.push(Payload::MinConsensus(*value));
+    }
+
+    fn absorb(&self, pieces: &mut Option<Proposal>, payload: &Payload) -> bool {
+        match payload {
+            Payload::MinConsensus(p) => {
+                *pieces = Some(*p);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn assemble(&self, pieces: &Option<Proposal>) -> Option<Proposal> {
+        *pieces
+    }
+
+    fn combine(
+        &self,
+        own: &Proposal,
+        heard: &[(u16, Proposal)],
+        _weights: &MetropolisWeights,
+    ) -> Proposal {
+        heard.iter().map(|(_, p)| *p).fold(*own, |best, p| {
+            if proposal_order(&p, &best) == Ordering::Less {
+                p
+            } else {
+                best
+            }
+        })
+    }
+}
+
+pub struct MinConsensus {
+    engine: RoundEngine<Minimum>,
+}
+
+impl MinConsensus {
+    /// `rounds` should be at least the fusion graph's diameter.
+    pub fn new(node: u16, topology: &Topology, rounds: u16, round_timeout: Duration) -> Self {
+        Self {
+            engine: RoundEngine::new(Minimum, node, topology, rounds, round_timeout),
+        }
+    }
+}
+
+impl FusionProtocol for MinConsensus {
+    type Value = Proposal;
+    type Output = Proposal;
+
+    fn expect_step(&mut self, step: u32) {
+        self.engine.expect_step(step);
+    }
+
+    fn start(
+        &mut self,
+        step: u32,
+        value: Proposal,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        self.engine.start(step, value, view, now, out);
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
+        self.engine.handle(message, now, out)
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.engine.poll_timeout()
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        self.engine.handle_timeout(now, out);
+    }
+
+    fn poll_result(&mut self) -> Option<Proposal> {
+        self.engine.poll_result().map(|d| d.value)
+    }
+
+    fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<Proposal> {
+        self.engine.finish_now(now, out).map(|d| d.value)
+    }
+}

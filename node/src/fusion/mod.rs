@@ -1,0 +1,111 @@
+//! Fusion protocols: how nodes combine what each brings into what the
+//! network knows. Each is a sans-IO state machine in the manner of
+//! quinn-proto's congestion controllers: it starts a step with the node's
+//! value and membership view, takes messages and timeouts at the times it is
+//! given, says when it next needs waking, and yields a result, pushing the
+//! messages it wants sent (with their receivers) as it goes.
+//!
+//! - [`AverageConsensus`]: N_c rounds of Metropolis average consensus on the
+//!   information vector (δη, δΛ, ΔL [, S_obs]); the network sums are N_f
+//!   times the average (math.md, "Average consensus").
+//! - [`ExactSums`]: the exact network sums from an oracle the in-process
+//!   driver shares between its nodes; a checking mode of `sim`.
+//! - [`MinConsensus`]: the network's smallest proposal in as many rounds as
+//!   the fusion graph's diameter, for sensor selection.
+//!
+//! The round-based ones share [`RoundEngine`], which keeps the round
+//! numbering, early and late messages, timeouts and lost neighbours; a
+//! [`RoundRule`] says what a value looks like on the wire and how a round
+//! combines it with the neighbours'.
+
+mod average;
+mod exact;
+pub(crate) mod information;
+mod min;
+mod rounds;
+
+pub use average::AverageConsensus;
+pub use exact::{ExactSumOracle, ExactSums};
+pub use information::InformationVector;
+pub use min::MinConsensus;
+pub use rounds::{RoundEngine, RoundRule, RoundsDone};
+
+use std::time::Duration;
+
+use fusion_graph::wire::Message;
+
+use crate::estimator::NetworkSums;
+use crate::Outgoing;
+
+/// What a protocol made of a message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Handled {
+    /// Used now or kept for a round still to come.
+    Taken,
+    /// Meant for this protocol but for a round or step already past.
+    Late,
+    /// Not a message of this protocol.
+    NotMine,
+}
+
+/// How a step's fusion went, for telemetry.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RoundStats {
+    pub rounds_completed: u16,
+    /// Neighbours heard in the last round.
+    pub neighbours_heard: u16,
+    /// From the start to the result.
+    pub total: Duration,
+    /// From the end of round 1 to the result: the rounds' own latency, once
+    /// every neighbour is exchanging (round 1 also waits for the slowest
+    /// neighbour's local filter).
+    pub later_rounds: Duration,
+}
+
+/// What an information-fusion protocol yields for a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fused {
+    /// `Σδη`, `ΣδΛ`, `S = ΣΔL` and `S_obs` over the node's live component.
+    pub sums: NetworkSums,
+    pub stats: RoundStats,
+}
+
+/// A fusion protocol as a state machine with no I/O and no clock.
+pub trait FusionProtocol {
+    /// What each node brings to a step.
+    type Value;
+    /// What the protocol yields.
+    type Output;
+
+    /// A new step began: messages of earlier steps are late from now on.
+    fn expect_step(&mut self, step: u32);
+
+    /// Starts `step` with this node's value, given the live nodes this node
+    /// can reach (`view[i]` for node i, itself included).
+    fn start(
+        &mut self,
+        step: u32,
+        value: Self::Value,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    );
+
+    /// Takes one message from a neighbour.
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled;
+
+    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
+    fn poll_timeout(&self) -> Option<Duration>;
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// The step's result, once; `None` while it is still running.
+    fn poll_result(&mut self) -> Option<Self::Output>;
+
+    /// Ends the running step at once with what it has (the node must move
+    /// on to the next step); `None` if no step is running.
+    fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<Self::Output>;
+}
+
+/// The protocol a node fuses its information with.
+pub type InformationFusion = Box<dyn FusionProtocol<Value = InformationVector, Output = Fused>>;

@@ -1,0 +1,296 @@
+//! The round engine the round-based protocols share: round k's value goes
+//! to every live neighbour; the round completes when every live neighbour's
+//! round-k value is in, or at the round's timeout with those heard; then
+//! [`RoundRule::combine`] gives round k+1's value. Values for rounds still to
+//! come are kept (a neighbour may be ahead); values for rounds past are late.
+
+use std::time::Duration;
+
+use fusion_graph::transport::Channel;
+use fusion_graph::wire::{Message, Payload};
+use fusion_graph::{ActorId, MetropolisWeights, Topology};
+
+use super::{Handled, RoundStats};
+use crate::Outgoing;
+
+/// What a round-based protocol's value is and how a round combines it.
+pub trait RoundRule {
+    type Value: Clone;
+    /// A neighbour's value as its payloads arrive (it may take more than one).
+    type Pieces: Default + Clone;
+
+    /// The payloads one round's value travels in.
+    fn payloads(&self, value: &Self::Value, out: &mut Vec<Payload>);
+
+    /// Takes `payload` into `pieces`; false if it is not one of this rule's.
+    fn absorb(&self, pieces: &mut Self::Pieces, payload: &Payload) -> bool;
+
+    /// The whole value, once every piece is in.
+    fn assemble(&self, pieces: &Self::Pieces) -> Option<Self::Value>;
+
+    /// Round k+1's value from round k's own and the neighbours heard, with
+    /// Metropolis weights over those heard.
+    fn combine(
+        &self,
+        own: &Self::Value,
+        heard: &[(u16, Self::Value)],
+        weights: &MetropolisWeights,
+    ) -> Self::Value;
+}
+
+/// A step's rounds, done.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RoundsDone<V> {
+    pub value: V,
+    /// N_f: the size of the node's live connected component.
+    pub component_size: usize,
+    pub stats: RoundStats,
+}
+
+#[derive(Debug, Clone)]
+struct Heard<P> {
+    step: u32,
+    round: u16,
+    from: u16,
+    pieces: P,
+}
+
+#[derive(Debug, Clone)]
+struct Running<V> {
+    step: u32,
+    /// 1..=rounds: the round whose values are being gathered.
+    round: u16,
+    value: V,
+    deadline: Duration,
+    view: Vec<bool>,
+    started: Duration,
+    first_round_done: Option<Duration>,
+    neighbours_heard: u16,
+}
+
+pub struct RoundEngine<R: RoundRule> {
+    rule: R,
+    node: u16,
+    topology: Topology,
+    rounds: u16,
+    round_timeout: Duration,
+    /// The latest step begun: anything older is late.
+    current_step: u32,
+    running: Option<Running<R::Value>>,
+    heard: Vec<Heard<R::Pieces>>,
+    done: Option<RoundsDone<R::Value>>,
+}
+
+impl<R: RoundRule> RoundEngine<R> {
+    pub fn new(
+        rule: R,
+        node: u16,
+        topology: &Topology,
+        rounds: u16,
+        round_timeout: Duration,
+    ) -> Self {
+        Self {
+            rule,
+            node,
+            topology: topology.clone(),
+            rounds,
+            round_timeout,
+            current_step: 0,
+            running: None,
+            heard: Vec::new(),
+            done: None,
+        }
+    }
+
+    pub fn rule(&self) -> &R {
+        &self.rule
+    }
+
+    pub fn expect_step(&mut self, step: u32) {
+        self.current_step = self.current_step.max(step);
+        self.heard.retain(|h| h.step >= step);
+    }
+
+    pub fn start(
+        &mut self,
+        step: u32,
+        value: R::Value,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        self.expect_step(step);
+        self.done = None;
+        let mut view = view.to_vec();
+        view[self.node as usize] = true;
+        let running = Running {
+            step,
+            round: 1,
+            value,
+            deadline: now + self.round_timeout,
+            view,
+            started: now,
+            first_round_done: None,
+            neighbours_heard: 0,
+        };
+        self.send_round(&running, out);
+        self.running = Some(running);
+        self.try_complete_round(now, out);
+    }
+
+    fn live_neighbours(&self, view: &[bool]) -> impl Iterator<Item = u16> + '_ {
+        let view = view.to_vec();
+        self.topology.neighbours[self.node as usize]
+            .iter()
+            .copied()
+            .filter(move |m| view[*m as usize])
+    }
+
+    fn send_round(&self, r: &Running<R::Value>, out: &mut Vec<Outgoing>) {
+        let receivers: Vec<ActorId> = self.live_neighbours(&r.view).map(ActorId::Node).collect();
+        let mut payloads = Vec::with_capacity(2);
+        self.rule.payloads(&r.value, &mut payloads);
+        for payload in payloads {
+            out.push(Outgoing {
+                channel: Channel::Consensus(self.node),
+                message: Message::new(ActorId::Node(self.node), r.step, r.round, payload),
+                receivers: receivers.clone(),
+                wake: None,
+            });
+        }
+    }
+
+    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
+        let ActorId::Node(from) = message.header.sender else {
+            return Handled::NotMine;
+        };
+        let (step, round) = (message.header.step, message.header.round);
+        let mut probe = R::Pieces::default();
+        if !self.rule.absorb(&mut probe, &message.payload) {
+            return Handled::NotMine;
+        }
+        if !self.topology.neighbours[self.node as usize].contains(&from)
+            || round == 0
+            || round > self.rounds
+        {
+            return Handled::Late;
+        }
+        let stale = match &self.running {
+            Some(r) => step < r.step || (step == r.step && round < r.round),
+            None => step < self.current_step,
+        };
+        if stale {
+            return Handled::Late;
+        }
+        match self
+            .heard
+            .iter_mut()
+            .find(|h| h.step == step && h.round == round && h.from == from)
+        {
+            Some(h) => {
+                self.rule.absorb(&mut h.pieces, &message.payload);
+            }
+            None => self.heard.push(Heard {
+                step,
+                round,
+                from,
+                pieces: probe,
+            }),
+        }
+        self.try_complete_round(now, out);
+        Handled::Taken
+    }
+
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        self.running.as_ref().map(|r| r.deadline)
+    }
+
+    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if self.running.as_ref().is_some_and(|r| now >= r.deadline) {
+            self.complete_round(now, out);
+        }
+    }
+
+    pub fn poll_result(&mut self) -> Option<RoundsDone<R::Value>> {
+        self.done.take()
+    }
+
+    /// Completes every remaining round with what has been heard.
+    pub fn finish_now(
+        &mut self,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) -> Option<RoundsDone<R::Value>> {
+        while self.running.is_some() {
+            self.complete_round(now, out);
+        }
+        self.poll_result()
+    }
+
+    /// A neighbour's value for the running round, if every piece is in.
+    fn heard_value(&self, r: &Running<R::Value>, from: u16) -> Option<R::Value> {
+        self.heard
+            .iter()
+            .find(|h| h.step == r.step && h.round == r.round && h.from == from)
+            .and_then(|h| self.rule.assemble(&h.pieces))
+    }
+
+    /// Completes the running round if every live neighbour has been heard.
+    fn try_complete_round(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(r) = &self.running else {
+            return;
+        };
+        let all_heard = self
+            .live_neighbours(&r.view)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .all(|m| self.heard_value(r, m).is_some());
+        if all_heard {
+            self.complete_round(now, out);
+        }
+    }
+
+    /// One round's update over the neighbours heard, with Metropolis
+    /// weights recomputed over them.
+    fn complete_round(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(mut r) = self.running.take() else {
+            return;
+        };
+        let mut present = r.view.clone();
+        let mut values = Vec::new();
+        for m in self.live_neighbours(&r.view).collect::<Vec<_>>() {
+            match self.heard_value(&r, m) {
+                Some(v) => values.push((m, v)),
+                None => present[m as usize] = false,
+            }
+        }
+        let weights = self.topology.metropolis_weights(self.node, &present);
+        r.value = self.rule.combine(&r.value, &values, &weights);
+        self.heard
+            .retain(|h| !(h.step == r.step && h.round == r.round));
+        r.neighbours_heard = values.len() as u16;
+        if r.round == 1 {
+            r.first_round_done = Some(now);
+        }
+        if r.round < self.rounds {
+            r.round += 1;
+            r.deadline = now + self.round_timeout;
+            self.send_round(&r, out);
+            self.running = Some(r);
+            self.try_complete_round(now, out);
+        } else {
+            self.done = Some(RoundsDone {
+                component_size: self.topology.component_size(self.node, &r.view).max(1),
+                stats: RoundStats {
+                    rounds_completed: self.rounds,
+                    neighbours_heard: r.neighbours_heard,
+                    total: now.saturating_sub(r.started),
+                    later_rounds: r
+                        .first_round_done
+                        .map_or(Duration::ZERO, |t| now.saturating_sub(t)),
+                },
+                value: r.value,
+            });
+        }
+    }
+}
