@@ -597,3 +597,167 @@ impl NodeActor {
         );
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! The node on the virtual-clock harness: three nodes in a line.
+    use super::*;
+    use crate::harness::{Fate, Net};
+
+    const ALL: [bool; 3] = [true; 3];
+    const LONG: Duration = Duration::from_secs(5);
+
+    #[test]
+    fn a_step_completes_every_round_with_every_neighbour() {
+        let mut net = Net::line();
+        for step in 1..=3 {
+            net.begin_step(step, &ALL);
+            net.run(LONG);
+            for (n, degree) in [(0, 1), (1, 2), (2, 1)] {
+                let t = net.report(n, step).expect("a report every step");
+                assert_eq!((t.rounds_completed, t.live_neighbours), (6, degree));
+                assert_eq!((t.observations, t.deadline_missed), (3, false));
+                assert!(t.bound.is_some_and(|b| b > 0.0 && b < 20.0), "{t:?}");
+            }
+        }
+        // No timeout was needed: the step took no virtual time at all.
+        assert_eq!(net.now, Duration::ZERO);
+        // Rounds of 203-byte consensus messages: 6 per step per directed link.
+        let consensus = net
+            .sent
+            .iter()
+            .filter(|o| matches!(o.message.payload, Payload::Consensus(_)))
+            .map(|o| o.receivers.len())
+            .sum::<usize>();
+        assert_eq!(consensus, 3 * 6 * 4);
+    }
+
+    #[test]
+    fn an_early_message_is_kept_and_a_late_one_counted() {
+        let mut net = Net::line();
+        // Node 0's observations come 20 ms late (inside the 50 ms deadline):
+        // its neighbour's round-1 value reaches it while it still collects.
+        net.set_rule(|m, to| match (m.header.sender, to) {
+            (ActorId::Sensor(_), ActorId::Node(0)) => Fate::Delay(Duration::from_millis(20)),
+            _ => Fate::Deliver,
+        });
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        let t = net.report(0, 1).unwrap();
+        assert_eq!(
+            (t.rounds_completed, t.live_neighbours, t.observations),
+            (6, 1, 3)
+        );
+        // A copy of node 1's round-2 message arrives during step 2: late.
+        let stale = net
+            .sent
+            .iter()
+            .find(|o| o.message.header.round == 2 && o.message.header.sender == ActorId::Node(1))
+            .unwrap()
+            .message
+            .clone();
+        net.set_rule(|_, _| Fate::Deliver);
+        net.begin_step(2, &ALL);
+        net.post(ActorId::Node(0), stale);
+        net.run(LONG);
+        assert_eq!(net.report(0, 2).unwrap().late_messages, 1);
+        assert_eq!(net.report(1, 2).unwrap().late_messages, 0);
+    }
+
+    #[test]
+    fn a_silent_sensor_closes_the_collection_at_its_deadline() {
+        let mut net = Net::line();
+        let silent = net.topology.node_sensors[1][0];
+        net.set_rule(move |m, _| match m.header.sender {
+            ActorId::Sensor(s) if s == silent => Fate::Drop,
+            _ => Fate::Deliver,
+        });
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        let t = net.report(1, 1).unwrap();
+        assert_eq!((t.observations, t.rounds_completed), (2, 6));
+        assert_eq!(
+            net.now,
+            Duration::from_millis(50),
+            "one collection deadline"
+        );
+        assert_eq!(net.report(0, 1).unwrap().observations, 3);
+    }
+
+    #[test]
+    fn a_neighbour_lost_mid_consensus_costs_timeouts_not_the_step() {
+        let mut net = Net::line();
+        // Node 2 falls silent after its third round.
+        net.set_rule(|m, _| match m.header.sender {
+            ActorId::Node(2) if m.header.round > 3 => Fate::Drop,
+            _ => Fate::Deliver,
+        });
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        let t = net.report(1, 1).unwrap();
+        assert_eq!((t.rounds_completed, t.live_neighbours), (6, 1));
+        assert!(t.bound.is_some());
+        // Rounds 4, 5 and 6 each waited out their timeout.
+        assert_eq!(net.now, Duration::from_millis(150));
+        // Node 0's timeouts now fall with node 1's, so it too finishes its
+        // last rounds alone; it still finishes the step.
+        let t0 = net.report(0, 1).unwrap();
+        assert_eq!(t0.rounds_completed, 6);
+        assert!(t0.bound.is_some() && t0.late_messages > 0);
+    }
+
+    #[test]
+    fn a_membership_change_moves_consensus_to_the_live_component() {
+        let mut net = Net::line();
+        let view = [true, true, false];
+        net.begin_step(1, &view);
+        net.run(LONG);
+        let t = net.report(1, 1).unwrap();
+        assert_eq!((t.rounds_completed, t.live_neighbours), (6, 1));
+        assert!(net.report(2, 1).is_none(), "node 2 was not started");
+        assert_eq!(net.now, Duration::ZERO, "no one waited for node 2");
+        // Nothing was sent to node 2.
+        assert!(net
+            .sent
+            .iter()
+            .all(|o| !o.receivers.contains(&ActorId::Node(2))));
+    }
+
+    #[test]
+    fn a_restarted_node_rejoins_from_a_neighbours_posterior() {
+        let mut net = Net::line();
+        for step in 1..=4 {
+            net.begin_step(step, &ALL);
+            net.run(LONG);
+        }
+        // Node 2 dies at step 5 and comes back, empty, at step 7.
+        net.nodes[2] = None;
+        for step in 5..=6 {
+            net.begin_step(step, &[true, true, false]);
+            net.run(LONG);
+        }
+        let mut fresh = NodeActor::new(&net.scenario, &net.topology, 2).unwrap();
+        fresh.expect_rejoin();
+        net.nodes[2] = Some(fresh);
+        net.begin_step(7, &ALL);
+        net.run(LONG);
+        assert!(
+            net.sent
+                .iter()
+                .any(|o| matches!(o.message.payload, Payload::StateTransfer(_))
+                    && o.receivers == vec![ActorId::Node(2)]),
+            "node 1 offers its posterior"
+        );
+        net.begin_step(8, &ALL);
+        net.run(LONG);
+        let (e1, e2) = (
+            net.report(1, 8).unwrap().estimate,
+            net.report(2, 8).unwrap().estimate,
+        );
+        let gap = (e1[0] - e2[0]).hypot(e1[1] - e2[1]);
+        assert!(
+            gap < 5.0,
+            "the rejoined node tracks with the others: {gap} m apart"
+        );
+    }
+}

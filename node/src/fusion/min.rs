@@ -113,3 +113,68 @@ impl FusionProtocol for MinConsensus {
         self.engine.finish_now(now, out).map(|d| d.value)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_graph::{ActorId, Scenario};
+
+    /// Three nodes in a line, each proposing; messages carried at once.
+    fn agree(costs: [f64; 3], view: [bool; 3], rounds: u16) -> Vec<Option<Proposal>> {
+        let s = Scenario::from_toml(crate::harness::LINE, "line", &[]).unwrap();
+        let t = Topology::from_scenario(&s, "line").unwrap();
+        let mut nodes: Vec<MinConsensus> = (0..3)
+            .map(|i| MinConsensus::new(i, &t, rounds, Duration::from_millis(50)))
+            .collect();
+        let mut queue = Vec::new();
+        for i in 0..3u16 {
+            if view[i as usize] {
+                let p = Proposal {
+                    cost: costs[i as usize],
+                    node: i,
+                    sensor: 10 + i,
+                };
+                nodes[i as usize].start(1, p, &view, Duration::ZERO, &mut queue);
+            }
+        }
+        while let Some(o) = queue.pop() {
+            for to in o.receivers {
+                let ActorId::Node(n) = to else { continue };
+                let mut out = Vec::new();
+                nodes[n as usize].handle(&o.message, Duration::ZERO, &mut out);
+                queue.extend(out);
+            }
+        }
+        nodes.iter_mut().map(|n| n.poll_result()).collect()
+    }
+
+    #[test]
+    fn reaches_the_network_minimum_in_diameter_rounds() {
+        // Node 0's proposal must cross two links to reach node 2.
+        let got = agree([1.0, 3.0, 2.0], [true; 3], 2);
+        assert!(
+            got.iter()
+                .all(|p| p.is_some_and(|p| p.node == 0 && p.cost == 1.0)),
+            "{got:?}"
+        );
+        // One round is not enough: node 2 has heard only node 1 and keeps its own.
+        let short = agree([1.0, 3.0, 2.0], [true; 3], 1);
+        assert_eq!(short[2].unwrap().node, 2);
+    }
+
+    #[test]
+    fn after_a_node_dies_the_survivors_agree_on_their_own_minimum() {
+        let got = agree([1.0, 3.0, 2.0], [false, true, true], 2);
+        assert!(got[0].is_none());
+        assert!(
+            got[1..].iter().all(|p| p.is_some_and(|p| p.node == 2)),
+            "{got:?}"
+        );
+    }
+
+    #[test]
+    fn ties_go_to_the_smaller_node() {
+        let got = agree([2.0, 2.0, 2.0], [true; 3], 2);
+        assert!(got.iter().all(|p| p.is_some_and(|p| p.node == 0)));
+    }
+}
