@@ -226,7 +226,9 @@ fn node_loop<T: Transport>(
                 }
                 _ => {}
             }
-            actor.handle(&m, now, &mut outgoing);
+            // The time each message is handled at, not the batch's: a local
+            // filter run for an earlier message of the batch takes milliseconds.
+            actor.handle(&m, t.now(), &mut outgoing);
             run_pending_work(&mut actor, || t.now(), &mut outgoing);
             send_all(&mut t, &mut outgoing)?;
         }

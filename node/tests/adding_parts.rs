@@ -33,7 +33,14 @@ impl FusionProtocol for Alone {
 
     fn expect_step(&mut self, _step: u32) {}
 
-    fn start(&mut self, _: u32, value: InformationVector, _: &[bool], _: Duration, _: &mut Vec<Outgoing>) {
+    fn start(
+        &mut self,
+        _: u32,
+        value: InformationVector,
+        _: &[bool],
+        _: Duration,
+        _: &mut Vec<Outgoing>,
+    ) {
         self.result = Some(Fused {
             sums: value.to_sums(),
             stats: RoundStats::default(),
@@ -73,7 +80,12 @@ fn a_node_runs_a_step_with_a_toy_manager_and_a_toy_protocol() {
     .unwrap();
     let now = Duration::ZERO;
     let mut out = Vec::new();
-    let begin = Message::new(ActorId::Launcher, 1, 0, Payload::Control(Control::BeginStep));
+    let begin = Message::new(
+        ActorId::Launcher,
+        1,
+        0,
+        Payload::Control(Control::BeginStep),
+    );
     node.handle(&begin, now, &mut out);
 
     // The activation names the first two sensors; they answer.
