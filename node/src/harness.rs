@@ -215,7 +215,6 @@ impl Net {
             );
             let z = self.model.sensors[*s as usize].sample(&self.truth, &mut rng);
             let cell = self.model.quantizer.as_ref().unwrap().encode(z);
-            let _ = slot;
             let m = Message::new(ActorId::Sensor(*s), step, 0, Payload::Observation { cell });
             self.post(ActorId::Node(n), m);
         }

@@ -138,16 +138,21 @@ impl<R: RoundRule> RoundEngine<R> {
         self.try_complete_round(now, out);
     }
 
-    fn live_neighbours(&self, view: &[bool]) -> impl Iterator<Item = u16> + '_ {
-        let view = view.to_vec();
+    /// This node's neighbours in `view`.
+    fn live_neighbours(&self, view: &[bool]) -> Vec<u16> {
         self.topology.neighbours[self.node as usize]
             .iter()
             .copied()
-            .filter(move |m| view[*m as usize])
+            .filter(|m| view[*m as usize])
+            .collect()
     }
 
     fn send_round(&self, r: &Running<R::Value>, out: &mut Vec<Outgoing>) {
-        let receivers: Vec<ActorId> = self.live_neighbours(&r.view).map(ActorId::Node).collect();
+        let receivers: Vec<ActorId> = self
+            .live_neighbours(&r.view)
+            .into_iter()
+            .map(ActorId::Node)
+            .collect();
         let mut payloads = Vec::with_capacity(2);
         self.rule.payloads(&r.value, &mut payloads);
         for payload in payloads {
@@ -242,7 +247,6 @@ impl<R: RoundRule> RoundEngine<R> {
         };
         let all_heard = self
             .live_neighbours(&r.view)
-            .collect::<Vec<_>>()
             .into_iter()
             .all(|m| self.heard_value(r, m).is_some());
         if all_heard {
@@ -258,7 +262,7 @@ impl<R: RoundRule> RoundEngine<R> {
         };
         let mut present = r.view.clone();
         let mut values = Vec::new();
-        for m in self.live_neighbours(&r.view).collect::<Vec<_>>() {
+        for m in self.live_neighbours(&r.view) {
             match self.heard_value(&r, m) {
                 Some(v) => values.push((m, v)),
                 None => present[m as usize] = false,
