@@ -26,7 +26,7 @@ use crate::estimator::{
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
-use crate::fusion::{AverageConsensus, Fused, Handled, InformationFusion, InformationVector};
+use crate::fusion::{average_consensus, Fused, Handled, InformationFusion, InformationVector};
 use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
 use crate::Outgoing;
 
@@ -118,7 +118,7 @@ impl NodeActor {
             return Err(NodeError::NoExactSums);
         }
         let c = &scenario.consensus;
-        let protocol = AverageConsensus::new(
+        let protocol = average_consensus(
             index,
             topology,
             c.rounds as u16,

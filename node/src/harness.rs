@@ -202,7 +202,7 @@ impl Net {
     /// The active sensors of node `n` measure the truth and report.
     fn sense(&mut self, n: u16, step: u32, mask: &BitMask) {
         let own = self.topology.node_sensors[n as usize].clone();
-        for (slot, s) in own
+        for (_, s) in own
             .iter()
             .enumerate()
             .filter(|(slot, _)| mask.contains(*slot))

@@ -4,12 +4,11 @@
 
 use std::time::Duration;
 
-use fusion_graph::wire::{Message, Payload};
+use fusion_graph::wire::Payload;
 use fusion_graph::{MetropolisWeights, Topology};
 
 use super::information::InformationPieces;
-use super::{Fused, FusionProtocol, Handled, InformationVector, RoundEngine, RoundRule};
-use crate::Outgoing;
+use super::{Fused, InformationVector, RoundEngine, RoundRule, RoundsDone};
 
 /// The round rule of average consensus on the information vector.
 pub struct Metropolis {
@@ -18,6 +17,7 @@ pub struct Metropolis {
 
 impl RoundRule for Metropolis {
     type Value = InformationVector;
+    type Output = Fused;
     type Pieces = InformationPieces;
 
     fn payloads(&self, value: &InformationVector, out: &mut Vec<Payload>) {
@@ -49,77 +49,33 @@ impl RoundRule for Metropolis {
         }
         next
     }
-}
 
-pub struct AverageConsensus {
-    engine: RoundEngine<Metropolis>,
-}
-
-impl AverageConsensus {
-    /// `rounds` rounds per step, each closing at `round_timeout` with the
-    /// neighbours heard; `with_aux` also mixes `S_obs`.
-    pub fn new(
-        node: u16,
-        topology: &Topology,
-        rounds: u16,
-        round_timeout: Duration,
-        with_aux: bool,
-    ) -> Self {
-        Self {
-            engine: RoundEngine::new(
-                Metropolis { with_aux },
-                node,
-                topology,
-                rounds,
-                round_timeout,
-            ),
+    /// The network sums: N_f times the average.
+    fn finish(&self, done: RoundsDone<InformationVector>) -> Fused {
+        Fused {
+            sums: done.value.scaled(done.component_size as f64).to_sums(),
+            stats: done.stats,
         }
     }
 }
 
-impl FusionProtocol for AverageConsensus {
-    type Value = InformationVector;
-    type Output = Fused;
+/// N_c rounds of average consensus on the information vector.
+pub type AverageConsensus = RoundEngine<Metropolis>;
 
-    fn expect_step(&mut self, step: u32) {
-        self.engine.expect_step(step);
-    }
-
-    fn start(
-        &mut self,
-        step: u32,
-        value: InformationVector,
-        view: &[bool],
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        self.engine.start(step, value, view, now, out);
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        self.engine.handle(message, now, out)
-    }
-
-    fn poll_timeout(&self) -> Option<Duration> {
-        self.engine.poll_timeout()
-    }
-
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        self.engine.handle_timeout(now, out);
-    }
-
-    fn poll_result(&mut self) -> Option<Fused> {
-        self.engine.poll_result().map(into_sums)
-    }
-
-    fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<Fused> {
-        self.engine.finish_now(now, out).map(into_sums)
-    }
-}
-
-fn into_sums(done: super::RoundsDone<InformationVector>) -> Fused {
-    Fused {
-        sums: done.value.scaled(done.component_size as f64).to_sums(),
-        stats: done.stats,
-    }
+/// `rounds` rounds per step, each closing at `round_timeout` with the
+/// neighbours heard; `with_aux` also mixes `S_obs`.
+pub fn average_consensus(
+    node: u16,
+    topology: &Topology,
+    rounds: u16,
+    round_timeout: Duration,
+    with_aux: bool,
+) -> AverageConsensus {
+    RoundEngine::new(
+        Metropolis { with_aux },
+        node,
+        topology,
+        rounds,
+        round_timeout,
+    )
 }

@@ -6,11 +6,10 @@
 use std::cmp::Ordering;
 use std::time::Duration;
 
-use fusion_graph::wire::{Message, Payload, Proposal};
+use fusion_graph::wire::{Payload, Proposal};
 use fusion_graph::{MetropolisWeights, Topology};
 
-use super::{FusionProtocol, Handled, RoundEngine, RoundRule};
-use crate::Outgoing;
+use super::{RoundEngine, RoundRule, RoundsDone};
 
 /// Smallest cost first; ties to the smaller node, then the smaller sensor
 /// (math.md, "PCRLB sensor selection").
@@ -25,6 +24,7 @@ pub struct Minimum;
 
 impl RoundRule for Minimum {
     type Value = Proposal;
+    type Output = Proposal;
     type Pieces = Option<Proposal>;
 
     fn payloads(&self, value: &Proposal, out: &mut Vec<Payload>) {
@@ -59,64 +59,29 @@ impl RoundRule for Minimum {
             }
         })
     }
-}
 
-pub struct MinConsensus {
-    engine: RoundEngine<Minimum>,
-}
-
-impl MinConsensus {
-    /// `rounds` should be at least the fusion graph's diameter.
-    pub fn new(node: u16, topology: &Topology, rounds: u16, round_timeout: Duration) -> Self {
-        Self {
-            engine: RoundEngine::new(Minimum, node, topology, rounds, round_timeout),
-        }
+    fn finish(&self, done: RoundsDone<Proposal>) -> Proposal {
+        done.value
     }
 }
 
-impl FusionProtocol for MinConsensus {
-    type Value = Proposal;
-    type Output = Proposal;
+/// Min-consensus on proposals.
+pub type MinConsensus = RoundEngine<Minimum>;
 
-    fn expect_step(&mut self, step: u32) {
-        self.engine.expect_step(step);
-    }
-
-    fn start(
-        &mut self,
-        step: u32,
-        value: Proposal,
-        view: &[bool],
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        self.engine.start(step, value, view, now, out);
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        self.engine.handle(message, now, out)
-    }
-
-    fn poll_timeout(&self) -> Option<Duration> {
-        self.engine.poll_timeout()
-    }
-
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        self.engine.handle_timeout(now, out);
-    }
-
-    fn poll_result(&mut self) -> Option<Proposal> {
-        self.engine.poll_result().map(|d| d.value)
-    }
-
-    fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<Proposal> {
-        self.engine.finish_now(now, out).map(|d| d.value)
-    }
+/// `rounds` should be at least the fusion graph's diameter.
+pub fn min_consensus(
+    node: u16,
+    topology: &Topology,
+    rounds: u16,
+    round_timeout: Duration,
+) -> MinConsensus {
+    RoundEngine::new(Minimum, node, topology, rounds, round_timeout)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fusion::FusionProtocol;
     use fusion_graph::{ActorId, Scenario};
 
     /// Three nodes in a line, each proposing; messages carried at once.
@@ -124,7 +89,7 @@ mod tests {
         let s = Scenario::from_toml(crate::harness::LINE, "line", &[]).unwrap();
         let t = Topology::from_scenario(&s, "line").unwrap();
         let mut nodes: Vec<MinConsensus> = (0..3)
-            .map(|i| MinConsensus::new(i, &t, rounds, Duration::from_millis(50)))
+            .map(|i| min_consensus(i, &t, rounds, Duration::from_millis(50)))
             .collect();
         let mut queue = Vec::new();
         for i in 0..3u16 {

@@ -13,10 +13,11 @@
 //! - [`MinConsensus`]: the network's smallest proposal in as many rounds as
 //!   the fusion graph's diameter, for sensor selection.
 //!
-//! The round-based ones share [`RoundEngine`], which keeps the round
-//! numbering, early and late messages, timeouts and lost neighbours; a
-//! [`RoundRule`] says what a value looks like on the wire and how a round
-//! combines it with the neighbours'.
+//! The round-based ones are a [`RoundEngine`], which keeps the round
+//! numbering, early and late messages, timeouts and lost neighbours, and
+//! implements [`FusionProtocol`] once; a [`RoundRule`] says what a value
+//! looks like on the wire, how a round combines it with the neighbours', and
+//! what the last round yields.
 
 mod average;
 mod exact;
@@ -24,10 +25,10 @@ pub(crate) mod information;
 mod min;
 mod rounds;
 
-pub use average::AverageConsensus;
+pub use average::{average_consensus, AverageConsensus};
 pub use exact::{ExactSumOracle, ExactSums};
 pub use information::InformationVector;
-pub use min::MinConsensus;
+pub use min::{min_consensus, MinConsensus};
 pub use rounds::{RoundEngine, RoundRule, RoundsDone};
 
 use std::time::Duration;

@@ -10,12 +10,14 @@ use fusion_graph::transport::Channel;
 use fusion_graph::wire::{Message, Payload};
 use fusion_graph::{ActorId, MetropolisWeights, Topology};
 
-use super::{Handled, RoundStats};
+use super::{FusionProtocol, Handled, RoundStats};
 use crate::Outgoing;
 
 /// What a round-based protocol's value is and how a round combines it.
 pub trait RoundRule {
     type Value: Clone;
+    /// What the protocol yields once its rounds are done.
+    type Output;
     /// A neighbour's value as its payloads arrive (it may take more than one).
     type Pieces: Default + Clone;
 
@@ -36,6 +38,9 @@ pub trait RoundRule {
         heard: &[(u16, Self::Value)],
         weights: &MetropolisWeights,
     ) -> Self::Value;
+
+    /// The protocol's result from its last round.
+    fn finish(&self, done: RoundsDone<Self::Value>) -> Self::Output;
 }
 
 /// A step's rounds, done.
@@ -102,57 +107,16 @@ impl<R: RoundRule> RoundEngine<R> {
         }
     }
 
-    pub fn rule(&self) -> &R {
-        &self.rule
-    }
-
-    pub fn expect_step(&mut self, step: u32) {
-        self.current_step = self.current_step.max(step);
-        self.heard.retain(|h| h.step >= step);
-    }
-
-    pub fn start(
-        &mut self,
-        step: u32,
-        value: R::Value,
-        view: &[bool],
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        self.expect_step(step);
-        self.done = None;
-        let mut view = view.to_vec();
-        view[self.node as usize] = true;
-        let running = Running {
-            step,
-            round: 1,
-            value,
-            deadline: now + self.round_timeout,
-            view,
-            started: now,
-            first_round_done: None,
-            neighbours_heard: 0,
-        };
-        self.send_round(&running, out);
-        self.running = Some(running);
-        self.try_complete_round(now, out);
-    }
-
     /// This node's neighbours in `view`.
-    fn live_neighbours(&self, view: &[bool]) -> Vec<u16> {
+    fn live_neighbours<'a>(&'a self, view: &'a [bool]) -> impl Iterator<Item = u16> + 'a {
         self.topology.neighbours[self.node as usize]
             .iter()
             .copied()
-            .filter(|m| view[*m as usize])
-            .collect()
+            .filter(move |m| view[*m as usize])
     }
 
     fn send_round(&self, r: &Running<R::Value>, out: &mut Vec<Outgoing>) {
-        let receivers: Vec<ActorId> = self
-            .live_neighbours(&r.view)
-            .into_iter()
-            .map(ActorId::Node)
-            .collect();
+        let receivers: Vec<ActorId> = self.live_neighbours(&r.view).map(ActorId::Node).collect();
         let mut payloads = Vec::with_capacity(2);
         self.rule.payloads(&r.value, &mut payloads);
         for payload in payloads {
@@ -163,73 +127,6 @@ impl<R: RoundRule> RoundEngine<R> {
                 wake: None,
             });
         }
-    }
-
-    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        let ActorId::Node(from) = message.header.sender else {
-            return Handled::NotMine;
-        };
-        let (step, round) = (message.header.step, message.header.round);
-        let mut probe = R::Pieces::default();
-        if !self.rule.absorb(&mut probe, &message.payload) {
-            return Handled::NotMine;
-        }
-        if !self.topology.neighbours[self.node as usize].contains(&from)
-            || round == 0
-            || round > self.rounds
-        {
-            return Handled::Late;
-        }
-        let stale = match &self.running {
-            Some(r) => step < r.step || (step == r.step && round < r.round),
-            None => step < self.current_step,
-        };
-        if stale {
-            return Handled::Late;
-        }
-        match self
-            .heard
-            .iter_mut()
-            .find(|h| h.step == step && h.round == round && h.from == from)
-        {
-            Some(h) => {
-                self.rule.absorb(&mut h.pieces, &message.payload);
-            }
-            None => self.heard.push(Heard {
-                step,
-                round,
-                from,
-                pieces: probe,
-            }),
-        }
-        self.try_complete_round(now, out);
-        Handled::Taken
-    }
-
-    pub fn poll_timeout(&self) -> Option<Duration> {
-        self.running.as_ref().map(|r| r.deadline)
-    }
-
-    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        if self.running.as_ref().is_some_and(|r| now >= r.deadline) {
-            self.complete_round(now, out);
-        }
-    }
-
-    pub fn poll_result(&mut self) -> Option<RoundsDone<R::Value>> {
-        self.done.take()
-    }
-
-    /// Completes every remaining round with what has been heard.
-    pub fn finish_now(
-        &mut self,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) -> Option<RoundsDone<R::Value>> {
-        while self.running.is_some() {
-            self.complete_round(now, out);
-        }
-        self.poll_result()
     }
 
     /// A neighbour's value for the running round, if every piece is in.
@@ -245,11 +142,10 @@ impl<R: RoundRule> RoundEngine<R> {
         let Some(r) = &self.running else {
             return;
         };
-        let all_heard = self
+        if self
             .live_neighbours(&r.view)
-            .into_iter()
-            .all(|m| self.heard_value(r, m).is_some());
-        if all_heard {
+            .all(|m| self.heard_value(r, m).is_some())
+        {
             self.complete_round(now, out);
         }
     }
@@ -296,5 +192,111 @@ impl<R: RoundRule> RoundEngine<R> {
                 value: r.value,
             });
         }
+    }
+
+    fn take_result(&mut self) -> Option<R::Output> {
+        let done = self.done.take()?;
+        Some(self.rule.finish(done))
+    }
+}
+
+/// A round-based protocol is its engine; its rule says the rest.
+impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
+    type Value = R::Value;
+    type Output = R::Output;
+
+    fn expect_step(&mut self, step: u32) {
+        self.current_step = self.current_step.max(step);
+        self.heard.retain(|h| h.step >= step);
+    }
+
+    fn start(
+        &mut self,
+        step: u32,
+        value: R::Value,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        self.expect_step(step);
+        self.done = None;
+        let mut view = view.to_vec();
+        view[self.node as usize] = true;
+        let running = Running {
+            step,
+            round: 1,
+            value,
+            deadline: now + self.round_timeout,
+            view,
+            started: now,
+            first_round_done: None,
+            neighbours_heard: 0,
+        };
+        self.send_round(&running, out);
+        self.running = Some(running);
+        self.try_complete_round(now, out);
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
+        let ActorId::Node(from) = message.header.sender else {
+            return Handled::NotMine;
+        };
+        let (step, round) = (message.header.step, message.header.round);
+        let mut probe = R::Pieces::default();
+        if !self.rule.absorb(&mut probe, &message.payload) {
+            return Handled::NotMine;
+        }
+        if !self.topology.neighbours[self.node as usize].contains(&from)
+            || round == 0
+            || round > self.rounds
+        {
+            return Handled::Late;
+        }
+        let stale = match &self.running {
+            Some(r) => step < r.step || (step == r.step && round < r.round),
+            None => step < self.current_step,
+        };
+        if stale {
+            return Handled::Late;
+        }
+        match self
+            .heard
+            .iter_mut()
+            .find(|h| h.step == step && h.round == round && h.from == from)
+        {
+            Some(h) => {
+                self.rule.absorb(&mut h.pieces, &message.payload);
+            }
+            None => self.heard.push(Heard {
+                step,
+                round,
+                from,
+                pieces: probe,
+            }),
+        }
+        self.try_complete_round(now, out);
+        Handled::Taken
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.running.as_ref().map(|r| r.deadline)
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if self.running.as_ref().is_some_and(|r| now >= r.deadline) {
+            self.complete_round(now, out);
+        }
+    }
+
+    fn poll_result(&mut self) -> Option<R::Output> {
+        self.take_result()
+    }
+
+    /// Completes every remaining round with what has been heard.
+    fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<R::Output> {
+        while self.running.is_some() {
+            self.complete_round(now, out);
+        }
+        self.take_result()
     }
 }
