@@ -57,6 +57,8 @@ pub struct ExactSums {
     timeout: Duration,
     live_neighbours: Vec<u16>,
     pending: Option<Pending>,
+    /// What the node fuses with after waiting in vain.
+    given_up: Option<Fused>,
 }
 
 impl ExactSums {
@@ -72,6 +74,7 @@ impl ExactSums {
             timeout,
             live_neighbours: topology.neighbours[node as usize].clone(),
             pending: None,
+            given_up: None,
         }
     }
 
@@ -131,10 +134,19 @@ impl FusionProtocol for ExactSums {
         self.pending.as_ref().map(|p| p.deadline)
     }
 
-    /// Only a wake-up to look at the oracle again; giving up is `finish_now`.
-    fn handle_timeout(&mut self, _now: Duration, _out: &mut Vec<Outgoing>) {}
+    /// At the deadline the node stops waiting for the others (one that
+    /// never deposits must not hold it, nor leave a past deadline that would
+    /// wake its driver again and again) and fuses alone.
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if self.pending.as_ref().is_some_and(|p| now >= p.deadline) {
+            self.given_up = self.finish_now(now, out);
+        }
+    }
 
     fn poll_result(&mut self) -> Option<Fused> {
+        if let Some(fused) = self.given_up.take() {
+            return Some(fused);
+        }
         let p = self.pending.as_ref()?;
         let sum = self.oracle.borrow().sum(p.step, &p.view)?;
         let stats = self.stats(&p.view);
@@ -155,5 +167,64 @@ impl FusionProtocol for ExactSums {
             sums: p.own.to_sums(),
             stats: self.stats(&p.view),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_graph::Scenario;
+
+    fn line() -> Topology {
+        let s = Scenario::from_toml(crate::harness::LINE, "line", &[]).unwrap();
+        Topology::from_scenario(&s, "line").unwrap()
+    }
+
+    fn vector(k: f64) -> InformationVector {
+        InformationVector {
+            delta_eta: [k; 4],
+            delta_lambda: [k; 10],
+            delta_l: [k; 10],
+            s_obs: None,
+        }
+    }
+
+    #[test]
+    fn every_member_gets_the_exact_sum_once_all_deposited() {
+        let t = line();
+        let oracle = ExactSumOracle::shared();
+        let timeout = Duration::from_millis(50);
+        let mut nodes: Vec<ExactSums> = (0..3)
+            .map(|i| ExactSums::new(i, &t, oracle.clone(), timeout))
+            .collect();
+        let mut out = Vec::new();
+        for (i, n) in nodes.iter_mut().enumerate() {
+            assert!(n.poll_result().is_none());
+            n.start(
+                4,
+                vector(i as f64 + 1.0),
+                &[true; 3],
+                Duration::ZERO,
+                &mut out,
+            );
+        }
+        assert!(out.is_empty(), "the oracle carries everything");
+        for n in &mut nodes {
+            assert_eq!(n.poll_result().unwrap().sums.delta_eta[0], 6.0);
+        }
+    }
+
+    #[test]
+    fn a_member_that_never_deposits_costs_one_timeout_then_the_node_fuses_alone() {
+        let t = line();
+        let oracle = ExactSumOracle::shared();
+        let mut n = ExactSums::new(0, &t, oracle, Duration::from_millis(50));
+        let mut out = Vec::new();
+        n.start(1, vector(2.0), &[true; 3], Duration::ZERO, &mut out);
+        n.handle_timeout(Duration::from_millis(49), &mut out);
+        assert!(n.poll_result().is_none());
+        n.handle_timeout(Duration::from_millis(50), &mut out);
+        assert_eq!(n.poll_timeout(), None, "no past deadline left behind");
+        assert_eq!(n.poll_result().unwrap().sums.delta_eta[0], 2.0);
     }
 }
