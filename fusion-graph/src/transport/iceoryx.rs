@@ -293,12 +293,7 @@ impl Transport for IceoryxTransport {
 
     /// Becomes the publisher of one of this actor's channels.
     fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
-        if channel.publisher() != self.me {
-            return Err(SetupError::NotPublisher {
-                channel: channel.service_suffix(),
-                actor: self.me.to_string(),
-            });
-        }
+        channel.check_publisher(self.me)?;
         self.add_publisher(channel)
     }
 

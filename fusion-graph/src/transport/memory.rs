@@ -84,12 +84,7 @@ impl Transport for MemoryTransport {
     }
 
     fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
-        if channel.publisher() != self.me {
-            return Err(SetupError::NotPublisher {
-                channel: channel.service_suffix(),
-                actor: self.me.to_string(),
-            });
-        }
+        channel.check_publisher(self.me)?;
         Ok(())
     }
 

@@ -48,6 +48,18 @@ impl Channel {
         }
     }
 
+    /// Only a channel's one publisher may publish on it.
+    pub fn check_publisher(self, actor: ActorId) -> Result<(), SetupError> {
+        if self.publisher() == actor {
+            Ok(())
+        } else {
+            Err(SetupError::NotPublisher {
+                channel: self.service_suffix(),
+                actor: actor.to_string(),
+            })
+        }
+    }
+
     /// The part of the service name after `cqnet/<run>/`.
     pub fn service_suffix(self) -> String {
         match self {
