@@ -307,15 +307,6 @@ impl<'w> Recorder<'w> {
         }
     }
 
-    pub fn dir(&self) -> &Path {
-        self.writer.dir()
-    }
-
-    /// Whether `node` already reported `step`.
-    pub fn has_reported(&self, step: u32, node: u16) -> bool {
-        self.reported.get(&step).is_some_and(|s| s.contains(&node))
-    }
-
     /// How many nodes reported `step`.
     pub fn reports(&self, step: u32) -> usize {
         self.reported.get(&step).map_or(0, |s| s.len())

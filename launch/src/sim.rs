@@ -143,11 +143,7 @@ impl InProcessNetwork {
                 scenario,
                 topology,
                 i,
-                Box::new(UniformRandom::new(
-                    scenario.seed,
-                    scenario.sensors.active_per_node as usize,
-                    scenario.sensors.max_active_total.map(|m| m as usize),
-                )),
+                Box::new(UniformRandom::for_scenario(scenario)),
                 Box::new(ExactSums::new(
                     i,
                     topology,

@@ -38,7 +38,7 @@ fn bench(c: &mut Criterion) {
     let mut contribution = Contribution::zero();
     for _ in 0..5 {
         contribution = local
-            .step(&model, &observations, false)
+            .update(&model, &observations, false)
             .unwrap()
             .contribution;
     }
@@ -53,7 +53,7 @@ fn bench(c: &mut Criterion) {
         |b| {
             b.iter_batched(
                 || local.clone(),
-                |mut l| black_box(l.step(&model, &observations, false).unwrap()),
+                |mut l| black_box(l.update(&model, &observations, false).unwrap()),
                 BatchSize::LargeInput,
             )
         },

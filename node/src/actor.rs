@@ -125,11 +125,7 @@ impl NodeActor {
             Duration::from_secs_f64(c.round_timeout_ms / 1e3),
             c.auxiliary_fim,
         );
-        let manager = UniformRandom::new(
-            scenario.seed,
-            scenario.sensors.active_per_node as usize,
-            scenario.sensors.max_active_total.map(|m| m as usize),
-        );
+        let manager = UniformRandom::for_scenario(scenario);
         Self::with_parts(
             scenario,
             topology,
@@ -147,8 +143,9 @@ impl NodeActor {
         manager: Box<dyn SensorManager>,
         protocol: InformationFusion,
     ) -> Result<Self, NodeError> {
-        let model = SensingModel::from_scenario(scenario, topology)?;
-        let prior = scenario.network_prior(&scenario.models()?);
+        let models = scenario.models()?;
+        let model = SensingModel::new(&models, topology);
+        let prior = scenario.network_prior(&models);
         let n = scenario.filter.particles as usize;
         let id = ActorId::Node(index);
         let filter_error = |source| NodeError::Filter {

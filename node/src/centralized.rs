@@ -20,9 +20,10 @@ pub struct CentralizedReference {
 impl CentralizedReference {
     pub fn new(scenario: &Scenario, topology: &Topology) -> Result<Self, NodeError> {
         let rng = stream_rng(scenario.seed, ActorId::Launcher, 0, Stream::CentralFilter);
-        let prior = scenario.network_prior(&scenario.models()?);
+        let models = scenario.models()?;
+        let prior = scenario.network_prior(&models);
         Ok(Self {
-            model: SensingModel::from_scenario(scenario, topology)?,
+            model: SensingModel::new(&models, topology),
             filter: LocalFilter::new(scenario.filter.particles as usize, &prior, rng)
                 .map_err(NodeError::Reference)?,
             step: 0,
@@ -49,7 +50,7 @@ impl CentralizedReference {
     /// Runs the step with what was collected: estimate and centralized bound.
     pub fn finish_step(&mut self) -> Result<LocalUpdate, BoundError> {
         self.received.sort_by_key(|o| o.sensor);
-        let update = self.filter.step(&self.model, &self.received, false);
+        let update = self.filter.update(&self.model, &self.received, false);
         self.received.clear();
         self.step += 1;
         update

@@ -48,10 +48,6 @@ impl Collector {
         }
     }
 
-    pub fn step(&self) -> u32 {
-        self.step
-    }
-
     pub fn deadline(&self) -> Duration {
         self.deadline
     }

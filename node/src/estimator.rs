@@ -15,7 +15,7 @@ use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
     ObservationModel, Quantizer, SensorTerm, State,
 };
-use fusion_graph::{Scenario, ScenarioError, Topology};
+use fusion_graph::{Models, Scenario, ScenarioError, Topology};
 use nalgebra::{Cholesky, SymmetricEigen};
 use rand_chacha::ChaCha8Rng;
 
@@ -45,16 +45,19 @@ pub struct SensingModel {
 impl SensingModel {
     /// The scenario's models, with every sensor of the topology.
     pub fn from_scenario(scenario: &Scenario, topology: &Topology) -> Result<Self, ScenarioError> {
-        let models = scenario.models()?;
-        Ok(Self {
+        Ok(Self::new(&scenario.models()?, topology))
+    }
+
+    pub fn new(models: &Models, topology: &Topology) -> Self {
+        Self {
             sensors: topology
                 .sensor_positions
                 .iter()
                 .map(|p| models.law.at(*p))
                 .collect(),
-            dynamics: models.dynamics,
-            quantizer: models.quantizer,
-        })
+            dynamics: models.dynamics.clone(),
+            quantizer: models.quantizer.clone(),
+        }
     }
 
     fn measurement(&self) -> Measurement<'_> {
@@ -181,17 +184,6 @@ impl LocalFilter {
         Ok(self.filter.particles())
     }
 
-    /// One whole step: [`predict`](Self::predict), then [`update`](Self::update).
-    pub fn step(
-        &mut self,
-        model: &SensingModel,
-        observations: &[Observation],
-        with_observed_information: bool,
-    ) -> Result<LocalUpdate, BoundError> {
-        self.predict(model)?;
-        self.update(model, observations, with_observed_information)
-    }
-
     /// Updater: weights the predicted particles by the observations received
     /// (sorted by sensor, so the result does not depend on arrival order),
     /// resamples, and advances the local bound. Predicts first if
@@ -296,7 +288,7 @@ impl LocalFilter {
 
     /// A step without observations (this node missed it): prediction only.
     pub fn coast(&mut self, model: &SensingModel) -> Result<(), BoundError> {
-        self.step(model, &[], false).map(|_| ())
+        self.update(model, &[], false).map(|_| ())
     }
 }
 

@@ -1,6 +1,6 @@
 //! Uniform random selection within a node's own sensors.
 
-use fusion_graph::{stream_rng, ActorId, Stream};
+use fusion_graph::{stream_rng, ActorId, Scenario, Stream};
 
 use super::{SelectionContext, SensorManager};
 
@@ -26,6 +26,16 @@ impl UniformRandom {
             per_node,
             max_total,
         }
+    }
+
+    /// The scenario's `sensors.active_per_node` and `sensors.max_active_total`.
+    pub fn for_scenario(scenario: &Scenario) -> Self {
+        let s = &scenario.sensors;
+        Self::new(
+            scenario.seed,
+            s.active_per_node as usize,
+            s.max_active_total.map(|m| m as usize),
+        )
     }
 
     /// This node's share of the network-wide cap.
