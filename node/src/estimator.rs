@@ -250,7 +250,7 @@ impl LocalFilter {
             }
         }
         self.filter.resample(&mut self.rng);
-        self.filter.regularize(&posterior.cov, &mut self.rng);
+        self.filter.regularize(&posterior, &mut self.rng);
         // δΛ and δη from one particle set (see `importance_posterior`); the
         // tempered population's summary only when the importance weights
         // have degenerated (the first steps from a broad prior).
@@ -416,7 +416,7 @@ impl FusionFilter {
         });
         let posterior = self.filter.summary();
         self.filter.resample(&mut self.rng);
-        self.filter.regularize(&posterior.cov, &mut self.rng);
+        self.filter.regularize(&posterior, &mut self.rng);
 
         let q_inv = model.dynamics.q_inv();
         let aux_bound = match self.aux.as_mut() {

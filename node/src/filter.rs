@@ -23,10 +23,14 @@ pub struct ParticleFilter {
 }
 
 /// The tempered updater never lets the effective sample size fall below
-/// this fraction of N in one stage.
-const ESS_FLOOR: f64 = 0.2;
+/// this fraction of N in one stage: N/2, the usual threshold of adaptive
+/// tempering. With 0.2 and the mean-and-covariance-keeping regularizer,
+/// the steep first steps from a 50 m prior left 1000 particles too few
+/// distinct velocities, and 2 of 20 default runs lost the target for good
+/// (RMSE 8.8 m and 5.5 m); at 0.5 none did, for 3 % more time per step.
+const ESS_FLOOR: f64 = 0.5;
 /// At most this many tempering stages per update; the last takes the rest.
-const MAX_STAGES: usize = 12;
+const MAX_STAGES: usize = 24;
 
 impl ParticleFilter {
     /// `n` particles drawn from `N(mean, cov)`; `None` if cov is not positive definite.
@@ -135,9 +139,9 @@ impl ParticleFilter {
             let delta = self.largest_step(remaining, max, floor);
             self.set_tempered_weights(delta, max);
             done += delta;
-            let cov = self.summary().cov;
+            let posterior = self.summary();
             self.resample(rng);
-            self.regularize(&cov, rng);
+            self.regularize(&posterior, rng);
         }
         MAX_STAGES
     }
@@ -217,23 +221,36 @@ impl ParticleFilter {
 }
 
 impl ParticleFilter {
-    /// Regularizer: after resampling, moves each particle by a draw from the
-    /// Gaussian kernel `N(0, h² Σ)`, with Σ the posterior covariance and
+    /// Regularizer with Liu–West shrinkage: after resampling, moves each
+    /// particle to `a x + (1 − a) μ + h L ε`, `ε ~ N(0, I)`, `L Lᵀ = Σ`,
+    /// `a = √(1 − h²)`, with (μ, Σ) the posterior summary and
     /// `h = (4 / (N (n_x + 2)))^{1/(n_x + 4)}` (the optimal bandwidth for a
-    /// Gaussian kernel, Musso et al. 2001). Without it the small process noise
-    /// of the default scenario cannot re-diversify resampled copies and the
-    /// filter collapses onto one trajectory. Skipped if Σ is not positive definite.
-    pub fn regularize<R: Rng + ?Sized>(&mut self, posterior_cov: &Mat4, rng: &mut R) {
-        let n = self.particles.len() as f64;
-        let h = (4.0 / (n * 6.0)).powf(1.0 / 8.0);
-        let Some(chol) = Cholesky::new(posterior_cov * (h * h)) else {
+    /// Gaussian kernel, Musso et al. 2001).
+    ///
+    /// The jitter re-diversifies resampled copies, which the small process
+    /// noise of the default scenario cannot do. The shrinkage is why it keeps
+    /// the posterior's mean and covariance: `a²Σ + h²Σ = Σ`. A kernel without
+    /// it widens the cloud by `h²Σ` at every resampling (about 16 % at
+    /// N = 1000), and every bound computed on the particles inherits that.
+    /// Skipped if Σ is not positive definite.
+    pub fn regularize<R: Rng + ?Sized>(&mut self, posterior: &Gaussian, rng: &mut R) {
+        let h2 = kernel_bandwidth_squared(self.particles.len());
+        let Some(chol) = Cholesky::new(posterior.cov * h2) else {
             return;
         };
         let l = chol.l();
+        let a = (1.0 - h2).sqrt();
+        let pull = posterior.mean * (1.0 - a);
         for p in self.particles.iter_mut() {
-            *p += l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
+            *p = *p * a + pull + l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
         }
     }
+}
+
+/// `h²` of the Gaussian kernel for `n` particles of dimension 4, below 1
+/// for every `n ≥ 1` (so the shrinkage `√(1 − h²)` is real).
+fn kernel_bandwidth_squared(n: usize) -> f64 {
+    (4.0 / (n.max(1) as f64 * 6.0)).powf(1.0 / 4.0)
 }
 
 /// Weighted mean and covariance.
@@ -276,6 +293,52 @@ mod tests {
         assert!((s.cov - prior().cov).abs().max() < 0.6);
     }
 
+    /// The regularizer keeps the posterior's covariance: averaged over 20
+    /// resample-and-regularize passes at N = 1000 (the default), each
+    /// element of the covariance after stays within 2 % (relative to
+    /// `√(Σ_ii Σ_jj)`) of the posterior's. A kernel without shrinkage widens
+    /// it by h² ≈ 16 % and fails this by a factor of eight.
+    #[test]
+    fn regularization_keeps_the_posterior_mean_and_covariance() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let correlated = Gaussian {
+            mean: prior().mean,
+            cov: Mat4::new(
+                25.0, 6.0, 2.0, 0.0, //
+                6.0, 16.0, 0.0, -1.0, //
+                2.0, 0.0, 1.0, 0.1, //
+                0.0, -1.0, 0.1, 0.25,
+            ),
+        };
+        let passes = 20;
+        let mut worst_mean = 0.0_f64;
+        let mut ratio_sum = Mat4::zeros();
+        for _ in 0..passes {
+            let mut f = ParticleFilter::from_gaussian(1000, &correlated, &mut rng).unwrap();
+            // A position likelihood makes the weights, and so the posterior, non-trivial.
+            for (w, p) in f.weights.iter_mut().zip(&f.particles) {
+                *w = (-0.5 * ((p[0] - 103.0).powi(2) + (p[1] - 198.0).powi(2)) / 9.0).exp();
+            }
+            let total: f64 = f.weights.iter().sum();
+            f.weights.iter_mut().for_each(|w| *w /= total);
+            let posterior = f.summary();
+            f.resample(&mut rng);
+            f.regularize(&posterior, &mut rng);
+            let after = f.summary();
+            let sd = posterior.cov.diagonal().map(f64::sqrt);
+            for i in 0..4 {
+                worst_mean = worst_mean.max((after.mean[i] - posterior.mean[i]).abs() / sd[i]);
+                for j in 0..4 {
+                    ratio_sum[(i, j)] += (after.cov[(i, j)] - posterior.cov[(i, j)]) / (sd[i] * sd[j]);
+                }
+            }
+        }
+        let mean_error = ratio_sum / passes as f64;
+        assert!(mean_error.abs().max() < 0.02, "covariance moved by {mean_error}");
+        // One pass's mean moves by the resampler's and the kernel's noise only.
+        assert!(worst_mean < 0.15, "mean moved by {worst_mean} sd");
+    }
+
     #[test]
     fn systematic_resampling_keeps_expected_counts() {
         let mut rng = ChaCha8Rng::seed_from_u64(2);
@@ -292,17 +355,17 @@ mod tests {
 
     #[test]
     fn a_gaussian_likelihood_moves_the_mean_as_the_kalman_update_does() {
-        // Scalar check on p_x: prior N(100, 25), observation 110 with variance 25
-        // gives posterior mean 105 and variance 12.5.
+        // Scalar check on p_x: prior N(100, 25), observation 105 with variance 25
+        // gives posterior mean 102.5 and variance 12.5 (importance ESS ≈ 0.73 N).
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut f = ParticleFilter::from_gaussian(50_000, &prior(), &mut rng).unwrap();
-        let stages = f.update(&mut rng, |p| -0.5 * (p[0] - 110.0).powi(2) / 25.0);
+        let stages = f.update(&mut rng, |p| -0.5 * (p[0] - 105.0).powi(2) / 25.0);
         assert_eq!(
             stages, 1,
             "a likelihood as broad as the prior needs no tempering"
         );
         let s = f.summary();
-        assert!((s.mean[0] - 105.0).abs() < 0.1, "{}", s.mean[0]);
+        assert!((s.mean[0] - 102.5).abs() < 0.1, "{}", s.mean[0]);
         assert!((s.cov[(0, 0)] - 12.5).abs() < 0.4, "{}", s.cov[(0, 0)]);
     }
 
