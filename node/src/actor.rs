@@ -313,6 +313,12 @@ impl NodeActor {
                 let update = self
                     .local
                     .update(&self.model, &collected.observations, self.with_aux)
+                    .and_then(|mut update| {
+                        update.contribution.delta_l = self
+                            .fusion
+                            .observation_information(&self.model, &collected.observations)?;
+                        Ok(update)
+                    })
                     .unwrap_or_else(|e| {
                         tracing::error!(node = self.index, error = %e, "local filter step failed; contributing nothing");
                         LocalUpdate {

@@ -1,11 +1,13 @@
 //! The two filters of the CF/DPF and the bounds computed on them.
 //!
 //! - [`LocalFilter`]: a node's own sensors only. Gives the node's information
-//!   contribution (δη, δΛ) to the fusion filter, its observation information
-//!   ΔL for the CQ/dPCRLB, and its local conditional PCRLB. With every sensor
-//!   of the network it is also the centralized reference.
+//!   contribution (δη, δΛ) to the fusion filter and its local conditional
+//!   PCRLB. With every sensor of the network it is also the centralized
+//!   reference.
 //! - [`FusionFilter`]: the global posterior, weighted by the consensus sums,
-//!   with the global CQ/dPCRLB and the auxiliary-FIM baseline.
+//!   with the global CQ/dPCRLB and the auxiliary-FIM baseline. It predicts
+//!   before consensus, so that the node's observation information ΔL is
+//!   taken over the global predictive particles (seed 000, eq. 55).
 
 use std::f64::consts::PI;
 
@@ -83,6 +85,27 @@ impl SensingModel {
             }
             (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
         }
+    }
+
+    /// `Σ_s Σ_j w_j J_Y,s(x_j)`: the expected information of the observed
+    /// sensors over a particle set (zero with no observations).
+    pub fn observation_information(
+        &self,
+        observations: &[Observation],
+        particles: &[State],
+        weights: &[f64],
+    ) -> Result<Mat4, BoundError> {
+        if observations.is_empty() {
+            return Ok(Mat4::zeros());
+        }
+        let sensors: Vec<SensorTerm> = observations
+            .iter()
+            .map(|o| SensorTerm {
+                model: &self.sensors[o.sensor as usize],
+                measurement: self.measurement(),
+            })
+            .collect();
+        observation_information(&sensors, particles, weights)
     }
 
     /// `−∇² ln p(y | x)`: the observed information at the received value.
@@ -198,22 +221,11 @@ impl LocalFilter {
         self.predict(model)?;
         let (terms, predicted) = self.prediction.take().expect("predicted above");
 
-        let sensors: Vec<SensorTerm> = observations
-            .iter()
-            .map(|o| SensorTerm {
-                model: &model.sensors[o.sensor as usize],
-                measurement: model.measurement(),
-            })
-            .collect();
-        let delta_l = if sensors.is_empty() {
-            Mat4::zeros()
-        } else {
-            observation_information(
-                &sensors,
-                self.filter.particles(),
-                self.filter.uniform_weights(),
-            )?
-        };
+        let delta_l = model.observation_information(
+            observations,
+            self.filter.particles(),
+            self.filter.uniform_weights(),
+        )?;
         self.bound
             .advance(&terms, model.dynamics.q_inv(), &delta_l)?;
 
@@ -338,6 +350,9 @@ pub struct FusionFilter {
     /// `J_AUX(k)` and the baseline bound computed from it.
     aux: Option<ConditionalBound>,
     rng: ChaCha8Rng,
+    /// The bound's dynamics terms and the predicted summary, between
+    /// [`predict`](Self::predict) and [`step`](Self::step).
+    prediction: Option<(DynamicsTerms, Gaussian)>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -363,6 +378,7 @@ impl FusionFilter {
             bound,
             aux: with_aux.then_some(bound),
             rng,
+            prediction: None,
         })
     }
 
@@ -385,6 +401,7 @@ impl FusionFilter {
         information: Mat4,
         aux_information: Option<Mat4>,
     ) {
+        self.prediction = None;
         if self
             .filter
             .reset_gaussian(posterior, &mut self.rng)
@@ -397,14 +414,49 @@ impl FusionFilter {
         }
     }
 
+    /// Predictor: propagates the particles to this step, once (a second
+    /// call before [`step`](Self::step) changes nothing). The node runs it
+    /// before consensus, for [`observation_information`](Self::observation_information).
+    pub fn predict(&mut self, model: &SensingModel) -> Result<&[State], BoundError> {
+        if self.prediction.is_none() {
+            self.prediction = Some(
+                self.filter
+                    .predict_for_bound(&model.dynamics, &mut self.rng)?,
+            );
+        }
+        Ok(self.filter.particles())
+    }
+
+    /// The node's ΔL for the CQ/dPCRLB: its observed sensors' information
+    /// averaged over this filter's *predicted* particles, the approximation
+    /// of the global predictive density that seed 000's Result 2 (eq. 55)
+    /// takes the expectation over. (math.md writes it over the local
+    /// filter's particles; those are far wider than the global posterior,
+    /// and at coarse quantization, where J_Y is a comb of peaks at the cell
+    /// edges, that put the distributed bound below the centralized one.)
+    pub fn observation_information(
+        &mut self,
+        model: &SensingModel,
+        observations: &[Observation],
+    ) -> Result<Mat4, BoundError> {
+        self.predict(model)?;
+        model.observation_information(
+            observations,
+            self.filter.particles(),
+            self.filter.uniform_weights(),
+        )
+    }
+
+    /// Updater: weights the predicted particles (predicting first if
+    /// [`predict`](Self::predict) was not called) by the consensus sums,
+    /// resamples, and advances the global bounds.
     pub fn step(
         &mut self,
         model: &SensingModel,
         sums: &NetworkSums,
     ) -> Result<FusionUpdate, BoundError> {
-        let (terms, predicted) = self
-            .filter
-            .predict_for_bound(&model.dynamics, &mut self.rng)?;
+        self.predict(model)?;
+        let (terms, predicted) = self.prediction.take().expect("predicted above");
         let (lambda, eta) = clip_negative_eigenvalues(&sums.delta_lambda, &sums.delta_eta);
         let centre = predicted.mean;
         // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
@@ -471,6 +523,67 @@ pub fn clip_negative_eigenvalues(lambda: &Mat4, eta: &State) -> (Mat4, State) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The node's ΔL is J_Y averaged over the fusion filter's prediction (the
+    /// global predictive density of seed 000, eq. 55), not over the local
+    /// filter's wider one. At 4 bits, a target in the middle of a bearing
+    /// cell, ten noise widths from either edge, gives a quantized
+    /// observation next to no information; a cloud wide enough to cross the
+    /// cell edges collects the peaks of J_Y there and claims a great deal.
+    #[test]
+    fn delta_l_is_taken_over_the_fusion_filters_prediction() {
+        use fusion_graph::scenario::DEFAULT_SCENARIO;
+        use rand::SeedableRng;
+
+        let scenario =
+            Scenario::from_toml(DEFAULT_SCENARIO, "default", &["quantizer.bits=4".into()]).unwrap();
+        let topology = Topology::from_scenario(&scenario, "default").unwrap();
+        let model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+        // 100 m from sensor 0 at the bearing of the middle of cell 10 (of 16).
+        let [sx, sy] = topology.sensor_positions[0];
+        let bearing = -PI + 10.5 * PI / 8.0;
+        let target = State::new(
+            sx + 100.0 * bearing.sin(),
+            sy + 100.0 * bearing.cos(),
+            0.0,
+            0.0,
+        );
+        let observed = [Observation {
+            sensor: 0,
+            value: ObservedValue::Cell(10),
+        }];
+        let unquantized =
+            bounds::expected_information(&model.sensors[0], Measurement::Raw, &target)
+                .fixed_view::<2, 2>(0, 0)
+                .trace();
+        let prior = |position_sd: f64| Gaussian {
+            mean: target,
+            cov: Mat4::from_diagonal(&State::new(
+                position_sd.powi(2),
+                position_sd.powi(2),
+                0.01,
+                0.01,
+            )),
+        };
+        let rng = |seed| ChaCha8Rng::seed_from_u64(seed);
+
+        let mut fusion = FusionFilter::new(2000, &prior(0.5), false, rng(1)).unwrap();
+        let node_delta_l = fusion.observation_information(&model, &observed).unwrap();
+        let mut local = LocalFilter::new(2000, &prior(20.0), rng(2)).unwrap();
+        let local_delta_l = local
+            .update(&model, &observed, false)
+            .unwrap()
+            .contribution
+            .delta_l;
+
+        let share = |m: &Mat4| m.fixed_view::<2, 2>(0, 0).trace() / unquantized;
+        assert!(share(&node_delta_l) < 1e-3, "{}", share(&node_delta_l));
+        assert!(share(&local_delta_l) > 0.05, "{}", share(&local_delta_l));
+        // And the fusion filter's step then uses those same predicted particles.
+        let before = fusion.filter.particles().to_vec();
+        fusion.predict(&model).unwrap();
+        assert_eq!(fusion.filter.particles(), &before[..]);
+    }
 
     #[test]
     fn clipping_removes_negative_directions_from_both_lambda_and_eta() {

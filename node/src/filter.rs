@@ -329,12 +329,16 @@ mod tests {
             for i in 0..4 {
                 worst_mean = worst_mean.max((after.mean[i] - posterior.mean[i]).abs() / sd[i]);
                 for j in 0..4 {
-                    ratio_sum[(i, j)] += (after.cov[(i, j)] - posterior.cov[(i, j)]) / (sd[i] * sd[j]);
+                    ratio_sum[(i, j)] +=
+                        (after.cov[(i, j)] - posterior.cov[(i, j)]) / (sd[i] * sd[j]);
                 }
             }
         }
         let mean_error = ratio_sum / passes as f64;
-        assert!(mean_error.abs().max() < 0.02, "covariance moved by {mean_error}");
+        assert!(
+            mean_error.abs().max() < 0.02,
+            "covariance moved by {mean_error}"
+        );
         // One pass's mean moves by the resampler's and the kernel's noise only.
         assert!(worst_mean < 0.15, "mean moved by {worst_mean} sd");
     }
