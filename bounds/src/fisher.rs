@@ -76,11 +76,12 @@ pub fn ln_cell_probability(model: &ObservationModel, q: &Quantizer, index: u32, 
     q.ln_probability(index, e.g, e.r)
 }
 
-/// `∇ ln h_i(x) = ∇h_i / h_i`, from the analytic sensitivities.
+/// `∇ ln h_i(x) = ∇h_i / h_i`, from the analytic sensitivities, finite
+/// even where `h_i` underflows.
 pub fn score(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> State {
     let e = model.evaluate(x);
-    let s = q.sensitivity(index, e.g, e.r);
-    (e.grad_g * s.d_mean + e.grad_r * s.d_variance) / s.probability
+    let (d_mean, d_variance) = q.ln_sensitivity(index, e.g, e.r);
+    e.grad_g * d_mean + e.grad_r * d_variance
 }
 
 /// Observed information `−∇² ln h_y(x)` at the received cell `y`: central
@@ -123,6 +124,44 @@ mod tests {
             d0: 500.0,
         }
         .at([700.0, 300.0])
+    }
+
+    /// Far from the received cell `h` and `∇h` both underflow to zero; the
+    /// score (and so the observed information of the auxiliary FIM) must
+    /// stay finite, and agree with `∇h/h` where both are representable.
+    #[test]
+    fn score_is_finite_far_from_the_received_cell() {
+        let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let model = bearing();
+        // 100 m from the sensor at bearing 0.3 rad; the received cell is
+        // 1.5 rad away (about 70 σ).
+        let x = State::new(
+            700.0 + 100.0 * 0.3_f64.sin(),
+            300.0 + 100.0 * 0.3_f64.cos(),
+            1.0,
+            1.0,
+        );
+        let far = q.encode(1.8);
+        assert_eq!(
+            q.sensitivity(far, model.evaluate(&x).g, model.evaluate(&x).r)
+                .probability,
+            0.0
+        );
+        let s = score(&model, &q, far, &x);
+        assert!(s.iter().all(|v| v.is_finite()), "{s}");
+        assert!(observed_information(&model, &q, far, &x)
+            .iter()
+            .all(|v| v.is_finite()));
+        // Near the cell, the stable form equals ∇h/h.
+        let near = q.encode(0.31);
+        let e = model.evaluate(&x);
+        let direct = cell_probability_gradient(&model, &q, near, &x)
+            / q.sensitivity(near, e.g, e.r).probability;
+        let stable = score(&model, &q, near, &x);
+        assert!(
+            (direct - stable).norm() <= 1e-9 * direct.norm(),
+            "{direct} vs {stable}"
+        );
     }
 
     #[test]

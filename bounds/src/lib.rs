@@ -82,4 +82,9 @@ pub enum BoundError {
     NotPositiveDefinite(&'static str),
     #[error("the information matrix is not finite")]
     NonFinite,
+    #[error("{sensors} sensors but {probabilities} activation probabilities")]
+    ActivationCount {
+        sensors: usize,
+        probabilities: usize,
+    },
 }

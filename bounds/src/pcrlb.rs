@@ -186,8 +186,42 @@ pub fn nonconditional_pcrlb<R: Rng + ?Sized>(
     trajectories: usize,
     rng: &mut R,
 ) -> Result<Vec<Mat4>, BoundError> {
+    let always = vec![1.0; sensors.len()];
+    nonconditional_pcrlb_random_activation(
+        dynamics,
+        sensors,
+        &always,
+        prior_mean,
+        prior_cov,
+        steps,
+        trajectories,
+        rng,
+    )
+}
+
+/// The same bound when sensor `i` is active at each step with probability
+/// `activation[i]`, independently of the state (random sensor selection).
+/// The expectation over the activations enters B22 linearly:
+/// `E[Σ_s 1{s active} J_s] = Σ_s p_s J_s`.
+#[allow(clippy::too_many_arguments)]
+pub fn nonconditional_pcrlb_random_activation<R: Rng + ?Sized>(
+    dynamics: &Dynamics,
+    sensors: &[SensorTerm<'_>],
+    activation: &[f64],
+    prior_mean: &State,
+    prior_cov: &Mat4,
+    steps: usize,
+    trajectories: usize,
+    rng: &mut R,
+) -> Result<Vec<Mat4>, BoundError> {
     if trajectories == 0 {
         return Err(BoundError::NoParticles);
+    }
+    if sensors.len() != activation.len() {
+        return Err(BoundError::ActivationCount {
+            sensors: sensors.len(),
+            probabilities: activation.len(),
+        });
     }
     let chol = Cholesky::new(*prior_cov).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
     let l = chol.l();
@@ -205,7 +239,17 @@ pub fn nonconditional_pcrlb<R: Rng + ?Sized>(
         for x in states.iter_mut() {
             *x = dynamics.propagate(x, rng);
         }
-        let obs = observation_information(sensors, &states, &weights)?;
+        // Runs of sensors with the same probability share one pass.
+        let mut obs = Mat4::zeros();
+        let mut start = 0;
+        while start < sensors.len() {
+            let p = activation[start];
+            let end = start + activation[start..].iter().take_while(|q| **q == p).count();
+            if p != 0.0 {
+                obs += observation_information(&sensors[start..end], &states, &weights)? * p;
+            }
+            start = end;
+        }
         bound.advance(&terms, dynamics.q_inv(), &obs)?;
         out.push(*bound.information());
     }
@@ -412,6 +456,54 @@ mod tests {
             bounds.push(position_bound(&j[20]).unwrap());
         }
         assert!(bounds[0] > bounds[1] && bounds[1] > bounds[2], "{bounds:?}");
+    }
+
+    /// A linear sensor active half the time carries, in expectation, the
+    /// information of one always active with twice the noise variance; on
+    /// the same trajectories the two bounds agree to rounding.
+    #[test]
+    fn random_activation_enters_as_expected_information() {
+        let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
+        let law = |r: f64| SensorLaw::Linear {
+            h: [1.0, 0.0, 0.0, 0.0],
+            r,
+        };
+        let (half_time, double_noise) = (law(25.0).at([0.0, 0.0]), law(50.0).at([0.0, 0.0]));
+        let term = |m| SensorTerm {
+            model: m,
+            measurement: Measurement::Raw,
+        };
+        let run = |sensor, p: f64| {
+            let mut rng = ChaCha8Rng::seed_from_u64(11);
+            nonconditional_pcrlb_random_activation(
+                &dynamics,
+                &[term(sensor)],
+                &[p],
+                &State::new(0.0, 0.0, 1.0, 1.0),
+                &prior_cov(),
+                15,
+                50,
+                &mut rng,
+            )
+            .unwrap()
+        };
+        let (a, b) = (run(&half_time, 0.5), run(&double_noise, 1.0));
+        for k in 0..=15 {
+            assert!(relative_error(&a[k], &b[k]) < 1e-12, "step {k}");
+        }
+        assert!(matches!(
+            nonconditional_pcrlb_random_activation(
+                &dynamics,
+                &[term(&half_time)],
+                &[],
+                &State::zeros(),
+                &prior_cov(),
+                1,
+                1,
+                &mut ChaCha8Rng::seed_from_u64(1)
+            ),
+            Err(BoundError::ActivationCount { .. })
+        ));
     }
 
     #[test]

@@ -311,6 +311,35 @@ impl Quantizer {
         s
     }
 
+    /// `(∂ ln h_i/∂g, ∂ ln h_i/∂R)`: [`sensitivity`](Self::sensitivity)
+    /// divided by `h_i`, with each `φ/h` taken as `exp(ln φ − ln h)` so that
+    /// it stays finite where `h_i` and `φ` both underflow (a particle tens of
+    /// σ from the received cell), where `∂h/h` would be `0/0`.
+    pub fn ln_sensitivity(&self, index: u32, mean: f64, variance: f64) -> (f64, f64) {
+        let ln_h = self.ln_probability(index, mean, variance);
+        if !ln_h.is_finite() {
+            return (0.0, 0.0);
+        }
+        let sigma = variance.sqrt();
+        // φ(z)/h and zφ(z)/h; an infinite edge contributes nothing.
+        let ratio = |z: f64| {
+            if z.is_finite() {
+                let r = (-0.5 * z * z - 0.5 * (2.0 * std::f64::consts::PI).ln() - ln_h).exp();
+                (r, z * r)
+            } else {
+                (0.0, 0.0)
+            }
+        };
+        let (mut d_mean, mut d_variance) = (0.0, 0.0);
+        for &j in self.shifts() {
+            let (a, b) = self.standardized(index as usize, j, mean, sigma);
+            let ((pa, xa), (pb, xb)) = (ratio(a), ratio(b));
+            d_mean += (pa - pb) / sigma;
+            d_variance += (xa - xb) / (2.0 * variance);
+        }
+        (d_mean, d_variance)
+    }
+
     /// Fisher scalars of one observation with mean g and variance R. For a
     /// uniform quantizer whose outer cells are out of the window this reads
     /// the shared table ([`crate::fisher_table`]); otherwise it sums the cells

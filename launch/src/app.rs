@@ -4,7 +4,8 @@
 use anyhow::Context;
 use clap::Parser;
 
-use crate::cli::{builtin_scenario, load_scenario, Cli, Command};
+use crate::cli::{builtin_scenario, load_scenario, Cli, Command, ExperimentArgs};
+use crate::experiment::{self, Experiment};
 use crate::montecarlo::{run_monte_carlo, Progress};
 use crate::results::{write_atomically, ResultsWriter};
 use crate::summary::print_table;
@@ -57,7 +58,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     &topology,
                     &mut writer,
                     scenario.reference.centralized && !args.no_central,
-                    |s| progress.update(s),
+                    |s, _| progress.update(s),
                 )?;
                 print_table(&summary);
                 println!("results in {}", args.out.display());
@@ -65,6 +66,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 let threads = args
                     .threads
                     .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+                let progress = Progress::new("runs", args.runs);
                 let mc = run_monte_carlo(
                     &scenario,
                     &topology,
@@ -72,6 +74,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     args.runs,
                     threads,
                     scenario.reference.centralized && !args.no_central,
+                    &|done| progress.update(done),
                 )?;
                 write_atomically(
                     &args.out.join("summary.json"),
@@ -124,7 +127,113 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("results in {}", args.out.display());
             Ok(())
         }
+        Command::Experiment(args) => run_experiments(&args),
         Command::Actor(args) => crate::actor_process::run_actor(&args),
     }
     .context("cqnet")
+}
+
+/// `cqnet experiment`: lists the catalogue, or runs the named experiments
+/// one after another, each with a progress bar over all its runs.
+fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
+    if args.names.is_empty() {
+        println!("experiments (run one with `cqnet experiment NAME`, or `all`):");
+        for e in experiment::catalogue() {
+            println!("  {:<18} {}: {}", e.name, e.source, e.about);
+        }
+        return Ok(());
+    }
+    let chosen: Vec<Experiment> = if args.names.iter().any(|n| n == "all") {
+        experiment::catalogue()
+    } else {
+        args.names
+            .iter()
+            .map(|n| experiment::find(n))
+            .collect::<anyhow::Result<_>>()?
+    };
+    let options = experiment::Options {
+        runs: args.runs,
+        steps: args.steps,
+        threads: args
+            .threads
+            .map(|t| t as usize)
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+        out: args.out.clone(),
+        trajectories: args.trajectories as usize,
+    };
+    let mut failed = Vec::new();
+    for e in &chosen {
+        let bar = ExperimentProgress::new(e, args.runs);
+        let report = experiment::run(e, &options, &|arm, done| bar.update(arm, done))?;
+        bar.finish();
+        println!(
+            "{}",
+            experiment::verdict_line(e, &report.outcome, &report.check)
+        );
+        println!("  {} and {}", report.csv.display(), report.svg.display());
+        if !report.check.holds {
+            failed.push(e.name);
+        }
+    }
+    if !failed.is_empty() {
+        println!("the papers' result did not hold in: {}", failed.join(", "));
+    }
+    Ok(())
+}
+
+/// A bar over every run of every arm on a terminal; a plain line per
+/// finished arm elsewhere, so that logs stay readable.
+struct ExperimentProgress {
+    bar: Option<indicatif::ProgressBar>,
+    runs: u32,
+    arms: Vec<&'static str>,
+    name: &'static str,
+}
+
+impl ExperimentProgress {
+    fn new(e: &Experiment, runs: u32) -> Self {
+        let total = runs as u64 * e.arms.len() as u64;
+        let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
+            let bar = indicatif::ProgressBar::new(total);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{prefix} [{bar:30}] {pos}/{len} runs, {elapsed} elapsed, about {eta} to go {msg}",
+                )
+                .expect("a valid template")
+                .progress_chars("=> "),
+            );
+            bar.set_prefix(e.name);
+            bar
+        });
+        Self {
+            bar,
+            runs,
+            arms: e.arms.iter().map(|a| a.label).collect(),
+            name: e.name,
+        }
+    }
+
+    fn update(&self, arm: usize, done: u32) {
+        match &self.bar {
+            Some(bar) => {
+                bar.set_position(arm as u64 * self.runs as u64 + done as u64);
+                bar.set_message(format!("({})", self.arms[arm]));
+            }
+            None if done == self.runs || done % 5 == 0 => eprintln!(
+                "{}: arm {} of {} (`{}`): {done}/{} runs",
+                self.name,
+                arm + 1,
+                self.arms.len(),
+                self.arms[arm],
+                self.runs
+            ),
+            None => {}
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
 }

@@ -24,6 +24,9 @@ pub enum Command {
     Sim(SimArgs),
     /// Run a scenario as a network of processes over iceoryx2.
     Run(RunArgs),
+    /// Run a paper's experiment: Monte Carlo, CSV, SVG figure and a check in words
+    /// (without a name: list them).
+    Experiment(ExperimentArgs),
     /// Print a built-in scenario to copy and edit.
     Scenario {
         /// Print the scenario literal to seed 001 instead of the default.
@@ -78,6 +81,27 @@ pub struct RunArgs {
     /// Leave out the centralized reference (also `reference.centralized = false`).
     #[arg(long)]
     pub no_central: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ExperimentArgs {
+    /// Experiment names, or `all`; none lists them.
+    pub names: Vec<String>,
+    /// Monte Carlo runs per arm (seeds seed, seed+1, …).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub runs: u32,
+    /// Steps per run (the scenario's 100 when omitted).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub steps: Option<u32>,
+    /// Output folder: each experiment writes `<OUT>/<name>/`.
+    #[arg(long, default_value = "out/experiments")]
+    pub out: PathBuf,
+    /// Worker threads (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub threads: Option<u32>,
+    /// Trajectories for the non-conditional PCRLB.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
+    pub trajectories: u32,
 }
 
 #[derive(Debug, Args)]

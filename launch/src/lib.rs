@@ -5,6 +5,7 @@ pub mod actor_process;
 pub mod app;
 pub mod cli;
 pub mod drive;
+pub mod experiment;
 pub mod montecarlo;
 pub mod network;
 pub mod results;

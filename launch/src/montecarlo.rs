@@ -11,7 +11,7 @@ use fusion_graph::scenario::Scenario;
 use fusion_graph::Topology;
 use serde::{Deserialize, Serialize};
 
-use crate::results::{Estimates, ResultsWriter, AVERAGE_FROM_STEP};
+use crate::results::{Estimates, ResultsWriter, StepSeries, AVERAGE_FROM_STEP};
 use crate::sim::run_in_process;
 use crate::summary::Summary;
 
@@ -27,6 +27,9 @@ pub struct MonteCarloSummary {
     pub steps_per_second_per_run: f64,
     pub wall_seconds: f64,
     pub per_run: Vec<Summary>,
+    /// Per-step sums over every run's nodes, for figures over time.
+    #[serde(skip)]
+    pub series: StepSeries,
 }
 
 fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
@@ -62,6 +65,8 @@ impl Progress {
     }
 }
 
+/// Runs `runs` seeds over `threads` workers; `on_run_done` hears the
+/// number of runs finished so far, after each.
 pub fn run_monte_carlo(
     scenario: &Scenario,
     topology: &Topology,
@@ -69,13 +74,14 @@ pub fn run_monte_carlo(
     runs: u32,
     threads: usize,
     centralized: bool,
+    on_run_done: &(dyn Fn(u32) + Sync),
 ) -> anyhow::Result<MonteCarloSummary> {
     let started = std::time::Instant::now();
     let next = AtomicU32::new(0);
     let done = AtomicU32::new(0);
     let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> =
         Mutex::new((0..runs).map(|_| None).collect());
-    let progress = Progress::new("runs", runs);
+    let series = Mutex::new(StepSeries::default());
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1).min(runs as usize) {
             scope.spawn(|| loop {
@@ -85,12 +91,23 @@ pub fn run_monte_carlo(
                 }
                 let mut s = scenario.clone();
                 s.seed = scenario.seed.wrapping_add(i as u64);
-                let result = ResultsWriter::create(&out.join(format!("run-{i:03}")))
-                    .and_then(|mut w| run_in_process(&s, topology, &mut w, centralized, |_| {}));
+                let mut run_series = StepSeries::default();
+                let result =
+                    ResultsWriter::create(&out.join(format!("run-{i:03}"))).and_then(|mut w| {
+                        run_in_process(&s, topology, &mut w, centralized, |_, rows| {
+                            rows.iter().for_each(|r| run_series.add(r))
+                        })
+                    });
+                if result.is_ok() {
+                    series
+                        .lock()
+                        .expect("no worker panics while holding the lock")
+                        .merge(&run_series);
+                }
                 results
                     .lock()
                     .expect("no worker panics while holding the lock")[i as usize] = Some(result);
-                progress.update(done.fetch_add(1, Ordering::SeqCst) + 1);
+                on_run_done(done.fetch_add(1, Ordering::SeqCst) + 1);
             });
         }
     });
@@ -127,5 +144,6 @@ pub fn run_monte_carlo(
             / runs as f64,
         wall_seconds: started.elapsed().as_secs_f64(),
         per_run,
+        series: series.into_inner().expect("workers finished"),
     })
 }

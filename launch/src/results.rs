@@ -168,6 +168,87 @@ impl Averages {
     }
 }
 
+/// Per-step sums over nodes (and, merged, over runs): what a figure over
+/// time plots. Each step's entry holds the nodes' squared errors and
+/// bounds, and the centralized reference's apart.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StepSeries {
+    steps: Vec<StepSums>,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct StepSums {
+    sq_error: (f64, u64),
+    bound: (f64, u64),
+    aux_bound: (f64, u64),
+    central_sq_error: (f64, u64),
+    central_bound: (f64, u64),
+}
+
+/// One step's means: over nodes and runs; the RMSEs are root mean squares.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepMeans {
+    pub step: u32,
+    pub rmse: Option<f64>,
+    pub bound: Option<f64>,
+    pub aux_bound: Option<f64>,
+    pub centralized_rmse: Option<f64>,
+    pub centralized_bound: Option<f64>,
+}
+
+impl StepSeries {
+    pub fn add(&mut self, r: &TickRow) {
+        let i = r.step.saturating_sub(1) as usize;
+        if self.steps.len() <= i {
+            self.steps.resize(i + 1, StepSums::default());
+        }
+        let s = &mut self.steps[i];
+        let e2 = Some(r.error().powi(2));
+        if r.node == "central" {
+            add(&mut s.central_sq_error, e2);
+            add(&mut s.central_bound, r.telemetry.bound);
+        } else {
+            add(&mut s.sq_error, e2);
+            add(&mut s.bound, r.telemetry.bound);
+            add(&mut s.aux_bound, r.telemetry.aux_bound);
+        }
+    }
+
+    /// Adds another run's sums.
+    pub fn merge(&mut self, other: &StepSeries) {
+        if self.steps.len() < other.steps.len() {
+            self.steps.resize(other.steps.len(), StepSums::default());
+        }
+        let sum = |a: &mut (f64, u64), b: (f64, u64)| {
+            a.0 += b.0;
+            a.1 += b.1;
+        };
+        for (a, b) in self.steps.iter_mut().zip(&other.steps) {
+            sum(&mut a.sq_error, b.sq_error);
+            sum(&mut a.bound, b.bound);
+            sum(&mut a.aux_bound, b.aux_bound);
+            sum(&mut a.central_sq_error, b.central_sq_error);
+            sum(&mut a.central_bound, b.central_bound);
+        }
+    }
+
+    /// Step 1, 2, …: the means.
+    pub fn means(&self) -> Vec<StepMeans> {
+        self.steps
+            .iter()
+            .enumerate()
+            .map(|(i, s)| StepMeans {
+                step: i as u32 + 1,
+                rmse: mean(s.sq_error).map(f64::sqrt),
+                bound: mean(s.bound),
+                aux_bound: mean(s.aux_bound),
+                centralized_rmse: mean(s.central_sq_error).map(f64::sqrt),
+                centralized_bound: mean(s.central_bound),
+            })
+            .collect()
+    }
+}
+
 /// Accuracy figures, averaged over nodes and steps from `from_step` on.
 #[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Estimates {

@@ -418,14 +418,15 @@ pub fn run_in_process(
     topology: &Topology,
     writer: &mut ResultsWriter,
     centralized: bool,
-    mut progress: impl FnMut(u32),
+    mut on_step: impl FnMut(u32, &[TickRow]),
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
     let mut recorder = Recorder::new(writer, scenario, topology);
     for step in 1..=scenario.steps {
-        recorder.record(net.step(step)?)?;
-        progress(step);
+        let rows = net.step(step)?;
+        on_step(step, &rows);
+        recorder.record(rows)?;
     }
     let wall = started.elapsed().as_secs_f64();
     recorder.finish(

@@ -27,7 +27,7 @@ fn run(name: &str, overrides: &[&str], central: bool) -> (Summary, PathBuf) {
     let dir = out_dir(name);
     let mut w = ResultsWriter::create(&dir).unwrap();
     (
-        run_in_process(&s, &t, &mut w, central, |_| {}).unwrap(),
+        run_in_process(&s, &t, &mut w, central, |_, _| {}).unwrap(),
         dir,
     )
 }

@@ -1,0 +1,192 @@
+//! An experiment's outcome as CSV and as an SVG figure (plotters).
+
+use std::path::Path;
+
+use anyhow::Context;
+use plotters::prelude::*;
+
+use super::{Experiment, Figure, Outcome};
+
+const SIZE: (u32, u32) = (900, 560);
+
+/// Over time: `step` and one column per curve. Bars: `bar,value`.
+pub fn csv(experiment: &Experiment, outcome: &Outcome) -> String {
+    let mut out = String::new();
+    match &experiment.figure {
+        Figure::OverTime { curves, .. } => {
+            out.push_str("step");
+            for c in *curves {
+                out.push_str(&format!(",{}", quoted(c.label)));
+            }
+            out.push('\n');
+            let columns: Vec<Vec<Option<f64>>> = curves
+                .iter()
+                .map(|c| outcome.arms[c.arm].series(c.series))
+                .collect();
+            for step in 0..outcome.steps as usize {
+                out.push_str(&(step + 1).to_string());
+                for column in &columns {
+                    out.push(',');
+                    if let Some(v) = column.get(step).copied().flatten() {
+                        out.push_str(&v.to_string());
+                    }
+                }
+                out.push('\n');
+            }
+        }
+        Figure::Bars { bars, .. } => {
+            out.push_str("bar,value\n");
+            for b in *bars {
+                let v = outcome.arms[b.arm].metric(b.metric);
+                out.push_str(&format!(
+                    "{},{}\n",
+                    quoted(b.label),
+                    v.map_or(String::new(), |v| v.to_string())
+                ));
+            }
+        }
+    }
+    out
+}
+
+fn quoted(label: &str) -> String {
+    if label.contains([',', '"']) {
+        format!("\"{}\"", label.replace('"', "\"\""))
+    } else {
+        label.to_string()
+    }
+}
+
+pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::Result<()> {
+    let title = format!(
+        "{}: {} ({} runs)",
+        experiment.name, experiment.source, outcome.runs
+    );
+    let root = SVGBackend::new(path, SIZE).into_drawing_area();
+    let drawn = match &experiment.figure {
+        Figure::OverTime { y_label, curves } => {
+            let lines: Vec<(&str, Vec<(u32, f64)>)> = curves
+                .iter()
+                .map(|c| {
+                    let points = outcome.arms[c.arm]
+                        .series(c.series)
+                        .into_iter()
+                        .enumerate()
+                        .filter_map(|(i, v)| v.filter(|v| *v > 0.0).map(|v| (i as u32 + 1, v)))
+                        .collect();
+                    (c.label, points)
+                })
+                .collect();
+            over_time(&root, &title, y_label, outcome.steps, &lines)
+        }
+        Figure::Bars { y_label, bars } => {
+            let values: Vec<(&str, f64)> = bars
+                .iter()
+                .map(|b| (b.label, outcome.arms[b.arm].metric(b.metric).unwrap_or(0.0)))
+                .collect();
+            bar_chart(&root, &title, y_label, &values)
+        }
+    };
+    drawn.map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present()
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+type DrawResult = Result<(), Box<dyn std::error::Error>>;
+
+fn over_time(
+    root: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    title: &str,
+    y_label: &str,
+    steps: u32,
+    lines: &[(&str, Vec<(u32, f64)>)],
+) -> DrawResult {
+    root.fill(&WHITE)?;
+    let values = lines.iter().flat_map(|(_, p)| p.iter().map(|(_, v)| *v));
+    let (lo, hi) = values.fold((f64::INFINITY, 0.0_f64), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    let (lo, hi) = if lo.is_finite() {
+        (lo * 0.9, hi * 1.1)
+    } else {
+        (0.1, 10.0)
+    };
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(1..steps.max(2), (lo..hi).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("step")
+        .y_desc(y_label)
+        .y_labels(16)
+        .y_label_formatter(&|v| format!("{v:.2}"))
+        .draw()?;
+    for (i, (label, points)) in lines.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(
+                points.iter().copied(),
+                colour.stroke_width(2),
+            ))?
+            .label(*label)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()?;
+    Ok(())
+}
+
+fn bar_chart(
+    root: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    title: &str,
+    y_label: &str,
+    values: &[(&str, f64)],
+) -> DrawResult {
+    root.fill(&WHITE)?;
+    let top = values.iter().map(|(_, v)| *v).fold(1.0_f64, f64::max) * 1.15;
+    let n = values.len() as u32;
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        // A segmented range 0..m has m + 1 segments.
+        .build_cartesian_2d((0..n.saturating_sub(1)).into_segmented(), 0.0..top)?;
+    let labels: Vec<String> = values.iter().map(|(l, _)| l.to_string()).collect();
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(values.len())
+        .x_label_formatter(&|x| match x {
+            SegmentValue::CenterOf(i) => labels.get(*i as usize).cloned().unwrap_or_default(),
+            _ => String::new(),
+        })
+        .y_label_formatter(&|v| format!("{v:.0}"))
+        .y_desc(y_label)
+        .draw()?;
+    for (i, (_, v)) in values.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        let i = i as u32;
+        chart.draw_series(std::iter::once(Rectangle::new(
+            [
+                (SegmentValue::Exact(i), 0.0),
+                (SegmentValue::Exact(i + 1), *v),
+            ],
+            colour.filled(),
+        )))?;
+        chart.draw_series(std::iter::once(Text::new(
+            format!("{v:.0} B"),
+            (SegmentValue::CenterOf(i), *v * 1.03),
+            ("sans-serif", 16),
+        )))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,379 @@
+//! `cqnet experiment`: the papers' figures as commands that draw them.
+//!
+//! An experiment is data, not code: overrides of the default scenario, the
+//! arms it runs (each a Monte Carlo of its own), the figure (which series of
+//! which arm to draw) and a check that says in words whether the paper's
+//! qualitative result holds. Adding one is adding an entry to a catalogue
+//! (`seed000.rs` is the first); the runner, the CSV, the SVG and the
+//! command line are shared.
+
+mod figure;
+mod seed000;
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use bounds::fisher::Measurement;
+use bounds::pcrlb::{nonconditional_pcrlb_random_activation, SensorTerm};
+use bounds::State;
+use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO};
+use fusion_graph::Topology;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::montecarlo::run_monte_carlo;
+use crate::results::{write_atomically, Estimates, StepMeans, AVERAGE_FROM_STEP};
+
+/// A named, reproducible experiment.
+pub struct Experiment {
+    pub name: &'static str,
+    /// Where in the papers it comes from, e.g. "seed 000, Fig. 1(c)".
+    pub source: &'static str,
+    /// What it shows, in a sentence.
+    pub about: &'static str,
+    /// Overrides of the default scenario shared by every arm.
+    pub base: &'static [&'static str],
+    pub arms: &'static [Arm],
+    pub figure: Figure,
+    /// The paper's qualitative result, checked on the outcome.
+    pub check: fn(&Outcome) -> Check,
+}
+
+/// One configuration, run as a Monte Carlo.
+pub struct Arm {
+    pub label: &'static str,
+    pub overrides: &'static [&'static str],
+}
+
+pub enum Figure {
+    /// Curves over the steps, on a logarithmic axis (the first steps from
+    /// a 50 m prior are ten times the rest).
+    OverTime {
+        y_label: &'static str,
+        curves: &'static [Curve],
+    },
+    /// One bar per (arm, metric).
+    Bars {
+        y_label: &'static str,
+        bars: &'static [Bar],
+    },
+}
+
+pub struct Curve {
+    pub arm: usize,
+    pub series: Series,
+    pub label: &'static str,
+}
+
+/// A per-step figure of an arm: means over runs and nodes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Series {
+    /// The nodes' CQ/dPCRLB position bound (L_G).
+    Bound,
+    /// The auxiliary-FIM baseline's bound (needs `consensus.auxiliary_fim`).
+    AuxBound,
+    /// The centralized conditional PCRLB.
+    CentralizedBound,
+    /// Root mean square position error of the nodes' fused estimates.
+    Rmse,
+    CentralizedRmse,
+    /// The non-conditional (Tichavsky) PCRLB, by Monte Carlo over
+    /// trajectories from the prior, with the arm's random activation.
+    Nonconditional,
+}
+
+pub struct Bar {
+    pub arm: usize,
+    pub metric: Metric,
+    pub label: &'static str,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Metric {
+    /// Bytes of bound information (ΔL) per step, from the accounting.
+    BoundBytesPerStep,
+    /// The same for the auxiliary-FIM baseline (ΔL and S_obs).
+    AuxBoundBytesPerStep,
+}
+
+/// Whether the paper's result holds, and the figures that say so.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Check {
+    pub holds: bool,
+    pub statement: String,
+}
+
+/// What an experiment measured.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub runs: u32,
+    pub steps: u32,
+    pub arms: Vec<ArmOutcome>,
+}
+
+#[derive(Debug, Clone)]
+pub struct ArmOutcome {
+    pub label: String,
+    pub steps: Vec<StepMeans>,
+    /// Position bound of the non-conditional PCRLB at steps 1, 2, …
+    pub nonconditional: Option<Vec<f64>>,
+    pub bound_bytes_per_step: f64,
+    pub aux_bound_bytes_per_step: Option<f64>,
+    pub estimates: Estimates,
+}
+
+impl ArmOutcome {
+    /// Step 1, 2, …: the series' values.
+    pub fn series(&self, series: Series) -> Vec<Option<f64>> {
+        if series == Series::Nonconditional {
+            let n = self.nonconditional.as_deref().unwrap_or(&[]);
+            return (0..self.steps.len()).map(|i| n.get(i).copied()).collect();
+        }
+        self.steps
+            .iter()
+            .map(|m| match series {
+                Series::Bound => m.bound,
+                Series::AuxBound => m.aux_bound,
+                Series::CentralizedBound => m.centralized_bound,
+                Series::Rmse => m.rmse,
+                Series::CentralizedRmse => m.centralized_rmse,
+                Series::Nonconditional => unreachable!("handled above"),
+            })
+            .collect()
+    }
+
+    /// The series' mean over the steps the summaries average (from step
+    /// 10 on, past the transient from the prior).
+    pub fn mean(&self, series: Series) -> Option<f64> {
+        let values: Vec<f64> = self
+            .series(series)
+            .into_iter()
+            .skip(AVERAGE_FROM_STEP as usize - 1)
+            .collect::<Option<_>>()?;
+        (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+    }
+
+    pub fn metric(&self, metric: Metric) -> Option<f64> {
+        match metric {
+            Metric::BoundBytesPerStep => Some(self.bound_bytes_per_step),
+            Metric::AuxBoundBytesPerStep => self.aux_bound_bytes_per_step,
+        }
+    }
+}
+
+impl Outcome {
+    /// The arm with this label; a catalogue entry's checks name their own arms.
+    pub fn arm(&self, label: &str) -> &ArmOutcome {
+        self.arms
+            .iter()
+            .find(|a| a.label == label)
+            .unwrap_or_else(|| panic!("experiment has no arm `{label}`"))
+    }
+}
+
+/// Every experiment, in the order `cqnet experiment` lists them.
+pub fn catalogue() -> Vec<Experiment> {
+    seed000::experiments()
+}
+
+/// The experiment of that name, or an error that lists the names.
+pub fn find(name: &str) -> anyhow::Result<Experiment> {
+    let mut all = catalogue();
+    match all.iter().position(|e| e.name == name) {
+        Some(i) => Ok(all.swap_remove(i)),
+        None => anyhow::bail!(
+            "no experiment named `{name}`; there are: {}",
+            all.iter().map(|e| e.name).collect::<Vec<_>>().join(", ")
+        ),
+    }
+}
+
+pub struct Options {
+    pub runs: u32,
+    /// Steps per run; the scenario's (100) when `None`.
+    pub steps: Option<u32>,
+    pub threads: usize,
+    /// The experiment writes into `<out>/<name>/`.
+    pub out: PathBuf,
+    /// Trajectories for the non-conditional PCRLB.
+    pub trajectories: usize,
+}
+
+/// What `run` wrote.
+pub struct Report {
+    pub outcome: Outcome,
+    pub check: Check,
+    pub csv: PathBuf,
+    pub svg: PathBuf,
+}
+
+/// Runs every arm, then writes `<name>.csv`, `<name>.svg` and `check.txt`.
+/// `progress` hears (arm index, runs of that arm done).
+pub fn run(
+    experiment: &Experiment,
+    options: &Options,
+    progress: &(dyn Fn(usize, u32) + Sync),
+) -> anyhow::Result<Report> {
+    let dir = options.out.join(experiment.name);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut arms = Vec::new();
+    for (index, arm) in experiment.arms.iter().enumerate() {
+        let (scenario, topology) = arm_scenario(experiment, arm, options.steps)?;
+        let mc = run_monte_carlo(
+            &scenario,
+            &topology,
+            &dir.join("runs").join(slug(arm.label)),
+            options.runs,
+            options.threads,
+            needs(
+                experiment,
+                index,
+                &[Series::CentralizedBound, Series::CentralizedRmse],
+            ),
+            &|done| progress(index, done),
+        )
+        .with_context(|| format!("arm `{}`", arm.label))?;
+        let nonconditional = needs(experiment, index, &[Series::Nonconditional])
+            .then(|| nonconditional_bound(&scenario, &topology, options.trajectories))
+            .transpose()
+            .with_context(|| format!("non-conditional PCRLB of arm `{}`", arm.label))?;
+        let per_step = |bytes: f64| bytes / scenario.steps as f64;
+        arms.push(ArmOutcome {
+            label: arm.label.to_string(),
+            steps: mc.series.means(),
+            nonconditional,
+            bound_bytes_per_step: per_step(mc.bound_bytes_cq_dpcrlb),
+            aux_bound_bytes_per_step: mc.bound_bytes_auxiliary_fim.map(per_step),
+            estimates: mc.estimates,
+        });
+    }
+    let outcome = Outcome {
+        runs: options.runs,
+        steps: arms.first().map_or(0, |a| a.steps.len() as u32),
+        arms,
+    };
+    let check = (experiment.check)(&outcome);
+    let csv = dir.join(format!("{}.csv", experiment.name));
+    let svg = dir.join(format!("{}.svg", experiment.name));
+    write_atomically(&csv, figure::csv(experiment, &outcome).as_bytes())?;
+    figure::svg(experiment, &outcome, &svg)?;
+    write_atomically(
+        &dir.join("check.txt"),
+        format!("{}\n", verdict_line(experiment, &outcome, &check)).as_bytes(),
+    )?;
+    Ok(Report {
+        outcome,
+        check,
+        csv,
+        svg,
+    })
+}
+
+/// "holds: …" or "does not hold: …", with the experiment's size.
+pub fn verdict_line(experiment: &Experiment, outcome: &Outcome, check: &Check) -> String {
+    format!(
+        "{} ({}; {} runs of {} steps): {}: {}",
+        experiment.name,
+        experiment.source,
+        outcome.runs,
+        outcome.steps,
+        if check.holds {
+            "holds"
+        } else {
+            "does NOT hold"
+        },
+        check.statement
+    )
+}
+
+fn arm_scenario(
+    experiment: &Experiment,
+    arm: &Arm,
+    steps: Option<u32>,
+) -> anyhow::Result<(Scenario, Topology)> {
+    let mut overrides: Vec<String> = experiment
+        .base
+        .iter()
+        .chain(arm.overrides)
+        .map(|s| s.to_string())
+        .collect();
+    if let Some(k) = steps {
+        overrides.push(format!("steps={k}"));
+    }
+    let source = format!("experiment {} arm `{}`", experiment.name, arm.label);
+    let scenario = Scenario::from_toml(DEFAULT_SCENARIO, &source, &overrides)?;
+    let topology = Topology::from_scenario(&scenario, &source)?;
+    Ok((scenario, topology))
+}
+
+/// Whether the figure draws any of `series` for arm `index`.
+fn needs(experiment: &Experiment, index: usize, series: &[Series]) -> bool {
+    match &experiment.figure {
+        Figure::OverTime { curves, .. } => curves
+            .iter()
+            .any(|c| c.arm == index && series.contains(&c.series)),
+        Figure::Bars { .. } => false,
+    }
+}
+
+/// Tichavsky's PCRLB for the scenario's sensors, each active with the
+/// probability the uniform random manager gives it (its node's
+/// `active_per_node` over the node's sensor count), from the true initial
+/// state with the prior covariance P_0. Position bound at steps 1, 2, …
+fn nonconditional_bound(
+    scenario: &Scenario,
+    topology: &Topology,
+    trajectories: usize,
+) -> anyhow::Result<Vec<f64>> {
+    let models = scenario.models()?;
+    let sensors: Vec<_> = topology
+        .sensor_positions
+        .iter()
+        .map(|p| models.law.at(*p))
+        .collect();
+    let measurement = match &models.quantizer {
+        Some(q) => Measurement::Quantized(q),
+        None => Measurement::Raw,
+    };
+    let terms: Vec<SensorTerm> = sensors
+        .iter()
+        .map(|model| SensorTerm { model, measurement })
+        .collect();
+    let mut activation = vec![0.0; sensors.len()];
+    for own in &topology.node_sensors {
+        let p = (scenario.sensors.active_per_node as f64 / own.len().max(1) as f64).min(1.0);
+        for s in own {
+            activation[*s as usize] = p;
+        }
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
+    let information = nonconditional_pcrlb_random_activation(
+        &models.dynamics,
+        &terms,
+        &activation,
+        &State::from(scenario.target.initial_state()),
+        &models.prior_cov,
+        scenario.steps as usize,
+        trajectories,
+        &mut rng,
+    )?;
+    information
+        .iter()
+        .skip(1)
+        .map(|j| bounds::position_bound(j).context("the non-conditional information is singular"))
+        .collect()
+}
+
+/// An arm label as a folder name.
+fn slug(label: &str) -> String {
+    label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
+        .collect()
+}

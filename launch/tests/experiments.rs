@@ -1,0 +1,73 @@
+//! Every experiment of `cqnet experiment` runs at a small size, so that the
+//! machinery (arms, Monte Carlo, series, non-conditional bound, CSV, SVG,
+//! check) cannot rot. The papers' results themselves need the full size;
+//! their figures are in the README.
+
+use launch::experiment::{self, Figure, Options};
+
+#[test]
+fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
+    let out = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("experiments-{}", std::process::id()));
+    let options = Options {
+        runs: 2,
+        steps: Some(12),
+        threads: 2,
+        out: out.clone(),
+        trajectories: 50,
+    };
+    let catalogue = experiment::catalogue();
+    assert!(catalogue.len() >= 4, "seed 000's four experiments");
+    for e in &catalogue {
+        let report = experiment::run(e, &options, &|_, _| {}).unwrap();
+        assert_eq!(report.outcome.runs, 2, "{}", e.name);
+        assert_eq!(report.outcome.arms.len(), e.arms.len(), "{}", e.name);
+
+        let csv = std::fs::read_to_string(&report.csv).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        match &e.figure {
+            Figure::OverTime { curves, .. } => {
+                assert_eq!(
+                    lines.len(),
+                    1 + 12,
+                    "{}: a header and a row per step",
+                    e.name
+                );
+                // Every curve has a value at every step: nothing the figure
+                // draws is missing from the runs.
+                for row in &lines[1..] {
+                    let cells: Vec<&str> = row.split(',').collect();
+                    assert_eq!(cells.len(), 1 + curves.len(), "{}: {row}", e.name);
+                    for cell in &cells[1..] {
+                        let v: f64 = cell.parse().unwrap_or_else(|_| panic!("{}: {row}", e.name));
+                        assert!(v.is_finite() && v > 0.0, "{}: {row}", e.name);
+                    }
+                }
+            }
+            Figure::Bars { bars, .. } => assert_eq!(lines.len(), 1 + bars.len(), "{}", e.name),
+        }
+        let svg = std::fs::read_to_string(&report.svg).unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.contains("</svg>"),
+            "{}",
+            e.name
+        );
+        assert!(svg.contains(e.name), "{}: the figure is titled", e.name);
+        let check = std::fs::read_to_string(out.join(e.name).join("check.txt")).unwrap();
+        assert!(
+            check.contains("holds") && !report.check.statement.is_empty(),
+            "{}: {check}",
+            e.name
+        );
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn an_unknown_experiment_is_a_clear_error_naming_the_known_ones() {
+    let err = experiment::find("seed000-fig9").err().unwrap().to_string();
+    assert!(
+        err.contains("seed000-fig9") && err.contains("seed000-fig1c"),
+        "{err}"
+    );
+}
