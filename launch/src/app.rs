@@ -197,7 +197,7 @@ impl ExperimentProgress {
             let bar = indicatif::ProgressBar::new(total);
             bar.set_style(
                 indicatif::ProgressStyle::with_template(
-                    "{prefix} [{bar:30}] {pos}/{len} runs, {elapsed} elapsed, about {eta} to go {msg}",
+                    "{prefix} [{bar:24}] {pos}/{len} runs {msg} ({elapsed}, ETA {eta})",
                 )
                 .expect("a valid template")
                 .progress_chars("=> "),
@@ -217,7 +217,7 @@ impl ExperimentProgress {
         match &self.bar {
             Some(bar) => {
                 bar.set_position(arm as u64 * self.runs as u64 + done as u64);
-                bar.set_message(format!("({})", self.arms[arm]));
+                bar.set_message(self.arms[arm]);
             }
             None if done == self.runs || done % 5 == 0 => eprintln!(
                 "{}: arm {} of {} (`{}`): {done}/{} runs",
