@@ -9,7 +9,9 @@
 //!   observed information at a received cell;
 //! - [`pcrlb`]: the conditional PCRLB recursion over particles, shared by the
 //!   local bound, the distributed CQ/dPCRLB and the auxiliary-FIM baseline,
-//!   plus the non-conditional PCRLB by Monte Carlo.
+//!   plus the non-conditional PCRLB by Monte Carlo;
+//! - [`selection`]: the PCRLB cost of a set of active sensors and the
+//!   greedy choice of seed 001.
 
 pub mod dynamics;
 pub mod fisher;
@@ -18,6 +20,7 @@ pub mod normal;
 pub mod observation;
 pub mod pcrlb;
 pub mod quantizer;
+pub mod selection;
 
 #[cfg(test)]
 mod testing;
