@@ -61,6 +61,20 @@ pub struct SensorLayout {
     pub positions: Option<Vec<[f64; 2]>>,
     pub active_per_node: u32,
     pub max_active_total: Option<u32>,
+    /// Which sensors each node activates (seed 001's comparison).
+    #[serde(default)]
+    pub manager: SensorManagerKind,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorManagerKind {
+    /// `active_per_node` of the node's own sensors, uniformly at random (seed 000).
+    #[default]
+    Random,
+    /// The sensors nearest the predicted target position, network-wide,
+    /// at most `active_per_node` per node (seed 001's closest-sensor approach).
+    Closest,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -545,6 +559,7 @@ fn is_optional_key(key: &str) -> bool {
             | "grid"
             | "positions"
             | "per_cell"
+            | "manager"
     )
 }
 

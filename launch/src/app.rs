@@ -219,7 +219,7 @@ impl ExperimentProgress {
                 bar.set_position(arm as u64 * self.runs as u64 + done as u64);
                 bar.set_message(self.arms[arm]);
             }
-            None if done == self.runs || done % 5 == 0 => eprintln!(
+            None if done == self.runs || done.is_multiple_of(5) => eprintln!(
                 "{}: arm {} of {} (`{}`): {done}/{} runs",
                 self.name,
                 arm + 1,

@@ -16,7 +16,7 @@ use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
 use fusion_graph::wire::{Message, Payload, Telemetry};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
-use node::sensor_manager::UniformRandom;
+use node::sensor_manager;
 use node::{CentralizedReference, NodeActor, Outgoing};
 use sensor::SensorActor;
 
@@ -143,7 +143,7 @@ impl InProcessNetwork {
                 scenario,
                 topology,
                 i,
-                Box::new(UniformRandom::for_scenario(scenario)),
+                sensor_manager::for_scenario(scenario),
                 Box::new(ExactSums::new(
                     i,
                     topology,

@@ -193,3 +193,26 @@ fn nodes_go_on_after_the_centre_node_is_killed() {
     );
     assert_eq!(s.fault_cost.missing_node_steps, 21);
 }
+
+/// Seed 001's closest-sensor manager: at most 4 per node, and the nodes,
+/// each ranking from its own prediction, agree on the set, so the network
+/// activates exactly its cap of 18 every step.
+#[test]
+fn the_closest_manager_activates_the_capped_set_every_step() {
+    let o = vec!["sensors.manager=closest".to_string(), "steps=8".to_string()];
+    let s = Scenario::from_toml(fusion_graph::scenario::SEED001_SCENARIO, "seed001", &o).unwrap();
+    let t = Topology::from_scenario(&s, "seed001").unwrap();
+    let dir = out_dir("closest");
+    let mut w = ResultsWriter::create(&dir).unwrap();
+    run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
+    let ticks = std::fs::read_to_string(dir.join("ticks.csv")).unwrap();
+    let mut per_step = std::collections::BTreeMap::<u32, u32>::new();
+    for row in ticks.lines().skip(1) {
+        let cells: Vec<&str> = row.split(',').collect();
+        let observations: u32 = cells[12].parse().unwrap();
+        assert!(observations <= 4, "a node above its cap: {row}");
+        *per_step.entry(cells[0].parse().unwrap()).or_default() += observations;
+    }
+    assert_eq!(per_step.len(), 8);
+    assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
+}

@@ -27,7 +27,7 @@ use crate::estimator::{
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{average_consensus, Fused, Handled, InformationFusion, InformationVector};
-use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
+use crate::sensor_manager::{self, SelectionContext, SensorManager};
 use crate::Outgoing;
 
 /// A node that cannot be built.
@@ -125,14 +125,8 @@ impl NodeActor {
             Duration::from_secs_f64(c.round_timeout_ms / 1e3),
             c.auxiliary_fim,
         );
-        let manager = UniformRandom::for_scenario(scenario);
-        Self::with_parts(
-            scenario,
-            topology,
-            index,
-            Box::new(manager),
-            Box::new(protocol),
-        )
+        let manager = sensor_manager::for_scenario(scenario);
+        Self::with_parts(scenario, topology, index, manager, Box::new(protocol))
     }
 
     /// The node with a sensor manager and a fusion protocol of the caller's choice.
@@ -405,7 +399,7 @@ impl NodeActor {
         }
         self.protocol.expect_step(step);
         let predicted = if self.manager.needs_prediction() {
-            match self.local.predict(&self.model) {
+            match self.fusion.predict(&self.model) {
                 Ok(p) => Some(p),
                 Err(e) => {
                     tracing::error!(node = self.index, error = %e, "prediction failed");
@@ -422,6 +416,8 @@ impl NodeActor {
             own_sensors: own,
             view: &self.view,
             predicted,
+            sensor_positions: &self.topology.sensor_positions,
+            node_sensors: &self.topology.node_sensors,
         });
         let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
         out.push(Outgoing {

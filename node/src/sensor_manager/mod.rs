@@ -3,11 +3,17 @@
 //! message, counted like any other, never as a shared random draw.
 //!
 //! - [`UniformRandom`]: seed 000's policy, uniformly at random within the
-//!   node's own sensors, honouring a network-wide cap.
+//!   node's own sensors, honouring a network-wide cap;
+//! - [`Closest`]: the sensors nearest the predicted target, network-wide.
 
+mod closest;
 mod random;
 
+pub use closest::Closest;
 pub use random::UniformRandom;
+
+use fusion_graph::scenario::SensorManagerKind;
+use fusion_graph::Scenario;
 
 use bounds::State;
 
@@ -20,9 +26,29 @@ pub struct SelectionContext<'a> {
     pub own_sensors: &'a [u16],
     /// The live nodes this node can reach (`view[i]` for node i).
     pub view: &'a [bool],
-    /// The local filter's predicted particles for this step, when the
-    /// manager asked for them with [`SensorManager::needs_prediction`].
+    /// The fusion filter's predicted particles for this step (the global
+    /// predictive density), when the manager asked for them with
+    /// [`SensorManager::needs_prediction`].
     pub predicted: Option<&'a [State]>,
+    /// Every sensor's position, by sensor id.
+    pub sensor_positions: &'a [[f64; 2]],
+    /// Each node's sensors, by node.
+    pub node_sensors: &'a [Vec<u16>],
+}
+
+/// The scenario's manager (`sensors.manager`).
+pub fn for_scenario(scenario: &Scenario) -> Box<dyn SensorManager> {
+    match scenario.sensors.manager {
+        SensorManagerKind::Random => Box::new(UniformRandom::for_scenario(scenario)),
+        SensorManagerKind::Closest => Box::new(Closest::for_scenario(scenario)),
+    }
+}
+
+/// How many sensors the network activates: `max_total` if set, but never
+/// more than `per_node` on each of `live_nodes`.
+pub fn share_of_cap(max_total: Option<usize>, per_node: usize, live_nodes: usize) -> usize {
+    let all = per_node * live_nodes;
+    max_total.map_or(all, |m| m.min(all))
 }
 
 pub trait SensorManager {

@@ -84,6 +84,8 @@ mod tests {
             own_sensors: own,
             view,
             predicted: None,
+            sensor_positions: &[],
+            node_sensors: &[],
         }
     }
 
