@@ -265,6 +265,30 @@ fn cleanup_removes_every_resource_of_the_run() {
     assert_eq!(run_resources(&id), Vec::<std::path::PathBuf>::new());
 }
 
+/// A wait interrupted by a signal (here SIGSTOP then SIGCONT, which Linux
+/// lets interrupt a timed wait even with no handler installed) is a
+/// spurious wake-up, not an error: the child, blocked in `wait`, is
+/// stopped and continued, and must go on to send its message and exit well.
+#[test]
+fn a_wait_interrupted_by_sigstop_and_sigcont_goes_on() {
+    let mut run = Run::new("sigcont");
+    let mut node = node_transport(&run.id);
+    run.spawn("wait-then-send");
+    let pid = run.child.as_ref().unwrap().id().to_string();
+    let signal = |name: &str| {
+        let status = Command::new("kill").args([name, &pid]).status().unwrap();
+        assert!(status.success(), "kill {name} {pid}");
+    };
+    std::thread::sleep(Duration::from_millis(300));
+    signal("-STOP");
+    std::thread::sleep(Duration::from_millis(200));
+    signal("-CONT");
+    let got = receive_until(&mut node, |g, _| !g.is_empty());
+    let child = run.finish();
+    assert_eq!(got.len(), 1);
+    assert_eq!(child.get(SENSOR, NODE, MessageKind::Observation).sent_messages, 1);
+}
+
 /// Not a test: the body of the child process, run when the parent spawns
 /// this binary with `CQNET_FG_CHILD_ROLE` set. Without it, it does nothing.
 #[test]
@@ -313,6 +337,15 @@ fn child_process_entry() {
                 t.inject_raw(Channel::Observation(0), &bytes).unwrap();
                 std::thread::sleep(Duration::from_millis(1));
             }
+        }
+        "wait-then-send" => {
+            // Blocked in `wait` for over a second, through the parent's
+            // SIGSTOP and SIGCONT; an error from `wait` ends the child badly.
+            let start = Instant::now();
+            while start.elapsed() < Duration::from_millis(1200) {
+                t.wait(Duration::from_millis(400)).unwrap();
+            }
+            send(&mut t, 1, Payload::Observation { cell: 1 });
         }
         other => panic!("unknown child role {other}"),
     }

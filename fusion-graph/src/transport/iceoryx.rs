@@ -9,7 +9,7 @@
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -399,12 +399,15 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        self.listener
-            .timed_wait(|_| {}, timeout)
-            .map_err(|e| WaitError {
+        match self.listener.timed_wait(|_| {}, timeout) {
+            // A signal cut the wait short: SIGCONT after SIGSTOP does, with
+            // no handler installed. It is a spurious wake-up; every caller
+            // loops, receiving and waiting again, so returning is the retry.
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
+            Err(e) => Err(WaitError {
                 source: Box::new(e),
-            })?;
-        Ok(())
+            }),
+        }
     }
 
     fn now(&self) -> Duration {
