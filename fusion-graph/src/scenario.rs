@@ -315,9 +315,18 @@ impl Scenario {
             file: source.into(),
             message: e.to_string(),
         })?;
-        let scenario: Scenario = toml::from_str(&text).map_err(|e| ScenarioError::Parse {
+        let parse_error = |message: String| ScenarioError::Parse {
             file: source.into(),
-            message: e.to_string(),
+            message,
+        };
+        // The path of the value that failed, so that `--set
+        // filter.particles=-5` is told `filter.particles`, not only a line
+        // of the merged document.
+        let deserializer =
+            toml::Deserializer::parse(&text).map_err(|e| parse_error(e.to_string()))?;
+        let scenario: Scenario = serde_path_to_error::deserialize(deserializer).map_err(|e| {
+            let path = e.path().to_string();
+            parse_error(format!("`{path}`: {}", e.into_inner().message()))
         })?;
         scenario.validate(source)?;
         Ok(scenario)
@@ -593,6 +602,50 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("bitz"), "{e}");
+    }
+
+    /// A value of the wrong type or out of an enum's variants, given with
+    /// `--set`, is named by its full key, not only by a line of the merged
+    /// document (which says `particles = -5`, not which section).
+    #[test]
+    fn set_values_that_do_not_parse_name_their_full_key() {
+        for (assignment, key) in [
+            ("filter.particles=-5", "`filter.particles`"),
+            ("observation.kind=\"sonar\"", "`observation.kind`"),
+            ("quantizer.bits=\"x\"", "`quantizer.bits`"),
+            ("sensors.manager=\"nearest\"", "`sensors.manager`"),
+        ] {
+            let e = Scenario::from_toml(DEFAULT_SCENARIO, "d", &[assignment.into()])
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(key), "{assignment}: {e}");
+        }
+    }
+
+    /// 100 active sensors per node where each node has 25 is refused by
+    /// name, not silently capped.
+    #[test]
+    fn more_active_sensors_than_a_node_has_is_an_error() {
+        let s = Scenario::from_toml(
+            DEFAULT_SCENARIO,
+            "d",
+            &["sensors.active_per_node=100".into()],
+        )
+        .unwrap();
+        let e = crate::Topology::from_scenario(&s, "d")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("sensors.active_per_node") && e.contains("25"),
+            "{e}"
+        );
+        let ok = Scenario::from_toml(
+            DEFAULT_SCENARIO,
+            "d",
+            &["sensors.active_per_node=25".into()],
+        )
+        .unwrap();
+        assert!(crate::Topology::from_scenario(&ok, "d").is_ok());
     }
 
     /// Each broken file fails with a message naming the key that is wrong.

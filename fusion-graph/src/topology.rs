@@ -68,6 +68,23 @@ impl Topology {
                 ),
             });
         }
+        // A node activates at most the sensors it has: a cap above every
+        // node's count is a mistake, not a wish (with a grid, every node has
+        // the same count).
+        let most = topology
+            .node_sensors
+            .iter()
+            .map(Vec::len)
+            .max()
+            .unwrap_or(0);
+        if s.sensors.active_per_node as usize > most {
+            return Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: "sensors.active_per_node".into(),
+                expected: format!("at most the sensors of a node ({most} at the most)"),
+                got: s.sensors.active_per_node.to_string(),
+            });
+        }
         for (i, f) in s.faults.iter().enumerate() {
             for name in f.actor_names() {
                 let ok = name

@@ -286,7 +286,12 @@ fn a_wait_interrupted_by_sigstop_and_sigcont_goes_on() {
     let got = receive_until(&mut node, |g, _| !g.is_empty());
     let child = run.finish();
     assert_eq!(got.len(), 1);
-    assert_eq!(child.get(SENSOR, NODE, MessageKind::Observation).sent_messages, 1);
+    assert_eq!(
+        child
+            .get(SENSOR, NODE, MessageKind::Observation)
+            .sent_messages,
+        1
+    );
 }
 
 /// Not a test: the body of the child process, run when the parent spawns
