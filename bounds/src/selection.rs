@@ -4,7 +4,9 @@
 //!
 //! The cost of a set A is the position trace of the bound it would give,
 //!
-//!     C(A) = tr_pos[(L(k+1|k) + Σ_{s∈A} J̄_s)⁻¹],
+//! ```text
+//! C(A) = tr_pos[(L(k+1|k) + Σ_{s∈A} J̄_s)⁻¹],
+//! ```
 //!
 //! with `L(k+1|k) = Q⁻¹ − D21 (L_G(k) + D11)⁻¹ D12` the predicted global
 //! information and `J̄_s` sensor s's expected information over the
