@@ -14,6 +14,7 @@ use fusion_graph::ActorId;
 use nix::sys::signal::{kill, Signal as NixSignal};
 use nix::unistd::Pid;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::signal::unix::{signal as unix_signal, SignalKind};
 use tokio::sync::mpsc::UnboundedReceiver;
 
 /// Lines of a child's stderr kept for error messages.
@@ -69,16 +70,37 @@ struct Child {
     done: tokio::sync::watch::Receiver<bool>,
 }
 
+/// The next delivery of a signal we listen for; never, if we could not.
+async fn next_signal(listener: &mut Option<tokio::signal::unix::Signal>) -> Option<()> {
+    match listener {
+        Some(l) => l.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
 pub async fn supervise(
     spec: ChildSpec,
     mut commands: UnboundedReceiver<Command>,
     events: std::sync::mpsc::Sender<Event>,
 ) {
     let mut children: HashMap<ActorId, Child> = HashMap::new();
+    // SIGTERM (what `timeout`, systemd and CI send) and SIGHUP (a closed
+    // terminal) stop a run exactly as Ctrl-C does: children stopped and
+    // reaped, shared memory removed, results written.
+    let mut terminate = unix_signal(SignalKind::terminate()).ok();
+    let mut hangup = unix_signal(SignalKind::hangup()).ok();
     loop {
         let command = tokio::select! {
             c = commands.recv() => c,
             _ = tokio::signal::ctrl_c() => {
+                let _ = events.send(Event::Interrupted);
+                continue;
+            }
+            Some(()) = next_signal(&mut terminate) => {
+                let _ = events.send(Event::Interrupted);
+                continue;
+            }
+            Some(()) = next_signal(&mut hangup) => {
                 let _ = events.send(Event::Interrupted);
                 continue;
             }

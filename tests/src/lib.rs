@@ -52,6 +52,51 @@ impl Invocation {
         }
     }
 
+    /// Like [`new`](Self::new), but once the run has written its first rows
+    /// of `ticks.csv` (or after 60 s), the program gets `kill -<signal>`;
+    /// then it is waited for.
+    pub fn signalled(
+        executable: &str,
+        tag: &str,
+        subcommand: &str,
+        args: &[&str],
+        signal: &str,
+    ) -> Self {
+        let run_id = format!("t{}-{tag}", std::process::id());
+        let out = std::env::temp_dir().join(format!("cqnet-tests/{run_id}"));
+        let _ = std::fs::remove_dir_all(&out);
+        let child = Command::new(executable)
+            .arg(subcommand)
+            .arg("--out")
+            .arg(&out)
+            .arg("--run-id")
+            .arg(&run_id)
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("run the program");
+        let ticks = out.join("ticks.csv");
+        let start = std::time::Instant::now();
+        while start.elapsed() < std::time::Duration::from_secs(60) {
+            let rows = std::fs::read_to_string(&ticks).map_or(0, |t| t.lines().count());
+            if rows > 1 {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+        let _ = Command::new("kill")
+            .arg(format!("-{signal}"))
+            .arg(child.id().to_string())
+            .status();
+        let output = child.wait_with_output().expect("wait for the program");
+        Self {
+            run_id,
+            out,
+            output: Some(output),
+        }
+    }
+
     pub fn output(&self) -> &Output {
         self.output.as_ref().expect("ran")
     }

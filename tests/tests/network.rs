@@ -304,3 +304,39 @@ fn bad_input_ends_the_run_with_a_clear_error() {
     );
     assert_clean(&r);
 }
+
+/// SIGTERM (what `timeout`, systemd and CI send) and SIGHUP stop a run as
+/// Ctrl-C does: every child stopped and reaped, the run's shared memory
+/// removed, and the results so far written. Before, SIGTERM killed the
+/// launcher on the spot and left 234 children and their shared memory.
+#[test]
+fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
+    let _guard = exclusive();
+    for signal in ["TERM", "HUP"] {
+        let r = Invocation::signalled(
+            CQNET,
+            &format!("sig{}", signal.to_lowercase()),
+            "run",
+            &["--set", "steps=1000", "--no-central"],
+            signal,
+        );
+        assert!(
+            !r.output().status.success(),
+            "SIG{signal}: a stopped run is not a success"
+        );
+        assert!(
+            r.stderr().contains("interrupted at step"),
+            "SIG{signal}: {}",
+            r.stderr()
+        );
+        assert!(
+            !r.ticks().is_empty(),
+            "SIG{signal}: the rows so far are kept"
+        );
+        assert!(
+            r.out.join("summary.json").exists(),
+            "SIG{signal}: no summary"
+        );
+        assert_clean(&r);
+    }
+}
