@@ -7,7 +7,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use fusion_graph::accounting::Accounting;
-use fusion_graph::transport::iceoryx::{remove_run_resources, run_resources};
+use fusion_graph::transport::iceoryx::{
+    remove_run_resources, run_resources, sweep_abandoned_runs, RunLease,
+};
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Message, MessageKind, Payload, WireFormat};
 use fusion_graph::{ActorId, LinkRule, Scenario, Topology};
@@ -294,6 +296,33 @@ fn a_wait_interrupted_by_sigstop_and_sigcont_goes_on() {
     );
 }
 
+/// The sweep removes a run whose launcher is gone (a child that took a
+/// lease and exited without giving it back, as a SIGKILLed launcher does)
+/// and leaves alone a run whose launcher lives (this test process).
+#[test]
+fn the_sweep_removes_abandoned_runs_and_only_those() {
+    let mut gone = Run::new("gone");
+    let live = unique_run("live");
+    let fake = |run: &RunId| std::path::PathBuf::from(format!("/dev/shm/{}fake", run.prefix()));
+    std::fs::write(fake(&gone.id), b"x").unwrap();
+    std::fs::write(fake(&live), b"x").unwrap();
+    let _lease = RunLease::acquire(&live).unwrap();
+    gone.spawn("lease-and-exit");
+    let status = gone.child.take().unwrap().wait().unwrap();
+    assert!(status.success());
+
+    let cleaned = sweep_abandoned_runs().unwrap();
+    let live_left = fake(&live).exists();
+    let _ = std::fs::remove_file(fake(&live));
+    assert!(cleaned.contains(&gone.id), "{cleaned:?}");
+    assert!(!cleaned.contains(&live), "a live run was swept");
+    assert!(
+        !fake(&gone.id).exists(),
+        "the abandoned run's file survived"
+    );
+    assert!(live_left, "the live run's file was removed");
+}
+
 /// Not a test: the body of the child process, run when the parent spawns
 /// this binary with `CQNET_FG_CHILD_ROLE` set. Without it, it does nothing.
 #[test]
@@ -302,6 +331,11 @@ fn child_process_entry() {
         return;
     };
     let run = RunId::new(&std::env::var(RUN).unwrap()).unwrap();
+    if role == "lease-and-exit" {
+        // A launcher that dies without cleaning up: the lease stays behind.
+        std::mem::forget(RunLease::acquire(&run).unwrap());
+        return;
+    }
     let mut t = IceoryxTransport::new(&run, SENSOR, &topology(), FORMAT, 1).unwrap();
     t.publish_on(Channel::Observation(0)).unwrap();
     t.notify(NODE).unwrap();

@@ -128,6 +128,17 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Experiment(args) => run_experiments(&args),
+        Command::Clean => {
+            let cleaned = fusion_graph::transport::iceoryx::sweep_abandoned_runs()
+                .context("sweeping abandoned runs")?;
+            if cleaned.is_empty() {
+                println!("no abandoned run: nothing to remove");
+            }
+            for run in cleaned {
+                println!("removed the shared memory of run {}", run.as_str());
+            }
+            Ok(())
+        }
         Command::Actor(args) => crate::actor_process::run_actor(&args),
     }
     .context("cqnet")

@@ -27,6 +27,9 @@ pub enum Command {
     /// Run a paper's experiment: Monte Carlo, CSV, SVG figure and a check in words
     /// (without a name: list them).
     Experiment(ExperimentArgs),
+    /// Remove the shared memory of runs whose launcher is gone (killed with
+    /// SIGKILL, say); runs still going are left alone.
+    Clean,
     /// Print a built-in scenario to copy and edit.
     Scenario {
         /// Print the scenario literal to seed 001 instead of the default.

@@ -13,7 +13,7 @@ use anyhow::{bail, Context};
 use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
-use fusion_graph::transport::iceoryx::remove_run_resources;
+use fusion_graph::transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
@@ -48,6 +48,17 @@ pub fn run_network(
     if scenario.consensus.protocol == ConsensusProtocol::Exact {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
     }
+    // Runs whose launcher was SIGKILLed left their shared memory behind:
+    // clear those (and only those) before adding ours.
+    match sweep_abandoned_runs() {
+        Ok(runs) if !runs.is_empty() => tracing::warn!(
+            runs = runs.len(),
+            "removed the shared memory of runs whose launcher is gone"
+        ),
+        Ok(_) => {}
+        Err(e) => tracing::warn!(error = %e, "could not sweep abandoned runs"),
+    }
+    let _lease = RunLease::acquire(&options.run_id).context("registering the run")?;
     std::fs::create_dir_all(options.out.join("logs"))?;
     std::fs::create_dir_all(options.out.join("accounting"))?;
     let scenario_file = options.out.join("scenario.toml");

@@ -340,3 +340,39 @@ fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
         assert_clean(&r);
     }
 }
+
+/// A SIGKILLed launcher cannot clean up. Its children die with it (their
+/// parent-death signal), its shared memory stays, and `cqnet clean` removes
+/// it, knowing the run by the lease its dead launcher left.
+#[test]
+fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
+    let _guard = exclusive();
+    let r = Invocation::signalled(
+        CQNET,
+        "sigkill",
+        "run",
+        &["--set", "steps=1000", "--no-central"],
+        "KILL",
+    );
+    let start = std::time::Instant::now();
+    while !r.leftover_processes().is_empty() && start.elapsed().as_secs() < 30 {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    assert_eq!(
+        r.leftover_processes(),
+        Vec::<u32>::new(),
+        "children outlived the launcher"
+    );
+    assert!(
+        !r.leftover_shared_memory().is_empty(),
+        "nothing was left to clean: the test shows nothing"
+    );
+    let clean = std::process::Command::new(CQNET)
+        .arg("clean")
+        .output()
+        .unwrap();
+    assert!(clean.status.success());
+    let said = String::from_utf8_lossy(&clean.stdout);
+    assert!(said.contains(&r.run_id), "{said}");
+    assert_clean(&r);
+}

@@ -93,6 +93,76 @@ pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
     Ok(removed)
 }
 
+/// Where launchers register their runs: one file per run id, holding the
+/// launcher's pid and its start time (so a reused pid is not mistaken for it).
+const RUN_REGISTRY: &str = "/tmp/cqnet-runs";
+
+/// A launcher's claim on its run's resources, held for the run's lifetime.
+/// A launcher killed with SIGKILL cannot clean up; its lease outlives it,
+/// and [`sweep_abandoned_runs`] finds the run by it.
+#[derive(Debug)]
+pub struct RunLease {
+    path: std::path::PathBuf,
+}
+
+impl RunLease {
+    /// Registers `run` as this process's.
+    pub fn acquire(run: &RunId) -> std::io::Result<Self> {
+        std::fs::create_dir_all(RUN_REGISTRY)?;
+        let pid = std::process::id();
+        let started = process_start_time(pid).unwrap_or_default();
+        let path = std::path::Path::new(RUN_REGISTRY).join(run.as_str());
+        std::fs::write(&path, format!("{pid} {started}\n"))?;
+        Ok(Self { path })
+    }
+}
+
+impl Drop for RunLease {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Removes the resources of every registered run whose launcher is gone
+/// (no process with its pid and start time), and their leases; runs whose
+/// launcher lives are left alone. Returns the runs cleaned.
+pub fn sweep_abandoned_runs() -> std::io::Result<Vec<RunId>> {
+    let mut cleaned = Vec::new();
+    let entries = match std::fs::read_dir(RUN_REGISTRY) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(cleaned),
+        Err(e) => return Err(e),
+    };
+    for entry in entries.flatten() {
+        let Ok(run) = RunId::new(&entry.file_name().to_string_lossy()) else {
+            continue;
+        };
+        let lease = std::fs::read_to_string(entry.path()).unwrap_or_default();
+        let mut fields = lease.split_whitespace();
+        let pid = fields.next().and_then(|p| p.parse::<u32>().ok());
+        let started = fields.next().and_then(|t| t.parse::<u64>().ok());
+        let alive = match (pid, started) {
+            (Some(pid), Some(started)) => process_start_time(pid) == Some(started),
+            _ => false,
+        };
+        if !alive {
+            remove_run_resources(&run)?;
+            let _ = std::fs::remove_file(entry.path());
+            cleaned.push(run);
+        }
+    }
+    Ok(cleaned)
+}
+
+/// A process's start time in clock ticks since boot (`/proc/<pid>/stat`,
+/// field 22); `None` if there is no such process.
+fn process_start_time(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces.
+    let after_name = &stat[stat.rfind(')')? + 2..];
+    after_name.split_whitespace().nth(19)?.parse().ok()
+}
+
 /// Files of the run that still exist (for cleanup checks).
 pub fn run_resources(run: &RunId) -> Vec<std::path::PathBuf> {
     let prefix = run.prefix();
