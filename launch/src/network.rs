@@ -23,7 +23,7 @@ use tokio::sync::mpsc::UnboundedSender;
 use crate::actor_process::{accounting_path, memory_path, stop_message};
 use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::sim::central_telemetry;
-use crate::summary::{ChildrenMemory, Summary};
+use crate::summary::{AppliedFault, ChildrenMemory, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
 use crate::world::World;
 
@@ -134,6 +134,13 @@ struct WorldState<'a> {
     /// Actors we killed on purpose (their exit is not an error).
     expected_exits: HashSet<ActorId>,
     unexpected_exits: Vec<String>,
+    /// Actors that died on their own, and the step the launcher noticed:
+    /// faults of the run, and respawned (not continued) at a scheduled restart.
+    crashed: Vec<(ActorId, u32, String)>,
+    /// Of those, the ones not started again yet.
+    dead: HashSet<ActorId>,
+    /// The step being run.
+    step: u32,
     interrupted: bool,
     /// The membership view each node was last told.
     views: Vec<Vec<bool>>,
@@ -180,6 +187,9 @@ fn world_thread(
         sensors_alive: vec![true; topology.sensors()],
         expected_exits: HashSet::new(),
         unexpected_exits: Vec::new(),
+        crashed: Vec::new(),
+        dead: HashSet::new(),
+        step: 0,
         interrupted: false,
         views: Vec::new(),
     };
@@ -214,6 +224,7 @@ fn world_thread(
     let mut steps_done = 0;
 
     for step in 1..=scenario.steps {
+        w.step = step;
         let process_faults = w.apply_process_faults(&schedule, step)?;
         schedule.apply_link_faults(step, &mut w.transport, topology);
         let views = schedule.membership_views(step, topology, &w.alive);
@@ -350,6 +361,15 @@ fn world_thread(
             processes: topology.nodes() + topology.sensors() + 1,
             children_memory_kb: children_memory(&options.out, topology),
             real_time_rounds: true,
+            unscheduled_faults: w
+                .crashed
+                .iter()
+                .map(|(actor, step, status)| AppliedFault {
+                    step: *step,
+                    until_step: None,
+                    fault: format!("{actor} died unexpectedly ({status})"),
+                })
+                .collect(),
         },
     )?;
     if w.interrupted {
@@ -418,6 +438,8 @@ impl WorldState<'_> {
                     stderr_tail,
                 } if !self.expected_exits.contains(&actor) => {
                     self.unexpected_exits.push(format!("{actor} exited unexpectedly ({status}); its stderr ended with:\n{stderr_tail}"));
+                    self.crashed.push((actor, self.step, status));
+                    self.dead.insert(actor);
                     match actor {
                         ActorId::Node(i) => self.alive[i as usize] = false,
                         ActorId::Sensor(i) => self.sensors_alive[i as usize] = false,
@@ -447,7 +469,8 @@ impl WorldState<'_> {
                     changed = true;
                 }
                 ProcessEvent::Restart { actor, signal } => {
-                    if signal == Signal::Stop {
+                    // A stopped actor that died meanwhile is started afresh.
+                    if signal == Signal::Stop && !self.dead.remove(&actor) {
                         self.commands.send(Command::Continue { actor })?;
                     } else {
                         // The old process must be reaped before its successor

@@ -354,6 +354,8 @@ pub struct RunFacts {
     /// Whether the consensus round latency means anything: in `sim` the
     /// rounds run on the virtual clock.
     pub real_time_rounds: bool,
+    /// Faults nobody scheduled: actors that died on their own (`run`).
+    pub unscheduled_faults: Vec<crate::summary::AppliedFault>,
 }
 
 /// One recorder for `sim` and `run`: takes the rows as they come, writes
@@ -454,6 +456,7 @@ impl<'w> Recorder<'w> {
                 .faults
                 .iter()
                 .map(crate::summary::AppliedFault::from_fault)
+                .chain(facts.unscheduled_faults)
                 .collect(),
             fault_cost: self.cost,
             wall_seconds: facts.wall_seconds,

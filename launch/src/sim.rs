@@ -440,6 +440,7 @@ pub fn run_in_process(
             processes: 1,
             children_memory_kb: None,
             real_time_rounds: false,
+            unscheduled_faults: Vec::new(),
         },
     )
 }

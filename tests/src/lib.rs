@@ -52,15 +52,18 @@ impl Invocation {
         }
     }
 
-    /// Like [`new`](Self::new), but once the run has written its first rows
-    /// of `ticks.csv` (or after 60 s), the program gets `kill -<signal>`;
-    /// then it is waited for.
+    /// Like [`new`](Self::new), but once the run has written rows up to
+    /// step `at_step` of `ticks.csv` (or after 60 s), `kill -<signal>` goes
+    /// to the launcher, or to the actor named by `target` (`node-4`); then
+    /// the program is waited for.
     pub fn signalled(
         executable: &str,
         tag: &str,
         subcommand: &str,
         args: &[&str],
         signal: &str,
+        target: Option<&str>,
+        at_step: u32,
     ) -> Self {
         let run_id = format!("t{}-{tag}", std::process::id());
         let out = std::env::temp_dir().join(format!("cqnet-tests/{run_id}"));
@@ -79,16 +82,27 @@ impl Invocation {
         let ticks = out.join("ticks.csv");
         let start = std::time::Instant::now();
         while start.elapsed() < std::time::Duration::from_secs(60) {
-            let rows = std::fs::read_to_string(&ticks).map_or(0, |t| t.lines().count());
-            if rows > 1 {
+            let reached = std::fs::read_to_string(&ticks).is_ok_and(|t| {
+                t.lines()
+                    .skip(1)
+                    .filter_map(|l| l.split(',').next()?.parse::<u32>().ok())
+                    .any(|s| s >= at_step)
+            });
+            if reached {
                 break;
             }
-            std::thread::sleep(std::time::Duration::from_millis(100));
+            std::thread::sleep(std::time::Duration::from_millis(50));
         }
-        let _ = Command::new("kill")
-            .arg(format!("-{signal}"))
-            .arg(child.id().to_string())
-            .status();
+        let pids = match target {
+            None => vec![child.id()],
+            Some(actor) => processes_with(&format!("{run_id} --actor {actor} ")),
+        };
+        for pid in pids {
+            let _ = Command::new("kill")
+                .arg(format!("-{signal}"))
+                .arg(pid.to_string())
+                .status();
+        }
         let output = child.wait_with_output().expect("wait for the program");
         Self {
             run_id,

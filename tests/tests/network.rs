@@ -319,6 +319,8 @@ fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
             "run",
             &["--set", "steps=1000", "--no-central"],
             signal,
+            None,
+            1,
         );
         assert!(
             !r.output().status.success(),
@@ -353,6 +355,8 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
         "run",
         &["--set", "steps=1000", "--no-central"],
         "KILL",
+        None,
+        1,
     );
     let start = std::time::Instant::now();
     while !r.leftover_processes().is_empty() && start.elapsed().as_secs() < 30 {
@@ -374,5 +378,38 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
     assert!(clean.status.success());
     let said = String::from_utf8_lossy(&clean.stdout);
     assert!(said.contains(&r.run_id), "{said}");
+    assert_clean(&r);
+}
+
+/// An actor that dies on its own is a fault of the run: the summary lists
+/// it. Here node-4, stopped by the scenario at step 5 until step 25, is
+/// SIGKILLed from outside while stopped; at step 25 the launcher starts it
+/// afresh (a SIGCONT would reach no one), and it reports again.
+#[test]
+fn an_actor_that_dies_unexpectedly_is_a_fault_and_its_restart_still_applies() {
+    let _guard = exclusive();
+    let faults = "faults=[{kind=\"kill\", actor=\"node-4\", at_step=5, signal=\"SIGSTOP\", restart_after=20}]";
+    let r = Invocation::signalled(
+        CQNET,
+        "crash",
+        "run",
+        &["--set", "steps=45", "--no-central", "--set", faults],
+        "KILL",
+        Some("node-4"),
+        10,
+    );
+    r.assert_success();
+    let faults = r.summary()["faults"].to_string();
+    assert!(faults.contains("node-4 died unexpectedly"), "{faults}");
+    let back = r
+        .ticks()
+        .iter()
+        .filter(|t| t.node == "node-4" && t.step >= 25)
+        .map(|t| t.step)
+        .min();
+    assert!(
+        back.is_some_and(|s| s <= 30),
+        "node-4 did not report again after its restart: first at {back:?}"
+    );
     assert_clean(&r);
 }
