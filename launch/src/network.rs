@@ -476,6 +476,7 @@ impl WorldState<'_> {
                         // The old process must be reaped before its successor
                         // opens the same services (iceoryx2 cleans up dead nodes then).
                         self.expected_exits.remove(&actor);
+                        self.dead.remove(&actor);
                         self.commands.send(Command::Spawn {
                             actor,
                             rejoin: matches!(actor, ActorId::Node(_)),
