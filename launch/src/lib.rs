@@ -8,6 +8,7 @@ pub mod drive;
 pub mod experiment;
 pub mod montecarlo;
 pub mod network;
+pub mod preflight;
 pub mod results;
 pub mod sim;
 pub mod summary;

@@ -48,6 +48,7 @@ pub fn run_network(
     if scenario.consensus.protocol == ConsensusProtocol::Exact {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
     }
+    crate::preflight::check(scenario, topology, options.centralized)?;
     // Runs whose launcher was SIGKILLed left their shared memory behind:
     // clear those (and only those) before adding ours.
     match sweep_abandoned_runs() {

@@ -413,3 +413,29 @@ fn an_actor_that_dies_unexpectedly_is_a_fault_and_its_restart_still_applies() {
     );
     assert_clean(&r);
 }
+
+/// A network that cannot fit the machine is refused before anything is
+/// spawned, with what to change: 2·10⁹ particles per filter would need
+/// hundreds of GiB.
+#[test]
+fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
+    let _guard = exclusive();
+    let r = run("toolarge", &["--set", "filter.particles=2000000000"]);
+    assert!(!r.output().status.success());
+    let stderr = r.stderr();
+    assert!(
+        stderr.contains("filter.particles")
+            && stderr.contains("GiB")
+            && stderr.contains("available"),
+        "{stderr}"
+    );
+    assert!(
+        !r.out.join("logs").exists()
+            || std::fs::read_dir(r.out.join("logs"))
+                .unwrap()
+                .next()
+                .is_none(),
+        "children were started"
+    );
+    assert_clean(&r);
+}
