@@ -59,7 +59,11 @@ pub fn run_network(
         Ok(_) => {}
         Err(e) => tracing::warn!(error = %e, "could not sweep abandoned runs"),
     }
-    let _lease = RunLease::acquire(&options.run_id).context("registering the run")?;
+    // Without a lease (a registry another user owns, say) the run still
+    // goes; only `cqnet clean` could not find it after a SIGKILL.
+    let _lease = RunLease::acquire(&options.run_id)
+        .map_err(|e| tracing::warn!(error = %e, "could not register the run for `cqnet clean`"))
+        .ok();
     std::fs::create_dir_all(options.out.join("logs"))?;
     std::fs::create_dir_all(options.out.join("accounting"))?;
     let scenario_file = options.out.join("scenario.toml");
