@@ -146,6 +146,45 @@ impl Contribution {
 /// summary is trusted.
 const MIN_IMPORTANCE_ESS: f64 = 50.0;
 
+/// A filter's prediction for the step, made at most once: the bound's
+/// dynamics terms (B11, B12 over the particles before the prediction) and
+/// the predicted summary, held from the predictor to the updater that
+/// consumes them. Both filters predict early (for a sensor manager, or for
+/// ΔL before consensus) and must not predict twice.
+#[derive(Debug, Clone, Default)]
+struct PendingPrediction(Option<(DynamicsTerms, Gaussian)>);
+
+impl PendingPrediction {
+    /// Predicts `filter` unless this step's prediction is already made.
+    fn make(
+        &mut self,
+        filter: &mut ParticleFilter,
+        dynamics: &Dynamics,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(), BoundError> {
+        if self.0.is_none() {
+            self.0 = Some(filter.predict_for_bound(dynamics, rng)?);
+        }
+        Ok(())
+    }
+
+    /// This step's prediction (made now if it was not), for the updater.
+    fn take(
+        &mut self,
+        filter: &mut ParticleFilter,
+        dynamics: &Dynamics,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(DynamicsTerms, Gaussian), BoundError> {
+        self.make(filter, dynamics, rng)?;
+        Ok(self.0.take().expect("made above"))
+    }
+
+    /// Forgets a prediction (the filter was reset).
+    fn clear(&mut self) {
+        self.0 = None;
+    }
+}
+
 /// The local filter and its local conditional PCRLB. Its step is split in
 /// two, the predictor and the updater, so that a sensor manager can score
 /// candidate sensors on the predicted particles before any is activated.
@@ -154,9 +193,7 @@ pub struct LocalFilter {
     filter: ParticleFilter,
     bound: ConditionalBound,
     rng: ChaCha8Rng,
-    /// The bound's dynamics terms and the predicted summary, between
-    /// [`predict`](Self::predict) and [`update`](Self::update).
-    prediction: Option<(DynamicsTerms, Gaussian)>,
+    prediction: PendingPrediction,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -179,13 +216,13 @@ impl LocalFilter {
             filter,
             bound: ConditionalBound::from_prior(&prior.cov)?,
             rng,
-            prediction: None,
+            prediction: PendingPrediction::default(),
         })
     }
 
     /// Restarts from a Gaussian posterior and information matrix (rejoin).
     pub fn reset(&mut self, posterior: &Gaussian, information: Mat4) {
-        self.prediction = None;
+        self.prediction.clear();
         if self
             .filter
             .reset_gaussian(posterior, &mut self.rng)
@@ -198,12 +235,8 @@ impl LocalFilter {
     /// Predictor: propagates the particles to this step (once; a second
     /// call before [`update`](Self::update) changes nothing) and returns them.
     pub fn predict(&mut self, model: &SensingModel) -> Result<&[State], BoundError> {
-        if self.prediction.is_none() {
-            self.prediction = Some(
-                self.filter
-                    .predict_for_bound(&model.dynamics, &mut self.rng)?,
-            );
-        }
+        self.prediction
+            .make(&mut self.filter, &model.dynamics, &mut self.rng)?;
         Ok(self.filter.particles())
     }
 
@@ -218,8 +251,9 @@ impl LocalFilter {
         observations: &[Observation],
         with_observed_information: bool,
     ) -> Result<LocalUpdate, BoundError> {
-        self.predict(model)?;
-        let (terms, predicted) = self.prediction.take().expect("predicted above");
+        let (terms, predicted) =
+            self.prediction
+                .take(&mut self.filter, &model.dynamics, &mut self.rng)?;
 
         let delta_l = model.observation_information(
             observations,
@@ -350,9 +384,7 @@ pub struct FusionFilter {
     /// `J_AUX(k)` and the baseline bound computed from it.
     aux: Option<ConditionalBound>,
     rng: ChaCha8Rng,
-    /// The bound's dynamics terms and the predicted summary, between
-    /// [`predict`](Self::predict) and [`step`](Self::step).
-    prediction: Option<(DynamicsTerms, Gaussian)>,
+    prediction: PendingPrediction,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -378,7 +410,7 @@ impl FusionFilter {
             bound,
             aux: with_aux.then_some(bound),
             rng,
-            prediction: None,
+            prediction: PendingPrediction::default(),
         })
     }
 
@@ -401,7 +433,7 @@ impl FusionFilter {
         information: Mat4,
         aux_information: Option<Mat4>,
     ) {
-        self.prediction = None;
+        self.prediction.clear();
         if self
             .filter
             .reset_gaussian(posterior, &mut self.rng)
@@ -418,12 +450,8 @@ impl FusionFilter {
     /// call before [`step`](Self::step) changes nothing). The node runs it
     /// before consensus, for [`observation_information`](Self::observation_information).
     pub fn predict(&mut self, model: &SensingModel) -> Result<&[State], BoundError> {
-        if self.prediction.is_none() {
-            self.prediction = Some(
-                self.filter
-                    .predict_for_bound(&model.dynamics, &mut self.rng)?,
-            );
-        }
+        self.prediction
+            .make(&mut self.filter, &model.dynamics, &mut self.rng)?;
         Ok(self.filter.particles())
     }
 
@@ -455,8 +483,9 @@ impl FusionFilter {
         model: &SensingModel,
         sums: &NetworkSums,
     ) -> Result<FusionUpdate, BoundError> {
-        self.predict(model)?;
-        let (terms, predicted) = self.prediction.take().expect("predicted above");
+        let (terms, predicted) =
+            self.prediction
+                .take(&mut self.filter, &model.dynamics, &mut self.rng)?;
         let (lambda, eta) = clip_negative_eigenvalues(&sums.delta_lambda, &sums.delta_eta);
         let centre = predicted.mean;
         // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
