@@ -14,6 +14,8 @@
 //! estimate (the non-conditional one). [`greedy`] is the reference the
 //! distributed selection, one min-consensus per iteration, must agree with.
 
+use std::cmp::Ordering;
+
 use nalgebra::Cholesky;
 
 use crate::Mat4;
@@ -36,10 +38,11 @@ pub struct Candidate {
     pub information: Mat4,
 }
 
-/// A proposal's order: lower cost first, then the smaller node, then the
-/// smaller sensor (math.md's tie-break, so that every node agrees).
-pub fn better(a: (f64, u16, u16), b: (f64, u16, u16)) -> bool {
-    a.0 < b.0 || (a.0 == b.0 && (a.1, a.2) < (b.1, b.2))
+/// The order of (cost, node, sensor) proposals: lower cost first, then the
+/// smaller node, then the smaller sensor (math.md's tie-break, so that every
+/// node agrees). Min-consensus on the wire uses the same order.
+pub fn proposal_order(a: (f64, u16, u16), b: (f64, u16, u16)) -> Ordering {
+    a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2)))
 }
 
 /// Greedy selection: one sensor per iteration, the candidate of least
@@ -65,7 +68,8 @@ pub fn greedy(
             let Some(cost) = selection_cost(predicted, &sum, &c.information) else {
                 continue;
             };
-            if best.is_none_or(|b| better((cost, c.node, c.sensor), (b.0, b.1, b.2))) {
+            let proposal = (cost, c.node, c.sensor);
+            if best.is_none_or(|b| proposal_order(proposal, (b.0, b.1, b.2)) == Ordering::Less) {
                 best = Some((cost, c.node, c.sensor, i));
             }
         }
@@ -181,6 +185,7 @@ mod tests {
             },
         ];
         assert_eq!(greedy(&prior(), &candidates, 1, 1), vec![(1, 4)]);
+        let better = |a, b| proposal_order(a, b) == Ordering::Less;
         assert!(better((1.0, 1, 4), (1.0, 1, 7)) && better((1.0, 1, 7), (1.0, 2, 0)));
         assert!(better((0.5, 9, 9), (1.0, 0, 0)));
     }

@@ -11,13 +11,11 @@ use fusion_graph::{MetropolisWeights, Topology};
 
 use super::{RoundEngine, RoundRule, RoundsDone};
 
-/// Smallest cost first; ties to the smaller node, then the smaller sensor
-/// (math.md, "PCRLB sensor selection").
+/// Smallest cost first; ties to the smaller node, then the smaller sensor:
+/// the order of [`bounds::selection::proposal_order`], so that the
+/// distributed selection agrees with the greedy reference.
 pub fn proposal_order(a: &Proposal, b: &Proposal) -> Ordering {
-    a.cost
-        .total_cmp(&b.cost)
-        .then(a.node.cmp(&b.node))
-        .then(a.sensor.cmp(&b.sensor))
+    bounds::selection::proposal_order((a.cost, a.node, a.sensor), (b.cost, b.node, b.sensor))
 }
 
 pub struct Minimum;
