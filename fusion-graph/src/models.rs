@@ -138,15 +138,10 @@ impl Scenario {
 
     /// The wire sizes this scenario fixes on this topology.
     pub fn wire_format(&self, topology: &Topology) -> WireFormat {
-        let max_sensors = topology
-            .node_sensors
-            .iter()
-            .map(Vec::len)
-            .max()
-            .unwrap_or(1);
         WireFormat {
             cell_bytes: (self.quantizer.bits as usize).div_ceil(8),
-            activation_bytes: max_sensors.div_ceil(8).max(1),
+            // An activation mask has at least one byte.
+            activation_bytes: topology.most_sensors_per_node().div_ceil(8).max(1),
         }
     }
 }

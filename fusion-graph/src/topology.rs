@@ -71,12 +71,7 @@ impl Topology {
         // A node activates at most the sensors it has: a cap above every
         // node's count is a mistake, not a wish (with a grid, every node has
         // the same count).
-        let most = topology
-            .node_sensors
-            .iter()
-            .map(Vec::len)
-            .max()
-            .unwrap_or(0);
+        let most = topology.most_sensors_per_node();
         if s.sensors.active_per_node as usize > most {
             return Err(ScenarioError::Invalid {
                 file: file.into(),
@@ -119,6 +114,11 @@ impl Topology {
 
     pub fn sensors(&self) -> usize {
         self.sensor_positions.len()
+    }
+
+    /// The most sensors any node owns (0 with no nodes).
+    pub fn most_sensors_per_node(&self) -> usize {
+        self.node_sensors.iter().map(Vec::len).max().unwrap_or(0)
     }
 
     pub fn contains(&self, a: ActorId) -> bool {

@@ -22,7 +22,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::montecarlo::run_monte_carlo;
-use crate::results::{write_atomically, Estimates, StepMeans, AVERAGE_FROM_STEP};
+use crate::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
 
 /// A named, reproducible experiment.
 pub struct Experiment {
@@ -119,7 +119,6 @@ pub struct ArmOutcome {
     pub nonconditional: Option<Vec<f64>>,
     pub bound_bytes_per_step: f64,
     pub aux_bound_bytes_per_step: Option<f64>,
-    pub estimates: Estimates,
 }
 
 impl ArmOutcome {
@@ -244,7 +243,6 @@ pub fn run(
             nonconditional,
             bound_bytes_per_step: per_step(mc.bound_bytes_cq_dpcrlb),
             aux_bound_bytes_per_step: mc.bound_bytes_auxiliary_fim.map(per_step),
-            estimates: mc.estimates,
         });
     }
     let outcome = Outcome {

@@ -2,7 +2,7 @@
 
 use fusion_graph::Scenario;
 
-use super::{share_of_cap, SelectionContext, SensorManager};
+use super::{SelectionContext, SensorManager};
 
 /// The sensors nearest the predicted target position, network-wide: walking
 /// every live node's sensors from the nearest out, a sensor is taken while
@@ -87,6 +87,13 @@ impl SensorManager for Closest {
         own.sort_unstable();
         own
     }
+}
+
+/// How many sensors the network activates: `max_total` if set, but never
+/// more than `per_node` on each of `live_nodes`.
+fn share_of_cap(max_total: Option<usize>, per_node: usize, live_nodes: usize) -> usize {
+    let all = per_node * live_nodes;
+    max_total.map_or(all, |m| m.min(all))
 }
 
 #[cfg(test)]

@@ -44,13 +44,6 @@ pub fn for_scenario(scenario: &Scenario) -> Box<dyn SensorManager> {
     }
 }
 
-/// How many sensors the network activates: `max_total` if set, but never
-/// more than `per_node` on each of `live_nodes`.
-pub fn share_of_cap(max_total: Option<usize>, per_node: usize, live_nodes: usize) -> usize {
-    let all = per_node * live_nodes;
-    max_total.map_or(all, |m| m.min(all))
-}
-
 pub trait SensorManager {
     /// Whether [`choose`](Self::choose) scores candidates on the predicted
     /// particles: the node then predicts before it activates anyone.
