@@ -2,6 +2,16 @@
 
 use super::{Arm, Bar, Check, Curve, Experiment, Figure, Metric, Outcome, Series};
 
+/// The default quantizer, and no quantizer: the arms most figures compare.
+const EIGHT_BITS: Arm = Arm {
+    label: "8 bits",
+    overrides: &["quantizer.bits=8"],
+};
+const RAW: Arm = Arm {
+    label: "raw",
+    overrides: &["quantizer.raw=true"],
+};
+
 pub fn experiments() -> Vec<Experiment> {
     vec![
         Experiment {
@@ -10,14 +20,8 @@ pub fn experiments() -> Vec<Experiment> {
             about: "raw dPCRLB against the 8-bit CQ/dPCRLB, each with L_G and with the auxiliary FIM",
             base: &["consensus.auxiliary_fim=true", "reference.centralized=false"],
             arms: &[
-                Arm {
-                    label: "8 bits",
-                    overrides: &["quantizer.bits=8"],
-                },
-                Arm {
-                    label: "raw",
-                    overrides: &["quantizer.raw=true"],
-                },
+                EIGHT_BITS,
+                RAW,
             ],
             figure: Figure::OverTime {
                 y_label: "position bound, m",
@@ -68,14 +72,8 @@ pub fn experiments() -> Vec<Experiment> {
                     label: "7 bits",
                     overrides: &["quantizer.bits=7"],
                 },
-                Arm {
-                    label: "8 bits",
-                    overrides: &["quantizer.bits=8"],
-                },
-                Arm {
-                    label: "raw",
-                    overrides: &["quantizer.raw=true"],
-                },
+                EIGHT_BITS,
+                RAW,
             ],
             figure: Figure::OverTime {
                 y_label: "CQ/dPCRLB position bound, m",
@@ -119,10 +117,7 @@ pub fn experiments() -> Vec<Experiment> {
             source: "seed 000, Result 2",
             about: "the distributed against the centralized conditional bound, with the non-conditional (Tichavsky) PCRLB and the RMSEs",
             base: &["reference.centralized=true"],
-            arms: &[Arm {
-                label: "8 bits",
-                overrides: &[],
-            }],
+            arms: &[EIGHT_BITS],
             figure: Figure::OverTime {
                 y_label: "position bound and RMSE, m",
                 curves: &[
@@ -160,10 +155,7 @@ pub fn experiments() -> Vec<Experiment> {
             source: "seed 000, Result 2 against seed 001, Theorem 1",
             about: "bytes of bound information per step: CQ/dPCRLB (ΔL) against the auxiliary-FIM baseline (ΔL and S_obs), from the accounting",
             base: &["consensus.auxiliary_fim=true", "reference.centralized=false"],
-            arms: &[Arm {
-                label: "8 bits",
-                overrides: &[],
-            }],
+            arms: &[EIGHT_BITS],
             figure: Figure::Bars {
                 y_label: "bound bytes per step, whole network",
                 bars: &[
@@ -191,7 +183,7 @@ fn relative(a: f64, b: f64) -> f64 {
 /// "Within each set of plots the bounds virtually overlap"; the quantized
 /// pair lies slightly above the raw one.
 fn check_fig1b(o: &Outcome) -> Check {
-    let (q, r) = (o.arm("8 bits"), o.arm("raw"));
+    let (q, r) = (o.arm(EIGHT_BITS.label), o.arm(RAW.label));
     let figures = (
         q.mean(Series::Bound),
         q.mean(Series::AuxBound),
@@ -257,7 +249,7 @@ fn check_fig1c(o: &Outcome) -> Check {
 /// claim for Result 2), and neither claims more than the centralized
 /// filter achieves by much.
 fn check_central(o: &Outcome) -> Check {
-    let a = o.arm("8 bits");
+    let a = o.arm(EIGHT_BITS.label);
     let (Some(dist), Some(central), Some(noncond), Some(rmse), Some(c_rmse)) = (
         a.mean(Series::Bound),
         a.mean(Series::CentralizedBound),
@@ -282,7 +274,7 @@ fn check_central(o: &Outcome) -> Check {
 /// Seed 000's point against the auxiliary FIM: the same bound for half the
 /// bound traffic (ΔL alone against ΔL and S_obs).
 fn check_traffic(o: &Outcome) -> Check {
-    let a = o.arm("8 bits");
+    let a = o.arm(EIGHT_BITS.label);
     let Some(aux) = a.aux_bound_bytes_per_step else {
         return missing("the auxiliary FIM's traffic");
     };
