@@ -67,8 +67,20 @@ impl Run {
         self.child = Some(child);
     }
 
-    /// Waits for the child and returns the accounting it printed.
+    /// Waits for the child and returns the accounting it printed. A child
+    /// still running after a minute has hung: the test fails (and drop
+    /// kills it) rather than holding the whole suite.
     fn finish(&mut self) -> Accounting {
+        let start = Instant::now();
+        let child = self.child.as_mut().unwrap();
+        while child.try_wait().unwrap().is_none() {
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "the child of {} hung",
+                self.id
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
         let out = self.child.take().unwrap().wait_with_output().unwrap();
         assert!(out.status.success(), "child failed: {:?}", out.status);
         let text = String::from_utf8_lossy(&out.stdout);

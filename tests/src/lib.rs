@@ -1,9 +1,11 @@
 //! Helpers for tests that launch whole process networks: run the program,
 //! read its results, and make sure nothing of a run survives it.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use fusion_graph::accounting::Accounting;
 use fusion_graph::transport::iceoryx::{remove_run_resources, run_resources};
@@ -44,12 +46,18 @@ impl Invocation {
         for (k, v) in env {
             cmd.env(k, v);
         }
-        let output = cmd.output().expect("run the program");
-        Self {
+        let child = cmd
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run the program");
+        let mut me = Self {
             run_id,
             out,
-            output: Some(output),
-        }
+            output: None,
+        };
+        me.output = Some(wait_bounded(child, &me.run_id));
+        me
     }
 
     /// Like [`new`](Self::new), but once the run has written rows up to
@@ -68,6 +76,11 @@ impl Invocation {
         let run_id = format!("t{}-{tag}", std::process::id());
         let out = std::env::temp_dir().join(format!("cqnet-tests/{run_id}"));
         let _ = std::fs::remove_dir_all(&out);
+        let mut me = Self {
+            run_id: run_id.clone(),
+            out: out.clone(),
+            output: None,
+        };
         let child = Command::new(executable)
             .arg(subcommand)
             .arg("--out")
@@ -75,8 +88,8 @@ impl Invocation {
             .arg("--run-id")
             .arg(&run_id)
             .args(args)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
             .spawn()
             .expect("run the program");
         let ticks = out.join("ticks.csv");
@@ -103,12 +116,8 @@ impl Invocation {
                 .arg(pid.to_string())
                 .status();
         }
-        let output = child.wait_with_output().expect("wait for the program");
-        Self {
-            run_id,
-            out,
-            output: Some(output),
-        }
+        me.output = Some(wait_bounded(child, &run_id));
+        me
     }
 
     pub fn output(&self) -> &Output {
@@ -170,6 +179,44 @@ impl Drop for Invocation {
         if let Ok(r) = RunId::new(&self.run_id) {
             let _ = remove_run_resources(&r);
         }
+    }
+}
+
+/// The longest any one invocation may take. A run that hangs fails its
+/// test after this long instead of holding CI until its limit; the
+/// invocation's drop then kills what is left of it.
+pub const INVOCATION_LIMIT: Duration = Duration::from_secs(300);
+
+/// Waits for `child` and collects its output, killing it and panicking if it
+/// outlives [`INVOCATION_LIMIT`].
+fn wait_bounded(mut child: Child, run_id: &str) -> Output {
+    let drain = |pipe: Option<Box<dyn Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            if let Some(mut pipe) = pipe {
+                let _ = pipe.read_to_end(&mut bytes);
+            }
+            bytes
+        })
+    };
+    let stdout = drain(child.stdout.take().map(|p| Box::new(p) as _));
+    let stderr = drain(child.stderr.take().map(|p| Box::new(p) as _));
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("poll the program") {
+            break status;
+        }
+        if start.elapsed() > INVOCATION_LIMIT {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{run_id} did not finish within {INVOCATION_LIMIT:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Output {
+        status,
+        stdout: stdout.join().unwrap_or_default(),
+        stderr: stderr.join().unwrap_or_default(),
     }
 }
 

@@ -28,6 +28,8 @@ use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 const ICEORYX_ROOT: &str = "/tmp/iceoryx2";
 /// How often to retry opening a service that another process is creating.
 const OPEN_ATTEMPTS: u32 = 100;
+/// The shortest wait handed to iceoryx2's timed wait; shorter ones poll.
+const MIN_TIMED_WAIT: Duration = Duration::from_micros(1);
 
 /// A run's identity: lowercase letters, digits and `-`, at most 32 characters.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
@@ -435,6 +437,7 @@ impl Transport for IceoryxTransport {
             accounting,
             shaper,
             subscribers,
+            start,
             ..
         } = self;
         let mut inbound = Inbound {
@@ -447,7 +450,11 @@ impl Transport for IceoryxTransport {
             loop {
                 match sub.receive() {
                     Ok(Some(sample)) => {
-                        inbound.arrive(channel.publisher(), sample.payload(), now, out)
+                        // Stamped when taken, not when the caller read its
+                        // clock: a receiver descheduled in between would
+                        // otherwise start a delayed message's hold early.
+                        let arrived = now.max(start.elapsed());
+                        inbound.arrive(channel.publisher(), sample.payload(), arrived, out)
                     }
                     Ok(None) => break,
                     Err(e) => {
@@ -469,7 +476,16 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        match self.listener.timed_wait(|_| {}, timeout) {
+        // iceoryx2 passes the timeout to SO_RCVTIMEO as a timeval, whole
+        // microseconds, and a zero timeval means "block forever": a wait of
+        // less than a microsecond (a held message falling due just now)
+        // would never return. It is a poll.
+        let waited = if timeout < MIN_TIMED_WAIT {
+            self.listener.try_wait(|_| {})
+        } else {
+            self.listener.timed_wait(|_| {}, timeout)
+        };
+        match waited {
             // A signal cut the wait short: SIGCONT after SIGSTOP does, with
             // no handler installed. It is a spurious wake-up; every caller
             // loops, receiving and waiting again, so returning is the retry.
@@ -595,6 +611,27 @@ mod tests {
         let mut p = pair("loss");
         let Pair { sensor, node, .. } = &mut p;
         contract::loss_is_applied_and_counted(sensor.as_mut().unwrap(), node.as_mut().unwrap());
+    }
+
+    /// A wait shorter than a microsecond once became a zero SO_RCVTIMEO,
+    /// which blocks forever: it hung CI whenever a held message fell due
+    /// within a microsecond of the wait. Each wait runs on its own thread,
+    /// so a hang fails the test instead of hanging it.
+    #[test]
+    fn waits_shorter_than_a_microsecond_return() {
+        for nanos in [0, 1, 999] {
+            let (done, finished) = std::sync::mpsc::channel();
+            std::thread::spawn(move || {
+                let mut p = pair(&format!("short-wait-{nanos}"));
+                let node = p.node.as_mut().unwrap();
+                node.wait(Duration::from_nanos(nanos)).unwrap();
+                let _ = done.send(());
+            });
+            assert!(
+                finished.recv_timeout(Duration::from_secs(10)).is_ok(),
+                "a wait of {nanos} ns did not return"
+            );
+        }
     }
 
     #[test]
