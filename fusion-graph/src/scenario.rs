@@ -75,6 +75,12 @@ pub enum SensorManagerKind {
     /// The sensors nearest the predicted target position, network-wide,
     /// at most `active_per_node` per node (seed 001's closest-sensor approach).
     Closest,
+    /// Greedy selection by the conditional PCRLB, agreed over the fusion
+    /// graph with one min-consensus per chosen sensor (seed 001 §4).
+    Pcrlb,
+    /// The same greedy selection scored by the non-conditional (Tichavsky)
+    /// bound, carried along the estimate.
+    PcrlbNonconditional,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

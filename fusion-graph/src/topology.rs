@@ -171,6 +171,28 @@ impl Topology {
         out
     }
 
+    /// The largest number of hops between two connected nodes of the whole
+    /// graph: the rounds min-consensus needs to reach every node.
+    pub fn diameter(&self) -> usize {
+        let n = self.nodes();
+        let mut longest = 0;
+        for start in 0..n {
+            let mut hops = vec![usize::MAX; n];
+            hops[start] = 0;
+            let mut queue = VecDeque::from([start]);
+            while let Some(a) = queue.pop_front() {
+                for &b in &self.neighbours[a] {
+                    if hops[b as usize] == usize::MAX {
+                        hops[b as usize] = hops[a] + 1;
+                        longest = longest.max(hops[b as usize]);
+                        queue.push_back(b as usize);
+                    }
+                }
+            }
+        }
+        longest
+    }
+
     /// Size of the live connected component containing `node`: the N_f that
     /// turns an average into a network sum after failures.
     pub fn component_size(&self, node: u16, alive: &[bool]) -> usize {
@@ -290,6 +312,8 @@ mod tests {
         assert_eq!(t.node_positions[4], [750.0, 750.0]);
         assert_eq!(t.sensor_positions[0], [50.0, 50.0]);
         assert_eq!(t.neighbours[4], vec![1, 3, 5, 7]);
+        // A 3×3 grid with its four-neighbour links: corner to corner is 4 hops.
+        assert_eq!(t.diameter(), 4);
     }
 
     fn weight_matrix(t: &Topology, alive: &[bool]) -> Vec<Vec<f64>> {

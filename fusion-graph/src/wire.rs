@@ -176,8 +176,10 @@ pub struct Telemetry {
     /// Microseconds in: the local filter (with the local bound), the fusion
     /// filter (with the global bounds), consensus rounds 2..N_c (when every
     /// neighbour is already exchanging: the rounds' own latency), and the
-    /// whole consensus (round 1 also waits for the slowest neighbour's filter).
-    pub stage_micros: [u32; 4],
+    /// whole consensus (round 1 also waits for the slowest neighbour's
+    /// filter), and the sensor selection (from `BeginStep` to the activation;
+    /// zero for a manager that chooses alone).
+    pub stage_micros: [u32; 5],
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -224,12 +226,25 @@ pub enum Payload {
 }
 
 /// A proposal in min-consensus: the smallest `cost` wins, ties going to the
-/// smaller node, then the smaller sensor.
+/// smaller node, then the smaller sensor. In sensor selection it carries the
+/// proposed sensor's expected information (its position block: xx, xy, yy),
+/// so that every node learns the winner's with the winner. A node with
+/// nothing to propose sends [`Proposal::NOTHING`]'s cost.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Proposal {
     pub cost: f64,
     pub node: u16,
     pub sensor: u16,
+    pub information: [f64; 3],
+}
+
+impl Proposal {
+    /// The cost of "no candidate": finite, so it travels, and above any real one.
+    pub const NOTHING: f64 = f64::MAX;
+
+    pub fn is_nothing(&self) -> bool {
+        self.cost >= Self::NOTHING
+    }
 }
 
 impl Payload {
@@ -386,6 +401,7 @@ impl Message {
             MessageKind::MinConsensus => {
                 let p: Proposal = take(body)?;
                 finite([p.cost])?;
+                finite(p.information)?;
                 Payload::MinConsensus(p)
             }
             MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
@@ -414,7 +430,7 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::Consensus => 8 * 24,
                 MessageKind::ConsensusAux => 8 * 10,
                 MessageKind::StateTransfer => 8 * 34,
-                MessageKind::MinConsensus => 8 + 2 + 2,
+                MessageKind::MinConsensus => 8 + 2 + 2 + 8 * 3,
                 _ => return None,
             },
     )
@@ -506,7 +522,7 @@ mod tests {
             observations: 3,
             deadline_missed: false,
             late_messages: 2,
-            stage_micros: [1, 2, 3, 4],
+            stage_micros: [1, 2, 3, 4, 5],
         };
         vec![
             Message::new(
@@ -573,6 +589,7 @@ mod tests {
                     cost: 2.5,
                     node: 3,
                     sensor: 77,
+                    information: [1e-4, -2e-5, 3e-4],
                 }),
             ),
         ]

@@ -143,7 +143,7 @@ impl InProcessNetwork {
                 scenario,
                 topology,
                 i,
-                sensor_manager::for_scenario(scenario),
+                sensor_manager::for_scenario(scenario, topology, i),
                 Box::new(ExactSums::new(
                     i,
                     topology,
@@ -408,7 +408,7 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         observations: 0,
         deadline_missed: false,
         late_messages: 0,
-        stage_micros: [0; 4],
+        stage_micros: [0; 5],
     }
 }
 

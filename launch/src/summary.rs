@@ -102,6 +102,10 @@ pub struct StageTimes {
     pub local_filter: f64,
     pub fusion_filter: f64,
     pub consensus: f64,
+    /// From `BeginStep` to the activation: the PCRLB selection's scoring and
+    /// its min-consensus rounds (zero for managers that choose alone).
+    #[serde(default)]
+    pub selection: f64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -136,12 +140,12 @@ impl Percentiles {
 /// Sums of stage times over node-steps, for [`StageTimes`].
 #[derive(Debug, Clone, Default)]
 pub struct StageSums {
-    sums: [f64; 4],
+    sums: [f64; 5],
     n: u64,
 }
 
 impl StageSums {
-    pub fn add(&mut self, micros: [u32; 4]) {
+    pub fn add(&mut self, micros: [u32; 5]) {
         for (s, m) in self.sums.iter_mut().zip(micros) {
             *s += m as f64;
         }
@@ -154,6 +158,7 @@ impl StageSums {
             local_filter: self.sums[0] / n,
             fusion_filter: self.sums[1] / n,
             consensus: self.sums[3] / n,
+            selection: self.sums[4] / n,
         }
     }
 }
@@ -212,6 +217,12 @@ pub fn print_table(s: &Summary) {
             st.local_filter, st.fusion_filter, st.consensus
         )
     );
+    if st.selection > 0.0 {
+        println!(
+            "  {:<34} {:>12.0}",
+            "µs per node-step: sensor selection", st.selection
+        );
+    }
     if let Some(p) = &s.round_latency_micros {
         println!(
             "  {:<34} {:>12}",

@@ -27,7 +27,7 @@ use crate::estimator::{
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{average_consensus, Fused, Handled, InformationFusion, InformationVector};
-use crate::sensor_manager::{self, SelectionContext, SensorManager};
+use crate::sensor_manager::{self, Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs};
 use crate::Outgoing;
 
 /// A node that cannot be built.
@@ -46,6 +46,9 @@ pub enum NodeError {
 /// A heavy stage the driver runs and times.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Work {
+    /// The PCRLB selection's scores: each own sensor's expected information
+    /// and the predicted information they add to.
+    SelectionScores,
     /// The local filter's update and the local bound.
     LocalFilter,
     /// The fusion filter and the global bounds.
@@ -55,8 +58,21 @@ pub enum Work {
 #[derive(Debug)]
 enum Phase {
     Idle,
+    /// The PCRLB selection of a step: scoring, then agreeing with the other nodes.
+    Selecting(Selecting),
     Collecting(Collector),
     Fusing(Box<Fusing>),
+}
+
+#[derive(Debug)]
+struct Selecting {
+    step: u32,
+    /// The scores, from [`Work::SelectionScores`] until the selection starts.
+    inputs: Option<SelectionInputs>,
+    scored: bool,
+    scoring_time: Duration,
+    /// When the selection's rounds began.
+    rounds_started: Duration,
 }
 
 /// One step from the closing of its collection to its telemetry.
@@ -93,7 +109,7 @@ pub struct NodeActor {
     model: SensingModel,
     local: LocalFilter,
     fusion: FusionFilter,
-    manager: Box<dyn SensorManager>,
+    manager: Manager,
     protocol: InformationFusion,
     /// This node's membership view: the live nodes it can reach.
     view: Vec<bool>,
@@ -108,6 +124,8 @@ pub struct NodeActor {
     late_messages: u64,
     /// `late_messages` as of the last telemetry.
     late_reported: u64,
+    /// From `BeginStep` to the activation, this step.
+    selection_time: Duration,
 }
 
 impl NodeActor {
@@ -125,7 +143,7 @@ impl NodeActor {
             Duration::from_secs_f64(c.round_timeout_ms / 1e3),
             c.auxiliary_fim,
         );
-        let manager = sensor_manager::for_scenario(scenario);
+        let manager = sensor_manager::for_scenario(scenario, topology, index);
         Self::with_parts(scenario, topology, index, manager, Box::new(protocol))
     }
 
@@ -134,7 +152,7 @@ impl NodeActor {
         scenario: &Scenario,
         topology: &Topology,
         index: u16,
-        manager: Box<dyn SensorManager>,
+        manager: impl Into<Manager>,
         protocol: InformationFusion,
     ) -> Result<Self, NodeError> {
         let models = scenario.models()?;
@@ -167,7 +185,7 @@ impl NodeActor {
             model,
             local,
             fusion,
-            manager,
+            manager: manager.into(),
             protocol,
             view: topology.all_alive(),
             phase: Phase::Idle,
@@ -177,6 +195,7 @@ impl NodeActor {
             last_step: None,
             late_messages: 0,
             late_reported: 0,
+            selection_time: Duration::ZERO,
         })
     }
 
@@ -239,6 +258,10 @@ impl NodeActor {
     /// When [`handle_timeout`](Self::handle_timeout) should next be called.
     pub fn poll_timeout(&self) -> Option<Duration> {
         match &self.phase {
+            Phase::Selecting(s) if s.scored => match &self.manager {
+                Manager::Negotiated(selection) => selection.poll_timeout(),
+                Manager::Alone(_) => None,
+            },
             Phase::Collecting(c) => Some(c.deadline()),
             Phase::Fusing(f) if f.pending_work().is_none() && f.finished.is_none() => {
                 self.protocol.poll_timeout()
@@ -250,6 +273,7 @@ impl NodeActor {
     /// The heavy stage waiting to run, if any.
     pub fn poll_work(&self) -> Option<Work> {
         match &self.phase {
+            Phase::Selecting(s) if !s.scored => Some(Work::SelectionScores),
             Phase::Fusing(f) => f.pending_work(),
             _ => None,
         }
@@ -271,6 +295,17 @@ impl NodeActor {
                 self.observe(step, s, ObservedValue::Raw(*value))
             }
             (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
+            (Payload::MinConsensus(_), ActorId::Node(_)) => {
+                let handled = match &mut self.manager {
+                    Manager::Negotiated(selection) => selection.handle(message, now, out),
+                    Manager::Alone(_) => Handled::NotMine,
+                };
+                match handled {
+                    Handled::Taken => self.poll_selection(now, out),
+                    Handled::Late => self.late_messages += 1,
+                    Handled::NotMine => {}
+                }
+            }
             (p, from) => match self.protocol.handle(message, now, out) {
                 Handled::Taken => self.poll_protocol(),
                 Handled::Late => self.late_messages += 1,
@@ -284,6 +319,12 @@ impl NodeActor {
     /// Called when the time from [`poll_timeout`](Self::poll_timeout) has come.
     pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         match &self.phase {
+            Phase::Selecting(s) if s.scored => {
+                if let Manager::Negotiated(selection) = &mut self.manager {
+                    selection.handle_timeout(now, out);
+                }
+                self.poll_selection(now, out);
+            }
             Phase::Collecting(c) if now >= c.deadline() => self.close_collection(),
             Phase::Fusing(_) => {
                 self.protocol.handle_timeout(now, out);
@@ -296,10 +337,14 @@ impl NodeActor {
     /// Runs the pending heavy stage; the driver times it and then calls
     /// [`work_done`](Self::work_done).
     pub fn run_work(&mut self, work: Work) {
+        if work == Work::SelectionScores {
+            return self.score_selection();
+        }
         let Phase::Fusing(f) = &mut self.phase else {
             return;
         };
         match work {
+            Work::SelectionScores => {}
             Work::LocalFilter => {
                 let Some(collected) = f.collected.take() else {
                     return;
@@ -349,10 +394,14 @@ impl NodeActor {
         now: Duration,
         out: &mut Vec<Outgoing>,
     ) {
+        if work == Work::SelectionScores {
+            return self.start_selection(elapsed, now, out);
+        }
         let Phase::Fusing(f) = &mut self.phase else {
             return;
         };
         match work {
+            Work::SelectionScores => {}
             Work::LocalFilter => {
                 f.local_time = elapsed;
                 let Some(local) = f.local else {
@@ -398,7 +447,29 @@ impl NodeActor {
             self.force_finish(now, out);
         }
         self.protocol.expect_step(step);
-        let predicted = if self.manager.needs_prediction() {
+        match &self.manager {
+            Manager::Alone(_) => {
+                let picks = self.choose_alone(step);
+                self.activate(step, picks, now, out);
+            }
+            Manager::Negotiated(_) => {
+                self.phase = Phase::Selecting(Selecting {
+                    step,
+                    inputs: None,
+                    scored: false,
+                    scoring_time: Duration::ZERO,
+                    rounds_started: now,
+                })
+            }
+        }
+    }
+
+    /// A manager that chooses alone, from the prediction if it asks for one.
+    fn choose_alone(&mut self, step: u32) -> Vec<usize> {
+        let Manager::Alone(manager) = &mut self.manager else {
+            return Vec::new();
+        };
+        let predicted = if manager.needs_prediction() {
             match self.fusion.predict(&self.model) {
                 Ok(p) => Some(p),
                 Err(e) => {
@@ -409,16 +480,73 @@ impl NodeActor {
         } else {
             None
         };
-        let own = &self.topology.node_sensors[self.index as usize];
-        let picks = self.manager.choose(&SelectionContext {
+        manager.choose(&SelectionContext {
             step,
             node: self.index,
-            own_sensors: own,
+            own_sensors: &self.topology.node_sensors[self.index as usize],
             view: &self.view,
             predicted,
             sensor_positions: &self.topology.sensor_positions,
             node_sensors: &self.topology.node_sensors,
-        });
+        })
+    }
+
+    /// The selection's scores, from the fusion filter's prediction.
+    fn score_selection(&mut self) {
+        let own = self.own_sensors().to_vec();
+        let (Phase::Selecting(s), Manager::Negotiated(selection)) =
+            (&mut self.phase, &mut self.manager)
+        else {
+            return;
+        };
+        let inputs = selection_inputs(selection, &mut self.fusion, &self.model, &own)
+            .unwrap_or_else(|e| {
+                tracing::error!(node = self.index, error = %e, "selection scores failed; proposing nothing");
+                SelectionInputs {
+                    predicted: bounds::Mat4::identity(),
+                    own: Vec::new(),
+                }
+            });
+        s.inputs = Some(inputs);
+        s.scored = true;
+    }
+
+    /// Starts the selection's rounds with the scores just computed.
+    fn start_selection(&mut self, scoring_time: Duration, now: Duration, out: &mut Vec<Outgoing>) {
+        let (Phase::Selecting(s), Manager::Negotiated(selection)) =
+            (&mut self.phase, &mut self.manager)
+        else {
+            return;
+        };
+        let Some(inputs) = s.inputs.take() else {
+            return;
+        };
+        s.scoring_time = scoring_time;
+        s.rounds_started = now;
+        selection.expect_step(s.step);
+        selection.start(s.step, inputs, &self.view, now, out);
+        self.poll_selection(now, out);
+    }
+
+    /// Activates the selection's sensors once it is done.
+    fn poll_selection(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let (Phase::Selecting(s), Manager::Negotiated(selection)) =
+            (&self.phase, &mut self.manager)
+        else {
+            return;
+        };
+        if let Some(selected) = selection.poll_result() {
+            // Scoring as the driver timed it, then the rounds by the clock.
+            self.selection_time = s.scoring_time + now.saturating_sub(s.rounds_started);
+            let step = s.step;
+            self.activate(step, selected.own, now, out);
+        }
+    }
+
+    /// Sends the activation of `picks` (positions in the node's own sensor
+    /// list) and starts collecting their observations.
+    fn activate(&mut self, step: u32, picks: Vec<usize>, now: Duration, out: &mut Vec<Outgoing>) {
+        let own = &self.topology.node_sensors[self.index as usize];
         let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
         out.push(Outgoing {
             channel: Channel::Activation(self.index),
@@ -507,9 +635,11 @@ impl NodeActor {
                 micros(fusion_time),
                 micros(fused.stats.later_rounds),
                 micros(fused.stats.total),
+                micros(self.selection_time),
             ],
         };
         self.observations = 0;
+        self.selection_time = Duration::ZERO;
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
         out.push(Outgoing {
@@ -523,6 +653,15 @@ impl NodeActor {
     /// Runs every remaining stage at once, without waiting for anyone; the
     /// stages of an overrun step are not timed.
     fn force_finish(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if let Phase::Selecting(Selecting { step, .. }) = self.phase {
+            // Too late to activate anyone for this step: it is fused with
+            // no observations of this node's.
+            if let Manager::Negotiated(selection) = &mut self.manager {
+                let _ = selection.finish_now(now, out);
+            }
+            let cells = self.model.quantizer.as_ref().map(|q| q.cells());
+            self.phase = Phase::Collecting(Collector::new(step, Vec::new(), now, cells));
+        }
         if let Phase::Collecting(_) = self.phase {
             self.close_collection();
         }
@@ -594,6 +733,27 @@ impl NodeActor {
             node = self.index,
             "rejoined from a neighbour's fused posterior"
         );
+    }
+}
+
+/// This step's selection scores: the conditional manager's over the fusion
+/// filter's predicted particles, the non-conditional one's at its estimate
+/// (taken before the filter predicts).
+fn selection_inputs(
+    selection: &PcrlbSelection,
+    fusion: &mut FusionFilter,
+    model: &SensingModel,
+    own: &[u16],
+) -> Result<SelectionInputs, BoundError> {
+    match selection.scoring() {
+        Scoring::Conditional => Ok(SelectionInputs {
+            predicted: fusion.predicted_information(model)?,
+            own: fusion.expected_information(model, own)?,
+        }),
+        Scoring::NonConditional => {
+            let estimate = fusion.posterior().mean;
+            selection.nonconditional_inputs(model, &estimate)
+        }
     }
 }
 

@@ -108,6 +108,21 @@ impl SensingModel {
         observation_information(&sensors, particles, weights)
     }
 
+    /// `J̄_s = Σ_j w_j J_Y,s(x_j)`: what sensor `s` would be expected to add
+    /// over a particle set, before anything is observed (sensor selection).
+    pub fn expected_information(
+        &self,
+        sensor: u16,
+        particles: &[State],
+        weights: &[f64],
+    ) -> Result<Mat4, BoundError> {
+        let term = SensorTerm {
+            model: &self.sensors[sensor as usize],
+            measurement: self.measurement(),
+        };
+        observation_information(&[term], particles, weights)
+    }
+
     /// `−∇² ln p(y | x)`: the observed information at the received value.
     pub fn observed_information(&self, obs: &Observation, x: &State) -> Mat4 {
         let model = &self.sensors[obs.sensor as usize];
@@ -473,6 +488,31 @@ impl FusionFilter {
             self.filter.particles(),
             self.filter.uniform_weights(),
         )
+    }
+
+    /// `L(k+1|k) = Q⁻¹ − D21 (L_G(k) + D11)⁻¹ D12`: the global bound's
+    /// predicted information, D over this filter's posterior particles at k
+    /// (predicting now if it has not). Sensor selection scores on it.
+    pub fn predicted_information(&mut self, model: &SensingModel) -> Result<Mat4, BoundError> {
+        self.predict(model)?;
+        let (terms, _) = self.prediction.0.as_ref().expect("predicted above");
+        let zero = Mat4::zeros();
+        Ok(information_update(self.bound.information(), terms, model.dynamics.q_inv(), &zero)?.predicted)
+    }
+
+    /// Each of `sensors`' expected information over this step's predicted
+    /// particles (predicting now if it has not).
+    pub fn expected_information(
+        &mut self,
+        model: &SensingModel,
+        sensors: &[u16],
+    ) -> Result<Vec<Mat4>, BoundError> {
+        self.predict(model)?;
+        let (particles, weights) = (self.filter.particles(), self.filter.uniform_weights());
+        sensors
+            .iter()
+            .map(|s| model.expected_information(*s, particles, weights))
+            .collect()
     }
 
     /// Updater: weights the predicted particles (predicting first if

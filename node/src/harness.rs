@@ -79,7 +79,13 @@ pub struct Net {
 
 impl Net {
     pub fn line() -> Self {
-        let scenario = Scenario::from_toml(LINE, "line", &[]).unwrap();
+        Self::line_with(&[])
+    }
+
+    /// The line with `--set`-style overrides (`sensors.manager=pcrlb`).
+    pub fn line_with(overrides: &[&str]) -> Self {
+        let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+        let scenario = Scenario::from_toml(LINE, "line", &overrides).unwrap();
         let topology = Topology::from_scenario(&scenario, "line").unwrap();
         let nodes = (0..3)
             .map(|i| Some(NodeActor::new(&scenario, &topology, i).unwrap()))

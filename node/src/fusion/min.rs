@@ -96,6 +96,7 @@ mod tests {
                     cost: costs[i as usize],
                     node: i,
                     sensor: 10 + i,
+                    information: [i as f64; 3],
                 };
                 nodes[i as usize].start(1, p, &view, Duration::ZERO, &mut queue);
             }

@@ -28,7 +28,7 @@ mod rounds;
 pub use average::{average_consensus, AverageConsensus};
 pub use exact::{ExactSumOracle, ExactSums};
 pub use information::InformationVector;
-pub use min::{min_consensus, MinConsensus};
+pub use min::{min_consensus, proposal_order, MinConsensus};
 pub use rounds::{RoundEngine, RoundRule, RoundsDone};
 
 use std::time::Duration;

@@ -3,6 +3,11 @@
 //! round-k value is in, or at the round's timeout with those heard; then
 //! [`RoundRule::combine`] gives round k+1's value. Values for rounds still to
 //! come are kept (a neighbour may be ahead); values for rounds past are late.
+//!
+//! A protocol that runs the engine several times within one step (sensor
+//! selection: one min-consensus per greedy iteration) starts each run at a
+//! round offset, so that every run's rounds have their own numbers on the
+//! wire and a neighbour one run ahead is kept, not mistaken for late.
 
 use std::time::Duration;
 
@@ -71,6 +76,8 @@ struct Running<V> {
     started: Duration,
     first_round_done: Option<Duration>,
     neighbours_heard: u16,
+    /// Round k is `offset + k` on the wire.
+    offset: u16,
 }
 
 pub struct RoundEngine<R: RoundRule> {
@@ -78,7 +85,16 @@ pub struct RoundEngine<R: RoundRule> {
     node: u16,
     topology: Topology,
     rounds: u16,
+    /// The highest round number on the wire: `rounds` unless the engine
+    /// runs several times a step ([`with_last_round`](Self::with_last_round)).
+    last_round: u16,
     round_timeout: Duration,
+    /// Presume a neighbour gone for the rest of the step once it has missed
+    /// this many rounds in a row ([`presume_gone_after`](Self::presume_gone_after)).
+    gone_after: Option<u16>,
+    /// Consecutive rounds each node has missed in the step `misses_step`.
+    misses: Vec<u16>,
+    misses_step: u32,
     /// The latest step begun: anything older is late.
     current_step: u32,
     running: Option<Running<R::Value>>,
@@ -99,12 +115,75 @@ impl<R: RoundRule> RoundEngine<R> {
             node,
             topology: topology.clone(),
             rounds,
+            last_round: rounds,
             round_timeout,
+            gone_after: None,
+            misses: vec![0; topology.nodes()],
+            misses_step: 0,
             current_step: 0,
             running: None,
             heard: Vec::new(),
             done: None,
         }
+    }
+
+    /// Lets runs started at a round offset ([`start_at`](Self::start_at))
+    /// use wire rounds up to `last_round`.
+    pub fn with_last_round(mut self, last_round: u16) -> Self {
+        self.last_round = last_round.max(self.rounds);
+        self
+    }
+
+    /// A neighbour that misses `rounds` rounds in a row is left out of the
+    /// step's remaining rounds (and runs), so that a node that died costs
+    /// that many timeouts rather than one per round. One missed round is
+    /// not enough: a neighbour whose own round waited out a timeout answers
+    /// just after ours expires too.
+    pub fn presume_gone_after(mut self, rounds: u16) -> Self {
+        self.gone_after = Some(rounds.max(1));
+        self
+    }
+
+    fn presumed_gone(&self, m: u16) -> bool {
+        self.gone_after.is_some_and(|k| self.misses[m as usize] >= k)
+    }
+
+    /// Starts `step` as [`FusionProtocol::start`] does, with the run's
+    /// rounds numbered from `offset + 1` on the wire.
+    pub fn start_at(
+        &mut self,
+        step: u32,
+        offset: u16,
+        value: R::Value,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        self.expect_step(step);
+        self.done = None;
+        if step != self.misses_step {
+            self.misses.iter_mut().for_each(|m| *m = 0);
+            self.misses_step = step;
+        }
+        let mut view = view.to_vec();
+        for m in 0..view.len() as u16 {
+            view[m as usize] &= !self.presumed_gone(m);
+        }
+        view[self.node as usize] = true;
+        let running = Running {
+            step,
+            round: 1,
+            value,
+            deadline: now + self.round_timeout,
+            view,
+            started: now,
+            first_round_done: None,
+            neighbours_heard: 0,
+            offset,
+        };
+        self.send_round(&running, out);
+        self.running = Some(running);
+        self.try_complete_round(now, out);
     }
 
     /// This node's neighbours in `view`.
@@ -122,7 +201,12 @@ impl<R: RoundRule> RoundEngine<R> {
         for payload in payloads {
             out.push(Outgoing {
                 channel: Channel::Consensus(self.node),
-                message: Message::new(ActorId::Node(self.node), r.step, r.round, payload),
+                message: Message::new(
+                    ActorId::Node(self.node),
+                    r.step,
+                    r.offset + r.round,
+                    payload,
+                ),
                 receivers: receivers.clone(),
                 wake: None,
             });
@@ -133,7 +217,7 @@ impl<R: RoundRule> RoundEngine<R> {
     fn heard_value(&self, r: &Running<R::Value>, from: u16) -> Option<R::Value> {
         self.heard
             .iter()
-            .find(|h| h.step == r.step && h.round == r.round && h.from == from)
+            .find(|h| h.step == r.step && h.round == r.offset + r.round && h.from == from)
             .and_then(|h| self.rule.assemble(&h.pieces))
     }
 
@@ -158,16 +242,29 @@ impl<R: RoundRule> RoundEngine<R> {
         };
         let mut present = r.view.clone();
         let mut values = Vec::new();
-        for m in self.live_neighbours(&r.view) {
+        let live: Vec<u16> = self.live_neighbours(&r.view).collect();
+        for m in live {
             match self.heard_value(&r, m) {
-                Some(v) => values.push((m, v)),
-                None => present[m as usize] = false,
+                Some(v) => {
+                    values.push((m, v));
+                    self.misses[m as usize] = 0;
+                }
+                None => {
+                    present[m as usize] = false;
+                    self.misses[m as usize] += 1;
+                }
+            }
+        }
+        for m in 0..r.view.len() as u16 {
+            if m != self.node && self.presumed_gone(m) {
+                r.view[m as usize] = false;
             }
         }
         let weights = self.topology.metropolis_weights(self.node, &present);
         r.value = self.rule.combine(&r.value, &values, &weights);
+        let wire_round = r.offset + r.round;
         self.heard
-            .retain(|h| !(h.step == r.step && h.round == r.round));
+            .retain(|h| !(h.step == r.step && h.round == wire_round));
         r.neighbours_heard = values.len() as u16;
         if r.round == 1 {
             r.first_round_done = Some(now);
@@ -194,6 +291,12 @@ impl<R: RoundRule> RoundEngine<R> {
         }
     }
 
+    /// The last run's rounds, once, with the neighbours that fell silent;
+    /// `None` while it is still running.
+    pub fn take_done(&mut self) -> Option<RoundsDone<R::Value>> {
+        self.done.take()
+    }
+
     fn take_result(&mut self) -> Option<R::Output> {
         let done = self.done.take()?;
         Some(self.rule.finish(done))
@@ -218,23 +321,7 @@ impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
         now: Duration,
         out: &mut Vec<Outgoing>,
     ) {
-        self.expect_step(step);
-        self.done = None;
-        let mut view = view.to_vec();
-        view[self.node as usize] = true;
-        let running = Running {
-            step,
-            round: 1,
-            value,
-            deadline: now + self.round_timeout,
-            view,
-            started: now,
-            first_round_done: None,
-            neighbours_heard: 0,
-        };
-        self.send_round(&running, out);
-        self.running = Some(running);
-        self.try_complete_round(now, out);
+        self.start_at(step, 0, value, view, now, out);
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
@@ -248,12 +335,16 @@ impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
         }
         if !self.topology.neighbours[self.node as usize].contains(&from)
             || round == 0
-            || round > self.rounds
+            || round > self.last_round
         {
             return Handled::Late;
         }
+        if step == self.misses_step {
+            // Heard, even if late for its round: alive, not gone.
+            self.misses[from as usize] = 0;
+        }
         let stale = match &self.running {
-            Some(r) => step < r.step || (step == r.step && round < r.round),
+            Some(r) => step < r.step || (step == r.step && round < r.offset + r.round),
             None => step < self.current_step,
         };
         if stale {

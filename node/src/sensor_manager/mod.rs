@@ -4,18 +4,24 @@
 //!
 //! - [`UniformRandom`]: seed 000's policy, uniformly at random within the
 //!   node's own sensors, honouring a network-wide cap;
-//! - [`Closest`]: the sensors nearest the predicted target, network-wide.
+//! - [`Closest`]: the sensors nearest the predicted target, network-wide;
+//! - [`PcrlbSelection`]: greedy selection by the conditional or the
+//!   non-conditional PCRLB, agreed with the other nodes by min-consensus.
+//!   It exchanges messages, so it is a protocol the node drives rather than
+//!   a [`SensorManager`].
 
 mod closest;
+mod pcrlb;
 mod random;
 
 pub use closest::Closest;
+pub use pcrlb::{PcrlbSelection, Scoring, Selected, SelectionInputs};
 pub use random::UniformRandom;
 
 use fusion_graph::scenario::SensorManagerKind;
-use fusion_graph::Scenario;
+use fusion_graph::{Scenario, Topology};
 
-use bounds::State;
+use bounds::{Mat4, State};
 
 /// What a node knows when it chooses.
 #[derive(Debug, Clone, Copy)]
@@ -36,11 +42,40 @@ pub struct SelectionContext<'a> {
     pub node_sensors: &'a [Vec<u16>],
 }
 
-/// The scenario's manager (`sensors.manager`).
-pub fn for_scenario(scenario: &Scenario) -> Box<dyn SensorManager> {
+/// How a node chooses its sensors.
+pub enum Manager {
+    /// On its own, from what it knows.
+    Alone(Box<dyn SensorManager>),
+    /// With the other nodes, by exchanging messages.
+    Negotiated(Box<PcrlbSelection>),
+}
+
+impl From<Box<dyn SensorManager>> for Manager {
+    fn from(m: Box<dyn SensorManager>) -> Self {
+        Manager::Alone(m)
+    }
+}
+
+/// The scenario's manager (`sensors.manager`) for node `node`.
+pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Manager {
+    let negotiated = |scoring| {
+        // The prior's covariance is diagonal (filter.prior_std, validated
+        // positive): its information is the reciprocal diagonal.
+        let prior_cov = scenario.models().map(|m| m.prior_cov).unwrap_or_else(|_| Mat4::identity());
+        let prior_information = Mat4::from_diagonal(&prior_cov.diagonal().map(|v| 1.0 / v));
+        Manager::Negotiated(Box::new(PcrlbSelection::for_scenario(
+            scenario,
+            topology,
+            node,
+            scoring,
+            prior_information,
+        )))
+    };
     match scenario.sensors.manager {
-        SensorManagerKind::Random => Box::new(UniformRandom::for_scenario(scenario)),
-        SensorManagerKind::Closest => Box::new(Closest::for_scenario(scenario)),
+        SensorManagerKind::Random => Manager::Alone(Box::new(UniformRandom::for_scenario(scenario))),
+        SensorManagerKind::Closest => Manager::Alone(Box::new(Closest::for_scenario(scenario))),
+        SensorManagerKind::Pcrlb => negotiated(Scoring::Conditional),
+        SensorManagerKind::PcrlbNonconditional => negotiated(Scoring::NonConditional),
     }
 }
 
