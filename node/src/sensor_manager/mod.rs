@@ -56,6 +56,12 @@ impl From<Box<dyn SensorManager>> for Manager {
     }
 }
 
+impl<M: SensorManager + 'static> From<Box<M>> for Manager {
+    fn from(m: Box<M>) -> Self {
+        Manager::Alone(m)
+    }
+}
+
 /// The scenario's manager (`sensors.manager`) for node `node`.
 pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Manager {
     let negotiated = |scoring| {
