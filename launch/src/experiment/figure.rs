@@ -49,6 +49,22 @@ pub fn csv(experiment: &Experiment, outcome: &Outcome) -> String {
     out
 }
 
+/// Each arm's bytes per step, whole network: the sensor selection's
+/// messages, the activations and the bound information in consensus.
+pub fn bytes_csv(outcome: &Outcome) -> String {
+    let mut out = String::from("arm,selection_bytes_per_step,activation_bytes_per_step,bound_bytes_per_step\n");
+    for a in &outcome.arms {
+        out.push_str(&format!(
+            "{},{},{},{}\n",
+            quoted(&a.label),
+            a.selection_bytes_per_step,
+            a.activation_bytes_per_step,
+            a.bound_bytes_per_step
+        ));
+    }
+    out
+}
+
 fn quoted(label: &str) -> String {
     if label.contains([',', '"']) {
         format!("\"{}\"", label.replace('"', "\"\""))

@@ -9,6 +9,7 @@
 
 mod figure;
 mod seed000;
+mod seed001;
 
 use std::path::PathBuf;
 
@@ -16,7 +17,7 @@ use anyhow::Context;
 use bounds::fisher::Measurement;
 use bounds::pcrlb::{nonconditional_pcrlb_random_activation, SensorTerm};
 use bounds::State;
-use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO};
+use fusion_graph::scenario::Scenario;
 use fusion_graph::Topology;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -31,7 +32,9 @@ pub struct Experiment {
     pub source: &'static str,
     /// What it shows, in a sentence.
     pub about: &'static str,
-    /// Overrides of the default scenario shared by every arm.
+    /// The scenario file's text every arm starts from.
+    pub scenario: &'static str,
+    /// Overrides of that scenario shared by every arm.
     pub base: &'static [&'static str],
     pub arms: &'static [Arm],
     pub figure: Figure,
@@ -94,6 +97,8 @@ pub enum Metric {
     BoundBytesPerStep,
     /// The same for the auxiliary-FIM baseline (ΔL and S_obs).
     AuxBoundBytesPerStep,
+    /// Bytes of the sensor selection's messages per step.
+    SelectionBytesPerStep,
 }
 
 /// Whether the paper's result holds, and the figures that say so.
@@ -119,6 +124,10 @@ pub struct ArmOutcome {
     pub nonconditional: Option<Vec<f64>>,
     pub bound_bytes_per_step: f64,
     pub aux_bound_bytes_per_step: Option<f64>,
+    /// Whole-network bytes per step of the sensor selection's messages
+    /// (min-consensus) and of the activations, from the accounting.
+    pub selection_bytes_per_step: f64,
+    pub activation_bytes_per_step: f64,
 }
 
 impl ArmOutcome {
@@ -156,6 +165,7 @@ impl ArmOutcome {
         match metric {
             Metric::BoundBytesPerStep => Some(self.bound_bytes_per_step),
             Metric::AuxBoundBytesPerStep => self.aux_bound_bytes_per_step,
+            Metric::SelectionBytesPerStep => Some(self.selection_bytes_per_step),
         }
     }
 }
@@ -172,7 +182,9 @@ impl Outcome {
 
 /// Every experiment, in the order `cqnet experiment` lists them.
 pub fn catalogue() -> Vec<Experiment> {
-    seed000::experiments()
+    let mut all = seed000::experiments();
+    all.extend(seed001::experiments());
+    all
 }
 
 /// The experiment of that name, or an error that lists the names.
@@ -237,12 +249,22 @@ pub fn run(
             .transpose()
             .with_context(|| format!("non-conditional PCRLB of arm `{}`", arm.label))?;
         let per_step = |bytes: f64| bytes / scenario.steps as f64;
+        let kind_per_step = |kind: &str| {
+            mc.per_run
+                .iter()
+                .flat_map(|s| s.traffic.iter().filter(|t| t.kind == kind))
+                .map(|t| t.bytes_per_step)
+                .sum::<f64>()
+                / mc.per_run.len().max(1) as f64
+        };
         arms.push(ArmOutcome {
             label: arm.label.to_string(),
             steps: mc.series.means(),
             nonconditional,
             bound_bytes_per_step: per_step(mc.bound_bytes_cq_dpcrlb),
             aux_bound_bytes_per_step: mc.bound_bytes_auxiliary_fim.map(per_step),
+            selection_bytes_per_step: kind_per_step("min_consensus"),
+            activation_bytes_per_step: kind_per_step("activate"),
         });
     }
     let outcome = Outcome {
@@ -251,6 +273,10 @@ pub fn run(
         arms,
     };
     let check = (experiment.check)(&outcome);
+    write_atomically(
+        &dir.join(format!("{}-bytes.csv", experiment.name)),
+        figure::bytes_csv(&outcome).as_bytes(),
+    )?;
     let csv = dir.join(format!("{}.csv", experiment.name));
     let svg = dir.join(format!("{}.svg", experiment.name));
     write_atomically(&csv, figure::csv(experiment, &outcome).as_bytes())?;
@@ -299,7 +325,7 @@ fn arm_scenario(
         overrides.push(format!("steps={k}"));
     }
     let source = format!("experiment {} arm `{}`", experiment.name, arm.label);
-    let scenario = Scenario::from_toml(DEFAULT_SCENARIO, &source, &overrides)?;
+    let scenario = Scenario::from_toml(experiment.scenario, &source, &overrides)?;
     let topology = Topology::from_scenario(&scenario, &source)?;
     Ok((scenario, topology))
 }

@@ -1,5 +1,7 @@
 //! Seed 000's figures (CQ/dPCRLB), on the default scenario.
 
+use fusion_graph::scenario::DEFAULT_SCENARIO;
+
 use super::{Arm, Bar, Check, Curve, Experiment, Figure, Metric, Outcome, Series};
 
 /// The default quantizer, and no quantizer: the arms most figures compare.
@@ -18,6 +20,7 @@ pub fn experiments() -> Vec<Experiment> {
             name: "seed000-fig1b",
             source: "seed 000, Fig. 1(b)",
             about: "raw dPCRLB against the 8-bit CQ/dPCRLB, each with L_G and with the auxiliary FIM",
+            scenario: DEFAULT_SCENARIO,
             base: &["consensus.auxiliary_fim=true", "reference.centralized=false"],
             arms: &[
                 EIGHT_BITS,
@@ -54,6 +57,7 @@ pub fn experiments() -> Vec<Experiment> {
             name: "seed000-fig1c",
             source: "seed 000, Fig. 1(c)",
             about: "the CQ/dPCRLB for 4 to 8 bits and raw: it approaches raw as bits grow",
+            scenario: DEFAULT_SCENARIO,
             base: &["reference.centralized=false"],
             arms: &[
                 Arm {
@@ -116,6 +120,7 @@ pub fn experiments() -> Vec<Experiment> {
             name: "seed000-central",
             source: "seed 000, Result 2",
             about: "the distributed against the centralized conditional bound, with the non-conditional (Tichavsky) PCRLB and the RMSEs",
+            scenario: DEFAULT_SCENARIO,
             base: &["reference.centralized=true"],
             arms: &[EIGHT_BITS],
             figure: Figure::OverTime {
@@ -154,6 +159,7 @@ pub fn experiments() -> Vec<Experiment> {
             name: "seed000-traffic",
             source: "seed 000, Result 2 against seed 001, Theorem 1",
             about: "bytes of bound information per step: CQ/dPCRLB (ΔL) against the auxiliary-FIM baseline (ΔL and S_obs), from the accounting",
+            scenario: DEFAULT_SCENARIO,
             base: &["consensus.auxiliary_fim=true", "reference.centralized=false"],
             arms: &[EIGHT_BITS],
             figure: Figure::Bars {
