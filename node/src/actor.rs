@@ -791,6 +791,60 @@ mod tests {
         assert_eq!(consensus, 3 * 6 * 4);
     }
 
+    /// The PCRLB manager on the line: every step, exactly N_max sensors
+    /// network-wide, within each node's cap, each agreed by min-consensus
+    /// (N_max iterations × diameter rounds, one message per node per round).
+    #[test]
+    fn the_pcrlb_manager_activates_n_max_within_the_caps_every_step() {
+        for manager in ["pcrlb", "pcrlb_nonconditional"] {
+            let mut net = Net::line_with(&[
+                &format!("sensors.manager={manager}"),
+                "sensors.active_per_node=2",
+                "sensors.max_active_total=4",
+            ]);
+            for step in 1..=3 {
+                net.begin_step(step, &ALL);
+                net.run(LONG);
+                let this_step: Vec<&(u16, u32, Vec<u16>)> =
+                    net.activations.iter().filter(|a| a.1 == step).collect();
+                assert_eq!(this_step.len(), 3, "{manager}: one activation per node");
+                assert!(this_step.iter().all(|a| a.2.len() <= 2), "{manager}: {this_step:?}");
+                let total: usize = this_step.iter().map(|a| a.2.len()).sum();
+                assert_eq!(total, 4, "{manager}: {this_step:?}");
+                for n in 0..3 {
+                    let t = net.report(n, step).expect("a report every step");
+                    assert_eq!(t.rounds_completed, 6);
+                }
+            }
+            let min_messages = net
+                .sent
+                .iter()
+                .filter(|o| matches!(o.message.payload, Payload::MinConsensus(_)))
+                .count();
+            assert_eq!(min_messages, 3 * 4 * 2 * 3, "{manager}: steps × iterations × rounds × nodes");
+            assert_eq!(net.now, Duration::ZERO, "{manager}: no one waited");
+        }
+    }
+
+    /// The conditional manager picks, on its first iteration, the sensor
+    /// with by far the most information: the one beside the target.
+    #[test]
+    fn the_pcrlb_manager_picks_the_sensor_beside_the_target_first() {
+        // Sensor 3 is at (600, 100): 22 m from the target, against 200 m
+        // and more for every other sensor, and still the nearest over the
+        // whole 20 m prior cloud.
+        let mut net = Net::line_with(&[
+            "sensors.manager=pcrlb",
+            "sensors.active_per_node=1",
+            "sensors.max_active_total=1",
+            "target.position=[610.0, 120.0]",
+        ]);
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        let chosen: Vec<u16> = net.activations.iter().flat_map(|a| a.2.clone()).collect();
+        assert_eq!(chosen, vec![3]);
+    }
+
     #[test]
     fn an_early_message_is_kept_and_a_late_one_counted() {
         let mut net = Net::line();

@@ -74,6 +74,8 @@ pub struct Net {
     pub telemetry: Vec<(u16, u32, Telemetry)>,
     /// Every node-to-node message sent, with its receivers.
     pub sent: Vec<Outgoing>,
+    /// (node, step, sensors activated), in the order sent.
+    pub activations: Vec<(u16, u32, Vec<u16>)>,
     rule: Rule,
 }
 
@@ -100,6 +102,7 @@ impl Net {
             in_flight: Vec::new(),
             telemetry: Vec::new(),
             sent: Vec::new(),
+            activations: Vec::new(),
             rule: Box::new(|_, _| Fate::Deliver),
         }
     }
@@ -194,7 +197,12 @@ impl Net {
                     self.telemetry
                         .push((i as u16, o.message.header.step, t.clone()))
                 }
-                Payload::Activate { mask } => self.sense(i as u16, o.message.header.step, mask),
+                Payload::Activate { mask } => {
+                    let own = &self.topology.node_sensors[i];
+                    let active = (0..own.len()).filter(|k| mask.contains(*k)).map(|k| own[k]).collect();
+                    self.activations.push((i as u16, o.message.header.step, active));
+                    self.sense(i as u16, o.message.header.step, mask)
+                }
                 _ => {
                     for to in &o.receivers {
                         self.post(*to, o.message.clone());
