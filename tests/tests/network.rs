@@ -439,3 +439,40 @@ fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
     );
     assert_clean(&r);
 }
+
+/// Seed 001's network with the conditional PCRLB manager, node-4 SIGKILLed
+/// from outside at step 10, most likely inside a selection (its 18
+/// min-consensus iterations take most of a lockstep step). The step does
+/// not stall: the others presume node-4 gone after two missed rounds and
+/// finish without it; from the next step the membership view leaves it
+/// out, and the eight survivors still agree on 18 sensors every step.
+#[test]
+fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
+    let _guard = exclusive();
+    let seed001 = concat!(env!("CARGO_MANIFEST_DIR"), "/../fusion-graph/scenarios/seed001.toml");
+    let r = Invocation::signalled(
+        CQNET,
+        "select-kill",
+        "run",
+        &[seed001, "--lockstep", "--no-central", "--set", "steps=30"],
+        "KILL",
+        Some("node-4"),
+        10,
+    );
+    r.assert_success();
+    let faults = r.summary()["faults"].to_string();
+    assert!(faults.contains("node-4 died unexpectedly"), "{faults}");
+    let ticks = r.ticks();
+    let observations = |t: &tests::Tick| -> u32 { t.line.split(',').nth(12).unwrap().parse().unwrap() };
+    for step in 1..=30 {
+        let rows: Vec<_> = ticks.iter().filter(|t| t.step == step).collect();
+        let survivors = rows.iter().filter(|t| t.node != "node-4").count();
+        assert_eq!(survivors, 8, "step {step}: a survivor did not report");
+        assert!(rows.iter().all(|t| t.bound.is_some()), "step {step}");
+        if step < 10 || step > 11 {
+            let total: u32 = rows.iter().map(|t| observations(t)).sum();
+            assert_eq!(total, 18, "step {step}: the nodes did not agree on N_max sensors");
+        }
+    }
+    assert_clean(&r);
+}

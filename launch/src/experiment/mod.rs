@@ -254,7 +254,7 @@ pub fn run(
                 .iter()
                 .flat_map(|s| s.traffic.iter().filter(|t| t.kind == kind))
                 .map(|t| t.bytes_per_step)
-                .sum::<f64>()
+                .fold(0.0, |a, b| a + b)
                 / mc.per_run.len().max(1) as f64
         };
         arms.push(ArmOutcome {
