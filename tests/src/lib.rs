@@ -61,7 +61,8 @@ impl Invocation {
     }
 
     /// Like [`new`](Self::new), but once the run has written rows up to
-    /// step `at_step` of `ticks.csv` (or after 60 s), `kill -<signal>` goes
+    /// step `at_step` of `ticks.csv` (polled every 2 ms, so the signal lands
+    /// early in the next step; or after 60 s), `kill -<signal>` goes
     /// to the launcher, or to the actor named by `target` (`node-4`); then
     /// the program is waited for.
     pub fn signalled(
@@ -104,7 +105,7 @@ impl Invocation {
             if reached {
                 break;
             }
-            std::thread::sleep(std::time::Duration::from_millis(50));
+            std::thread::sleep(std::time::Duration::from_millis(2));
         }
         let pids = match target {
             None => vec![child.id()],

@@ -441,10 +441,12 @@ fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
 }
 
 /// Seed 001's network with the conditional PCRLB manager, node-4 SIGKILLed
-/// from outside at step 10, most likely inside a selection (its 18
-/// min-consensus iterations take most of a lockstep step). The step does
-/// not stall: the others presume node-4 gone after two missed rounds and
-/// finish without it; from the next step the membership view leaves it
+/// from outside. The helper polls `ticks.csv` every 2 ms, so the kill lands
+/// within milliseconds of step 10's last report: inside step 11's
+/// selection, which takes about 25 ms of a lockstep step. The step does not
+/// stall: the others presume node-4 gone after two missed rounds and finish
+/// without it (with that rule disabled, this test fails: "step 11 overran
+/// its step timeout"); from the next step the membership view leaves it
 /// out, and the eight survivors still agree on 18 sensors every step.
 #[test]
 fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
@@ -469,6 +471,8 @@ fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
         let survivors = rows.iter().filter(|t| t.node != "node-4").count();
         assert_eq!(survivors, 8, "step {step}: a survivor did not report");
         assert!(rows.iter().all(|t| t.bound.is_some()), "step {step}");
+        let overran = |t: &&tests::Tick| t.line.split(',').nth(13) == Some("1");
+        assert!(!rows.iter().any(overran), "step {step} overran its step timeout");
         if step < 10 || step > 11 {
             let total: u32 = rows.iter().map(|t| observations(t)).sum();
             assert_eq!(total, 18, "step {step}: the nodes did not agree on N_max sensors");
