@@ -140,8 +140,9 @@ impl Accounting {
             if f.len() != 11 {
                 return None;
             }
-            let kind = (1..=9)
-                .chain([255])
+            // Every kind byte, so that a kind added later is read back too
+            // (min-consensus, kind 10, once was not).
+            let kind = (0..=u8::MAX)
                 .filter_map(MessageKind::from_u8_or_malformed)
                 .find(|k| k.name() == f[2])?;
             let n: Vec<u64> = f[3..]
@@ -197,6 +198,12 @@ mod tests {
             203,
         );
         a.record_malformed(ActorId::Node(0), ActorId::Node(1), 17);
+        a.record_sent(
+            ActorId::Node(1),
+            ActorId::Node(2),
+            MessageKind::MinConsensus,
+            47,
+        );
         let mut b = Accounting::default();
         b.record_dropped(
             ActorId::Sensor(3),

@@ -216,3 +216,38 @@ fn the_closest_manager_activates_the_capped_set_every_step() {
     assert_eq!(per_step.len(), 8);
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
 }
+
+/// Seed 001 with the conditional PCRLB manager: 18 sensors every step, at
+/// most 4 per node, and the selection's traffic exactly what the protocol
+/// and the message size predict: 18 iterations × 4 rounds (the 3×3 grid's
+/// diameter) × 24 directed links of one proposal each, per step.
+#[test]
+fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
+    let o = vec!["steps=4".to_string()];
+    let s = Scenario::from_toml(fusion_graph::scenario::SEED001_SCENARIO, "seed001", &o).unwrap();
+    let t = Topology::from_scenario(&s, "seed001").unwrap();
+    let dir = out_dir("pcrlb");
+    let mut w = ResultsWriter::create(&dir).unwrap();
+    let summary = run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
+    let ticks = std::fs::read_to_string(dir.join("ticks.csv")).unwrap();
+    let mut per_step = std::collections::BTreeMap::<u32, u32>::new();
+    for row in ticks.lines().skip(1) {
+        let cells: Vec<&str> = row.split(',').collect();
+        let observations: u32 = cells[12].parse().unwrap();
+        assert!(observations <= 4, "a node above its cap: {row}");
+        *per_step.entry(cells[0].parse().unwrap()).or_default() += observations;
+    }
+    assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
+    let links =
+        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
+    let selection = links.by_kind()[&MessageKind::MinConsensus];
+    let size = encoded_len(MessageKind::MinConsensus, &s.wire_format(&t)).unwrap() as u64;
+    assert_eq!(
+        size, 47,
+        "11-byte header, cost, node, sensor and J̄'s 3 numbers"
+    );
+    assert_eq!(selection.sent_messages, 4 * 18 * 4 * 24);
+    assert_eq!(selection.sent_bytes, selection.sent_messages * size);
+    assert_eq!(selection.received_bytes, selection.sent_bytes);
+    assert!(summary.stage_micros.selection > 0.0);
+}

@@ -27,7 +27,9 @@ use crate::estimator::{
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{average_consensus, Fused, Handled, InformationFusion, InformationVector};
-use crate::sensor_manager::{self, Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs};
+use crate::sensor_manager::{
+    self, Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs,
+};
 use crate::Outgoing;
 
 /// A node that cannot be built.
@@ -808,7 +810,10 @@ mod tests {
                 let this_step: Vec<&(u16, u32, Vec<u16>)> =
                     net.activations.iter().filter(|a| a.1 == step).collect();
                 assert_eq!(this_step.len(), 3, "{manager}: one activation per node");
-                assert!(this_step.iter().all(|a| a.2.len() <= 2), "{manager}: {this_step:?}");
+                assert!(
+                    this_step.iter().all(|a| a.2.len() <= 2),
+                    "{manager}: {this_step:?}"
+                );
                 let total: usize = this_step.iter().map(|a| a.2.len()).sum();
                 assert_eq!(total, 4, "{manager}: {this_step:?}");
                 for n in 0..3 {
@@ -821,7 +826,11 @@ mod tests {
                 .iter()
                 .filter(|o| matches!(o.message.payload, Payload::MinConsensus(_)))
                 .count();
-            assert_eq!(min_messages, 3 * 4 * 2 * 3, "{manager}: steps × iterations × rounds × nodes");
+            assert_eq!(
+                min_messages,
+                3 * 4 * 2 * 3,
+                "{manager}: steps × iterations × rounds × nodes"
+            );
             assert_eq!(net.now, Duration::ZERO, "{manager}: no one waited");
         }
     }

@@ -497,7 +497,13 @@ impl FusionFilter {
         self.predict(model)?;
         let (terms, _) = self.prediction.0.as_ref().expect("predicted above");
         let zero = Mat4::zeros();
-        Ok(information_update(self.bound.information(), terms, model.dynamics.q_inv(), &zero)?.predicted)
+        Ok(information_update(
+            self.bound.information(),
+            terms,
+            model.dynamics.q_inv(),
+            &zero,
+        )?
+        .predicted)
     }
 
     /// Each of `sensors`' expected information over this step's predicted

@@ -199,8 +199,12 @@ impl Net {
                 }
                 Payload::Activate { mask } => {
                     let own = &self.topology.node_sensors[i];
-                    let active = (0..own.len()).filter(|k| mask.contains(*k)).map(|k| own[k]).collect();
-                    self.activations.push((i as u16, o.message.header.step, active));
+                    let active = (0..own.len())
+                        .filter(|k| mask.contains(*k))
+                        .map(|k| own[k])
+                        .collect();
+                    self.activations
+                        .push((i as u16, o.message.header.step, active));
                     self.sense(i as u16, o.message.header.step, mask)
                 }
                 _ => {

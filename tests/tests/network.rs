@@ -451,7 +451,10 @@ fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
 #[test]
 fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     let _guard = exclusive();
-    let seed001 = concat!(env!("CARGO_MANIFEST_DIR"), "/../fusion-graph/scenarios/seed001.toml");
+    let seed001 = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../fusion-graph/scenarios/seed001.toml"
+    );
     let r = Invocation::signalled(
         CQNET,
         "select-kill",
@@ -465,17 +468,24 @@ fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     let faults = r.summary()["faults"].to_string();
     assert!(faults.contains("node-4 died unexpectedly"), "{faults}");
     let ticks = r.ticks();
-    let observations = |t: &tests::Tick| -> u32 { t.line.split(',').nth(12).unwrap().parse().unwrap() };
+    let observations =
+        |t: &tests::Tick| -> u32 { t.line.split(',').nth(12).unwrap().parse().unwrap() };
     for step in 1..=30 {
         let rows: Vec<_> = ticks.iter().filter(|t| t.step == step).collect();
         let survivors = rows.iter().filter(|t| t.node != "node-4").count();
         assert_eq!(survivors, 8, "step {step}: a survivor did not report");
         assert!(rows.iter().all(|t| t.bound.is_some()), "step {step}");
         let overran = |t: &&tests::Tick| t.line.split(',').nth(13) == Some("1");
-        assert!(!rows.iter().any(overran), "step {step} overran its step timeout");
+        assert!(
+            !rows.iter().any(overran),
+            "step {step} overran its step timeout"
+        );
         if step < 10 || step > 11 {
             let total: u32 = rows.iter().map(|t| observations(t)).sum();
-            assert_eq!(total, 18, "step {step}: the nodes did not agree on N_max sensors");
+            assert_eq!(
+                total, 18,
+                "step {step}: the nodes did not agree on N_max sensors"
+            );
         }
     }
     assert_clean(&r);

@@ -52,7 +52,9 @@ pub fn csv(experiment: &Experiment, outcome: &Outcome) -> String {
 /// Each arm's bytes per step, whole network: the sensor selection's
 /// messages, the activations and the bound information in consensus.
 pub fn bytes_csv(outcome: &Outcome) -> String {
-    let mut out = String::from("arm,selection_bytes_per_step,activation_bytes_per_step,bound_bytes_per_step\n");
+    let mut out = String::from(
+        "arm,selection_bytes_per_step,activation_bytes_per_step,bound_bytes_per_step\n",
+    );
     for a in &outcome.arms {
         out.push_str(&format!(
             "{},{},{},{}\n",

@@ -145,7 +145,8 @@ impl<R: RoundRule> RoundEngine<R> {
     }
 
     fn presumed_gone(&self, m: u16) -> bool {
-        self.gone_after.is_some_and(|k| self.misses[m as usize] >= k)
+        self.gone_after
+            .is_some_and(|k| self.misses[m as usize] >= k)
     }
 
     /// Starts `step` as [`FusionProtocol::start`] does, with the run's

@@ -67,7 +67,10 @@ pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Mana
     let negotiated = |scoring| {
         // The prior's covariance is diagonal (filter.prior_std, validated
         // positive): its information is the reciprocal diagonal.
-        let prior_cov = scenario.models().map(|m| m.prior_cov).unwrap_or_else(|_| Mat4::identity());
+        let prior_cov = scenario
+            .models()
+            .map(|m| m.prior_cov)
+            .unwrap_or_else(|_| Mat4::identity());
         let prior_information = Mat4::from_diagonal(&prior_cov.diagonal().map(|v| 1.0 / v));
         Manager::Negotiated(Box::new(PcrlbSelection::for_scenario(
             scenario,
@@ -78,7 +81,9 @@ pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Mana
         )))
     };
     match scenario.sensors.manager {
-        SensorManagerKind::Random => Manager::Alone(Box::new(UniformRandom::for_scenario(scenario))),
+        SensorManagerKind::Random => {
+            Manager::Alone(Box::new(UniformRandom::for_scenario(scenario)))
+        }
         SensorManagerKind::Closest => Manager::Alone(Box::new(Closest::for_scenario(scenario))),
         SensorManagerKind::Pcrlb => negotiated(Scoring::Conditional),
         SensorManagerKind::PcrlbNonconditional => negotiated(Scoring::NonConditional),

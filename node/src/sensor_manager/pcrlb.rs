@@ -382,7 +382,15 @@ mod tests {
         let t = line();
         let mut nodes: Vec<PcrlbSelection> = (0..3)
             .map(|i| {
-                PcrlbSelection::new(i, &t, Scoring::Conditional, cap, n_max, TIMEOUT, Mat4::identity())
+                PcrlbSelection::new(
+                    i,
+                    &t,
+                    Scoring::Conditional,
+                    cap,
+                    n_max,
+                    TIMEOUT,
+                    Mat4::identity(),
+                )
             })
             .collect();
         let mut results: Vec<Option<Selected>> = vec![None; 3];
@@ -393,7 +401,10 @@ mod tests {
             if started[i as usize] {
                 let inputs = SelectionInputs {
                     predicted: predicted(),
-                    own: t.node_sensors[i as usize].iter().map(|s| sensor_info(*s)).collect(),
+                    own: t.node_sensors[i as usize]
+                        .iter()
+                        .map(|s| sensor_info(*s))
+                        .collect(),
                 };
                 nodes[i as usize].expect_step(1);
                 nodes[i as usize].start(1, inputs, &view, now, &mut queue);
@@ -458,9 +469,9 @@ mod tests {
             let mut expected = greedy(&predicted(), &candidates, cap, n_max);
             expected.sort();
             assert_eq!(chosen_by(&results), expected, "cap {cap}, N_max {n_max}");
-            assert!(results
-                .iter()
-                .all(|r| r.as_ref().is_some_and(|r| r.total as usize == expected.len())));
+            assert!(results.iter().all(|r| r
+                .as_ref()
+                .is_some_and(|r| r.total as usize == expected.len())));
             assert_eq!(took, Duration::ZERO, "no one waited");
         }
     }
