@@ -246,40 +246,42 @@ impl PcrlbSelection {
         self.advance(now, out);
     }
 
-    /// Takes each finished iteration's winner and starts the next one.
+    /// Takes a finished iteration's winner and starts the next iteration,
+    /// or ends the selection.
     fn advance(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         let Some(done) = self.engine.take_done() else {
             return;
         };
-        {
-            let Some(it) = self.running.as_mut() else {
-                return;
-            };
-            let winner = done.value;
-            it.iteration += 1;
-            if winner.is_nothing() {
-                self.finish(now);
-                return;
-            }
-            let [xx, xy, yy] = winner.information;
-            it.sum[(0, 0)] += xx;
-            it.sum[(0, 1)] += xy;
-            it.sum[(1, 0)] += xy;
-            it.sum[(1, 1)] += yy;
-            it.total += 1;
-            if winner.node == self.node {
-                if let Some(i) = self.own_sensors.iter().position(|s| *s == winner.sensor) {
-                    it.chosen[i] = true;
-                }
-            }
-            if it.total as usize >= self.max_total {
-                self.finish(now);
-                return;
+        if self.take_winner(&done.value) {
+            // May finish at once, and recurse, on a node with no live neighbour.
+            self.propose(now, out);
+        } else {
+            self.finish(now);
+        }
+    }
+
+    /// Adds the agreed winner to `Σ_A J̄` (and, at its owner, to the chosen);
+    /// whether another iteration follows.
+    fn take_winner(&mut self, winner: &Proposal) -> bool {
+        let Some(it) = self.running.as_mut() else {
+            return false;
+        };
+        it.iteration += 1;
+        if winner.is_nothing() {
+            return false;
+        }
+        let [xx, xy, yy] = winner.information;
+        it.sum[(0, 0)] += xx;
+        it.sum[(0, 1)] += xy;
+        it.sum[(1, 0)] += xy;
+        it.sum[(1, 1)] += yy;
+        it.total += 1;
+        if winner.node == self.node {
+            if let Some(i) = self.own_sensors.iter().position(|s| *s == winner.sensor) {
+                it.chosen[i] = true;
             }
         }
-        // The next iteration (which may finish at once, and recurse, on a
-        // node with no live neighbour).
-        self.propose(now, out);
+        (it.total as usize) < self.max_total
     }
 
     fn finish(&mut self, now: Duration) {
@@ -319,6 +321,7 @@ fn best_candidate(node: u16, own_sensors: &[u16], it: &Iterating, per_node: usiz
             continue;
         };
         let candidate = Proposal {
+            // A real cost, however large, stays below "nothing".
             cost: cost.min(Proposal::NOTHING * 0.5),
             node,
             sensor: own_sensors[i],
