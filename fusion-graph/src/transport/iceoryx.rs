@@ -625,6 +625,9 @@ mod tests {
                 let mut p = pair(&format!("short-wait-{nanos}"));
                 let node = p.node.as_mut().unwrap();
                 node.wait(Duration::from_nanos(nanos)).unwrap();
+                // Cleaned up before telling the test, which may end the
+                // process as soon as it hears.
+                drop(p);
                 let _ = done.send(());
             });
             assert!(
