@@ -32,6 +32,20 @@ fn run(name: &str, overrides: &[&str], central: bool) -> (Summary, PathBuf) {
     )
 }
 
+/// Observations per step over all nodes, from `ticks.csv`, checking that
+/// no node took more than `cap` in a step.
+fn observations_per_step(dir: &std::path::Path, cap: u32) -> std::collections::BTreeMap<u32, u32> {
+    let ticks = std::fs::read_to_string(dir.join("ticks.csv")).unwrap();
+    let mut per_step = std::collections::BTreeMap::new();
+    for row in ticks.lines().skip(1) {
+        let cells: Vec<&str> = row.split(',').collect();
+        let observations: u32 = cells[12].parse().unwrap();
+        assert!(observations <= cap, "a node above its cap: {row}");
+        *per_step.entry(cells[0].parse().unwrap()).or_default() += observations;
+    }
+    per_step
+}
+
 /// Mean over seeds of one figure.
 fn mean_over_seeds(name: &str, overrides: &[&str], seeds: u64, f: impl Fn(&Summary) -> f64) -> f64 {
     (1..=seeds)
@@ -205,14 +219,7 @@ fn the_closest_manager_activates_the_capped_set_every_step() {
     let dir = out_dir("closest");
     let mut w = ResultsWriter::create(&dir).unwrap();
     run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
-    let ticks = std::fs::read_to_string(dir.join("ticks.csv")).unwrap();
-    let mut per_step = std::collections::BTreeMap::<u32, u32>::new();
-    for row in ticks.lines().skip(1) {
-        let cells: Vec<&str> = row.split(',').collect();
-        let observations: u32 = cells[12].parse().unwrap();
-        assert!(observations <= 4, "a node above its cap: {row}");
-        *per_step.entry(cells[0].parse().unwrap()).or_default() += observations;
-    }
+    let per_step = observations_per_step(&dir, 4);
     assert_eq!(per_step.len(), 8);
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
 }
@@ -229,14 +236,7 @@ fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     let dir = out_dir("pcrlb");
     let mut w = ResultsWriter::create(&dir).unwrap();
     let summary = run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
-    let ticks = std::fs::read_to_string(dir.join("ticks.csv")).unwrap();
-    let mut per_step = std::collections::BTreeMap::<u32, u32>::new();
-    for row in ticks.lines().skip(1) {
-        let cells: Vec<&str> = row.split(',').collect();
-        let observations: u32 = cells[12].parse().unwrap();
-        assert!(observations <= 4, "a node above its cap: {row}");
-        *per_step.entry(cells[0].parse().unwrap()).or_default() += observations;
-    }
+    let per_step = observations_per_step(&dir, 4);
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
     let links =
         Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
