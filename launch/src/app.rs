@@ -1,12 +1,19 @@
 //! The `cqnet` program, as a library function so that the integration tests
 //! can build the very same program as their own binary.
 
+use std::sync::Arc;
+
 use anyhow::Context;
 use clap::Parser;
 
-use crate::cli::{builtin_scenario, load_scenario, Cli, Command, ExperimentArgs};
+use crate::cli::{builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, ViewArgs};
+use crate::network::RunProgress;
+use crate::view::replay::{replay, FinishedRun};
+use crate::view::server::ViewServer;
+use crate::view::Hub;
 use crate::experiment::{self, Experiment};
-use crate::montecarlo::{run_monte_carlo, Progress};
+use crate::montecarlo::run_monte_carlo;
+use crate::progress::{step_message, Progress};
 use crate::results::{write_atomically, ResultsWriter};
 use crate::summary::print_table;
 
@@ -52,21 +59,22 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let (scenario, topology) = load_scenario(&args.scenario)?;
             if args.runs == 1 {
                 let mut writer = ResultsWriter::create(&args.out)?;
-                let progress = Progress::new("step", scenario.steps);
+                let progress = Progress::new("sim", "steps", scenario.steps as u64);
                 let summary = crate::sim::run_in_process(
                     &scenario,
                     &topology,
                     &mut writer,
                     scenario.reference.centralized && !args.no_central,
-                    |s, _| progress.update(s),
+                    |s, rows| progress.set(s as u64, step_message(rows)),
                 )?;
+                progress.finish();
                 print_table(&summary);
                 println!("results in {}", args.out.display());
             } else {
                 let threads = args
                     .threads
                     .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-                let progress = Progress::new("runs", args.runs);
+                let progress = Progress::new("sim", "runs", args.runs as u64);
                 let mc = run_monte_carlo(
                     &scenario,
                     &topology,
@@ -74,8 +82,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     args.runs,
                     threads,
                     scenario.reference.centralized && !args.no_central,
-                    &|done| progress.update(done),
+                    &|done| progress.set(done as u64, ""),
                 )?;
+                progress.finish();
                 write_atomically(
                     &args.out.join("summary.json"),
                     serde_json::to_string_pretty(&mc)?.as_bytes(),
@@ -117,12 +126,29 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 lockstep: args.lockstep,
                 run_id,
                 centralized: scenario.reference.centralized && !args.no_central,
+                view: None,
             };
-            let steps = scenario.steps;
-            let progress = Progress::new("step", steps);
-            let summary = crate::network::run_network(&scenario, &topology, options, move |s| {
-                progress.update(s)
+            let view = args
+                .view
+                .then(|| start_live_view(&scenario, &topology, &args.out, args.view_port))
+                .transpose()?;
+            let options = crate::network::RunOptions {
+                view: view.as_ref().map(|(hub, _)| hub.clone()),
+                ..options
+            };
+            let steps = scenario.steps as u64;
+            let processes = topology.actors().count() as u64;
+            let progress = Progress::new("run", "processes ready", processes);
+            let summary = crate::network::run_network(&scenario, &topology, options, move |p| match p {
+                RunProgress::Starting { ready, .. } => progress.set(ready as u64, ""),
+                RunProgress::Running => {
+                    progress.set_total(steps);
+                    progress.set_unit("steps");
+                    progress.set(0, "");
+                }
+                RunProgress::Step { step, rows } => progress.set(step as u64, step_message(rows)),
             })?;
+            drop(view);
             print_table(&summary);
             println!("results in {}", args.out.display());
             Ok(())
@@ -139,9 +165,45 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
+        Command::View(args) => view_finished_run(&args),
         Command::Actor(args) => crate::actor_process::run_actor(&args),
     }
     .context("cqnet")
+}
+
+/// Serves the live view of a run about to start, and prints where.
+fn start_live_view(
+    scenario: &fusion_graph::Scenario,
+    topology: &fusion_graph::Topology,
+    out: &std::path::Path,
+    port: u16,
+) -> anyhow::Result<(Arc<Hub>, ViewServer)> {
+    let hub = Arc::new(Hub::default());
+    let poll = crate::network::traffic_poller(hub.clone(), topology.clone(), out.to_path_buf());
+    let server = ViewServer::start(hub.clone(), port, Some(poll))?;
+    eprintln!("cqnet: live view of `{}` at {}", scenario.name, server.url());
+    Ok((hub, server))
+}
+
+/// `cqnet view OUT_DIR`: replays a finished run in the view until Ctrl-C.
+fn view_finished_run(args: &ViewArgs) -> anyhow::Result<()> {
+    let run = FinishedRun::read(&args.out_dir)?;
+    let hub = Arc::new(Hub::default());
+    let server = ViewServer::start(hub.clone(), args.port, None)?;
+    println!(
+        "replaying {} ({} steps) at {} (Ctrl-C to stop)",
+        args.out_dir.display(),
+        run.summary.steps,
+        server.url()
+    );
+    let period = std::time::Duration::from_secs_f64(
+        run.summary.scenario.clock.step_period_ms / 1e3 / args.speed,
+    );
+    replay(&run, &hub, period);
+    println!("replayed; a page opened now gets the whole run at once");
+    loop {
+        std::thread::park();
+    }
 }
 
 /// `cqnet experiment`: lists the catalogue, or runs the named experiments
@@ -192,59 +254,30 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A bar over every run of every arm on a terminal; a plain line per
-/// finished arm elsewhere, so that logs stay readable.
+/// A bar over every run of every arm, saying which arm is running.
 struct ExperimentProgress {
-    bar: Option<indicatif::ProgressBar>,
+    progress: Progress,
     runs: u32,
     arms: Vec<&'static str>,
-    name: &'static str,
 }
 
 impl ExperimentProgress {
     fn new(e: &Experiment, runs: u32) -> Self {
-        let total = runs as u64 * e.arms.len() as u64;
-        let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
-            let bar = indicatif::ProgressBar::new(total);
-            bar.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{prefix} [{bar:24}] {pos}/{len} runs {msg} ({elapsed}, ETA {eta})",
-                )
-                .expect("a valid template")
-                .progress_chars("=> "),
-            );
-            bar.set_prefix(e.name);
-            bar
-        });
         Self {
-            bar,
+            progress: Progress::new(e.name, "runs", runs as u64 * e.arms.len() as u64),
             runs,
             arms: e.arms.iter().map(|a| a.label).collect(),
-            name: e.name,
         }
     }
 
     fn update(&self, arm: usize, done: u32) {
-        match &self.bar {
-            Some(bar) => {
-                bar.set_position(arm as u64 * self.runs as u64 + done as u64);
-                bar.set_message(self.arms[arm]);
-            }
-            None if done == self.runs || done.is_multiple_of(5) => eprintln!(
-                "{}: arm {} of {} (`{}`): {done}/{} runs",
-                self.name,
-                arm + 1,
-                self.arms.len(),
-                self.arms[arm],
-                self.runs
-            ),
-            None => {}
-        }
+        self.progress.set(
+            arm as u64 * self.runs as u64 + done as u64,
+            format!("arm {}/{}: {}", arm + 1, self.arms.len(), self.arms[arm]),
+        );
     }
 
-    fn finish(&self) {
-        if let Some(bar) = &self.bar {
-            bar.finish_and_clear();
-        }
+    fn finish(self) {
+        self.progress.finish();
     }
 }

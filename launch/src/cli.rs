@@ -27,6 +27,8 @@ pub enum Command {
     /// Run a paper's experiment: Monte Carlo, CSV, SVG figure and a check in words
     /// (without a name: list them).
     Experiment(ExperimentArgs),
+    /// Replay a finished run in the live view's page.
+    View(ViewArgs),
     /// Remove the shared memory of runs whose launcher is gone (killed with
     /// SIGKILL, say); runs still going are left alone.
     Clean,
@@ -84,6 +86,31 @@ pub struct RunArgs {
     /// Leave out the centralized reference (also `reference.centralized = false`).
     #[arg(long)]
     pub no_central: bool,
+    /// Serve a live view of the run on 127.0.0.1 (the URL is printed).
+    #[arg(long)]
+    pub view: bool,
+    /// The view's port (0: any free port).
+    #[arg(long, default_value_t = 0, requires = "view")]
+    pub view_port: u16,
+}
+
+#[derive(Debug, Args)]
+pub struct ViewArgs {
+    /// The output folder of a finished `cqnet run` or `cqnet sim`.
+    pub out_dir: PathBuf,
+    /// Port on 127.0.0.1 (0: any free port).
+    #[arg(long, default_value_t = 0)]
+    pub port: u16,
+    /// Replay speed: 1 is the scenario's step period, 10 ten times faster.
+    #[arg(long, default_value_t = 1.0, value_parser = parse_speed)]
+    pub speed: f64,
+}
+
+fn parse_speed(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a positive speed (1 is real time)")),
+    }
 }
 
 #[derive(Debug, Args)]

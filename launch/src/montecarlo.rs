@@ -2,7 +2,6 @@
 //! over worker threads, each writing its own folder, and a summary that
 //! averages over runs.
 
-use std::io::IsTerminal;
 use std::path::Path;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Mutex;
@@ -35,34 +34,6 @@ pub struct MonteCarloSummary {
 fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
     let v: Vec<f64> = values.collect::<Option<Vec<f64>>>()?;
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
-}
-
-/// A progress line on stderr: rewritten in place on a terminal, every tenth otherwise.
-pub struct Progress {
-    label: &'static str,
-    total: u32,
-    terminal: bool,
-}
-
-impl Progress {
-    pub fn new(label: &'static str, total: u32) -> Self {
-        Self {
-            label,
-            total,
-            terminal: std::io::stderr().is_terminal(),
-        }
-    }
-
-    pub fn update(&self, done: u32) {
-        if self.terminal {
-            eprint!("\r{} {done}/{}", self.label, self.total);
-            if done == self.total {
-                eprintln!();
-            }
-        } else if done == self.total || (self.total >= 10 && done.is_multiple_of(self.total / 10)) {
-            eprintln!("{} {done}/{}", self.label, self.total);
-        }
-    }
 }
 
 /// Runs `runs` seeds over `threads` workers; `on_run_done` hears the

@@ -7,6 +7,7 @@
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
@@ -25,6 +26,7 @@ use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRo
 use crate::sim::central_telemetry;
 use crate::summary::{AppliedFault, ChildrenMemory, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
+use crate::view::{link_bytes, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use crate::world::World;
 
 /// How long children get to start and say `ready`.
@@ -35,6 +37,18 @@ pub struct RunOptions {
     pub lockstep: bool,
     pub run_id: RunId,
     pub centralized: bool,
+    /// Where to publish the live view's events, if it is served.
+    pub view: Option<Arc<Hub>>,
+}
+
+/// What the launcher tells its caller as the run goes.
+pub enum RunProgress<'a> {
+    /// `ready` of the `of` processes have started and said so.
+    Starting { ready: usize, of: usize },
+    /// Every process is up; the steps begin.
+    Running,
+    /// A step is over, with the reports that came in time for it.
+    Step { step: u32, rows: &'a [TickRow] },
 }
 
 /// Runs the network: spawns every actor, runs the steps, stops and reaps
@@ -43,7 +57,7 @@ pub fn run_network(
     scenario: &Scenario,
     topology: &Topology,
     options: RunOptions,
-    mut progress: impl FnMut(u32) + Send + 'static,
+    mut progress: impl FnMut(RunProgress<'_>) + Send + 'static,
 ) -> anyhow::Result<Summary> {
     if scenario.consensus.protocol == ConsensusProtocol::Exact {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
@@ -158,7 +172,7 @@ fn world_thread(
     options: &RunOptions,
     commands: &UnboundedSender<Command>,
     events: &Receiver<Event>,
-    progress: &mut dyn FnMut(u32),
+    progress: &mut dyn FnMut(RunProgress<'_>),
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut writer = ResultsWriter::create(&options.out)?;
@@ -198,6 +212,10 @@ fn world_thread(
         interrupted: false,
         views: Vec::new(),
     };
+    let view = options.view.as_deref();
+    if let Some(hub) = view {
+        hub.publish(&setup_event(scenario, topology, "live"));
+    }
     let actors: Vec<ActorId> = topology.actors().collect();
     for a in &actors {
         commands.send(Command::Spawn {
@@ -205,7 +223,14 @@ fn world_thread(
             rejoin: false,
         })?;
     }
-    w.await_ready(&actors)?;
+    let of = actors.len();
+    w.await_ready(&actors, &mut |ready| {
+        progress(RunProgress::Starting { ready, of });
+        if let Some(hub) = view {
+            hub.publish(&ViewEvent::Starting { ready, of });
+        }
+    })?;
+    progress(RunProgress::Running);
     w.transport.update_connections();
     tracing::info!(
         actors = actors.len(),
@@ -227,6 +252,10 @@ fn world_thread(
     let run_start = Instant::now();
     let mut inbox = Vec::new();
     let mut steps_done = 0;
+    // This step's reports and the sensors heard, for the progress and the view.
+    let mut step_rows: Vec<TickRow> = Vec::new();
+    let mut active_sensors = std::collections::BTreeSet::new();
+    let mut crashes_shown = 0;
 
     for step in 1..=scenario.steps {
         w.step = step;
@@ -279,17 +308,21 @@ fn world_thread(
                         payload @ (Payload::Observation { .. } | Payload::RawObservation { .. }),
                         sender,
                     ) => {
+                        if let (ActorId::Sensor(s), true) = (sender, m.header.step == step) {
+                            active_sensors.insert(s);
+                        }
                         if let Some(c) = central.as_mut() {
                             c.observe(&Message {
                                 header: m.header,
                                 payload,
                             });
-                            let _ = sender;
                         }
                     }
                     _ => {}
                 }
             }
+            publish_late_rows(view, &rows, step);
+            step_rows.extend(rows.iter().filter(|r| r.step == step).cloned());
             recorder.record(rows)?;
             w.poll_events();
         }
@@ -301,10 +334,30 @@ fn world_thread(
                 truth: truth.into(),
                 telemetry: central_telemetry(update.estimate, update.bound),
             };
+            step_rows.push(row.clone());
             recorder.record(vec![row])?;
         }
         steps_done = step;
-        progress(step);
+        if let Some(hub) = view {
+            let dead: Vec<u16> = (0..topology.nodes() as u16)
+                .filter(|n| !w.alive[*n as usize])
+                .collect();
+            hub.publish(&step_event(&schedule, topology, step, [truth[0], truth[1]], &active_sensors, &dead));
+            hub.publish(&ViewEvent::Estimates {
+                step,
+                rows: step_rows.iter().map(NodeEstimate::of).collect(),
+            });
+            for (actor, at, status) in &w.crashed[crashes_shown..] {
+                hub.publish(&ViewEvent::Fault(crash_fault(*actor, *at, status)));
+            }
+            crashes_shown = w.crashed.len();
+        }
+        progress(RunProgress::Step {
+            step,
+            rows: &step_rows,
+        });
+        step_rows.clear();
+        active_sensors.clear();
         if w.interrupted {
             break;
         }
@@ -369,14 +422,13 @@ fn world_thread(
             unscheduled_faults: w
                 .crashed
                 .iter()
-                .map(|(actor, step, status)| AppliedFault {
-                    step: *step,
-                    until_step: None,
-                    fault: format!("{actor} died unexpectedly ({status})"),
-                })
+                .map(|(actor, step, status)| crash_fault(*actor, *step, status))
                 .collect(),
         },
     )?;
+    if let Some(hub) = view {
+        hub.publish(&ViewEvent::End { steps: steps_done });
+    }
     if w.interrupted {
         bail!(
             "interrupted at step {steps_done}; results so far are in {}",
@@ -400,7 +452,11 @@ impl WorldState<'_> {
 
     /// Waits for every listed actor's `ready`; a child that exits first ends
     /// the run with its name and the end of its stderr.
-    fn await_ready(&mut self, actors: &[ActorId]) -> anyhow::Result<()> {
+    fn await_ready(
+        &mut self,
+        actors: &[ActorId],
+        on_ready: &mut dyn FnMut(usize),
+    ) -> anyhow::Result<()> {
         let mut waiting: HashSet<ActorId> = actors.iter().copied().collect();
         let deadline = Instant::now() + START_TIMEOUT;
         while !waiting.is_empty() {
@@ -408,6 +464,7 @@ impl WorldState<'_> {
             match self.events.recv_timeout(left) {
                 Ok(Event::Ready(a)) => {
                     waiting.remove(&a);
+                    on_ready(actors.len() - waiting.len());
                 }
                 Ok(Event::Exited {
                     actor,
@@ -486,7 +543,7 @@ impl WorldState<'_> {
                             actor,
                             rejoin: matches!(actor, ActorId::Node(_)),
                         })?;
-                        self.await_ready(&[actor])?;
+                        self.await_ready(&[actor], &mut |_| {})?;
                         self.transport.update_connections();
                     }
                     self.set_alive(actor, true);
@@ -504,6 +561,41 @@ impl WorldState<'_> {
             ActorId::Launcher => {}
         }
     }
+}
+
+fn crash_fault(actor: ActorId, step: u32, status: &str) -> AppliedFault {
+    AppliedFault {
+        step,
+        until_step: None,
+        fault: format!("{actor} died unexpectedly ({status})"),
+    }
+}
+
+/// Reports of earlier steps that arrived late go to the view at once.
+fn publish_late_rows(view: Option<&Hub>, rows: &[TickRow], step: u32) {
+    let Some(hub) = view else { return };
+    let mut late: BTreeMap<u32, Vec<NodeEstimate>> = BTreeMap::new();
+    for r in rows.iter().filter(|r| r.step < step) {
+        late.entry(r.step).or_default().push(NodeEstimate::of(r));
+    }
+    for (step, rows) in late {
+        hub.publish(&ViewEvent::Estimates { step, rows });
+    }
+}
+
+/// The live view's once-a-second look at the link traffic: the actors'
+/// byte counters as last flushed to `out/accounting`.
+pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate::view::server::Poll {
+    Box::new(move || {
+        let accounting = merge_accounting(&out, &topology, &Accounting::default());
+        let bytes = link_bytes(&topology, &accounting);
+        if bytes.iter().any(|b| *b > 0) {
+            hub.publish(&ViewEvent::Traffic {
+                step: hub.latest_step(),
+                bytes,
+            });
+        }
+    })
 }
 
 /// The children's memory, as each last wrote it.

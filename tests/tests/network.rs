@@ -1,52 +1,54 @@
 //! Whole networks of real processes (`cqnet run`): one process per node and
-//! per sensor, 235 with the launcher for the default scenario. Each test has
-//! its own run id and leaves no process and no shared memory behind.
+//! per sensor, 235 with the launcher for the default scenario. They launch
+//! through `cqnet-testkit`, the API users have for their own tests, so every
+//! CI run exercises it. Each test has its own run id and leaves no process
+//! and no shared memory behind.
 
-use fusion_graph::wire::MessageKind;
-use tests::{exclusive, rmse, Invocation};
+use std::time::Duration;
+
+use cqnet_testkit::{
+    default_scenario, exclusive, seed001_scenario, ActorId, Fault, LinkSelector, MessageKind,
+    Network, Run, Signal, Target,
+};
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
 
+/// The default scenario with `steps` steps, run by the program under test.
+fn network(tag: &str, steps: u32) -> Network {
+    let mut s = default_scenario();
+    s.steps = steps;
+    Network::new(s).executable(CQNET).tag(tag)
+}
+
 /// Generous timeouts: with 235 processes on two cores a round can take a while,
 /// and a timeout that fires changes the answer.
-const PATIENT: [&str; 4] = [
-    "--set",
-    "consensus.round_timeout_ms=20000",
-    "--set",
-    "clock.step_timeout_ms=60000",
-];
-
-fn run(tag: &str, args: &[&str]) -> Invocation {
-    let mut all: Vec<&str> = vec!["--lockstep"];
-    all.extend_from_slice(args);
-    Invocation::new(CQNET, tag, "run", &all, &[])
+fn patient(n: Network) -> Network {
+    n.set("consensus.round_timeout_ms", 20000)
+        .set("clock.step_timeout_ms", 60000)
 }
 
-fn assert_clean(i: &Invocation) {
-    assert_eq!(
-        i.leftover_processes(),
-        Vec::<u32>::new(),
-        "processes of {} survived",
-        i.run_id
-    );
-    assert_eq!(
-        i.leftover_shared_memory(),
-        Vec::<std::path::PathBuf>::new(),
-        "shared memory of {} survived",
-        i.run_id
-    );
+fn kill(actor: &str, at_step: u32, signal: Signal, restart_after: Option<u32>) -> Fault {
+    Fault::Kill {
+        actor: actor.into(),
+        at_step,
+        signal,
+        restart_after,
+    }
 }
+
+/// How long a test waits for a run to reach the step it acts at.
+const REACH: Duration = Duration::from_secs(60);
 
 #[test]
 fn lockstep_run_reproduces_sim_bit_for_bit() {
     let _guard = exclusive();
-    let args = [&PATIENT[..], &["--set", "steps=10"]].concat();
-    let r = run("same", &args);
+    let n = patient(network("same", 10)).lockstep();
+    let r = n.clone().run().unwrap();
     r.assert_success();
-    let s = Invocation::new(CQNET, "same-sim", "sim", &args, &[]);
+    let s = n.sim().unwrap();
     s.assert_success();
-    let mut a: Vec<String> = r.ticks().into_iter().map(|t| t.line).collect();
-    let mut b: Vec<String> = s.ticks().into_iter().map(|t| t.line).collect();
+    let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
+    let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
     a.sort();
     b.sort();
     assert_eq!(
@@ -55,22 +57,20 @@ fn lockstep_run_reproduces_sim_bit_for_bit() {
         "nine nodes and the centralized reference, ten steps"
     );
     assert_eq!(a, b);
-    assert_clean(&r);
+    r.assert_clean();
 }
 
 #[test]
 fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     let _guard = exclusive();
-    let args = [
-        &PATIENT[..],
-        &["--set", "steps=6", "--set", "consensus.auxiliary_fim=true"],
-    ]
-    .concat();
-    let r = run("bytes", &args);
+    let r = patient(network("bytes", 6))
+        .lockstep()
+        .set("consensus.auxiliary_fim", true)
+        .run()
+        .unwrap();
     r.assert_success();
-    let kinds = r.links().by_kind();
-    let sent = |k: MessageKind| kinds.get(&k).map_or(0, |c| c.sent_bytes);
-    let received = |k: MessageKind| kinds.get(&k).map_or(0, |c| c.received_bytes);
+    let sent = |k: MessageKind| r.counters(k).sent_bytes;
+    let received = |k: MessageKind| r.counters(k).received_bytes;
     let steps = 6;
     // 3 active sensors × 9 nodes, each observation (11 + 1 bytes) to its node and the centralized reference.
     assert_eq!(sent(MessageKind::Observation), steps * 27 * 2 * 12);
@@ -89,36 +89,29 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     ] {
         assert_eq!(received(k), sent(k), "{k:?}: every byte sent was received");
     }
-    // Bound traffic: ΔL (80 bytes a message) against ΔL and S_obs: 1 : 2.
-    let summary = r.summary();
-    let cq = summary["bound_traffic"]["cq_dpcrlb_bytes"]
-        .as_u64()
-        .unwrap();
-    assert_eq!(cq, steps * 24 * 10 * 80);
+    // One link's share: node-0 → node-1, ten rounds a step.
     assert_eq!(
-        summary["bound_traffic"]["auxiliary_fim_bytes"]
-            .as_u64()
-            .unwrap(),
-        2 * cq
+        r.bytes(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus),
+        steps * 10 * 203
     );
-    assert_clean(&r);
+    // Bound traffic: ΔL (80 bytes a message) against ΔL and S_obs: 1 : 2.
+    let bound = &r.summary().bound_traffic;
+    assert_eq!(bound.cq_dpcrlb_bytes, steps * 24 * 10 * 80);
+    assert_eq!(bound.auxiliary_fim_bytes, Some(2 * bound.cq_dpcrlb_bytes));
+    r.assert_clean();
 }
 
 #[test]
 fn the_network_survives_sigkill_of_the_centre_node() {
     let _guard = exclusive();
-    let base = ["--set", "steps=30", "--no-central"];
-    let healthy = run("healthy", &base);
+    let healthy = network("healthy", 30).lockstep().no_central().run().unwrap();
     healthy.assert_success();
-    let kill = [
-        &base[..],
-        &[
-            "--set",
-            "faults=[{kind=\"kill\", actor=\"node-4\", at_step=10, signal=\"SIGKILL\"}]",
-        ],
-    ]
-    .concat();
-    let r = run("kill", &kill);
+    let r = network("kill", 30)
+        .lockstep()
+        .no_central()
+        .fault(kill("node-4", 10, Signal::Kill, None))
+        .run()
+        .unwrap();
     r.assert_success();
     let ticks = r.ticks();
     for step in 10..=30 {
@@ -134,68 +127,76 @@ fn the_network_survives_sigkill_of_the_centre_node() {
             "step {step}"
         );
     }
-    let (after, before) = (rmse(&ticks, 10..=30), rmse(&healthy.ticks(), 10..=30));
+    let (after, before) = (r.rmse(10..=30), healthy.rmse(10..=30));
     assert!(
         after <= 3.0 * before,
         "RMSE after the kill {after} vs {before} without it"
     );
-    assert_eq!(
-        r.summary()["fault_cost"]["missing_node_steps"].as_u64(),
-        Some(21)
-    );
-    assert_clean(&r);
-    assert_clean(&healthy);
+    assert_eq!(r.fault_cost().missing_node_steps, 21);
+    r.assert_clean();
+    healthy.assert_clean();
 }
 
 #[test]
 fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
     let _guard = exclusive();
-    let faults = "faults=[\
-        {kind=\"delay\", links=[{from=\"node-0\", to=\"node-1\"}], at_step=5, duration=10, latency_ms=200.0},\
-        {kind=\"loss\", links=[{from=\"*\", to=\"*\"}], at_step=10, duration=10, probability=0.3},\
-        {kind=\"partition\", groups=[[\"node-0\", \"node-1\", \"node-3\", \"node-4\"], [\"node-2\", \"node-5\", \"node-6\", \"node-7\", \"node-8\"]], at_step=20, duration=10}]";
-    let r = run(
-        "linkfaults",
-        &[
-            "--set",
-            "steps=45",
-            "--no-central",
-            "--set",
-            "consensus.round_timeout_ms=100",
-            "--set",
-            "clock.step_timeout_ms=1500",
-            "--set",
-            faults,
-        ],
-    );
+    let link = |from: &str, to: &str| LinkSelector {
+        from: from.into(),
+        to: to.into(),
+    };
+    let group = |names: &[&str]| names.iter().map(|n| n.to_string()).collect();
+    let r = network("linkfaults", 45)
+        .lockstep()
+        .no_central()
+        .set("consensus.round_timeout_ms", 100)
+        .set("clock.step_timeout_ms", 1500)
+        .fault(Fault::Delay {
+            links: vec![link("node-0", "node-1")],
+            at_step: 5,
+            duration: Some(10),
+            latency_ms: 200.0,
+            jitter_ms: 0.0,
+        })
+        .fault(Fault::Loss {
+            links: vec![link("*", "*")],
+            at_step: 10,
+            duration: Some(10),
+            probability: 0.3,
+        })
+        .fault(Fault::Partition {
+            groups: vec![
+                group(&["node-0", "node-1", "node-3", "node-4"]),
+                group(&["node-2", "node-5", "node-6", "node-7", "node-8"]),
+            ],
+            at_step: 20,
+            duration: Some(10),
+        })
+        .run()
+        .unwrap();
     r.assert_success();
-    let s = r.summary();
-    assert_eq!(s["steps"].as_u64(), Some(45));
-    let cost = &s["fault_cost"];
-    assert!(cost["dropped_messages"].as_u64().unwrap() > 100, "{cost}");
-    assert!(cost["late_messages"].as_u64().unwrap() > 0, "{cost}");
-    assert!(
-        cost["rounds_with_fewer_neighbours"].as_u64().unwrap() > 0,
-        "{cost}"
-    );
-    assert_eq!(s["faults"].as_array().unwrap().len(), 3);
+    assert_eq!(r.summary().steps, 45);
+    let cost = r.fault_cost();
+    assert!(cost.dropped_messages > 100, "{cost:?}");
+    assert!(cost.late_messages > 0, "{cost:?}");
+    assert!(cost.rounds_with_fewer_neighbours > 0, "{cost:?}");
+    assert_eq!(r.faults().len(), 3);
     // Tracking recovers once the partition has healed.
-    let late = rmse(&r.ticks(), 38..=45);
+    let late = r.rmse(38..=45);
     assert!(late < 10.0, "RMSE over steps 38-45: {late}");
-    assert_clean(&r);
+    r.assert_clean();
 }
 
 #[test]
 fn a_restarted_node_rejoins_and_tracks_again() {
     let _guard = exclusive();
-    let faults = "faults=[{kind=\"kill\", actor=\"node-4\", at_step=8, signal=\"SIGKILL\", restart_after=6}]";
-    let r = run(
-        "restart",
-        &["--set", "steps=30", "--no-central", "--set", faults],
-    );
+    let r = network("restart", 30)
+        .lockstep()
+        .no_central()
+        .fault(kill("node-4", 8, Signal::Kill, Some(6)))
+        .run()
+        .unwrap();
     r.assert_success();
-    let ticks = r.ticks();
-    let node4: Vec<_> = ticks.iter().filter(|t| t.node == "node-4").collect();
+    let node4: Vec<_> = r.ticks_of("node-4").collect();
     assert!(
         node4.iter().all(|t| t.step < 8 || t.step >= 14),
         "node-4 reported while dead"
@@ -220,24 +221,24 @@ fn a_restarted_node_rejoins_and_tracks_again() {
         !back.is_empty() && worst < 15.0,
         "node-4's error after rejoining: {back:?}"
     );
-    assert_clean(&r);
+    r.assert_clean();
 }
 
 #[test]
 fn two_runs_at_once_count_the_same_bytes_as_one_alone_and_leave_nothing() {
     let _guard = exclusive();
-    let args = [&PATIENT[..], &["--set", "steps=5", "--no-central"]].concat();
-    let alone = run("alone", &args);
+    let n = |tag| patient(network(tag, 5)).lockstep().no_central();
+    let alone = n("alone").run().unwrap();
     alone.assert_success();
     let (a, b) = std::thread::scope(|s| {
-        let a = s.spawn(|| run("pair-a", &args));
-        let b = s.spawn(|| run("pair-b", &args));
+        let a = s.spawn(|| n("pair-a").run().unwrap());
+        let b = s.spawn(|| n("pair-b").run().unwrap());
         (a.join().unwrap(), b.join().unwrap())
     });
     a.assert_success();
     b.assert_success();
-    let sent = |i: &Invocation| {
-        i.links()
+    let sent = |i: &Run| {
+        i.accounting()
             .by_kind()
             .into_iter()
             .filter(|(k, _)| *k != MessageKind::Control)
@@ -247,7 +248,7 @@ fn two_runs_at_once_count_the_same_bytes_as_one_alone_and_leave_nothing() {
     assert_eq!(sent(&a), sent(&alone));
     assert_eq!(sent(&b), sent(&alone));
     for i in [&alone, &a, &b] {
-        assert_clean(i);
+        i.assert_clean();
     }
 }
 
@@ -263,46 +264,28 @@ fn bad_input_ends_the_run_with_a_clear_error() {
         fusion_graph::scenario::DEFAULT_SCENARIO.replace("bits = 8", "bits = 99"),
     )
     .unwrap();
-    let r = run("badfile", &[file.to_str().unwrap()]);
-    assert!(!r.output().status.success());
-    assert!(
-        r.stderr().contains("quantizer.bits") && r.stderr().contains("broken.toml"),
-        "{}",
-        r.stderr()
-    );
+    let r = Network::from_file(&file)
+        .executable(CQNET)
+        .tag("badfile")
+        .run()
+        .unwrap();
+    r.assert_failure_naming(&["quantizer.bits", "broken.toml"]);
 
     // A fault naming an actor the network does not have.
-    let r = run(
-        "badactor",
-        &[
-            "--set",
-            "faults=[{kind=\"kill\", actor=\"node-42\", at_step=3, signal=\"SIGKILL\"}]",
-        ],
-    );
-    assert!(!r.output().status.success());
-    assert!(
-        r.stderr().contains("faults[0].actor") && r.stderr().contains("node-42"),
-        "{}",
-        r.stderr()
-    );
+    let r = network("badactor", 100)
+        .fault(kill("node-42", 3, Signal::Kill, None))
+        .run()
+        .unwrap();
+    r.assert_failure_naming(&["faults[0].actor", "node-42"]);
 
     // A child that fails at start: its name and the end of its stderr.
-    let r = Invocation::new(
-        CQNET,
-        "badchild",
-        "run",
-        &["--lockstep", "--set", "steps=3"],
-        &[("CQNET_FAIL_AT_START", "node-3")],
-    );
-    assert!(!r.output().status.success());
-    let err = r.stderr();
-    assert!(
-        err.contains("node-3")
-            && err.contains("before it was ready")
-            && err.contains("failing at start"),
-        "{err}"
-    );
-    assert_clean(&r);
+    let r = network("badchild", 3)
+        .lockstep()
+        .env("CQNET_FAIL_AT_START", "node-3")
+        .run()
+        .unwrap();
+    r.assert_failure_naming(&["node-3", "before it was ready", "failing at start"]);
+    r.assert_clean();
 }
 
 /// SIGTERM (what `timeout`, systemd and CI send) and SIGHUP stop a run as
@@ -313,17 +296,15 @@ fn bad_input_ends_the_run_with_a_clear_error() {
 fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
     let _guard = exclusive();
     for signal in ["TERM", "HUP"] {
-        let r = Invocation::signalled(
-            CQNET,
-            &format!("sig{}", signal.to_lowercase()),
-            "run",
-            &["--set", "steps=1000", "--no-central"],
-            signal,
-            None,
-            1,
-        );
+        let mut running = network(&format!("sig{signal}"), 1000)
+            .no_central()
+            .start()
+            .unwrap();
+        assert!(running.wait_for_step(1, REACH), "SIG{signal}: no step");
+        assert_eq!(running.signal(Target::Launcher, signal), 1);
+        let r = running.wait().unwrap();
         assert!(
-            !r.output().status.success(),
+            !r.succeeded(),
             "SIG{signal}: a stopped run is not a success"
         );
         assert!(
@@ -336,10 +317,10 @@ fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
             "SIG{signal}: the rows so far are kept"
         );
         assert!(
-            r.out.join("summary.json").exists(),
+            r.out_dir().join("summary.json").exists(),
             "SIG{signal}: no summary"
         );
-        assert_clean(&r);
+        r.assert_clean();
     }
 }
 
@@ -349,15 +330,10 @@ fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
 #[test]
 fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
     let _guard = exclusive();
-    let r = Invocation::signalled(
-        CQNET,
-        "sigkill",
-        "run",
-        &["--set", "steps=1000", "--no-central"],
-        "KILL",
-        None,
-        1,
-    );
+    let mut running = network("sigkill", 1000).no_central().start().unwrap();
+    assert!(running.wait_for_step(1, REACH), "no step");
+    running.signal(Target::Launcher, "KILL");
+    let r = running.wait().unwrap();
     let start = std::time::Instant::now();
     while !r.leftover_processes().is_empty() && start.elapsed().as_secs() < 30 {
         std::thread::sleep(std::time::Duration::from_millis(100));
@@ -377,8 +353,8 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
         .unwrap();
     assert!(clean.status.success());
     let said = String::from_utf8_lossy(&clean.stdout);
-    assert!(said.contains(&r.run_id), "{said}");
-    assert_clean(&r);
+    assert!(said.contains(r.run_id()), "{said}");
+    r.assert_clean();
 }
 
 /// An actor that dies on its own is a fault of the run: the summary lists
@@ -388,30 +364,23 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
 #[test]
 fn an_actor_that_dies_unexpectedly_is_a_fault_and_its_restart_still_applies() {
     let _guard = exclusive();
-    let faults = "faults=[{kind=\"kill\", actor=\"node-4\", at_step=5, signal=\"SIGSTOP\", restart_after=20}]";
-    let r = Invocation::signalled(
-        CQNET,
-        "crash",
-        "run",
-        &["--set", "steps=45", "--no-central", "--set", faults],
-        "KILL",
-        Some("node-4"),
-        10,
-    );
+    let mut running = network("crash", 45)
+        .no_central()
+        .fault(kill("node-4", 5, Signal::Stop, Some(20)))
+        .start()
+        .unwrap();
+    assert!(running.wait_for_step(10, REACH), "no step 10");
+    assert_eq!(running.signal(Target::Actor(ActorId::Node(4)), "KILL"), 1);
+    let r = running.wait().unwrap();
     r.assert_success();
-    let faults = r.summary()["faults"].to_string();
+    let faults = format!("{:?}", r.faults());
     assert!(faults.contains("node-4 died unexpectedly"), "{faults}");
-    let back = r
-        .ticks()
-        .iter()
-        .filter(|t| t.node == "node-4" && t.step >= 25)
-        .map(|t| t.step)
-        .min();
+    let back = r.ticks_of("node-4").map(|t| t.step).filter(|s| *s >= 25).min();
     assert!(
         back.is_some_and(|s| s <= 30),
         "node-4 did not report again after its restart: first at {back:?}"
     );
-    assert_clean(&r);
+    r.assert_clean();
 }
 
 /// A network that cannot fit the machine is refused before anything is
@@ -420,24 +389,22 @@ fn an_actor_that_dies_unexpectedly_is_a_fault_and_its_restart_still_applies() {
 #[test]
 fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
     let _guard = exclusive();
-    let r = run("toolarge", &["--set", "filter.particles=2000000000"]);
-    assert!(!r.output().status.success());
-    let stderr = r.stderr();
+    let r = network("toolarge", 100)
+        .lockstep()
+        .set("filter.particles", 2_000_000_000u64)
+        .run()
+        .unwrap();
+    r.assert_failure_naming(&["filter.particles", "GiB", "available"]);
+    let logs = r.out_dir().join("logs");
     assert!(
-        stderr.contains("filter.particles")
-            && stderr.contains("GiB")
-            && stderr.contains("available"),
-        "{stderr}"
-    );
-    assert!(
-        !r.out.join("logs").exists()
-            || std::fs::read_dir(r.out.join("logs"))
+        !logs.exists()
+            || std::fs::read_dir(&logs)
                 .unwrap()
                 .next()
                 .is_none(),
         "children were started"
     );
-    assert_clean(&r);
+    r.assert_clean();
 }
 
 /// Seed 001's network with the conditional PCRLB manager, node-4 SIGKILLed
@@ -451,42 +418,38 @@ fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
 #[test]
 fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     let _guard = exclusive();
-    let seed001 = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../fusion-graph/scenarios/seed001.toml"
-    );
-    let r = Invocation::signalled(
-        CQNET,
-        "select-kill",
-        "run",
-        &[seed001, "--lockstep", "--no-central", "--set", "steps=30"],
-        "KILL",
-        Some("node-4"),
-        10,
-    );
+    let mut seed001 = seed001_scenario();
+    seed001.steps = 30;
+    let mut running = Network::new(seed001)
+        .executable(CQNET)
+        .tag("select-kill")
+        .lockstep()
+        .no_central()
+        .start()
+        .unwrap();
+    assert!(running.wait_for_step(10, REACH), "no step 10");
+    assert_eq!(running.signal(Target::Actor(ActorId::Node(4)), "KILL"), 1);
+    let r = running.wait().unwrap();
     r.assert_success();
-    let faults = r.summary()["faults"].to_string();
+    let faults = format!("{:?}", r.faults());
     assert!(faults.contains("node-4 died unexpectedly"), "{faults}");
     let ticks = r.ticks();
-    let observations =
-        |t: &tests::Tick| -> u32 { t.line.split(',').nth(12).unwrap().parse().unwrap() };
     for step in 1..=30 {
         let rows: Vec<_> = ticks.iter().filter(|t| t.step == step).collect();
         let survivors = rows.iter().filter(|t| t.node != "node-4").count();
         assert_eq!(survivors, 8, "step {step}: a survivor did not report");
         assert!(rows.iter().all(|t| t.bound.is_some()), "step {step}");
-        let overran = |t: &&tests::Tick| t.line.split(',').nth(13) == Some("1");
         assert!(
-            !rows.iter().any(overran),
+            !rows.iter().any(|t| t.deadline_missed),
             "step {step} overran its step timeout"
         );
         if step < 10 || step > 11 {
-            let total: u32 = rows.iter().map(|t| observations(t)).sum();
+            let total: u32 = rows.iter().map(|t| t.observations).sum();
             assert_eq!(
                 total, 18,
                 "step {step}: the nodes did not agree on N_max sensors"
             );
         }
     }
-    assert_clean(&r);
+    r.assert_clean();
 }

@@ -1,0 +1,58 @@
+//! An integration test of your own, to copy into your crate's `tests/`.
+//!
+//! It launches the default network as real processes (a launcher, 9
+//! processing nodes, 225 sensors), cuts it in two for ten steps, and checks
+//! what crossed the cut, what the partition cost and that tracking recovers.
+//! Cargo runs it with `cargo test` (it is declared with `test = true`), and
+//! `cargo run --example network_test` runs it as a program.
+
+use cqnet_testkit::{default_scenario, exclusive, ActorId, Fault, MessageKind, Network};
+
+#[test]
+fn a_partition_stops_consensus_across_it_and_tracking_recovers() {
+    partition_run_checks();
+}
+
+fn main() {
+    partition_run_checks();
+    println!("the partitioned network behaved as expected");
+}
+
+fn partition_run_checks() {
+    let _one_network_at_a_time = exclusive();
+    let mut scenario = default_scenario();
+    scenario.steps = 30;
+    let run = Network::new(scenario)
+        .tag("example-partition")
+        .lockstep()
+        .no_central()
+        // A short round timeout: a node stops waiting for the far side soon.
+        .set("consensus.round_timeout_ms", 100)
+        .set("clock.step_timeout_ms", 2000)
+        .fault(Fault::Partition {
+            groups: vec![
+                vec!["node-0".into(), "node-1".into(), "node-3".into(), "node-4".into()],
+                vec!["node-2".into(), "node-5".into(), "node-6".into(), "node-7".into(), "node-8".into()],
+            ],
+            at_step: 10,
+            duration: Some(10),
+        })
+        .run()
+        .expect("the network ran");
+    run.assert_success().assert_clean();
+
+    // node-1 and node-2 are fusion-graph neighbours on opposite sides. Ten
+    // consensus rounds a step: node-2 received node-1's messages in the 20
+    // steps outside the partition, and dropped those of its 10 steps.
+    let counters = run
+        .accounting()
+        .get(ActorId::Node(1), ActorId::Node(2), MessageKind::Consensus);
+    assert_eq!(counters.received_messages, 20 * 10, "{counters:?}");
+    assert_eq!(counters.dropped_messages, 10 * 10, "{counters:?}");
+    assert_eq!(counters.received_bytes, 20 * 10 * 203);
+
+    // The run counts the partition's cost, and the estimate recovers after it.
+    assert_eq!(run.faults().len(), 1);
+    assert!(run.fault_cost().dropped_messages >= counters.dropped_messages);
+    assert!(run.rmse(25..=30) < 10.0, "RMSE after the partition: {}", run.rmse(25..=30));
+}

@@ -1,0 +1,142 @@
+//! Launch cqnet sensor networks as real processes from your own tests, and
+//! assert on what they report: the bytes that crossed each link, the
+//! messages dropped, each node's error and bound, and what each fault cost.
+//!
+//! ```
+//! use cqnet_testkit::{default_scenario, exclusive, ActorId, Fault, MessageKind, Network, Signal};
+//!
+//! let _one_network_at_a_time = exclusive();
+//! let mut scenario = default_scenario();
+//! scenario.steps = 20;
+//! let run = Network::new(scenario)
+//!     .lockstep()
+//!     // Generous timeouts: 235 processes on a busy machine can be slow, and
+//!     // a round that times out sends fewer bytes.
+//!     .set("consensus.round_timeout_ms", 20000)
+//!     .set("clock.step_timeout_ms", 60000)
+//!     .fault(Fault::Kill {
+//!         actor: "node-4".into(),
+//!         at_step: 10,
+//!         signal: Signal::Kill,
+//!         restart_after: None,
+//!     })
+//!     .run()
+//!     .expect("the network ran");
+//! run.assert_success().assert_clean();
+//! // 10 consensus rounds a step on the link node-0 → node-1, 203 bytes a message.
+//! assert_eq!(run.bytes(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus), 20 * 10 * 203);
+//! assert_eq!(run.fault_cost().missing_node_steps, 11);
+//! assert!(run.rmse(10..=20) < 5.0);
+//! ```
+//!
+//! # The `cqnet` executable
+//!
+//! Every node and sensor is its own process running the `cqnet` program.
+//! [`Network`] finds it, in this order: [`Network::executable`]; the
+//! `CQNET_BIN` environment variable; `cqnet` as Cargo built it, in the
+//! target folder the test runs from or that of the current directory's
+//! workspace; `cqnet` on `PATH`. To build it with your tests, add a
+//! binary to your crate whose `main` is [`cqnet_main`]:
+//!
+//! ```no_run
+//! // src/bin/cqnet.rs
+//! fn main() -> std::process::ExitCode {
+//!     cqnet_testkit::cqnet_main()
+//! }
+//! ```
+//!
+//! and in an integration test, `Network::new(s).executable(env!("CARGO_BIN_EXE_cqnet"))`.
+//!
+//! # Cleanup
+//!
+//! Each network has its own run id, so tests can run side by side. Dropping a
+//! [`RunningNetwork`] or a [`Run`] kills every process that carries its run
+//! id and removes its shared memory, so a test that panics midway leaves
+//! nothing behind. Networks take the machine's cores; [`exclusive`] runs
+//! tests that launch them one at a time.
+
+mod network;
+mod results;
+
+use std::sync::{Mutex, MutexGuard};
+
+pub use fusion_graph::accounting::{Accounting, Counters};
+pub use fusion_graph::scenario::{Fault, LinkSelector, Scenario, Signal};
+pub use fusion_graph::wire::MessageKind;
+pub use fusion_graph::ActorId;
+pub use launch::summary::{AppliedFault, FaultCost, Summary};
+pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
+pub use results::{Run, Tick};
+
+/// The `cqnet` program's `main`, for a binary of your own crate (see the
+/// crate's documentation).
+pub fn cqnet_main() -> std::process::ExitCode {
+    launch::app::main()
+}
+
+/// The built-in default scenario: 9 processing nodes on a 3 × 3 grid, 225
+/// bearing sensors, 100 steps.
+pub fn default_scenario() -> Scenario {
+    Scenario::from_toml(
+        fusion_graph::scenario::DEFAULT_SCENARIO,
+        "<built-in default>",
+        &[],
+    )
+    .expect("the built-in scenario is valid")
+}
+
+/// Seed 001's scenario: PCRLB-driven sensor selection.
+pub fn seed001_scenario() -> Scenario {
+    Scenario::from_toml(
+        fusion_graph::scenario::SEED001_SCENARIO,
+        "<built-in seed 001>",
+        &[],
+    )
+    .expect("the built-in scenario is valid")
+}
+
+/// Holds other network tests of this process off while held: a network of
+/// 235 processes takes every core, and two at once slow each other into
+/// their timeouts.
+pub fn exclusive() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// What can go wrong in launching a network or reading its results.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("no cqnet executable: set Network::executable or CQNET_BIN, or put `cqnet` on PATH")]
+    ExecutableNotFound,
+    #[error("starting {executable}: {source}")]
+    Spawn {
+        executable: String,
+        source: std::io::Error,
+    },
+    #[error("writing the scenario for run {run_id}: {source}")]
+    WriteScenario {
+        run_id: String,
+        source: std::io::Error,
+    },
+    #[error("the scenario: {0}")]
+    Scenario(#[from] fusion_graph::ScenarioError),
+    #[error("run {run_id} did not finish within {limit:?}; it was killed")]
+    TimedOut {
+        run_id: String,
+        limit: std::time::Duration,
+    },
+    #[error("the run id {0:?}: {1}")]
+    RunId(String, String),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_built_in_scenarios_load() {
+        let t = fusion_graph::Topology::from_scenario(&default_scenario(), "default").unwrap();
+        assert_eq!(t.nodes(), 9);
+        assert!(seed001_scenario().steps > 0);
+    }
+}
