@@ -7,15 +7,15 @@ use anyhow::Context;
 use clap::Parser;
 
 use crate::cli::{builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, ViewArgs};
-use crate::network::RunProgress;
-use crate::view::replay::{replay, FinishedRun};
-use crate::view::server::ViewServer;
-use crate::view::Hub;
 use crate::experiment::{self, Experiment};
 use crate::montecarlo::run_monte_carlo;
+use crate::network::RunProgress;
 use crate::progress::{step_message, Progress};
 use crate::results::{write_atomically, ResultsWriter};
 use crate::summary::print_table;
+use crate::view::replay::{replay, FinishedRun};
+use crate::view::server::ViewServer;
+use crate::view::Hub;
 
 /// `cqnet`'s `main`.
 pub fn main() -> std::process::ExitCode {
@@ -139,15 +139,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let steps = scenario.steps as u64;
             let processes = topology.actors().count() as u64;
             let progress = Progress::new("run", "processes ready", processes);
-            let summary = crate::network::run_network(&scenario, &topology, options, move |p| match p {
-                RunProgress::Starting { ready, .. } => progress.set(ready as u64, ""),
-                RunProgress::Running => {
-                    progress.set_total(steps);
-                    progress.set_unit("steps");
-                    progress.set(0, "");
-                }
-                RunProgress::Step { step, rows } => progress.set(step as u64, step_message(rows)),
-            })?;
+            let summary =
+                crate::network::run_network(&scenario, &topology, options, move |p| match p {
+                    RunProgress::Starting { ready, .. } => progress.set(ready as u64, ""),
+                    RunProgress::Running => {
+                        progress.set_total(steps);
+                        progress.set_unit("steps");
+                        progress.set(0, "");
+                    }
+                    RunProgress::Step { step, rows } => {
+                        progress.set(step as u64, step_message(rows))
+                    }
+                })?;
             drop(view);
             print_table(&summary);
             println!("results in {}", args.out.display());
@@ -181,7 +184,11 @@ fn start_live_view(
     let hub = Arc::new(Hub::default());
     let poll = crate::network::traffic_poller(hub.clone(), topology.clone(), out.to_path_buf());
     let server = ViewServer::start(hub.clone(), port, Some(poll))?;
-    eprintln!("cqnet: live view of `{}` at {}", scenario.name, server.url());
+    eprintln!(
+        "cqnet: live view of `{}` at {}",
+        scenario.name,
+        server.url()
+    );
     Ok((hub, server))
 }
 

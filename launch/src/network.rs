@@ -26,7 +26,7 @@ use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRo
 use crate::sim::central_telemetry;
 use crate::summary::{AppliedFault, ChildrenMemory, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
-use crate::view::{link_bytes, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
+use crate::view::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use crate::world::World;
 
 /// How long children get to start and say `ready`.
@@ -342,7 +342,14 @@ fn world_thread(
             let dead: Vec<u16> = (0..topology.nodes() as u16)
                 .filter(|n| !w.alive[*n as usize])
                 .collect();
-            hub.publish(&step_event(&schedule, topology, step, [truth[0], truth[1]], &active_sensors, &dead));
+            hub.publish(&step_event(
+                &schedule,
+                topology,
+                step,
+                [truth[0], truth[1]],
+                &active_sensors,
+                &dead,
+            ));
             hub.publish(&ViewEvent::Estimates {
                 step,
                 rows: step_rows.iter().map(NodeEstimate::of).collect(),
@@ -583,16 +590,35 @@ fn publish_late_rows(view: Option<&Hub>, rows: &[TickRow], step: u32) {
     }
 }
 
-/// The live view's once-a-second look at the link traffic: the actors'
-/// byte counters as last flushed to `out/accounting`.
-pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate::view::server::Poll {
+/// The live view's once-a-second look at the link traffic: each node's
+/// byte counters as last flushed to `out/accounting`, over the steps run by
+/// the time it flushed them (the file's modification time).
+pub fn traffic_poller(
+    hub: Arc<Hub>,
+    topology: Topology,
+    out: PathBuf,
+) -> crate::view::server::Poll {
     Box::new(move || {
-        let accounting = merge_accounting(&out, &topology, &Accounting::default());
-        let bytes = link_bytes(&topology, &accounting);
-        if bytes.iter().any(|b| *b > 0) {
+        let mut accounting = Accounting::default();
+        let mut covered = vec![1.0; topology.nodes()];
+        for n in 0..topology.nodes() as u16 {
+            let path = accounting_path(&out, ActorId::Node(n));
+            let Some(acc) = std::fs::read_to_string(&path)
+                .ok()
+                .and_then(|t| Accounting::from_csv(&t))
+            else {
+                continue;
+            };
+            if let Ok(written) = std::fs::metadata(&path).and_then(|m| m.modified()) {
+                covered[n as usize] = hub.steps_by(written) as f64;
+            }
+            accounting.merge(&acc);
+        }
+        let bytes_per_step = link_bytes_per_step(&topology, &accounting, |n| covered[n as usize]);
+        if bytes_per_step.iter().any(|b| *b > 0.0) {
             hub.publish(&ViewEvent::Traffic {
                 step: hub.latest_step(),
-                bytes,
+                bytes_per_step,
             });
         }
     })

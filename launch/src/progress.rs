@@ -49,8 +49,19 @@ impl Progress {
         Self::with_terminal(label, unit, total, std::io::stderr().is_terminal())
     }
 
-    fn with_terminal(label: impl Into<String>, unit: &'static str, total: u64, terminal: bool) -> Self {
-        Self::build(label.into(), unit, total, terminal, Box::new(|line| eprintln!("{line}")))
+    fn with_terminal(
+        label: impl Into<String>,
+        unit: &'static str,
+        total: u64,
+        terminal: bool,
+    ) -> Self {
+        Self::build(
+            label.into(),
+            unit,
+            total,
+            terminal,
+            Box::new(|line| eprintln!("{line}")),
+        )
     }
 
     fn build(label: String, unit: &'static str, total: u64, terminal: bool, sink: Sink) -> Self {
@@ -232,7 +243,10 @@ mod tests {
         let lines = lines.lock().unwrap();
         assert!(lines[0].starts_with("step: 3/10 steps"), "{}", lines[0]);
         assert!(lines[0].ends_with(", RMSE 1.00 m"), "{}", lines[0]);
-        assert!(lines.last().unwrap().starts_with("step: 10/10 steps"), "{lines:?}");
+        assert!(
+            lines.last().unwrap().starts_with("step: 10/10 steps"),
+            "{lines:?}"
+        );
     }
 
     #[test]

@@ -31,8 +31,19 @@ fn partition_run_checks() {
         .set("clock.step_timeout_ms", 2000)
         .fault(Fault::Partition {
             groups: vec![
-                vec!["node-0".into(), "node-1".into(), "node-3".into(), "node-4".into()],
-                vec!["node-2".into(), "node-5".into(), "node-6".into(), "node-7".into(), "node-8".into()],
+                vec![
+                    "node-0".into(),
+                    "node-1".into(),
+                    "node-3".into(),
+                    "node-4".into(),
+                ],
+                vec![
+                    "node-2".into(),
+                    "node-5".into(),
+                    "node-6".into(),
+                    "node-7".into(),
+                    "node-8".into(),
+                ],
             ],
             at_step: 10,
             duration: Some(10),
@@ -54,5 +65,9 @@ fn partition_run_checks() {
     // The run counts the partition's cost, and the estimate recovers after it.
     assert_eq!(run.faults().len(), 1);
     assert!(run.fault_cost().dropped_messages >= counters.dropped_messages);
-    assert!(run.rmse(25..=30) < 10.0, "RMSE after the partition: {}", run.rmse(25..=30));
+    assert!(
+        run.rmse(25..=30) < 10.0,
+        "RMSE after the partition: {}",
+        run.rmse(25..=30)
+    );
 }

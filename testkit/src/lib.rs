@@ -55,6 +55,8 @@
 //! nothing behind. Networks take the machine's cores; [`exclusive`] runs
 //! tests that launch them one at a time.
 
+#![warn(missing_docs)]
+
 mod network;
 mod results;
 
@@ -106,25 +108,37 @@ pub fn exclusive() -> MutexGuard<'static, ()> {
 /// What can go wrong in launching a network or reading its results.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// No `cqnet` program was given or found.
     #[error("no cqnet executable: set Network::executable or CQNET_BIN, or put `cqnet` on PATH")]
     ExecutableNotFound,
+    /// The program could not be started.
     #[error("starting {executable}: {source}")]
     Spawn {
+        /// The program's path.
         executable: String,
+        /// Why it did not start.
         source: std::io::Error,
     },
+    /// The scenario (with the added faults) could not be written for the run.
     #[error("writing the scenario for run {run_id}: {source}")]
     WriteScenario {
+        /// The run it was for.
         run_id: String,
+        /// Why it could not be written.
         source: std::io::Error,
     },
+    /// A scenario file to add faults to did not load.
     #[error("the scenario: {0}")]
     Scenario(#[from] fusion_graph::ScenarioError),
+    /// The run outlived its time limit and was killed.
     #[error("run {run_id} did not finish within {limit:?}; it was killed")]
     TimedOut {
+        /// The run.
         run_id: String,
+        /// The limit it outlived.
         limit: std::time::Duration,
     },
+    /// The run id built from the tag is not one `cqnet` accepts.
     #[error("the run id {0:?}: {1}")]
     RunId(String, String),
 }

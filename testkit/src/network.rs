@@ -124,7 +124,13 @@ impl Network {
     pub fn tag(mut self, tag: &str) -> Self {
         self.tag = tag
             .chars()
-            .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' })
+            .map(|c| {
+                if c.is_ascii_alphanumeric() {
+                    c.to_ascii_lowercase()
+                } else {
+                    '-'
+                }
+            })
             .collect();
         self
     }
@@ -145,7 +151,9 @@ impl Network {
     pub fn start(self) -> Result<RunningNetwork, Error> {
         let executable = self.resolve_executable()?;
         let run_id = new_run_id(&self.tag)?;
-        let out = std::env::temp_dir().join("cqnet-testkit").join(run_id.as_str());
+        let out = std::env::temp_dir()
+            .join("cqnet-testkit")
+            .join(run_id.as_str());
         let _ = std::fs::remove_dir_all(&out);
         let mut command = Command::new(&executable);
         command.arg("run");
@@ -167,7 +175,9 @@ impl Network {
     pub fn sim(self) -> Result<Run, Error> {
         let executable = self.resolve_executable()?;
         let run_id = new_run_id(&format!("{}-sim", self.tag))?;
-        let out = std::env::temp_dir().join("cqnet-testkit").join(run_id.as_str());
+        let out = std::env::temp_dir()
+            .join("cqnet-testkit")
+            .join(run_id.as_str());
         let _ = std::fs::remove_dir_all(&out);
         let mut command = Command::new(&executable);
         command.arg("sim");
@@ -275,7 +285,10 @@ fn built_cqnet() -> Option<PathBuf> {
         return beside;
     }
     let cwd = std::env::current_dir().ok()?;
-    let target = cwd.ancestors().map(|d| d.join("target")).find(|t| t.is_dir())?;
+    let target = cwd
+        .ancestors()
+        .map(|d| d.join("target"))
+        .find(|t| t.is_dir())?;
     ["release", "debug"]
         .iter()
         .map(|profile| target.join(profile).join("cqnet"))
@@ -321,7 +334,9 @@ impl Captured {
                 if n == 0 {
                     break;
                 }
-                sink.lock().unwrap_or_else(|p| p.into_inner()).extend_from_slice(&buf[..n]);
+                sink.lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .extend_from_slice(&buf[..n]);
             }
         });
         Self {
@@ -356,6 +371,7 @@ pub struct RunningNetwork {
 }
 
 impl RunningNetwork {
+    /// The run's id, on every process's command line and in its shared memory's names.
     pub fn run_id(&self) -> &str {
         self.run_id.as_str()
     }

@@ -19,18 +19,25 @@ use crate::network::kill_and_clean;
 /// for a step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Tick {
+    /// The step, from 1.
     pub step: u32,
     /// `node-<i>` or `central`.
     pub node: String,
+    /// The target's true position, metres.
     pub truth: [f64; 2],
+    /// The node's fused position estimate, metres.
     pub estimate: [f64; 2],
     /// Position error, metres.
     pub error: f64,
     /// CQ/dPCRLB position bound, metres.
     pub bound: Option<f64>,
+    /// The bound of the node's own sensors alone, metres.
     pub local_bound: Option<f64>,
+    /// The auxiliary-FIM baseline bound, when it ran, metres.
     pub aux_bound: Option<f64>,
+    /// Consensus rounds the node completed.
     pub rounds_completed: u32,
+    /// Neighbours heard in the last round.
     pub live_neighbours: u32,
     /// Observations the node's filters used.
     pub observations: u32,
@@ -62,6 +69,7 @@ impl Tick {
         })
     }
 
+    /// A processing node's row (not the centralized reference's).
     pub fn is_node(&self) -> bool {
         self.node != "central"
     }
@@ -117,10 +125,12 @@ impl Run {
         }
     }
 
+    /// The run's id, on every process's command line and in its shared memory's names.
     pub fn run_id(&self) -> &str {
         self.run_id.as_str()
     }
 
+    /// The run's output folder (`ticks.csv`, `links.csv`, `summary.json`, logs).
     pub fn out_dir(&self) -> &Path {
         &self.out
     }
@@ -130,18 +140,22 @@ impl Run {
         &self.executable
     }
 
+    /// How the launcher exited.
     pub fn status(&self) -> ExitStatus {
         self.status
     }
 
+    /// Whether the launcher exited successfully.
     pub fn succeeded(&self) -> bool {
         self.status.success()
     }
 
+    /// The launcher's standard output (the summary table).
     pub fn stdout(&self) -> &str {
         &self.stdout
     }
 
+    /// The launcher's standard error (progress, warnings, the error).
     pub fn stderr(&self) -> &str {
         &self.stderr
     }
@@ -162,7 +176,11 @@ impl Run {
     pub fn assert_failure_naming(&self, words: &[&str]) -> &Self {
         assert!(!self.succeeded(), "run {} succeeded", self.run_id());
         for w in words {
-            assert!(self.stderr.contains(w), "stderr does not name {w:?}:\n{}", self.stderr);
+            assert!(
+                self.stderr.contains(w),
+                "stderr does not name {w:?}:\n{}",
+                self.stderr
+            );
         }
         self
     }
@@ -176,7 +194,13 @@ impl Run {
                 Some(serde_json::from_str(&text).expect("summary.json is a cqnet summary"))
             })
             .as_ref()
-            .unwrap_or_else(|| panic!("run {} wrote no summary.json:\n{}", self.run_id(), self.stderr))
+            .unwrap_or_else(|| {
+                panic!(
+                    "run {} wrote no summary.json:\n{}",
+                    self.run_id(),
+                    self.stderr
+                )
+            })
     }
 
     /// Every link's counters (`links.csv`); panics if the run wrote none.
@@ -248,7 +272,11 @@ impl Run {
     /// Position RMSE of every node's fused estimate over `steps` (the
     /// centralized reference left out); NaN if no node reported then.
     pub fn rmse(&self, steps: RangeInclusive<u32>) -> f64 {
-        rmse(self.ticks.iter().filter(|t| t.is_node() && steps.contains(&t.step)))
+        rmse(
+            self.ticks
+                .iter()
+                .filter(|t| t.is_node() && steps.contains(&t.step)),
+        )
     }
 
     /// One node's position RMSE over `steps`; NaN if it did not report then.

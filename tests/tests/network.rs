@@ -104,7 +104,11 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
 #[test]
 fn the_network_survives_sigkill_of_the_centre_node() {
     let _guard = exclusive();
-    let healthy = network("healthy", 30).lockstep().no_central().run().unwrap();
+    let healthy = network("healthy", 30)
+        .lockstep()
+        .no_central()
+        .run()
+        .unwrap();
     healthy.assert_success();
     let r = network("kill", 30)
         .lockstep()
@@ -375,7 +379,11 @@ fn an_actor_that_dies_unexpectedly_is_a_fault_and_its_restart_still_applies() {
     r.assert_success();
     let faults = format!("{:?}", r.faults());
     assert!(faults.contains("node-4 died unexpectedly"), "{faults}");
-    let back = r.ticks_of("node-4").map(|t| t.step).filter(|s| *s >= 25).min();
+    let back = r
+        .ticks_of("node-4")
+        .map(|t| t.step)
+        .filter(|s| *s >= 25)
+        .min();
     assert!(
         back.is_some_and(|s| s <= 30),
         "node-4 did not report again after its restart: first at {back:?}"
@@ -397,11 +405,7 @@ fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
     r.assert_failure_naming(&["filter.particles", "GiB", "available"]);
     let logs = r.out_dir().join("logs");
     assert!(
-        !logs.exists()
-            || std::fs::read_dir(&logs)
-                .unwrap()
-                .next()
-                .is_none(),
+        !logs.exists() || std::fs::read_dir(&logs).unwrap().next().is_none(),
         "children were started"
     );
     r.assert_clean();

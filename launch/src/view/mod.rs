@@ -14,6 +14,7 @@ pub mod server;
 use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::SystemTime;
 
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::{ActorId, Scenario, Topology};
@@ -58,9 +59,10 @@ pub enum ViewEvent {
     },
     /// Node reports, as they arrive (a late one still lands on its step).
     Estimates { step: u32, rows: Vec<NodeEstimate> },
-    /// Bytes counted so far on each fusion-graph link, both directions, every
-    /// message kind, from the actors' own counters (flushed every few steps).
-    Traffic { step: u32, bytes: Vec<u64> },
+    /// Bytes per step on each fusion-graph link, both directions, every
+    /// message kind, from the actors' own counters: each actor's count as
+    /// last flushed (every few steps, staggered) over the steps it covers.
+    Traffic { step: u32, bytes_per_step: Vec<f64> },
     /// A fault the schedule did not contain: an actor that died on its own.
     Fault(AppliedFault),
     /// The run is over.
@@ -121,7 +123,11 @@ pub fn setup_event(scenario: &Scenario, topology: &Topology, mode: &'static str)
             .map(|(p, &o)| [p[0], p[1], o as f64])
             .collect(),
         links: fusion_links(topology),
-        faults: scenario.faults.iter().map(AppliedFault::from_fault).collect(),
+        faults: scenario
+            .faults
+            .iter()
+            .map(AppliedFault::from_fault)
+            .collect(),
     }
 }
 
@@ -142,7 +148,10 @@ pub fn step_event(
                 return LinkState::Cut;
             }
             let (na, nb) = (ActorId::Node(a), ActorId::Node(b));
-            let rules = [schedule.link_rule(step, na, nb), schedule.link_rule(step, nb, na)];
+            let rules = [
+                schedule.link_rule(step, na, nb),
+                schedule.link_rule(step, nb, na),
+            ];
             if rules.iter().any(|r| r.blocked) {
                 LinkState::Cut
             } else if rules.iter().all(|r| r.is_clear()) {
@@ -161,20 +170,26 @@ pub fn step_event(
     }
 }
 
-/// Bytes per fusion-graph link (both directions, every kind) in `accounting`.
-pub fn link_bytes(topology: &Topology, accounting: &fusion_graph::accounting::Accounting) -> Vec<u64> {
+/// Bytes per fusion-graph link (both directions, every kind) in
+/// `accounting`, each direction divided by `steps(sender)`: the steps its
+/// sender's counts cover.
+pub fn link_bytes_per_step(
+    topology: &Topology,
+    accounting: &fusion_graph::accounting::Accounting,
+    steps: impl Fn(u16) -> f64,
+) -> Vec<f64> {
     let links = fusion_links(topology);
-    let mut bytes = vec![0u64; links.len()];
+    let mut rate = vec![0.0; links.len()];
     for ((from, to, _), counters) in accounting.iter() {
         let (ActorId::Node(from), ActorId::Node(to)) = (*from, *to) else {
             continue;
         };
         let pair = [from.min(to), from.max(to)];
         if let Some(i) = links.iter().position(|l| *l == pair) {
-            bytes[i] += counters.sent_bytes;
+            rate[i] += counters.sent_bytes as f64 / steps(from).max(1.0);
         }
     }
-    bytes
+    rate
 }
 
 /// How many events a slow page may fall behind before its stream is cut (it
@@ -186,6 +201,9 @@ const LIVE_BACKLOG: usize = 4096;
 pub struct Hub {
     inner: Mutex<HubInner>,
     latest_step: AtomicU32,
+    /// When each step's event was published, to tell which steps a file
+    /// written at some moment covers.
+    step_times: Mutex<Vec<SystemTime>>,
 }
 
 struct HubInner {
@@ -201,6 +219,7 @@ impl Default for Hub {
                 live: broadcast::channel(LIVE_BACKLOG).0,
             }),
             latest_step: AtomicU32::new(0),
+            step_times: Mutex::new(Vec::new()),
         }
     }
 }
@@ -209,6 +228,10 @@ impl Hub {
     pub fn publish(&self, event: &ViewEvent) {
         if let ViewEvent::Step { step, .. } = event {
             self.latest_step.fetch_max(*step, Ordering::Relaxed);
+            self.step_times
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .push(SystemTime::now());
         }
         let json: Arc<str> = serde_json::to_string(event)
             .expect("view events serialize")
@@ -231,8 +254,18 @@ impl Hub {
         self.latest_step.load(Ordering::Relaxed)
     }
 
+    /// Steps whose event was published by `time`, plus the one then running.
+    pub fn steps_by(&self, time: SystemTime) -> u32 {
+        let times = self.step_times.lock().unwrap_or_else(|p| p.into_inner());
+        times.iter().filter(|t| **t <= time).count() as u32 + 1
+    }
+
     pub fn len(&self) -> usize {
-        self.inner.lock().unwrap_or_else(|p| p.into_inner()).history.len()
+        self.inner
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .history
+            .len()
     }
 
     pub fn is_empty(&self) -> bool {
@@ -245,8 +278,8 @@ mod tests {
     use super::*;
 
     fn default_topology() -> (Scenario, Topology) {
-        let s = Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, "default", &[])
-            .unwrap();
+        let s =
+            Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, "default", &[]).unwrap();
         let t = Topology::from_scenario(&s, "default").unwrap();
         (s, t)
     }
@@ -270,7 +303,10 @@ mod tests {
         });
         let schedule = FaultSchedule::new(&s.faults);
         let links = fusion_links(&t);
-        let i = links.iter().position(|l| *l == [0, 1]).expect("0-1 is a link");
+        let i = links
+            .iter()
+            .position(|l| *l == [0, 1])
+            .expect("0-1 is a link");
         let state = |step| match step_event(&schedule, &t, step, [0.0; 2], &BTreeSet::new(), &[]) {
             ViewEvent::Step { link_states, .. } => link_states,
             _ => unreachable!(),
@@ -283,18 +319,33 @@ mod tests {
     }
 
     #[test]
-    fn link_bytes_sum_both_directions_of_node_links_only() {
+    fn link_rates_sum_both_directions_of_node_links_only() {
         use fusion_graph::wire::MessageKind;
         let (_, t) = default_topology();
         let mut acc = fusion_graph::accounting::Accounting::default();
-        acc.record_sent(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 100);
-        acc.record_sent(ActorId::Node(1), ActorId::Node(0), MessageKind::Consensus, 50);
-        acc.record_sent(ActorId::Sensor(0), ActorId::Node(0), MessageKind::Observation, 12);
+        acc.record_sent(
+            ActorId::Node(0),
+            ActorId::Node(1),
+            MessageKind::Consensus,
+            100,
+        );
+        acc.record_sent(
+            ActorId::Node(1),
+            ActorId::Node(0),
+            MessageKind::Consensus,
+            50,
+        );
+        acc.record_sent(
+            ActorId::Sensor(0),
+            ActorId::Node(0),
+            MessageKind::Observation,
+            12,
+        );
         let links = fusion_links(&t);
         let i = links.iter().position(|l| *l == [0, 1]).unwrap();
-        let bytes = link_bytes(&t, &acc);
-        assert_eq!(bytes[i], 150);
-        assert_eq!(bytes.iter().sum::<u64>(), 150);
+        let rate = link_bytes_per_step(&t, &acc, |n| if n == 0 { 10.0 } else { 5.0 });
+        assert_eq!(rate[i], 100.0 / 10.0 + 50.0 / 5.0);
+        assert_eq!(rate.iter().sum::<f64>(), 20.0);
     }
 
     #[test]

@@ -15,7 +15,7 @@ use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Fault;
 use fusion_graph::Topology;
 
-use super::{link_bytes, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
+use super::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use crate::summary::Summary;
 
 /// A finished run, read back.
@@ -39,7 +39,8 @@ impl FinishedRun {
         })?;
         let summary: Summary = serde_json::from_str(&text)
             .with_context(|| format!("{} is not a cqnet summary", summary_path.display()))?;
-        let topology = Topology::from_scenario(&summary.scenario, &summary_path.display().to_string())?;
+        let topology =
+            Topology::from_scenario(&summary.scenario, &summary_path.display().to_string())?;
         let ticks_path = dir.join("ticks.csv");
         let ticks = std::fs::read_to_string(&ticks_path)
             .with_context(|| format!("reading {}", ticks_path.display()))?;
@@ -67,15 +68,19 @@ fn parse_ticks(text: &str) -> anyhow::Result<Steps> {
             bail!("line {}: {} fields, expected at least 8", i + 1, f.len());
         }
         let num = |k: usize| -> anyhow::Result<f64> {
-            f[k].parse()
-                .with_context(|| format!("line {}: field {} is not a number: {:?}", i + 1, k + 1, f[k]))
+            f[k].parse().with_context(|| {
+                format!(
+                    "line {}: field {} is not a number: {:?}",
+                    i + 1,
+                    k + 1,
+                    f[k]
+                )
+            })
         };
         let step: u32 = f[0]
             .parse()
             .with_context(|| format!("line {}: step {:?}", i + 1, f[0]))?;
-        let entry = steps
-            .entry(step)
-            .or_insert_with(|| ([0.0; 2], Vec::new()));
+        let entry = steps.entry(step).or_insert_with(|| ([0.0; 2], Vec::new()));
         entry.0 = [num(2)?, num(3)?];
         entry.1.push(NodeEstimate {
             node: f[1].to_string(),
@@ -115,7 +120,14 @@ pub fn replay(run: &FinishedRun, hub: &Hub, period: Duration) {
     let schedule = FaultSchedule::new(&scenario.faults);
     for (&step, (truth, rows)) in &run.steps {
         let dead = killed_nodes(&scenario.faults, step);
-        hub.publish(&step_event(&schedule, &run.topology, step, *truth, &BTreeSet::new(), &dead));
+        hub.publish(&step_event(
+            &schedule,
+            &run.topology,
+            step,
+            *truth,
+            &BTreeSet::new(),
+            &dead,
+        ));
         hub.publish(&ViewEvent::Estimates {
             step,
             rows: rows.clone(),
@@ -125,9 +137,10 @@ pub fn replay(run: &FinishedRun, hub: &Hub, period: Duration) {
         }
     }
     if let Some(acc) = &run.accounting {
+        let steps = run.summary.steps as f64;
         hub.publish(&ViewEvent::Traffic {
             step: run.summary.steps,
-            bytes: link_bytes(&run.topology, acc),
+            bytes_per_step: link_bytes_per_step(&run.topology, acc, |_| steps),
         });
     }
     hub.publish(&ViewEvent::End {

@@ -116,7 +116,10 @@ async fn events(hub: Arc<Hub>) -> impl IntoResponse {
             Err(RecvError::Lagged(_) | RecvError::Closed) => None,
         }
     });
-    let stream: std::pin::Pin<Box<dyn Stream<Item = Result<Event, Infallible>> + Send>> =
-        Box::pin(history.chain(live).map(|json| Ok(Event::default().data(&*json))));
+    let stream: std::pin::Pin<Box<dyn Stream<Item = Result<Event, Infallible>> + Send>> = Box::pin(
+        history
+            .chain(live)
+            .map(|json| Ok(Event::default().data(&*json))),
+    );
     Sse::new(stream).keep_alive(KeepAlive::default())
 }
