@@ -52,15 +52,24 @@ fn partition_run_checks() {
         .expect("the network ran");
     run.assert_success().assert_clean();
 
-    // node-1 and node-2 are fusion-graph neighbours on opposite sides. Ten
-    // consensus rounds a step: node-2 received node-1's messages in the 20
-    // steps outside the partition, and dropped those of its 10 steps.
+    // node-1 and node-2 are fusion-graph neighbours on opposite sides, ten
+    // consensus rounds a step for 30 steps: every message node-1 published
+    // reached node-2, which took it in outside the partition and dropped it
+    // inside. (A message of the step before the cut can reach node-2 after
+    // it entered the cut, so the split is not exactly 200 and 100.)
     let counters = run
         .accounting()
         .get(ActorId::Node(1), ActorId::Node(2), MessageKind::Consensus);
-    assert_eq!(counters.received_messages, 20 * 10, "{counters:?}");
-    assert_eq!(counters.dropped_messages, 10 * 10, "{counters:?}");
-    assert_eq!(counters.received_bytes, 20 * 10 * 203);
+    assert_eq!(
+        counters.received_messages + counters.dropped_messages,
+        30 * 10,
+        "{counters:?}"
+    );
+    assert!(
+        (95..=105).contains(&counters.dropped_messages),
+        "{counters:?}"
+    );
+    assert_eq!(counters.received_bytes, counters.received_messages * 203);
 
     // The run counts the partition's cost, and the estimate recovers after it.
     assert_eq!(run.faults().len(), 1);
