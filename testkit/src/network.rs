@@ -14,7 +14,7 @@ use fusion_graph::transport::iceoryx::remove_run_resources;
 use fusion_graph::transport::RunId;
 use fusion_graph::ActorId;
 
-use crate::results::{processes_with, read_ticks, Run};
+use crate::results::{processes_matching, processes_with, read_ticks, Run};
 use crate::Error;
 
 /// The longest a network may run before it is killed and its test fails,
@@ -246,6 +246,7 @@ impl Network {
             stderr,
             started: Instant::now(),
             time_limit: self.time_limit,
+            handed_over: false,
         })
     }
 
@@ -368,6 +369,8 @@ pub struct RunningNetwork {
     stderr: Captured,
     started: Instant,
     time_limit: Duration,
+    /// `wait` made a `Run`, which cleans up when it is dropped.
+    handed_over: bool,
 }
 
 impl RunningNetwork {
@@ -434,7 +437,7 @@ impl RunningNetwork {
             (Target::Launcher, Some(c)) => vec![c.id()],
             (Target::Launcher, None) => vec![],
             (Target::Actor(a), _) => {
-                processes_with(&format!("{} --actor {a} ", self.run_id.as_str()))
+                processes_matching(&format!("--run-id {} --actor {a} ", self.run_id.as_str()))
             }
         };
         pids.iter()
@@ -475,6 +478,9 @@ impl RunningNetwork {
         let stdout = std::mem::replace(&mut self.stdout, Captured::drain(None)).finish();
         let stderr = std::mem::replace(&mut self.stderr, Captured::drain(None)).finish();
         let ticks = read_ticks(&self.out.join("ticks.csv"));
+        // From here the run's cleanup is the `Run`'s, when it is dropped: a
+        // test may first look at what the launcher left (after a SIGKILL).
+        self.handed_over = true;
         Ok(Run::new(
             self.run_id.clone(),
             self.out.clone(),
@@ -493,7 +499,9 @@ impl Drop for RunningNetwork {
             let _ = c.kill();
             let _ = c.wait();
         }
-        kill_and_clean(&self.run_id);
+        if !self.handed_over {
+            kill_and_clean(&self.run_id);
+        }
     }
 }
 

@@ -336,7 +336,11 @@ fn rmse<'a>(ticks: impl Iterator<Item = &'a Tick>) -> f64 {
 /// Processes whose command line carries run id `run_id` (as `--run-id
 /// <id>`, so that run `x-1` is not mistaken for `x-10`).
 pub(crate) fn processes_with(run_id: &str) -> Vec<u32> {
-    let needle = format!("--run-id {run_id} ");
+    processes_matching(&format!("--run-id {run_id} "))
+}
+
+/// Processes whose command line contains `needle`.
+pub(crate) fn processes_matching(needle: &str) -> Vec<u32> {
     let mut pids = Vec::new();
     let Ok(entries) = std::fs::read_dir("/proc") else {
         return pids;
@@ -350,7 +354,7 @@ pub(crate) fn processes_with(run_id: &str) -> Vec<u32> {
         }
         if let Ok(cmdline) = std::fs::read(e.path().join("cmdline")) {
             let cmdline = String::from_utf8_lossy(&cmdline).replace('\0', " ");
-            if cmdline.contains(&needle) {
+            if cmdline.contains(needle) {
                 pids.push(pid);
             }
         }
