@@ -149,20 +149,8 @@ impl Network {
     /// Launches the network and returns at once, to watch it, signal it or
     /// open its view while it runs.
     pub fn start(self) -> Result<RunningNetwork, Error> {
-        let executable = self.resolve_executable()?;
-        let run_id = new_run_id(&self.tag)?;
-        let out = std::env::temp_dir()
-            .join("cqnet-testkit")
-            .join(run_id.as_str());
-        let _ = std::fs::remove_dir_all(&out);
-        let mut command = Command::new(&executable);
-        command.arg("run");
-        self.scenario_args(&mut command, &out, run_id.as_str())?;
-        command
-            .arg("--out")
-            .arg(&out)
-            .arg("--run-id")
-            .arg(run_id.as_str());
+        let (executable, run_id, out, mut command) = self.command("run", &self.tag)?;
+        command.arg("--run-id").arg(run_id.as_str());
         if self.lockstep {
             command.arg("--lockstep");
         }
@@ -173,17 +161,29 @@ impl Network {
     /// Runs the same scenario in one process with `cqnet sim` (in-memory
     /// transport, virtual clock), for a reference to compare a network with.
     pub fn sim(self) -> Result<Run, Error> {
+        let (executable, run_id, out, command) =
+            self.command("sim", &format!("{}-sim", self.tag))?;
+        self.spawn(command, executable, run_id, out)?.wait()
+    }
+
+    /// `cqnet <subcommand>` with a fresh run id, its own (emptied) output
+    /// folder and the scenario's arguments.
+    fn command(
+        &self,
+        subcommand: &str,
+        tag: &str,
+    ) -> Result<(PathBuf, RunId, PathBuf, Command), Error> {
         let executable = self.resolve_executable()?;
-        let run_id = new_run_id(&format!("{}-sim", self.tag))?;
+        let run_id = new_run_id(tag)?;
         let out = std::env::temp_dir()
             .join("cqnet-testkit")
             .join(run_id.as_str());
         let _ = std::fs::remove_dir_all(&out);
         let mut command = Command::new(&executable);
-        command.arg("sim");
+        command.arg(subcommand);
         self.scenario_args(&mut command, &out, run_id.as_str())?;
         command.arg("--out").arg(&out);
-        self.spawn(command, executable, run_id, out)?.wait()
+        Ok((executable, run_id, out, command))
     }
 
     /// The scenario (file or value, with the added faults), overrides and
