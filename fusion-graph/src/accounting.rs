@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
+use crate::ledger::{Ledger, Pair};
 use crate::wire::MessageKind;
 
 /// Messages and encoded bytes on one directed link, of one kind.
@@ -38,20 +39,79 @@ impl Counters {
 /// Link `(from, to)` and kind.
 pub type LinkKey = (ActorId, ActorId, MessageKind);
 
-#[derive(Debug, Clone, Default, PartialEq)]
+/// Counters per directed link and kind. An actor of a real network mirrors
+/// every update into a [`Ledger`], so that its counts outlive it.
+#[derive(Debug, Default)]
 pub struct Accounting {
     links: BTreeMap<LinkKey, Counters>,
+    ledger: Option<Ledger>,
+}
+
+/// A copy is the counts alone: the ledger stays with its one writer.
+impl Clone for Accounting {
+    fn clone(&self) -> Self {
+        Self {
+            links: self.links.clone(),
+            ledger: None,
+        }
+    }
+}
+
+impl PartialEq for Accounting {
+    fn eq(&self, other: &Self) -> bool {
+        self.links == other.links
+    }
 }
 
 impl Accounting {
+    /// Counts that continue those already in `ledger` (an earlier
+    /// incarnation's) and are mirrored into it from now on.
+    pub fn backed_by(ledger: Ledger) -> Self {
+        Self {
+            links: ledger.accounting().links,
+            ledger: Some(ledger),
+        }
+    }
+
     fn entry(&mut self, from: ActorId, to: ActorId, kind: MessageKind) -> &mut Counters {
         self.links.entry((from, to, kind)).or_default()
+    }
+
+    fn mirror(&mut self, key: LinkKey, pair: Pair, messages: i64, bytes: usize) {
+        let Some(ledger) = self.ledger.as_mut() else {
+            return;
+        };
+        let bytes = bytes as i64 * messages.signum();
+        if let Err(e) = ledger.add(key, pair, messages, bytes) {
+            // Sized from the topology, a ledger cannot fill; if it ever does,
+            // say so once and go on counting in memory.
+            tracing::error!(error = %e, "byte counts are no longer kept across a kill");
+            self.ledger = None;
+        }
     }
 
     pub fn record_sent(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
         let c = self.entry(from, to, kind);
         c.sent_messages += 1;
         c.sent_bytes += bytes as u64;
+        self.mirror((from, to, kind), Pair::Sent, 1, bytes);
+    }
+
+    /// Takes back [`record_sent_to`](Self::record_sent_to) for a message
+    /// that could not be published after all.
+    pub fn unrecord_sent_to(
+        &mut self,
+        from: ActorId,
+        receivers: &[ActorId],
+        kind: MessageKind,
+        bytes: usize,
+    ) {
+        for to in receivers {
+            let c = self.entry(from, *to, kind);
+            c.sent_messages -= 1;
+            c.sent_bytes -= bytes as u64;
+            self.mirror((from, *to, kind), Pair::Sent, -1, bytes);
+        }
     }
 
     /// One message of `bytes` published once for several receivers: one sent
@@ -72,24 +132,37 @@ impl Accounting {
         let c = self.entry(from, to, kind);
         c.received_messages += 1;
         c.received_bytes += bytes as u64;
+        self.mirror((from, to, kind), Pair::Received, 1, bytes);
     }
 
     pub fn record_dropped(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
         let c = self.entry(from, to, kind);
         c.dropped_messages += 1;
         c.dropped_bytes += bytes as u64;
+        self.mirror((from, to, kind), Pair::Dropped, 1, bytes);
     }
 
     pub fn record_malformed(&mut self, from: ActorId, to: ActorId, bytes: usize) {
         let c = self.entry(from, to, MessageKind::Malformed);
         c.malformed_messages += 1;
         c.malformed_bytes += bytes as u64;
+        self.mirror(
+            (from, to, MessageKind::Malformed),
+            Pair::Malformed,
+            1,
+            bytes,
+        );
     }
 
+    /// Adds `other`'s counts (in memory only: merging is the reader's work).
     pub fn merge(&mut self, other: &Accounting) {
         for (k, c) in &other.links {
-            self.links.entry(*k).or_default().add(c);
+            self.add_counters(*k, c);
         }
+    }
+
+    pub(crate) fn add_counters(&mut self, key: LinkKey, c: &Counters) {
+        self.links.entry(key).or_default().add(c);
     }
 
     pub fn get(&self, from: ActorId, to: ActorId, kind: MessageKind) -> Counters {

@@ -5,6 +5,7 @@
 pub mod accounting;
 pub mod actor;
 pub mod faults;
+pub mod ledger;
 pub mod models;
 pub mod scenario;
 pub mod shaper;

@@ -44,6 +44,12 @@ pub struct Region {
     pub height: f64,
 }
 
+/// Most processing nodes a scenario may have: each is a process, and the
+/// fusion graph is built by comparing every pair.
+pub const MAX_NODES: u64 = 4096;
+/// Most sensors a scenario may have: their index is a u16 on the wire.
+pub const MAX_SENSORS: u64 = u16::MAX as u64;
+
 /// Either a grid (one node at the centre of each cell) or explicit positions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -404,6 +410,41 @@ impl Scenario {
                 )
             }
         }
+        // Indices are u16 on the wire, and every actor is a process: a
+        // network past these is refused here, before its topology is built
+        // (a 1000 × 1000 grid once took the machine's memory doing so).
+        let nodes = match (&self.nodes.grid, &self.nodes.positions) {
+            (Some(g), _) => g[0] as u64 * g[1] as u64,
+            (_, Some(p)) => p.len() as u64,
+            _ => 0,
+        };
+        if nodes > MAX_NODES {
+            return bad(
+                if self.nodes.grid.is_some() {
+                    "nodes.grid"
+                } else {
+                    "nodes.positions"
+                },
+                &format!("at most {MAX_NODES} nodes"),
+                format!("{nodes} nodes"),
+            );
+        }
+        let sensors = match (&self.sensors.per_cell, &self.sensors.positions) {
+            (Some(g), _) => g[0] as u64 * g[1] as u64 * nodes,
+            (_, Some(p)) => p.len() as u64,
+            _ => 0,
+        };
+        if sensors > MAX_SENSORS {
+            return bad(
+                if self.sensors.per_cell.is_some() {
+                    "sensors.per_cell"
+                } else {
+                    "sensors.positions"
+                },
+                &format!("at most {MAX_SENSORS} sensors in all"),
+                format!("{sensors} sensors"),
+            );
+        }
         if self.sensors.active_per_node == 0 {
             return bad("sensors.active_per_node", "at least 1", "0".into());
         }
@@ -659,6 +700,12 @@ mod tests {
     fn broken_files_name_the_key() {
         let cases: &[(&str, &str, &str)] = &[
             ("bits = 8", "bits = 0", "quantizer.bits"),
+            ("grid = [3, 3]", "grid = [1000, 1000]", "nodes.grid"),
+            (
+                "per_cell = [5, 5]",
+                "per_cell = [100, 100]",
+                "sensors.per_cell",
+            ),
             ("bits = 8", "bits = 40", "quantizer.bits"),
             ("bits = 8", "bits = \"eight\"", "bits"),
             (

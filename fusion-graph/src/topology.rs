@@ -28,6 +28,19 @@ pub struct MetropolisWeights {
 }
 
 impl Topology {
+    /// The actors `actor` can exchange messages with: a node's sensors,
+    /// fusion-graph neighbours and the launcher; a sensor's node and the
+    /// launcher; the launcher's everyone.
+    pub fn peers(&self, actor: ActorId) -> usize {
+        match actor {
+            ActorId::Node(n) => {
+                self.node_sensors[n as usize].len() + self.neighbours[n as usize].len() + 1
+            }
+            ActorId::Sensor(_) => 2,
+            ActorId::Launcher => self.nodes() + self.sensors(),
+        }
+    }
+
     /// Builds the topology and checks the fusion graph and the fault
     /// schedule's actor names against it.
     pub fn from_scenario(s: &Scenario, file: &str) -> Result<Self, ScenarioError> {

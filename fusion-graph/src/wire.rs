@@ -496,6 +496,97 @@ pub fn unpack_symmetric(p: &Packed) -> [[f64; 4]; 4] {
     m
 }
 
+/// One message of every kind, with plausible values: the seeds that tests
+/// and `cqnet fuzz` start from.
+pub fn examples() -> Vec<Message> {
+    let c = ConsensusValues {
+        delta_eta: [1.0, 2.0, 3.0, 4.0],
+        delta_lambda: [0.5; 10],
+        delta_l: [-0.25; 10],
+    };
+    let t = Telemetry {
+        estimate: [1.0; 4],
+        bound: Some(1.5),
+        local_bound: None,
+        aux_bound: Some(2.0),
+        rounds_completed: 10,
+        live_neighbours: 4,
+        observations: 3,
+        deadline_missed: false,
+        late_messages: 2,
+        stage_micros: [1, 2, 3, 4, 5],
+    };
+    vec![
+        Message::new(
+            ActorId::Launcher,
+            7,
+            0,
+            Payload::Tick {
+                truth: [1400.0, 1400.0, -6.4, -7.6],
+            },
+        ),
+        Message::new(
+            ActorId::Node(2),
+            7,
+            0,
+            Payload::Activate {
+                mask: BitMask::from_bytes(vec![0b101, 0, 0, 1]),
+            },
+        ),
+        Message::new(
+            ActorId::Sensor(117),
+            7,
+            0,
+            Payload::Observation { cell: 201 },
+        ),
+        Message::new(
+            ActorId::Sensor(3),
+            7,
+            0,
+            Payload::RawObservation { value: -1.25 },
+        ),
+        Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c)),
+        Message::new(
+            ActorId::Node(4),
+            7,
+            9,
+            Payload::ConsensusAux { s_obs: [3.0; 10] },
+        ),
+        Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Stop)),
+        Message::new(
+            ActorId::Launcher,
+            7,
+            0,
+            Payload::Control(Control::Membership {
+                alive: BitMask::from_bytes(vec![0xff, 1]),
+            }),
+        ),
+        Message::new(ActorId::Node(0), 7, 0, Payload::Telemetry(t)),
+        Message::new(
+            ActorId::Node(1),
+            7,
+            0,
+            Payload::StateTransfer(StateTransfer {
+                mean: [1.0; 4],
+                covariance: [2.0; 10],
+                information: [3.0; 10],
+                aux_information: [4.0; 10],
+            }),
+        ),
+        Message::new(
+            ActorId::Node(3),
+            7,
+            2,
+            Payload::MinConsensus(Proposal {
+                cost: 2.5,
+                node: 3,
+                sensor: 77,
+                information: [1e-4, -2e-5, 3e-4],
+            }),
+        ),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -506,98 +597,9 @@ mod tests {
         activation_bytes: 4,
     };
 
-    fn samples() -> Vec<Message> {
-        let c = ConsensusValues {
-            delta_eta: [1.0, 2.0, 3.0, 4.0],
-            delta_lambda: [0.5; 10],
-            delta_l: [-0.25; 10],
-        };
-        let t = Telemetry {
-            estimate: [1.0; 4],
-            bound: Some(1.5),
-            local_bound: None,
-            aux_bound: Some(2.0),
-            rounds_completed: 10,
-            live_neighbours: 4,
-            observations: 3,
-            deadline_missed: false,
-            late_messages: 2,
-            stage_micros: [1, 2, 3, 4, 5],
-        };
-        vec![
-            Message::new(
-                ActorId::Launcher,
-                7,
-                0,
-                Payload::Tick {
-                    truth: [1400.0, 1400.0, -6.4, -7.6],
-                },
-            ),
-            Message::new(
-                ActorId::Node(2),
-                7,
-                0,
-                Payload::Activate {
-                    mask: BitMask::from_bytes(vec![0b101, 0, 0, 1]),
-                },
-            ),
-            Message::new(
-                ActorId::Sensor(117),
-                7,
-                0,
-                Payload::Observation { cell: 201 },
-            ),
-            Message::new(
-                ActorId::Sensor(3),
-                7,
-                0,
-                Payload::RawObservation { value: -1.25 },
-            ),
-            Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c)),
-            Message::new(
-                ActorId::Node(4),
-                7,
-                9,
-                Payload::ConsensusAux { s_obs: [3.0; 10] },
-            ),
-            Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Stop)),
-            Message::new(
-                ActorId::Launcher,
-                7,
-                0,
-                Payload::Control(Control::Membership {
-                    alive: BitMask::from_bytes(vec![0xff, 1]),
-                }),
-            ),
-            Message::new(ActorId::Node(0), 7, 0, Payload::Telemetry(t)),
-            Message::new(
-                ActorId::Node(1),
-                7,
-                0,
-                Payload::StateTransfer(StateTransfer {
-                    mean: [1.0; 4],
-                    covariance: [2.0; 10],
-                    information: [3.0; 10],
-                    aux_information: [4.0; 10],
-                }),
-            ),
-            Message::new(
-                ActorId::Node(3),
-                7,
-                2,
-                Payload::MinConsensus(Proposal {
-                    cost: 2.5,
-                    node: 3,
-                    sensor: 77,
-                    information: [1e-4, -2e-5, 3e-4],
-                }),
-            ),
-        ]
-    }
-
     #[test]
     fn every_kind_round_trips_and_has_its_predicted_size() {
-        for m in samples() {
+        for m in examples() {
             let bytes = m.to_bytes(&FORMAT);
             assert_eq!(Message::decode(&bytes, &FORMAT).unwrap(), m);
             if let Some(n) = encoded_len(m.header.kind, &FORMAT) {
@@ -706,7 +708,7 @@ mod tests {
 
         #[test]
         fn corrupted_messages_never_panic(index in 0usize..11, flips in proptest::collection::vec((0usize..300, any::<u8>()), 1..6)) {
-            let mut bytes = samples()[index].to_bytes(&FORMAT);
+            let mut bytes = examples()[index].to_bytes(&FORMAT);
             for (at, v) in flips {
                 let n = bytes.len();
                 bytes[at % n] = v;

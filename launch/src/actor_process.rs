@@ -17,16 +17,6 @@ use crate::cli::{load_child_scenario, ActorArgs};
 use crate::drive::{run_pending_work, send_all};
 use crate::results::write_atomically;
 
-/// Byte counters are flushed to disk this often, so a killed actor loses at
-/// most this many steps of its own counts.
-const FLUSH_EVERY_STEPS: u32 = 10;
-
-/// Whether `actor` flushes its counters at `step`: staggered by actor, so
-/// that 234 processes do not write files in the same step, and done after
-/// the step's messages are out.
-fn flush_due(step: u32, actor_index: u16) -> bool {
-    step % FLUSH_EVERY_STEPS == actor_index as u32 % FLUSH_EVERY_STEPS
-}
 /// Longest sleep between checks that the launcher is still there. Sensors
 /// are not woken by ticks, only by their activation, so an idle sensor also
 /// drains its queues this often.
@@ -36,8 +26,10 @@ const IDLE_WAIT: Duration = Duration::from_millis(100);
 /// launcher's handling of a child that cannot start can be tested.
 pub const FAIL_AT_START_ENV: &str = "CQNET_FAIL_AT_START";
 
-pub fn accounting_path(out: &Path, actor: ActorId) -> PathBuf {
-    out.join("accounting").join(format!("{actor}.csv"))
+/// Where an actor keeps its byte counts: a ledger it updates on every send
+/// and receive, which the launcher reads (see `fusion_graph::ledger`).
+pub fn ledger_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.ledger"))
 }
 
 pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
@@ -70,13 +62,14 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
         .map(Path::to_path_buf)
         .unwrap_or_default();
     std::fs::create_dir_all(out.join("accounting"))?;
-    let transport = IceoryxTransport::new(
+    let mut transport = IceoryxTransport::new(
         &run,
         actor,
         &topology,
         scenario.wire_format(&topology),
         link_fault_seed(scenario.seed, actor),
     )?;
+    transport.keep_counts_in(&ledger_path(&out, actor))?;
     match actor {
         ActorId::Sensor(i) => {
             sensor_loop(&scenario, &topology, transport, i, &out, args.centralized)
@@ -95,34 +88,23 @@ fn launcher_gone() -> bool {
     nix::unistd::getppid() == nix::unistd::Pid::from_raw(1)
 }
 
-/// The last flush, on the launcher's Stop: byte counts and memory use.
-/// Memory is measured only here: reading `smaps_rollup` walks every mapping
-/// (about 0.3 ms), too much to do every few steps in 234 processes.
-fn final_flush<T: Transport>(transport: &T, out: &Path) -> anyhow::Result<()> {
+/// On the launcher's Stop: the memory used. Measured only here: reading
+/// `smaps_rollup` walks every mapping (about 0.3 ms), too much to do every
+/// few steps in 234 processes. (Byte counts need no last write: the ledger
+/// holds them as they happen.)
+fn write_memory(me: ActorId, out: &Path) -> anyhow::Result<()> {
     if let (Some(peak), Some(pss)) = (
         crate::results::peak_memory_kb(),
         crate::results::proportional_memory_kb(),
     ) {
-        write_atomically(
-            &memory_path(out, transport.me()),
-            format!("{peak} {pss}").as_bytes(),
-        )?;
+        write_atomically(&memory_path(out, me), format!("{peak} {pss}").as_bytes())?;
     }
-    flush_accounting(transport, out)
+    Ok(())
 }
 
 /// Where an actor writes `<peak RSS kB> <PSS kB>`.
 pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
     out.join("accounting").join(format!("{actor}.memory"))
-}
-
-/// Writes this actor's byte counts (every few steps, and at the end).
-fn flush_accounting<T: Transport>(transport: &T, out: &Path) -> anyhow::Result<()> {
-    let me = transport.me();
-    write_atomically(
-        &accounting_path(out, me),
-        transport.accounting().to_csv().as_bytes(),
-    )
 }
 
 fn sensor_loop<T: Transport>(
@@ -154,24 +136,19 @@ fn sensor_loop<T: Transport>(
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
-        let mut flush = false;
         for m in inbox.drain(..) {
             match m.payload {
-                Payload::Control(Control::Stop) => return final_flush(&t, out),
+                Payload::Control(Control::Stop) => return write_memory(t.me(), out),
                 Payload::Tick { .. } if m.header.step != step => {
                     step = m.header.step;
                     schedule.apply_link_faults(step, &mut t, topology);
                     t.update_connections();
-                    flush |= flush_due(step, index);
                 }
                 _ => {}
             }
             if let Some(obs) = actor.handle(&m) {
                 t.send(actor.publication(), &obs, &receivers)?;
             }
-        }
-        if flush {
-            flush_accounting(&t, out)?;
         }
         if launcher_gone() {
             return Ok(());
@@ -213,16 +190,14 @@ fn node_loop<T: Transport>(
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
-        let mut flush = false;
         for m in inbox.drain(..) {
             match (&m.payload, m.header.sender) {
                 (Payload::Control(Control::Stop), ActorId::Launcher) => {
-                    return final_flush(&t, out)
+                    return write_memory(t.me(), out)
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     schedule.apply_link_faults(m.header.step, &mut t, topology);
                     t.update_connections();
-                    flush |= flush_due(m.header.step, index);
                 }
                 _ => {}
             }
@@ -235,9 +210,6 @@ fn node_loop<T: Transport>(
         actor.handle_timeout(t.now(), &mut outgoing);
         run_pending_work(&mut actor, || t.now(), &mut outgoing);
         send_all(&mut t, &mut outgoing)?;
-        if flush {
-            flush_accounting(&t, out)?;
-        }
         if launcher_gone() {
             return Ok(());
         }

@@ -6,7 +6,9 @@ use std::sync::Arc;
 use anyhow::Context;
 use clap::Parser;
 
-use crate::cli::{builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, ViewArgs};
+use crate::cli::{
+    builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, FuzzArgs, SoakArgs, ViewArgs,
+};
 use crate::experiment::{self, Experiment};
 use crate::montecarlo::run_monte_carlo;
 use crate::network::RunProgress;
@@ -24,7 +26,10 @@ pub fn main() -> std::process::ExitCode {
         Command::Actor(a) => Some(a.actor.clone()),
         _ => None,
     };
-    init_logging(actor_name.as_deref());
+    // A fuzzing campaign makes millions of bad inputs on purpose: their
+    // warnings would bury its report.
+    let quiet = matches!(cli.command, Command::Fuzz(_));
+    init_logging(actor_name.as_deref(), quiet);
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -34,9 +39,9 @@ pub fn main() -> std::process::ExitCode {
     }
 }
 
-fn init_logging(actor: Option<&str>) {
+fn init_logging(actor: Option<&str>, quiet: bool) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(if quiet { "off" } else { "warn" }));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -169,9 +174,124 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::View(args) => view_finished_run(&args),
+        Command::Fuzz(args) => fuzz(&args),
+        Command::Soak(args) => soak(&args),
         Command::Actor(args) => crate::actor_process::run_actor(&args),
     }
     .context("cqnet")
+}
+
+/// `cqnet soak`: the scenario for `--steps` real-time steps with periodic
+/// kills, its footprint sampled throughout, and how each figure moved.
+fn soak(args: &SoakArgs) -> anyhow::Result<()> {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    let (mut scenario, topology) = load_scenario(&args.scenario)?;
+    scenario.steps = args.steps;
+    crate::soak::add_periodic_kills(&mut scenario, &topology, args.kill_every, args.down);
+    let topology = fusion_graph::Topology::from_scenario(&scenario, "soak")?;
+    let run_id = fusion_graph::transport::RunId::generate();
+    let step = Arc::new(AtomicU32::new(0));
+    let sampler = crate::soak::Sampler::start(
+        run_id.clone(),
+        step.clone(),
+        std::time::Duration::from_secs_f64(args.sample_every),
+    );
+    let progress = Progress::new("soak", "steps", args.steps as u64);
+    let options = crate::network::RunOptions {
+        out: args.out.clone(),
+        lockstep: false,
+        run_id,
+        centralized: false,
+        view: None,
+    };
+    let result = crate::network::run_network(&scenario, &topology, options, move |p| {
+        if let RunProgress::Step { step: s, rows } = p {
+            step.store(s, Ordering::Relaxed);
+            progress.set(s as u64, step_message(rows));
+        }
+    });
+    let samples = sampler.finish();
+    std::fs::create_dir_all(&args.out)?;
+    crate::soak::write_samples(&crate::soak::samples_path(&args.out), &samples)?;
+    let summary = result?;
+    print_table(&summary);
+    println!(
+        "{} samples, {} kills; how each figure moved (steps 10-20 % vs the last 10 %):",
+        samples.len(),
+        scenario.faults.len()
+    );
+    type Figure = fn(&crate::soak::Sample) -> f64;
+    let figures: [(&str, Figure); 4] = [
+        ("RSS, all processes (kB)", |s| s.rss_kb as f64),
+        ("open file descriptors", |s| s.fds as f64),
+        ("/dev/shm + iceoryx2 entries", |s| s.shm_entries as f64),
+        ("processes", |s| s.processes as f64),
+    ];
+    for (name, f) in figures {
+        match crate::soak::trend(&samples, args.steps, f) {
+            Some(t) => println!(
+                "  {name:<30} {:>12.0} -> {:>12.0}   slope {:>+10.1} per 1000 steps",
+                t.early, t.late, t.per_1000_steps
+            ),
+            None => println!("  {name:<30} too few samples"),
+        }
+    }
+    println!(
+        "samples in {}",
+        crate::soak::samples_path(&args.out).display()
+    );
+    Ok(())
+}
+
+/// `cqnet fuzz`: one campaign per target, a line each, and failure if any
+/// input panicked.
+fn fuzz(args: &FuzzArgs) -> anyhow::Result<()> {
+    use crate::fuzz::{Campaign, Target};
+    let targets = if args.targets.is_empty() {
+        Target::ALL.to_vec()
+    } else {
+        args.targets.clone()
+    };
+    let threads = args.threads.map_or_else(
+        || std::thread::available_parallelism().map_or(1, |n| n.get()),
+        usize::from,
+    );
+    let mut panics = 0;
+    for target in targets {
+        let progress = Progress::new(format!("fuzz {}", target.name()), "inputs", args.inputs);
+        let report = crate::fuzz::run(
+            &Campaign {
+                target,
+                inputs: args.inputs,
+                seed: args.seed,
+                threads,
+                corpus: Some(args.corpus.clone()),
+                save: true,
+            },
+            |done, _| progress.set(done, ""),
+        )?;
+        progress.finish();
+        println!(
+            "{:<9} {:>11} inputs in {:>7.1} s ({:>9.0}/s): {} panics, {} outcomes, corpus {}",
+            target.name(),
+            report.inputs,
+            report.seconds,
+            report.inputs_per_second(),
+            report.panics,
+            report.outcomes,
+            report.corpus_size
+        );
+        for (what, n) in &report.panic_kinds {
+            println!("    {n} × {what}");
+        }
+        panics += report.panics;
+    }
+    anyhow::ensure!(
+        panics == 0,
+        "{panics} inputs panicked; they are under {}/<target>/crashes",
+        args.corpus.display()
+    );
+    Ok(())
 }
 
 /// Serves the live view of a run about to start, and prints where.

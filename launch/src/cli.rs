@@ -29,6 +29,12 @@ pub enum Command {
     Experiment(ExperimentArgs),
     /// Replay a finished run in the live view's page.
     View(ViewArgs),
+    /// A long real-time run with periodic kills and restarts, sampling
+    /// memory, file descriptors and shared-memory entries (all must stay flat).
+    Soak(SoakArgs),
+    /// Throw generated inputs at everything that reads outside input (wire
+    /// bytes, scenario files, --set, messages a node handles) and count panics.
+    Fuzz(FuzzArgs),
     /// Remove the shared memory of runs whose launcher is gone (killed with
     /// SIGKILL, say); runs still going are left alone.
     Clean,
@@ -92,6 +98,47 @@ pub struct RunArgs {
     /// The view's port (0: any free port).
     #[arg(long, default_value_t = 0, requires = "view")]
     pub view_port: u16,
+}
+
+#[derive(Debug, Args)]
+pub struct SoakArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Steps to run (replaces the scenario's).
+    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(1..))]
+    pub steps: u32,
+    /// Every this many steps, SIGKILL the next node and a sensor.
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u32).range(1..))]
+    pub kill_every: u32,
+    /// Steps a killed actor stays down before its restart.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..))]
+    pub down: u32,
+    /// Seconds between samples.
+    #[arg(long, default_value_t = 5.0, value_parser = parse_speed)]
+    pub sample_every: f64,
+    /// Output folder (the run's results and soak.csv).
+    #[arg(long, default_value = "out/soak")]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct FuzzArgs {
+    /// Targets (all when none is given).
+    #[arg(long = "target", value_enum)]
+    pub targets: Vec<crate::fuzz::Target>,
+    /// Generated inputs per target.
+    #[arg(long, default_value_t = 10_000_000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub inputs: u64,
+    /// Seed of the generator (the same seed, threads and corpus make the same inputs).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Threads (default: one per core).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub threads: Option<u16>,
+    /// Corpus folder: seeds are read from `<DIR>/<target>/`; inputs with new
+    /// outcomes, and any that panic (under `crashes/`), are saved there.
+    #[arg(long, default_value = "fuzz/corpus")]
+    pub corpus: PathBuf,
 }
 
 #[derive(Debug, Args)]

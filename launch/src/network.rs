@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
+use fusion_graph::ledger::{read_ledger, LedgerError};
 use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
 use fusion_graph::transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
@@ -21,7 +22,7 @@ use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::CentralizedReference;
 use tokio::sync::mpsc::UnboundedSender;
 
-use crate::actor_process::{accounting_path, memory_path, stop_message};
+use crate::actor_process::{ledger_path, memory_path, stop_message};
 use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::sim::central_telemetry;
 use crate::summary::{AppliedFault, ChildrenMemory, Summary};
@@ -79,6 +80,14 @@ pub fn run_network(
         .map_err(|e| tracing::warn!(error = %e, "could not register the run for `cqnet clean`"))
         .ok();
     std::fs::create_dir_all(options.out.join("logs"))?;
+    // Ledgers continue what they find (a restarted actor's predecessor's
+    // counts): an earlier run's in the same directory must not be found.
+    match std::fs::remove_dir_all(options.out.join("accounting")) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).context("clearing the previous run's accounting");
+        }
+        _ => {}
+    }
     std::fs::create_dir_all(options.out.join("accounting"))?;
     let scenario_file = options.out.join("scenario.toml");
     write_atomically(&scenario_file, scenario.to_toml().as_bytes())?;
@@ -477,9 +486,12 @@ impl WorldState<'_> {
                     actor,
                     status,
                     stderr_tail,
-                }) => {
+                }) if waiting.contains(&actor) => {
                     bail!("{actor} exited ({status}) before it was ready; the end of its stderr:\n{stderr_tail}");
                 }
+                // Another actor died while a restarted one was starting: a
+                // fault of the run like any other, not a failed start.
+                Ok(e @ Event::Exited { .. }) => self.handle_event(e),
                 Ok(Event::Interrupted) => bail!("interrupted while starting"),
                 Ok(Event::AllReaped) => bail!("the supervisor stopped"),
                 Err(_) => {
@@ -500,24 +512,26 @@ impl WorldState<'_> {
     /// Handles exits and interrupts reported since the last call.
     fn poll_events(&mut self) {
         while let Ok(e) = self.events.try_recv() {
-            match e {
-                Event::Exited {
-                    actor,
-                    status,
-                    stderr_tail,
-                } if !self.expected_exits.contains(&actor) => {
-                    self.unexpected_exits.push(format!("{actor} exited unexpectedly ({status}); its stderr ended with:\n{stderr_tail}"));
-                    self.crashed.push((actor, self.step, status));
-                    self.dead.insert(actor);
-                    match actor {
-                        ActorId::Node(i) => self.alive[i as usize] = false,
-                        ActorId::Sensor(i) => self.sensors_alive[i as usize] = false,
-                        ActorId::Launcher => {}
-                    }
-                }
-                Event::Interrupted => self.interrupted = true,
-                _ => {}
+            self.handle_event(e);
+        }
+    }
+
+    fn handle_event(&mut self, e: Event) {
+        match e {
+            Event::Exited {
+                actor,
+                status,
+                stderr_tail,
+            } if !self.expected_exits.contains(&actor) => {
+                self.unexpected_exits.push(format!(
+                    "{actor} exited unexpectedly ({status}); its stderr ended with:\n{stderr_tail}"
+                ));
+                self.crashed.push((actor, self.step, status));
+                self.dead.insert(actor);
+                self.set_alive(actor, false);
             }
+            Event::Interrupted => self.interrupted = true,
+            _ => {}
         }
     }
 
@@ -591,8 +605,7 @@ fn publish_late_rows(view: Option<&Hub>, rows: &[TickRow], step: u32) {
 }
 
 /// The live view's once-a-second look at the link traffic: each node's
-/// byte counters as last flushed to `out/accounting`, over the steps run by
-/// the time it flushed them (the file's modification time).
+/// ledger as it stands, over the steps run so far.
 pub fn traffic_poller(
     hub: Arc<Hub>,
     topology: Topology,
@@ -600,21 +613,13 @@ pub fn traffic_poller(
 ) -> crate::view::server::Poll {
     Box::new(move || {
         let mut accounting = Accounting::default();
-        let mut covered = vec![1.0; topology.nodes()];
         for n in 0..topology.nodes() as u16 {
-            let path = accounting_path(&out, ActorId::Node(n));
-            let Some(acc) = std::fs::read_to_string(&path)
-                .ok()
-                .and_then(|t| Accounting::from_csv(&t))
-            else {
-                continue;
-            };
-            if let Ok(written) = std::fs::metadata(&path).and_then(|m| m.modified()) {
-                covered[n as usize] = hub.steps_by(written) as f64;
+            if let Ok(acc) = read_ledger(&ledger_path(&out, ActorId::Node(n))) {
+                accounting.merge(&acc);
             }
-            accounting.merge(&acc);
         }
-        let bytes_per_step = link_bytes_per_step(&topology, &accounting, |n| covered[n as usize]);
+        let steps = hub.latest_step().max(1) as f64;
+        let bytes_per_step = link_bytes_per_step(&topology, &accounting, |_| steps);
         if bytes_per_step.iter().any(|b| *b > 0.0) {
             hub.publish(&ViewEvent::Traffic {
                 step: hub.latest_step(),
@@ -638,15 +643,18 @@ fn children_memory(out: &Path, topology: &Topology) -> Option<ChildrenMemory> {
     })
 }
 
-/// Every actor's byte counts (as last flushed) plus the launcher's own.
+/// Every actor's byte counts, from the ledgers they leave (whatever ended
+/// them), plus the launcher's own. An actor that never started has none; a
+/// ledger that cannot be read is said, not silently dropped.
 fn merge_accounting(out: &Path, topology: &Topology, launcher: &Accounting) -> Accounting {
     let mut total = launcher.clone();
     for a in topology.actors() {
-        if let Some(acc) = std::fs::read_to_string(accounting_path(out, a))
-            .ok()
-            .and_then(|t| Accounting::from_csv(&t))
-        {
-            total.merge(&acc);
+        let path = ledger_path(out, a);
+        match read_ledger(&path) {
+            Ok(acc) => total.merge(&acc),
+            Err(LedgerError::Io { source, .. })
+                if source.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => tracing::warn!(actor = %a, error = %e, "byte counts lost"),
         }
     }
     total

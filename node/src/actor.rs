@@ -123,6 +123,8 @@ pub struct NodeActor {
     /// posterior a neighbour offers instead of starting from the prior.
     needs_state: bool,
     last_step: Option<u32>,
+    /// The scenario's last step: a step beyond it is not of this run.
+    steps: u32,
     late_messages: u64,
     /// `late_messages` as of the last telemetry.
     late_reported: u64,
@@ -195,6 +197,7 @@ impl NodeActor {
             deadline_missed: false,
             needs_state: false,
             last_step: None,
+            steps: scenario.steps,
             late_messages: 0,
             late_reported: 0,
             selection_time: Duration::ZERO,
@@ -429,6 +432,13 @@ impl NodeActor {
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
+        // Only a later step of this run moves the node on. A repeated, past
+        // or impossible step (a corrupted or forged message) is dropped:
+        // coasting to step 4·10⁹ would hang the node for good.
+        if step == 0 || step > self.steps || self.last_step.is_some_and(|l| step <= l) {
+            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+            return;
+        }
         // Missed steps (a lost BeginStep, or SIGSTOP and SIGCONT): the filters
         // and bounds coast through them so that they are at the right time.
         if let Some(last) = self.last_step {
@@ -706,11 +716,17 @@ impl NodeActor {
                 information: pack_matrix(self.fusion.information()),
                 aux_information: self.fusion.aux_information().map_or([0.0; 10], pack_matrix),
             };
+            // Every neighbour's queue gets it (it is our channel), so it is
+            // counted as sent to each; only the returned are woken for it.
             out.push(Outgoing {
                 channel: Channel::Consensus(self.index),
                 message: Message::new(self.id(), step, 0, Payload::StateTransfer(state)),
-                receivers: returned,
-                wake: None,
+                receivers: self
+                    .neighbours()
+                    .iter()
+                    .map(|m| ActorId::Node(*m))
+                    .collect(),
+                wake: Some(returned),
             });
         }
     }
@@ -938,11 +954,48 @@ mod tests {
         assert_eq!((t.rounds_completed, t.live_neighbours), (6, 1));
         assert!(net.report(2, 1).is_none(), "node 2 was not started");
         assert_eq!(net.now, Duration::ZERO, "no one waited for node 2");
-        // Nothing was sent to node 2.
-        assert!(net
+        // Node 2 was woken for nothing, though every message on node 1's
+        // channel reaches its queue and is counted so.
+        let node1 = net
             .sent
             .iter()
-            .all(|o| !o.receivers.contains(&ActorId::Node(2))));
+            .filter(|o| o.channel == Channel::Consensus(1))
+            .collect::<Vec<_>>();
+        assert!(!node1.is_empty());
+        assert!(node1.iter().all(|o| o.receivers.contains(&ActorId::Node(2))
+            && !o.wake.as_ref().unwrap().contains(&ActorId::Node(2))));
+    }
+
+    /// A BeginStep the launcher could not have sent (past, repeated, or
+    /// beyond the run's last step) changes nothing: the fuzzer found that
+    /// step 4·10⁹ made a node coast through four billion steps.
+    #[test]
+    fn an_impossible_begin_step_is_dropped() {
+        let mut net = Net::line();
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        let last = net.scenario.steps;
+        for step in [0, 1, last + 1] {
+            net.begin_step(step, &ALL);
+            net.run(LONG);
+        }
+        let steps_run = |net: &Net| {
+            let mut s: Vec<u32> = net
+                .telemetry
+                .iter()
+                .filter(|t| t.0 == 1)
+                .map(|t| t.1)
+                .collect();
+            s.dedup();
+            s
+        };
+        assert_eq!(steps_run(&net), vec![1]);
+        // Before the check, this one never returned.
+        net.begin_step(u32::MAX, &ALL);
+        net.run(LONG);
+        net.begin_step(2, &ALL);
+        net.run(LONG);
+        assert_eq!(steps_run(&net), vec![1, 2]);
     }
 
     #[test]
@@ -967,7 +1020,7 @@ mod tests {
             net.sent
                 .iter()
                 .any(|o| matches!(o.message.payload, Payload::StateTransfer(_))
-                    && o.receivers == vec![ActorId::Node(2)]),
+                    && o.wake == Some(vec![ActorId::Node(2)])),
             "node 1 offers its posterior"
         );
         net.begin_step(8, &ALL);

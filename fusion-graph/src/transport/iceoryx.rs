@@ -19,9 +19,10 @@ use iceoryx2::prelude::*;
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
+use crate::ledger::Ledger;
 use crate::shaper::LinkShaper;
 use crate::topology::Topology;
-use crate::wire::{Message, WireFormat, HEADER_BYTES};
+use crate::wire::{Message, MessageKind, WireFormat, HEADER_BYTES};
 use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 /// Where iceoryx2 keeps its files besides `/dev/shm`.
@@ -355,6 +356,20 @@ impl IceoryxTransport {
 
     pub fn run(&self) -> &RunId {
         &self.run
+    }
+
+    /// Mirrors every count into the ledger at `path` from now on, continuing
+    /// what an earlier incarnation of this actor left there, so that a
+    /// SIGKILL loses nothing counted (see [`crate::ledger`]). Call it before
+    /// the first message.
+    pub fn keep_counts_in(&mut self, path: &std::path::Path) -> Result<(), SetupError> {
+        // Every (from, to, kind) the actor can count: each peer, both ways,
+        // every kind and the malformed.
+        let kinds = (0..=u8::MAX).filter_map(MessageKind::from_u8).count() + 1;
+        let capacity = self.topology.peers(self.me) * 2 * kinds;
+        let ledger = Ledger::open_or_create(path, capacity).map_err(|e| setup("ledger", e))?;
+        self.accounting = Accounting::backed_by(ledger);
+        Ok(())
     }
 }
 

@@ -156,8 +156,10 @@ pub struct Outbound<'a> {
 }
 
 impl Outbound<'_> {
-    /// Encodes `message`, hands the bytes to `publish`, and counts them
-    /// once per receiver when `publish` succeeds.
+    /// Encodes `message`, counts it once per receiver, and hands the bytes
+    /// to `publish`. Counted first: an actor killed in between has sent
+    /// what no one receives, which is a loss, never a receipt of something
+    /// unsent. A failed publish takes the count back.
     pub fn send(
         &mut self,
         channel: Channel,
@@ -173,13 +175,17 @@ impl Outbound<'_> {
         }
         self.buffer.clear();
         message.encode(self.format, self.buffer);
-        publish(self.buffer).map_err(|source| SendError::Backend {
-            channel: channel.service_suffix(),
-            source,
-        })?;
+        let (kind, len) = (message.header.kind, self.buffer.len());
         self.accounting
-            .record_sent_to(self.me, receivers, message.header.kind, self.buffer.len());
-        Ok(())
+            .record_sent_to(self.me, receivers, kind, len);
+        publish(self.buffer).map_err(|source| {
+            self.accounting
+                .unrecord_sent_to(self.me, receivers, kind, len);
+            SendError::Backend {
+                channel: channel.service_suffix(),
+                source,
+            }
+        })
     }
 }
 

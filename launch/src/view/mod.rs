@@ -14,7 +14,6 @@ pub mod server;
 use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::SystemTime;
 
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::{ActorId, Scenario, Topology};
@@ -201,9 +200,6 @@ const LIVE_BACKLOG: usize = 4096;
 pub struct Hub {
     inner: Mutex<HubInner>,
     latest_step: AtomicU32,
-    /// When each step's event was published, to tell which steps a file
-    /// written at some moment covers.
-    step_times: Mutex<Vec<SystemTime>>,
 }
 
 struct HubInner {
@@ -219,7 +215,6 @@ impl Default for Hub {
                 live: broadcast::channel(LIVE_BACKLOG).0,
             }),
             latest_step: AtomicU32::new(0),
-            step_times: Mutex::new(Vec::new()),
         }
     }
 }
@@ -228,10 +223,6 @@ impl Hub {
     pub fn publish(&self, event: &ViewEvent) {
         if let ViewEvent::Step { step, .. } = event {
             self.latest_step.fetch_max(*step, Ordering::Relaxed);
-            self.step_times
-                .lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .push(SystemTime::now());
         }
         let json: Arc<str> = serde_json::to_string(event)
             .expect("view events serialize")
@@ -252,12 +243,6 @@ impl Hub {
     /// The latest step published.
     pub fn latest_step(&self) -> u32 {
         self.latest_step.load(Ordering::Relaxed)
-    }
-
-    /// Steps whose event was published by `time`, plus the one then running.
-    pub fn steps_by(&self, time: SystemTime) -> u32 {
-        let times = self.step_times.lock().unwrap_or_else(|p| p.into_inner());
-        times.iter().filter(|t| **t <= time).count() as u32 + 1
     }
 
     pub fn len(&self) -> usize {

@@ -103,7 +103,11 @@ mod tests {
         }
         while let Some(o) = queue.pop() {
             for to in o.receivers {
+                // Outside the view is dead or across a partition: never handled.
                 let ActorId::Node(n) = to else { continue };
+                if !view[n as usize] {
+                    continue;
+                }
                 let mut out = Vec::new();
                 nodes[n as usize].handle(&o.message, Duration::ZERO, &mut out);
                 queue.extend(out);

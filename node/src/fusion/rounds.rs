@@ -196,7 +196,14 @@ impl<R: RoundRule> RoundEngine<R> {
     }
 
     fn send_round(&self, r: &Running<R::Value>, out: &mut Vec<Outgoing>) {
-        let receivers: Vec<ActorId> = self.live_neighbours(&r.view).map(ActorId::Node).collect();
+        // Published on our channel, the message reaches every neighbour's
+        // queue, the ones outside our view (dead, or across a partition) too,
+        // so it is counted as sent to all of them; only the live are woken.
+        let receivers: Vec<ActorId> = self.topology.neighbours[self.node as usize]
+            .iter()
+            .map(|m| ActorId::Node(*m))
+            .collect();
+        let wake: Vec<ActorId> = self.live_neighbours(&r.view).map(ActorId::Node).collect();
         let mut payloads = Vec::with_capacity(2);
         self.rule.payloads(&r.value, &mut payloads);
         for payload in payloads {
@@ -209,7 +216,7 @@ impl<R: RoundRule> RoundEngine<R> {
                     payload,
                 ),
                 receivers: receivers.clone(),
-                wake: None,
+                wake: Some(wake.clone()),
             });
         }
     }
