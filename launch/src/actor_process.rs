@@ -37,7 +37,7 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL)
         .context("prctl(PR_SET_PDEATHSIG)")?;
     // Ctrl-C in a terminal reaches the whole process group: leave it to the
-    // launcher, which stops every actor in order (their byte counts flushed).
+    // launcher, which stops every actor in order.
     // SAFETY: ignoring a signal installs no handler code.
     unsafe {
         nix::sys::signal::signal(

@@ -70,6 +70,9 @@ fn partition_run_checks() {
         "{counters:?}"
     );
     assert_eq!(counters.received_bytes, counters.received_messages * 203);
+    // node-1 left node-2 out of its consensus during the cut, but its
+    // messages still reached node-2's queue, and they are counted as sent.
+    assert_eq!(counters.sent_messages, 30 * 10, "{counters:?}");
 
     // The run counts the partition's cost, and the estimate recovers after it.
     assert_eq!(run.faults().len(), 1);

@@ -59,8 +59,8 @@ pub enum ViewEvent {
     /// Node reports, as they arrive (a late one still lands on its step).
     Estimates { step: u32, rows: Vec<NodeEstimate> },
     /// Bytes per step on each fusion-graph link, both directions, every
-    /// message kind, from the actors' own counters: each actor's count as
-    /// last flushed (every few steps, staggered) over the steps it covers.
+    /// message kind, from the actors' own ledgers as they stand, over the
+    /// steps run so far.
     Traffic { step: u32, bytes_per_step: Vec<f64> },
     /// A fault the schedule did not contain: an actor that died on its own.
     Fault(AppliedFault),
