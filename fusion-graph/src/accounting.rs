@@ -91,10 +91,15 @@ impl Accounting {
     }
 
     pub fn record_sent(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
-        let c = self.entry(from, to, kind);
-        c.sent_messages += 1;
-        c.sent_bytes += bytes as u64;
-        self.mirror((from, to, kind), Pair::Sent, 1, bytes);
+        self.add_sent((from, to, kind), 1, bytes);
+    }
+
+    /// `messages` (±1) of `bytes` each, sent on one link.
+    fn add_sent(&mut self, key: LinkKey, messages: i64, bytes: usize) {
+        let c = self.links.entry(key).or_default();
+        c.sent_messages = c.sent_messages.wrapping_add_signed(messages);
+        c.sent_bytes = c.sent_bytes.wrapping_add_signed(messages * bytes as i64);
+        self.mirror(key, Pair::Sent, messages, bytes);
     }
 
     /// Takes back [`record_sent_to`](Self::record_sent_to) for a message
@@ -107,10 +112,7 @@ impl Accounting {
         bytes: usize,
     ) {
         for to in receivers {
-            let c = self.entry(from, *to, kind);
-            c.sent_messages -= 1;
-            c.sent_bytes -= bytes as u64;
-            self.mirror((from, *to, kind), Pair::Sent, -1, bytes);
+            self.add_sent((from, *to, kind), -1, bytes);
         }
     }
 

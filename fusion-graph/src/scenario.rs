@@ -413,38 +413,29 @@ impl Scenario {
         // Indices are u16 on the wire, and every actor is a process: a
         // network past these is refused here, before its topology is built
         // (a 1000 × 1000 grid once took the machine's memory doing so).
-        let nodes = match (&self.nodes.grid, &self.nodes.positions) {
-            (Some(g), _) => g[0] as u64 * g[1] as u64,
-            (_, Some(p)) => p.len() as u64,
-            _ => 0,
+        let at_most = |key: &str, count: u64, max: u64, what: &str| {
+            if count > max {
+                bad(
+                    key,
+                    &format!("at most {max} {what}"),
+                    format!("{count} {what}"),
+                )
+            } else {
+                Ok(())
+            }
         };
-        if nodes > MAX_NODES {
-            return bad(
-                if self.nodes.grid.is_some() {
-                    "nodes.grid"
-                } else {
-                    "nodes.positions"
-                },
-                &format!("at most {MAX_NODES} nodes"),
-                format!("{nodes} nodes"),
-            );
-        }
-        let sensors = match (&self.sensors.per_cell, &self.sensors.positions) {
-            (Some(g), _) => g[0] as u64 * g[1] as u64 * nodes,
-            (_, Some(p)) => p.len() as u64,
-            _ => 0,
+        let (nodes, nodes_key) = match (&self.nodes.grid, &self.nodes.positions) {
+            (Some(g), _) => (g[0] as u64 * g[1] as u64, "nodes.grid"),
+            (_, Some(p)) => (p.len() as u64, "nodes.positions"),
+            _ => (0, "nodes"),
         };
-        if sensors > MAX_SENSORS {
-            return bad(
-                if self.sensors.per_cell.is_some() {
-                    "sensors.per_cell"
-                } else {
-                    "sensors.positions"
-                },
-                &format!("at most {MAX_SENSORS} sensors in all"),
-                format!("{sensors} sensors"),
-            );
-        }
+        at_most(nodes_key, nodes, MAX_NODES, "nodes")?;
+        let (sensors, sensors_key) = match (&self.sensors.per_cell, &self.sensors.positions) {
+            (Some(g), _) => (g[0] as u64 * g[1] as u64 * nodes, "sensors.per_cell"),
+            (_, Some(p)) => (p.len() as u64, "sensors.positions"),
+            _ => (0, "sensors"),
+        };
+        at_most(sensors_key, sensors, MAX_SENSORS, "sensors")?;
         if self.sensors.active_per_node == 0 {
             return bad("sensors.active_per_node", "at least 1", "0".into());
         }
