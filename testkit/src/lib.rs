@@ -8,9 +8,10 @@
 //! let _one_network_at_a_time = exclusive();
 //! let mut scenario = default_scenario();
 //! scenario.steps = 20;
+//! scenario.sensors.per_cell = Some([2, 2]); // 9 nodes, 36 sensors: 46 processes
 //! let run = Network::new(scenario)
 //!     .lockstep()
-//!     // Generous timeouts: 235 processes on a busy machine can be slow, and
+//!     // Generous timeouts: many processes on a busy machine can be slow, and
 //!     // a round that times out sends fewer bytes.
 //!     .set("consensus.round_timeout_ms", 20000)
 //!     .set("clock.step_timeout_ms", 60000)
