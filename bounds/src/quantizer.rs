@@ -232,6 +232,16 @@ impl Quantizer {
         }
     }
 
+    /// Width of cell `index`; 0 for an unbounded end cell.
+    pub fn cell_width(&self, index: u32) -> f64 {
+        let w = self.edges[index as usize + 1] - self.edges[index as usize];
+        if w.is_finite() {
+            w
+        } else {
+            0.0
+        }
+    }
+
     /// Standardized edges of cell `index` shifted by `shift` periods.
     #[inline]
     fn standardized(&self, index: usize, shift: f64, mean: f64, sigma: f64) -> (f64, f64) {

@@ -18,9 +18,18 @@ pub struct Counters {
     /// Dropped by an injected link fault (loss, partition).
     pub dropped_messages: u64,
     pub dropped_bytes: u64,
-    /// Failed to decode and were discarded.
+    /// Failed to decode and were discarded. Counted under the kind that was
+    /// sent when an injected `corrupt` fault knows it, else under
+    /// [`MessageKind::Malformed`].
     pub malformed_messages: u64,
     pub malformed_bytes: u64,
+    /// Extra copies made by an injected `duplicate` fault; each is also
+    /// counted received (or malformed), so a link balances as
+    /// sent + duplicated = received + dropped + malformed + unaccounted.
+    #[serde(default)]
+    pub duplicated_messages: u64,
+    #[serde(default)]
+    pub duplicated_bytes: u64,
 }
 
 impl Counters {
@@ -33,6 +42,21 @@ impl Counters {
         self.dropped_bytes += o.dropped_bytes;
         self.malformed_messages += o.malformed_messages;
         self.malformed_bytes += o.malformed_bytes;
+        self.duplicated_messages += o.duplicated_messages;
+        self.duplicated_bytes += o.duplicated_bytes;
+    }
+
+    /// Sent (and duplicated in transit) but neither received, dropped by a
+    /// fault nor rejected as malformed: lost to a full queue or a receiver
+    /// that died, or still held by a delay when the run ended. Bytes whose
+    /// kind could not be read ([`MessageKind::Malformed`]) have no sent
+    /// count to balance, so they are left out.
+    pub fn unaccounted_messages(&self, kind: MessageKind) -> i64 {
+        if kind == MessageKind::Malformed {
+            return 0;
+        }
+        (self.sent_messages + self.duplicated_messages) as i64
+            - (self.received_messages + self.dropped_messages + self.malformed_messages) as i64
     }
 }
 
@@ -144,16 +168,21 @@ impl Accounting {
         self.mirror((from, to, kind), Pair::Dropped, 1, bytes);
     }
 
-    pub fn record_malformed(&mut self, from: ActorId, to: ActorId, bytes: usize) {
-        let c = self.entry(from, to, MessageKind::Malformed);
+    /// A message that did not decode, under the kind it was sent as when
+    /// that is known, else [`MessageKind::Malformed`].
+    pub fn record_malformed(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+        let c = self.entry(from, to, kind);
         c.malformed_messages += 1;
         c.malformed_bytes += bytes as u64;
-        self.mirror(
-            (from, to, MessageKind::Malformed),
-            Pair::Malformed,
-            1,
-            bytes,
-        );
+        self.mirror((from, to, kind), Pair::Malformed, 1, bytes);
+    }
+
+    /// A second copy of a message, made by a `duplicate` fault.
+    pub fn record_duplicated(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+        let c = self.entry(from, to, kind);
+        c.duplicated_messages += 1;
+        c.duplicated_bytes += bytes as u64;
+        self.mirror((from, to, kind), Pair::Duplicated, 1, bytes);
     }
 
     /// Adds `other`'s counts (in memory only: merging is the reader's work).
@@ -189,10 +218,10 @@ impl Accounting {
 
     /// `links.csv` rows, header first.
     pub fn to_csv(&self) -> String {
-        let mut s = String::from("from,to,kind,sent_messages,sent_bytes,received_messages,received_bytes,dropped_messages,dropped_bytes,malformed_messages,malformed_bytes\n");
+        let mut s = String::from("from,to,kind,sent_messages,sent_bytes,received_messages,received_bytes,dropped_messages,dropped_bytes,malformed_messages,malformed_bytes,duplicated_messages,duplicated_bytes\n");
         for ((from, to, kind), c) in &self.links {
             s.push_str(&format!(
-                "{from},{to},{},{},{},{},{},{},{},{},{}\n",
+                "{from},{to},{},{},{},{},{},{},{},{},{},{},{}\n",
                 kind.name(),
                 c.sent_messages,
                 c.sent_bytes,
@@ -201,7 +230,9 @@ impl Accounting {
                 c.dropped_messages,
                 c.dropped_bytes,
                 c.malformed_messages,
-                c.malformed_bytes
+                c.malformed_bytes,
+                c.duplicated_messages,
+                c.duplicated_bytes
             ));
         }
         s
@@ -212,7 +243,8 @@ impl Accounting {
         let mut a = Accounting::default();
         for line in text.lines().skip(1).filter(|l| !l.is_empty()) {
             let f: Vec<&str> = line.split(',').collect();
-            if f.len() != 11 {
+            // 11 columns before duplicates were counted.
+            if f.len() != 11 && f.len() != 13 {
                 return None;
             }
             // Every kind byte, so that a kind added later is read back too
@@ -233,6 +265,8 @@ impl Accounting {
                 dropped_bytes: n[5],
                 malformed_messages: n[6],
                 malformed_bytes: n[7],
+                duplicated_messages: n.get(8).copied().unwrap_or(0),
+                duplicated_bytes: n.get(9).copied().unwrap_or(0),
             };
             a.links
                 .entry((f[0].parse().ok()?, f[1].parse().ok()?, kind))
@@ -272,7 +306,8 @@ mod tests {
             MessageKind::Consensus,
             203,
         );
-        a.record_malformed(ActorId::Node(0), ActorId::Node(1), 17);
+        a.record_malformed(ActorId::Node(0), ActorId::Node(1), MessageKind::Malformed, 17);
+        a.record_duplicated(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 203);
         a.record_sent(
             ActorId::Node(1),
             ActorId::Node(2),

@@ -5,8 +5,8 @@
 use std::time::Duration;
 
 use crate::actor::ActorId;
-use crate::scenario::{Fault, LinkSelector, Signal};
-use crate::shaper::LinkRule;
+use crate::scenario::{Fault, LinkSelector, SensorMode, Signal};
+use crate::shaper::{GilbertElliott, LinkRule};
 use crate::topology::Topology;
 use crate::transport::Transport;
 
@@ -37,10 +37,56 @@ fn matches(sel: &str, actor: ActorId) -> bool {
     sel == "*" || sel.parse::<ActorId>().is_ok_and(|a| a == actor)
 }
 
-fn link_matches(links: &[LinkSelector], from: ActorId, to: ActorId) -> bool {
-    links
-        .iter()
-        .any(|l| matches(&l.from, from) && matches(&l.to, to))
+/// A number in [0, 1) fixed by its inputs: every process that evaluates
+/// the schedule picks the same share of links or sensors (SplitMix64).
+fn unit_hash(words: &[u64]) -> f64 {
+    let mut h = 0x9E37_79B9_7F4A_7C15u64;
+    for w in words {
+        h ^= *w;
+        h = h.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = h;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        h = z ^ (z >> 31);
+    }
+    (h >> 11) as f64 / (1u64 << 53) as f64
+}
+
+fn actor_word(a: ActorId) -> u64 {
+    let (kind, index) = a.to_wire();
+    (kind as u64) << 16 | index as u64
+}
+
+/// Whether a fraction `fraction` of what a selector matches takes in this
+/// one; `salt` tells the faults (and selectors) apart.
+fn in_share(fraction: Option<f64>, salt: &[u64]) -> bool {
+    fraction.is_none_or(|f| f >= 1.0 || unit_hash(salt) < f)
+}
+
+fn link_matches(links: &[LinkSelector], fault: usize, from: ActorId, to: ActorId) -> bool {
+    links.iter().enumerate().any(|(j, l)| {
+        matches(&l.from, from)
+            && matches(&l.to, to)
+            && in_share(
+                l.fraction,
+                &[fault as u64, j as u64, actor_word(from), actor_word(to)],
+            )
+    })
+}
+
+/// What a faulty sensor does this step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SensorFault {
+    Stuck,
+    Bias(f64),
+    Dropout,
+    /// Reports the phantom target at this offset from the true one.
+    Byzantine([f64; 2]),
+}
+
+/// Combines independent probabilities of the same event.
+fn either(a: f64, b: f64) -> f64 {
+    1.0 - (1.0 - a) * (1.0 - b)
 }
 
 impl FaultSchedule {
@@ -57,35 +103,101 @@ impl FaultSchedule {
     /// The rule on the link `from → to` at `step` (clear when no fault holds).
     pub fn link_rule(&self, step: u32, from: ActorId, to: ActorId) -> LinkRule {
         let mut rule = LinkRule::default();
-        for f in &self.faults {
-            let on = active(f.at_step(), f.end_step(), step);
+        for (i, f) in self.faults.iter().enumerate() {
+            if !active(f.at_step(), f.end_step(), step) {
+                continue;
+            }
+            if let Fault::Partition { groups, .. } = f {
+                let group_of =
+                    |a: ActorId| groups.iter().position(|g| g.iter().any(|n| matches(n, a)));
+                if let (Some(a), Some(b)) = (group_of(from), group_of(to)) {
+                    rule.blocked |= a != b;
+                }
+                continue;
+            }
+            if !f.links().is_some_and(|l| link_matches(l, i, from, to)) {
+                continue;
+            }
             match f {
                 Fault::Delay {
-                    links,
                     latency_ms,
                     jitter_ms,
                     ..
-                } if on && link_matches(links, from, to) => {
+                } => {
                     rule.latency = rule.latency.max(Duration::from_secs_f64(latency_ms / 1e3));
                     rule.jitter = rule.jitter.max(Duration::from_secs_f64(jitter_ms / 1e3));
                 }
-                Fault::Loss {
-                    links, probability, ..
-                } if on && link_matches(links, from, to) => {
-                    // Independent losses compose.
-                    rule.loss = 1.0 - (1.0 - rule.loss) * (1.0 - probability);
+                Fault::Loss { probability, .. } => rule.loss = either(rule.loss, *probability),
+                Fault::Duplicate { probability, .. } => {
+                    rule.duplicate = either(rule.duplicate, *probability)
                 }
-                Fault::Partition { groups, .. } if on => {
-                    let group_of =
-                        |a: ActorId| groups.iter().position(|g| g.iter().any(|n| matches(n, a)));
-                    if let (Some(a), Some(b)) = (group_of(from), group_of(to)) {
-                        rule.blocked |= a != b;
-                    }
+                Fault::Corrupt { probability, .. } => {
+                    rule.corrupt = either(rule.corrupt, *probability)
                 }
-                _ => {}
+                Fault::Reorder {
+                    probability,
+                    delay_ms,
+                    ..
+                } => {
+                    rule.reorder = either(rule.reorder, *probability);
+                    rule.reorder_delay = rule
+                        .reorder_delay
+                        .max(Duration::from_secs_f64(delay_ms / 1e3));
+                }
+                Fault::BurstLoss {
+                    enter_bad,
+                    leave_bad,
+                    loss_good,
+                    loss_bad,
+                    ..
+                } => {
+                    // One chain per link: the later fault's, if two overlap.
+                    rule.burst = Some(GilbertElliott {
+                        enter_bad: *enter_bad,
+                        leave_bad: *leave_bad,
+                        loss_good: *loss_good,
+                        loss_bad: *loss_bad,
+                    });
+                }
+                Fault::Partition { .. } | Fault::Kill { .. } | Fault::Sensor { .. } => {}
             }
         }
         rule
+    }
+
+    /// What sensor `sensor` does instead of measuring honestly at `step`,
+    /// if a fault holds it (the first that does, in schedule order).
+    pub fn sensor_fault(&self, step: u32, sensor: u16) -> Option<SensorFault> {
+        let me = ActorId::Sensor(sensor);
+        self.faults.iter().enumerate().find_map(|(i, f)| {
+            let Fault::Sensor {
+                sensors,
+                mode,
+                fraction,
+                bias,
+                phantom,
+                ..
+            } = f
+            else {
+                return None;
+            };
+            let chosen = active(f.at_step(), f.end_step(), step)
+                && sensors.iter().any(|s| matches(s, me))
+                && in_share(*fraction, &[i as u64, actor_word(me)]);
+            chosen.then(|| match mode {
+                SensorMode::Stuck => SensorFault::Stuck,
+                SensorMode::Bias => SensorFault::Bias(bias.unwrap_or(0.0)),
+                SensorMode::Dropout => SensorFault::Dropout,
+                SensorMode::Byzantine => SensorFault::Byzantine(phantom.unwrap_or([0.0, 0.0])),
+            })
+        })
+    }
+
+    /// Whether any fault acts on links (so receivers must set rules).
+    fn has_link_faults(&self) -> bool {
+        self.faults
+            .iter()
+            .any(|f| f.links().is_some() || matches!(f, Fault::Partition { .. }))
     }
 
     /// Every non-clear rule on `to`'s incoming links at `step`, over the
@@ -96,7 +208,7 @@ impl FaultSchedule {
         to: ActorId,
         topology: &Topology,
     ) -> Vec<(ActorId, LinkRule)> {
-        if !self.faults.iter().any(|f| !matches!(f, Fault::Kill { .. })) {
+        if !self.has_link_faults() {
             return Vec::new();
         }
         std::iter::once(ActorId::Launcher)
@@ -114,7 +226,7 @@ impl FaultSchedule {
         transport: &mut T,
         topology: &Topology,
     ) {
-        if self.faults.iter().all(|f| matches!(f, Fault::Kill { .. })) {
+        if !self.has_link_faults() {
             return;
         }
         let rules = self.incoming_rules(step, transport.me(), topology);
@@ -263,5 +375,36 @@ mod tests {
             }]
         );
         assert!(f.process_events(21).is_empty());
+    }
+
+    #[test]
+    fn a_fraction_picks_the_same_share_of_links_every_time() {
+        let (f, t) = schedule("[[faults]]\nkind = \"duplicate\"\nlinks = [{ from = \"*\", to = \"*\", fraction = 0.25 }]\nat_step = 2\nprobability = 0.5\n");
+        let links: Vec<(ActorId, ActorId)> = t
+            .actors()
+            .flat_map(|a| t.actors().map(move |b| (a, b)))
+            .filter(|(a, b)| a != b)
+            .collect();
+        let hit = |step| {
+            links
+                .iter()
+                .filter(|(a, b)| f.link_rule(step, *a, *b).duplicate > 0.0)
+                .count()
+        };
+        let share = hit(2) as f64 / links.len() as f64;
+        assert!((share - 0.25).abs() < 0.02, "{share}");
+        assert_eq!(hit(2), hit(3), "the same links each step");
+        assert_eq!(hit(1), 0);
+    }
+
+    #[test]
+    fn sensor_faults_name_their_sensors_and_window() {
+        let (f, _) = schedule("[[faults]]\nkind = \"sensor\"\nsensors = [\"*\"]\nfraction = 0.2\nmode = \"byzantine\"\nphantom = [300.0, 0.0]\nat_step = 5\nduration = 10\n\n[[faults]]\nkind = \"sensor\"\nsensors = [\"sensor-7\"]\nmode = \"stuck\"\nat_step = 1\n");
+        let byzantine = (0..225u16)
+            .filter(|s| matches!(f.sensor_fault(5, *s), Some(SensorFault::Byzantine(p)) if p == [300.0, 0.0]))
+            .count();
+        assert!((30..=60).contains(&byzantine), "{byzantine} of 225");
+        assert!((0..225u16).all(|s| f.sensor_fault(15, s).is_none() || s == 7));
+        assert_eq!(f.sensor_fault(15, 7), Some(SensorFault::Stuck));
     }
 }

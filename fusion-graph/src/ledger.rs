@@ -17,10 +17,10 @@
 //! | 1 | capacity (slots) |
 //! | 2 | slots in use |
 //! | 3 | journal: slot + 1 of the update in progress, 0 when none |
-//! | 4 | journal: which counter pair (0 sent, 1 received, 2 dropped, 3 malformed) |
+//! | 4 | journal: which counter pair (0 sent, 1 received, 2 dropped, 3 malformed, 4 duplicated) |
 //! | 5, 6 | journal: that pair's messages and bytes before the update |
 //! | 7 | reserved |
-//! | 8 + 9·i | slot i: its key, then the eight [`Counters`] fields |
+//! | 8 + 11·i | slot i: its key, then the ten [`Counters`] fields |
 //!
 //! Slots are handed out densely in first-use order, so a file touches only
 //! as many pages as the actor has links.
@@ -36,9 +36,10 @@ use crate::accounting::{Accounting, Counters, LinkKey};
 use crate::actor::ActorId;
 use crate::wire::MessageKind;
 
-const MAGIC: u64 = u64::from_le_bytes(*b"CQLEDG01");
+const MAGIC: u64 = u64::from_le_bytes(*b"CQLEDG02");
 const HEADER_WORDS: usize = 8;
-const SLOT_WORDS: usize = 9;
+const SLOT_WORDS: usize = 11;
+const PAIRS: usize = 5;
 const CAPACITY: usize = 1;
 const USED: usize = 2;
 const JOURNAL_SLOT: usize = 3;
@@ -53,6 +54,7 @@ pub enum Pair {
     Received = 1,
     Dropped = 2,
     Malformed = 3,
+    Duplicated = 4,
 }
 
 /// What went wrong opening or reading a ledger.
@@ -257,7 +259,7 @@ fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
     let journal = words[JOURNAL_SLOT] as usize;
     if journal != 0 {
         let pair = words[JOURNAL_PAIR] as usize;
-        if journal > used || pair > 3 {
+        if journal > used || pair >= PAIRS {
             return Err(damaged("its journal names no slot"));
         }
         slots[journal - 1][1 + 2 * pair] = words[JOURNAL_MESSAGES];
@@ -279,6 +281,8 @@ fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
                 dropped_bytes: s[6],
                 malformed_messages: s[7],
                 malformed_bytes: s[8],
+                duplicated_messages: s[9],
+                duplicated_bytes: s[10],
             },
         );
     }

@@ -50,6 +50,8 @@ pub enum WireError {
     Truncated,
     #[error("wire format version {got}, expected {expected}", expected = wire::WIRE_VERSION)]
     Version { got: u8 },
+    #[error("checksum {carried:#06x} does not match the message's {computed:#06x}: corrupted in transit")]
+    Checksum { carried: u16, computed: u16 },
     #[error("unknown message kind {kind}")]
     UnknownKind { kind: u8 },
     #[error("unknown sender kind {kind}")]

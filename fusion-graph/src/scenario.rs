@@ -149,6 +149,10 @@ pub struct QuantizerConfig {
 pub struct FilterConfig {
     pub particles: u32,
     pub prior_std: [f64; 4],
+    /// The innovation gate's threshold on ν²/S (a χ²₁ quantile, 10.83 for
+    /// 1 in 1000); absent: every observation is used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gate: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -198,11 +202,40 @@ impl Default for ReferenceConfig {
 }
 
 /// A directed link selector; `"*"` on either side matches every actor.
+/// `fraction` (default 1) takes that share of the links matched, chosen by
+/// a hash of the fault and the link, so every process picks the same ones.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LinkSelector {
     pub from: String,
     pub to: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fraction: Option<f64>,
+}
+
+impl LinkSelector {
+    pub fn new(from: impl Into<String>, to: impl Into<String>) -> Self {
+        Self {
+            from: from.into(),
+            to: to.into(),
+            fraction: None,
+        }
+    }
+}
+
+/// What a faulty sensor does instead of measuring honestly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorMode {
+    /// Repeats the cell it sent last before the fault.
+    Stuck,
+    /// Adds `bias` (the observation's unit: radians for bearings) before quantizing.
+    Bias,
+    /// Sends nothing.
+    Dropout,
+    /// Sends the cells of a phantom target displaced by `phantom` metres:
+    /// consistent, plausible and false.
+    Byzantine,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -245,6 +278,64 @@ pub enum Fault {
         signal: Signal,
         restart_after: Option<u32>,
     },
+    /// Each message arrives twice with `probability` (netem's `duplicate`).
+    Duplicate {
+        links: Vec<LinkSelector>,
+        at_step: u32,
+        duration: Option<u32>,
+        probability: f64,
+    },
+    /// Each message is held back `delay_ms` with `probability`, so that
+    /// messages sent after it overtake it (netem's `reorder`).
+    Reorder {
+        links: Vec<LinkSelector>,
+        at_step: u32,
+        duration: Option<u32>,
+        probability: f64,
+        delay_ms: f64,
+    },
+    /// One random bit of each message flipped with `probability` (netem's
+    /// `corrupt`); the header's checksum catches it.
+    Corrupt {
+        links: Vec<LinkSelector>,
+        at_step: u32,
+        duration: Option<u32>,
+        probability: f64,
+    },
+    /// Gilbert–Elliott burst loss: per link a two-state chain, stepped once
+    /// per message, that enters the bad state with `enter_bad` and leaves it
+    /// with `leave_bad`; a message is lost with `loss_good` or `loss_bad`.
+    BurstLoss {
+        links: Vec<LinkSelector>,
+        at_step: u32,
+        duration: Option<u32>,
+        enter_bad: f64,
+        leave_bad: f64,
+        #[serde(default)]
+        loss_good: f64,
+        #[serde(default = "certain")]
+        loss_bad: f64,
+    },
+    /// Sensors that misbehave: `sensors` names them (or `"*"`), `fraction`
+    /// takes a share of those named.
+    Sensor {
+        sensors: Vec<String>,
+        at_step: u32,
+        duration: Option<u32>,
+        mode: SensorMode,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        fraction: Option<f64>,
+        /// `bias`: what is added to each measurement.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        bias: Option<f64>,
+        /// `byzantine`: where the phantom target is, relative to the true one, metres.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        phantom: Option<[f64; 2]>,
+    },
+}
+
+fn certain() -> f64 {
+    1.0
 }
 
 impl Fault {
@@ -253,7 +344,12 @@ impl Fault {
             Fault::Delay { at_step, .. }
             | Fault::Loss { at_step, .. }
             | Fault::Partition { at_step, .. }
-            | Fault::Kill { at_step, .. } => *at_step,
+            | Fault::Kill { at_step, .. }
+            | Fault::Duplicate { at_step, .. }
+            | Fault::Reorder { at_step, .. }
+            | Fault::Corrupt { at_step, .. }
+            | Fault::BurstLoss { at_step, .. }
+            | Fault::Sensor { at_step, .. } => *at_step,
         }
     }
 
@@ -268,6 +364,21 @@ impl Fault {
             }
             | Fault::Partition {
                 at_step, duration, ..
+            }
+            | Fault::Duplicate {
+                at_step, duration, ..
+            }
+            | Fault::Reorder {
+                at_step, duration, ..
+            }
+            | Fault::Corrupt {
+                at_step, duration, ..
+            }
+            | Fault::BurstLoss {
+                at_step, duration, ..
+            }
+            | Fault::Sensor {
+                at_step, duration, ..
             } => duration.map(|d| at_step + d),
             Fault::Kill {
                 at_step,
@@ -277,18 +388,49 @@ impl Fault {
         }
     }
 
+    /// The links a link fault applies to (`None` for other faults).
+    pub fn links(&self) -> Option<&[LinkSelector]> {
+        match self {
+            Fault::Delay { links, .. }
+            | Fault::Loss { links, .. }
+            | Fault::Duplicate { links, .. }
+            | Fault::Reorder { links, .. }
+            | Fault::Corrupt { links, .. }
+            | Fault::BurstLoss { links, .. } => Some(links),
+            Fault::Partition { .. } | Fault::Kill { .. } | Fault::Sensor { .. } => None,
+        }
+    }
+
+    /// The key, under `faults[i]`, that names the fault's actors.
+    pub fn actors_key(&self) -> &'static str {
+        match self {
+            Fault::Kill { .. } => "actor",
+            Fault::Partition { .. } => "groups",
+            Fault::Sensor { .. } => "sensors",
+            _ => "links",
+        }
+    }
+
     /// Every actor name the fault refers to (wildcards excluded).
     pub fn actor_names(&self) -> Vec<&str> {
-        match self {
-            Fault::Delay { links, .. } | Fault::Loss { links, .. } => links
+        if let Some(links) = self.links() {
+            return links
                 .iter()
                 .flat_map(|l| [l.from.as_str(), l.to.as_str()])
                 .filter(|n| *n != "*")
-                .collect(),
+                .collect();
+        }
+        match self {
             Fault::Partition { groups, .. } => {
                 groups.iter().flatten().map(String::as_str).collect()
             }
             Fault::Kill { actor, .. } => vec![actor.as_str()],
+            Fault::Sensor { sensors, .. } => sensors
+                .iter()
+                .map(String::as_str)
+                .filter(|n| *n != "*")
+                .collect(),
+            _ => Vec::new(),
         }
     }
 }
@@ -474,6 +616,9 @@ impl Scenario {
             "consensus.round_timeout_ms",
             self.consensus.round_timeout_ms,
         )?;
+        if let Some(g) = self.filter.gate {
+            positive("filter.gate", g)?;
+        }
         positive("clock.step_period_ms", self.clock.step_period_ms)?;
         positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
         for (i, f) in self.faults.iter().enumerate() {
@@ -485,27 +630,83 @@ impl Scenario {
                     f.at_step().to_string(),
                 );
             }
+            let probability = |k: &str, p: f64| {
+                if (0.0..=1.0).contains(&p) {
+                    Ok(())
+                } else {
+                    bad(&key(k), "a probability in [0, 1]", p.to_string())
+                }
+            };
+            if let Some(links) = f.links() {
+                non_empty(file, &key("links"), links.len())?;
+                for (j, l) in links.iter().enumerate() {
+                    if let Some(p) = l.fraction {
+                        probability(&format!("links[{j}].fraction"), p)?;
+                    }
+                }
+            }
             match f {
                 Fault::Delay {
-                    links,
                     latency_ms,
                     jitter_ms,
                     ..
                 } => {
-                    non_empty(file, &key("links"), links.len())?;
                     non_negative(&key("latency_ms"), *latency_ms)?;
                     non_negative(&key("jitter_ms"), *jitter_ms)?;
                 }
-                Fault::Loss {
-                    links, probability, ..
+                Fault::Loss { probability: p, .. }
+                | Fault::Duplicate { probability: p, .. }
+                | Fault::Corrupt { probability: p, .. } => probability("probability", *p)?,
+                Fault::Reorder {
+                    probability: p,
+                    delay_ms,
+                    ..
                 } => {
-                    non_empty(file, &key("links"), links.len())?;
-                    if !(0.0..=1.0).contains(probability) {
-                        return bad(
-                            &key("probability"),
-                            "a probability in [0, 1]",
-                            probability.to_string(),
-                        );
+                    probability("probability", *p)?;
+                    positive(&key("delay_ms"), *delay_ms)?;
+                }
+                Fault::BurstLoss {
+                    enter_bad,
+                    leave_bad,
+                    loss_good,
+                    loss_bad,
+                    ..
+                } => {
+                    probability("enter_bad", *enter_bad)?;
+                    probability("leave_bad", *leave_bad)?;
+                    probability("loss_good", *loss_good)?;
+                    probability("loss_bad", *loss_bad)?;
+                }
+                Fault::Sensor {
+                    sensors,
+                    mode,
+                    fraction,
+                    bias,
+                    phantom,
+                    ..
+                } => {
+                    non_empty(file, &key("sensors"), sensors.len())?;
+                    if let Some(p) = fraction {
+                        probability("fraction", *p)?;
+                    }
+                    match (mode, bias, phantom) {
+                        (SensorMode::Bias, None, _) => {
+                            return bad(&key("bias"), "a bias for mode \"bias\"", "none".into())
+                        }
+                        (SensorMode::Bias, Some(b), _) if !b.is_finite() => {
+                            return bad(&key("bias"), "a finite number", b.to_string())
+                        }
+                        (SensorMode::Byzantine, _, None) => {
+                            return bad(
+                                &key("phantom"),
+                                "the phantom's offset [dx, dy] for mode \"byzantine\"",
+                                "none".into(),
+                            )
+                        }
+                        (SensorMode::Byzantine, _, Some(p)) if !p.iter().all(|v| v.is_finite()) => {
+                            return bad(&key("phantom"), "finite numbers", format!("{p:?}"))
+                        }
+                        _ => {}
                     }
                 }
                 Fault::Partition { groups, .. } => {
@@ -523,19 +724,7 @@ impl Scenario {
                     }
                 }
             }
-            if matches!(
-                f,
-                Fault::Delay {
-                    duration: Some(0),
-                    ..
-                } | Fault::Loss {
-                    duration: Some(0),
-                    ..
-                } | Fault::Partition {
-                    duration: Some(0),
-                    ..
-                }
-            ) {
+            if !matches!(f, Fault::Kill { .. }) && f.end_step() == Some(f.at_step()) {
                 return bad(&key("duration"), "at least 1 step", "0".into());
             }
         }

@@ -95,24 +95,27 @@ impl Topology {
         }
         for (i, f) in s.faults.iter().enumerate() {
             for name in f.actor_names() {
-                let ok = name
-                    .parse::<ActorId>()
-                    .ok()
-                    .is_some_and(|a| topology.contains(a) && a != ActorId::Launcher);
+                let sensors_only = matches!(f, Fault::Sensor { .. });
+                let ok = name.parse::<ActorId>().ok().is_some_and(|a| {
+                    topology.contains(a)
+                        && a != ActorId::Launcher
+                        && (!sensors_only || matches!(a, ActorId::Sensor(_)))
+                });
                 if !ok {
-                    let key = match f {
-                        Fault::Kill { .. } => "actor",
-                        Fault::Partition { .. } => "groups",
-                        _ => "links",
+                    let key = f.actors_key();
+                    let expected = if sensors_only {
+                        format!("a sensor of this network (sensor-0..sensor-{})", topology.sensors() - 1)
+                    } else {
+                        format!(
+                            "an actor of this network (node-0..node-{}, sensor-0..sensor-{})",
+                            topology.nodes() - 1,
+                            topology.sensors() - 1
+                        )
                     };
                     return Err(ScenarioError::Invalid {
                         file: file.into(),
                         key: format!("faults[{i}].{key}"),
-                        expected: format!(
-                            "an actor of this network (node-0..node-{}, sensor-0..sensor-{})",
-                            topology.nodes() - 1,
-                            topology.sensors() - 1
-                        ),
+                        expected,
                         got: name.to_string(),
                     });
                 }

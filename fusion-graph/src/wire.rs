@@ -2,9 +2,14 @@
 //! fixed-width little-endian integers so a message's size depends only on its
 //! kind (and the scenario), never on its values.
 //!
-//! Decoding trusts nothing: a wrong version, an unknown kind or sender, a
-//! wrong length or a non-finite number is a typed [`WireError`], and random
-//! bytes never panic.
+//! Decoding trusts nothing: a wrong version or checksum, an unknown kind or
+//! sender, a wrong length or a non-finite number is a typed [`WireError`],
+//! and random bytes never panic.
+//!
+//! The header's CRC-16 covers the whole message: shared memory does not flip
+//! bits, but a link between hosts, or the `corrupt` fault, can, and a
+//! flipped bit in a cell index or a consensus value would otherwise be
+//! believed.
 
 use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
@@ -13,9 +18,11 @@ use crate::actor::ActorId;
 use crate::WireError;
 
 /// Bumped whenever the encoding changes.
-pub const WIRE_VERSION: u8 = 1;
+pub const WIRE_VERSION: u8 = 2;
 /// Encoded size of [`Header`].
-pub const HEADER_BYTES: usize = 11;
+pub const HEADER_BYTES: usize = 13;
+/// Where the checksum sits in the header.
+const CHECKSUM_AT: std::ops::Range<usize> = 11..13;
 /// No message is larger than this; it bounds every allocation in decoding.
 pub const MAX_MESSAGE_BYTES: usize = 1024;
 
@@ -98,6 +105,8 @@ struct WireHeader {
     sender_index: u16,
     step: u32,
     round: u16,
+    /// CRC-16 of the whole message with these two bytes zero.
+    checksum: u16,
 }
 
 /// The header every message carries.
@@ -170,6 +179,8 @@ pub struct Telemetry {
     pub rounds_completed: u16,
     pub live_neighbours: u16,
     pub observations: u16,
+    /// Observations the innovation gate left out.
+    pub gated: u16,
     pub deadline_missed: bool,
     /// Messages that arrived after their round or step had passed, since the last telemetry.
     pub late_messages: u32,
@@ -294,6 +305,12 @@ impl Message {
 
     /// Appends the encoded message to `out`.
     pub fn encode(&self, format: &WireFormat, out: &mut Vec<u8>) {
+        let start = out.len();
+        self.encode_unsealed(format, out);
+        seal(&mut out[start..]);
+    }
+
+    fn encode_unsealed(&self, format: &WireFormat, out: &mut Vec<u8>) {
         let (sender_kind, sender_index) = self.header.sender.to_wire();
         let h = WireHeader {
             version: WIRE_VERSION,
@@ -302,6 +319,7 @@ impl Message {
             sender_index,
             step: self.header.step,
             round: self.header.round,
+            checksum: 0,
         };
         put(&h, out);
         match &self.payload {
@@ -340,6 +358,13 @@ impl Message {
             bincode::serde::decode_from_slice(bytes, config()).map_err(|_| WireError::Truncated)?;
         if h.version != WIRE_VERSION {
             return Err(WireError::Version { got: h.version });
+        }
+        let computed = checksum(bytes);
+        if computed != h.checksum {
+            return Err(WireError::Checksum {
+                carried: h.checksum,
+                computed,
+            });
         }
         let kind = MessageKind::from_u8(h.kind).ok_or(WireError::UnknownKind { kind: h.kind })?;
         let sender =
@@ -436,6 +461,56 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
     )
 }
 
+/// CRC-16/CCITT-FALSE (polynomial 0x1021, initial value 0xFFFF): it detects
+/// every error of one, two or an odd number of bits, and every burst of up
+/// to 16, in messages as short as ours.
+const CRC_TABLE: [u16; 256] = {
+    let mut table = [0u16; 256];
+    let mut i = 0;
+    while i < 256 {
+        let mut crc = (i as u16) << 8;
+        let mut bit = 0;
+        while bit < 8 {
+            crc = if crc & 0x8000 != 0 {
+                (crc << 1) ^ 0x1021
+            } else {
+                crc << 1
+            };
+            bit += 1;
+        }
+        table[i] = crc;
+        i += 1;
+    }
+    table
+};
+
+fn crc16(mut crc: u16, bytes: &[u8]) -> u16 {
+    for b in bytes {
+        crc = (crc << 8) ^ CRC_TABLE[((crc >> 8) as u8 ^ b) as usize];
+    }
+    crc
+}
+
+/// The checksum of an encoded message, its own two bytes read as zero.
+/// A message shorter than a header has none (decoding rejects it anyway).
+fn checksum(message: &[u8]) -> u16 {
+    if message.len() < HEADER_BYTES {
+        return 0;
+    }
+    let crc = crc16(0xFFFF, &message[..CHECKSUM_AT.start]);
+    let crc = crc16(crc, &[0, 0]);
+    crc16(crc, &message[CHECKSUM_AT.end..])
+}
+
+/// Writes the checksum into an encoded message. Fuzzers use it too, so that
+/// a mutated message gets past the checksum to the code behind it.
+pub fn seal(message: &mut [u8]) {
+    if message.len() >= HEADER_BYTES {
+        let crc = checksum(message);
+        message[CHECKSUM_AT].copy_from_slice(&crc.to_le_bytes());
+    }
+}
+
 fn put<T: Serialize>(v: &T, out: &mut Vec<u8>) {
     bincode::serde::encode_into_std_write(v, out, config()).expect("writing to a Vec cannot fail");
 }
@@ -512,6 +587,7 @@ pub fn examples() -> Vec<Message> {
         rounds_completed: 10,
         live_neighbours: 4,
         observations: 3,
+        gated: 1,
         deadline_missed: false,
         late_messages: 2,
         stage_micros: [1, 2, 3, 4, 5],
@@ -626,8 +702,32 @@ mod tests {
             Message::new(ActorId::Sensor(1), 1, 0, Payload::Observation { cell: 200 })
                 .to_bytes(&FORMAT)
                 .len(),
-            12
+            14
         );
+    }
+
+    #[test]
+    fn the_checksum_is_crc16_ccitt_false() {
+        // The catalogue's check value for this CRC.
+        assert_eq!(crc16(0xFFFF, b"123456789"), 0x29B1);
+    }
+
+    #[test]
+    fn every_single_bit_flip_is_caught_by_the_checksum() {
+        for m in examples() {
+            let good = m.to_bytes(&FORMAT);
+            for bit in 0..good.len() * 8 {
+                let mut b = good.clone();
+                b[bit / 8] ^= 1 << (bit % 8);
+                let got = Message::decode(&b, &FORMAT);
+                // A flip in the version byte is caught there first.
+                assert!(
+                    matches!(got, Err(WireError::Checksum { .. } | WireError::Version { .. })),
+                    "{:?}, bit {bit}: {got:?}",
+                    m.header.kind
+                );
+            }
+        }
     }
 
     #[test]
@@ -639,13 +739,14 @@ mod tests {
             Message::decode(&b, &FORMAT),
             Err(WireError::Version { got: 9 })
         );
+        // Past the checksum (resealed), what is wrong is named.
         let b = tick.to_bytes(&FORMAT);
-        assert_eq!(
-            Message::decode(&b[..b.len() - 1], &FORMAT),
-            Err(WireError::Truncated)
-        );
+        let mut short = b[..b.len() - 1].to_vec();
+        seal(&mut short);
+        assert_eq!(Message::decode(&short, &FORMAT), Err(WireError::Truncated));
         let mut long = b.clone();
         long.push(0);
+        seal(&mut long);
         assert!(matches!(
             Message::decode(&long, &FORMAT),
             Err(WireError::TrailingBytes { .. })
@@ -667,6 +768,12 @@ mod tests {
                 cell_bytes: 2,
                 activation_bytes: 4,
             });
+        let mut unsealed = obs.clone();
+        unsealed[12] ^= 0x40;
+        assert!(matches!(
+            Message::decode(&unsealed, &FORMAT),
+            Err(WireError::Checksum { .. })
+        ));
         assert!(matches!(
             Message::decode(&obs, &FORMAT),
             Err(WireError::Length {
@@ -707,12 +814,14 @@ mod tests {
         }
 
         #[test]
-        fn corrupted_messages_never_panic(index in 0usize..11, flips in proptest::collection::vec((0usize..300, any::<u8>()), 1..6)) {
+        fn corrupted_messages_never_panic(index in 0usize..examples().len(), flips in proptest::collection::vec((0usize..300, any::<u8>()), 1..6)) {
             let mut bytes = examples()[index].to_bytes(&FORMAT);
             for (at, v) in flips {
                 let n = bytes.len();
                 bytes[at % n] = v;
             }
+            let _ = Message::decode(&bytes, &FORMAT);
+            seal(&mut bytes);
             let _ = Message::decode(&bytes, &FORMAT);
         }
     }

@@ -27,7 +27,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO};
-use fusion_graph::wire::{examples, Message, WireFormat};
+use fusion_graph::wire::{examples, seal, Message, WireFormat};
 use fusion_graph::Topology;
 use node::NodeActor;
 use rand::{Rng, SeedableRng};
@@ -377,12 +377,18 @@ const INTERESTING: &[&str] = &[
 fn exercise(target: Target, input: &[u8], actors: &mut Option<Actors>) -> String {
     match target {
         Target::Wire => {
+            // As it came, and resealed: almost every mutation breaks the
+            // checksum, and the decoding behind it must be reached too.
+            let mut sealed = input.to_vec();
+            seal(&mut sealed);
             let mut outcome = String::new();
-            for format in FORMATS {
-                outcome.push_str(&match Message::decode(input, &format) {
-                    Ok(m) => format!("{:?};", m.header.kind),
-                    Err(e) => format!("{};", shape(&e.to_string())),
-                });
+            for bytes in [input, &sealed[..]] {
+                for format in FORMATS {
+                    outcome.push_str(&match Message::decode(bytes, &format) {
+                        Ok(m) => format!("{:?};", m.header.kind),
+                        Err(e) => format!("{};", shape(&e.to_string())),
+                    });
+                }
             }
             outcome
         }
@@ -487,7 +493,10 @@ impl Actors {
     }
 
     fn handle(&mut self, input: &[u8]) -> String {
-        let Ok(message) = Message::decode(input, &FORMATS[0]) else {
+        // Sealed, so that the actors see the mutations, not checksum errors.
+        let mut sealed = input.to_vec();
+        seal(&mut sealed);
+        let Ok(message) = Message::decode(&sealed, &FORMATS[0]) else {
             return "undecodable".into();
         };
         self.now += Duration::from_millis(7);

@@ -585,11 +585,7 @@ impl WorldState<'_> {
 }
 
 fn crash_fault(actor: ActorId, step: u32, status: &str) -> AppliedFault {
-    AppliedFault {
-        step,
-        until_step: None,
-        fault: format!("{actor} died unexpectedly ({status})"),
-    }
+    AppliedFault::new(step, None, format!("{actor} died unexpectedly ({status})"))
 }
 
 /// Reports of earlier steps that arrived late go to the view at once.

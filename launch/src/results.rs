@@ -264,6 +264,40 @@ pub struct Estimates {
     pub mean_centralized_bound: Option<f64>,
 }
 
+/// The root mean square of the per-step RMSEs of steps `from..to` (steps
+/// with no report left out); `None` if there are none.
+pub fn window_rmse(means: &[StepMeans], from: u32, to: u32) -> Option<f64> {
+    let squares: Vec<f64> = means
+        .iter()
+        .filter(|m| (from..to).contains(&m.step))
+        .filter_map(|m| m.rmse.map(|r| r * r))
+        .collect();
+    (!squares.is_empty()).then(|| (squares.iter().sum::<f64>() / squares.len() as f64).sqrt())
+}
+
+/// Steps from `end` until `recovered(step, rmse)` holds for `hold` steps
+/// running; `None` if the run ends first.
+pub fn steps_to_recover(
+    means: &[StepMeans],
+    end: u32,
+    hold: u32,
+    recovered: impl Fn(u32, f64) -> bool,
+) -> Option<u32> {
+    let mut run_start = None;
+    for m in means.iter().filter(|m| m.step >= end) {
+        match m.rmse {
+            Some(r) if recovered(m.step, r) => {
+                let start = *run_start.get_or_insert(m.step);
+                if m.step + 1 - start >= hold {
+                    return Some(start - end);
+                }
+            }
+            _ => run_start = None,
+        }
+    }
+    None
+}
+
 /// Bytes sent per message kind, in total and per step.
 #[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Traffic {
@@ -273,9 +307,10 @@ pub struct Traffic {
     pub bytes_per_step: f64,
     pub dropped_messages: u64,
     pub malformed_messages: u64,
-    /// Sent but neither received, dropped by an injected fault nor rejected as
-    /// malformed: lost to a full subscriber queue or to a receiver that died
-    /// (whose counts since its last flush are gone with it).
+    /// Extra copies an injected `duplicate` fault made.
+    #[serde(default)]
+    pub duplicated_messages: u64,
+    /// See [`Counters::unaccounted_messages`](fusion_graph::accounting::Counters::unaccounted_messages).
     pub unaccounted_messages: i64,
 }
 
@@ -299,8 +334,8 @@ pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraff
             bytes_per_step: c.sent_bytes as f64 / steps.max(1) as f64,
             dropped_messages: c.dropped_messages,
             malformed_messages: c.malformed_messages,
-            unaccounted_messages: c.sent_messages as i64
-                - (c.received_messages + c.dropped_messages) as i64,
+            duplicated_messages: c.duplicated_messages,
+            unaccounted_messages: c.unaccounted_messages(*k),
         })
         .collect();
     let consensus = kinds
@@ -370,6 +405,8 @@ pub struct Recorder<'w> {
     round_latency: Vec<f64>,
     /// Which nodes reported each step: a node's row counts once.
     reported: std::collections::BTreeMap<u32, std::collections::BTreeSet<u16>>,
+    /// Per-step errors, for what each fault did to tracking.
+    series: StepSeries,
 }
 
 impl<'w> Recorder<'w> {
@@ -387,6 +424,7 @@ impl<'w> Recorder<'w> {
             cost: Default::default(),
             round_latency: Vec::new(),
             reported: Default::default(),
+            series: StepSeries::default(),
         }
     }
 
@@ -411,6 +449,7 @@ impl<'w> Recorder<'w> {
                 let t = &r.telemetry;
                 self.stages.add(t.stage_micros);
                 self.cost.late_messages += t.late_messages as u64;
+                self.cost.gated_observations += t.gated as u64;
                 if t.rounds_completed > 1 {
                     // Rounds 2..N_c: every neighbour is exchanging by then.
                     self.round_latency
@@ -421,6 +460,7 @@ impl<'w> Recorder<'w> {
                 }
             }
             self.averages.add(&r);
+            self.series.add(&r);
             kept.push(r);
         }
         self.writer.write_ticks(&kept)
@@ -441,7 +481,18 @@ impl<'w> Recorder<'w> {
             .values()
             .map(|c| c.dropped_messages)
             .sum();
+        self.cost.duplicated_messages = accounting
+            .by_kind()
+            .values()
+            .map(|c| c.duplicated_messages)
+            .sum();
+        self.cost.corrupted_messages = accounting
+            .iter()
+            .filter(|((_, _, kind), _)| *kind != MessageKind::Malformed)
+            .map(|(_, c)| c.malformed_messages)
+            .sum();
         let (traffic, bound_traffic) = traffic(accounting, facts.steps_done.max(1));
+        let means = self.series.means();
         let summary = crate::summary::Summary {
             command: facts.command,
             run_id: facts.run_id,
@@ -457,6 +508,10 @@ impl<'w> Recorder<'w> {
                 .iter()
                 .map(crate::summary::AppliedFault::from_fault)
                 .chain(facts.unscheduled_faults)
+                .map(|mut f| {
+                    f.measure(&means);
+                    f
+                })
                 .collect(),
             fault_cost: self.cost,
             wall_seconds: facts.wall_seconds,

@@ -11,38 +11,132 @@ pub struct AppliedFault {
     pub step: u32,
     pub until_step: Option<u32>,
     pub fault: String,
+    /// What it did to tracking: the nodes' position RMSE, metres, over the
+    /// [`BEFORE_STEPS`] steps before it, while it held, and from its end on.
+    #[serde(default)]
+    pub rmse_before: Option<f64>,
+    #[serde(default)]
+    pub rmse_during: Option<f64>,
+    #[serde(default)]
+    pub rmse_after: Option<f64>,
+    /// Steps from its end until the step's RMSE is back within
+    /// [`RECOVERY_FACTOR`] of `rmse_before` for [`RECOVERY_HOLD`] steps
+    /// running; `None` if it never ends or never recovers.
+    #[serde(default)]
+    pub recovered_after: Option<u32>,
 }
 
+/// The window before a fault its RMSE is compared with.
+pub const BEFORE_STEPS: u32 = 10;
+/// Recovered: within this factor of the reference RMSE…
+pub const RECOVERY_FACTOR: f64 = 2.0;
+/// …for this many steps running.
+pub const RECOVERY_HOLD: u32 = 3;
+
 impl AppliedFault {
-    pub fn from_fault(f: &Fault) -> Self {
-        let fault = match f {
-            Fault::Delay {
-                links,
-                latency_ms,
-                jitter_ms,
-                ..
-            } => format!(
-                "delay {latency_ms} ms ± {jitter_ms} ms on {}",
-                links_text(links)
-            ),
-            Fault::Loss {
-                links, probability, ..
-            } => format!("loss {probability} on {}", links_text(links)),
-            Fault::Partition { groups, .. } => format!("partition {groups:?}"),
-            Fault::Kill {
-                actor,
-                signal,
-                restart_after,
-                ..
-            } => format!(
-                "kill {actor} with {signal:?}{}",
-                restart_after.map_or(String::new(), |r| format!(", restart after {r} steps"))
-            ),
-        };
+    /// A fault with no measurements yet.
+    pub fn new(step: u32, until_step: Option<u32>, fault: String) -> Self {
         Self {
-            step: f.at_step(),
-            until_step: f.end_step(),
+            step,
+            until_step,
             fault,
+            rmse_before: None,
+            rmse_during: None,
+            rmse_after: None,
+            recovered_after: None,
+        }
+    }
+
+    pub fn from_fault(f: &Fault) -> Self {
+        Self::new(f.at_step(), f.end_step(), describe(f))
+    }
+
+    /// Fills in the RMSE figures from the run's per-step means.
+    pub fn measure(&mut self, means: &[crate::results::StepMeans]) {
+        use crate::results::{steps_to_recover, window_rmse};
+        let start = self.step;
+        let end = self.until_step.unwrap_or(u32::MAX);
+        self.rmse_before = window_rmse(means, start.saturating_sub(BEFORE_STEPS), start);
+        self.rmse_during = window_rmse(means, start, end);
+        self.rmse_after = self.until_step.and_then(|e| window_rmse(means, e, u32::MAX));
+        self.recovered_after = match (self.until_step, self.rmse_before) {
+            (Some(e), Some(before)) => {
+                steps_to_recover(means, e, RECOVERY_HOLD, |_, rmse| rmse <= RECOVERY_FACTOR * before)
+            }
+            _ => None,
+        };
+    }
+}
+
+fn describe(f: &Fault) -> String {
+    use fusion_graph::scenario::SensorMode;
+    match f {
+        Fault::Delay {
+            links,
+            latency_ms,
+            jitter_ms,
+            ..
+        } => format!(
+            "delay {latency_ms} ms ± {jitter_ms} ms on {}",
+            links_text(links)
+        ),
+        Fault::Loss {
+            links, probability, ..
+        } => format!("loss {probability} on {}", links_text(links)),
+        Fault::Partition { groups, .. } => format!("partition {groups:?}"),
+        Fault::Kill {
+            actor,
+            signal,
+            restart_after,
+            ..
+        } => format!(
+            "kill {actor} with {signal:?}{}",
+            restart_after.map_or(String::new(), |r| format!(", restart after {r} steps"))
+        ),
+        Fault::Duplicate {
+            links, probability, ..
+        } => format!("duplicate {probability} on {}", links_text(links)),
+        Fault::Reorder {
+            links,
+            probability,
+            delay_ms,
+            ..
+        } => format!(
+            "reorder {probability} (held back {delay_ms} ms) on {}",
+            links_text(links)
+        ),
+        Fault::Corrupt {
+            links, probability, ..
+        } => format!("corrupt {probability} on {}", links_text(links)),
+        Fault::BurstLoss {
+            links,
+            enter_bad,
+            leave_bad,
+            loss_good,
+            loss_bad,
+            ..
+        } => format!(
+            "burst loss (Gilbert-Elliott p={enter_bad} r={leave_bad}, loss {loss_good}/{loss_bad}) on {}",
+            links_text(links)
+        ),
+        Fault::Sensor {
+            sensors,
+            mode,
+            fraction,
+            bias,
+            phantom,
+            ..
+        } => {
+            let what = match mode {
+                SensorMode::Stuck => "stuck".to_string(),
+                SensorMode::Dropout => "dropout".to_string(),
+                SensorMode::Bias => format!("bias {}", bias.unwrap_or(0.0)),
+                SensorMode::Byzantine => {
+                    format!("byzantine, phantom at {:?} m", phantom.unwrap_or_default())
+                }
+            };
+            let share = fraction.map_or(String::new(), |f| format!(" ({f} of them)"));
+            format!("sensor {what} on {}{share}", sensors.join(", "))
         }
     }
 }
@@ -50,7 +144,10 @@ impl AppliedFault {
 fn links_text(links: &[fusion_graph::scenario::LinkSelector]) -> String {
     links
         .iter()
-        .map(|l| format!("{}->{}", l.from, l.to))
+        .map(|l| match l.fraction {
+            Some(f) => format!("{}->{} ({f} of them)", l.from, l.to),
+            None => format!("{}->{}", l.from, l.to),
+        })
         .collect::<Vec<_>>()
         .join(", ")
 }
@@ -66,6 +163,15 @@ pub struct FaultCost {
     pub rounds_with_fewer_neighbours: u64,
     /// Node-steps with no telemetry (dead, stopped or too late).
     pub missing_node_steps: u64,
+    /// Extra copies made by `duplicate` faults.
+    #[serde(default)]
+    pub duplicated_messages: u64,
+    /// Messages of a known kind that failed their checksum (`corrupt` faults).
+    #[serde(default)]
+    pub corrupted_messages: u64,
+    /// Observations the nodes' innovation gate left out (`filter.gate`).
+    #[serde(default)]
+    pub gated_observations: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -195,6 +301,7 @@ pub fn print_table(s: &Summary) {
         println!("    {:<20} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
     }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
+    let metres = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1} m"));
     for f in &s.faults {
         println!(
             "  fault at step {}{}: {}",
@@ -202,10 +309,21 @@ pub fn print_table(s: &Summary) {
             f.until_step.map_or(String::new(), |u| format!("..{u}")),
             f.fault
         );
+        println!(
+            "    RMSE before {}, during {}, after {}{}",
+            metres(f.rmse_before),
+            metres(f.rmse_during),
+            metres(f.rmse_after),
+            match (f.until_step, f.recovered_after) {
+                (None, _) => String::new(),
+                (Some(_), Some(k)) => format!("; recovered {k} steps after it ended"),
+                (Some(_), None) => "; did not recover".to_string(),
+            }
+        );
     }
     if !s.faults.is_empty() {
         let c = &s.fault_cost;
-        println!("  fault cost: {} dropped, {} late, {} node-steps with fewer neighbours, {} node-steps missing", c.dropped_messages, c.late_messages, c.rounds_with_fewer_neighbours, c.missing_node_steps);
+        println!("  fault cost: {} dropped, {} duplicated, {} corrupted, {} late, {} gated, {} node-steps with fewer neighbours, {} node-steps missing", c.dropped_messages, c.duplicated_messages, c.corrupted_messages, c.late_messages, c.gated_observations, c.rounds_with_fewer_neighbours, c.missing_node_steps);
     }
     println!("  {:<34} {:>12.1}", "steps per second", s.steps_per_second);
     let st = &s.stage_micros;

@@ -157,15 +157,15 @@ fn links_csv_bytes_are_the_encoded_message_sizes() {
         }
     }
     let kinds = links.by_kind();
-    // Per step: 27 observations of 12 bytes to the node and the centralized
-    // reference; 24 directed fusion-graph links × 10 rounds of 203 bytes.
+    // Per step: 27 observations of 14 bytes to the node and the centralized
+    // reference; 24 directed fusion-graph links × 10 rounds of 205 bytes.
     assert_eq!(
         kinds[&MessageKind::Observation].sent_bytes,
-        12 * 27 * 2 * 12
+        12 * 27 * 2 * 14
     );
     assert_eq!(
         kinds[&MessageKind::Consensus].sent_bytes,
-        12 * 24 * 10 * 203
+        12 * 24 * 10 * 205
     );
     assert_eq!(s.deadline_misses, 0);
 }
@@ -243,8 +243,8 @@ fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     let selection = links.by_kind()[&MessageKind::MinConsensus];
     let size = encoded_len(MessageKind::MinConsensus, &s.wire_format(&t)).unwrap() as u64;
     assert_eq!(
-        size, 47,
-        "11-byte header, cost, node, sensor and J̄'s 3 numbers"
+        size, 49,
+        "13-byte header, cost, node, sensor and J̄'s 3 numbers"
     );
     assert_eq!(selection.sent_messages, 4 * 18 * 4 * 24);
     assert_eq!(selection.sent_bytes, selection.sent_messages * size);

@@ -116,8 +116,12 @@ pub struct NodeActor {
     /// This node's membership view: the live nodes it can reach.
     view: Vec<bool>,
     phase: Phase,
-    /// Observations this step, deadline missed: reported in telemetry.
+    /// Observations used this step, deadline missed: reported in telemetry.
     observations: u16,
+    /// The innovation gate's threshold, if the scenario sets one.
+    gate: Option<f64>,
+    /// Observations the gate left out this step.
+    gated: u16,
     deadline_missed: bool,
     /// Set when this node restarted mid-run: it takes the first fused
     /// posterior a neighbour offers instead of starting from the prior.
@@ -194,6 +198,8 @@ impl NodeActor {
             view: topology.all_alive(),
             phase: Phase::Idle,
             observations: 0,
+            gate: scenario.filter.gate,
+            gated: 0,
             deadline_missed: false,
             needs_state: false,
             last_step: None,
@@ -351,9 +357,21 @@ impl NodeActor {
         match work {
             Work::SelectionScores => {}
             Work::LocalFilter => {
-                let Some(collected) = f.collected.take() else {
+                let Some(mut collected) = f.collected.take() else {
                     return;
                 };
+                if let Some(threshold) = self.gate {
+                    match self.local.gate(&self.model, &collected.observations, threshold) {
+                        Ok((kept, gated)) => {
+                            collected.observations = kept;
+                            self.gated = gated;
+                            self.observations = collected.observations.len() as u16;
+                        }
+                        Err(e) => {
+                            tracing::error!(node = self.index, error = %e, "innovation gate failed; using every observation")
+                        }
+                    }
+                }
                 let update = self
                     .local
                     .update(&self.model, &collected.observations, self.with_aux)
@@ -605,6 +623,7 @@ impl NodeActor {
         };
         let collected = c.close();
         self.observations = collected.observations.len() as u16;
+        self.gated = 0;
         self.phase = Phase::Fusing(Box::new(Fusing {
             step: collected.step,
             collected: Some(collected),
@@ -640,6 +659,7 @@ impl NodeActor {
             rounds_completed: fused.stats.rounds_completed,
             live_neighbours: fused.stats.neighbours_heard,
             observations: self.observations,
+            gated: self.gated,
             deadline_missed: self.deadline_missed,
             late_messages: (self.late_messages - self.late_reported) as u32,
             stage_micros: [
@@ -799,7 +819,7 @@ mod tests {
         }
         // No timeout was needed: the step took no virtual time at all.
         assert_eq!(net.now, Duration::ZERO);
-        // Rounds of 203-byte consensus messages: 6 per step per directed link.
+        // Rounds of 205-byte consensus messages: 6 per step per directed link.
         let consensus = net
             .sent
             .iter()

@@ -347,6 +347,25 @@ impl LocalFilter {
         &self.bound
     }
 
+    /// The observations that pass the innovation gate ([`crate::gate`]) on
+    /// this step's predicted particles (predicting first), and how many
+    /// did not.
+    pub fn gate(
+        &mut self,
+        model: &SensingModel,
+        observations: &[Observation],
+        threshold: f64,
+    ) -> Result<(Vec<Observation>, u16), BoundError> {
+        self.predict(model)?;
+        Ok(crate::gate::gate(
+            model,
+            observations,
+            self.filter.particles(),
+            Some(self.bound.information()),
+            threshold,
+        ))
+    }
+
     /// A step without observations (this node missed it): prediction only.
     pub fn coast(&mut self, model: &SensingModel) -> Result<(), BoundError> {
         self.update(model, &[], false).map(|_| ())

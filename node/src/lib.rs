@@ -8,6 +8,7 @@
 //! - [`estimator`]: the CF/DPF's local and fusion filters with their bounds;
 //! - [`sensor_manager`]: which sensors a node activates;
 //! - [`collector`]: a step's observations, and which sensors stayed silent;
+//! - [`gate`]: the innovation gate that leaves out implausible observations;
 //! - [`fusion`]: the fusion protocols (average consensus, exact sums,
 //!   min-consensus) over a shared round engine;
 //! - [`actor`]: the node's state machine, tying them together.
@@ -18,6 +19,7 @@ pub mod collector;
 pub mod estimator;
 pub mod filter;
 pub mod fusion;
+pub mod gate;
 pub mod sensor_manager;
 
 #[cfg(test)]

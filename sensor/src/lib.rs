@@ -7,8 +7,13 @@
 //! is drawn from a generator seeded by (scenario seed, sensor, k), so the
 //! observation does not depend on message timing: the in-process driver and
 //! the multi-process runtime see the same values.
+//!
+//! A `sensor` fault in the scenario makes it misbehave for a while: stuck at
+//! its last honest value, biased, silent, or Byzantine (measuring a phantom
+//! target). Every sensor evaluates the schedule itself, as links do.
 
 use bounds::{ObservationModel, Quantizer, State};
+use fusion_graph::faults::{FaultSchedule, SensorFault};
 use fusion_graph::scenario::Scenario;
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{Message, Payload};
@@ -28,6 +33,9 @@ pub struct SensorActor {
     /// The latest step this sensor was activated for.
     activated: Option<u32>,
     last_sent: Option<u32>,
+    faults: FaultSchedule,
+    /// The last honest measurement, which a stuck sensor repeats.
+    last_honest: Option<Payload>,
 }
 
 impl SensorActor {
@@ -52,6 +60,8 @@ impl SensorActor {
             truth: None,
             activated: None,
             last_sent: None,
+            faults: FaultSchedule::new(&scenario.faults),
+            last_honest: None,
         })
     }
 
@@ -95,12 +105,38 @@ impl SensorActor {
             return None;
         }
         self.last_sent = Some(step);
-        Some(Message::new(self.id(), step, 0, self.measure(step, &truth)))
+        let payload = match self.faults.sensor_fault(step, self.index) {
+            None => {
+                let honest = self.measure(step, &truth, 0.0);
+                self.last_honest = Some(honest.clone());
+                honest
+            }
+            Some(SensorFault::Dropout) => return None,
+            // Stuck from its first step, if it never measured before.
+            Some(SensorFault::Stuck) => {
+                if self.last_honest.is_none() {
+                    self.last_honest = Some(self.measure(step, &truth, 0.0));
+                }
+                self.last_honest.clone().expect("set above")
+            }
+            Some(SensorFault::Bias(bias)) => self.measure(step, &truth, bias),
+            Some(SensorFault::Byzantine([dx, dy])) => {
+                let mut phantom = truth;
+                phantom[0] += dx;
+                phantom[1] += dy;
+                self.measure(step, &phantom, 0.0)
+            }
+        };
+        Some(Message::new(self.id(), step, 0, payload))
     }
 
-    fn measure(&self, step: u32, truth: &State) -> Payload {
+    /// A measurement of `truth`, plus `bias`, with step `step`'s noise.
+    fn measure(&self, step: u32, truth: &State, bias: f64) -> Payload {
         let mut rng = stream_rng(self.seed, self.id(), step, Stream::SensorNoise);
-        let z = self.model.sample(truth, &mut rng);
+        let mut z = self.model.sample(truth, &mut rng) + bias;
+        if self.model.is_angular() {
+            z = bounds::wrap_angle(z);
+        }
         match &self.quantizer {
             Some(q) => Payload::Observation { cell: q.encode(z) },
             None => Payload::RawObservation { value: z },
@@ -185,5 +221,76 @@ mod tests {
             }
         }
         assert!(misses <= 1, "{misses} of 200 beyond 4σ");
+    }
+
+    fn faulty(fault: &str) -> SensorActor {
+        let text = format!(
+            "{}\n[[faults]]\nkind = \"sensor\"\nsensors = [\"sensor-12\"]\nat_step = 3\nduration = 2\n{fault}\n",
+            fusion_graph::scenario::DEFAULT_SCENARIO
+        );
+        let s = Scenario::from_toml(&text, "f", &[]).unwrap();
+        let t = Topology::from_scenario(&s, "f").unwrap();
+        SensorActor::new(&s, &t, 12).unwrap()
+    }
+
+    /// Steps 1..=6 with the sensor active each step: what it sent.
+    fn six_steps(a: &mut SensorActor, truth: State) -> Vec<Option<Payload>> {
+        (1..=6)
+            .map(|k| {
+                a.handle(&tick(k, truth));
+                a.handle(&activation(k, true)).map(|m| m.payload)
+            })
+            .collect()
+    }
+
+    fn cell(p: &Option<Payload>) -> i64 {
+        match p {
+            Some(Payload::Observation { cell }) => *cell as i64,
+            other => panic!("not a cell: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn sensor_faults_hold_for_their_window_only() {
+        // Sensor 12 sits at the centre of node 0's cell, (250, 250); the
+        // target is 900 m north-east of it: bearing 45 degrees.
+        let truth = State::new(886.4, 886.4, 0.0, 0.0);
+        let honest = six_steps(&mut actor(), truth);
+
+        let dropout = six_steps(&mut faulty("mode = \"dropout\""), truth);
+        assert!(dropout[2].is_none() && dropout[3].is_none());
+        assert_eq!(
+            [&dropout[..2], &dropout[4..]].concat(),
+            [&honest[..2], &honest[4..]].concat()
+        );
+
+        let stuck = six_steps(&mut faulty("mode = \"stuck\""), truth);
+        assert_eq!(stuck[2], honest[1], "repeats step 2's value");
+        assert_eq!(stuck[3], honest[1]);
+        assert_eq!(stuck[4], honest[4]);
+
+        // 0.2 rad is 8.1 cells of 2π/256.
+        let biased = six_steps(&mut faulty("mode = \"bias\"\nbias = 0.2"), truth);
+        for k in [2, 3] {
+            let shift = cell(&biased[k]) - cell(&honest[k]);
+            assert!((7..=9).contains(&shift), "step {}: {shift} cells", k + 1);
+        }
+        assert_eq!(biased[4], honest[4]);
+
+        // A phantom 600 m east of the target: bearing atan2(1236.4, 636.4)
+        // from north, 62.8 degrees, against the true 45: 17.8 degrees more,
+        // give or take the noise (the same draw, scaled by a σ that grows
+        // with range: about 1 degree apart) and a cell (1.4 degrees).
+        let byzantine = six_steps(
+            &mut faulty("mode = \"byzantine\"\nphantom = [600.0, 0.0]"),
+            truth,
+        );
+        let q = Scenario::default_scenario().models().unwrap().quantizer.unwrap();
+        let bearing = |p: &Option<Payload>| q.representative(cell(p) as u32);
+        for k in [2, 3] {
+            let moved = (bearing(&byzantine[k]) - bearing(&honest[k])).to_degrees();
+            assert!((14.0..=21.5).contains(&moved), "step {}: {moved} degrees", k + 1);
+        }
+        assert_eq!(byzantine[5], honest[5]);
     }
 }

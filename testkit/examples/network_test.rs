@@ -72,7 +72,7 @@ fn partition_run_checks() {
         (95..=105).contains(&counters.dropped_messages),
         "{counters:?}"
     );
-    assert_eq!(counters.received_bytes, counters.received_messages * 203);
+    assert_eq!(counters.received_bytes, counters.received_messages * 205);
     // node-1 left node-2 out of its consensus during the cut, but its
     // messages still reached node-2's queue, and they are counted as sent.
     assert_eq!(counters.sent_messages, 30 * 10, "{counters:?}");

@@ -24,8 +24,8 @@
 //!     .run()
 //!     .expect("the network ran");
 //! run.assert_success().assert_clean();
-//! // 10 consensus rounds a step on the link node-0 → node-1, 203 bytes a message.
-//! assert_eq!(run.bytes(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus), 20 * 10 * 203);
+//! // 10 consensus rounds a step on the link node-0 → node-1, 205 bytes a message.
+//! assert_eq!(run.bytes(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus), 20 * 10 * 205);
 //! assert_eq!(run.fault_cost().missing_node_steps, 11);
 //! assert!(run.rmse(10..=20) < 5.0);
 //! ```

@@ -72,14 +72,14 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     let sent = |k: MessageKind| r.counters(k).sent_bytes;
     let received = |k: MessageKind| r.counters(k).received_bytes;
     let steps = 6;
-    // 3 active sensors × 9 nodes, each observation (11 + 1 bytes) to its node and the centralized reference.
-    assert_eq!(sent(MessageKind::Observation), steps * 27 * 2 * 12);
-    // 24 directed fusion-graph links × 10 rounds: δη, δΛ, ΔL (11 + 192 bytes) and S_obs (11 + 80).
-    assert_eq!(sent(MessageKind::Consensus), steps * 24 * 10 * 203);
-    assert_eq!(sent(MessageKind::ConsensusAux), steps * 24 * 10 * 91);
-    // The launcher's tick (11 + 32) and the nodes' activation (11 + 4) reach all 225 sensors.
-    assert_eq!(sent(MessageKind::Tick), steps * 225 * 43);
-    assert_eq!(sent(MessageKind::Activate), steps * 225 * 15);
+    // 3 active sensors × 9 nodes, each observation (13 + 1 bytes) to its node and the centralized reference.
+    assert_eq!(sent(MessageKind::Observation), steps * 27 * 2 * 14);
+    // 24 directed fusion-graph links × 10 rounds: δη, δΛ, ΔL (13 + 192 bytes) and S_obs (13 + 80).
+    assert_eq!(sent(MessageKind::Consensus), steps * 24 * 10 * 205);
+    assert_eq!(sent(MessageKind::ConsensusAux), steps * 24 * 10 * 93);
+    // The launcher's tick (13 + 32) and the nodes' activation (13 + 4) reach all 225 sensors.
+    assert_eq!(sent(MessageKind::Tick), steps * 225 * 45);
+    assert_eq!(sent(MessageKind::Activate), steps * 225 * 17);
     for k in [
         MessageKind::Observation,
         MessageKind::Consensus,
@@ -92,7 +92,7 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     // One link's share: node-0 → node-1, ten rounds a step.
     assert_eq!(
         r.bytes(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus),
-        steps * 10 * 203
+        steps * 10 * 205
     );
     // Bound traffic: ΔL (80 bytes a message) against ΔL and S_obs: 1 : 2.
     let bound = &r.summary().bound_traffic;
@@ -144,10 +144,7 @@ fn the_network_survives_sigkill_of_the_centre_node() {
 #[test]
 fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
     let _guard = exclusive();
-    let link = |from: &str, to: &str| LinkSelector {
-        from: from.into(),
-        to: to.into(),
-    };
+    let link = LinkSelector::new;
     let group = |names: &[&str]| names.iter().map(|n| n.to_string()).collect();
     let r = network("linkfaults", 45)
         .lockstep()

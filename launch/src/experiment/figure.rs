@@ -5,7 +5,7 @@ use std::path::Path;
 use anyhow::Context;
 use plotters::prelude::*;
 
-use super::{Experiment, Figure, Outcome};
+use super::{ArmOutcome, Experiment, Figure, Outcome, Series};
 
 const SIZE: (u32, u32) = (900, 560);
 
@@ -26,6 +26,32 @@ pub fn csv(experiment: &Experiment, outcome: &Outcome) -> String {
             for step in 0..outcome.steps as usize {
                 out.push_str(&(step + 1).to_string());
                 for column in &columns {
+                    out.push(',');
+                    if let Some(v) = column.get(step).copied().flatten() {
+                        out.push_str(&v.to_string());
+                    }
+                }
+                out.push('\n');
+            }
+        }
+        Figure::Panels { .. } => {
+            out.push_str("step");
+            for a in &outcome.arms {
+                out.push_str(&format!(
+                    ",{},{}",
+                    quoted(&format!("{} rmse", a.label)),
+                    quoted(&format!("{} bound", a.label))
+                ));
+            }
+            out.push('\n');
+            let columns: Vec<[Vec<Option<f64>>; 2]> = outcome
+                .arms
+                .iter()
+                .map(|a| [a.series(Series::Rmse), a.series(Series::Bound)])
+                .collect();
+            for step in 0..outcome.steps as usize {
+                out.push_str(&(step + 1).to_string());
+                for column in columns.iter().flatten() {
                     out.push(',');
                     if let Some(v) = column.get(step).copied().flatten() {
                         out.push_str(&v.to_string());
@@ -80,7 +106,11 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
         "{}: {} ({} runs)",
         experiment.name, experiment.source, outcome.runs
     );
-    let root = SVGBackend::new(path, SIZE).into_drawing_area();
+    let size = match &experiment.figure {
+        Figure::Panels { .. } => (PANEL.0 * PANEL_COLUMNS, PANEL.1 * panel_rows(outcome)),
+        _ => SIZE,
+    };
+    let root = SVGBackend::new(path, size).into_drawing_area();
     let drawn = match &experiment.figure {
         Figure::OverTime { y_label, curves } => {
             let lines: Vec<(&str, Vec<(u32, f64)>)> = curves
@@ -104,6 +134,11 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
                 .collect();
             bar_chart(&root, &title, y_label, &values)
         }
+        Figure::Panels {
+            y_label,
+            reference,
+            window,
+        } => panels(&root, &title, y_label, outcome, *reference, *window),
     };
     drawn.map_err(|e| anyhow::anyhow!("{e}"))?;
     root.present()
@@ -112,6 +147,90 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
 }
 
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
+
+const PANEL: (u32, u32) = (300, 230);
+const PANEL_COLUMNS: u32 = 4;
+
+fn panel_rows(outcome: &Outcome) -> u32 {
+    (outcome.arms.len().saturating_sub(1) as u32).div_ceil(PANEL_COLUMNS) + 1
+}
+
+fn positive_points(values: Vec<Option<f64>>) -> Vec<(u32, f64)> {
+    values
+        .into_iter()
+        .enumerate()
+        .filter_map(|(i, v)| v.filter(|v| *v > 0.0).map(|v| (i as u32 + 1, v)))
+        .collect()
+}
+
+/// A panel per arm: its RMSE (red) and bound (blue) over the reference's
+/// RMSE (grey), the fault window shaded; the same log axis in every panel.
+fn panels(
+    root: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    title: &str,
+    y_label: &str,
+    outcome: &Outcome,
+    reference: usize,
+    window: (u32, u32),
+) -> DrawResult {
+    root.fill(&WHITE)?;
+    let (top, body) = root.split_vertically(PANEL.1 / 2);
+    top.draw(&Text::new(
+        format!("{title}: {y_label}; red RMSE, blue CQ/dPCRLB, grey the no-fault RMSE, shaded the fault"),
+        (10, 10),
+        ("sans-serif", 18),
+    ))?;
+    let all = |a: &ArmOutcome| {
+        positive_points(a.series(Series::Rmse))
+            .into_iter()
+            .chain(positive_points(a.series(Series::Bound)))
+            .map(|(_, v)| v)
+            .collect::<Vec<_>>()
+    };
+    let values: Vec<f64> = outcome.arms.iter().flat_map(all).collect();
+    let lo = values.iter().copied().fold(f64::INFINITY, f64::min).max(1e-3) * 0.9;
+    let hi = values.iter().copied().fold(1.0, f64::max) * 1.1;
+    let steps = outcome.steps.max(2);
+    let rows = panel_rows(outcome) as usize - 1;
+    let areas = body.split_evenly((rows.max(1), PANEL_COLUMNS as usize));
+    let reference_rmse = positive_points(outcome.arms[reference].series(Series::Rmse));
+    let arms = outcome
+        .arms
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != reference);
+    for (area, (_, arm)) in areas.iter().zip(arms) {
+        let mut chart = ChartBuilder::on(area)
+            .caption(&arm.label, ("sans-serif", 14))
+            .margin(6)
+            .x_label_area_size(22)
+            .y_label_area_size(36)
+            .build_cartesian_2d(1..steps, (lo..hi).log_scale())?;
+        chart
+            .configure_mesh()
+            .y_labels(5)
+            .x_labels(4)
+            .y_label_formatter(&|v| format!("{v:.0}"))
+            .draw()?;
+        chart.draw_series(std::iter::once(Rectangle::new(
+            [(window.0, lo), (window.1, hi)],
+            RGBColor(255, 200, 0).mix(0.25).filled(),
+        )))?;
+        chart.draw_series(LineSeries::new(
+            reference_rmse.iter().copied(),
+            RGBColor(150, 150, 150).stroke_width(2),
+        ))?;
+        chart.draw_series(LineSeries::new(
+            positive_points(arm.series(Series::Bound)),
+            BLUE.stroke_width(1),
+        ))?;
+        chart.draw_series(LineSeries::new(
+            positive_points(arm.series(Series::Rmse)),
+            RED.stroke_width(2),
+        ))?;
+    }
+    Ok(())
+}
 
 fn over_time(
     root: &DrawingArea<SVGBackend, plotters::coord::Shift>,

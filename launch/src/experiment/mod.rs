@@ -7,6 +7,7 @@
 //! (`seed000.rs` is the first); the runner, the CSV, the SVG and the
 //! command line are shared.
 
+pub mod faults;
 mod figure;
 mod seed000;
 mod seed001;
@@ -59,6 +60,14 @@ pub enum Figure {
     Bars {
         y_label: &'static str,
         bars: &'static [Bar],
+    },
+    /// A panel per arm but the reference: its RMSE and bound over time, the
+    /// reference arm's RMSE behind them, and steps `window.0..window.1` (the
+    /// fault's) shaded.
+    Panels {
+        y_label: &'static str,
+        reference: usize,
+        window: (u32, u32),
     },
 }
 
@@ -128,6 +137,9 @@ pub struct ArmOutcome {
     /// (min-consensus) and of the activations, from the accounting.
     pub selection_bytes_per_step: f64,
     pub activation_bytes_per_step: f64,
+    /// Messages sent but neither received, dropped nor malformed: the
+    /// magnitudes summed over kinds and runs.
+    pub unaccounted_messages: u64,
 }
 
 impl ArmOutcome {
@@ -184,6 +196,7 @@ impl Outcome {
 pub fn catalogue() -> Vec<Experiment> {
     let mut all = seed000::experiments();
     all.extend(seed001::experiments());
+    all.extend(faults::experiments());
     all
 }
 
@@ -265,6 +278,12 @@ pub fn run(
             aux_bound_bytes_per_step: mc.bound_bytes_auxiliary_fim.map(per_step),
             selection_bytes_per_step: kind_per_step("min_consensus"),
             activation_bytes_per_step: kind_per_step("activate"),
+            unaccounted_messages: mc
+                .per_run
+                .iter()
+                .flat_map(|s| s.traffic.iter())
+                .map(|t| t.unaccounted_messages.unsigned_abs())
+                .sum(),
         });
     }
     let outcome = Outcome {
@@ -281,6 +300,12 @@ pub fn run(
     let svg = dir.join(format!("{}.svg", experiment.name));
     write_atomically(&csv, figure::csv(experiment, &outcome).as_bytes())?;
     figure::svg(experiment, &outcome, &svg)?;
+    if matches!(experiment.figure, Figure::Panels { .. }) {
+        write_atomically(
+            &dir.join(format!("{}-cells.csv", experiment.name)),
+            faults::cells_csv(&outcome).as_bytes(),
+        )?;
+    }
     write_atomically(
         &dir.join("check.txt"),
         format!("{}\n", verdict_line(experiment, &outcome, &check)).as_bytes(),
@@ -336,7 +361,7 @@ fn needs(experiment: &Experiment, index: usize, series: &[Series]) -> bool {
         Figure::OverTime { curves, .. } => curves
             .iter()
             .any(|c| c.arm == index && series.contains(&c.series)),
-        Figure::Bars { .. } => false,
+        Figure::Bars { .. } | Figure::Panels { .. } => false,
     }
 }
 

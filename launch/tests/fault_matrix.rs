@@ -1,0 +1,54 @@
+//! The fault matrix (issue 13): every fault kind at two scopes, on the
+//! virtual clock, each cell against the run with no fault. Each cell must
+//! complete, account for every message, and bring the RMSE back to within
+//! `RECOVERY_FACTOR` of the no-fault run's after the fault ends; it prints
+//! its time to recover. Real processes add nothing here that
+//! `tests/network.rs` does not already show for kills and link faults.
+
+use launch::experiment::{self, faults, Options};
+
+fn run(name: &str) -> experiment::Report {
+    let out = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("{name}-{}", std::process::id()));
+    let options = Options {
+        runs: 2,
+        steps: None,
+        threads: 2,
+        out: out.clone(),
+        trajectories: 0,
+    };
+    let report = experiment::run(&experiment::find(name).unwrap(), &options, &|_, _| {}).unwrap();
+    assert!(std::fs::read_to_string(&report.svg).unwrap().contains("</svg>"));
+    let _ = std::fs::remove_dir_all(&out);
+    report
+}
+
+#[test]
+fn every_fault_kind_at_both_scopes_completes_balances_and_recovers() {
+    let report = run("fault-matrix");
+    let cells = faults::cells(&report.outcome);
+    assert_eq!(cells.len(), faults::MATRIX.len() - 1);
+    for c in &cells {
+        eprintln!(
+            "{:<30} during {:>6.1} m  after {:>6.1} m (no fault {:>5.1} m)  recovered after {:?} steps  unaccounted {}",
+            c.label,
+            c.rmse_during.unwrap_or(f64::NAN),
+            c.rmse_after.unwrap_or(f64::NAN),
+            c.reference_after.unwrap_or(f64::NAN),
+            c.recovered_after,
+            c.unaccounted_messages
+        );
+    }
+    // The no-fault run balances too, or the cells' zeros would mean nothing.
+    assert_eq!(report.outcome.arms[0].unaccounted_messages, 0);
+    let failing: Vec<_> = cells.iter().filter(|c| !c.passes()).collect();
+    assert!(failing.is_empty(), "{failing:#?}");
+    assert!(report.check.holds, "{}", report.check.statement);
+}
+
+#[test]
+fn the_innovation_gate_holds_off_byzantine_sensors() {
+    let report = run("byzantine");
+    eprintln!("{}", report.check.statement);
+    assert!(report.check.holds, "{}", report.check.statement);
+}
