@@ -170,7 +170,13 @@ impl Accounting {
 
     /// A message that did not decode, under the kind it was sent as when
     /// that is known, else [`MessageKind::Malformed`].
-    pub fn record_malformed(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+    pub fn record_malformed(
+        &mut self,
+        from: ActorId,
+        to: ActorId,
+        kind: MessageKind,
+        bytes: usize,
+    ) {
         let c = self.entry(from, to, kind);
         c.malformed_messages += 1;
         c.malformed_bytes += bytes as u64;
@@ -178,7 +184,13 @@ impl Accounting {
     }
 
     /// A second copy of a message, made by a `duplicate` fault.
-    pub fn record_duplicated(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+    pub fn record_duplicated(
+        &mut self,
+        from: ActorId,
+        to: ActorId,
+        kind: MessageKind,
+        bytes: usize,
+    ) {
         let c = self.entry(from, to, kind);
         c.duplicated_messages += 1;
         c.duplicated_bytes += bytes as u64;
@@ -306,8 +318,18 @@ mod tests {
             MessageKind::Consensus,
             203,
         );
-        a.record_malformed(ActorId::Node(0), ActorId::Node(1), MessageKind::Malformed, 17);
-        a.record_duplicated(ActorId::Node(0), ActorId::Node(1), MessageKind::Consensus, 203);
+        a.record_malformed(
+            ActorId::Node(0),
+            ActorId::Node(1),
+            MessageKind::Malformed,
+            17,
+        );
+        a.record_duplicated(
+            ActorId::Node(0),
+            ActorId::Node(1),
+            MessageKind::Consensus,
+            203,
+        );
         a.record_sent(
             ActorId::Node(1),
             ActorId::Node(2),

@@ -150,9 +150,9 @@ pub struct FilterConfig {
     pub particles: u32,
     pub prior_std: [f64; 4],
     /// The innovation gate's threshold on ν²/S (a χ²₁ quantile, 10.83 for
-    /// 1 in 1000); absent: every observation is used.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub gate: Option<f64>,
+    /// 1 in 1000); 0: off, every observation is used.
+    #[serde(default)]
+    pub gate: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -616,9 +616,7 @@ impl Scenario {
             "consensus.round_timeout_ms",
             self.consensus.round_timeout_ms,
         )?;
-        if let Some(g) = self.filter.gate {
-            positive("filter.gate", g)?;
-        }
+        non_negative("filter.gate", self.filter.gate)?;
         positive("clock.step_period_ms", self.clock.step_period_ms)?;
         positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
         for (i, f) in self.faults.iter().enumerate() {

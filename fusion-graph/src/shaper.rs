@@ -306,8 +306,14 @@ mod tests {
         assert_eq!(s.admit(a, b"ab", Duration::ZERO), Admission::Held);
         let out = released(&mut s, Duration::ZERO);
         assert_eq!(out.len(), 2);
-        assert_eq!((out[0].0.as_slice(), out[0].1.duplicate), (&b"ab"[..], false));
-        assert_eq!((out[1].0.as_slice(), out[1].1.duplicate), (&b"ab"[..], true));
+        assert_eq!(
+            (out[0].0.as_slice(), out[0].1.duplicate),
+            (&b"ab"[..], false)
+        );
+        assert_eq!(
+            (out[1].0.as_slice(), out[1].1.duplicate),
+            (&b"ab"[..], true)
+        );
     }
 
     #[test]
@@ -352,7 +358,10 @@ mod tests {
             .enumerate()
             .filter(|(i, x)| order[..*i].iter().any(|y| y > x))
             .count();
-        assert!((35..=65).contains(&overtaken), "{overtaken} of 100 overtaken");
+        assert!(
+            (35..=65).contains(&overtaken),
+            "{overtaken} of 100 overtaken"
+        );
         // Nothing held back is out before its delay.
         s.admit(a, &[0], Duration::ZERO);
         let early = released(&mut s, Duration::from_millis(9)).len();

@@ -104,7 +104,10 @@ impl Topology {
                 if !ok {
                     let key = f.actors_key();
                     let expected = if sensors_only {
-                        format!("a sensor of this network (sensor-0..sensor-{})", topology.sensors() - 1)
+                        format!(
+                            "a sensor of this network (sensor-0..sensor-{})",
+                            topology.sensors() - 1
+                        )
                     } else {
                         format!(
                             "an actor of this network (node-0..node-{}, sensor-0..sensor-{})",

@@ -722,7 +722,10 @@ mod tests {
                 let got = Message::decode(&b, &FORMAT);
                 // A flip in the version byte is caught there first.
                 assert!(
-                    matches!(got, Err(WireError::Checksum { .. } | WireError::Version { .. })),
+                    matches!(
+                        got,
+                        Err(WireError::Checksum { .. } | WireError::Version { .. })
+                    ),
                     "{:?}, bit {bit}: {got:?}",
                     m.header.kind
                 );

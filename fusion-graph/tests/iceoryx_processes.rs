@@ -147,8 +147,8 @@ fn delivers_with_byte_counts_on_both_sides() {
         .accounting()
         .get(SENSOR, NODE, MessageKind::Observation);
     let sent = child.get(SENSOR, NODE, MessageKind::Observation);
-    assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 240));
-    assert_eq!((recv.received_messages, recv.received_bytes), (20, 240));
+    assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 280));
+    assert_eq!((recv.received_messages, recv.received_bytes), (20, 280));
     drop(node);
     drop(run);
 }

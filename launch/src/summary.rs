@@ -58,11 +58,13 @@ impl AppliedFault {
         let end = self.until_step.unwrap_or(u32::MAX);
         self.rmse_before = window_rmse(means, start.saturating_sub(BEFORE_STEPS), start);
         self.rmse_during = window_rmse(means, start, end);
-        self.rmse_after = self.until_step.and_then(|e| window_rmse(means, e, u32::MAX));
+        self.rmse_after = self
+            .until_step
+            .and_then(|e| window_rmse(means, e, u32::MAX));
         self.recovered_after = match (self.until_step, self.rmse_before) {
-            (Some(e), Some(before)) => {
-                steps_to_recover(means, e, RECOVERY_HOLD, |_, rmse| rmse <= RECOVERY_FACTOR * before)
-            }
+            (Some(e), Some(before)) => steps_to_recover(means, e, RECOVERY_HOLD, |_, rmse| {
+                rmse <= RECOVERY_FACTOR * before
+            }),
             _ => None,
         };
     }

@@ -198,7 +198,7 @@ impl NodeActor {
             view: topology.all_alive(),
             phase: Phase::Idle,
             observations: 0,
-            gate: scenario.filter.gate,
+            gate: (scenario.filter.gate > 0.0).then_some(scenario.filter.gate),
             gated: 0,
             deadline_missed: false,
             needs_state: false,
@@ -361,7 +361,10 @@ impl NodeActor {
                     return;
                 };
                 if let Some(threshold) = self.gate {
-                    match self.local.gate(&self.model, &collected.observations, threshold) {
+                    match self
+                        .local
+                        .gate(&self.model, &collected.observations, threshold)
+                    {
                         Ok((kept, gated)) => {
                             collected.observations = kept;
                             self.gated = gated;

@@ -191,7 +191,10 @@ mod tests {
         let floored = normalized_innovation_squared(&m, &obs, &collapsed, Some(&j));
         let range2 = (636.4f64).hypot(636.4).powi(2);
         let expected = 16.0 * e.r / (1e4 / range2 + e.r);
-        assert!((floored / expected - 1.0).abs() < 1e-6, "{floored} against {expected}");
+        assert!(
+            (floored / expected - 1.0).abs() < 1e-6,
+            "{floored} against {expected}"
+        );
         assert!(floored < 10.83 && alone > 10.83);
     }
 }

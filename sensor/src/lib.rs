@@ -285,11 +285,19 @@ mod tests {
             &mut faulty("mode = \"byzantine\"\nphantom = [600.0, 0.0]"),
             truth,
         );
-        let q = Scenario::default_scenario().models().unwrap().quantizer.unwrap();
+        let q = Scenario::default_scenario()
+            .models()
+            .unwrap()
+            .quantizer
+            .unwrap();
         let bearing = |p: &Option<Payload>| q.representative(cell(p) as u32);
         for k in [2, 3] {
             let moved = (bearing(&byzantine[k]) - bearing(&honest[k])).to_degrees();
-            assert!((14.0..=21.5).contains(&moved), "step {}: {moved} degrees", k + 1);
+            assert!(
+                (14.0..=21.5).contains(&moved),
+                "step {}: {moved} degrees",
+                k + 1
+            );
         }
         assert_eq!(byzantine[5], honest[5]);
     }

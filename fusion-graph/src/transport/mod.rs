@@ -223,7 +223,13 @@ impl Inbound<'_> {
         }
     }
 
-    fn deliver(&mut self, from: ActorId, bytes: &[u8], tampering: Tampering, out: &mut Vec<Message>) {
+    fn deliver(
+        &mut self,
+        from: ActorId,
+        bytes: &[u8],
+        tampering: Tampering,
+        out: &mut Vec<Message>,
+    ) {
         let decoded = Message::decode(bytes, self.format);
         let kind = match &decoded {
             Ok(m) => m.header.kind,

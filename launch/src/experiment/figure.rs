@@ -188,7 +188,12 @@ fn panels(
             .collect::<Vec<_>>()
     };
     let values: Vec<f64> = outcome.arms.iter().flat_map(all).collect();
-    let lo = values.iter().copied().fold(f64::INFINITY, f64::min).max(1e-3) * 0.9;
+    let lo = values
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min)
+        .max(1e-3)
+        * 0.9;
     let hi = values.iter().copied().fold(1.0, f64::max) * 1.1;
     let steps = outcome.steps.max(2);
     let rows = panel_rows(outcome) as usize - 1;
