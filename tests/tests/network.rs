@@ -20,6 +20,13 @@ fn network(tag: &str, steps: u32) -> Network {
     Network::new(s).executable(CQNET).tag(tag)
 }
 
+/// 9 nodes with 3 × 3 sensors each (91 processes): for what does not depend
+/// on the network's size (signals, kills, restarts, cleanup), a quarter of
+/// the default's processes and of its start-up time.
+fn small(n: Network) -> Network {
+    n.set("sensors.per_cell", "[3, 3]")
+}
+
 /// Generous timeouts: with 235 processes on two cores a round can take a while,
 /// and a timeout that fires changes the answer.
 fn patient(n: Network) -> Network {
@@ -104,13 +111,13 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
 #[test]
 fn the_network_survives_sigkill_of_the_centre_node() {
     let _guard = exclusive();
-    let healthy = network("healthy", 30)
+    let healthy = small(network("healthy", 30))
         .lockstep()
         .no_central()
         .run()
         .unwrap();
     healthy.assert_success();
-    let r = network("kill", 30)
+    let r = small(network("kill", 30))
         .lockstep()
         .no_central()
         .fault(kill("node-4", 10, Signal::Kill, None))
@@ -190,7 +197,7 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
 #[test]
 fn a_restarted_node_rejoins_and_tracks_again() {
     let _guard = exclusive();
-    let r = network("restart", 30)
+    let r = small(network("restart", 30))
         .lockstep()
         .no_central()
         .fault(kill("node-4", 8, Signal::Kill, Some(6)))
@@ -304,7 +311,7 @@ fn bad_input_ends_the_run_with_a_clear_error() {
 fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
     let _guard = exclusive();
     for signal in ["TERM", "HUP"] {
-        let mut running = network(&format!("sig{signal}"), 1000)
+        let mut running = small(network(&format!("sig{signal}"), 1000))
             .no_central()
             .start()
             .unwrap();
@@ -338,7 +345,10 @@ fn sigterm_and_sighup_stop_a_run_as_ctrl_c_does() {
 #[test]
 fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
     let _guard = exclusive();
-    let mut running = network("sigkill", 1000).no_central().start().unwrap();
+    let mut running = small(network("sigkill", 1000))
+        .no_central()
+        .start()
+        .unwrap();
     assert!(running.wait_for_step(1, REACH), "no step");
     running.signal(Target::Launcher, "KILL");
     let r = running.wait().unwrap();
@@ -372,7 +382,7 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
 #[test]
 fn an_actor_that_dies_unexpectedly_is_a_fault_and_its_restart_still_applies() {
     let _guard = exclusive();
-    let mut running = network("crash", 45)
+    let mut running = small(network("crash", 45))
         .no_central()
         .fault(kill("node-4", 5, Signal::Stop, Some(20)))
         .start()
@@ -414,8 +424,7 @@ fn no_byte_count_is_lost_to_sigkill_at_random_moments() {
         .as_nanos() as u64;
     eprintln!("kill moments from seed {seed}");
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let mut running = network("randkill", 24)
-        .set("sensors.per_cell", "[3, 3]") // 81 sensors: a faster start
+    let mut running = small(network("randkill", 24))
         .no_central()
         .fault(kill("node-4", 6, Signal::Kill, Some(4)))
         .start()
