@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
-use fusion_graph::transport::{IceoryxTransport, RunId, Transport};
+use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::NodeActor;
@@ -62,12 +62,19 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
         .map(Path::to_path_buf)
         .unwrap_or_default();
     std::fs::create_dir_all(out.join("accounting"))?;
-    let mut transport = IceoryxTransport::new(
+    // Only a restarted actor has a dead predecessor to sweep up after.
+    let sweep = if args.rejoin {
+        DeadNodeSweep::On
+    } else {
+        DeadNodeSweep::Off
+    };
+    let mut transport = IceoryxTransport::with_sweep(
         &run,
         actor,
         &topology,
         scenario.wire_format(&topology),
         link_fault_seed(scenario.seed, actor),
+        sweep,
     )?;
     transport.keep_counts_in(&ledger_path(&out, actor))?;
     match actor {

@@ -193,7 +193,9 @@ pub struct ActorArgs {
     /// Sensors: also send observations to the launcher's centralized reference.
     #[arg(long)]
     pub centralized: bool,
-    /// Nodes: started mid-run, rejoin from a neighbour's fused posterior.
+    /// Started mid-run (a restart): a node rejoins from a neighbour's fused
+    /// posterior, and every actor first sweeps the iceoryx2 resources its
+    /// dead predecessor left.
     #[arg(long)]
     pub rejoin: bool,
 }

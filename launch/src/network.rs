@@ -562,7 +562,7 @@ impl WorldState<'_> {
                         self.dead.remove(&actor);
                         self.commands.send(Command::Spawn {
                             actor,
-                            rejoin: matches!(actor, ActorId::Node(_)),
+                            rejoin: true,
                         })?;
                         self.await_ready(&[actor], &mut |_| {})?;
                         self.transport.update_connections();

@@ -66,10 +66,13 @@ impl RunId {
         format!("cqnet_{}_", self.0.replace('-', "_"))
     }
 
-    fn config(&self) -> Result<Config, SetupError> {
+    fn config(&self, sweep: DeadNodeSweep) -> Result<Config, SetupError> {
         let mut config = Config::default();
         config.global.prefix =
             FileName::new(self.prefix().as_bytes()).map_err(|e| setup("run prefix", e))?;
+        let on = sweep == DeadNodeSweep::On;
+        config.global.node.cleanup_dead_nodes_on_creation = on;
+        config.global.node.cleanup_dead_nodes_on_destruction = on;
         Ok(config)
     }
 
@@ -251,6 +254,19 @@ fn buffer_len(_channel: Channel) -> usize {
     64
 }
 
+/// Whether creating (and dropping) an iceoryx2 node first sweeps the
+/// resources of dead nodes of the run. The sweep lists every node of the run,
+/// so with every actor starting at once it made start-up quadratic, and the
+/// processes queued on the node directory's lock: 936 processes took 110 s.
+/// At a run's first start nothing has died yet, and the launcher removes
+/// everything at the end; an actor restarted after a kill still sweeps, so
+/// that its dead predecessor's ports do not hold places it needs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeadNodeSweep {
+    On,
+    Off,
+}
+
 impl IceoryxTransport {
     /// Creates this actor's iceoryx2 node and its wake-up listener.
     pub fn new(
@@ -260,7 +276,19 @@ impl IceoryxTransport {
         format: WireFormat,
         seed: u64,
     ) -> Result<Self, SetupError> {
-        let config = run.config()?;
+        Self::with_sweep(run, me, topology, format, seed, DeadNodeSweep::On)
+    }
+
+    /// [`new`](Self::new), saying whether to sweep dead nodes first.
+    pub fn with_sweep(
+        run: &RunId,
+        me: ActorId,
+        topology: &Topology,
+        format: WireFormat,
+        seed: u64,
+        sweep: DeadNodeSweep,
+    ) -> Result<Self, SetupError> {
+        let config = run.config(sweep)?;
         let name = NodeName::new(&me.to_string()).map_err(|e| setup("node name", e))?;
         let node = NodeBuilder::new()
             .config(&config)
@@ -524,6 +552,9 @@ impl Transport for IceoryxTransport {
     }
 }
 
+/// Notifiers a wake-up service takes beyond the actor's peers.
+const WAKE_SLACK: usize = 4;
+
 fn open_wake(
     node: &Node<ipc::Service>,
     run: &RunId,
@@ -531,14 +562,18 @@ fn open_wake(
     topology: &Topology,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
-    // Anyone may wake anyone: the launcher, a node's sensors and neighbours.
-    let everyone = topology.nodes() + topology.sensors() + 2;
+    // Only an actor's peers wake it (a node's sensors and neighbours and
+    // the launcher; a sensor's node and the launcher), and a few more for
+    // tools and tests. Sized for everyone, the services' shared memory and
+    // set-up grew with the square of the network: 2,600 processes did not
+    // start in 400 s.
+    let wakers = topology.peers(actor) + WAKE_SLACK;
     retry(|| {
         node.service_builder(&name)
             .event()
-            .max_notifiers(everyone)
+            .max_notifiers(wakers)
             .max_listeners(2)
-            .max_nodes(everyone + 2)
+            .max_nodes(wakers + 2)
             .open_or_create()
     })
     .map_err(|e| setup("wake event", e))

@@ -14,7 +14,7 @@ use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 pub mod iceoryx;
 pub mod memory;
 
-pub use iceoryx::{IceoryxTransport, RunId};
+pub use iceoryx::{DeadNodeSweep, IceoryxTransport, RunId};
 pub use memory::{MemoryBus, MemoryTransport};
 
 /// A publish/subscribe channel. Every channel has exactly one publisher, so a
