@@ -26,7 +26,16 @@ use crate::wire::{Message, MessageKind, WireFormat, HEADER_BYTES};
 use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 /// Where iceoryx2 keeps its files besides `/dev/shm`.
-const ICEORYX_ROOT: &str = "/tmp/iceoryx2";
+/// Where iceoryx2 keeps a run's service and node files: on tmpfs beside the
+/// shared memory. On the default `/tmp/iceoryx2` (ext4 here) a fifth of the
+/// start-up CPU of 936 processes went to the file system allocating inodes
+/// among the many that earlier runs created and deleted.
+const ICEORYX_ROOT: &str = "/dev/shm/cqnet-iceoryx2/";
+/// The default root, where runs of earlier versions left their files.
+const LEGACY_ICEORYX_ROOT: &str = "/tmp/iceoryx2";
+/// What cleanup searches (recursively): the shared memory, whose tree holds
+/// `ICEORYX_ROOT`, and the legacy root.
+const RESOURCE_DIRS: [&str; 2] = ["/dev/shm", LEGACY_ICEORYX_ROOT];
 /// How often to retry opening a service that another process is creating.
 const OPEN_ATTEMPTS: u32 = 100;
 /// The shortest wait handed to iceoryx2's timed wait; shorter ones poll.
@@ -70,6 +79,9 @@ impl RunId {
         let mut config = Config::default();
         config.global.prefix =
             FileName::new(self.prefix().as_bytes()).map_err(|e| setup("run prefix", e))?;
+        config
+            .global
+            .set_root_path(&Path::new(ICEORYX_ROOT.as_bytes()).map_err(|e| setup("root path", e))?);
         let on = sweep == DeadNodeSweep::On;
         config.global.node.cleanup_dead_nodes_on_creation = on;
         config.global.node.cleanup_dead_nodes_on_destruction = on;
@@ -93,7 +105,7 @@ impl std::fmt::Display for RunId {
 pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
     let prefix = run.prefix();
     let mut removed = 0;
-    for dir in ["/dev/shm", ICEORYX_ROOT] {
+    for dir in RESOURCE_DIRS {
         removed += remove_with_prefix(std::path::Path::new(dir), &prefix)?;
     }
     Ok(removed)
@@ -173,7 +185,7 @@ fn process_start_time(pid: u32) -> Option<u64> {
 pub fn run_resources(run: &RunId) -> Vec<std::path::PathBuf> {
     let prefix = run.prefix();
     let mut found = Vec::new();
-    for dir in ["/dev/shm", ICEORYX_ROOT] {
+    for dir in RESOURCE_DIRS {
         collect_with_prefix(std::path::Path::new(dir), &prefix, &mut found);
     }
     found
