@@ -46,6 +46,17 @@ impl Counters {
         self.duplicated_bytes += o.duplicated_bytes;
     }
 
+    /// The messages and bytes of one pair: what the ledger's `Pair` names.
+    fn pair_mut(&mut self, pair: Pair) -> (&mut u64, &mut u64) {
+        match pair {
+            Pair::Sent => (&mut self.sent_messages, &mut self.sent_bytes),
+            Pair::Received => (&mut self.received_messages, &mut self.received_bytes),
+            Pair::Dropped => (&mut self.dropped_messages, &mut self.dropped_bytes),
+            Pair::Malformed => (&mut self.malformed_messages, &mut self.malformed_bytes),
+            Pair::Duplicated => (&mut self.duplicated_messages, &mut self.duplicated_bytes),
+        }
+    }
+
     /// Sent (and duplicated in transit) but neither received, dropped by a
     /// fault nor rejected as malformed: lost to a full queue or a receiver
     /// that died, or still held by a delay when the run ended. Bytes whose
@@ -97,10 +108,6 @@ impl Accounting {
         }
     }
 
-    fn entry(&mut self, from: ActorId, to: ActorId, kind: MessageKind) -> &mut Counters {
-        self.links.entry((from, to, kind)).or_default()
-    }
-
     fn mirror(&mut self, key: LinkKey, pair: Pair, messages: i64, bytes: usize) {
         let Some(ledger) = self.ledger.as_mut() else {
             return;
@@ -114,16 +121,17 @@ impl Accounting {
         }
     }
 
-    pub fn record_sent(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
-        self.add_sent((from, to, kind), 1, bytes);
+    /// `messages` (±1) of `bytes` each to one counter pair of one link, in
+    /// memory and in the ledger: every `record_*` comes through here.
+    fn add(&mut self, key: LinkKey, pair: Pair, messages: i64, bytes: usize) {
+        let (m, b) = self.links.entry(key).or_default().pair_mut(pair);
+        *m = m.wrapping_add_signed(messages);
+        *b = b.wrapping_add_signed(messages * bytes as i64);
+        self.mirror(key, pair, messages, bytes);
     }
 
-    /// `messages` (±1) of `bytes` each, sent on one link.
-    fn add_sent(&mut self, key: LinkKey, messages: i64, bytes: usize) {
-        let c = self.links.entry(key).or_default();
-        c.sent_messages = c.sent_messages.wrapping_add_signed(messages);
-        c.sent_bytes = c.sent_bytes.wrapping_add_signed(messages * bytes as i64);
-        self.mirror(key, Pair::Sent, messages, bytes);
+    pub fn record_sent(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
+        self.add((from, to, kind), Pair::Sent, 1, bytes);
     }
 
     /// Takes back [`record_sent_to`](Self::record_sent_to) for a message
@@ -136,7 +144,7 @@ impl Accounting {
         bytes: usize,
     ) {
         for to in receivers {
-            self.add_sent((from, *to, kind), -1, bytes);
+            self.add((from, *to, kind), Pair::Sent, -1, bytes);
         }
     }
 
@@ -155,17 +163,11 @@ impl Accounting {
     }
 
     pub fn record_received(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
-        let c = self.entry(from, to, kind);
-        c.received_messages += 1;
-        c.received_bytes += bytes as u64;
-        self.mirror((from, to, kind), Pair::Received, 1, bytes);
+        self.add((from, to, kind), Pair::Received, 1, bytes);
     }
 
     pub fn record_dropped(&mut self, from: ActorId, to: ActorId, kind: MessageKind, bytes: usize) {
-        let c = self.entry(from, to, kind);
-        c.dropped_messages += 1;
-        c.dropped_bytes += bytes as u64;
-        self.mirror((from, to, kind), Pair::Dropped, 1, bytes);
+        self.add((from, to, kind), Pair::Dropped, 1, bytes);
     }
 
     /// A message that did not decode, under the kind it was sent as when
@@ -177,10 +179,7 @@ impl Accounting {
         kind: MessageKind,
         bytes: usize,
     ) {
-        let c = self.entry(from, to, kind);
-        c.malformed_messages += 1;
-        c.malformed_bytes += bytes as u64;
-        self.mirror((from, to, kind), Pair::Malformed, 1, bytes);
+        self.add((from, to, kind), Pair::Malformed, 1, bytes);
     }
 
     /// A second copy of a message, made by a `duplicate` fault.
@@ -191,10 +190,7 @@ impl Accounting {
         kind: MessageKind,
         bytes: usize,
     ) {
-        let c = self.entry(from, to, kind);
-        c.duplicated_messages += 1;
-        c.duplicated_bytes += bytes as u64;
-        self.mirror((from, to, kind), Pair::Duplicated, 1, bytes);
+        self.add((from, to, kind), Pair::Duplicated, 1, bytes);
     }
 
     /// Adds `other`'s counts (in memory only: merging is the reader's work).

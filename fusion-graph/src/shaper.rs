@@ -109,9 +109,6 @@ pub struct LinkShaper {
     in_burst: HashMap<ActorId, bool>,
 }
 
-/// Where the kind byte sits in an encoded message (after the version).
-const KIND_BYTE: usize = 1;
-
 impl LinkShaper {
     pub fn new(seed: u64) -> Self {
         Self {
@@ -184,7 +181,7 @@ impl LinkShaper {
             };
             let mut b = bytes.to_vec();
             if !b.is_empty() && self.chance(rule.corrupt) {
-                tampering.corrupted_kind = b.get(KIND_BYTE).copied();
+                tampering.corrupted_kind = crate::wire::peek_kind(&b);
                 let bit = self.rng.random_range(0..b.len() * 8);
                 b[bit / 8] ^= 1 << (bit % 8);
             }

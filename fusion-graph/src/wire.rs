@@ -502,6 +502,13 @@ fn checksum(message: &[u8]) -> u16 {
     crc16(crc, &message[CHECKSUM_AT.end..])
 }
 
+/// The kind byte of an encoded message, read without decoding it (the byte
+/// after the version), so that a fault that damages a message can still
+/// say what was sent.
+pub fn peek_kind(message: &[u8]) -> Option<u8> {
+    message.get(1).copied()
+}
+
 /// Writes the checksum into an encoded message. Fuzzers use it too, so that
 /// a mutated message gets past the checksum to the code behind it.
 pub fn seal(message: &mut [u8]) {

@@ -34,31 +34,38 @@ pub fn normalized_innovation_squared(
         (ObservedValue::Cell(_), None) => return f64::INFINITY,
     };
     let n = particles.len().max(1) as f64;
-    // The predicted measurement: a circular mean for angles.
-    let (mut sum, mut sin, mut cos, mut noise) = (0.0, 0.0, 0.0, 0.0);
-    for x in particles {
-        let e = sensor.evaluate(x);
-        sum += e.g;
-        sin += e.g.sin();
-        cos += e.g.cos();
-        noise += e.r;
-    }
-    let predicted = if angular { sin.atan2(cos) } else { sum / n };
-    let residual = |g: f64| {
+    // One pass: each particle's g as an offset from the first particle's
+    // (wrapped, for angles), whose mean and spread are those of g itself.
+    let Some(first) = particles.first() else {
+        return f64::INFINITY;
+    };
+    let reference = sensor.evaluate(first).g;
+    let offset = |g: f64| {
         if angular {
-            wrap_angle(g - predicted)
+            wrap_angle(g - reference)
         } else {
-            g - predicted
+            g - reference
         }
     };
-    let spread = particles
-        .iter()
-        .map(|x| residual(sensor.evaluate(x).g).powi(2))
-        .sum::<f64>()
-        / n;
+    let (mut sum, mut sum_sq, mut noise) = (0.0, 0.0, 0.0);
+    for x in particles {
+        let e = sensor.evaluate(x);
+        let d = offset(e.g);
+        sum += d;
+        sum_sq += d * d;
+        noise += e.r;
+    }
+    let mean = sum / n;
+    let spread = (sum_sq / n - mean * mean).max(0.0);
+    let innovation = offset(z) - mean;
+    let innovation = if angular {
+        wrap_angle(innovation)
+    } else {
+        innovation
+    };
     let floor = information.map_or(0.0, |j| bound_floor(model, obs, particles, j));
     let s = spread.max(floor) + noise / n + cell_variance;
-    residual(z).powi(2) / s
+    innovation * innovation / s
 }
 
 /// `∇gᵀ J⁻¹ ∇g` at the particles' mean; 0 if J cannot be inverted.

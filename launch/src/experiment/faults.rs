@@ -22,7 +22,8 @@ macro_rules! fault {
     };
 }
 
-macro_rules! faults2 {
+/// `faults=[{…}, {…}, {…}]`: three faults, each stating its own window.
+macro_rules! three_faults {
     ($a:literal, $b:literal, $c:literal) => {
         concat!("faults=[{", $a, "}, {", $b, "}, {", $c, "}]")
     };
@@ -126,7 +127,7 @@ pub const MATRIX: [Arm; 27] = [
     },
     Arm {
         label: "SIGKILL, 3 of 9 nodes",
-        overrides: &[faults2!(
+        overrides: &[three_faults!(
             r#"kind = "kill", actor = "node-0", signal = "SIGKILL", at_step = 20, restart_after = 15"#,
             r#"kind = "kill", actor = "node-4", signal = "SIGKILL", at_step = 20, restart_after = 15"#,
             r#"kind = "kill", actor = "node-8", signal = "SIGKILL", at_step = 20, restart_after = 15"#
@@ -140,7 +141,7 @@ pub const MATRIX: [Arm; 27] = [
     },
     Arm {
         label: "SIGSTOP, 3 of 9 nodes",
-        overrides: &[faults2!(
+        overrides: &[three_faults!(
             r#"kind = "kill", actor = "node-0", signal = "SIGSTOP", at_step = 20, restart_after = 15"#,
             r#"kind = "kill", actor = "node-4", signal = "SIGSTOP", at_step = 20, restart_after = 15"#,
             r#"kind = "kill", actor = "node-8", signal = "SIGSTOP", at_step = 20, restart_after = 15"#
