@@ -241,9 +241,10 @@ fn world_thread(
     })?;
     progress(RunProgress::Running);
     w.transport.update_connections();
+    let startup_seconds = started.elapsed().as_secs_f64();
     tracing::info!(
         actors = actors.len(),
-        seconds = started.elapsed().as_secs_f64(),
+        seconds = startup_seconds,
         "every actor is ready"
     );
 
@@ -433,6 +434,7 @@ fn world_thread(
             wall_seconds: started.elapsed().as_secs_f64(),
             steps_per_second: steps_done as f64 / wall_steps,
             processes: topology.nodes() + topology.sensors() + 1,
+            startup_seconds: Some(startup_seconds),
             children_memory_kb: children_memory(&options.out, topology),
             real_time_rounds: true,
             unscheduled_faults: w
@@ -495,13 +497,14 @@ impl WorldState<'_> {
                 Ok(Event::Interrupted) => bail!("interrupted while starting"),
                 Ok(Event::AllReaped) => bail!("the supervisor stopped"),
                 Err(_) => {
-                    let mut names: Vec<String> = waiting.iter().map(|a| a.to_string()).collect();
-                    names.sort();
+                    let mut late: Vec<ActorId> = waiting.into_iter().collect();
+                    late.sort();
                     bail!(
-                        "{} actors were not ready after {:?}: {}",
-                        names.len(),
+                        "{} of {} actors were not ready after {:?}: {}",
+                        late.len(),
+                        actors.len(),
                         START_TIMEOUT,
-                        names.join(", ")
+                        name_some(&late, 10)
                     );
                 }
             }
@@ -654,4 +657,29 @@ fn merge_accounting(out: &Path, topology: &Topology, launcher: &Accounting) -> A
         }
     }
     total
+}
+
+/// The first `shown` names, and how many more: 2,358 names in one error
+/// line hide the message.
+fn name_some(actors: &[ActorId], shown: usize) -> String {
+    let names: Vec<String> = actors.iter().take(shown).map(ActorId::to_string).collect();
+    match actors.len().saturating_sub(shown) {
+        0 => names.join(", "),
+        more => format!("{} and {more} more", names.join(", ")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_long_list_of_actors_is_cut_short() {
+        let actors: Vec<ActorId> = (0..2358).map(ActorId::Sensor).collect();
+        assert_eq!(
+            name_some(&actors, 3),
+            "sensor-0, sensor-1, sensor-2 and 2355 more"
+        );
+        assert_eq!(name_some(&actors[..2], 3), "sensor-0, sensor-1");
+    }
 }

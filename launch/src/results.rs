@@ -385,6 +385,8 @@ pub struct RunFacts {
     pub wall_seconds: f64,
     pub steps_per_second: f64,
     pub processes: usize,
+    /// `run`: seconds from the launcher's start to every actor's `ready`.
+    pub startup_seconds: Option<f64>,
     pub children_memory_kb: Option<crate::summary::ChildrenMemory>,
     /// Whether the consensus round latency means anything: in `sim` the
     /// rounds run on the virtual clock.
@@ -523,6 +525,7 @@ impl<'w> Recorder<'w> {
                 None
             },
             processes: facts.processes,
+            startup_seconds: facts.startup_seconds,
             peak_memory_kb: peak_memory_kb(),
             children_memory_kb: facts.children_memory_kb,
         };

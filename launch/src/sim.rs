@@ -439,6 +439,7 @@ pub fn run_in_process(
             wall_seconds: wall,
             steps_per_second: scenario.steps as f64 / wall,
             processes: 1,
+            startup_seconds: None,
             children_memory_kb: None,
             real_time_rounds: false,
             unscheduled_faults: Vec::new(),

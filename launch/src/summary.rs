@@ -199,6 +199,9 @@ pub struct Summary {
     /// (multi-process runs).
     pub round_latency_micros: Option<Percentiles>,
     pub processes: usize,
+    /// `run`: seconds from the launcher's start to every actor's `ready`.
+    #[serde(default)]
+    pub startup_seconds: Option<f64>,
     /// Peak resident memory of the launcher (or the one `sim` process), kB.
     pub peak_memory_kb: Option<u64>,
     /// `run`: the children's memory, kB.
@@ -351,6 +354,9 @@ pub fn print_table(s: &Summary) {
         );
     }
     println!("  {:<34} {:>12}", "processes", s.processes);
+    if let Some(seconds) = s.startup_seconds {
+        println!("  {:<34} {:>12.1}", "start-up, s", seconds);
+    }
     if let Some(m) = &s.children_memory_kb {
         println!(
             "  {:<34} {:>12}",

@@ -189,41 +189,46 @@ fn spawn(
     if rejoin {
         cmd.arg("--rejoin");
     }
+    // One pipe for the child's stdout and stderr: the launcher holds one
+    // descriptor per child for its output instead of two, and opens its
+    // log file only when it has something to say. At 2,600 children the
+    // launcher's descriptors are what limits the network (ulimit -n).
+    let (output, child_output) = std::io::pipe()?;
     cmd.stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
+        .stdout(Stdio::from(child_output.try_clone()?))
+        .stderr(Stdio::from(child_output))
         .kill_on_drop(true);
     let mut child = cmd.spawn()?;
+    // The write ends must close here, or the reader never sees the end.
+    drop(cmd);
     let pid = child.id();
-    let stdout = child.stdout.take().expect("piped");
-    let stderr = child.stderr.take().expect("piped");
+    let output = tokio::net::unix::pipe::Receiver::from_owned_fd(output.into())?;
     let tail = Arc::new(Mutex::new(VecDeque::new()));
     let (done_tx, done_rx) = tokio::sync::watch::channel(false);
 
+    let log_path = spec.log_dir.join(format!("{actor}.log"));
+    let output_tail = tail.clone();
     let ready_events = events.clone();
-    tokio::spawn(async move {
-        let mut lines = BufReader::new(stdout).lines();
+    let output_done = tokio::spawn(async move {
+        let mut log: Option<tokio::fs::File> = None;
+        let mut lines = BufReader::new(output).lines();
         while let Ok(Some(line)) = lines.next_line().await {
             if line.trim() == "ready" {
                 let _ = ready_events.send(Event::Ready(actor));
+                continue;
             }
-        }
-    });
-    let log_path = spec.log_dir.join(format!("{actor}.log"));
-    let stderr_tail = tail.clone();
-    let stderr_done = tokio::spawn(async move {
-        let mut log = tokio::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&log_path)
-            .await
-            .ok();
-        let mut lines = BufReader::new(stderr).lines();
-        while let Ok(Some(line)) = lines.next_line().await {
+            if log.is_none() {
+                log = tokio::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(&log_path)
+                    .await
+                    .ok();
+            }
             if let Some(f) = log.as_mut() {
                 let _ = f.write_all(format!("{line}\n").as_bytes()).await;
             }
-            let mut t = stderr_tail.lock().expect("tail lock");
+            let mut t = output_tail.lock().expect("tail lock");
             if t.len() == STDERR_TAIL_LINES {
                 t.pop_front();
             }
@@ -236,8 +241,8 @@ fn spawn(
             .wait()
             .await
             .map_or_else(|e| format!("wait failed: {e}"), |s| s.to_string());
-        // Let the stderr reader take the last lines before reporting.
-        let _ = tokio::time::timeout(Duration::from_millis(500), stderr_done).await;
+        // Let the output reader take the last lines before reporting.
+        let _ = tokio::time::timeout(Duration::from_millis(500), output_done).await;
         let stderr_tail = exit_tail
             .lock()
             .expect("tail lock")
