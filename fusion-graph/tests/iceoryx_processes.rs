@@ -264,19 +264,58 @@ fn runs_with_different_ids_never_see_each_other() {
 
 #[test]
 fn cleanup_removes_every_resource_of_the_run() {
-    let id = {
+    let (id, node_dirs) = {
         let mut run = Run::new("cleanup");
         let node = node_transport(&run.id);
         run.spawn("send-20");
         run.finish();
-        assert!(
-            !run_resources(&run.id).is_empty(),
-            "the run created no files under its prefix"
-        );
+        let files = run_resources(&run.id);
+        assert!(!files.is_empty(), "the run created no files under its prefix");
+        // iceoryx2's per-node directories, named by node id, not prefixed.
+        let node_dirs: Vec<std::path::PathBuf> = files
+            .iter()
+            .filter_map(|f| f.parent())
+            .filter(|d| d.parent().is_some_and(|p| p.ends_with("nodes")))
+            .map(std::path::Path::to_path_buf)
+            .collect();
+        assert!(!node_dirs.is_empty(), "no node directory among {files:?}");
         drop(node);
-        run.id.clone()
+        (run.id.clone(), node_dirs)
     };
     assert_eq!(run_resources(&id), Vec::<std::path::PathBuf>::new());
+    let left: Vec<_> = node_dirs.iter().filter(|d| d.exists()).collect();
+    assert!(left.is_empty(), "node directories left: {left:?}");
+}
+
+/// A SIGKILLed process cannot remove its iceoryx2 node directory (named by
+/// node id, without the run's prefix): the run's cleanup must, or every
+/// killed actor leaves one behind (14,363 had piled up in a day).
+#[test]
+fn cleanup_removes_the_node_directory_of_a_killed_process() {
+    let mut run = Run::new("killed-dir");
+    run.spawn("wait-then-send");
+    let node_dirs = || -> Vec<std::path::PathBuf> {
+        run_resources(&run.id)
+            .iter()
+            .filter_map(|f| f.parent())
+            .filter(|d| d.parent().is_some_and(|p| p.ends_with("nodes")))
+            .map(std::path::Path::to_path_buf)
+            .collect()
+    };
+    let start = Instant::now();
+    let mut dirs = node_dirs();
+    while dirs.is_empty() {
+        assert!(start.elapsed() < Duration::from_secs(30), "the child made no node");
+        std::thread::sleep(Duration::from_millis(10));
+        dirs = node_dirs();
+    }
+    let mut child = run.child.take().unwrap();
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    remove_run_resources(&run.id).unwrap();
+    assert_eq!(run_resources(&run.id), Vec::<std::path::PathBuf>::new());
+    let left: Vec<_> = dirs.iter().filter(|d| d.exists()).collect();
+    assert!(left.is_empty(), "node directories left: {left:?}");
 }
 
 /// A wait interrupted by a signal (here SIGSTOP then SIGCONT, which Linux

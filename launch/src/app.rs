@@ -165,11 +165,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Clean => {
             let cleaned = fusion_graph::transport::iceoryx::sweep_abandoned_runs()
                 .context("sweeping abandoned runs")?;
-            if cleaned.is_empty() {
+            let directories = fusion_graph::transport::iceoryx::remove_stale_node_directories()
+                .context("removing empty iceoryx2 node directories")?;
+            if cleaned.is_empty() && directories == 0 {
                 println!("no abandoned run: nothing to remove");
             }
             for run in cleaned {
                 println!("removed the shared memory of run {}", run.as_str());
+            }
+            if directories > 0 {
+                println!("removed {directories} empty iceoryx2 node directories left by earlier runs");
             }
             Ok(())
         }

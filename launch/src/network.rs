@@ -74,6 +74,9 @@ pub fn run_network(
         Ok(_) => {}
         Err(e) => tracing::warn!(error = %e, "could not sweep abandoned runs"),
     }
+    if let Err(e) = fusion_graph::transport::iceoryx::remove_stale_node_directories() {
+        tracing::warn!(error = %e, "could not remove empty iceoryx2 node directories");
+    }
     // Without a lease (a registry another user owns, say) the run still
     // goes; only `cqnet clean` could not find it after a SIGKILL.
     let _lease = RunLease::acquire(&options.run_id)
