@@ -270,7 +270,10 @@ fn cleanup_removes_every_resource_of_the_run() {
         run.spawn("send-20");
         run.finish();
         let files = run_resources(&run.id);
-        assert!(!files.is_empty(), "the run created no files under its prefix");
+        assert!(
+            !files.is_empty(),
+            "the run created no files under its prefix"
+        );
         // iceoryx2's per-node directories, named by node id, not prefixed.
         let node_dirs: Vec<std::path::PathBuf> = files
             .iter()
@@ -305,7 +308,10 @@ fn cleanup_removes_the_node_directory_of_a_killed_process() {
     let start = Instant::now();
     let mut dirs = node_dirs();
     while dirs.is_empty() {
-        assert!(start.elapsed() < Duration::from_secs(30), "the child made no node");
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "the child made no node"
+        );
         std::thread::sleep(Duration::from_millis(10));
         dirs = node_dirs();
     }

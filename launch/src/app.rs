@@ -174,7 +174,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 println!("removed the shared memory of run {}", run.as_str());
             }
             if directories > 0 {
-                println!("removed {directories} empty iceoryx2 node directories left by earlier runs");
+                println!(
+                    "removed {directories} empty iceoryx2 node directories left by earlier runs"
+                );
             }
             Ok(())
         }
