@@ -262,6 +262,18 @@ fn runs_with_different_ids_never_see_each_other() {
     assert_eq!(node_b.accounting().iter().count(), 0);
 }
 
+/// The iceoryx2 node directories that hold files of `run`: named by node
+/// id, without the run's prefix.
+fn node_directories(run: &RunId) -> Vec<std::path::PathBuf> {
+    let dirs: std::collections::BTreeSet<std::path::PathBuf> = run_resources(run)
+        .iter()
+        .filter_map(|f| f.parent())
+        .filter(|d| d.parent().is_some_and(|p| p.ends_with("nodes")))
+        .map(std::path::Path::to_path_buf)
+        .collect();
+    dirs.into_iter().collect()
+}
+
 #[test]
 fn cleanup_removes_every_resource_of_the_run() {
     let (id, node_dirs) = {
@@ -274,13 +286,7 @@ fn cleanup_removes_every_resource_of_the_run() {
             !files.is_empty(),
             "the run created no files under its prefix"
         );
-        // iceoryx2's per-node directories, named by node id, not prefixed.
-        let node_dirs: Vec<std::path::PathBuf> = files
-            .iter()
-            .filter_map(|f| f.parent())
-            .filter(|d| d.parent().is_some_and(|p| p.ends_with("nodes")))
-            .map(std::path::Path::to_path_buf)
-            .collect();
+        let node_dirs = node_directories(&run.id);
         assert!(!node_dirs.is_empty(), "no node directory among {files:?}");
         drop(node);
         (run.id.clone(), node_dirs)
@@ -292,28 +298,20 @@ fn cleanup_removes_every_resource_of_the_run() {
 
 /// A SIGKILLed process cannot remove its iceoryx2 node directory (named by
 /// node id, without the run's prefix): the run's cleanup must, or every
-/// killed actor leaves one behind (14,363 had piled up in a day).
+/// killed actor leaves one behind (15,297 had piled up on the development machine).
 #[test]
 fn cleanup_removes_the_node_directory_of_a_killed_process() {
     let mut run = Run::new("killed-dir");
     run.spawn("wait-then-send");
-    let node_dirs = || -> Vec<std::path::PathBuf> {
-        run_resources(&run.id)
-            .iter()
-            .filter_map(|f| f.parent())
-            .filter(|d| d.parent().is_some_and(|p| p.ends_with("nodes")))
-            .map(std::path::Path::to_path_buf)
-            .collect()
-    };
     let start = Instant::now();
-    let mut dirs = node_dirs();
+    let mut dirs = node_directories(&run.id);
     while dirs.is_empty() {
         assert!(
             start.elapsed() < Duration::from_secs(30),
             "the child made no node"
         );
         std::thread::sleep(Duration::from_millis(10));
-        dirs = node_dirs();
+        dirs = node_directories(&run.id);
     }
     let mut child = run.child.take().unwrap();
     child.kill().unwrap(); // SIGKILL

@@ -17,7 +17,8 @@ use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::signal::unix::{signal as unix_signal, SignalKind};
 use tokio::sync::mpsc::UnboundedReceiver;
 
-/// Lines of a child's stderr kept for error messages.
+/// Lines of a child's output kept for error messages (its stderr: its
+/// stdout carries only the `ready` line, which is not kept).
 const STDERR_TAIL_LINES: usize = 20;
 /// After asking children to stop: wait this long, then SIGTERM, then SIGKILL.
 const GRACE: Duration = Duration::from_secs(3);

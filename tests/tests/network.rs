@@ -471,13 +471,15 @@ fn a_network_too_large_for_the_machine_is_refused_before_it_starts() {
         .run()
         .unwrap();
     r.assert_failure_naming(&["filter.particles", "GiB", "available"]);
-    // Every child makes its ledger first thing.
-    let ledgers = r.out_dir().join("accounting");
-    assert!(
-        !ledgers.exists() || std::fs::read_dir(&ledgers).unwrap().next().is_none(),
-        "children were started"
-    );
+    assert!(no_child_started(r.out_dir()), "children were started");
     r.assert_clean();
+}
+
+/// Every child makes its ledger first thing: a run without ledgers started
+/// none.
+fn no_child_started(out: &std::path::Path) -> bool {
+    let ledgers = out.join("accounting");
+    !ledgers.exists() || std::fs::read_dir(&ledgers).unwrap().next().is_none()
 }
 
 /// The launcher holds about 7 descriptors per child (13 with the
@@ -515,11 +517,7 @@ fn too_few_file_descriptors_are_refused_before_anything_starts() {
     for needle in ["file descriptors", "ulimit -Hn", "--no-central"] {
         assert!(stderr.contains(needle), "no {needle:?} in: {stderr}");
     }
-    let ledgers = out.join("accounting");
-    assert!(
-        !ledgers.exists() || std::fs::read_dir(&ledgers).unwrap().next().is_none(),
-        "children were started"
-    );
+    assert!(no_child_started(&out), "children were started");
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -228,7 +228,7 @@ fn remove_with_prefix(dir: &std::path::Path, prefix: &str) -> std::io::Result<us
     }
     // iceoryx2 keeps each node's files in a directory named by the node's
     // id, without the run's prefix: the ones this removal emptied are the
-    // run's. (Left behind, 14,363 of them had piled up in a day.)
+    // run's. (Left behind, 15,297 had piled up on the development machine.)
     for parent in parents {
         if std::fs::remove_dir(&parent).is_ok() {
             n += 1;
