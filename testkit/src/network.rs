@@ -433,14 +433,8 @@ impl RunningNetwork {
     /// to the launcher or to one actor's process; returns how many
     /// processes it reached.
     pub fn signal(&self, target: Target, signal: &str) -> usize {
-        let pids = match (target, &self.child) {
-            (Target::Launcher, Some(c)) => vec![c.id()],
-            (Target::Launcher, None) => vec![],
-            (Target::Actor(a), _) => {
-                processes_matching(&format!("--run-id {} --actor {a} ", self.run_id.as_str()))
-            }
-        };
-        pids.iter()
+        self.pids(target)
+            .iter()
             .filter(|pid| {
                 Command::new("kill")
                     .arg(format!("-{signal}"))
@@ -449,6 +443,18 @@ impl RunningNetwork {
                     .is_ok_and(|s| s.success())
             })
             .count()
+    }
+
+    /// The process ids of the launcher or of one actor: one while it
+    /// runs, none while it is down (a restarted actor has a new one).
+    pub fn pids(&self, target: Target) -> Vec<u32> {
+        match (target, &self.child) {
+            (Target::Launcher, Some(c)) => vec![c.id()],
+            (Target::Launcher, None) => vec![],
+            (Target::Actor(a), _) => {
+                processes_matching(&format!("--run-id {} --actor {a} ", self.run_id.as_str()))
+            }
+        }
     }
 
     fn has_exited(&mut self) -> bool {

@@ -232,6 +232,61 @@ fn a_restarted_node_rejoins_and_tracks_again() {
     r.assert_clean();
 }
 
+/// No actor holds a descriptor of the launcher's. iceoryx2 makes its event
+/// sockets without close-on-exec, so every child used to start with the
+/// launcher's sockets of the moment it was spawned: 3 sockets in a sensor
+/// instead of 2, 12 in a restarted one, and the soak's descriptors grew with
+/// every restart of an actor not restarted before.
+#[test]
+fn no_actor_inherits_a_descriptor_of_the_launchers() {
+    let _guard = exclusive();
+    let restarted = ActorId::Sensor(0);
+    let mut running = small(network("inherit", 1000))
+        .no_central()
+        .fault(kill("sensor-0", 3, Signal::Kill, Some(2)))
+        .start()
+        .unwrap();
+    assert!(running.wait_for_step(8, REACH), "no step 8");
+    let launcher = running.pids(Target::Launcher);
+    let launchers = shared_objects(launcher[0], 0);
+    assert!(!launchers.is_empty(), "the launcher holds sockets and pipes");
+    for actor in [restarted, ActorId::Sensor(1), ActorId::Node(0)] {
+        let pids = running.pids(Target::Actor(actor));
+        assert_eq!(pids.len(), 1, "{actor}: {pids:?}");
+        // 0, 1 and 2 are the output pipe the launcher reads, shared on purpose.
+        let inherited: Vec<_> = shared_objects(pids[0], 3)
+            .intersection(&launchers)
+            .cloned()
+            .collect();
+        assert!(
+            inherited.is_empty(),
+            "{actor} holds the launcher's {inherited:?}"
+        );
+    }
+    assert_eq!(running.signal(Target::Launcher, "TERM"), 1);
+    running.wait().unwrap().assert_clean();
+}
+
+/// The sockets and pipes a process holds at descriptor `from` and above,
+/// by kernel object (`socket:[inode]`), which two processes share only
+/// if one inherited it from the other.
+fn shared_objects(pid: u32, from: u32) -> std::collections::BTreeSet<String> {
+    let dir = format!("/proc/{pid}/fd");
+    std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{dir}: {e}"))
+        .flatten()
+        .filter(|e| {
+            e.file_name()
+                .to_str()
+                .and_then(|n| n.parse::<u32>().ok())
+                .is_some_and(|fd| fd >= from)
+        })
+        .filter_map(|e| std::fs::read_link(e.path()).ok())
+        .map(|target| target.to_string_lossy().into_owned())
+        .filter(|t| t.starts_with("socket:") || t.starts_with("pipe:"))
+        .collect()
+}
+
 #[test]
 fn two_runs_at_once_count_the_same_bytes_as_one_alone_and_leave_nothing() {
     let _guard = exclusive();
