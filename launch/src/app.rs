@@ -228,8 +228,12 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         scenario.faults.len()
     );
     type Figure = fn(&crate::soak::Sample) -> f64;
-    let figures: [(&str, Figure); 4] = [
+    let figures: [(&str, Figure); 6] = [
         ("RSS, all processes (kB)", |s| s.rss_kb as f64),
+        ("  of which private (kB)", |s| s.private_kb as f64),
+        ("  the launcher's private (kB)", |s| {
+            s.launcher_private_kb as f64
+        }),
         ("open file descriptors", |s| s.fds as f64),
         ("/dev/shm + iceoryx2 entries", |s| s.shm_entries as f64),
         ("processes", |s| s.processes as f64),

@@ -277,6 +277,14 @@ fn world_thread(
         let views = schedule.membership_views(step, topology, &w.alive);
         let truth = world.advance();
         truths.insert(step, truth.into());
+        // Reports later than the horizon are left out, so their truths go too.
+        while let Some(oldest) = truths.first_entry() {
+            if *oldest.key() + crate::results::LATE_ROW_HORIZON >= step {
+                break;
+            }
+            oldest.remove();
+        }
+        recorder.begin_step(step);
         crate::world::begin_step(
             &mut w.transport,
             step,

@@ -395,6 +395,11 @@ pub struct RunFacts {
     pub unscheduled_faults: Vec<crate::summary::AppliedFault>,
 }
 
+/// How many steps late a node's report may arrive and still count. Older
+/// reports are left out: the launcher keeps each step's truth and reporters
+/// only this long, so that its memory does not grow with the run.
+pub const LATE_ROW_HORIZON: u32 = 1000;
+
 /// One recorder for `sim` and `run`: takes the rows as they come, writes
 /// `ticks.csv` as it goes, and at the end `links.csv` and `summary.json`.
 pub struct Recorder<'w> {
@@ -404,9 +409,13 @@ pub struct Recorder<'w> {
     averages: Averages,
     stages: crate::summary::StageSums,
     cost: crate::summary::FaultCost,
-    round_latency: Vec<f64>,
-    /// Which nodes reported each step: a node's row counts once.
+    round_latency: crate::summary::LatencyHistogram,
+    /// Which nodes reported each step still within [`LATE_ROW_HORIZON`]: a
+    /// node's row counts once.
     reported: std::collections::BTreeMap<u32, std::collections::BTreeSet<u16>>,
+    /// Rows of the steps that have left `reported`: those before `horizon`.
+    reported_earlier: u64,
+    horizon: u32,
     /// Per-step errors, for what each fault did to tracking.
     series: StepSeries,
 }
@@ -424,8 +433,10 @@ impl<'w> Recorder<'w> {
             averages: Averages::default(),
             stages: Default::default(),
             cost: Default::default(),
-            round_latency: Vec::new(),
+            round_latency: Default::default(),
             reported: Default::default(),
+            reported_earlier: 0,
+            horizon: 0,
             series: StepSeries::default(),
         }
     }
@@ -433,6 +444,19 @@ impl<'w> Recorder<'w> {
     /// How many nodes reported `step`.
     pub fn reports(&self, step: u32) -> usize {
         self.reported.get(&step).map_or(0, |s| s.len())
+    }
+
+    /// At `step`: forgets which nodes reported the steps before `step -`
+    /// [`LATE_ROW_HORIZON`], keeping their count: what the launcher holds
+    /// stays the same however long the run.
+    pub fn begin_step(&mut self, step: u32) {
+        self.horizon = self.horizon.max(step.saturating_sub(LATE_ROW_HORIZON));
+        while let Some(entry) = self.reported.first_entry() {
+            if *entry.key() >= self.horizon {
+                break;
+            }
+            self.reported_earlier += entry.remove().len() as u64;
+        }
     }
 
     /// Node rows (a repeated one is ignored) and the centralized
@@ -445,6 +469,14 @@ impl<'w> Recorder<'w> {
                 .strip_prefix("node-")
                 .and_then(|n| n.parse::<u16>().ok())
             {
+                if r.step < self.horizon {
+                    tracing::warn!(
+                        step = r.step,
+                        node = n,
+                        "a report older than the horizon is left out"
+                    );
+                    continue;
+                }
                 if !self.reported.entry(r.step).or_default().insert(n) {
                     continue;
                 }
@@ -455,7 +487,7 @@ impl<'w> Recorder<'w> {
                 if t.rounds_completed > 1 {
                     // Rounds 2..N_c: every neighbour is exchanging by then.
                     self.round_latency
-                        .push(t.stage_micros[2] as f64 / (t.rounds_completed - 1) as f64);
+                        .add(t.stage_micros[2] as f64 / (t.rounds_completed - 1) as f64);
                 }
                 if (t.live_neighbours as usize) < self.degree[n as usize] {
                     self.cost.rounds_with_fewer_neighbours += 1;
@@ -476,7 +508,8 @@ impl<'w> Recorder<'w> {
     ) -> anyhow::Result<crate::summary::Summary> {
         self.writer.write_links(accounting)?;
         let nodes = self.degree.len() as u64;
-        let reported: u64 = self.reported.values().map(|s| s.len() as u64).sum();
+        let reported =
+            self.reported_earlier + self.reported.values().map(|s| s.len() as u64).sum::<u64>();
         self.cost.missing_node_steps = (facts.steps_done as u64 * nodes).saturating_sub(reported);
         self.cost.dropped_messages = accounting
             .by_kind()
@@ -520,7 +553,7 @@ impl<'w> Recorder<'w> {
             steps_per_second: facts.steps_per_second,
             stage_micros: self.stages.means(),
             round_latency_micros: if facts.real_time_rounds {
-                crate::summary::Percentiles::of(&mut self.round_latency)
+                self.round_latency.percentiles()
             } else {
                 None
             },
@@ -531,5 +564,75 @@ impl<'w> Recorder<'w> {
         };
         self.writer.write_summary(&summary)?;
         Ok(summary)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(step: u32, node: u16) -> TickRow {
+        TickRow {
+            step,
+            node: format!("node-{node}"),
+            truth: [0.0; 4],
+            telemetry: Telemetry {
+                estimate: [1.0, 0.0, 0.0, 0.0],
+                bound: Some(1.0),
+                local_bound: None,
+                aux_bound: None,
+                rounds_completed: 3,
+                live_neighbours: 1,
+                observations: 3,
+                gated: 0,
+                deadline_missed: false,
+                late_messages: 0,
+                stage_micros: [10, 10, 40, 50, 0],
+            },
+        }
+    }
+
+    /// Past the horizon the recorder forgets who reported, not how many:
+    /// the summary's missing node-steps stay exact, a repeated row still
+    /// counts once, and a row older than the horizon is left out.
+    #[test]
+    fn reports_past_the_horizon_are_forgotten_but_counted() {
+        let dir = std::env::temp_dir().join(format!("cqnet-recorder-{}", std::process::id()));
+        let mut writer = ResultsWriter::create(&dir).unwrap();
+        let mut scenario = fusion_graph::Scenario::default_scenario();
+        scenario.faults.clear();
+        let topology = fusion_graph::Topology::from_scenario(&scenario, "d").unwrap();
+        let steps = 3 * LATE_ROW_HORIZON;
+        let mut recorder = Recorder::new(&mut writer, &scenario, &topology);
+        for step in 1..=steps {
+            recorder.begin_step(step);
+            // Node 0 misses every tenth step; node 1 reports twice.
+            let rows = (0..topology.nodes() as u16)
+                .filter(|n| *n != 0 || step % 10 != 0)
+                .map(|n| row(step, n))
+                .chain([row(step, 1)])
+                .collect();
+            recorder.record(rows).unwrap();
+        }
+        assert!(recorder.reported.len() <= LATE_ROW_HORIZON as usize + 1);
+        // Too late: step 1 is long past the horizon.
+        recorder.record(vec![row(1, 0), row(10, 0)]).unwrap();
+        let facts = RunFacts {
+            command: "test".into(),
+            run_id: "test".into(),
+            steps_done: steps,
+            wall_seconds: 1.0,
+            steps_per_second: 1.0,
+            processes: 1,
+            startup_seconds: None,
+            children_memory_kb: None,
+            real_time_rounds: true,
+            unscheduled_faults: vec![],
+        };
+        let summary = recorder.finish(&Accounting::default(), facts).unwrap();
+        assert_eq!(summary.fault_cost.missing_node_steps, steps as u64 / 10);
+        let latency = summary.round_latency_micros.unwrap();
+        assert_eq!((latency.p50, latency.p99), (20.0, 20.0));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

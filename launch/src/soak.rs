@@ -20,6 +20,13 @@ pub struct Sample {
     pub step: u32,
     pub processes: usize,
     pub rss_kb: u64,
+    /// The part of `rss_kb` that is the processes' own (heap, stacks:
+    /// `RssAnon`). The rest is mapped files and shared memory, which grows
+    /// as pages of segments sized at start are first touched, up to their
+    /// size, and is counted once per process that maps them.
+    pub private_kb: u64,
+    /// The launcher's own `RssAnon`.
+    pub launcher_private_kb: u64,
     pub fds: usize,
     pub shm_entries: usize,
 }
@@ -91,11 +98,14 @@ fn sample(run: &RunId, step: u32, started: Instant) -> Sample {
     let me = std::process::id();
     let mut pids = vec![me];
     pids.extend(children_of(me));
+    let footprints: Vec<Memory> = pids.iter().filter_map(|p| memory(*p)).collect();
     Sample {
         seconds: started.elapsed().as_secs_f64(),
         step,
         processes: pids.len(),
-        rss_kb: pids.iter().filter_map(|p| rss_kb(*p)).sum(),
+        rss_kb: footprints.iter().map(|m| m.rss_kb).sum(),
+        private_kb: footprints.iter().map(|m| m.private_kb).sum(),
+        launcher_private_kb: memory(me).map_or(0, |m| m.private_kb),
         fds: pids.iter().filter_map(|p| open_fds(*p)).sum(),
         shm_entries: run_resources(run).len(),
     }
@@ -122,10 +132,21 @@ fn parent_of(pid: u32) -> Option<u32> {
         .ok()
 }
 
-fn rss_kb(pid: u32) -> Option<u64> {
+struct Memory {
+    rss_kb: u64,
+    private_kb: u64,
+}
+
+fn memory(pid: u32) -> Option<Memory> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    line.split_whitespace().nth(1)?.parse().ok()
+    let field = |name: &str| -> Option<u64> {
+        let line = status.lines().find(|l| l.starts_with(name))?;
+        line.split_whitespace().nth(1)?.parse().ok()
+    };
+    Some(Memory {
+        rss_kb: field("VmRSS:")?,
+        private_kb: field("RssAnon:")?,
+    })
 }
 
 fn open_fds(pid: u32) -> Option<usize> {
@@ -134,11 +155,20 @@ fn open_fds(pid: u32) -> Option<usize> {
 
 /// `soak.csv`, one row per sample.
 pub fn write_samples(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
-    let mut text = String::from("seconds,step,processes,rss_kb,fds,shm_entries\n");
+    let mut text = String::from(
+        "seconds,step,processes,rss_kb,private_kb,launcher_private_kb,fds,shm_entries\n",
+    );
     for s in samples {
         text.push_str(&format!(
-            "{:.1},{},{},{},{},{}\n",
-            s.seconds, s.step, s.processes, s.rss_kb, s.fds, s.shm_entries
+            "{:.1},{},{},{},{},{},{},{}\n",
+            s.seconds,
+            s.step,
+            s.processes,
+            s.rss_kb,
+            s.private_kb,
+            s.launcher_private_kb,
+            s.fds,
+            s.shm_entries
         ));
     }
     crate::results::write_atomically(path, text.as_bytes())
@@ -202,6 +232,8 @@ mod tests {
             step,
             processes: 1,
             rss_kb: rss,
+            private_kb: rss,
+            launcher_private_kb: rss,
             fds: 3,
             shm_entries: 0,
         }
@@ -224,6 +256,7 @@ mod tests {
         let run = RunId::new("soak-unit").unwrap();
         let x = sample(&run, 0, Instant::now());
         assert!(x.processes >= 1 && x.rss_kb > 0 && x.fds >= 3, "{x:?}");
+        assert!(x.private_kb > 0 && x.private_kb <= x.rss_kb, "{x:?}");
     }
 
     #[test]

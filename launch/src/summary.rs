@@ -248,6 +248,84 @@ impl Percentiles {
     }
 }
 
+/// Round latencies in fixed memory, however long the run: every whole
+/// microsecond below [`LatencyHistogram::EXACT`] has its own bucket, and
+/// each octave above it [`LatencyHistogram::PER_OCTAVE`] buckets, so a
+/// percentile is off by under 1.6 %. A list of every round grew by 72 bytes
+/// a step, which the soak counts as a leak.
+#[derive(Debug, Clone)]
+pub struct LatencyHistogram {
+    counts: Vec<u64>,
+    n: u64,
+}
+
+impl Default for LatencyHistogram {
+    fn default() -> Self {
+        Self {
+            counts: vec![0; Self::EXACT as usize + Self::OCTAVES * Self::PER_OCTAVE],
+            n: 0,
+        }
+    }
+}
+
+impl LatencyHistogram {
+    const EXACT: u64 = 1024;
+    const PER_OCTAVE: usize = 64;
+    /// From 2¹⁰ µs to 2⁴² µs (about 50 days): anything longer is counted there.
+    const OCTAVES: usize = 32;
+
+    pub fn add(&mut self, micros: f64) {
+        let i = Self::bucket(micros).min(self.counts.len() - 1);
+        self.counts[i] += 1;
+        self.n += 1;
+    }
+
+    fn bucket(micros: f64) -> usize {
+        let v = micros.max(0.0) as u64;
+        if v < Self::EXACT {
+            return v as usize;
+        }
+        let octave = (63 - v.leading_zeros()) as usize - Self::EXACT.trailing_zeros() as usize;
+        let shift = octave + Self::EXACT.trailing_zeros() as usize
+            - Self::PER_OCTAVE.trailing_zeros() as usize;
+        let within = ((v >> shift) as usize) - Self::PER_OCTAVE;
+        Self::EXACT as usize + octave * Self::PER_OCTAVE + within
+    }
+
+    /// The middle of bucket `i`'s range.
+    fn value(i: usize) -> f64 {
+        if i < Self::EXACT as usize {
+            return i as f64;
+        }
+        let octave = (i - Self::EXACT as usize) / Self::PER_OCTAVE;
+        let within = (i - Self::EXACT as usize) % Self::PER_OCTAVE;
+        let width = (Self::EXACT << octave) as f64 / Self::PER_OCTAVE as f64;
+        (Self::EXACT << octave) as f64 + (within as f64 + 0.5) * width
+    }
+
+    /// The nearest-rank p50 and p99, as [`Percentiles::of`] takes them.
+    pub fn percentiles(&self) -> Option<Percentiles> {
+        if self.n == 0 {
+            return None;
+        }
+        let at = |q: f64| {
+            let rank = ((self.n - 1) as f64 * q).round() as u64;
+            let mut seen = 0;
+            for (i, c) in self.counts.iter().enumerate() {
+                seen += c;
+                if seen > rank {
+                    return Self::value(i);
+                }
+            }
+            Self::value(self.counts.len() - 1)
+        };
+        Some(Percentiles {
+            p50: at(0.5),
+            p99: at(0.99),
+        })
+    }
+}
+
 /// Sums of stage times over node-steps, for [`StageTimes`].
 #[derive(Debug, Clone, Default)]
 pub struct StageSums {
@@ -367,5 +445,36 @@ pub fn print_table(s: &Summary) {
                 m.total_pss / 1024
             )
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_histogram_percentiles_are_the_exact_ones_to_its_resolution() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for scale in [50.0, 700.0, 5_000.0, 3e6] {
+            let mut values: Vec<f64> = (0..20_000)
+                .map(|_| 4.0 * scale * rng.random::<f64>().powi(3))
+                .collect();
+            let mut histogram = LatencyHistogram::default();
+            for v in &values {
+                histogram.add(*v);
+            }
+            let exact = Percentiles::of(&mut values).unwrap();
+            let approx = histogram.percentiles().unwrap();
+            for (a, e) in [(approx.p50, exact.p50), (approx.p99, exact.p99)] {
+                // Below 1024 µs the whole microsecond; above it, half a
+                // bucket of 1/64 octave.
+                assert!(
+                    (a - e).abs() <= 1.0_f64.max(e / 64.0),
+                    "scale {scale}: {a} against {e}"
+                );
+            }
+        }
+        assert_eq!(LatencyHistogram::default().percentiles(), None);
     }
 }

@@ -249,7 +249,10 @@ fn no_actor_inherits_a_descriptor_of_the_launchers() {
     assert!(running.wait_for_step(8, REACH), "no step 8");
     let launcher = running.pids(Target::Launcher);
     let launchers = shared_objects(launcher[0], 0);
-    assert!(!launchers.is_empty(), "the launcher holds sockets and pipes");
+    assert!(
+        !launchers.is_empty(),
+        "the launcher holds sockets and pipes"
+    );
     for actor in [restarted, ActorId::Sensor(1), ActorId::Node(0)] {
         let pids = running.pids(Target::Actor(actor));
         assert_eq!(pids.len(), 1, "{actor}: {pids:?}");
