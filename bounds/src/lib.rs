@@ -11,8 +11,11 @@
 //!   local bound, the distributed CQ/dPCRLB and the auxiliary-FIM baseline,
 //!   plus the non-conditional PCRLB by Monte Carlo;
 //! - [`selection`]: the PCRLB cost of a set of active sensors and the
-//!   greedy choice of seed 001.
+//!   greedy choice of seed 001;
+//! - [`bit_allocation`]: quantized data fused with injected noise, and the
+//!   allocation of a budget of bits over sensors (dissertation ch. 5).
 
+pub mod bit_allocation;
 pub mod dynamics;
 pub mod fisher;
 pub mod fisher_table;

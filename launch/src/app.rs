@@ -9,7 +9,7 @@ use clap::Parser;
 use crate::cli::{
     builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, FuzzArgs, SoakArgs, ViewArgs,
 };
-use crate::experiment::{self, Experiment};
+use crate::experiment::{self, Entry, Experiment};
 use crate::montecarlo::run_monte_carlo;
 use crate::network::RunProgress;
 use crate::progress::{step_message, Progress};
@@ -352,14 +352,28 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         for e in experiment::catalogue() {
             println!("  {:<18} {}: {}", e.name, e.source, e.about);
         }
+        for c in experiment::computed_catalogue() {
+            println!(
+                "  {:<18} {}: {} (computed, no network)",
+                c.name, c.source, c.about
+            );
+        }
         return Ok(());
     }
-    let chosen: Vec<Experiment> = if args.names.iter().any(|n| n == "all") {
+    let chosen: Vec<Entry> = if args.names.iter().any(|n| n == "all") {
         experiment::catalogue()
+            .into_iter()
+            .map(Entry::Network)
+            .chain(
+                experiment::computed_catalogue()
+                    .into_iter()
+                    .map(Entry::Computed),
+            )
+            .collect()
     } else {
         args.names
             .iter()
-            .map(|n| experiment::find(n))
+            .map(|n| experiment::find_entry(n))
             .collect::<anyhow::Result<_>>()?
     };
     let options = experiment::Options {
@@ -373,17 +387,29 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         trajectories: args.trajectories as usize,
     };
     let mut failed = Vec::new();
-    for e in &chosen {
-        let bar = ExperimentProgress::new(e, args.runs);
-        let report = experiment::run(e, &options, &|arm, done| bar.update(arm, done))?;
-        bar.finish();
-        println!(
-            "{}",
-            experiment::verdict_line(e, &report.outcome, &report.check)
-        );
-        println!("  {} and {}", report.csv.display(), report.svg.display());
-        if !report.check.holds {
-            failed.push(e.name);
+    for entry in &chosen {
+        let (name, holds) = match entry {
+            Entry::Network(e) => {
+                let bar = ExperimentProgress::new(e, args.runs);
+                let report = experiment::run(e, &options, &|arm, done| bar.update(arm, done))?;
+                bar.finish();
+                println!(
+                    "{}",
+                    experiment::verdict_line(e, &report.outcome, &report.check)
+                );
+                println!("  {} and {}", report.csv.display(), report.svg.display());
+                (e.name, report.check.holds)
+            }
+            Entry::Computed(c) => {
+                let report = experiment::run_computed(c, &options)?;
+                print!("{}", report.table);
+                println!("{}", experiment::computed_verdict_line(c, &report.check));
+                println!("  {} and {}", report.csv.display(), report.svg.display());
+                (c.name, report.check.holds)
+            }
+        };
+        if !holds {
+            failed.push(name);
         }
     }
     if !failed.is_empty() {

@@ -7,6 +7,7 @@
 //! (`seed000.rs` is the first); the runner, the CSV, the SVG and the
 //! command line are shared.
 
+mod allocation;
 pub mod faults;
 mod figure;
 mod seed000;
@@ -192,6 +193,74 @@ impl Outcome {
     }
 }
 
+/// An experiment computed from a paper's formulas rather than run on a
+/// network: a table reproduced beside the paper's, with its CSV and SVG.
+pub struct Computed {
+    pub name: &'static str,
+    pub source: &'static str,
+    pub about: &'static str,
+    /// Computes the tables and writes the CSV and SVG into the folder.
+    pub run: fn(&Options, &std::path::Path) -> anyhow::Result<ComputedReport>,
+}
+
+/// What a computed experiment wrote, and its tables as printed text.
+pub struct ComputedReport {
+    pub check: Check,
+    pub csv: PathBuf,
+    pub svg: PathBuf,
+    /// Ours beside the paper's, for the terminal and `tables.txt`.
+    pub table: String,
+}
+
+/// Every computed experiment.
+pub fn computed_catalogue() -> Vec<Computed> {
+    allocation::experiments()
+}
+
+/// Runs a computed experiment into `<out>/<name>/`, with `tables.txt` and
+/// `check.txt` beside its CSV and SVG.
+pub fn run_computed(computed: &Computed, options: &Options) -> anyhow::Result<ComputedReport> {
+    let dir = options.out.join(computed.name);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let report = (computed.run)(options, &dir)?;
+    write_atomically(&dir.join("tables.txt"), report.table.as_bytes())?;
+    write_atomically(
+        &dir.join("check.txt"),
+        format!("{}\n", computed_verdict_line(computed, &report.check)).as_bytes(),
+    )?;
+    Ok(report)
+}
+
+/// "holds: …" or "does not hold: …" for a computed experiment.
+pub fn computed_verdict_line(computed: &Computed, check: &Check) -> String {
+    format!(
+        "{} ({}): {}: {}",
+        computed.name,
+        computed.source,
+        if check.holds {
+            "holds"
+        } else {
+            "does NOT hold"
+        },
+        check.statement
+    )
+}
+
+/// One name of `cqnet experiment`: run on a network, or computed.
+pub enum Entry {
+    Network(Experiment),
+    Computed(Computed),
+}
+
+/// The network experiment or computed one of that name, or an error that
+/// lists every name.
+pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
+    if let Some(c) = computed_catalogue().into_iter().find(|c| c.name == name) {
+        return Ok(Entry::Computed(c));
+    }
+    find(name).map(Entry::Network)
+}
+
 /// Every experiment, in the order `cqnet experiment` lists them.
 pub fn catalogue() -> Vec<Experiment> {
     let mut all = seed000::experiments();
@@ -207,7 +276,11 @@ pub fn find(name: &str) -> anyhow::Result<Experiment> {
         Some(i) => Ok(all.swap_remove(i)),
         None => anyhow::bail!(
             "no experiment named `{name}`; there are: {}",
-            all.iter().map(|e| e.name).collect::<Vec<_>>().join(", ")
+            all.iter()
+                .map(|e| e.name)
+                .chain(computed_catalogue().iter().map(|c| c.name))
+                .collect::<Vec<_>>()
+                .join(", ")
         ),
     }
 }
