@@ -13,7 +13,9 @@
 //! - [`selection`]: the PCRLB cost of a set of active sensors and the
 //!   greedy choice of seed 001;
 //! - [`bit_allocation`]: quantized data fused with injected noise, and the
-//!   allocation of a budget of bits over sensors (dissertation ch. 5).
+//!   allocation of a budget of bits over sensors (dissertation ch. 5);
+//! - [`speb`]: seed 003's squared position error bound, information
+//!   against the delay of a rate-limited link.
 
 pub mod bit_allocation;
 pub mod dynamics;
@@ -24,6 +26,7 @@ pub mod observation;
 pub mod pcrlb;
 pub mod quantizer;
 pub mod selection;
+pub mod speb;
 
 #[cfg(test)]
 mod testing;

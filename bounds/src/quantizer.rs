@@ -610,9 +610,9 @@ mod tests {
         let rss = Quantizer::uniform(8, -100.0, 0.0).unwrap();
         let cases: Vec<(&Quantizer, f64, f64)> = vec![
             (&bearing, 0.1, 0.02),
-            (&bearing, 3.13, 0.05),  // window crosses +π
-            (&bearing, -3.14, 0.09), // window crosses −π
-            (&bearing, 1.0, 0.004),  // far narrower than a cell
+            (&bearing, 3.13, 0.05),        // window crosses +π
+            (&bearing, -PI + 0.002, 0.09), // window crosses −π
+            (&bearing, 1.0, 0.004),        // far narrower than a cell
             (&rss, -50.0, 2.0),
             (&rss, -99.0, 3.0),   // window reaches the unbounded cell
             (&rss, 20.0, 1.0),    // mean beyond the last edge

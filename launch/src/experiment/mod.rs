@@ -12,6 +12,7 @@ pub mod faults;
 mod figure;
 mod seed000;
 mod seed001;
+mod seed003;
 
 use std::path::PathBuf;
 
@@ -214,7 +215,9 @@ pub struct ComputedReport {
 
 /// Every computed experiment.
 pub fn computed_catalogue() -> Vec<Computed> {
-    allocation::experiments()
+    let mut all = allocation::experiments();
+    all.extend(seed003::experiments());
+    all
 }
 
 /// Runs a computed experiment into `<out>/<name>/`, with `tables.txt` and
