@@ -7,7 +7,7 @@ use std::hint::black_box;
 use bounds::pcrlb::{dynamics_terms, observation_information};
 use bounds::{
     expected_information, ConditionalBound, CoordinatedTurn, Dynamics, Mat4, Measurement,
-    Quantizer, SensorLaw, SensorTerm, State,
+    ProcessNoise, Quantizer, SensorLaw, SensorTerm, State,
 };
 use criterion::{criterion_group, criterion_main, Criterion};
 use rand::{Rng, SeedableRng};
@@ -18,6 +18,7 @@ fn default_dynamics() -> Dynamics {
         maneuver_accel: 0.1,
         min_speed: 0.1,
         sigma_v: 0.05,
+        process_noise: ProcessNoise::Continuous,
     })
     .unwrap()
 }

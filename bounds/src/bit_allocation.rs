@@ -412,7 +412,7 @@ mod tests {
         let h = 1e-5;
         let mean_square: f64 = (0..n)
             .map(|_| {
-                let y = s * unit.sample(&mut rng) + q * (rng.gen::<f64>() - 0.5);
+                let y = s * unit.sample(&mut rng) + q * (rng.random::<f64>() - 0.5);
                 let score =
                     (likelihood(y, h, q, s).ln() - likelihood(y, -h, q, s).ln()) / (2.0 * h);
                 score * score

@@ -24,8 +24,27 @@ pub struct CoordinatedTurn {
     pub maneuver_accel: f64,
     /// Speed floor v_min > 0 that keeps the turn rate finite, m/s.
     pub min_speed: f64,
-    /// Process-noise intensity σ_v, m s^-3/2.
+    /// Process-noise intensity: σ_v in m s^-3/2 for the continuous model,
+    /// σ in m/s² for the discrete one.
     pub sigma_v: f64,
+    /// Which white-noise acceleration model gives Q.
+    #[serde(default)]
+    pub process_noise: ProcessNoise,
+}
+
+/// The two white-noise acceleration models of the literature (Bar-Shalom,
+/// Li and Kirubarajan §6.2–6.3). They differ in Q, per axis:
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ProcessNoise {
+    /// Continuous white noise acceleration, integrated over the period:
+    /// `σ_v² [[T³/3, T²/2], [T²/2, T]]` (seeds 000 and 001).
+    #[default]
+    Continuous,
+    /// Piecewise-constant acceleration, one draw per period:
+    /// `σ² [[T⁴/4, T³/2], [T³/2, T²]]` (dissertation ch. 3), which is rank
+    /// one per axis.
+    Discrete,
 }
 
 /// Everything about one transition that the filters and bounds need, computed
@@ -45,6 +64,7 @@ impl CoordinatedTurn {
             maneuver_accel: 0.0,
             min_speed: 1.0,
             sigma_v,
+            process_noise: ProcessNoise::Continuous,
         }
     }
 
@@ -93,20 +113,44 @@ impl CoordinatedTurn {
         jac
     }
 
-    /// `Q = σ_v² [[T³/3 I, T²/2 I], [T²/2 I, T I]]`.
+    /// `Q`: `σ_v² [[T³/3 I, T²/2 I], [T²/2 I, T I]]` (continuous) or
+    /// `σ² [[T⁴/4 I, T³/2 I], [T³/2 I, T² I]]` (discrete).
     pub fn process_noise(&self) -> Mat4 {
         let t = self.period;
         let q = self.sigma_v * self.sigma_v;
+        let (pp, pv, vv) = match self.process_noise {
+            ProcessNoise::Continuous => (t * t * t / 3.0, t * t / 2.0, t),
+            ProcessNoise::Discrete => (t.powi(4) / 4.0, t.powi(3) / 2.0, t * t),
+        };
         let block = |c: f64| Matrix2::identity() * (q * c);
         let mut m = Mat4::zeros();
-        m.fixed_view_mut::<2, 2>(0, 0)
-            .copy_from(&block(t * t * t / 3.0));
-        m.fixed_view_mut::<2, 2>(0, 2)
-            .copy_from(&block(t * t / 2.0));
-        m.fixed_view_mut::<2, 2>(2, 0)
-            .copy_from(&block(t * t / 2.0));
-        m.fixed_view_mut::<2, 2>(2, 2).copy_from(&block(t));
+        m.fixed_view_mut::<2, 2>(0, 0).copy_from(&block(pp));
+        m.fixed_view_mut::<2, 2>(0, 2).copy_from(&block(pv));
+        m.fixed_view_mut::<2, 2>(2, 0).copy_from(&block(pv));
+        m.fixed_view_mut::<2, 2>(2, 2).copy_from(&block(vv));
         m
+    }
+
+    /// A factor `L` with `L Lᵀ = Q`, for sampling `ξ = L n`. The discrete
+    /// model's Q is singular (one acceleration per axis drives both position
+    /// and velocity), so it has no Cholesky factor; its exact factor is the
+    /// gain `σ [T²/2, T]` per axis.
+    pub fn process_noise_factor(&self) -> Mat4 {
+        match self.process_noise {
+            ProcessNoise::Continuous => Cholesky::new(self.process_noise())
+                .map(|c| c.l())
+                .unwrap_or_else(Mat4::zeros),
+            ProcessNoise::Discrete => {
+                let t = self.period;
+                let (p, v) = (self.sigma_v * t * t / 2.0, self.sigma_v * t);
+                let mut l = Mat4::zeros();
+                l[(0, 0)] = p;
+                l[(2, 0)] = v;
+                l[(1, 1)] = p;
+                l[(3, 1)] = v;
+                l
+            }
+        }
     }
 }
 
@@ -135,6 +179,16 @@ impl Dynamics {
         check("sigma_v", model.sigma_v, POSITIVE)?;
         check("min_speed", model.min_speed, POSITIVE)?;
         check("maneuver_accel", model.maneuver_accel, NON_NEGATIVE)?;
+        if model.process_noise == ProcessNoise::Discrete {
+            // The filters could sample it (`process_noise_factor`), but the
+            // PCRLB recursion that every node runs needs Q⁻¹.
+            return Err(ParameterError {
+                parameter: "process_noise",
+                expected:
+                    "\"continuous\": the discrete model's Q is singular, and the PCRLB needs Q⁻¹",
+                value: model.sigma_v,
+            });
+        }
         let q = model.process_noise();
         let chol = Cholesky::new(q).ok_or(ParameterError {
             parameter: "sigma_v",
@@ -252,6 +306,7 @@ mod tests {
             maneuver_accel: 0.1,
             min_speed: 0.1,
             sigma_v: 0.05,
+            process_noise: ProcessNoise::Continuous,
         }
     }
 
@@ -282,6 +337,48 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn the_two_process_noise_models_have_their_textbook_q_and_exact_factors() {
+        let t: f64 = 0.5;
+        for (noise, pp, pv, vv) in [
+            (ProcessNoise::Continuous, t.powi(3) / 3.0, t * t / 2.0, t),
+            (
+                ProcessNoise::Discrete,
+                t.powi(4) / 4.0,
+                t.powi(3) / 2.0,
+                t * t,
+            ),
+        ] {
+            let model = CoordinatedTurn {
+                process_noise: noise,
+                ..CoordinatedTurn::constant_velocity(t, 0.3)
+            };
+            let q = model.process_noise();
+            let s2 = 0.09;
+            for axis in 0..2 {
+                assert!((q[(axis, axis)] - s2 * pp).abs() < 1e-15, "{noise:?}");
+                assert!((q[(axis, axis + 2)] - s2 * pv).abs() < 1e-15, "{noise:?}");
+                assert!(
+                    (q[(axis + 2, axis + 2)] - s2 * vv).abs() < 1e-15,
+                    "{noise:?}"
+                );
+                assert_eq!(q[(axis, 1 - axis)], 0.0, "the axes are independent");
+            }
+            let l = model.process_noise_factor();
+            assert!((l * l.transpose() - q).norm() < 1e-15, "{noise:?}");
+        }
+        let discrete = CoordinatedTurn {
+            process_noise: ProcessNoise::Discrete,
+            ..CoordinatedTurn::constant_velocity(t, 0.3)
+        };
+        assert!(
+            discrete.process_noise().determinant().abs() < 1e-20,
+            "rank two"
+        );
+        let err = Dynamics::new(discrete).unwrap_err();
+        assert_eq!(err.parameter, "process_noise");
     }
 
     #[test]

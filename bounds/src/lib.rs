@@ -12,12 +12,15 @@
 //!   plus the non-conditional PCRLB by Monte Carlo;
 //! - [`selection`]: the PCRLB cost of a set of active sensors and the
 //!   greedy choice of seed 001;
+//! - [`censoring`]: the NIS censoring rule at a sensor and the likelihood
+//!   of its silence (dissertation ch. 3);
 //! - [`bit_allocation`]: quantized data fused with injected noise, and the
 //!   allocation of a budget of bits over sensors (dissertation ch. 5);
 //! - [`speb`]: seed 003's squared position error bound, information
 //!   against the delay of a rate-limited link.
 
 pub mod bit_allocation;
+pub mod censoring;
 pub mod dynamics;
 pub mod fisher;
 pub mod fisher_table;
@@ -31,7 +34,7 @@ pub mod speb;
 #[cfg(test)]
 mod testing;
 
-pub use dynamics::{CoordinatedTurn, Dynamics};
+pub use dynamics::{CoordinatedTurn, Dynamics, ProcessNoise};
 pub use fisher::{expected_information, observed_information, Measurement};
 pub use observation::{wrap_angle, ObservationModel, SensorLaw};
 pub use pcrlb::{position_bound, ConditionalBound, DynamicsTerms, InformationStep, SensorTerm};

@@ -48,6 +48,27 @@ pub fn upper_tail(x: f64) -> f64 {
     0.5 * libm::erfc(x * FRAC_1_SQRT_2)
 }
 
+/// `Q⁻¹(p)`: the x with `Q(x) = p`, for `0 < p < 1`. Bisection to the last
+/// bit: it is called once per threshold, never per particle, and needs no
+/// rational approximation with its own error to check.
+pub fn upper_tail_inverse(p: f64) -> f64 {
+    debug_assert!(p > 0.0 && p < 1.0, "Q⁻¹ of {p}");
+    let (mut lo, mut hi) = (-40.0_f64, 40.0_f64);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        // Q falls with x.
+        if upper_tail(mid) > p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
 /// `ln Q(x)`, finite for every finite x.
 pub fn ln_upper_tail(x: f64) -> f64 {
     if x == f64::INFINITY {
@@ -136,6 +157,17 @@ pub fn ln_sum_exp(values: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_tail_inverse_gives_the_tabulated_quantiles_and_round_trips() {
+        assert!((upper_tail_inverse(0.025) - 1.959_963_984_540_054).abs() < 1e-12);
+        assert!((upper_tail_inverse(0.05) - 1.644_853_626_951_472_2).abs() < 1e-12);
+        assert!(upper_tail_inverse(0.5).abs() < 1e-12);
+        for p in [1e-12, 1e-4, 0.1, 0.3, 0.7, 0.99] {
+            let x = upper_tail_inverse(p);
+            assert!((upper_tail(x) - p).abs() < 1e-13 * p.max(1e-3), "{p}");
+        }
+    }
 
     #[test]
     fn cdf_known_values() {

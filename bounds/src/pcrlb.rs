@@ -277,7 +277,7 @@ fn symmetrized(m: Mat4) -> Mat4 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dynamics::CoordinatedTurn;
+    use crate::dynamics::{CoordinatedTurn, ProcessNoise};
     use crate::observation::SensorLaw;
     use crate::quantizer::Quantizer;
     use rand::SeedableRng;
@@ -386,6 +386,7 @@ mod tests {
             maneuver_accel: 0.1,
             min_speed: 0.1,
             sigma_v: 0.05,
+            process_noise: ProcessNoise::Continuous,
         })
         .unwrap();
         let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
@@ -420,6 +421,7 @@ mod tests {
             maneuver_accel: 0.1,
             min_speed: 0.1,
             sigma_v: 0.05,
+            process_noise: ProcessNoise::Continuous,
         })
         .unwrap();
         let models: Vec<ObservationModel> = [[250.0, 250.0], [750.0, 250.0], [500.0, 900.0]]

@@ -145,8 +145,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn random_information(rng: &mut ChaCha8Rng) -> Matrix2<f64> {
-        let m = Matrix2::from_fn(|_, _| rng.gen_range(-1.0..1.0));
-        m * m.transpose() * rng.gen_range(0.01..5.0)
+        let m = Matrix2::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        m * m.transpose() * rng.random_range(0.01..5.0)
     }
 
     #[test]
@@ -154,9 +154,9 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         for _ in 0..200 {
             let j = random_information(&mut rng);
-            let prior_var = rng.gen_range(0.5..3000.0);
-            let alpha = rng.gen_range(0.0..20.0);
-            let delay = rng.gen_range(0.0..2.0);
+            let prior_var = rng.random_range(0.5..3000.0);
+            let alpha = rng.random_range(0.0..20.0);
+            let delay = rng.random_range(0.0..2.0);
             let closed = speb(&j, prior_var, alpha, delay).unwrap().total();
             let direct = speb_from_full_information(&j, prior_var, alpha, delay).unwrap();
             assert!(

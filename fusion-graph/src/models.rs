@@ -51,6 +51,7 @@ impl Scenario {
             maneuver_accel: d.maneuver_accel,
             min_speed: d.min_speed,
             sigma_v: d.sigma_v,
+            process_noise: d.process_noise,
         })
         .map_err(|e| invalid("dynamics", e))?;
         self.observation

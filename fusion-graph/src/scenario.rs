@@ -127,6 +127,11 @@ pub struct DynamicsConfig {
     #[serde(default = "default_min_speed")]
     pub min_speed: f64,
     pub sigma_v: f64,
+    /// "continuous" (seeds 000/001) or "discrete" (dissertation ch. 3).
+    /// The runtime refuses "discrete": its Q is singular and the PCRLB needs
+    /// Q⁻¹. `bounds` and the dissertation's experiments use it.
+    #[serde(default)]
+    pub process_noise: bounds::dynamics::ProcessNoise,
 }
 
 fn default_min_speed() -> f64 {
@@ -892,6 +897,16 @@ mod tests {
                 "particle_count",
             ),
             ("sigma_v = 0.05", "sigma_v = -1.0", "dynamics.sigma_v"),
+            (
+                "sigma_v = 0.05",
+                "sigma_v = 0.05\nprocess_noise = \"discrete\"",
+                "dynamics.process_noise",
+            ),
+            (
+                "sigma_v = 0.05",
+                "sigma_v = 0.05\nprocess_noise = \"pink\"",
+                "pink",
+            ),
             ("radius = 550.0", "radius = 0.0", "fusion_graph.radius"),
             ("rounds = 10", "rounds = 0", "consensus.rounds"),
             ("kind = \"bearing\"", "kind = \"sonar\"", "sonar"),

@@ -8,6 +8,7 @@
 //! command line are shared.
 
 mod allocation;
+mod censoring;
 pub mod faults;
 mod figure;
 mod seed000;
@@ -216,6 +217,7 @@ pub struct ComputedReport {
 /// Every computed experiment.
 pub fn computed_catalogue() -> Vec<Computed> {
     let mut all = allocation::experiments();
+    all.extend(censoring::experiments());
     all.extend(seed003::experiments());
     all
 }

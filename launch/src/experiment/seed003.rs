@@ -259,6 +259,9 @@ fn optima_per_rate(depths: &[Depth]) -> Vec<(f64, u8, u8)> {
         .collect()
 }
 
+/// A curve of the figure: its label, its value at a depth, its colour.
+type Series = (&'static str, fn(&Depth) -> f64, RGBAColor);
+
 fn draw(path: &Path, depths: &[Depth]) -> Result<(), Box<dyn std::error::Error>> {
     let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -294,7 +297,7 @@ fn draw(path: &Path, depths: &[Depth]) -> Result<(), Box<dyn std::error::Error>>
         ))
         .y_desc("m²")
         .draw()?;
-    let series: [(&str, fn(&Depth) -> f64, RGBAColor); 4] = [
+    let series: [Series; 4] = [
         (
             "SPEB, seed 003's packed bits",
             |d| d.packed.total(),
