@@ -22,8 +22,10 @@ use nalgebra::{Matrix2, Vector2};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
+use crate::dynamics::Dynamics;
 use crate::normal;
-use crate::ParameterError;
+use crate::observation::{wrap_angle, ObservationModel};
+use crate::{Mat4, ParameterError, State};
 
 /// The NIS threshold for a budget of `l` transmissions out of `n` sensors,
 /// each with `dof`-dimensional measurements.
@@ -85,6 +87,118 @@ impl CensoringRule {
         ((self.threshold * s).sqrt(), r.sqrt())
     }
 }
+
+/// What a node feeds back to a censoring sensor with its activation: its
+/// fused estimate of the previous step, `x̂(k−1|k−1)`, and for CFwMD2 its
+/// covariance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Feedback {
+    pub estimate: State,
+    pub covariance: Option<Mat4>,
+}
+
+/// A scalar sensor's innovation statistics for one step: the predicted
+/// measurement `h(x̂(k|k−1))` and the variance `s` it normalizes by. The
+/// sensor computes them to censor; its node computes the same, from the
+/// same feedback, to weigh the sensor's silence.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Innovation {
+    pub predicted: f64,
+    pub variance: f64,
+    /// Bearings: innovations wrap at ±π.
+    pub angular: bool,
+}
+
+impl Innovation {
+    /// `ν = z − h(x̂)`, wrapped for angles.
+    pub fn of(&self, z: f64) -> f64 {
+        let nu = z - self.predicted;
+        if self.angular {
+            wrap_angle(nu)
+        } else {
+            nu
+        }
+    }
+
+    /// The normalized innovation squared of a measurement.
+    pub fn nis(&self, z: f64) -> f64 {
+        let nu = self.of(z);
+        nu * nu / self.variance
+    }
+
+    /// `ln P(silent | x)` at a state whose predicted measurement is `g`
+    /// with noise variance `r`: `μ = h(x) − h(x̂)`.
+    pub fn ln_silence(&self, rule: &CensoringRule, g: f64, r: f64) -> f64 {
+        rule.ln_silence_probability(self.of(g), self.variance, r)
+    }
+}
+
+/// One sensor's side of NIS censoring in a network: the rule, and for
+/// CFwMD the sensor's own Kalman (EKF) covariance, linearized at the fed
+/// back estimate. A sensor is activated only now and then, so the recursion
+/// advances when it is: it coasts over the steps it missed, then updates as
+/// if it used its measurement. Its node keeps a copy that sees the same
+/// activations and feedback, so both hold the same covariance.
+#[derive(Debug, Clone)]
+pub struct NisCensor {
+    pub rule: CensoringRule,
+    own_covariance: Mat4,
+    last_step: Option<u32>,
+}
+
+impl NisCensor {
+    pub fn new(rule: CensoringRule, prior_covariance: Mat4) -> Self {
+        Self {
+            rule,
+            own_covariance: prior_covariance,
+            last_step: None,
+        }
+    }
+
+    /// The innovation statistics of `step` from the feedback: with the fed
+    /// back covariance (CFwMD2) or the sensor's own (CFwMD), which this
+    /// advances to `step`.
+    pub fn innovation(
+        &mut self,
+        step: u32,
+        feedback: &Feedback,
+        model: &ObservationModel,
+        dynamics: &Dynamics,
+    ) -> Innovation {
+        let f = dynamics.jacobian(&feedback.estimate);
+        let predict = |p: &Mat4| f * p * f.transpose() + dynamics.q();
+        let predicted_state = dynamics.transition(&feedback.estimate);
+        let e = model.evaluate(&predicted_state);
+        let predicted_cov = match feedback.covariance {
+            Some(p) => predict(&p),
+            None => {
+                let missed = self
+                    .last_step
+                    .map_or(0, |last| step.saturating_sub(last + 1).min(MAX_COAST));
+                for _ in 0..missed {
+                    self.own_covariance = predict(&self.own_covariance);
+                }
+                predict(&self.own_covariance)
+            }
+        };
+        let s = (e.grad_g.transpose() * predicted_cov * e.grad_g)[0] + e.r;
+        if feedback.covariance.is_none() {
+            let k = predicted_cov * e.grad_g / s;
+            let updated = predicted_cov - k * e.grad_g.transpose() * predicted_cov;
+            self.own_covariance = 0.5 * (updated + updated.transpose());
+            self.last_step = Some(step);
+        }
+        Innovation {
+            predicted: e.g,
+            variance: s,
+            angular: model.is_angular(),
+        }
+    }
+}
+
+/// Coasting a covariance further than this changes nothing a threshold
+/// can tell, and bounds the work a forged step number can cause.
+const MAX_COAST: u32 = 1000;
 
 /// `P(νᵀ S⁻¹ ν < η | x)` for a two-dimensional innovation
 /// `ν ~ N(m, R)`, `m = H(x − x̂)`, by Monte Carlo over a fixed set of draws.
@@ -220,6 +334,78 @@ mod tests {
         // With η s = r and μ = 0, the window is ±1 standard deviation.
         let unit = CensoringRule { threshold: 1.0 };
         assert!((unit.silence_probability(0.0, 1.0, 1.0) - 0.682_689_492_137_085_9).abs() < 1e-12);
+    }
+
+    /// The sensor and its node, fed the same activations and feedback,
+    /// hold the same covariance and compute the same innovation; CFwMD2's
+    /// uses the fed-back covariance and no history.
+    #[test]
+    fn a_sensor_and_its_nodes_copy_agree_step_by_step() {
+        use crate::dynamics::CoordinatedTurn;
+        use crate::observation::SensorLaw;
+        let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
+        let model = SensorLaw::Bearing {
+            sigma_theta: 0.02,
+            d0: 500.0,
+        }
+        .at([100.0, 200.0]);
+        let rule = CensoringRule::for_budget(1.0, 3, 1).unwrap();
+        let prior = Mat4::from_diagonal(&State::new(2500.0, 2500.0, 4.0, 4.0));
+        let (mut sensor, mut node) = (NisCensor::new(rule, prior), NisCensor::new(rule, prior));
+        let mut last = None;
+        for (step, x) in [(1, 10.0), (2, 12.0), (5, 20.0), (6, 23.0)] {
+            let feedback = Feedback {
+                estimate: State::new(x, 400.0, 2.0, -1.0),
+                covariance: None,
+            };
+            let a = sensor.innovation(step, &feedback, &model, &dynamics);
+            let b = node.innovation(step, &feedback, &model, &dynamics);
+            assert_eq!(a, b);
+            assert!(a.variance > 0.02f64.powi(2));
+            last = Some(a);
+        }
+        // The recursion learnt: the variance fell from the prior's.
+        let mut fresh = NisCensor::new(rule, prior);
+        let first = fresh.innovation(
+            6,
+            &Feedback {
+                estimate: State::new(23.0, 400.0, 2.0, -1.0),
+                covariance: None,
+            },
+            &model,
+            &dynamics,
+        );
+        assert!(last.unwrap().variance < first.variance);
+        // CFwMD2: s = gᵀ (F P Fᵀ + Q) g + r, whatever came before.
+        let p = Mat4::identity() * 9.0;
+        let fed = Feedback {
+            estimate: State::new(0.0, 400.0, 0.0, 0.0),
+            covariance: Some(p),
+        };
+        let c = sensor.innovation(7, &fed, &model, &dynamics);
+        let f = dynamics.jacobian(&fed.estimate);
+        let pred = dynamics.transition(&fed.estimate);
+        let e = model.evaluate(&pred);
+        let s = (e.grad_g.transpose() * (f * p * f.transpose() + dynamics.q()) * e.grad_g)[0] + e.r;
+        assert!((c.variance - s).abs() < 1e-15 * s);
+        assert_eq!(c.predicted, e.g);
+    }
+
+    #[test]
+    fn angular_innovations_wrap() {
+        let i = Innovation {
+            predicted: 3.1,
+            variance: 0.01,
+            angular: true,
+        };
+        assert!((i.of(-3.1) - (2.0 * std::f64::consts::PI - 6.2)).abs() < 1e-12);
+        let rule = CensoringRule { threshold: 1.0 };
+        // A state whose bearing is just across ±π from the prediction is
+        // as likely to be silent as one just this side.
+        let across = i.ln_silence(&rule, -3.13, 0.0001);
+        let mu = -3.13 - 3.1 + 2.0 * std::f64::consts::PI;
+        let this_side = i.ln_silence(&rule, 3.1 - mu, 0.0001);
+        assert!((across - this_side).abs() < 1e-9, "{across} vs {this_side}");
     }
 
     #[test]

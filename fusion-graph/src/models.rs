@@ -165,6 +165,8 @@ pub enum Stream {
     CentralFilter = 6,
     /// The true trajectory's process noise.
     Truth = 7,
+    /// A sensor's coin for random censoring.
+    Censoring = 8,
 }
 
 /// The seed of `stream` for `actor` at `step`: splitmix64 over the four.

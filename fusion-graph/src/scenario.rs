@@ -33,8 +33,81 @@ pub struct Scenario {
     pub clock: ClockConfig,
     #[serde(default)]
     pub reference: ReferenceConfig,
+    /// Whether active sensors stay silent when their measurement says
+    /// little (dissertation ch. 3); off by default.
+    #[serde(default)]
+    pub censoring: CensoringConfig,
     #[serde(default)]
     pub faults: Vec<Fault>,
+}
+
+/// Censoring at the sensor: of the `active_per_node` sensors a node
+/// activates, `budget` send on average.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CensoringConfig {
+    #[serde(default)]
+    pub policy: CensoringPolicy,
+    /// Expected transmissions per node per step, at most `active_per_node`.
+    #[serde(default = "default_budget")]
+    pub budget: f64,
+    /// For `policy = "nis"`: what the node feeds back with each activation.
+    #[serde(default)]
+    pub feedback: FeedbackKind,
+    /// For `policy = "nis"`: the node ignores its silent sensors (CFoMD),
+    /// to measure what their silence is worth.
+    #[serde(default)]
+    pub ignore_silence: bool,
+    /// How long a node listens for its active sensors before it takes the
+    /// quiet ones as silent: a sensor's slot. Without censoring the node
+    /// waits up to the round timeout, since every active sensor should send.
+    #[serde(default = "default_listen_ms")]
+    pub listen_ms: f64,
+}
+
+fn default_listen_ms() -> f64 {
+    20.0
+}
+
+fn default_budget() -> f64 {
+    1.0
+}
+
+impl Default for CensoringConfig {
+    fn default() -> Self {
+        Self {
+            policy: CensoringPolicy::Off,
+            budget: default_budget(),
+            feedback: FeedbackKind::Estimate,
+            ignore_silence: false,
+            listen_ms: default_listen_ms(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CensoringPolicy {
+    /// Every active sensor sends.
+    #[default]
+    Off,
+    /// A sensor sends when its normalized innovation squared, against the
+    /// node's fed-back prediction, reaches χ²₁(budget / active_per_node);
+    /// the node weighs each silent sensor's P(silent | x) (CFwMD).
+    Nis,
+    /// Each active sensor sends with probability budget / active_per_node,
+    /// whatever it measured: the same traffic, missing at random.
+    Random,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FeedbackKind {
+    /// CFwMD: the fused estimate; each sensor keeps its own covariance.
+    #[default]
+    Estimate,
+    /// CFwMD2: the fused estimate and its covariance.
+    EstimateAndCovariance,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -586,6 +659,20 @@ impl Scenario {
         if self.sensors.active_per_node == 0 {
             return bad("sensors.active_per_node", "at least 1", "0".into());
         }
+        positive("censoring.listen_ms", self.censoring.listen_ms)?;
+        let budget = self.censoring.budget;
+        if self.censoring.policy != CensoringPolicy::Off
+            && !(budget > 0.0 && budget <= self.sensors.active_per_node as f64)
+        {
+            return bad(
+                "censoring.budget",
+                &format!(
+                    "more than 0 and at most sensors.active_per_node ({})",
+                    self.sensors.active_per_node
+                ),
+                budget.to_string(),
+            );
+        }
         positive("fusion_graph.radius", self.fusion_graph.radius)?;
         for (i, v) in self.target.position.iter().enumerate() {
             if !v.is_finite() {
@@ -768,6 +855,9 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), S
     let parts: Vec<&str> = key.split('.').collect();
     let mut current = table;
     for part in &parts[..parts.len() - 1] {
+        if is_optional_section(part) && !current.contains_key(*part) {
+            current.insert(part.to_string(), toml::Value::Table(toml::Table::new()));
+        }
         current = current
             .get_mut(*part)
             .ok_or_else(|| bad(&format!("no section `{part}` in the scenario")))?
@@ -782,11 +872,22 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), S
     Ok(())
 }
 
+/// Sections that may be absent from a scenario file; `--set` creates them.
+fn is_optional_section(section: &str) -> bool {
+    matches!(section, "censoring" | "reference")
+}
+
 /// Keys that may be absent from a scenario file but can be set.
 fn is_optional_key(key: &str) -> bool {
     matches!(
         key,
         "faults"
+            | "policy"
+            | "budget"
+            | "feedback"
+            | "ignore_silence"
+            | "listen_ms"
+            | "process_noise"
             | "lo"
             | "hi"
             | "max_active_total"
@@ -897,6 +998,16 @@ mod tests {
                 "particle_count",
             ),
             ("sigma_v = 0.05", "sigma_v = -1.0", "dynamics.sigma_v"),
+            (
+                "[consensus]",
+                "[censoring]\npolicy = \"nis\"\nbudget = 4.0\n\n[consensus]",
+                "censoring.budget",
+            ),
+            (
+                "[consensus]",
+                "[censoring]\npolicy = \"sometimes\"\n\n[consensus]",
+                "sometimes",
+            ),
             (
                 "sigma_v = 0.05",
                 "sigma_v = 0.05\nprocess_noise = \"discrete\"",

@@ -57,6 +57,12 @@ pub enum MessageKind {
     StateTransfer = 9,
     /// One round of min-consensus on a proposal `(cost, node, sensor)`.
     MinConsensus = 10,
+    /// An activation with the node's fused estimate fed back to censoring
+    /// sensors (CFwMD): the mask, then 4 f64.
+    ActivateFeedback = 11,
+    /// The same with the estimate's covariance (CFwMD2): the mask, 4 f64,
+    /// then the 10 of the upper triangle.
+    ActivateFeedbackCovariance = 12,
     /// Accounting only: bytes whose kind could not be read.
     Malformed = 255,
 }
@@ -75,6 +81,8 @@ impl MessageKind {
             8 => Telemetry,
             9 => StateTransfer,
             10 => MinConsensus,
+            11 => ActivateFeedback,
+            12 => ActivateFeedbackCovariance,
             _ => return None,
         })
     }
@@ -92,6 +100,8 @@ impl MessageKind {
             Telemetry => "telemetry",
             StateTransfer => "state_transfer",
             MinConsensus => "min_consensus",
+            ActivateFeedback => "activate_feedback",
+            ActivateFeedbackCovariance => "activate_feedback_covariance",
             Malformed => "malformed",
         }
     }
@@ -220,6 +230,13 @@ pub enum Payload {
     Activate {
         mask: BitMask,
     },
+    /// An activation that carries the node's feedback to censoring sensors.
+    ActivateWithFeedback {
+        mask: BitMask,
+        estimate: [f64; 4],
+        /// The upper triangle of the estimate's covariance (CFwMD2).
+        covariance: Option<Packed>,
+    },
     Observation {
         cell: u32,
     },
@@ -263,6 +280,13 @@ impl Payload {
         match self {
             Payload::Tick { .. } => MessageKind::Tick,
             Payload::Activate { .. } => MessageKind::Activate,
+            Payload::ActivateWithFeedback {
+                covariance: None, ..
+            } => MessageKind::ActivateFeedback,
+            Payload::ActivateWithFeedback {
+                covariance: Some(_),
+                ..
+            } => MessageKind::ActivateFeedbackCovariance,
             Payload::Observation { .. } => MessageKind::Observation,
             Payload::RawObservation { .. } => MessageKind::RawObservation,
             Payload::Consensus(_) => MessageKind::Consensus,
@@ -324,11 +348,17 @@ impl Message {
         put(&h, out);
         match &self.payload {
             Payload::Tick { truth } => put(truth, out),
-            Payload::Activate { mask } => {
-                let bytes = mask.as_bytes();
-                let n = bytes.len().min(format.activation_bytes);
-                out.extend_from_slice(&bytes[..n]);
-                out.resize(out.len() + format.activation_bytes - n, 0);
+            Payload::Activate { mask } => put_mask(mask, format, out),
+            Payload::ActivateWithFeedback {
+                mask,
+                estimate,
+                covariance,
+            } => {
+                put_mask(mask, format, out);
+                put(estimate, out);
+                if let Some(c) = covariance {
+                    put(c, out);
+                }
             }
             Payload::Observation { cell } => {
                 out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes])
@@ -380,6 +410,22 @@ impl Message {
                 exact_len(body, format.activation_bytes)?;
                 Payload::Activate {
                     mask: BitMask::from_bytes(body.to_vec()),
+                }
+            }
+            MessageKind::ActivateFeedback | MessageKind::ActivateFeedbackCovariance => {
+                let with_covariance = kind == MessageKind::ActivateFeedbackCovariance;
+                let mask_len = format.activation_bytes;
+                exact_len(body, mask_len + 32 + if with_covariance { 80 } else { 0 })?;
+                let estimate: [f64; 4] = finite(take(&body[mask_len..mask_len + 32])?)?;
+                let covariance = if with_covariance {
+                    Some(finite(take(&body[mask_len + 32..])?)?)
+                } else {
+                    None
+                };
+                Payload::ActivateWithFeedback {
+                    mask: BitMask::from_bytes(body[..mask_len].to_vec()),
+                    estimate,
+                    covariance,
                 }
             }
             MessageKind::Observation => {
@@ -443,6 +489,13 @@ impl Message {
     }
 }
 
+fn put_mask(mask: &BitMask, format: &WireFormat, out: &mut Vec<u8>) {
+    let bytes = mask.as_bytes();
+    let n = bytes.len().min(format.activation_bytes);
+    out.extend_from_slice(&bytes[..n]);
+    out.resize(out.len() + format.activation_bytes - n, 0);
+}
+
 /// Encoded size of a message of a fixed-size kind, for predicting traffic.
 pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
     Some(
@@ -450,6 +503,8 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
             + match kind {
                 MessageKind::Tick => 32,
                 MessageKind::Activate => format.activation_bytes,
+                MessageKind::ActivateFeedback => format.activation_bytes + 32,
+                MessageKind::ActivateFeedbackCovariance => format.activation_bytes + 32 + 80,
                 MessageKind::Observation => format.cell_bytes,
                 MessageKind::RawObservation => 8,
                 MessageKind::Consensus => 8 * 24,
@@ -553,6 +608,16 @@ fn finite<const N: usize>(v: [f64; N]) -> Result<[f64; N], WireError> {
 }
 
 /// Packs the upper triangle of a symmetric 4×4 (row-major `m[r][c]`).
+/// A symmetric matrix as its upper triangle, row by row.
+pub fn pack_mat4(m: &bounds::Mat4) -> Packed {
+    pack_symmetric(&std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])))
+}
+
+pub fn unpack_mat4(p: &Packed) -> bounds::Mat4 {
+    let a = unpack_symmetric(p);
+    bounds::Mat4::from_fn(|r, c| a[r][c])
+}
+
 pub fn pack_symmetric(m: &[[f64; 4]; 4]) -> Packed {
     let mut out = [0.0; 10];
     let mut k = 0;
@@ -614,6 +679,26 @@ pub fn examples() -> Vec<Message> {
             0,
             Payload::Activate {
                 mask: BitMask::from_bytes(vec![0b101, 0, 0, 1]),
+            },
+        ),
+        Message::new(
+            ActorId::Node(2),
+            7,
+            0,
+            Payload::ActivateWithFeedback {
+                mask: BitMask::from_bytes(vec![0b11, 0, 0, 0]),
+                estimate: [1400.0, 1400.0, -6.4, -7.6],
+                covariance: None,
+            },
+        ),
+        Message::new(
+            ActorId::Node(2),
+            7,
+            0,
+            Payload::ActivateWithFeedback {
+                mask: BitMask::from_bytes(vec![0b110, 0, 0, 0]),
+                estimate: [1400.0, 1400.0, -6.4, -7.6],
+                covariance: Some([1.0, 0.1, 0.0, 0.2, 2.0, 0.0, 0.3, 0.5, 0.0, 0.6]),
             },
         ),
         Message::new(

@@ -381,7 +381,7 @@ pub fn print_table(s: &Summary) {
     );
     println!("  bytes per step by kind:");
     for t in &s.traffic {
-        println!("    {:<20} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
+        println!("    {:<28} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
     }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
     let metres = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1} m"));

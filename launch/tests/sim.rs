@@ -334,3 +334,69 @@ fn duplicated_reordered_and_corrupted_messages_balance_every_link() {
         assert!(f.rmse_before.is_some());
     }
 }
+
+/// NIS censoring with covariance feedback (CFwMD2) in the network holds its
+/// budget, the feedback's bytes are its message size times the activations,
+/// and every message is accounted for.
+#[test]
+fn nis_censoring_holds_its_budget_and_its_feedback_costs_what_its_size_says() {
+    let overrides = [
+        "steps=60",
+        "censoring.policy=nis",
+        "censoring.budget=1.5",
+        "censoring.feedback=estimate_and_covariance",
+    ];
+    let (_, dir) = run("censoring-budget", &overrides, false);
+    let (scenario, topology) = scenario(&overrides);
+    let format = scenario.wire_format(&topology);
+    let per_step = observations_per_step(&dir, 3);
+    let mean = per_step.values().sum::<u32>() as f64 / per_step.len() as f64 / 9.0;
+    assert!(
+        (mean / 1.5 - 1.0).abs() < 0.15,
+        "{mean} transmissions per node-step"
+    );
+    let links =
+        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
+    let kinds = links.by_kind();
+    let feedback = kinds[&MessageKind::ActivateFeedbackCovariance];
+    // Every node, every step, to each of its 25 sensors.
+    assert_eq!(feedback.sent_messages, 60 * 9 * 25);
+    let size = encoded_len(MessageKind::ActivateFeedbackCovariance, &format).unwrap() as u64;
+    assert_eq!(size, 13 + 4 + 32 + 80);
+    assert_eq!(feedback.sent_bytes, feedback.sent_messages * size);
+    assert!(
+        !kinds.contains_key(&MessageKind::Activate),
+        "every activation carries the feedback"
+    );
+    for (kind, c) in kinds {
+        assert_eq!(c.unaccounted_messages(kind), 0, "{kind:?}");
+    }
+}
+
+/// The dissertation's point, in the network: at the same budget, weighing
+/// the silent sensors' P(silent | x) tracks better than ignoring them, and
+/// than sending at random.
+#[test]
+fn weighing_silence_beats_ignoring_it_and_random_selection() {
+    let base = [
+        "steps=60",
+        "censoring.budget=1.5",
+        "censoring.feedback=estimate_and_covariance",
+    ];
+    let rmse = |name: &str, extra: &[&str]| {
+        let mut o = base.to_vec();
+        o.extend_from_slice(extra);
+        mean_over_seeds(name, &o, 3, |s| s.estimates.rmse.unwrap())
+    };
+    let weighed = rmse("cfwmd2", &["censoring.policy=nis"]);
+    let ignored = rmse(
+        "cfomd2",
+        &["censoring.policy=nis", "censoring.ignore_silence=true"],
+    );
+    let random = rmse("random", &["censoring.policy=random"]);
+    assert!(
+        weighed < ignored,
+        "CFwMD2 {weighed} m vs CFoMD2 {ignored} m"
+    );
+    assert!(weighed < random, "CFwMD2 {weighed} m vs random {random} m");
+}

@@ -39,7 +39,7 @@ fn bench(c: &mut Criterion) {
     let mut contribution = Contribution::zero();
     for _ in 0..5 {
         contribution = local
-            .update(&model, &observations, false)
+            .update(&model, &observations, &[], false)
             .unwrap()
             .contribution;
     }
@@ -54,7 +54,7 @@ fn bench(c: &mut Criterion) {
         |b| {
             b.iter_batched(
                 || local.clone(),
-                |mut l| black_box(l.update(&model, &observations, false).unwrap()),
+                |mut l| black_box(l.update(&model, &observations, &[], false).unwrap()),
                 BatchSize::LargeInput,
             )
         },

@@ -14,15 +14,17 @@
 
 use std::time::Duration;
 
+use bounds::censoring::{CensoringRule, Feedback, Innovation, NisCensor};
 use bounds::{BoundError, State};
-use fusion_graph::scenario::{ConsensusProtocol, Scenario};
+use fusion_graph::scenario::{CensoringPolicy, ConsensusProtocol, FeedbackKind, Scenario};
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 
 use crate::collector::{Collected, Collector, Offer};
 use crate::estimator::{
-    Contribution, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, ObservedValue, SensingModel,
+    Contribution, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, ObservedValue,
+    SensingModel, Silence,
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
@@ -43,6 +45,111 @@ pub enum NodeError {
     Reference(BoundError),
     #[error("consensus.protocol = \"exact\" needs the exact-sum oracle of one process (`cqnet sim`): real processes have no exact network sum")]
     NoExactSums,
+}
+
+/// The node's side of NIS censoring: what it feeds back, its copy of each
+/// own sensor's censoring state, and the innovations its active sensors
+/// censor by this step, so that it can weigh their silence.
+#[derive(Debug)]
+struct NodeCensoring {
+    feedback: FeedbackKind,
+    /// By position in the node's own sensor list.
+    censors: Vec<NisCensor>,
+    /// The latest fused posterior, fed back with the next activation.
+    fed_back: Gaussian,
+    /// This step's active sensors and their innovation statistics.
+    pending: (u32, Vec<(u16, Innovation)>),
+    /// CFoMD: censor, but weigh nothing for silence.
+    ignore_silence: bool,
+}
+
+impl NodeCensoring {
+    fn for_scenario(
+        scenario: &Scenario,
+        models: &fusion_graph::Models,
+        topology: &Topology,
+        index: u16,
+    ) -> Result<Option<Self>, NodeError> {
+        let c = &scenario.censoring;
+        if c.policy != CensoringPolicy::Nis {
+            return Ok(None);
+        }
+        let rule =
+            CensoringRule::for_budget(c.budget, scenario.sensors.active_per_node as usize, 1)
+                .map_err(|e| {
+                    NodeError::Scenario(fusion_graph::ScenarioError::Invalid {
+                        file: scenario.name.clone(),
+                        key: "censoring.budget".into(),
+                        expected: e.expected.into(),
+                        got: e.value.to_string(),
+                    })
+                })?;
+        let own = topology.node_sensors[index as usize].len();
+        Ok(Some(Self {
+            feedback: c.feedback,
+            censors: vec![NisCensor::new(rule, models.prior_cov); own],
+            fed_back: scenario.network_prior(models),
+            pending: (0, Vec::new()),
+            ignore_silence: c.ignore_silence,
+        }))
+    }
+
+    /// The activation with the feedback, and the innovations the activated
+    /// sensors will censor by (the same computation as theirs).
+    fn activate(
+        &mut self,
+        step: u32,
+        picks: &[usize],
+        own: &[u16],
+        model: &SensingModel,
+        mask: BitMask,
+    ) -> Payload {
+        let covariance =
+            (self.feedback == FeedbackKind::EstimateAndCovariance).then_some(self.fed_back.cov);
+        let feedback = Feedback {
+            estimate: self.fed_back.mean,
+            covariance,
+        };
+        let innovations = picks
+            .iter()
+            .map(|&i| {
+                let sensor = own[i];
+                let innovation = self.censors[i].innovation(
+                    step,
+                    &feedback,
+                    &model.sensors[sensor as usize],
+                    &model.dynamics,
+                );
+                (sensor, innovation)
+            })
+            .collect();
+        self.pending = (step, innovations);
+        Payload::ActivateWithFeedback {
+            mask,
+            estimate: feedback.estimate.into(),
+            covariance: covariance.as_ref().map(pack_matrix),
+        }
+    }
+
+    /// The step's silent sensors as measurements.
+    fn silences(&self, step: u32, silent: &[u16]) -> Vec<Silence> {
+        let (pending_step, innovations) = &self.pending;
+        if *pending_step != step || self.ignore_silence {
+            return Vec::new();
+        }
+        let rule = self.censors.first().map(|c| c.rule);
+        innovations
+            .iter()
+            .filter(|(s, _)| silent.contains(s))
+            .filter_map(|(sensor, innovation)| {
+                rule.map(|rule| Silence {
+                    sensor: *sensor,
+                    innovation: *innovation,
+                    rule,
+                })
+            })
+            .collect()
+    }
 }
 
 /// A heavy stage the driver runs and times.
@@ -106,7 +213,9 @@ impl Fusing {
 pub struct NodeActor {
     index: u16,
     with_aux: bool,
-    round_timeout: Duration,
+    /// How long a step's collection waits for its active sensors: the
+    /// round timeout, or with censoring the sensors' listening slot.
+    listen: Duration,
     topology: Topology,
     model: SensingModel,
     local: LocalFilter,
@@ -127,6 +236,8 @@ pub struct NodeActor {
     /// posterior a neighbour offers instead of starting from the prior.
     needs_state: bool,
     last_step: Option<u32>,
+    /// NIS censoring at this node's sensors, if the scenario asks for it.
+    censoring: Option<NodeCensoring>,
     /// The scenario's last step: a step beyond it is not of this run.
     steps: u32,
     late_messages: u64,
@@ -188,7 +299,11 @@ impl NodeActor {
         Ok(Self {
             index,
             with_aux: scenario.consensus.auxiliary_fim,
-            round_timeout: Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3),
+            listen: if scenario.censoring.policy == CensoringPolicy::Off {
+                Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)
+            } else {
+                Duration::from_secs_f64(scenario.censoring.listen_ms / 1e3)
+            },
             topology: topology.clone(),
             model,
             local,
@@ -203,6 +318,7 @@ impl NodeActor {
             deadline_missed: false,
             needs_state: false,
             last_step: None,
+            censoring: NodeCensoring::for_scenario(scenario, &models, topology, index)?,
             steps: scenario.steps,
             late_messages: 0,
             late_reported: 0,
@@ -375,9 +491,13 @@ impl NodeActor {
                         }
                     }
                 }
+                let silent = self
+                    .censoring
+                    .as_ref()
+                    .map_or_else(Vec::new, |c| c.silences(collected.step, &collected.silent));
                 let update = self
                     .local
-                    .update(&self.model, &collected.observations, self.with_aux)
+                    .update(&self.model, &collected.observations, &silent, self.with_aux)
                     .and_then(|mut update| {
                         update.contribution.delta_l = self
                             .fusion
@@ -581,26 +701,19 @@ impl NodeActor {
     fn activate(&mut self, step: u32, picks: Vec<usize>, now: Duration, out: &mut Vec<Outgoing>) {
         let own = &self.topology.node_sensors[self.index as usize];
         let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
+        let mask = BitMask::from_indices(picks.iter().copied());
+        let payload = match &mut self.censoring {
+            None => Payload::Activate { mask },
+            Some(c) => c.activate(step, &picks, own, &self.model, mask),
+        };
         out.push(Outgoing {
             channel: Channel::Activation(self.index),
-            message: Message::new(
-                self.id(),
-                step,
-                0,
-                Payload::Activate {
-                    mask: BitMask::from_indices(picks),
-                },
-            ),
+            message: Message::new(self.id(), step, 0, payload),
             receivers: own.iter().map(|s| ActorId::Sensor(*s)).collect(),
             wake: Some(active.iter().map(|s| ActorId::Sensor(*s)).collect()),
         });
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
-        self.phase = Phase::Collecting(Collector::new(
-            step,
-            active,
-            now + self.round_timeout,
-            cells,
-        ));
+        self.phase = Phase::Collecting(Collector::new(step, active, now + self.listen, cells));
     }
 
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
@@ -647,6 +760,9 @@ impl NodeActor {
         };
         let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
         let estimate = update.map_or(local.estimate, |u| u.estimate);
+        if let (Some(c), Some(u)) = (self.censoring.as_mut(), update) {
+            c.fed_back = u.posterior;
+        }
         let micros = |d: Duration| d.as_micros().min(u32::MAX as u128) as u32;
         let telemetry = Telemetry {
             estimate: std::array::from_fn(|i| {

@@ -11,6 +11,7 @@
 
 use std::f64::consts::PI;
 
+use bounds::censoring::{CensoringRule, Innovation};
 use bounds::fisher::{ln_cell_probability, observed_information};
 use bounds::pcrlb::{information_update, observation_information};
 use bounds::{
@@ -34,6 +35,15 @@ pub struct Observation {
 pub enum ObservedValue {
     Cell(u32),
     Raw(f64),
+}
+
+/// An active sensor that stayed silent under NIS censoring, with the
+/// innovation statistics it censored by: its silence is a measurement.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Silence {
+    pub sensor: u16,
+    pub innovation: Innovation,
+    pub rule: CensoringRule,
 }
 
 /// What the estimators share: the dynamics, every sensor's model and the quantizer.
@@ -85,6 +95,13 @@ impl SensingModel {
             }
             (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
         }
+    }
+
+    /// `ln P(silent | x)` of a censored sensor: its innovation, given x,
+    /// is `N(h(x) − h(x̂), r(x))`, inside the window with this probability.
+    pub fn ln_silence(&self, silence: &Silence, x: &State) -> f64 {
+        let e = self.sensors[silence.sensor as usize].evaluate(x);
+        silence.innovation.ln_silence(&silence.rule, e.g, e.r)
     }
 
     /// `Σ_s Σ_j w_j J_Y,s(x_j)`: the expected information of the observed
@@ -264,6 +281,7 @@ impl LocalFilter {
         &mut self,
         model: &SensingModel,
         observations: &[Observation],
+        silent: &[Silence],
         with_observed_information: bool,
     ) -> Result<LocalUpdate, BoundError> {
         let (terms, predicted) =
@@ -278,7 +296,7 @@ impl LocalFilter {
         self.bound
             .advance(&terms, model.dynamics.q_inv(), &delta_l)?;
 
-        if observations.is_empty() {
+        if observations.is_empty() && silent.is_empty() {
             // No news: the posterior is the prediction and the contribution is zero.
             let estimate = predicted.mean;
             self.filter.resample(&mut self.rng);
@@ -291,8 +309,14 @@ impl LocalFilter {
                 bound: self.bound.position_bound(),
             });
         }
+        // The full likelihood (dissertation eq. 3.9): what arrived, and the
+        // silence of every censored sensor.
         let stages = self.filter.update(&mut self.rng, |x| {
-            observations.iter().map(|o| model.ln_likelihood(o, x)).sum()
+            observations
+                .iter()
+                .map(|o| model.ln_likelihood(o, x))
+                .sum::<f64>()
+                + silent.iter().map(|s| model.ln_silence(s, x)).sum::<f64>()
         });
         if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
@@ -321,7 +345,9 @@ impl LocalFilter {
         };
         let position_only = observations
             .iter()
-            .all(|o| model.sensors[o.sensor as usize].depends_on_position_only());
+            .map(|o| o.sensor)
+            .chain(silent.iter().map(|s| s.sensor))
+            .all(|s| model.sensors[s as usize].depends_on_position_only());
         let contribution = information_contribution(&predicted, &summary_posterior, position_only)
             .map_or(
                 Contribution {
@@ -368,7 +394,7 @@ impl LocalFilter {
 
     /// A step without observations (this node missed it): prediction only.
     pub fn coast(&mut self, model: &SensingModel) -> Result<(), BoundError> {
-        self.update(model, &[], false).map(|_| ())
+        self.update(model, &[], &[], false).map(|_| ())
     }
 }
 
@@ -665,7 +691,7 @@ mod tests {
         let node_delta_l = fusion.observation_information(&model, &observed).unwrap();
         let mut local = LocalFilter::new(2000, &prior(20.0), rng(2)).unwrap();
         let local_delta_l = local
-            .update(&model, &observed, false)
+            .update(&model, &observed, &[], false)
             .unwrap()
             .contribution
             .delta_l;

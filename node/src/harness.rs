@@ -197,7 +197,9 @@ impl Net {
                     self.telemetry
                         .push((i as u16, o.message.header.step, t.clone()))
                 }
-                Payload::Activate { mask } => {
+                // The harness's sensors always send: censoring is tested
+                // with the real sensor actors, in `sim`.
+                Payload::Activate { mask } | Payload::ActivateWithFeedback { mask, .. } => {
                     let own = &self.topology.node_sensors[i];
                     let active = (0..own.len())
                         .filter(|k| mask.contains(*k))

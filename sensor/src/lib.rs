@@ -12,12 +12,14 @@
 //! its last honest value, biased, silent, or Byzantine (measuring a phantom
 //! target). Every sensor evaluates the schedule itself, as links do.
 
-use bounds::{ObservationModel, Quantizer, State};
+use bounds::censoring::{CensoringRule, Feedback, NisCensor};
+use bounds::{Dynamics, ObservationModel, Quantizer, State};
 use fusion_graph::faults::{FaultSchedule, SensorFault};
-use fusion_graph::scenario::Scenario;
+use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::transport::Channel;
-use fusion_graph::wire::{Message, Payload};
+use fusion_graph::wire::{unpack_mat4, Message, Payload};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
+use rand::Rng;
 
 #[derive(Debug, Clone)]
 pub struct SensorActor {
@@ -36,6 +38,22 @@ pub struct SensorActor {
     faults: FaultSchedule,
     /// The last honest measurement, which a stuck sensor repeats.
     last_honest: Option<Payload>,
+    censor: Censor,
+    /// The node's feedback with the latest activation, for NIS censoring.
+    feedback: Option<(u32, Feedback)>,
+}
+
+/// Whether this sensor stays silent when activated.
+#[derive(Debug, Clone)]
+enum Censor {
+    Never,
+    /// When the NIS against the fed-back prediction is below threshold.
+    Nis {
+        censor: Box<NisCensor>,
+        dynamics: Box<Dynamics>,
+    },
+    /// At random, sending with this probability.
+    Random(f64),
 }
 
 impl SensorActor {
@@ -62,6 +80,8 @@ impl SensorActor {
             last_sent: None,
             faults: FaultSchedule::new(&scenario.faults),
             last_honest: None,
+            censor: censor(scenario)?,
+            feedback: None,
         })
     }
 
@@ -98,6 +118,25 @@ impl SensorActor {
                     self.activated = Some(step);
                 }
             }
+            (
+                Payload::ActivateWithFeedback {
+                    mask,
+                    estimate,
+                    covariance,
+                },
+                ActorId::Node(n),
+            ) if n == self.owner => {
+                if mask.contains(self.slot) {
+                    self.activated = Some(step);
+                    self.feedback = Some((
+                        step,
+                        Feedback {
+                            estimate: State::from(*estimate),
+                            covariance: covariance.as_ref().map(unpack_mat4),
+                        },
+                    ));
+                }
+            }
             _ => return None,
         }
         let (step, truth) = self.truth?;
@@ -107,7 +146,11 @@ impl SensorActor {
         self.last_sent = Some(step);
         let payload = match self.faults.sensor_fault(step, self.index) {
             None => {
-                let honest = self.measure(step, &truth, 0.0);
+                let z = self.measure_raw(step, &truth, 0.0);
+                if !self.sends(step, z) {
+                    return None;
+                }
+                let honest = self.encode(z);
                 self.last_honest = Some(honest.clone());
                 honest
             }
@@ -132,22 +175,82 @@ impl SensorActor {
 
     /// A measurement of `truth`, plus `bias`, with step `step`'s noise.
     fn measure(&self, step: u32, truth: &State, bias: f64) -> Payload {
+        self.encode(self.measure_raw(step, truth, bias))
+    }
+
+    fn measure_raw(&self, step: u32, truth: &State, bias: f64) -> f64 {
         let mut rng = stream_rng(self.seed, self.id(), step, Stream::SensorNoise);
-        let mut z = self.model.sample(truth, &mut rng) + bias;
+        let z = self.model.sample(truth, &mut rng) + bias;
         if self.model.is_angular() {
-            z = bounds::wrap_angle(z);
+            bounds::wrap_angle(z)
+        } else {
+            z
         }
+    }
+
+    fn encode(&self, z: f64) -> Payload {
         match &self.quantizer {
             Some(q) => Payload::Observation { cell: q.encode(z) },
             None => Payload::RawObservation { value: z },
         }
     }
+
+    /// The censoring decision on the unquantized measurement. A NIS sensor
+    /// without this step's feedback sends: silence it cannot justify would
+    /// mislead its node.
+    fn sends(&mut self, step: u32, z: f64) -> bool {
+        match &mut self.censor {
+            Censor::Never => true,
+            Censor::Random(p) => {
+                let mut rng = stream_rng(
+                    self.seed,
+                    ActorId::Sensor(self.index),
+                    step,
+                    Stream::Censoring,
+                );
+                rng.random::<f64>() < *p
+            }
+            Censor::Nis { censor, dynamics } => match &self.feedback {
+                Some((s, feedback)) if *s == step => {
+                    let innovation = censor.innovation(step, feedback, &self.model, dynamics);
+                    censor.rule.sends(innovation.nis(z))
+                }
+                _ => true,
+            },
+        }
+    }
+}
+
+/// The scenario's censoring, as this sensor applies it.
+fn censor(scenario: &Scenario) -> Result<Censor, ScenarioError> {
+    let c = &scenario.censoring;
+    let active = scenario.sensors.active_per_node as usize;
+    Ok(match c.policy {
+        CensoringPolicy::Off => Censor::Never,
+        CensoringPolicy::Random => Censor::Random(c.budget / active as f64),
+        CensoringPolicy::Nis => {
+            let models = scenario.models()?;
+            let rule = CensoringRule::for_budget(c.budget, active, 1).map_err(|e| {
+                ScenarioError::Invalid {
+                    file: scenario.name.clone(),
+                    key: "censoring.budget".into(),
+                    expected: e.expected.into(),
+                    got: e.value.to_string(),
+                }
+            })?;
+            Censor::Nis {
+                censor: Box::new(NisCensor::new(rule, models.prior_cov)),
+                dynamics: Box::new(models.dynamics),
+            }
+        }
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    use bounds::Mat4;
     use fusion_graph::BitMask;
 
     fn actor() -> SensorActor {
@@ -171,6 +274,90 @@ mod tests {
     fn activation(step: u32, active: bool) -> Message {
         let mask = BitMask::from_indices(active.then_some(12));
         Message::new(ActorId::Node(0), step, 0, Payload::Activate { mask })
+    }
+
+    fn censoring_actor(overrides: &[&str]) -> SensorActor {
+        let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+        let s =
+            Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, "d", &overrides).unwrap();
+        let t = Topology::from_scenario(&s, "d").unwrap();
+        SensorActor::new(&s, &t, 12).unwrap()
+    }
+
+    fn activation_with_feedback(step: u32, estimate: State, variance: f64) -> Message {
+        let cov = Mat4::identity() * variance;
+        Message::new(
+            ActorId::Node(0),
+            step,
+            0,
+            Payload::ActivateWithFeedback {
+                mask: BitMask::from_indices([12]),
+                estimate: estimate.into(),
+                covariance: Some(fusion_graph::wire::pack_mat4(&cov)),
+            },
+        )
+    }
+
+    /// CFwMD2 with a budget of 1 of 3: a sensor whose measurement matches
+    /// the fed-back prediction stays silent, and one fed a prediction far
+    /// off sends; without this step's feedback it sends.
+    #[test]
+    fn a_nis_sensor_sends_only_what_the_prediction_did_not_foresee() {
+        let censoring = [
+            "censoring.policy=nis",
+            "censoring.budget=1",
+            "censoring.feedback=estimate_and_covariance",
+        ];
+        let truth = State::new(1000.0, 900.0, -6.0, -7.0);
+        // The estimate one step back, so that its prediction is the truth.
+        let before = State::new(1006.0, 907.0, -6.0, -7.0);
+        let (mut silent, mut sent) = (0, 0);
+        for step in 1..=40 {
+            let mut a = censoring_actor(&censoring);
+            a.handle(&tick(step, truth));
+            match a.handle(&activation_with_feedback(step, before, 1.0)) {
+                Some(_) => sent += 1,
+                None => silent += 1,
+            }
+        }
+        // NIS ~ χ²₁ scaled by r/s < 1: sending (p ≤ 1/3) is rarer still.
+        assert!(silent > 25, "{silent} silent, {sent} sent");
+        let far = State::new(1200.0, 700.0, -6.0, -7.0);
+        for step in 1..=10 {
+            let mut a = censoring_actor(&censoring);
+            a.handle(&tick(step, truth));
+            assert!(
+                a.handle(&activation_with_feedback(step, far, 1.0))
+                    .is_some(),
+                "a prediction 280 m off must not silence the sensor"
+            );
+        }
+        let mut a = censoring_actor(&censoring);
+        a.handle(&tick(3, truth));
+        assert!(
+            a.handle(&activation(3, true)).is_some(),
+            "no feedback: send"
+        );
+    }
+
+    #[test]
+    fn a_random_censor_sends_with_the_budgets_probability() {
+        let truth = State::new(1000.0, 900.0, -6.0, -7.0);
+        let mut a = censoring_actor(&["censoring.policy=random", "censoring.budget=0.6"]);
+        let steps = 3000;
+        let sent = (1..=steps)
+            .filter(|&step| {
+                a.handle(&tick(step, truth));
+                a.handle(&activation(step, true)).is_some()
+            })
+            .count() as f64;
+        // p = 0.6 / 3 = 0.2; five standard errors.
+        let (p, n) = (0.2, steps as f64);
+        assert!(
+            (sent / n - p).abs() < 5.0 * (p * (1.0 - p) / n).sqrt(),
+            "{}",
+            sent / n
+        );
     }
 
     #[test]

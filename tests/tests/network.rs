@@ -67,6 +67,43 @@ fn lockstep_run_reproduces_sim_bit_for_bit() {
     r.assert_clean();
 }
 
+/// NIS censoring as real processes: the sensors decide on their own, from
+/// the feedback in their activation, and the run is `sim`'s bit for bit,
+/// so the node and its sensors computed the same innovations.
+#[test]
+fn nis_censoring_on_real_processes_is_sims_bit_for_bit() {
+    let _guard = exclusive();
+    // Nodes listen 100 ms for their sensors; no round may time out.
+    let n = patient(small(network("censoring", 8)))
+        .lockstep()
+        .set("censoring.listen_ms", 100)
+        .set("reference.centralized", false)
+        .set("censoring.policy", "\"nis\"")
+        .set("censoring.budget", 1.5)
+        .set("censoring.feedback", "\"estimate_and_covariance\"");
+    let r = n.clone().run().unwrap();
+    r.assert_success();
+    let s = n.sim().unwrap();
+    s.assert_success();
+    let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
+    let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
+    a.sort();
+    b.sort();
+    assert_eq!(a.len(), 8 * 9);
+    assert_eq!(a, b);
+    let sent = r.counters(MessageKind::Observation).sent_messages;
+    assert!(
+        sent < 8 * 27,
+        "censoring sent {sent} of {} observations",
+        8 * 27
+    );
+    // Every activation carries the feedback: 9 nodes, 9 sensors each.
+    let feedback = r.counters(MessageKind::ActivateFeedbackCovariance);
+    assert_eq!(feedback.sent_messages, 8 * 81);
+    assert_eq!(feedback.received_messages, feedback.sent_messages);
+    r.assert_clean();
+}
+
 #[test]
 fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     let _guard = exclusive();

@@ -295,7 +295,10 @@ pub struct IceoryxTransport {
 fn max_message_len(channel: Channel) -> usize {
     HEADER_BYTES
         + match channel {
-            Channel::Tick | Channel::Activation(_) | Channel::Observation(_) => 48,
+            Channel::Tick | Channel::Observation(_) => 48,
+            // The mask, and the censoring feedback: an estimate and its
+            // packed covariance.
+            Channel::Activation(_) => 48 + 32 + 80,
             Channel::Consensus(_) => 300,
             Channel::Control(_) | Channel::Telemetry(_) => 240,
         }

@@ -79,14 +79,16 @@ pub fn csv(experiment: &Experiment, outcome: &Outcome) -> String {
 /// messages, the activations and the bound information in consensus.
 pub fn bytes_csv(outcome: &Outcome) -> String {
     let mut out = String::from(
-        "arm,selection_bytes_per_step,activation_bytes_per_step,bound_bytes_per_step\n",
+        "arm,selection_bytes_per_step,activation_bytes_per_step,observation_bytes_per_step,observations_per_step,bound_bytes_per_step\n",
     );
     for a in &outcome.arms {
         out.push_str(&format!(
-            "{},{},{},{}\n",
+            "{},{},{},{},{},{}\n",
             quoted(&a.label),
             a.selection_bytes_per_step,
             a.activation_bytes_per_step,
+            a.observation_bytes_per_step,
+            a.observations_per_step,
             a.bound_bytes_per_step
         ));
     }

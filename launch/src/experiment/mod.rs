@@ -139,7 +139,11 @@ pub struct ArmOutcome {
     /// Whole-network bytes per step of the sensor selection's messages
     /// (min-consensus) and of the activations, from the accounting.
     pub selection_bytes_per_step: f64,
+    /// Activations, with the censoring feedback they carry.
     pub activation_bytes_per_step: f64,
+    /// Observations (quantized or raw) from sensors to their nodes.
+    pub observation_bytes_per_step: f64,
+    pub observations_per_step: f64,
     /// Messages sent but neither received, dropped nor malformed: the
     /// magnitudes summed over kinds and runs.
     pub unaccounted_messages: u64,
@@ -270,6 +274,7 @@ pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
 pub fn catalogue() -> Vec<Experiment> {
     let mut all = seed000::experiments();
     all.extend(seed001::experiments());
+    all.extend(censoring::network_experiments());
     all.extend(faults::experiments());
     all
 }
@@ -340,14 +345,25 @@ pub fn run(
             .transpose()
             .with_context(|| format!("non-conditional PCRLB of arm `{}`", arm.label))?;
         let per_step = |bytes: f64| bytes / scenario.steps as f64;
-        let kind_per_step = |kind: &str| {
+        let kinds_per_step = |kinds: &[&str], value: &dyn Fn(&crate::results::Traffic) -> f64| {
             mc.per_run
                 .iter()
-                .flat_map(|s| s.traffic.iter().filter(|t| t.kind == kind))
-                .map(|t| t.bytes_per_step)
+                .flat_map(|s| {
+                    s.traffic
+                        .iter()
+                        .filter(|t| kinds.contains(&t.kind.as_str()))
+                })
+                .map(value)
                 .fold(0.0, |a, b| a + b)
                 / mc.per_run.len().max(1) as f64
         };
+        let kind_per_step = |kind: &str| kinds_per_step(&[kind], &|t| t.bytes_per_step);
+        const ACTIVATIONS: [&str; 3] = [
+            "activate",
+            "activate_feedback",
+            "activate_feedback_covariance",
+        ];
+        const OBSERVATIONS: [&str; 2] = ["observation", "raw_observation"];
         arms.push(ArmOutcome {
             label: arm.label.to_string(),
             steps: mc.series.means(),
@@ -355,7 +371,10 @@ pub fn run(
             bound_bytes_per_step: per_step(mc.bound_bytes_cq_dpcrlb),
             aux_bound_bytes_per_step: mc.bound_bytes_auxiliary_fim.map(per_step),
             selection_bytes_per_step: kind_per_step("min_consensus"),
-            activation_bytes_per_step: kind_per_step("activate"),
+            activation_bytes_per_step: kinds_per_step(&ACTIVATIONS, &|t| t.bytes_per_step),
+            observation_bytes_per_step: kinds_per_step(&OBSERVATIONS, &|t| t.bytes_per_step),
+            observations_per_step: kinds_per_step(&OBSERVATIONS, &|t| t.messages as f64)
+                / scenario.steps as f64,
             unaccounted_messages: mc
                 .per_run
                 .iter()

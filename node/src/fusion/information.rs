@@ -4,7 +4,7 @@
 //! the numbers its neighbours receive.
 
 use bounds::{Mat4, State};
-use fusion_graph::wire::{pack_symmetric, unpack_symmetric, ConsensusValues, Packed, Payload};
+use fusion_graph::wire::{ConsensusValues, Packed, Payload};
 
 use crate::estimator::{Contribution, NetworkSums};
 
@@ -19,14 +19,7 @@ pub struct InformationVector {
     pub s_obs: Option<Packed>,
 }
 
-pub fn pack_matrix(m: &Mat4) -> Packed {
-    pack_symmetric(&std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])))
-}
-
-pub fn unpack_matrix(p: &Packed) -> Mat4 {
-    let a = unpack_symmetric(p);
-    Mat4::from_fn(|r, c| a[r][c])
-}
+pub use fusion_graph::wire::{pack_mat4 as pack_matrix, unpack_mat4 as unpack_matrix};
 
 fn scale<const N: usize>(v: &[f64; N], w: f64) -> [f64; N] {
     v.map(|x| x * w)
