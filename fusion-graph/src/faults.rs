@@ -34,7 +34,12 @@ fn active(at: u32, end: Option<u32>, step: u32) -> bool {
 }
 
 fn matches(sel: &str, actor: ActorId) -> bool {
-    sel == "*" || sel.parse::<ActorId>().is_ok_and(|a| a == actor)
+    match sel {
+        "*" => true,
+        "node-*" => matches!(actor, ActorId::Node(_)),
+        "sensor-*" => matches!(actor, ActorId::Sensor(_)),
+        _ => sel.parse::<ActorId>().is_ok_and(|a| a == actor),
+    }
 }
 
 /// A number in [0, 1) fixed by its inputs: every process that evaluates
@@ -122,10 +127,19 @@ impl FaultSchedule {
                 Fault::Delay {
                     latency_ms,
                     jitter_ms,
+                    rate_bps,
                     ..
                 } => {
                     rule.latency = rule.latency.max(Duration::from_secs_f64(latency_ms / 1e3));
                     rule.jitter = rule.jitter.max(Duration::from_secs_f64(jitter_ms / 1e3));
+                    // Two limits on one link: the slower holds.
+                    if *rate_bps > 0.0 {
+                        rule.rate = if rule.rate > 0.0 {
+                            rule.rate.min(*rate_bps)
+                        } else {
+                            *rate_bps
+                        };
+                    }
                 }
                 Fault::Loss { probability, .. } => rule.loss = either(rule.loss, *probability),
                 Fault::Duplicate { probability, .. } => {
@@ -317,6 +331,16 @@ mod tests {
         let s = Scenario::from_toml(&format!("{DEFAULT_SCENARIO}\n{extra}"), "f", &[]).unwrap();
         let t = Topology::from_scenario(&s, "f").unwrap();
         (FaultSchedule::new(&s.faults), t)
+    }
+
+    #[test]
+    fn kind_wildcards_select_every_node_or_every_sensor() {
+        assert!(matches("sensor-*", ActorId::Sensor(7)));
+        assert!(!matches("sensor-*", ActorId::Node(7)));
+        assert!(matches("node-*", ActorId::Node(0)));
+        assert!(!matches("node-*", ActorId::Launcher));
+        assert!(matches("*", ActorId::Launcher));
+        assert!(matches("node-3", ActorId::Node(3)) && !matches("node-3", ActorId::Node(4)));
     }
 
     #[test]

@@ -279,7 +279,8 @@ impl Default for ReferenceConfig {
     }
 }
 
-/// A directed link selector; `"*"` on either side matches every actor.
+/// A directed link selector; `"*"` on either side matches every actor,
+/// `"node-*"` every node and `"sensor-*"` every sensor.
 /// `fraction` (default 1) takes that share of the links matched, chosen by
 /// a hash of the fault and the link, so every process picks the same ones.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -338,6 +339,11 @@ pub enum Fault {
         latency_ms: f64,
         #[serde(default)]
         jitter_ms: f64,
+        /// netem's `rate`: the link carries this many bits per second, so a
+        /// message takes its size over the rate to cross, queued behind the
+        /// messages before it. 0: unlimited.
+        #[serde(default)]
+        rate_bps: f64,
     },
     Loss {
         links: Vec<LinkSelector>,
@@ -495,7 +501,7 @@ impl Fault {
             return links
                 .iter()
                 .flat_map(|l| [l.from.as_str(), l.to.as_str()])
-                .filter(|n| *n != "*")
+                .filter(|n| !is_wildcard(n))
                 .collect();
         }
         match self {
@@ -511,6 +517,11 @@ impl Fault {
             _ => Vec::new(),
         }
     }
+}
+
+/// `"*"`, `"node-*"` or `"sensor-*"`.
+pub fn is_wildcard(name: &str) -> bool {
+    matches!(name, "*" | "node-*" | "sensor-*")
 }
 
 impl Scenario {
@@ -739,10 +750,12 @@ impl Scenario {
                 Fault::Delay {
                     latency_ms,
                     jitter_ms,
+                    rate_bps,
                     ..
                 } => {
                     non_negative(&key("latency_ms"), *latency_ms)?;
                     non_negative(&key("jitter_ms"), *jitter_ms)?;
+                    non_negative(&key("rate_bps"), *rate_bps)?;
                 }
                 Fault::Loss { probability: p, .. }
                 | Fault::Duplicate { probability: p, .. }

@@ -30,6 +30,9 @@ pub struct LinkRule {
     pub corrupt: f64,
     /// Gilbert–Elliott burst loss, on top of `loss`.
     pub burst: Option<GilbertElliott>,
+    /// Bits per second (0: unlimited): a message is serialized onto the
+    /// link after the ones before it, then travels `latency`.
+    pub rate: f64,
 }
 
 /// A two-state loss chain: `enter_bad` = P(good → bad) and `leave_bad` =
@@ -67,6 +70,7 @@ impl LinkRule {
     fn passes_unchanged(&self) -> bool {
         self.latency.is_zero()
             && self.jitter.is_zero()
+            && self.rate == 0.0
             && self.duplicate == 0.0
             && self.reorder == 0.0
             && self.corrupt == 0.0
@@ -107,6 +111,8 @@ pub struct LinkShaper {
     sequence: u64,
     /// Links whose Gilbert–Elliott chain is in the bad state.
     in_burst: HashMap<ActorId, bool>,
+    /// When each rate-limited link has finished serializing what it holds.
+    busy_until: HashMap<ActorId, Duration>,
 }
 
 impl LinkShaper {
@@ -117,6 +123,7 @@ impl LinkShaper {
             held: BinaryHeap::new(),
             sequence: 0,
             in_burst: HashMap::new(),
+            busy_until: HashMap::new(),
         }
     }
 
@@ -125,6 +132,9 @@ impl LinkShaper {
     pub fn set_rule(&mut self, from: ActorId, rule: LinkRule) {
         if rule.burst.is_none() {
             self.in_burst.remove(&from);
+        }
+        if rule.rate == 0.0 {
+            self.busy_until.remove(&from);
         }
         if rule.is_clear() {
             self.rules.remove(&from);
@@ -173,6 +183,16 @@ impl LinkShaper {
         if rule.passes_unchanged() {
             return Admission::Deliver;
         }
+        // netem's rate: the message leaves once the link has sent what came
+        // before it, and takes its bits over the rate to do so.
+        let sent = if rule.rate > 0.0 {
+            let start = self.busy_until.get(&from).map_or(now, |b| (*b).max(now));
+            let done = start + Duration::from_secs_f64(bytes.len() as f64 * 8.0 / rule.rate);
+            self.busy_until.insert(from, done);
+            done
+        } else {
+            now
+        };
         let copies = if self.chance(rule.duplicate) { 2 } else { 1 };
         for copy in 0..copies {
             let mut tampering = Tampering {
@@ -191,7 +211,7 @@ impl LinkShaper {
             }
             self.sequence += 1;
             self.held
-                .push(Reverse((now + delay, self.sequence, from, b, tampering)));
+                .push(Reverse((sent + delay, self.sequence, from, b, tampering)));
         }
         Admission::Held
     }
@@ -233,6 +253,36 @@ impl LinkShaper {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// netem's `rate`: a 14-byte message on a 1000 bit/s link with 2 ms of
+    /// latency arrives 2 + 112 ms later, and one sent right behind it waits
+    /// for the link: 2 + 224 ms.
+    #[test]
+    fn a_rate_limit_serializes_messages_by_their_size() {
+        let mut s = LinkShaper::new(3);
+        let a = ActorId::Sensor(4);
+        s.set_rule(
+            a,
+            LinkRule {
+                latency: Duration::from_millis(2),
+                rate: 1000.0,
+                ..LinkRule::default()
+            },
+        );
+        let t0 = Duration::from_secs(1);
+        assert_eq!(s.admit(a, &[0u8; 14], t0), Admission::Held);
+        assert_eq!(s.admit(a, &[1u8; 14], t0), Admission::Held);
+        assert_eq!(s.next_due(), Some(t0 + Duration::from_millis(114)));
+        let mut out = Vec::new();
+        s.release_due(t0 + Duration::from_millis(114), |_, b, _| out.push(b[0]));
+        assert_eq!(out, vec![0]);
+        assert_eq!(s.next_due(), Some(t0 + Duration::from_millis(226)));
+        // A message after the link went idle starts at once.
+        s.release_due(t0 + Duration::from_secs(5), |_, _, _| {});
+        let later = t0 + Duration::from_secs(5);
+        s.admit(a, &[2u8; 15], later);
+        assert_eq!(s.next_due(), Some(later + Duration::from_millis(2 + 120)));
+    }
 
     #[test]
     fn delay_holds_until_due_and_loss_drops_the_expected_fraction() {

@@ -77,9 +77,15 @@ fn describe(f: &Fault) -> String {
             links,
             latency_ms,
             jitter_ms,
+            rate_bps,
             ..
         } => format!(
-            "delay {latency_ms} ms ± {jitter_ms} ms on {}",
+            "delay {latency_ms} ms ± {jitter_ms} ms{} on {}",
+            if *rate_bps > 0.0 {
+                format!(", rate {rate_bps} bit/s")
+            } else {
+                String::new()
+            },
             links_text(links)
         ),
         Fault::Loss {

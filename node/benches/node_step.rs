@@ -10,7 +10,7 @@ use bounds::State;
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::estimator::{
-    Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
+    Contribution, Evidence, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -39,7 +39,14 @@ fn bench(c: &mut Criterion) {
     let mut contribution = Contribution::zero();
     for _ in 0..5 {
         contribution = local
-            .update(&model, &observations, &[], false)
+            .update(
+                &model,
+                &Evidence {
+                    received: &observations,
+                    ..Evidence::default()
+                },
+                false,
+            )
             .unwrap()
             .contribution;
     }
@@ -54,7 +61,19 @@ fn bench(c: &mut Criterion) {
         |b| {
             b.iter_batched(
                 || local.clone(),
-                |mut l| black_box(l.update(&model, &observations, &[], false).unwrap()),
+                |mut l| {
+                    black_box(
+                        l.update(
+                            &model,
+                            &Evidence {
+                                received: &observations,
+                                ..Evidence::default()
+                            },
+                            false,
+                        )
+                        .unwrap(),
+                    )
+                },
                 BatchSize::LargeInput,
             )
         },

@@ -21,10 +21,10 @@ use fusion_graph::transport::Channel;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 
-use crate::collector::{Collected, Collector, Offer};
+use crate::collector::{Collected, Collector, Lagging, Offer};
 use crate::estimator::{
-    Contribution, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, ObservedValue,
-    SensingModel, Silence,
+    Contribution, Evidence, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, Observation,
+    ObservedValue, SensingModel, Silence,
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
@@ -190,6 +190,8 @@ struct Fusing {
     step: u32,
     /// The step's observations, until the local filter takes them.
     collected: Option<Collected>,
+    /// The step before's observations that came after it closed.
+    lagged: Vec<Observation>,
     local: Option<LocalUpdate>,
     /// The protocol's result, until the fusion filter takes it.
     fused: Option<Fused>,
@@ -238,6 +240,8 @@ pub struct NodeActor {
     last_step: Option<u32>,
     /// NIS censoring at this node's sensors, if the scenario asks for it.
     censoring: Option<NodeCensoring>,
+    /// Observations that missed their step's collection.
+    lagging: Lagging,
     /// The scenario's last step: a step beyond it is not of this run.
     steps: u32,
     late_messages: u64,
@@ -319,6 +323,7 @@ impl NodeActor {
             needs_state: false,
             last_step: None,
             censoring: NodeCensoring::for_scenario(scenario, &models, topology, index)?,
+            lagging: Lagging::new(models.quantizer.as_ref().map(|q| q.cells())),
             steps: scenario.steps,
             late_messages: 0,
             late_reported: 0,
@@ -495,9 +500,14 @@ impl NodeActor {
                     .censoring
                     .as_ref()
                     .map_or_else(Vec::new, |c| c.silences(collected.step, &collected.silent));
+                let evidence = Evidence {
+                    received: &collected.observations,
+                    lagged: &f.lagged,
+                    silent: &silent,
+                };
                 let update = self
                     .local
-                    .update(&self.model, &collected.observations, &silent, self.with_aux)
+                    .update(&self.model, &evidence, self.with_aux)
                     .and_then(|mut update| {
                         update.contribution.delta_l = self
                             .fusion
@@ -717,12 +727,21 @@ impl NodeActor {
     }
 
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
-        let Phase::Collecting(c) = &mut self.phase else {
-            self.late_messages += 1;
-            return;
+        let (offer, complete) = match &mut self.phase {
+            Phase::Collecting(c) => {
+                let offer = c.offer(step, sensor, value);
+                (offer, offer == Offer::Taken && c.is_complete())
+            }
+            _ => (Offer::Late, false),
         };
-        match c.offer(step, sensor, value) {
-            Offer::Taken if c.is_complete() => self.close_collection(),
+        if complete {
+            self.close_collection();
+        }
+        let offer = match offer {
+            Offer::Late => self.lagging.offer(step, sensor, value),
+            other => other,
+        };
+        match offer {
             Offer::Taken => {}
             Offer::Late => self.late_messages += 1,
             Offer::Invalid => tracing::warn!(
@@ -738,11 +757,17 @@ impl NodeActor {
             return;
         };
         let collected = c.close();
+        // The last step's stragglers go with this step; this step's silent
+        // sensors may still report, a step late.
+        let lagged =
+            self.lagging
+                .close(collected.step, &collected.silent, self.censoring.is_none());
         self.observations = collected.observations.len() as u16;
         self.gated = 0;
         self.phase = Phase::Fusing(Box::new(Fusing {
             step: collected.step,
             collected: Some(collected),
+            lagged,
             local: None,
             fused: None,
             finished: None,

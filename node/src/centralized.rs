@@ -50,7 +50,14 @@ impl CentralizedReference {
     /// Runs the step with what was collected: estimate and centralized bound.
     pub fn finish_step(&mut self) -> Result<LocalUpdate, BoundError> {
         self.received.sort_by_key(|o| o.sensor);
-        let update = self.filter.update(&self.model, &self.received, &[], false);
+        let update = self.filter.update(
+            &self.model,
+            &crate::estimator::Evidence {
+                received: &self.received,
+                ..Default::default()
+            },
+            false,
+        );
         self.received.clear();
         self.step += 1;
         update

@@ -46,6 +46,24 @@ pub struct Silence {
     pub rule: CensoringRule,
 }
 
+/// What a step tells the local filter about the target.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Evidence<'a> {
+    /// This step's observations, sorted by sensor.
+    pub received: &'a [Observation],
+    /// Observations of the step before that arrived after it closed: each
+    /// is weighed at the time it was taken, on each particle's path.
+    pub lagged: &'a [Observation],
+    /// Active sensors that censored themselves this step.
+    pub silent: &'a [Silence],
+}
+
+impl Evidence<'_> {
+    fn is_empty(&self) -> bool {
+        self.received.is_empty() && self.lagged.is_empty() && self.silent.is_empty()
+    }
+}
+
 /// What the estimators share: the dynamics, every sensor's model and the quantizer.
 #[derive(Debug, Clone)]
 pub struct SensingModel {
@@ -280,10 +298,14 @@ impl LocalFilter {
     pub fn update(
         &mut self,
         model: &SensingModel,
-        observations: &[Observation],
-        silent: &[Silence],
+        evidence: &Evidence,
         with_observed_information: bool,
     ) -> Result<LocalUpdate, BoundError> {
+        let Evidence {
+            received: observations,
+            lagged,
+            silent,
+        } = *evidence;
         let (terms, predicted) =
             self.prediction
                 .take(&mut self.filter, &model.dynamics, &mut self.rng)?;
@@ -296,7 +318,7 @@ impl LocalFilter {
         self.bound
             .advance(&terms, model.dynamics.q_inv(), &delta_l)?;
 
-        if observations.is_empty() && silent.is_empty() {
+        if evidence.is_empty() {
             // No news: the posterior is the prediction and the contribution is zero.
             let estimate = predicted.mean;
             self.filter.resample(&mut self.rng);
@@ -311,12 +333,16 @@ impl LocalFilter {
         }
         // The full likelihood (dissertation eq. 3.9): what arrived, and the
         // silence of every censored sensor.
-        let stages = self.filter.update(&mut self.rng, |x| {
+        let stages = self.filter.update_paths(&mut self.rng, |x, before| {
             observations
                 .iter()
                 .map(|o| model.ln_likelihood(o, x))
                 .sum::<f64>()
                 + silent.iter().map(|s| model.ln_silence(s, x)).sum::<f64>()
+                + lagged
+                    .iter()
+                    .map(|o| model.ln_likelihood(o, before))
+                    .sum::<f64>()
         });
         if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
@@ -347,6 +373,7 @@ impl LocalFilter {
             .iter()
             .map(|o| o.sensor)
             .chain(silent.iter().map(|s| s.sensor))
+            .chain(lagged.iter().map(|o| o.sensor))
             .all(|s| model.sensors[s as usize].depends_on_position_only());
         let contribution = information_contribution(&predicted, &summary_posterior, position_only)
             .map_or(
@@ -394,7 +421,7 @@ impl LocalFilter {
 
     /// A step without observations (this node missed it): prediction only.
     pub fn coast(&mut self, model: &SensingModel) -> Result<(), BoundError> {
-        self.update(model, &[], &[], false).map(|_| ())
+        self.update(model, &Evidence::default(), false).map(|_| ())
     }
 }
 
@@ -691,7 +718,14 @@ mod tests {
         let node_delta_l = fusion.observation_information(&model, &observed).unwrap();
         let mut local = LocalFilter::new(2000, &prior(20.0), rng(2)).unwrap();
         let local_delta_l = local
-            .update(&model, &observed, &[], false)
+            .update(
+                &model,
+                &Evidence {
+                    received: &observed,
+                    ..Evidence::default()
+                },
+                false,
+            )
             .unwrap()
             .contribution
             .delta_l;

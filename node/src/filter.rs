@@ -12,9 +12,14 @@ use rand_distr::StandardNormal;
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {
     particles: Vec<State>,
+    /// Each particle's state one step back on its own path (its ancestor at
+    /// the last prediction), so that an observation that arrives a step late
+    /// can be weighed at the time it was taken.
+    previous: Vec<State>,
     weights: Vec<f64>,
     uniform: Vec<f64>,
     scratch: Vec<State>,
+    scratch_previous: Vec<State>,
     /// Per-particle log-likelihood of the update in progress.
     ln_likelihood: Vec<f64>,
     /// The posterior as the predicted particles weighted by the whole
@@ -38,9 +43,11 @@ impl ParticleFilter {
     pub fn from_gaussian<R: Rng + ?Sized>(n: usize, g: &Gaussian, rng: &mut R) -> Option<Self> {
         let mut f = Self {
             particles: vec![State::zeros(); n],
+            previous: vec![State::zeros(); n],
             weights: vec![1.0 / n as f64; n],
             uniform: vec![1.0 / n as f64; n],
             scratch: vec![State::zeros(); n],
+            scratch_previous: vec![State::zeros(); n],
             ln_likelihood: vec![0.0; n],
             importance_posterior: None,
         };
@@ -54,6 +61,8 @@ impl ParticleFilter {
         for p in self.particles.iter_mut() {
             *p = g.mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
         }
+        // No path behind a fresh draw: the ancestor is the particle itself.
+        self.previous.copy_from_slice(&self.particles);
         self.weights.copy_from_slice(&self.uniform);
         Some(())
     }
@@ -70,6 +79,11 @@ impl ParticleFilter {
         &self.particles
     }
 
+    /// Each particle's ancestor at the last prediction.
+    pub fn previous(&self) -> &[State] {
+        &self.previous
+    }
+
     pub fn weights(&self) -> &[f64] {
         &self.weights
     }
@@ -81,6 +95,7 @@ impl ParticleFilter {
     /// Predictor: `x_j(k) ~ p(x(k) | x_j(k−1))`; weights become uniform (the
     /// particles come from the previous step's resampler).
     pub fn predict<R: Rng + ?Sized>(&mut self, dynamics: &Dynamics, rng: &mut R) {
+        self.previous.copy_from_slice(&self.particles);
         for p in self.particles.iter_mut() {
             *p = dynamics.propagate(p, rng);
         }
@@ -113,11 +128,26 @@ impl ParticleFilter {
         rng: &mut R,
         mut ln_likelihood: impl FnMut(&State) -> f64,
     ) -> usize {
+        self.update_paths(rng, |x, _| ln_likelihood(x))
+    }
+
+    /// [`update`](Self::update) with a likelihood of each particle's path:
+    /// its state now and one step back.
+    pub fn update_paths<R: Rng + ?Sized>(
+        &mut self,
+        rng: &mut R,
+        mut ln_likelihood: impl FnMut(&State, &State) -> f64,
+    ) -> usize {
         let floor = ESS_FLOOR * self.particles.len() as f64;
         let mut done = 0.0;
         for stage in 1..=MAX_STAGES {
-            for (l, p) in self.ln_likelihood.iter_mut().zip(&self.particles) {
-                *l = ln_likelihood(p);
+            for ((l, p), q) in self
+                .ln_likelihood
+                .iter_mut()
+                .zip(&self.particles)
+                .zip(&self.previous)
+            {
+                *l = ln_likelihood(p, q);
             }
             let max = self
                 .ln_likelihood
@@ -208,15 +238,21 @@ impl ParticleFilter {
         let mut u = rng.random::<f64>() * step;
         let mut cumulative = self.weights[0];
         let mut i = 0;
-        for slot in self.scratch.iter_mut() {
+        for (slot, slot_previous) in self
+            .scratch
+            .iter_mut()
+            .zip(self.scratch_previous.iter_mut())
+        {
             while u > cumulative && i + 1 < n {
                 i += 1;
                 cumulative += self.weights[i];
             }
             *slot = self.particles[i];
+            *slot_previous = self.previous[i];
             u += step;
         }
         std::mem::swap(&mut self.particles, &mut self.scratch);
+        std::mem::swap(&mut self.previous, &mut self.scratch_previous);
         self.weights.copy_from_slice(&self.uniform);
     }
 }
@@ -283,6 +319,39 @@ mod tests {
             mean: State::new(100.0, 200.0, 3.0, -4.0),
             cov: Mat4::from_diagonal(&State::new(25.0, 16.0, 1.0, 0.25)),
         }
+    }
+
+    /// A measurement of x(k−1) that arrives after the prediction to k,
+    /// weighed on each particle's path, gives the Kalman filter's answer
+    /// for x(k): update at k−1, then predict. Weighing it on x(k) instead
+    /// (as if fresh) would not.
+    #[test]
+    fn a_lagged_measurement_weighed_on_the_path_is_the_kalman_answer() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
+        let mut f = ParticleFilter::from_gaussian(40_000, &prior(), &mut rng).unwrap();
+        f.predict(&dynamics, &mut rng);
+        let (z, r) = (104.0, 4.0);
+        f.update_paths(&mut rng, |_, before| -0.5 * (z - before[0]).powi(2) / r);
+        let pf = f.summary();
+        // Kalman: update the prior with z on p_x, then predict.
+        let p = prior().cov;
+        let gain = p.column(0) / (p[(0, 0)] + r);
+        let mean = prior().mean + gain * (z - prior().mean[0]);
+        let cov = p - gain * p.row(0);
+        let fm = dynamics.jacobian(&mean);
+        let (kf_mean, kf_cov) = (fm * mean, fm * cov * fm.transpose() + dynamics.q());
+        assert!(
+            (pf.mean - kf_mean).abs().max() < 0.06,
+            "{pf:?} vs {kf_mean:?}"
+        );
+        assert!((pf.cov[(0, 0)] / kf_cov[(0, 0)] - 1.0).abs() < 0.05);
+        // As if fresh: the same z weighed on x(k) lands elsewhere, since
+        // p_x moved by v_x = 3 in the step.
+        let mut g = ParticleFilter::from_gaussian(40_000, &prior(), &mut rng).unwrap();
+        g.predict(&dynamics, &mut rng);
+        g.update(&mut rng, |x| -0.5 * (z - x[0]).powi(2) / r);
+        assert!((g.summary().mean[0] - kf_mean[0]).abs() > 1.0);
     }
 
     #[test]

@@ -201,6 +201,7 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
             duration: Some(10),
             latency_ms: 200.0,
             jitter_ms: 0.0,
+            rate_bps: 0.0,
         })
         .fault(Fault::Loss {
             links: vec![link("*", "*")],

@@ -1,7 +1,9 @@
 //! Seed 003: bit depth against delay. The SPEB of the default scenario's
 //! bearing network for b = 1 … 16 bits, over a rate-limited sensor link,
-//! with its optimal depth. Computed from the bound, no network: the RMSE
-//! measured in `run` over such a link is not built yet (see the README).
+//! with its optimal depth; then the RMSE the network measures (`sim`, the
+//! same actors on a virtual clock) with each sensor's link to its node
+//! rate-limited, where an observation later than the node's listening
+//! window is weighed a step late, at the time it was taken.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -19,6 +21,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{Check, Computed, ComputedReport, Options};
+use crate::montecarlo::run_monte_carlo;
 use crate::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
@@ -52,6 +55,22 @@ const FIRST_DRAWN: u8 = 4;
 const SAMPLES: usize = 2000;
 const SEED: u64 = 3;
 
+/// The measured sweep's sensor links, bits per second (0: unlimited). The
+/// node listens 50 ms for its sensors (the default round timeout); with
+/// 2 ms of latency, 2400 bit/s brings an 8-bit observation (112 bits on the
+/// wire) inside that window and a 9-bit one (120 bits) just outside; at
+/// seed 003's 1000 bit/s every depth arrives a step late.
+const MEASURED_RATES: [f64; 3] = [0.0, 2400.0, 1000.0];
+/// Monte Carlo runs per (rate, depth): 48 points of 100 steps.
+const MEASURED_RUNS: u32 = 5;
+
+/// The RMSE measured over one link rate, by depth.
+struct Measured {
+    rate: f64,
+    /// (bits, RMSE from step 10, m).
+    rmse: Vec<(u8, f64)>,
+}
+
 /// One bit depth's bound under both delay models.
 struct Depth {
     bits: u8,
@@ -72,20 +91,124 @@ impl Depth {
     }
 }
 
-fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let depths = bound_per_depth().context("the SPEB over bit depths")?;
+    let measured = measure(options, dir).context("the RMSE over bit depths")?;
     let csv = dir.join("seed003-speb.csv");
     let svg = dir.join("seed003-speb.svg");
     write_atomically(&csv, table_csv(&depths).as_bytes())?;
-    draw(&svg, &depths)
+    write_atomically(
+        &dir.join("seed003-rmse.csv"),
+        measured_csv(&measured).as_bytes(),
+    )?;
+    draw(&svg, &depths, &measured)
         .map_err(|e| anyhow::anyhow!("{e}"))
         .with_context(|| format!("drawing {}", svg.display()))?;
+    let mut table = print(&depths);
+    table.push_str(&print_measured(&measured));
     Ok(ComputedReport {
-        check: check(&depths),
+        check: check(&depths, &measured),
         csv,
         svg,
-        table: print(&depths),
+        table,
     })
+}
+
+/// The network's RMSE for each depth and link rate: the default scenario,
+/// every sensor-to-node link delayed 2 ms and limited to the rate.
+fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
+    MEASURED_RATES
+        .iter()
+        .map(|&rate| {
+            let rmse = DEPTHS
+                .map(|bits| {
+                    let mut overrides = vec![
+                        format!("quantizer.bits={bits}"),
+                        "reference.centralized=false".to_string(),
+                    ];
+                    if rate > 0.0 {
+                        overrides.push(format!(
+                            "faults=[{{kind=\"delay\", links=[{{from=\"sensor-*\", to=\"node-*\"}}], at_step=1, latency_ms={}, rate_bps={rate}}}]",
+                            LINK.latency * 1e3
+                        ));
+                    }
+                    let source = format!("seed003-speb at {rate} bit/s, {bits} bits");
+                    let scenario =
+                        Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, &source, &overrides)?;
+                    let topology = Topology::from_scenario(&scenario, &source)?;
+                    let mc = run_monte_carlo(
+                        &scenario,
+                        &topology,
+                        &dir.join("runs").join(format!("rate-{rate}")).join(format!("bits-{bits}")),
+                        MEASURED_RUNS,
+                        options.threads,
+                        false,
+                        &|_| {},
+                    )?;
+                    let rmse = mc.estimates.rmse.unwrap_or(f64::NAN);
+                    eprintln!("  {rate} bit/s, {bits:>2} bits: RMSE {rmse:.3} m");
+                    Ok((bits, rmse))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            Ok(Measured { rate, rmse })
+        })
+        .collect()
+}
+
+fn rate_label(rate: f64) -> String {
+    if rate > 0.0 {
+        format!("{rate} bit/s")
+    } else {
+        "no rate limit".into()
+    }
+}
+
+/// The depth with the lowest RMSE.
+fn best_measured(m: &Measured) -> (u8, f64) {
+    m.rmse
+        .iter()
+        .copied()
+        .filter(|(_, r)| r.is_finite())
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, f64::NAN))
+}
+
+fn measured_csv(measured: &[Measured]) -> String {
+    let mut out = format!(
+        "# runs={MEASURED_RUNS},latency_s={},steps=100,rmse_from_step=10\nrate_bps,bits,rmse_m\n",
+        LINK.latency
+    );
+    for m in measured {
+        for (bits, rmse) in &m.rmse {
+            let _ = writeln!(out, "{},{bits},{rmse:.4}", m.rate);
+        }
+    }
+    out
+}
+
+fn print_measured(measured: &[Measured]) -> String {
+    let mut out = format!(
+        "RMSE measured in the network (sim), steps 10-100, {MEASURED_RUNS} runs per point, m\n  bits"
+    );
+    for m in measured {
+        let _ = write!(out, "  {:>14}", rate_label(m.rate));
+    }
+    out.push('\n');
+    for (i, bits) in DEPTHS.enumerate() {
+        let _ = write!(out, "    {bits:>2}");
+        for m in measured {
+            let (best, _) = best_measured(m);
+            let rmse = m.rmse[i].1;
+            let _ = write!(
+                out,
+                "  {:>13.3}{}",
+                rmse,
+                if best == bits { "*" } else { " " }
+            );
+        }
+        out.push('\n');
+    }
+    out
 }
 
 /// `E_p{J_Q(b)}` over the default scenario's 225 sensors, each weighted by
@@ -157,16 +280,26 @@ fn best(depths: &[Depth], pick: fn(&Depth) -> &Speb) -> &Depth {
 
 /// Seed 003's result: the bound has an interior optimum, where one more bit
 /// of information is worth less than the drift its delay lets in.
-fn check(depths: &[Depth]) -> Check {
+fn check(depths: &[Depth], measured: &[Measured]) -> Check {
     let packed = best(depths, |d| &d.packed);
     let wire = best(depths, |d| &d.wire);
     let (first, last) = (depths.first().unwrap(), depths.last().unwrap());
     let interior = packed.bits > first.bits && packed.bits < last.bits;
     let optima = optima_per_rate(depths);
     let deeper_with_rate = optima.windows(2).all(|w| w[1].1 >= w[0].1);
+    let measured_text = measured
+        .iter()
+        .map(|m| {
+            let (bits, rmse) = best_measured(m);
+            format!("{}: {bits} bits ({rmse:.2} m)", rate_label(m.rate))
+        })
+        .collect::<Vec<_>>()
+        .join(", ");
     Check {
         holds: interior && deeper_with_rate,
         statement: format!(
+            "{}; measured optimum (RMSE) per link: {measured_text}",
+            format!(
             "packed b bits at {} bit/s: the SPEB falls from {:.2} m² at {} bit to {:.2} m² at {} bits and rises to {:.2} m² at {} bits ({}); over cqnet's whole-byte wire the best depth is {} bits ({:.2} m²): 1 to 8 bits cost the same byte; the packed optimum {} with the rate: {}",
             LINK.rate,
             first.packed.total(),
@@ -184,7 +317,7 @@ fn check(depths: &[Depth]) -> Check {
                 .map(|(r, p, _)| format!("{p} at {r}"))
                 .collect::<Vec<_>>()
                 .join(", ")
-        ),
+        )),
     }
 }
 
@@ -262,9 +395,15 @@ fn optima_per_rate(depths: &[Depth]) -> Vec<(f64, u8, u8)> {
 /// A curve of the figure: its label, its value at a depth, its colour.
 type Series = (&'static str, fn(&Depth) -> f64, RGBAColor);
 
-fn draw(path: &Path, depths: &[Depth]) -> Result<(), Box<dyn std::error::Error>> {
-    let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
-    root.fill(&WHITE)?;
+fn draw(
+    path: &Path,
+    depths: &[Depth],
+    measured: &[Measured],
+) -> Result<(), Box<dyn std::error::Error>> {
+    let whole = SVGBackend::new(path, (900, 1100)).into_drawing_area();
+    whole.fill(&WHITE)?;
+    let (root, below) = whole.split_vertically(560);
+    draw_measured(&below, measured)?;
     // From 4 bits on, on a linear axis: the few coarsest depths are orders
     // of magnitude above and would flatten the optimum out of sight.
     let shown: Vec<&Depth> = depths.iter().filter(|d| d.bits >= FIRST_DRAWN).collect();
@@ -333,6 +472,62 @@ fn draw(path: &Path, depths: &[Depth]) -> Result<(), Box<dyn std::error::Error>>
         .border_style(BLACK)
         .position(SeriesLabelPosition::UpperRight)
         .draw()?;
-    root.present()?;
+    whole.present()?;
+    Ok(())
+}
+
+/// The network's RMSE against the depth, one curve per link rate.
+fn draw_measured<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    measured: &[Measured],
+) -> Result<(), Box<dyn std::error::Error>>
+where
+    DB::ErrorType: 'static,
+{
+    let shown = |bits: u8| bits >= FIRST_DRAWN;
+    let top = measured
+        .iter()
+        .flat_map(|m| {
+            m.rmse
+                .iter()
+                .filter(|(b, r)| shown(*b) && r.is_finite())
+                .map(|(_, r)| *r)
+        })
+        .fold(0.0, f64::max);
+    let mut chart = ChartBuilder::on(area)
+        .caption(
+            format!("measured: RMSE of the default network, steps 10-100 ({MEASURED_RUNS} runs a point)"),
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(FIRST_DRAWN as u32..16u32, 0.0..top * 1.1)?;
+    chart
+        .configure_mesh()
+        .x_desc("bits per observation, b; each sensor's link to its node: 2 ms + the rate")
+        .y_desc("position RMSE, m")
+        .draw()?;
+    for (i, m) in measured.iter().enumerate() {
+        let colour = Palette99::pick(i + 4).to_rgba();
+        let points: Vec<(u32, f64)> = m
+            .rmse
+            .iter()
+            .filter(|(b, r)| shown(*b) && r.is_finite())
+            .map(|(b, r)| (*b as u32, *r))
+            .collect();
+        let (best, _) = best_measured(m);
+        chart
+            .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))?
+            .label(format!("{} (best: {best} bits)", rate_label(m.rate)))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+        chart.draw_series(points.iter().map(|p| Circle::new(*p, 3, colour.filled())))?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()?;
     Ok(())
 }
