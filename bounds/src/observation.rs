@@ -309,7 +309,7 @@ mod tests {
             for x in &xs {
                 let e = m.evaluate(x);
                 let d = x.xy_distance(m.sensor_position());
-                let h = 1e-4 * d.max(1.0).min(100.0);
+                let h = 1e-4 * d.clamp(1.0, 100.0);
                 let num_g = central_gradient(|y| m.evaluate(y).g, x, h, m.is_angular());
                 let num_r = central_gradient(|y| m.evaluate(y).r, x, h, false);
                 let scale_g = e.grad_g.abs().max().max(1e-12);

@@ -362,8 +362,8 @@ mod tests {
                 (row - 1.0).abs() < 1e-12 && (col - 1.0).abs() < 1e-12,
                 "node {l}: row {row} col {col}"
             );
-            for m in 0..w.len() {
-                assert_eq!(w[l][m], w[m][l], "asymmetric at {l},{m}");
+            for (m, row_m) in w.iter().enumerate() {
+                assert_eq!(w[l][m], row_m[l], "asymmetric at {l},{m}");
                 assert!(w[l][m] >= 0.0);
             }
         }

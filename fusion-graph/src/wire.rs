@@ -191,6 +191,9 @@ pub struct Telemetry {
     pub observations: u16,
     /// Observations the innovation gate left out.
     pub gated: u16,
+    /// Observations of the previous step that arrived after its listening
+    /// window and were weighed this step, at the time they were taken.
+    pub lagged: u16,
     pub deadline_missed: bool,
     /// Messages that arrived after their round or step had passed, since the last telemetry.
     pub late_messages: u32,
@@ -620,25 +623,19 @@ pub fn unpack_mat4(p: &Packed) -> bounds::Mat4 {
 
 pub fn pack_symmetric(m: &[[f64; 4]; 4]) -> Packed {
     let mut out = [0.0; 10];
-    let mut k = 0;
-    for r in 0..4 {
-        for c in r..4 {
-            out[k] = m[r][c];
-            k += 1;
-        }
+    let upper = (0..4).flat_map(|r| (r..4).map(move |c| (r, c)));
+    for (slot, (r, c)) in out.iter_mut().zip(upper) {
+        *slot = m[r][c];
     }
     out
 }
 
 pub fn unpack_symmetric(p: &Packed) -> [[f64; 4]; 4] {
     let mut m = [[0.0; 4]; 4];
-    let mut k = 0;
-    for r in 0..4 {
-        for c in r..4 {
-            m[r][c] = p[k];
-            m[c][r] = p[k];
-            k += 1;
-        }
+    let upper = (0..4).flat_map(|r| (r..4).map(move |c| (r, c)));
+    for (&v, (r, c)) in p.iter().zip(upper) {
+        m[r][c] = v;
+        m[c][r] = v;
     }
     m
 }
@@ -660,6 +657,7 @@ pub fn examples() -> Vec<Message> {
         live_neighbours: 4,
         observations: 3,
         gated: 1,
+        lagged: 2,
         deadline_missed: false,
         late_messages: 2,
         stage_micros: [1, 2, 3, 4, 5],

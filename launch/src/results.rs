@@ -484,6 +484,7 @@ impl<'w> Recorder<'w> {
                 self.stages.add(t.stage_micros);
                 self.cost.late_messages += t.late_messages as u64;
                 self.cost.gated_observations += t.gated as u64;
+                self.cost.lagged_observations += t.lagged as u64;
                 if t.rounds_completed > 1 {
                     // Rounds 2..N_c: every neighbour is exchanging by then.
                     self.round_latency
@@ -585,6 +586,7 @@ mod tests {
                 live_neighbours: 1,
                 observations: 3,
                 gated: 0,
+                lagged: 0,
                 deadline_missed: false,
                 late_messages: 0,
                 stage_micros: [10, 10, 40, 50, 0],

@@ -407,6 +407,7 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         live_neighbours: 0,
         observations: 0,
         gated: 0,
+        lagged: 0,
         deadline_missed: false,
         late_messages: 0,
         stage_micros: [0; 5],

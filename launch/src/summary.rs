@@ -180,6 +180,10 @@ pub struct FaultCost {
     /// Observations the nodes' innovation gate left out (`filter.gate`).
     #[serde(default)]
     pub gated_observations: u64,
+    /// Observations that missed their step's listening window and were
+    /// weighed a step late, at the time they were taken (slow links).
+    #[serde(default)]
+    pub lagged_observations: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -412,7 +416,7 @@ pub fn print_table(s: &Summary) {
     }
     if !s.faults.is_empty() {
         let c = &s.fault_cost;
-        println!("  fault cost: {} dropped, {} duplicated, {} corrupted, {} late, {} gated, {} node-steps with fewer neighbours, {} node-steps missing", c.dropped_messages, c.duplicated_messages, c.corrupted_messages, c.late_messages, c.gated_observations, c.rounds_with_fewer_neighbours, c.missing_node_steps);
+        println!("  fault cost: {} dropped, {} duplicated, {} corrupted, {} late, {} gated, {} observations weighed a step late, {} node-steps with fewer neighbours, {} node-steps missing", c.dropped_messages, c.duplicated_messages, c.corrupted_messages, c.late_messages, c.gated_observations, c.lagged_observations, c.rounds_with_fewer_neighbours, c.missing_node_steps);
     }
     println!("  {:<34} {:>12.1}", "steps per second", s.steps_per_second);
     let st = &s.stage_micros;

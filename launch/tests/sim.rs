@@ -400,3 +400,29 @@ fn weighing_silence_beats_ignoring_it_and_random_selection() {
     );
     assert!(weighed < random, "CFwMD2 {weighed} m vs random {random} m");
 }
+
+/// Seed 003's link: at 1000 bit/s every observation (14 bytes) takes 114 ms,
+/// past the 50 ms the node listens. The node weighs each a step late, at
+/// the time it was taken, and keeps tracking; with the same sensors silent
+/// it would not. Fresh observations: none.
+#[test]
+fn observations_late_on_a_slow_link_are_weighed_a_step_late() {
+    let slow = "faults=[{kind=\"delay\", links=[{from=\"sensor-*\", to=\"node-*\"}], at_step=1, latency_ms=2, rate_bps=1000}]";
+    let silent = "faults=[{kind=\"sensor\", sensors=[\"*\"], at_step=1, mode=\"dropout\"}]";
+    let (late, dir) = run("slow-link", &["steps=40", slow], false);
+    let (blind, _) = run("blind", &["steps=40", silent], false);
+    let fresh: u32 = observations_per_step(&dir, 3).values().sum();
+    assert_eq!(fresh, 0, "an observation counted as if fresh");
+    // Steps 1..39, 9 nodes, 3 active sensors each. A sensor active two
+    // steps running queues its second observation behind its first on the
+    // link; one that lands more than a step late is dropped, counted late.
+    let cost = &late.fault_cost;
+    assert_eq!(cost.lagged_observations + cost.late_messages, 39 * 9 * 3);
+    assert!(cost.late_messages < 39 * 9 * 3 / 100, "{cost:?}");
+    let (late_rmse, blind_rmse) = (late.estimates.rmse.unwrap(), blind.estimates.rmse.unwrap());
+    assert!(late_rmse < 4.0, "late observations, RMSE {late_rmse} m");
+    assert!(
+        blind_rmse > 5.0 * late_rmse,
+        "no observations, RMSE {blind_rmse} m"
+    );
+}

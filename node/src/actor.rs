@@ -233,6 +233,7 @@ pub struct NodeActor {
     gate: Option<f64>,
     /// Observations the gate left out this step.
     gated: u16,
+    lagged: u16,
     deadline_missed: bool,
     /// Set when this node restarted mid-run: it takes the first fused
     /// posterior a neighbour offers instead of starting from the prior.
@@ -319,6 +320,7 @@ impl NodeActor {
             observations: 0,
             gate: (scenario.filter.gate > 0.0).then_some(scenario.filter.gate),
             gated: 0,
+            lagged: 0,
             deadline_missed: false,
             needs_state: false,
             last_step: None,
@@ -763,6 +765,7 @@ impl NodeActor {
             self.lagging
                 .close(collected.step, &collected.silent, self.censoring.is_none());
         self.observations = collected.observations.len() as u16;
+        self.lagged = lagged.len() as u16;
         self.gated = 0;
         self.phase = Phase::Fusing(Box::new(Fusing {
             step: collected.step,
@@ -804,6 +807,7 @@ impl NodeActor {
             live_neighbours: fused.stats.neighbours_heard,
             observations: self.observations,
             gated: self.gated,
+            lagged: self.lagged,
             deadline_missed: self.deadline_missed,
             late_messages: (self.late_messages - self.late_reported) as u32,
             stage_micros: [

@@ -653,7 +653,7 @@ fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
             !rows.iter().any(|t| t.deadline_missed),
             "step {step} overran its step timeout"
         );
-        if step < 10 || step > 11 {
+        if !(10..=11).contains(&step) {
             let total: u32 = rows.iter().map(|t| t.observations).sum();
             assert_eq!(
                 total, 18,

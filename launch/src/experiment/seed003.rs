@@ -297,8 +297,7 @@ fn check(depths: &[Depth], measured: &[Measured]) -> Check {
         .join(", ");
     Check {
         holds: interior && deeper_with_rate,
-        statement: format!(
-            "{}; measured optimum (RMSE) per link: {measured_text}",
+        statement: [
             format!(
             "packed b bits at {} bit/s: the SPEB falls from {:.2} m² at {} bit to {:.2} m² at {} bits and rises to {:.2} m² at {} bits ({}); over cqnet's whole-byte wire the best depth is {} bits ({:.2} m²): 1 to 8 bits cost the same byte; the packed optimum {} with the rate: {}",
             LINK.rate,
@@ -317,7 +316,10 @@ fn check(depths: &[Depth], measured: &[Measured]) -> Check {
                 .map(|(r, p, _)| format!("{p} at {r}"))
                 .collect::<Vec<_>>()
                 .join(", ")
-        )),
+            ),
+            format!("measured optimum (RMSE) per link: {measured_text}"),
+        ]
+        .join("; "),
     }
 }
 

@@ -361,7 +361,7 @@ mod tests {
     /// for some, so that diminishing returns matter.
     fn sensor_info(s: u16) -> Mat4 {
         let strength = 0.05 + 0.03 * ((s * 7) % 5) as f64;
-        if s % 2 == 0 {
+        if s.is_multiple_of(2) {
             position_info(strength, 0.01, 0.1 * strength)
         } else {
             position_info(0.1 * strength, -0.01, strength)
