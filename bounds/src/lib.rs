@@ -21,6 +21,7 @@
 
 pub mod bit_allocation;
 pub mod censoring;
+pub mod diffusion;
 pub mod dynamics;
 pub mod fisher;
 pub mod fisher_table;
@@ -94,6 +95,8 @@ pub enum BoundError {
     NotPositiveDefinite(&'static str),
     #[error("the information matrix is not finite")]
     NonFinite,
+    #[error("{sensors} sensors but {nodes} neighbourhoods")]
+    NeighbourhoodCount { sensors: usize, nodes: usize },
     #[error("{sensors} sensors but {probabilities} activation probabilities")]
     ActivationCount {
         sensors: usize,
