@@ -11,6 +11,8 @@ use crate::ScenarioError;
 pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/default.toml");
 /// The scenario literal to seed 001.
 pub const SEED001_SCENARIO: &str = include_str!("../scenarios/seed001.toml");
+/// Seed 004's network: 25 nodes, each with one co-located RSS sensor.
+pub const SEED004_SCENARIO: &str = include_str!("../scenarios/seed004.toml");
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

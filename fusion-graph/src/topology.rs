@@ -317,6 +317,24 @@ fn place_sensors(
 mod tests {
     use super::*;
 
+    /// Seed 004: every node senses and processes, so each node's one
+    /// sensor stands where the node does, and the graph is the 4-lattice.
+    #[test]
+    fn seed004_puts_one_sensor_on_each_node_of_a_lattice() {
+        let s =
+            Scenario::from_toml(crate::scenario::SEED004_SCENARIO, "seed004.toml", &[]).unwrap();
+        let t = Topology::from_scenario(&s, "seed004.toml").unwrap();
+        assert_eq!((t.nodes(), t.sensors()), (25, 25));
+        for (n, sensors) in t.node_sensors.iter().enumerate() {
+            assert_eq!(sensors.len(), 1);
+            assert_eq!(t.sensor_positions[sensors[0] as usize], t.node_positions[n]);
+        }
+        let degrees: Vec<usize> = t.neighbours.iter().map(Vec::len).collect();
+        assert_eq!(degrees.iter().filter(|&&d| d == 2).count(), 4, "corners");
+        assert_eq!(degrees.iter().filter(|&&d| d == 4).count(), 9, "interior");
+        assert_eq!(t.edge_count(), 40);
+    }
+
     fn default_topology() -> Topology {
         Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
     }

@@ -56,8 +56,8 @@ fn init_logging(actor: Option<&str>, quiet: bool) {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Scenario { seed001 } => {
-            print!("{}", builtin_scenario(seed001));
+        Command::Scenario { seed001, seed004 } => {
+            print!("{}", builtin_scenario(seed001, seed004));
             Ok::<(), anyhow::Error>(())
         }
         Command::Sim(args) => {

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO};
+use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO, SEED004_SCENARIO};
 use fusion_graph::Topology;
 
 #[derive(Debug, Parser)]
@@ -41,8 +41,11 @@ pub enum Command {
     /// Print a built-in scenario to copy and edit.
     Scenario {
         /// Print the scenario literal to seed 001 instead of the default.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "seed004")]
         seed001: bool,
+        /// Print seed 004's RSS network instead of the default.
+        #[arg(long)]
+        seed004: bool,
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
@@ -216,11 +219,11 @@ pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)
     Ok((scenario, topology))
 }
 
-pub fn builtin_scenario(seed001: bool) -> &'static str {
-    if seed001 {
-        SEED001_SCENARIO
-    } else {
-        DEFAULT_SCENARIO
+pub fn builtin_scenario(seed001: bool, seed004: bool) -> &'static str {
+    match (seed001, seed004) {
+        (true, _) => SEED001_SCENARIO,
+        (_, true) => SEED004_SCENARIO,
+        _ => DEFAULT_SCENARIO,
     }
 }
 

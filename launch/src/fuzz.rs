@@ -532,6 +532,7 @@ fn builtin_seeds(target: Target) -> Vec<Vec<u8>> {
         Target::Scenario => vec![
             DEFAULT_SCENARIO.as_bytes().to_vec(),
             SEED001_SCENARIO.as_bytes().to_vec(),
+            fusion_graph::scenario::SEED004_SCENARIO.as_bytes().to_vec(),
         ],
         Target::Set => vec![b"quantizer.bits=4".to_vec()],
     }

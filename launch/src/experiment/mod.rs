@@ -14,6 +14,7 @@ mod figure;
 mod seed000;
 mod seed001;
 mod seed003;
+mod seed004;
 
 use std::path::PathBuf;
 
@@ -223,6 +224,7 @@ pub fn computed_catalogue() -> Vec<Computed> {
     let mut all = allocation::experiments();
     all.extend(censoring::experiments());
     all.extend(seed003::experiments());
+    all.extend(seed004::experiments());
     all
 }
 

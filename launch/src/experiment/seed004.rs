@@ -1,0 +1,269 @@
+//! Seed 004's bounds (its Fig. 1 without the trackers' curves): the
+//! RndEx-PF PCRLB and the centralized PCRLB of `seed004.toml`'s 25-node RSS
+//! network, and how the RndEx bound moves with its Monte Carlo sizes N_T
+//! (trajectories) and N_f (paths).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::Context;
+use bounds::diffusion::{diffusion_bounds, DiffusionBounds, MonteCarloSize};
+use bounds::fisher::Measurement;
+use bounds::{ObservationModel, SensorTerm, State};
+use fusion_graph::scenario::{Scenario, SEED004_SCENARIO};
+use fusion_graph::Topology;
+use plotters::prelude::*;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::{Check, Computed, ComputedReport, Options};
+use crate::results::write_atomically;
+
+pub fn experiments() -> Vec<Computed> {
+    vec![Computed {
+        name: "seed004-bounds",
+        source: "seed 004, Fig. 1 (bounds)",
+        about: "the RndEx-PF PCRLB (Fisher matrices conditioned on random-exchange paths, eqs. 4-16) and the centralized PCRLB of seed004.toml's 25 RSS nodes over 100 s, at the paper's N_T = 10^4, N_f = 10^3 and at smaller sizes",
+        run,
+    }]
+}
+
+/// The paper's sizes first; the others show what smaller ones cost.
+const SIZES: [MonteCarloSize; 4] = [
+    MonteCarloSize {
+        trajectories: 10_000,
+        paths: 1000,
+    },
+    MonteCarloSize {
+        trajectories: 10_000,
+        paths: 100,
+    },
+    MonteCarloSize {
+        trajectories: 1000,
+        paths: 100,
+    },
+    MonteCarloSize {
+        trajectories: 100,
+        paths: 100,
+    },
+];
+const SEED: u64 = 4;
+/// Steps printed in the table.
+const SHOWN: [usize; 6] = [1, 5, 10, 25, 50, 100];
+
+fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+    let scenario = Scenario::from_toml(SEED004_SCENARIO, "seed004.toml", &[])?;
+    let topology = Topology::from_scenario(&scenario, "seed004.toml")?;
+    let models = scenario.models()?;
+    let sensors: Vec<ObservationModel> = topology
+        .node_sensors
+        .iter()
+        .map(|own| {
+            let s = own
+                .first()
+                .context("seed004.toml gives every node its sensor")?;
+            Ok(models.law.at(topology.sensor_positions[*s as usize]))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let terms: Vec<SensorTerm> = sensors
+        .iter()
+        .map(|model| SensorTerm {
+            model,
+            measurement: Measurement::Raw,
+        })
+        .collect();
+    let neighbours: Vec<Vec<usize>> = topology
+        .neighbours
+        .iter()
+        .map(|ns| ns.iter().map(|&n| n as usize).collect())
+        .collect();
+    let mean = State::from(scenario.target.initial_state());
+    let steps = scenario.steps as usize;
+    let bounds = SIZES
+        .iter()
+        .map(|&size| {
+            let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+            diffusion_bounds(
+                &models.dynamics,
+                &terms,
+                &neighbours,
+                &mean,
+                &models.prior_cov,
+                steps,
+                size,
+                &mut rng,
+            )
+            .map_err(|e| anyhow::anyhow!("{e}"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let curves: Vec<Curves> = bounds.iter().map(|b| Curves::of(b, steps)).collect();
+
+    std::fs::create_dir_all(dir)?;
+    let csv = dir.join("seed004-bounds.csv");
+    let svg = dir.join("seed004-bounds.svg");
+    write_atomically(&csv, to_csv(&curves).as_bytes())?;
+    draw(&svg, &curves)
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| format!("drawing {}", svg.display()))?;
+    Ok(ComputedReport {
+        check: check(&curves),
+        csv,
+        svg,
+        table: print(&curves),
+    })
+}
+
+/// Both bounds, metres, from step 0 to the last.
+struct Curves {
+    rndex: Vec<f64>,
+    centralized: Vec<f64>,
+}
+
+impl Curves {
+    fn of(b: &DiffusionBounds, steps: usize) -> Self {
+        let nan = f64::NAN;
+        Self {
+            rndex: (0..=steps)
+                .map(|n| b.rndex_position_bound(n).unwrap_or(nan))
+                .collect(),
+            centralized: (0..=steps)
+                .map(|n| b.centralized_position_bound(n).unwrap_or(nan))
+                .collect(),
+        }
+    }
+}
+
+fn label(size: &MonteCarloSize) -> String {
+    format!("N_T={} N_f={}", size.trajectories, size.paths)
+}
+
+fn to_csv(curves: &[Curves]) -> String {
+    let mut out = String::from("# seed004.toml; bounds in metres, sqrt of the mean over nodes of tr_pos(J*^-1)\nstep,centralized");
+    for size in &SIZES {
+        let _ = write!(out, ",rndex_T{}_f{}", size.trajectories, size.paths);
+    }
+    out.push('\n');
+    for n in 0..curves[0].rndex.len() {
+        let _ = write!(out, "{n},{:.6}", curves[0].centralized[n]);
+        for c in curves {
+            let _ = write!(out, ",{:.6}", c.rndex[n]);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+fn print(curves: &[Curves]) -> String {
+    let mut out = String::from("seed 004's bounds on seed004.toml, metres (the paper's Fig. 1 gives curves, no figures to compare)\n  step  centralized");
+    for size in &SIZES {
+        let _ = write!(out, "  {:>20}", format!("RndEx {}", label(size)));
+    }
+    out.push('\n');
+    for &n in &SHOWN {
+        let _ = write!(out, "  {n:>4}  {:>11.3}", curves[0].centralized[n]);
+        for c in curves {
+            let _ = write!(out, "  {:>20.3}", c.rndex[n]);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// Largest relative gap between two curves over steps 1 onward.
+fn largest_gap(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .skip(1)
+        .map(|(x, y)| (x / y - 1.0).abs())
+        .fold(0.0, f64::max)
+}
+
+fn check(curves: &[Curves]) -> Check {
+    let paper = &curves[0];
+    let below = paper
+        .centralized
+        .iter()
+        .zip(&paper.rndex)
+        .skip(1)
+        .all(|(c, r)| c < r);
+    let ratio_end = paper.rndex.last().copied().unwrap_or(f64::NAN)
+        / paper.centralized.last().copied().unwrap_or(f64::NAN);
+    let gaps: Vec<String> = curves[1..]
+        .iter()
+        .zip(&SIZES[1..])
+        .map(|(c, size)| {
+            format!(
+                "{} within {:.2} %",
+                label(size),
+                100.0 * largest_gap(&c.rndex, &paper.rndex)
+            )
+        })
+        .collect();
+    Check {
+        holds: below,
+        statement: format!(
+            "the centralized PCRLB is below the RndEx-PF PCRLB at every step{} (at 100 s: {:.3} m against {:.3} m, ×{ratio_end:.2}); against the paper's N_T = 10^4, N_f = 10^3 the smaller sizes give the RndEx curve {}",
+            if below { "" } else { " NOT" },
+            paper.centralized.last().copied().unwrap_or(f64::NAN),
+            paper.rndex.last().copied().unwrap_or(f64::NAN),
+            gaps.join(", ")
+        ),
+    }
+}
+
+fn draw(path: &Path, curves: &[Curves]) -> Result<(), Box<dyn std::error::Error>> {
+    let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let steps = curves[0].rndex.len() - 1;
+    // From step 1: step 0 is the prior's 7 m and would flatten the rest.
+    let top = curves
+        .iter()
+        .flat_map(|c| c.rndex.iter().chain(&c.centralized).skip(1))
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "seed004-bounds: RndEx-PF and centralized PCRLB, 25 RSS nodes",
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(1..steps, 0.0..top * 1.05)?;
+    chart
+        .configure_mesh()
+        .x_desc("time, s")
+        .y_desc("position bound, m")
+        .draw()?;
+    let mut series: Vec<(String, &Vec<f64>, RGBAColor)> = vec![(
+        "centralized PCRLB".into(),
+        &curves[0].centralized,
+        Palette99::pick(0).to_rgba(),
+    )];
+    for (i, (c, size)) in curves.iter().zip(&SIZES).enumerate() {
+        series.push((
+            format!("RndEx-PF PCRLB, {}", label(size)),
+            &c.rndex,
+            Palette99::pick(i + 1).to_rgba(),
+        ));
+    }
+    for (name, values, colour) in series {
+        chart
+            .draw_series(LineSeries::new(
+                (1..=steps).map(|n| (n, values[n])),
+                colour.stroke_width(2),
+            ))?
+            .label(name)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
