@@ -62,6 +62,8 @@ pub enum WireError {
     TrailingBytes { extra: usize },
     #[error("payload carries a non-finite number")]
     NonFinite,
+    #[error("a flag byte {got}, expected 0 or 1")]
+    Flag { got: u8 },
 }
 
 /// What a transport's backend (iceoryx2, or another) reported.

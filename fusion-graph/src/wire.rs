@@ -63,6 +63,19 @@ pub enum MessageKind {
     /// The same with the estimate's covariance (CFwMD2): the mask, 4 f64,
     /// then the 10 of the upper triangle.
     ActivateFeedbackCovariance = 12,
+    /// One round of KL fusion (seed 004): a Gaussian posterior in
+    /// information form, η (4) and Λ (10).
+    KlConsensus = 13,
+    /// Random exchange (seed 004): a node asks a neighbour to swap
+    /// posteriors. No body.
+    ExchangeRequest = 14,
+    /// The neighbour's answer: 1 (accepted) or 0 (already paired).
+    ExchangeReply = 15,
+    /// A posterior swapped in a random exchange: mean (4), covariance (10).
+    ExchangePosterior = 16,
+    /// A node relays its own sensor's measurement to its neighbours, so
+    /// that each assimilates its closed neighbourhood's: sensor, value.
+    NeighbourObservation = 17,
     /// Accounting only: bytes whose kind could not be read.
     Malformed = 255,
 }
@@ -83,6 +96,11 @@ impl MessageKind {
             10 => MinConsensus,
             11 => ActivateFeedback,
             12 => ActivateFeedbackCovariance,
+            13 => KlConsensus,
+            14 => ExchangeRequest,
+            15 => ExchangeReply,
+            16 => ExchangePosterior,
+            17 => NeighbourObservation,
             _ => return None,
         })
     }
@@ -102,6 +120,11 @@ impl MessageKind {
             MinConsensus => "min_consensus",
             ActivateFeedback => "activate_feedback",
             ActivateFeedbackCovariance => "activate_feedback_covariance",
+            KlConsensus => "kl_consensus",
+            ExchangeRequest => "exchange_request",
+            ExchangeReply => "exchange_reply",
+            ExchangePosterior => "exchange_posterior",
+            NeighbourObservation => "neighbour_observation",
             Malformed => "malformed",
         }
     }
@@ -224,6 +247,20 @@ pub struct StateTransfer {
     pub aux_information: Packed,
 }
 
+/// A Gaussian in information form: `η = P⁻¹ m`, `Λ = P⁻¹` (upper triangle).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GaussianInformation {
+    pub eta: [f64; 4],
+    pub lambda: Packed,
+}
+
+/// A Gaussian as mean and covariance (upper triangle).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GaussianMoments {
+    pub mean: [f64; 4],
+    pub covariance: Packed,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub enum Payload {
     Tick {
@@ -254,6 +291,16 @@ pub enum Payload {
     Telemetry(Telemetry),
     StateTransfer(StateTransfer),
     MinConsensus(Proposal),
+    KlConsensus(GaussianInformation),
+    ExchangeRequest,
+    ExchangeReply {
+        accepted: bool,
+    },
+    ExchangePosterior(GaussianMoments),
+    NeighbourObservation {
+        sensor: u16,
+        value: f64,
+    },
 }
 
 /// A proposal in min-consensus: the smallest `cost` wins, ties going to the
@@ -298,6 +345,11 @@ impl Payload {
             Payload::Telemetry(_) => MessageKind::Telemetry,
             Payload::StateTransfer(_) => MessageKind::StateTransfer,
             Payload::MinConsensus(_) => MessageKind::MinConsensus,
+            Payload::KlConsensus(_) => MessageKind::KlConsensus,
+            Payload::ExchangeRequest => MessageKind::ExchangeRequest,
+            Payload::ExchangeReply { .. } => MessageKind::ExchangeReply,
+            Payload::ExchangePosterior(_) => MessageKind::ExchangePosterior,
+            Payload::NeighbourObservation { .. } => MessageKind::NeighbourObservation,
         }
     }
 }
@@ -373,6 +425,14 @@ impl Message {
             Payload::Telemetry(t) => put(t, out),
             Payload::StateTransfer(s) => put(s, out),
             Payload::MinConsensus(p) => put(p, out),
+            Payload::KlConsensus(g) => put(g, out),
+            Payload::ExchangeRequest => {}
+            Payload::ExchangeReply { accepted } => out.push(u8::from(*accepted)),
+            Payload::ExchangePosterior(g) => put(g, out),
+            Payload::NeighbourObservation { sensor, value } => {
+                put(sensor, out);
+                put(value, out);
+            }
         }
     }
 
@@ -478,6 +538,39 @@ impl Message {
                 finite(p.information)?;
                 Payload::MinConsensus(p)
             }
+            MessageKind::KlConsensus => {
+                let g: GaussianInformation = take(body)?;
+                finite(g.eta)?;
+                finite(g.lambda)?;
+                Payload::KlConsensus(g)
+            }
+            MessageKind::ExchangeRequest => {
+                exact_len(body, 0)?;
+                Payload::ExchangeRequest
+            }
+            MessageKind::ExchangeReply => {
+                exact_len(body, 1)?;
+                Payload::ExchangeReply {
+                    accepted: match body[0] {
+                        0 => false,
+                        1 => true,
+                        got => return Err(WireError::Flag { got }),
+                    },
+                }
+            }
+            MessageKind::ExchangePosterior => {
+                let g: GaussianMoments = take(body)?;
+                finite(g.mean)?;
+                finite(g.covariance)?;
+                Payload::ExchangePosterior(g)
+            }
+            MessageKind::NeighbourObservation => {
+                let (sensor, value): (u16, f64) = take(body)?;
+                Payload::NeighbourObservation {
+                    sensor,
+                    value: finite([value])?[0],
+                }
+            }
             MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
         };
         Ok(Self {
@@ -514,6 +607,11 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::ConsensusAux => 8 * 10,
                 MessageKind::StateTransfer => 8 * 34,
                 MessageKind::MinConsensus => 8 + 2 + 2 + 8 * 3,
+                MessageKind::KlConsensus => 8 * 14,
+                MessageKind::ExchangeRequest => 0,
+                MessageKind::ExchangeReply => 1,
+                MessageKind::ExchangePosterior => 8 * 14,
+                MessageKind::NeighbourObservation => 2 + 8,
                 _ => return None,
             },
     )
@@ -749,6 +847,40 @@ pub fn examples() -> Vec<Message> {
                 sensor: 77,
                 information: [1e-4, -2e-5, 3e-4],
             }),
+        ),
+        Message::new(
+            ActorId::Node(5),
+            7,
+            3,
+            Payload::KlConsensus(GaussianInformation {
+                eta: [2.0, 2.0, 0.0, 0.0],
+                lambda: [0.04, 0.0, 0.0, 0.0, 0.04, 0.0, 0.0, 400.0, 0.0, 400.0],
+            }),
+        ),
+        Message::new(ActorId::Node(6), 7, 0, Payload::ExchangeRequest),
+        Message::new(
+            ActorId::Node(7),
+            7,
+            0,
+            Payload::ExchangeReply { accepted: true },
+        ),
+        Message::new(
+            ActorId::Node(7),
+            7,
+            0,
+            Payload::ExchangePosterior(GaussianMoments {
+                mean: [50.0, 50.0, 0.0, 0.0],
+                covariance: [25.0, 0.0, 0.0, 0.0, 25.0, 0.0, 0.0, 0.0025, 0.0, 0.0025],
+            }),
+        ),
+        Message::new(
+            ActorId::Node(8),
+            7,
+            0,
+            Payload::NeighbourObservation {
+                sensor: 8,
+                value: -64.5,
+            },
         ),
     ]
 }

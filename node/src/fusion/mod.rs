@@ -12,6 +12,8 @@
 //!   driver shares between its nodes; a checking mode of `sim`.
 //! - [`MinConsensus`]: the network's smallest proposal in as many rounds as
 //!   the fusion graph's diameter, for sensor selection.
+//! - [`KlFusion`]: seed 004's KL fusion, K_max rounds of consensus on the
+//!   natural parameters of the nodes' Gaussian posteriors.
 //!
 //! The round-based ones are a [`RoundEngine`], which keeps the round
 //! numbering, early and late messages, timeouts and lost neighbours, and
@@ -22,12 +24,16 @@
 mod average;
 mod exact;
 pub(crate) mod information;
+mod kl;
 mod min;
 mod rounds;
+#[cfg(test)]
+pub(crate) mod testing;
 
 pub use average::{average_consensus, AverageConsensus};
 pub use exact::{ExactSumOracle, ExactSums};
 pub use information::InformationVector;
+pub use kl::{kl_fusion, KlFused, KlFusion, KlRule, NaturalGaussian};
 pub use min::{min_consensus, proposal_order, MinConsensus};
 pub use rounds::{RoundEngine, RoundRule, RoundsDone};
 
