@@ -17,10 +17,10 @@
 //! Tichavsky's own Monte Carlo does.
 //!
 //! Each of the N_f realizations draws one random matching per step for the
-//! whole network ([`random_matching`]), so one realization yields a path
-//! for every node at once, as the protocol does.
+//! whole network ([`random_matching`], the protocol cqnet's nodes run), so
+//! one realization yields a path for every node at once.
 
-use rand::seq::{IndexedRandom, SliceRandom};
+use rand::seq::IndexedRandom;
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
@@ -68,33 +68,52 @@ fn position_trace(information: &Mat4) -> Option<f64> {
     t.is_finite().then_some(t)
 }
 
-/// One round of the random exchange protocol: nodes in random order, each
-/// one not yet paired asks a neighbour not yet paired, chosen uniformly; a
-/// node left with none keeps its own posterior. `partner[r]` is the node
-/// whose posterior r continues from (r itself when unpaired).
+/// Attempts a node makes to find a partner in one step.
+pub const EXCHANGE_ATTEMPTS: u32 = 3;
+
+/// One step of the random exchange protocol as cqnet's nodes run it
+/// (`node::fusion::RandomExchange`), without losses: in each of
+/// [`EXCHANGE_ATTEMPTS`] attempts every node not yet paired flips a coin;
+/// a requester asks one neighbour it has not asked, chosen uniformly; a
+/// listener accepts the first request that reaches it (here: one of them
+/// uniformly) and refuses the rest. `partner[r]` is the node whose posterior
+/// r continues from (r itself when it stayed unpaired).
 pub fn random_matching<R: Rng + ?Sized>(neighbours: &[Vec<usize>], rng: &mut R) -> Vec<usize> {
     let n = neighbours.len();
     let mut partner: Vec<usize> = (0..n).collect();
     let mut paired = vec![false; n];
-    let mut order: Vec<usize> = (0..n).collect();
-    order.shuffle(rng);
-    let mut free = Vec::new();
-    for &s in &order {
-        if paired[s] {
-            continue;
+    let mut asked: Vec<Vec<usize>> = vec![Vec::new(); n];
+    let mut requests: Vec<Vec<usize>> = vec![Vec::new(); n];
+    let mut requester = vec![false; n];
+    let mut untried = Vec::new();
+    for _ in 0..EXCHANGE_ATTEMPTS {
+        requests.iter_mut().for_each(Vec::clear);
+        for r in 0..n {
+            requester[r] = !paired[r] && rng.random::<bool>();
         }
-        free.clear();
-        free.extend(
-            neighbours[s]
-                .iter()
-                .copied()
-                .filter(|&l| !paired[l] && l != s),
-        );
-        if let Some(&l) = free.choose(rng) {
-            partner[s] = l;
-            partner[l] = s;
-            paired[s] = true;
-            paired[l] = true;
+        for r in (0..n).filter(|&r| requester[r]) {
+            untried.clear();
+            untried.extend(
+                neighbours[r]
+                    .iter()
+                    .copied()
+                    .filter(|l| *l != r && !asked[r].contains(l)),
+            );
+            if let Some(&l) = untried.choose(rng) {
+                asked[r].push(l);
+                requests[l].push(r);
+            }
+        }
+        for l in 0..n {
+            if paired[l] || requester[l] {
+                continue;
+            }
+            if let Some(&r) = requests[l].choose(rng) {
+                partner[l] = r;
+                partner[r] = l;
+                paired[l] = true;
+                paired[r] = true;
+            }
         }
     }
     partner
@@ -302,9 +321,9 @@ mod tests {
                 paired += usize::from(p != r);
             }
         }
-        // On a 5 × 5 lattice a random greedy matching pairs most nodes.
+        // On a 5 × 5 lattice three attempts pair most nodes.
         let share = paired as f64 / (2000.0 * 25.0);
-        assert!(share > 0.75 && share < 1.0, "{share}");
+        assert!(share > 0.5 && share < 1.0, "{share}");
     }
 
     /// When every node hears every sensor, every path sees the same

@@ -176,7 +176,7 @@ mod tests {
         let nodes: Vec<KlFusion> = (0..t.nodes() as u16)
             .map(|r| kl_fusion(r, &t, rounds, Duration::from_millis(50)))
             .collect();
-        drive(nodes, |r| local(r), view, fate, Duration::from_secs(10))
+        drive(nodes, local, view, fate, Duration::from_secs(10))
     }
 
     fn relative(a: &NaturalGaussian, b: &NaturalGaussian) -> f64 {

@@ -12,6 +12,8 @@
 //!   driver shares between its nodes; a checking mode of `sim`.
 //! - [`MinConsensus`]: the network's smallest proposal in as many rounds as
 //!   the fusion graph's diameter, for sensor selection.
+//! - [`RandomExchange`]: seed 004's RndEx-PF exchange, a posterior swapped
+//!   with one random neighbour by request and acknowledgement.
 //! - [`KlFusion`]: seed 004's KL fusion, K_max rounds of consensus on the
 //!   natural parameters of the nodes' Gaussian posteriors.
 //!
@@ -23,6 +25,7 @@
 
 mod average;
 mod exact;
+mod exchange;
 pub(crate) mod information;
 mod kl;
 mod min;
@@ -32,6 +35,7 @@ pub(crate) mod testing;
 
 pub use average::{average_consensus, AverageConsensus};
 pub use exact::{ExactSumOracle, ExactSums};
+pub use exchange::{Exchanged, RandomExchange};
 pub use information::InformationVector;
 pub use kl::{kl_fusion, KlFused, KlFusion, KlRule, NaturalGaussian};
 pub use min::{min_consensus, proposal_order, MinConsensus};
