@@ -300,6 +300,8 @@ fn max_message_len(channel: Channel) -> usize {
             // packed covariance.
             Channel::Activation(_) => 48 + 32 + 80,
             Channel::Consensus(_) => 300,
+            // A posterior swapped in a random exchange: mean and covariance.
+            Channel::Pair { .. } => 120,
             Channel::Control(_) | Channel::Telemetry(_) => 240,
         }
 }
@@ -722,6 +724,27 @@ mod tests {
         let mut p = pair("deliver");
         let Pair { sensor, node, .. } = &mut p;
         contract::delivers_and_counts(sensor.as_mut().unwrap(), node.as_mut().unwrap());
+    }
+
+    #[test]
+    fn contract_pairwise() {
+        let run = RunId::new(&format!("u{}-pairwise", std::process::id())).unwrap();
+        let topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
+        let node = |i| {
+            IceoryxTransport::new(&run, ActorId::Node(i), &topology, FORMAT, 10 + i as u64).unwrap()
+        };
+        let (mut a, mut b, mut c) = (node(0), node(1), node(2));
+        b.subscribe(Channel::Pair { from: 0, to: 1 }).unwrap();
+        b.subscribe(Channel::Consensus(0)).unwrap();
+        c.subscribe(Channel::Consensus(0)).unwrap();
+        a.publish_on(Channel::Pair { from: 0, to: 1 }).unwrap();
+        a.publish_on(Channel::Consensus(0)).unwrap();
+        a.notify(ActorId::Node(1)).unwrap();
+        a.notify(ActorId::Node(2)).unwrap();
+        a.update_connections();
+        contract::a_pairwise_message_reaches_only_its_addressee(&mut a, &mut b, &mut c);
+        drop((a, b, c));
+        let _ = remove_run_resources(&run);
     }
 
     #[test]

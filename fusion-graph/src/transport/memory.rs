@@ -191,6 +191,17 @@ mod tests {
     }
 
     #[test]
+    fn contract_pairwise() {
+        let bus = MemoryBus::new();
+        let node = |i| MemoryTransport::new(ActorId::Node(i), bus.clone(), FORMAT, 10 + i as u64);
+        let (mut a, mut b, mut c) = (node(0), node(1), node(2));
+        b.subscribe(Channel::Pair { from: 0, to: 1 }).unwrap();
+        b.subscribe(Channel::Consensus(0)).unwrap();
+        c.subscribe(Channel::Consensus(0)).unwrap();
+        contract::a_pairwise_message_reaches_only_its_addressee(&mut a, &mut b, &mut c);
+    }
+
+    #[test]
     fn contract_loss() {
         let (mut s, mut n, _) = pair();
         contract::loss_is_applied_and_counted(&mut s, &mut n);

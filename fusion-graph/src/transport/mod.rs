@@ -30,6 +30,9 @@ pub enum Channel {
     Observation(u16),
     /// Node → its fusion-graph neighbours.
     Consensus(u16),
+    /// Node → one neighbour: a message for it alone (random exchange), so
+    /// that it reaches, and is counted for, that neighbour only.
+    Pair { from: u16, to: u16 },
     /// Launcher → one actor.
     Control(ActorId),
     /// Node → launcher.
@@ -44,6 +47,7 @@ impl Channel {
             Channel::Activation(n) | Channel::Consensus(n) | Channel::Telemetry(n) => {
                 ActorId::Node(n)
             }
+            Channel::Pair { from, .. } => ActorId::Node(from),
             Channel::Observation(s) => ActorId::Sensor(s),
         }
     }
@@ -67,6 +71,7 @@ impl Channel {
             Channel::Activation(n) => format!("act/node-{n}"),
             Channel::Observation(s) => format!("obs/sensor-{s}"),
             Channel::Consensus(n) => format!("cons/node-{n}"),
+            Channel::Pair { from, to } => format!("pair/node-{from}/node-{to}"),
             Channel::Control(a) => format!("ctl/{a}"),
             Channel::Telemetry(n) => format!("telemetry/node-{n}"),
         }
@@ -80,7 +85,7 @@ impl Channel {
             Channel::Activation(n) => t.node_sensors[n as usize].len(),
             Channel::Observation(_) => 2,
             Channel::Consensus(n) => t.neighbours[n as usize].len(),
-            Channel::Control(_) | Channel::Telemetry(_) => 1,
+            Channel::Control(_) | Channel::Telemetry(_) | Channel::Pair { .. } => 1,
         }
     }
 }
@@ -325,6 +330,53 @@ pub(crate) mod contract {
             .get(sensor.me(), node.me(), MessageKind::Observation);
         assert_eq!((sent.sent_messages, sent.sent_bytes), (20, 20 * 14));
         assert_eq!((recv.received_messages, recv.received_bytes), (20, 20 * 14));
+    }
+
+    /// A pairwise message reaches its one addressee, and is counted for it
+    /// alone, while a consensus message reaches every subscribed neighbour.
+    /// `a` is node 0, publishing on `Pair {0, 1}` and `Consensus(0)`; `b`,
+    /// node 1, subscribes to both; `c`, node 2, to the consensus only.
+    pub fn a_pairwise_message_reaches_only_its_addressee<T: Transport>(
+        a: &mut T,
+        b: &mut T,
+        c: &mut T,
+    ) {
+        let request = Message::new(a.me(), 1, 1, Payload::ExchangeRequest);
+        let kl = Message::new(
+            a.me(),
+            1,
+            1,
+            Payload::KlConsensus(crate::wire::GaussianInformation {
+                eta: [1.0; 4],
+                lambda: [2.0; 10],
+            }),
+        );
+        a.send(Channel::Pair { from: 0, to: 1 }, &request, &[b.me()])
+            .unwrap();
+        a.send(Channel::Consensus(0), &kl, &[b.me(), c.me()])
+            .unwrap();
+        let at_b = receive_n(b, 2);
+        let kinds: Vec<MessageKind> = at_b.iter().map(|m| m.header.kind).collect();
+        assert!(
+            kinds.contains(&MessageKind::ExchangeRequest)
+                && kinds.contains(&MessageKind::KlConsensus),
+            "{kinds:?}"
+        );
+        let at_c = receive_n(c, 2);
+        assert_eq!(at_c.len(), 1);
+        assert_eq!(at_c[0].header.kind, MessageKind::KlConsensus);
+        let to_b = a
+            .accounting()
+            .get(a.me(), b.me(), MessageKind::ExchangeRequest);
+        let to_c = a
+            .accounting()
+            .get(a.me(), c.me(), MessageKind::ExchangeRequest);
+        assert_eq!((to_b.sent_messages, to_b.sent_bytes), (1, 13));
+        assert_eq!(to_c.sent_messages, 0);
+        let got = b
+            .accounting()
+            .get(a.me(), b.me(), MessageKind::ExchangeRequest);
+        assert_eq!((got.received_messages, got.received_bytes), (1, 13));
     }
 
     /// Loss on the link drops roughly its probability, and is counted.

@@ -94,7 +94,10 @@ impl RandomExchange {
 
     fn send(&self, to: u16, step: u32, attempt: u32, payload: Payload, out: &mut Vec<Outgoing>) {
         out.push(Outgoing {
-            channel: Channel::Consensus(self.node),
+            channel: Channel::Pair {
+                from: self.node,
+                to,
+            },
             message: Message::new(ActorId::Node(self.node), step, attempt as u16 + 1, payload),
             receivers: vec![ActorId::Node(to)],
             wake: None,
@@ -477,6 +480,7 @@ mod tests {
         node.start(2, own(0), &[true; 25], Duration::ZERO, &mut out);
         // Answered at the start, accepted or refused by its coin.
         assert!(out.iter().any(|o| o.receivers == [ActorId::Node(1)]
+            && o.channel == Channel::Pair { from: 0, to: 1 }
             && matches!(o.message.payload, Payload::ExchangeReply { .. })));
     }
 }
