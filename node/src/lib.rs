@@ -8,6 +8,8 @@
 //! - [`estimator`]: the CF/DPF's local and fusion filters with their bounds;
 //! - [`sensor_manager`]: which sensors a node activates;
 //! - [`collector`]: a step's observations, and which sensors stayed silent;
+//! - [`diffusion`]: seed 004's trackers (RndEx-PF, KL fusion), one particle
+//!   filter per node summarized as a Gaussian;
 //! - [`gate`]: the innovation gate that leaves out implausible observations;
 //! - [`fusion`]: the fusion protocols (average consensus, exact sums,
 //!   min-consensus) over a shared round engine;
@@ -16,6 +18,7 @@
 pub mod actor;
 pub mod centralized;
 pub mod collector;
+pub mod diffusion;
 pub mod estimator;
 pub mod filter;
 pub mod fusion;
