@@ -217,7 +217,13 @@ impl FusionProtocol for RandomExchange {
             return Handled::Late;
         }
         let Some(r) = self.running.as_ref().filter(|r| r.step == step) else {
-            // A neighbour already in a step this node has not begun.
+            // A neighbour already in a step this node has not begun. Each
+            // neighbour sends at most a request, a reply and a posterior per
+            // attempt; more than that is not a protocol's, and is dropped.
+            let cap = 3 * EXCHANGE_ATTEMPTS as usize * self.neighbours.len();
+            if self.early.len() >= cap {
+                return Handled::Late;
+            }
             self.early.push(message.clone());
             return Handled::Taken;
         };
