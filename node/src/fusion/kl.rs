@@ -263,6 +263,35 @@ mod tests {
         }
     }
 
+    /// Every round, every node sends one `kl_consensus` to each neighbour
+    /// and nothing else: K_max × (directed edges) messages of 13 + 112 B.
+    #[test]
+    fn a_step_costs_k_max_messages_per_directed_edge() {
+        use fusion_graph::wire::{encoded_len, MessageKind, WireFormat};
+        let t = lattice();
+        let directed: usize = t.neighbours.iter().map(Vec::len).sum();
+        assert_eq!(directed, 80);
+        let format = WireFormat {
+            cell_bytes: 1,
+            activation_bytes: 1,
+        };
+        for rounds in [1u16, 10] {
+            let mut bytes = 0;
+            let mut messages = 0;
+            fuse(
+                rounds,
+                |_, _, p| {
+                    messages += 1;
+                    bytes += encoded_len(p.kind(), &format).unwrap();
+                    Fate::Deliver(Duration::from_micros(100))
+                },
+                &[true; 25],
+            );
+            assert_eq!(messages, rounds as usize * directed);
+            assert_eq!(bytes, rounds as usize * directed * (13 + 112));
+        }
+    }
+
     #[test]
     fn moments_and_natural_parameters_round_trip() {
         let g = Gaussian {
