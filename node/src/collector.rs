@@ -27,6 +27,14 @@ pub struct Collected {
     pub silent: Vec<u16>,
 }
 
+/// Whether a cell index is one the quantizer has (raw values always are).
+fn in_range(value: ObservedValue, cells: Option<usize>) -> bool {
+    match (value, cells) {
+        (ObservedValue::Cell(c), Some(cells)) => (c as usize) < cells,
+        _ => true,
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct Collector {
     step: u32,
@@ -59,10 +67,8 @@ impl Collector {
         {
             return Offer::Late;
         }
-        if let (ObservedValue::Cell(c), Some(cells)) = (value, self.cells) {
-            if c as usize >= cells {
-                return Offer::Invalid;
-            }
+        if !in_range(value, self.cells) {
+            return Offer::Invalid;
         }
         self.received.push(Observation { sensor, value });
         Offer::Taken
@@ -120,10 +126,8 @@ impl Lagging {
         let Some(i) = self.awaited.iter().position(|s| *s == sensor) else {
             return Offer::Late;
         };
-        if let (ObservedValue::Cell(c), Some(cells)) = (value, self.cells) {
-            if c as usize >= cells {
-                return Offer::Invalid;
-            }
+        if !in_range(value, self.cells) {
+            return Offer::Invalid;
         }
         self.awaited.swap_remove(i);
         self.arrived.push(Observation { sensor, value });

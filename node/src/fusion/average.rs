@@ -8,6 +8,7 @@ use fusion_graph::wire::Payload;
 use fusion_graph::{MetropolisWeights, Topology};
 
 use super::information::InformationPieces;
+use super::rounds::weighted;
 use super::{Fused, InformationVector, RoundEngine, RoundRule, RoundsDone};
 
 /// The round rule of average consensus on the information vector.
@@ -39,13 +40,8 @@ impl RoundRule for Metropolis {
         weights: &MetropolisWeights,
     ) -> InformationVector {
         let mut next = own.scaled(weights.own);
-        for (m, w) in &weights.neighbours {
-            let v = &heard
-                .iter()
-                .find(|(n, _)| n == m)
-                .expect("weights only over heard neighbours")
-                .1;
-            next.add_scaled(*w, v);
+        for (w, v) in weighted(heard, weights) {
+            next.add_scaled(w, v);
         }
         next
     }

@@ -16,6 +16,7 @@ use bounds::{Gaussian, Mat4, State};
 use fusion_graph::wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
 use fusion_graph::{MetropolisWeights, Topology};
 
+use super::rounds::weighted;
 use super::{RoundEngine, RoundRule, RoundStats, RoundsDone};
 
 /// A Gaussian in information form: `Λ = P⁻¹`, `η = P⁻¹ m`.
@@ -106,14 +107,9 @@ impl RoundRule for KlRule {
             eta: own.eta * weights.own,
             lambda: own.lambda * weights.own,
         };
-        for (m, w) in &weights.neighbours {
-            let v = &heard
-                .iter()
-                .find(|(n, _)| n == m)
-                .expect("weights only over heard neighbours")
-                .1;
-            next.eta += v.eta * *w;
-            next.lambda += v.lambda * *w;
+        for (w, v) in weighted(heard, weights) {
+            next.eta += v.eta * w;
+            next.lambda += v.lambda * w;
         }
         next
     }

@@ -48,6 +48,22 @@ pub trait RoundRule {
     fn finish(&self, done: RoundsDone<Self::Value>) -> Self::Output;
 }
 
+/// Each heard neighbour's value with its Metropolis weight: what
+/// [`RoundRule::combine`] sums with the node's own.
+pub fn weighted<'a, V>(
+    heard: &'a [(u16, V)],
+    weights: &'a MetropolisWeights,
+) -> impl Iterator<Item = (f64, &'a V)> + 'a {
+    weights.neighbours.iter().map(move |(m, w)| {
+        let v = &heard
+            .iter()
+            .find(|(n, _)| n == m)
+            .expect("weights only over heard neighbours")
+            .1;
+        (*w, v)
+    })
+}
+
 /// A step's rounds, done.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RoundsDone<V> {
