@@ -263,7 +263,7 @@ mod tests {
     /// and nothing else: K_max × (directed edges) messages of 13 + 112 B.
     #[test]
     fn a_step_costs_k_max_messages_per_directed_edge() {
-        use fusion_graph::wire::{encoded_len, MessageKind, WireFormat};
+        use fusion_graph::wire::{encoded_len, WireFormat};
         let t = lattice();
         let directed: usize = t.neighbours.iter().map(Vec::len).sum();
         assert_eq!(directed, 80);
