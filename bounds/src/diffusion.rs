@@ -24,7 +24,10 @@ use rand::seq::IndexedRandom;
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
-use crate::pcrlb::{dynamics_terms, information_update, observation_information, SensorTerm};
+use crate::pcrlb::{
+    dynamics_terms, information_update, observation_information, position_bound, prior_draws,
+    SensorTerm,
+};
 use crate::{BoundError, Mat4, State};
 
 /// How many trajectories and paths the Monte Carlo averages use.
@@ -51,21 +54,15 @@ impl DiffusionBounds {
         let nodes = &self.rndex[step];
         let mut total = 0.0;
         for j in nodes {
-            total += position_trace(j)?;
+            total += position_bound(j)?.powi(2);
         }
         Some((total / nodes.len() as f64).sqrt())
     }
 
     /// `sqrt(tr_pos J_c⁻¹)`, metres.
     pub fn centralized_position_bound(&self, step: usize) -> Option<f64> {
-        position_trace(&self.centralized[step]).map(f64::sqrt)
+        position_bound(&self.centralized[step])
     }
-}
-
-fn position_trace(information: &Mat4) -> Option<f64> {
-    let cov = nalgebra::Cholesky::new(*information)?.inverse();
-    let t = cov[(0, 0)] + cov[(1, 1)];
-    t.is_finite().then_some(t)
 }
 
 /// Attempts a node makes to find a partner in one step.
@@ -207,12 +204,7 @@ fn expectations<R: Rng + ?Sized>(
     trajectories: usize,
     rng: &mut R,
 ) -> Result<Vec<StepExpectations>, BoundError> {
-    let l = prior.l();
-    let mut states: Vec<State> = (0..trajectories)
-        .map(|_| {
-            prior_mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(rand_distr::StandardNormal))
-        })
-        .collect();
+    let mut states = prior_draws(prior_mean, prior, trajectories, rng);
     let weights = vec![1.0 / trajectories as f64; trajectories];
     let mut out = Vec::with_capacity(steps);
     for _ in 0..steps {

@@ -224,12 +224,7 @@ pub fn nonconditional_pcrlb_random_activation<R: Rng + ?Sized>(
         });
     }
     let chol = Cholesky::new(*prior_cov).ok_or(BoundError::NotPositiveDefinite("P_0"))?;
-    let l = chol.l();
-    let mut states: Vec<State> = (0..trajectories)
-        .map(|_| {
-            prior_mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(rand_distr::StandardNormal))
-        })
-        .collect();
+    let mut states = prior_draws(prior_mean, &chol, trajectories, rng);
     let weights = vec![1.0 / trajectories as f64; trajectories];
     let mut bound = ConditionalBound::from_information(chol.inverse());
     let mut out = Vec::with_capacity(steps + 1);
@@ -254,6 +249,20 @@ pub fn nonconditional_pcrlb_random_activation<R: Rng + ?Sized>(
         out.push(*bound.information());
     }
     Ok(out)
+}
+
+/// `n` draws from `N(mean, L Lᵀ)`: the starts of the trajectories the
+/// non-conditional bounds take their expectations over.
+pub(crate) fn prior_draws<R: Rng + ?Sized>(
+    mean: &State,
+    prior: &Cholesky<f64, nalgebra::U4>,
+    n: usize,
+    rng: &mut R,
+) -> Vec<State> {
+    let l = prior.l();
+    (0..n)
+        .map(|_| mean + l * State::from_fn(|_, _| rng.sample::<f64, _>(rand_distr::StandardNormal)))
+        .collect()
 }
 
 fn check_weights(particles: usize, weights: &[f64]) -> Result<(), BoundError> {
