@@ -135,6 +135,19 @@ impl Topology {
         self.sensor_positions.len()
     }
 
+    /// Each sensor's chance of being active in a step when its node picks
+    /// `active_per_node` of its own sensors uniformly at random.
+    pub fn activation_probabilities(&self, active_per_node: u32) -> Vec<f64> {
+        let mut p = vec![0.0; self.sensors()];
+        for own in &self.node_sensors {
+            let share = (active_per_node as f64 / own.len().max(1) as f64).min(1.0);
+            for s in own {
+                p[*s as usize] = share;
+            }
+        }
+        p
+    }
+
     /// The most sensors any node owns (0 with no nodes).
     pub fn most_sensors_per_node(&self) -> usize {
         self.node_sensors.iter().map(Vec::len).max().unwrap_or(0)
@@ -333,6 +346,16 @@ mod tests {
         assert_eq!(degrees.iter().filter(|&&d| d == 2).count(), 4, "corners");
         assert_eq!(degrees.iter().filter(|&&d| d == 4).count(), 9, "interior");
         assert_eq!(t.edge_count(), 40);
+    }
+
+    /// A node that picks 3 of its 25 sensors activates each with chance
+    /// 3/25; asking for more than it owns activates all of them.
+    #[test]
+    fn activation_probability_is_the_share_of_a_nodes_sensors_picked() {
+        let t = default_topology();
+        assert!(t.activation_probabilities(3).iter().all(|&p| p == 3.0 / 25.0));
+        assert!(t.activation_probabilities(40).iter().all(|&p| p == 1.0));
+        assert!(t.activation_probabilities(0).iter().all(|&p| p == 0.0));
     }
 
     fn default_topology() -> Topology {

@@ -487,13 +487,7 @@ fn nonconditional_bound(
         .iter()
         .map(|model| SensorTerm { model, measurement })
         .collect();
-    let mut activation = vec![0.0; sensors.len()];
-    for own in &topology.node_sensors {
-        let p = (scenario.sensors.active_per_node as f64 / own.len().max(1) as f64).min(1.0);
-        for s in own {
-            activation[*s as usize] = p;
-        }
-    }
+    let activation = topology.activation_probabilities(scenario.sensors.active_per_node);
     let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
     let information = nonconditional_pcrlb_random_activation(
         &models.dynamics,

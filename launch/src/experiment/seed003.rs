@@ -229,13 +229,7 @@ fn bound_per_depth() -> anyhow::Result<Vec<Depth>> {
         .iter()
         .map(|p| models.law.at(*p))
         .collect();
-    let mut activation = vec![0.0; sensor_models.len()];
-    for own in &topology.node_sensors {
-        let p = (base.sensors.active_per_node as f64 / own.len().max(1) as f64).min(1.0);
-        for s in own {
-            activation[*s as usize] = p;
-        }
-    }
+    let activation = topology.activation_probabilities(base.sensors.active_per_node);
     let sensors: Vec<ReportingSensor> = sensor_models
         .iter()
         .zip(&activation)
