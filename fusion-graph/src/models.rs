@@ -167,6 +167,8 @@ pub enum Stream {
     Truth = 7,
     /// A sensor's coin for random censoring.
     Censoring = 8,
+    /// A node's coins and partner choices in random exchange (seed 004).
+    Exchange = 9,
 }
 
 /// The seed of `stream` for `actor` at `step`: splitmix64 over the four.

@@ -242,6 +242,37 @@ pub enum ConsensusProtocol {
     Average,
     /// The exact network sum, as if consensus had converged: for checking.
     Exact,
+    /// Seed 004's RndEx-PF: a posterior swapped with one random neighbour,
+    /// then the closed neighbourhood's measurements.
+    RandomExchange,
+    /// Seed 004's consensus KL: `rounds` rounds of KL fusion on posteriors
+    /// weighed with the node's own measurements only.
+    KlConsensus,
+    /// Seed 004's non-iterative KL with local cooperation: the closed
+    /// neighbourhood's measurements, then one round of KL fusion (K_max = 1).
+    KlDiffusion,
+    /// Seed 004's iterative KL with local cooperation: the closed
+    /// neighbourhood's measurements, then `rounds` rounds (K_max).
+    KlIterative,
+}
+
+/// A protocol's name as the scenario file spells it.
+fn serde_plain_name(p: ConsensusProtocol) -> String {
+    toml::Value::try_from(p)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| format!("{p:?}"))
+}
+
+impl ConsensusProtocol {
+    /// One of seed 004's trackers: one particle filter per node, summarized
+    /// as a Gaussian, rather than the CF/DPF.
+    pub fn is_diffusion(self) -> bool {
+        matches!(
+            self,
+            Self::RandomExchange | Self::KlConsensus | Self::KlDiffusion | Self::KlIterative
+        )
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -581,6 +612,44 @@ impl Scenario {
         toml::to_string(self).expect("a scenario always serializes")
     }
 
+    /// Seed 004's trackers are a different node: one particle filter
+    /// weighed with raw or quantized measurements and fused as a Gaussian.
+    /// The CF/DPF's parts that have no meaning there are refused by name
+    /// rather than ignored.
+    fn validate_diffusion(&self, file: &str) -> Result<(), ScenarioError> {
+        let protocol = self.consensus.protocol;
+        if !protocol.is_diffusion() {
+            return Ok(());
+        }
+        let refuse = |key: &str, got: String| {
+            Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: key.into(),
+                expected: format!(
+                    "its default with consensus.protocol = \"{}\" (seed 004's trackers have no such part)",
+                    serde_plain_name(protocol)
+                ),
+                got,
+            })
+        };
+        if self.sensors.manager != SensorManagerKind::Random {
+            return refuse("sensors.manager", format!("{:?}", self.sensors.manager));
+        }
+        if let Some(m) = self.sensors.max_active_total {
+            return refuse("sensors.max_active_total", m.to_string());
+        }
+        if self.censoring.policy != CensoringPolicy::Off {
+            return refuse("censoring.policy", format!("{:?}", self.censoring.policy));
+        }
+        if self.consensus.auxiliary_fim {
+            return refuse("consensus.auxiliary_fim", "true".into());
+        }
+        if self.filter.gate > 0.0 {
+            return refuse("filter.gate", self.filter.gate.to_string());
+        }
+        Ok(())
+    }
+
     /// Checks every value's range; the error names the file and the key.
     pub fn validate(&self, file: &str) -> Result<(), ScenarioError> {
         let bad = |key: &str, expected: &str, got: String| {
@@ -721,6 +790,7 @@ impl Scenario {
             "consensus.round_timeout_ms",
             self.consensus.round_timeout_ms,
         )?;
+        self.validate_diffusion(file)?;
         non_negative("filter.gate", self.filter.gate)?;
         positive("clock.step_period_ms", self.clock.step_period_ms)?;
         positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;

@@ -10,7 +10,7 @@ use fusion_graph::faults::FaultSchedule;
 use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
-use node::NodeActor;
+use node::ProcessingNode;
 use sensor::SensorActor;
 
 use crate::cli::{load_child_scenario, ActorArgs};
@@ -202,7 +202,7 @@ fn node_loop<T: Transport>(
     out: &Path,
     rejoin: bool,
 ) -> anyhow::Result<()> {
-    let mut actor = NodeActor::new(scenario, topology, index)?;
+    let mut actor = ProcessingNode::for_scenario(scenario, topology, index)?;
     if rejoin {
         actor.expect_rejoin();
     }

@@ -5,12 +5,12 @@
 use std::time::{Duration, Instant};
 
 use fusion_graph::{SendError, Transport};
-use node::{NodeActor, Outgoing};
+use node::{Outgoing, ProcessingNode};
 
 /// Runs the node's pending stages, each timed by the wall clock and
 /// reported at the time `now` says it finished.
 pub fn run_pending_work(
-    node: &mut NodeActor,
+    node: &mut ProcessingNode,
     mut now: impl FnMut() -> Duration,
     out: &mut Vec<Outgoing>,
 ) {

@@ -26,10 +26,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO};
+use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO, SEED004_SCENARIO};
 use fusion_graph::wire::{examples, seal, Message, WireFormat};
 use fusion_graph::Topology;
-use node::NodeActor;
+use node::ProcessingNode;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sensor::SensorActor;
@@ -471,10 +471,11 @@ fn shape(message: &str) -> String {
     out
 }
 
-/// A node and a sensor of a small default network, handed every input
+/// A node and a sensor of a small default network, and an interior node of
+/// seed 004's lattice for each kind of its cooperation, handed every input
 /// that decodes as one message.
 struct Actors {
-    node: NodeActor,
+    nodes: Vec<ProcessingNode>,
     sensor: SensorActor,
     now: Duration,
 }
@@ -485,8 +486,19 @@ impl Actors {
         let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &overrides)
             .expect("the built-in scenario");
         let topology = Topology::from_scenario(&scenario, "default").expect("its topology");
+        let mut nodes = vec![ProcessingNode::for_scenario(&scenario, &topology, 4).expect("node-4")];
+        for protocol in ["random_exchange", "kl_iterative"] {
+            let overrides = [
+                "filter.particles=64".to_string(),
+                format!("consensus.protocol=\"{protocol}\""),
+            ];
+            let seed004 = Scenario::from_toml(SEED004_SCENARIO, "seed004", &overrides)
+                .expect("the built-in seed 004 scenario");
+            let lattice = Topology::from_scenario(&seed004, "seed004").expect("its topology");
+            nodes.push(ProcessingNode::for_scenario(&seed004, &lattice, 12).expect("node-12"));
+        }
         Self {
-            node: NodeActor::new(&scenario, &topology, 4).expect("node-4"),
+            nodes,
             sensor: SensorActor::new(&scenario, &topology, 0).expect("sensor-0"),
             now: Duration::ZERO,
         }
@@ -501,17 +513,19 @@ impl Actors {
         };
         self.now += Duration::from_millis(7);
         let mut out = Vec::new();
-        self.node.handle(&message, self.now, &mut out);
-        let mut sent = out.len();
-        let mut guard = 0;
-        loop {
-            crate::drive::run_pending_work(&mut self.node, || self.now, &mut out);
-            self.node.handle_timeout(self.now, &mut out);
-            sent += out.len();
-            out.clear();
-            guard += 1;
-            if self.node.poll_work().is_none() || guard > 4 {
-                break;
+        let mut sent = 0;
+        for node in &mut self.nodes {
+            node.handle(&message, self.now, &mut out);
+            let mut guard = 0;
+            loop {
+                crate::drive::run_pending_work(node, || self.now, &mut out);
+                node.handle_timeout(self.now, &mut out);
+                sent += out.len();
+                out.clear();
+                guard += 1;
+                if node.poll_work().is_none() || guard > 4 {
+                    break;
+                }
             }
         }
         let observed = self.sensor.handle(&message).is_some();
@@ -532,7 +546,7 @@ fn builtin_seeds(target: Target) -> Vec<Vec<u8>> {
         Target::Scenario => vec![
             DEFAULT_SCENARIO.as_bytes().to_vec(),
             SEED001_SCENARIO.as_bytes().to_vec(),
-            fusion_graph::scenario::SEED004_SCENARIO.as_bytes().to_vec(),
+            SEED004_SCENARIO.as_bytes().to_vec(),
         ],
         Target::Set => vec![b"quantizer.bits=4".to_vec()],
     }

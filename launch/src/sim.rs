@@ -17,7 +17,7 @@ use fusion_graph::wire::{Message, Payload, Telemetry};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
 use node::sensor_manager;
-use node::{CentralizedReference, NodeActor, Outgoing};
+use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
 use sensor::SensorActor;
 
 use crate::drive::{run_pending_work, send_all};
@@ -32,7 +32,7 @@ struct SensorSlot {
 }
 
 struct NodeSlot {
-    actor: NodeActor,
+    actor: ProcessingNode,
     transport: MemoryTransport,
     alive: bool,
 }
@@ -138,7 +138,7 @@ impl InProcessNetwork {
         i: u16,
     ) -> anyhow::Result<NodeSlot> {
         let actor = match oracle {
-            None => NodeActor::new(scenario, topology, i),
+            None => ProcessingNode::for_scenario(scenario, topology, i),
             Some(oracle) => NodeActor::with_parts(
                 scenario,
                 topology,
@@ -150,7 +150,8 @@ impl InProcessNetwork {
                     oracle.clone(),
                     Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3),
                 )),
-            ),
+            )
+            .map(ProcessingNode::from),
         }
         .with_context(|| format!("node-{i}"))?;
         let mut transport = MemoryTransport::new(

@@ -43,6 +43,10 @@ pub enum NodeError {
     Filter { node: u16, source: BoundError },
     #[error("the centralized reference: {0}")]
     Reference(BoundError),
+    #[error("consensus.protocol {0:?} is not one of seed 004's trackers")]
+    NotDiffusion(ConsensusProtocol),
+    #[error("consensus.protocol {0:?} is one of seed 004's trackers, not the CF/DPF")]
+    NotCfDpf(ConsensusProtocol),
     #[error("consensus.protocol = \"exact\" needs the exact-sum oracle of one process (`cqnet sim`): real processes have no exact network sum")]
     NoExactSums,
 }
@@ -162,6 +166,11 @@ pub enum Work {
     LocalFilter,
     /// The fusion filter and the global bounds.
     FusionFilter,
+    /// Seed 004's nodes: the filter's prediction and its weighing with the
+    /// step's measurements (from the exchanged posterior, in RndEx-PF).
+    Weigh,
+    /// Seed 004's KL fusion: the particles redrawn from the fused Gaussian.
+    Adopt,
 }
 
 #[derive(Debug)]
@@ -256,8 +265,10 @@ impl NodeActor {
     /// The node as the scenario describes it: uniform random sensor
     /// selection and average consensus.
     pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
-        if scenario.consensus.protocol == ConsensusProtocol::Exact {
-            return Err(NodeError::NoExactSums);
+        match scenario.consensus.protocol {
+            ConsensusProtocol::Exact => return Err(NodeError::NoExactSums),
+            p if p.is_diffusion() => return Err(NodeError::NotCfDpf(p)),
+            _ => {}
         }
         let c = &scenario.consensus;
         let protocol = average_consensus(
@@ -478,7 +489,7 @@ impl NodeActor {
             return;
         };
         match work {
-            Work::SelectionScores => {}
+            Work::SelectionScores | Work::Weigh | Work::Adopt => {}
             Work::LocalFilter => {
                 let Some(mut collected) = f.collected.take() else {
                     return;
@@ -559,7 +570,7 @@ impl NodeActor {
             return;
         };
         match work {
-            Work::SelectionScores => {}
+            Work::SelectionScores | Work::Weigh | Work::Adopt => {}
             Work::LocalFilter => {
                 f.local_time = elapsed;
                 let Some(local) = f.local else {

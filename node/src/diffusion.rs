@@ -93,6 +93,11 @@ impl DiffusionTracker {
             .ok_or(NotPositiveDefinite("fused"))
     }
 
+    /// Through a step the node missed: the prediction alone.
+    pub fn coast<R: Rng + ?Sized>(&mut self, model: &SensingModel, rng: &mut R) {
+        self.filter.predict(&model.dynamics, rng);
+    }
+
     fn weigh<R: Rng + ?Sized>(
         &mut self,
         model: &SensingModel,

@@ -12,17 +12,22 @@
 //!   filter per node summarized as a Gaussian;
 //! - [`gate`]: the innovation gate that leaves out implausible observations;
 //! - [`fusion`]: the fusion protocols (average consensus, exact sums,
-//!   min-consensus) over a shared round engine;
-//! - [`actor`]: the node's state machine, tying them together.
+//!   min-consensus, random exchange, KL fusion) over a shared round engine;
+//! - [`actor`]: the CF/DPF node's state machine, tying them together;
+//! - [`diffusion_node`]: seed 004's node, one filter and a Gaussian to
+//!   exchange or fuse;
+//! - [`processing`]: either node behind one face, as the scenario says.
 
 pub mod actor;
 pub mod centralized;
 pub mod collector;
 pub mod diffusion;
+pub mod diffusion_node;
 pub mod estimator;
 pub mod filter;
 pub mod fusion;
 pub mod gate;
+pub mod processing;
 pub mod sensor_manager;
 
 #[cfg(test)]
@@ -30,6 +35,8 @@ mod harness;
 
 pub use actor::{NodeActor, NodeError, Work};
 pub use centralized::CentralizedReference;
+pub use diffusion_node::DiffusionNode;
+pub use processing::ProcessingNode;
 pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };

@@ -1,0 +1,750 @@
+//! Seed 004's processing node as an I/O-free state machine: one particle
+//! filter ([`DiffusionTracker`]) summarized as a Gaussian, cooperating by
+//! random exchange (RndEx-PF) or by KL fusion.
+//!
+//! A step: the launcher's `BeginStep` → the node activates its sensors
+//! (and, in RndEx-PF, starts the exchange with its posterior of the step
+//! before) → **own**: its sensors' measurements, until all arrived or the
+//! listening deadline → with local cooperation, it relays them to its
+//! neighbours (`neighbour_observation`) and waits for theirs, until every
+//! live neighbour's arrived or a second deadline → [`Work::Weigh`]: predict
+//! and weigh (RndEx-PF: from the exchanged posterior) → KL fusion only: K_max
+//! rounds on the natural parameters, then [`Work::Adopt`] → telemetry.
+//!
+//! It is driven exactly as [`NodeActor`](crate::NodeActor) is, so the same
+//! drivers run it (see [`ProcessingNode`](crate::ProcessingNode)).
+
+use std::time::Duration;
+
+use fusion_graph::scenario::{ConsensusProtocol, Scenario};
+use fusion_graph::transport::Channel;
+use fusion_graph::wire::{BitMask, Control, Message, Payload, Telemetry};
+use fusion_graph::{stream_rng, ActorId, Stream, Topology};
+use rand_chacha::ChaCha8Rng;
+
+use crate::collector::{Collector, Offer};
+use crate::diffusion::DiffusionTracker;
+use crate::estimator::{Observation, ObservedValue, SensingModel};
+use crate::fusion::{
+    kl_fusion, Exchanged, FusionProtocol, Handled, KlFused, KlFusion, NaturalGaussian,
+    RandomExchange, RoundStats,
+};
+use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
+use crate::{NodeError, Outgoing, Work};
+
+/// How a node cooperates, by the scenario's `consensus.protocol`.
+enum Cooperation {
+    RandomExchange(RandomExchange),
+    Kl {
+        fusion: KlFusion,
+        /// Weigh the closed neighbourhood's measurements before fusing (the
+        /// modified forms) rather than the node's own only (consensus KL).
+        neighbourhood: bool,
+    },
+}
+
+impl Cooperation {
+    fn uses_neighbourhood(&self) -> bool {
+        match self {
+            Cooperation::RandomExchange(_) => true,
+            Cooperation::Kl { neighbourhood, .. } => *neighbourhood,
+        }
+    }
+
+    fn protocol(&mut self) -> &mut dyn Protocol {
+        match self {
+            Cooperation::RandomExchange(p) => p,
+            Cooperation::Kl { fusion, .. } => fusion,
+        }
+    }
+
+    fn protocol_ref(&self) -> &dyn Protocol {
+        match self {
+            Cooperation::RandomExchange(p) => p,
+            Cooperation::Kl { fusion, .. } => fusion,
+        }
+    }
+}
+
+/// What both protocols share, whatever their value and result.
+trait Protocol {
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled;
+    fn poll_timeout(&self) -> Option<Duration>;
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>);
+    fn expect_step(&mut self, step: u32);
+}
+
+impl<P: FusionProtocol> Protocol for P {
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
+        FusionProtocol::handle(self, message, now, out)
+    }
+    fn poll_timeout(&self) -> Option<Duration> {
+        FusionProtocol::poll_timeout(self)
+    }
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        FusionProtocol::handle_timeout(self, now, out)
+    }
+    fn expect_step(&mut self, step: u32) {
+        FusionProtocol::expect_step(self, step)
+    }
+}
+
+/// One step, from `BeginStep` to its telemetry.
+struct Stepping {
+    step: u32,
+    /// The node's own sensors, while it still listens to them.
+    collector: Option<Collector>,
+    /// The step's measurements: the node's own, then its neighbours'.
+    observations: Vec<Observation>,
+    /// The neighbours' relays are all in, or their deadline passed (or the
+    /// protocol wants none).
+    relays_closed: bool,
+    relay_deadline: Duration,
+    /// RndEx-PF: the exchange's result.
+    exchanged: Option<Exchanged>,
+    /// [`Work::Weigh`] has run.
+    weighed: bool,
+    /// KL: the local posterior β⁰, until the fusion takes it.
+    local: Option<NaturalGaussian>,
+    /// KL: the fusion's result, until adopted.
+    fused: Option<KlFused>,
+    /// KL fusion is running.
+    fusing: bool,
+    stats: RoundStats,
+    weigh_time: Duration,
+}
+
+pub struct DiffusionNode {
+    index: u16,
+    topology: Topology,
+    model: SensingModel,
+    tracker: DiffusionTracker,
+    rng: ChaCha8Rng,
+    manager: UniformRandom,
+    cooperation: Cooperation,
+    /// Sensors each node activates per step: how many relays to expect.
+    active_per_node: usize,
+    view: Vec<bool>,
+    listen: Duration,
+    steps: u32,
+    last_step: Option<u32>,
+    stepping: Option<Box<Stepping>>,
+    /// Neighbours' relayed measurements of the running step or a later one:
+    /// (step, neighbour, measurement).
+    relayed: Vec<(u32, u16, Observation)>,
+    late_messages: u64,
+    late_reported: u64,
+    deadline_missed: bool,
+}
+
+impl DiffusionNode {
+    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
+        let models = scenario.models()?;
+        let model = SensingModel::new(&models, topology);
+        let prior = scenario.network_prior(&models);
+        let id = ActorId::Node(index);
+        let mut rng = stream_rng(scenario.seed, id, 0, Stream::LocalFilter);
+        let tracker = DiffusionTracker::new(scenario.filter.particles as usize, &prior, &mut rng)
+            .map_err(|_| NodeError::Filter {
+                node: index,
+                source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
+            })?;
+        let c = &scenario.consensus;
+        let round_timeout = Duration::from_secs_f64(c.round_timeout_ms / 1e3);
+        let kl = |rounds: u32, neighbourhood| Cooperation::Kl {
+            fusion: kl_fusion(index, topology, rounds as u16, round_timeout).presume_gone_after(2),
+            neighbourhood,
+        };
+        let cooperation = match c.protocol {
+            ConsensusProtocol::RandomExchange => Cooperation::RandomExchange(RandomExchange::new(
+                index,
+                topology,
+                round_timeout,
+                stream_rng(scenario.seed, id, 0, Stream::Exchange),
+            )),
+            ConsensusProtocol::KlConsensus => kl(c.rounds, false),
+            ConsensusProtocol::KlDiffusion => kl(1, true),
+            ConsensusProtocol::KlIterative => kl(c.rounds, true),
+            other => return Err(NodeError::NotDiffusion(other)),
+        };
+        Ok(Self {
+            index,
+            topology: topology.clone(),
+            model,
+            tracker,
+            rng,
+            manager: UniformRandom::for_scenario(scenario),
+            cooperation,
+            active_per_node: scenario.sensors.active_per_node as usize,
+            view: topology.all_alive(),
+            listen: round_timeout,
+            steps: scenario.steps,
+            last_step: None,
+            stepping: None,
+            relayed: Vec::new(),
+            late_messages: 0,
+            late_reported: 0,
+            deadline_missed: false,
+        })
+    }
+
+    pub fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    fn own_sensors(&self) -> &[u16] {
+        &self.topology.node_sensors[self.index as usize]
+    }
+
+    fn neighbours(&self) -> &[u16] {
+        &self.topology.neighbours[self.index as usize]
+    }
+
+    /// The channels this node reads.
+    pub fn subscriptions(&self) -> Vec<Channel> {
+        let mut v = vec![Channel::Control(self.id())];
+        v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
+        v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
+        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
+            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
+                from: *m,
+                to: self.index,
+            }));
+        }
+        v
+    }
+
+    /// The channels this node publishes on.
+    pub fn publications(&self) -> Vec<Channel> {
+        let mut v = vec![
+            Channel::Activation(self.index),
+            Channel::Consensus(self.index),
+            Channel::Telemetry(self.index),
+        ];
+        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
+            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
+                from: self.index,
+                to: *m,
+            }));
+        }
+        v
+    }
+
+    /// Actors this node sends to (to wake them).
+    pub fn peers(&self) -> Vec<ActorId> {
+        let mut v: Vec<ActorId> = self
+            .own_sensors()
+            .iter()
+            .map(|s| ActorId::Sensor(*s))
+            .collect();
+        v.extend(self.neighbours().iter().map(|m| ActorId::Node(*m)));
+        v.push(ActorId::Launcher);
+        v
+    }
+
+    pub fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
+
+    pub fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+
+    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let s = self.stepping.as_ref()?;
+        let listening = match &s.collector {
+            Some(c) => Some(c.deadline()),
+            None if !s.relays_closed => Some(s.relay_deadline),
+            None => None,
+        };
+        let protocol = self.cooperation.protocol_ref().poll_timeout();
+        [listening, protocol].into_iter().flatten().min()
+    }
+
+    /// The heavy stage waiting to run, if any.
+    pub fn poll_work(&self) -> Option<Work> {
+        let s = self.stepping.as_ref()?;
+        let measured = s.collector.is_none() && s.relays_closed;
+        match &self.cooperation {
+            Cooperation::RandomExchange(_) if measured && !s.weighed && s.exchanged.is_some() => {
+                Some(Work::Weigh)
+            }
+            Cooperation::Kl { .. } if measured && !s.weighed => Some(Work::Weigh),
+            Cooperation::Kl { .. } if s.fused.is_some() => Some(Work::Adopt),
+            _ => None,
+        }
+    }
+
+    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                self.begin_step(step, now, out)
+            }
+            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
+                self.view = alive.to_bools(self.topology.nodes());
+                self.view[self.index as usize] = true;
+            }
+            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Cell(*cell), out)
+            }
+            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Raw(*value), out)
+            }
+            (Payload::NeighbourObservation { sensor, value }, ActorId::Node(m)) => {
+                self.take_relay(step, m, *sensor, *value)
+            }
+            (p, from) => match self.cooperation.protocol().handle(message, now, out) {
+                Handled::Taken => self.poll_protocol(),
+                Handled::Late => self.late_messages += 1,
+                Handled::NotMine => {
+                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a seed 004 node")
+                }
+            },
+        }
+    }
+
+    /// Called when the time from [`poll_timeout`](Self::poll_timeout) has come.
+    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if s.collector.as_ref().is_some_and(|c| now >= c.deadline()) {
+            self.close_own(out);
+        }
+        if self
+            .stepping
+            .as_ref()
+            .is_some_and(|s| s.collector.is_none() && !s.relays_closed && now >= s.relay_deadline)
+        {
+            self.close_relays();
+        }
+        self.cooperation.protocol().handle_timeout(now, out);
+        self.poll_protocol();
+    }
+
+    /// Runs the pending heavy stage; the driver times it and then calls
+    /// [`work_done`](Self::work_done).
+    pub fn run_work(&mut self, work: Work) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match (work, &self.cooperation) {
+            (Work::Weigh, Cooperation::RandomExchange(_)) => {
+                let from = s
+                    .exchanged
+                    .map_or_else(|| self.tracker.summary(), |e| e.posterior);
+                if let Err(e) =
+                    self.tracker
+                        .assimilate_from(&from, &self.model, &s.observations, &mut self.rng)
+                {
+                    tracing::error!(node = self.index, error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
+                    self.tracker
+                        .local_posterior(&self.model, &s.observations, &mut self.rng);
+                }
+                s.weighed = true;
+            }
+            (Work::Weigh, Cooperation::Kl { .. }) => {
+                let local = self
+                    .tracker
+                    .local_posterior(&self.model, &s.observations, &mut self.rng);
+                s.local = NaturalGaussian::from_moments(&local);
+                if s.local.is_none() {
+                    tracing::error!(
+                        node = self.index,
+                        "the local posterior is degenerate; not fusing this step"
+                    );
+                }
+                s.weighed = true;
+            }
+            (Work::Adopt, Cooperation::Kl { .. }) => {
+                let Some(fused) = s.fused.take() else { return };
+                s.stats = fused.stats;
+                match fused.fused.to_moments() {
+                    Some(g) => {
+                        if let Err(e) = self.tracker.adopt(&g, &mut self.rng) {
+                            tracing::error!(node = self.index, error = %e, "keeping the local particles");
+                        }
+                    }
+                    None => tracing::error!(
+                        node = self.index,
+                        "the fused information is not positive definite; keeping the local particles"
+                    ),
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// The driver's report that `work` finished at `now` after `elapsed`.
+    pub fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match (work, &mut self.cooperation) {
+            (Work::Weigh, Cooperation::RandomExchange(_)) => {
+                s.weigh_time = elapsed;
+                self.report(Duration::ZERO, out);
+            }
+            (Work::Weigh, Cooperation::Kl { fusion, .. }) => {
+                s.weigh_time = elapsed;
+                match s.local.take() {
+                    Some(local) => {
+                        s.fusing = true;
+                        fusion.start(s.step, local, &self.view, now, out);
+                        self.poll_protocol();
+                    }
+                    None => self.report(Duration::ZERO, out),
+                }
+            }
+            (Work::Adopt, Cooperation::Kl { .. }) => self.report(elapsed, out),
+            _ => {}
+        }
+    }
+
+    fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
+        // As the CF/DPF node: only a later step of this run moves it on.
+        if step == 0 || step > self.steps || self.last_step.is_some_and(|l| step <= l) {
+            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+            return;
+        }
+        if self.stepping.is_some() {
+            self.deadline_missed = true;
+            self.force_finish(now, out);
+        }
+        for _ in self.last_step.map_or(step, |l| l + 1)..step {
+            self.tracker.coast(&self.model, &mut self.rng);
+        }
+        self.last_step = Some(step);
+        self.relayed.retain(|(s, _, _)| *s >= step);
+        self.cooperation.protocol().expect_step(step);
+        let own = self.own_sensors().to_vec();
+        let picks = self.manager.choose(&SelectionContext {
+            step,
+            node: self.index,
+            own_sensors: &own,
+            view: &self.view,
+            predicted: None,
+            sensor_positions: &self.topology.sensor_positions,
+            node_sensors: &self.topology.node_sensors,
+        });
+        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
+        out.push(Outgoing {
+            channel: Channel::Activation(self.index),
+            message: Message::new(
+                self.id(),
+                step,
+                0,
+                Payload::Activate {
+                    mask: BitMask::from_indices(picks.iter().copied()),
+                },
+            ),
+            receivers: own.iter().map(|s| ActorId::Sensor(*s)).collect(),
+            wake: Some(active.iter().map(|s| ActorId::Sensor(*s)).collect()),
+        });
+        let cells = self.model.quantizer.as_ref().map(|q| q.cells());
+        self.stepping = Some(Box::new(Stepping {
+            step,
+            collector: Some(Collector::new(step, active, now + self.listen, cells)),
+            observations: Vec::new(),
+            relays_closed: !self.cooperation.uses_neighbourhood(),
+            relay_deadline: now + 2 * self.listen,
+            exchanged: None,
+            weighed: false,
+            local: None,
+            fused: None,
+            fusing: false,
+            stats: RoundStats::default(),
+            weigh_time: Duration::ZERO,
+        }));
+        // RndEx-PF swaps the posterior of the step before, while the
+        // measurements of this one come in.
+        if let Cooperation::RandomExchange(exchange) = &mut self.cooperation {
+            exchange.start(step, self.tracker.summary(), &self.view, now, out);
+            self.poll_protocol();
+        }
+        // A step with no active sensor has nothing to wait for.
+        if self
+            .stepping
+            .as_ref()
+            .and_then(|s| s.collector.as_ref())
+            .is_some_and(Collector::is_complete)
+        {
+            self.close_own(out);
+        }
+    }
+
+    fn observe(
+        &mut self,
+        step: u32,
+        sensor: u16,
+        value: ObservedValue,
+        out: &mut Vec<Outgoing>,
+    ) {
+        let offer = match self.stepping.as_mut().and_then(|s| s.collector.as_mut()) {
+            Some(c) => c.offer(step, sensor, value),
+            None => Offer::Late,
+        };
+        match offer {
+            Offer::Taken => {
+                let complete = self
+                    .stepping
+                    .as_ref()
+                    .and_then(|s| s.collector.as_ref())
+                    .is_some_and(Collector::is_complete);
+                if complete {
+                    self.close_own(out);
+                }
+            }
+            Offer::Late => self.late_messages += 1,
+            Offer::Invalid => tracing::warn!(
+                node = self.index,
+                sensor,
+                "observation outside the quantizer's cells dropped"
+            ),
+        }
+    }
+
+    /// The node's own sensors are done: relay their measurements (with
+    /// local cooperation) and take in any neighbour's that came first.
+    fn close_own(&mut self, out: &mut Vec<Outgoing>) {
+        let relay = self.cooperation.uses_neighbourhood();
+        let neighbours: Vec<u16> = self.neighbours().to_vec();
+        let me = self.id();
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        let Some(collector) = s.collector.take() else {
+            return;
+        };
+        let collected = collector.close();
+        if relay {
+            let receivers: Vec<ActorId> = neighbours.iter().map(|m| ActorId::Node(*m)).collect();
+            let wake: Vec<ActorId> = neighbours
+                .iter()
+                .filter(|m| self.view[**m as usize])
+                .map(|m| ActorId::Node(*m))
+                .collect();
+            for o in &collected.observations {
+                let value = match o.value {
+                    ObservedValue::Raw(v) => v,
+                    ObservedValue::Cell(c) => c as f64,
+                };
+                out.push(Outgoing {
+                    channel: Channel::Consensus(self.index),
+                    message: Message::new(
+                        me,
+                        s.step,
+                        0,
+                        Payload::NeighbourObservation {
+                            sensor: o.sensor,
+                            value,
+                        },
+                    ),
+                    receivers: receivers.clone(),
+                    wake: Some(wake.clone()),
+                });
+            }
+        }
+        s.observations = collected.observations;
+        self.poll_relays();
+    }
+
+    /// A neighbour's measurement: kept for its step if it is a measurement
+    /// of one of that neighbour's sensors, in range.
+    fn take_relay(&mut self, step: u32, from: u16, sensor: u16, value: f64) {
+        let current = self.last_step.unwrap_or(0);
+        let from_a_neighbour = self.neighbours().contains(&from)
+            && self.topology.node_sensors[from as usize].contains(&sensor);
+        let value = match &self.model.quantizer {
+            Some(q) if value.fract() == 0.0 && value >= 0.0 && value < q.cells() as f64 => {
+                Some(ObservedValue::Cell(value as u32))
+            }
+            Some(_) => None,
+            None if value.is_finite() => Some(ObservedValue::Raw(value)),
+            None => None,
+        };
+        let (true, Some(value)) = (from_a_neighbour, value) else {
+            tracing::warn!(node = self.index, from, sensor, "a relayed measurement of no sensor of that neighbour, or out of range; dropped");
+            return;
+        };
+        let closed = self
+            .stepping
+            .as_ref()
+            .is_none_or(|s| s.step == step && s.relays_closed);
+        let duplicate = self
+            .relayed
+            .iter()
+            .any(|(s, _, o)| *s == step && o.sensor == sensor);
+        if step < current || (step == current && closed) || duplicate {
+            self.late_messages += 1;
+            return;
+        }
+        // One step ahead at most: a neighbour never runs further ahead.
+        if step > current + 1 {
+            self.late_messages += 1;
+            return;
+        }
+        self.relayed.push((step, from, Observation { sensor, value }));
+        self.poll_relays();
+    }
+
+    /// Closes the relays once every live neighbour's measurements are in.
+    fn poll_relays(&mut self) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if s.relays_closed || s.collector.is_some() {
+            return;
+        }
+        let neighbours = &self.topology.neighbours[self.index as usize];
+        let all_in = neighbours
+            .iter()
+            .filter(|m| self.view[**m as usize])
+            .all(|m| {
+                let expected = self.topology.node_sensors[*m as usize]
+                    .len()
+                    .min(self.active_per_node);
+                let heard = self
+                    .relayed
+                    .iter()
+                    .filter(|(step, from, _)| *step == s.step && from == m)
+                    .count();
+                heard >= expected
+            });
+        if all_in {
+            self.close_relays();
+        }
+    }
+
+    /// Stops waiting for relays: the step weighs the neighbours' measurements
+    /// heard so far.
+    fn close_relays(&mut self) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        s.relays_closed = true;
+        let step = s.step;
+        s.observations.extend(
+            self.relayed
+                .iter()
+                .filter(|(st, _, _)| *st == step)
+                .map(|(_, _, o)| *o),
+        );
+        self.relayed.retain(|(st, _, _)| *st != step);
+    }
+
+    /// Takes the protocol's result, if it has one.
+    fn poll_protocol(&mut self) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match &mut self.cooperation {
+            Cooperation::RandomExchange(exchange) => {
+                if let Some(e) = exchange.poll_result() {
+                    s.stats = e.stats;
+                    s.exchanged = Some(e);
+                }
+            }
+            Cooperation::Kl { fusion, .. } => {
+                if s.fusing {
+                    if let Some(f) = fusion.poll_result() {
+                        s.fusing = false;
+                        s.fused = Some(f);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The step's telemetry.
+    fn report(&mut self, adopt_time: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.take() else {
+            return;
+        };
+        let estimate = self.tracker.estimate();
+        let micros = |d: Duration| d.as_micros().min(u32::MAX as u128) as u32;
+        let telemetry = Telemetry {
+            estimate: std::array::from_fn(|i| {
+                if estimate[i].is_finite() {
+                    estimate[i]
+                } else {
+                    0.0
+                }
+            }),
+            bound: None,
+            local_bound: None,
+            aux_bound: None,
+            rounds_completed: s.stats.rounds_completed,
+            live_neighbours: s.stats.neighbours_heard,
+            observations: s.observations.len() as u16,
+            gated: 0,
+            lagged: 0,
+            deadline_missed: self.deadline_missed,
+            late_messages: (self.late_messages - self.late_reported) as u32,
+            stage_micros: [
+                micros(s.weigh_time),
+                micros(adopt_time),
+                micros(s.stats.later_rounds),
+                micros(s.stats.total),
+                0,
+            ],
+        };
+        self.deadline_missed = false;
+        self.late_reported = self.late_messages;
+        out.push(Outgoing {
+            channel: Channel::Telemetry(self.index),
+            message: Message::new(self.id(), s.step, 0, Payload::Telemetry(telemetry)),
+            receivers: vec![ActorId::Launcher],
+            wake: None,
+        });
+    }
+
+    /// Ends an overrun step at once with what it has: no more waiting for
+    /// sensors, relays or neighbours; its stages are not timed.
+    fn force_finish(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if self.stepping.as_ref().is_some_and(|s| s.collector.is_some()) {
+            self.close_own(out);
+        }
+        if self.stepping.as_ref().is_some_and(|s| !s.relays_closed) {
+            self.close_relays();
+        }
+        while self.stepping.is_some() {
+            if let Some(work) = self.poll_work() {
+                self.run_work(work);
+                self.work_done(work, Duration::ZERO, now, out);
+                continue;
+            }
+            let own = self.tracker.summary();
+            let Some(s) = self.stepping.as_mut() else {
+                break;
+            };
+            match &mut self.cooperation {
+                Cooperation::RandomExchange(exchange) if s.exchanged.is_none() => {
+                    let stayed = Exchanged {
+                        posterior: own,
+                        partner: None,
+                        stats: RoundStats::default(),
+                    };
+                    s.exchanged = Some(exchange.finish_now(now, out).unwrap_or(stayed));
+                }
+                Cooperation::Kl { fusion, .. } if s.fusing => {
+                    s.fusing = false;
+                    s.fused = fusion.finish_now(now, out);
+                    if s.fused.is_none() {
+                        self.report(Duration::ZERO, out);
+                    }
+                }
+                // Nothing left that could finish the step: report it as is.
+                _ => self.report(Duration::ZERO, out),
+            }
+        }
+    }
+}
