@@ -353,7 +353,10 @@ mod tests {
     #[test]
     fn activation_probability_is_the_share_of_a_nodes_sensors_picked() {
         let t = default_topology();
-        assert!(t.activation_probabilities(3).iter().all(|&p| p == 3.0 / 25.0));
+        assert!(t
+            .activation_probabilities(3)
+            .iter()
+            .all(|&p| p == 3.0 / 25.0));
         assert!(t.activation_probabilities(40).iter().all(|&p| p == 1.0));
         assert!(t.activation_probabilities(0).iter().all(|&p| p == 0.0));
     }

@@ -486,7 +486,8 @@ impl Actors {
         let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &overrides)
             .expect("the built-in scenario");
         let topology = Topology::from_scenario(&scenario, "default").expect("its topology");
-        let mut nodes = vec![ProcessingNode::for_scenario(&scenario, &topology, 4).expect("node-4")];
+        let mut nodes =
+            vec![ProcessingNode::for_scenario(&scenario, &topology, 4).expect("node-4")];
         for protocol in ["random_exchange", "kl_iterative"] {
             let overrides = [
                 "filter.particles=64".to_string(),

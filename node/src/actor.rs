@@ -1192,7 +1192,7 @@ mod tests {
         }
         let mut fresh = NodeActor::new(&net.scenario, &net.topology, 2).unwrap();
         fresh.expect_rejoin();
-        net.nodes[2] = Some(fresh);
+        net.nodes[2] = Some(fresh.into());
         net.begin_step(7, &ALL);
         net.run(LONG);
         assert!(

@@ -9,7 +9,7 @@ use bounds::State;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 
-use crate::{NodeActor, Outgoing, SensingModel};
+use crate::{Outgoing, ProcessingNode, SensingModel};
 
 /// Three nodes in a line (0 — 1 — 2), three sensors each, 300 particles.
 pub const LINE: &str = r#"
@@ -65,7 +65,7 @@ type Rule = Box<dyn FnMut(&Message, ActorId) -> Fate>;
 pub struct Net {
     pub scenario: Scenario,
     pub topology: Topology,
-    pub nodes: Vec<Option<NodeActor>>,
+    pub nodes: Vec<Option<ProcessingNode>>,
     pub now: Duration,
     model: SensingModel,
     truth: State,
@@ -86,11 +86,21 @@ impl Net {
 
     /// The line with `--set`-style overrides (`sensors.manager=pcrlb`).
     pub fn line_with(overrides: &[&str]) -> Self {
+        Self::of(LINE, overrides)
+    }
+
+    /// Seed 004's lattice of 25 nodes, with overrides.
+    pub fn seed004_with(overrides: &[&str]) -> Self {
+        Self::of(fusion_graph::scenario::SEED004_SCENARIO, overrides)
+    }
+
+    /// The network a scenario describes, its nodes as the scenario says.
+    fn of(text: &str, overrides: &[&str]) -> Self {
         let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
-        let scenario = Scenario::from_toml(LINE, "line", &overrides).unwrap();
-        let topology = Topology::from_scenario(&scenario, "line").unwrap();
-        let nodes = (0..3)
-            .map(|i| Some(NodeActor::new(&scenario, &topology, i).unwrap()))
+        let scenario = Scenario::from_toml(text, "harness", &overrides).unwrap();
+        let topology = Topology::from_scenario(&scenario, "harness").unwrap();
+        let nodes = (0..topology.nodes() as u16)
+            .map(|i| Some(ProcessingNode::for_scenario(&scenario, &topology, i).unwrap()))
             .collect();
         Self {
             model: SensingModel::from_scenario(&scenario, &topology).unwrap(),
@@ -113,8 +123,10 @@ impl Net {
     }
 
     /// Starts `step` at every live node, telling each the membership `view`.
+    /// The target moves at constant velocity.
     pub fn begin_step(&mut self, step: u32, view: &[bool]) {
-        self.truth += State::new(self.truth[2], self.truth[3], 0.0, 0.0);
+        let period = self.scenario.dynamics.period;
+        self.truth += State::new(self.truth[2] * period, self.truth[3] * period, 0.0, 0.0);
         for n in 0..self.nodes.len() as u16 {
             if self.nodes[n as usize].is_none() || !view[n as usize] {
                 continue;
@@ -234,8 +246,11 @@ impl Net {
                 Stream::SensorNoise,
             );
             let z = self.model.sensors[*s as usize].sample(&self.truth, &mut rng);
-            let cell = self.model.quantizer.as_ref().unwrap().encode(z);
-            let m = Message::new(ActorId::Sensor(*s), step, 0, Payload::Observation { cell });
+            let payload = match &self.model.quantizer {
+                Some(q) => Payload::Observation { cell: q.encode(z) },
+                None => Payload::RawObservation { value: z },
+            };
+            let m = Message::new(ActorId::Sensor(*s), step, 0, payload);
             self.post(ActorId::Node(n), m);
         }
     }
@@ -247,6 +262,11 @@ impl Net {
             Fate::Delay(d) => self.in_flight.push((self.now + d, to, m)),
             Fate::Drop => {}
         }
+    }
+
+    /// The target's true state now.
+    pub fn truth(&self) -> State {
+        self.truth
     }
 
     /// Node `n`'s telemetry for `step`.

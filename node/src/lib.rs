@@ -36,10 +36,10 @@ mod harness;
 pub use actor::{NodeActor, NodeError, Work};
 pub use centralized::CentralizedReference;
 pub use diffusion_node::DiffusionNode;
-pub use processing::ProcessingNode;
 pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
+pub use processing::ProcessingNode;
 
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::Message;
