@@ -145,6 +145,59 @@ pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
     out.join("accounting").join(format!("{actor}.memory"))
 }
 
+/// Where a node writes `<CPU µs> <steps>`: the user and system CPU time it
+/// spent from its first `BeginStep` to the launcher's Stop, and the steps
+/// begun in it (seed 004's duty cycle).
+pub fn cpu_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.cpu"))
+}
+
+/// This process's user and system CPU time so far.
+fn process_cpu_time() -> Duration {
+    // SAFETY: getrusage only writes the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return Duration::ZERO;
+    }
+    let time = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec.max(0) as u64) + Duration::from_micros(t.tv_usec.max(0) as u64)
+    };
+    time(usage.ru_utime) + time(usage.ru_stime)
+}
+
+/// A node's CPU time over the steps, as [`cpu_path`] describes.
+#[derive(Debug, Clone, Copy, Default)]
+struct CpuOverSteps {
+    at_first_step: Option<Duration>,
+    steps: u32,
+}
+
+impl CpuOverSteps {
+    fn step_begun(&mut self) {
+        self.at_first_step.get_or_insert_with(process_cpu_time);
+        self.steps += 1;
+    }
+
+    fn write(&self, me: ActorId, out: &Path) -> anyhow::Result<()> {
+        let Some(first) = self.at_first_step else {
+            return Ok(());
+        };
+        let cpu = process_cpu_time().saturating_sub(first);
+        write_atomically(
+            &cpu_path(out, me),
+            format!("{} {}", cpu.as_micros(), self.steps).as_bytes(),
+        )
+    }
+}
+
+/// A node's CPU seconds per step begun, as it wrote them at the Stop.
+pub fn read_cpu_per_step(out: &Path, actor: ActorId) -> Option<f64> {
+    let text = std::fs::read_to_string(cpu_path(out, actor)).ok()?;
+    let mut f = text.split_whitespace().map(|v| v.parse::<u64>().ok());
+    let (micros, steps) = (f.next()??, f.next()??);
+    (steps > 0).then(|| micros as f64 / 1e6 / steps as f64)
+}
+
 fn sensor_loop<T: Transport>(
     scenario: &Scenario,
     topology: &Topology,
@@ -219,6 +272,7 @@ fn node_loop<T: Transport>(
     announce_ready();
     let mut inbox = Vec::new();
     let mut outgoing = Vec::new();
+    let mut cpu = CpuOverSteps::default();
     loop {
         let now = t.now();
         let timeout = actor
@@ -231,9 +285,11 @@ fn node_loop<T: Transport>(
         for m in inbox.drain(..) {
             match (&m.payload, m.header.sender) {
                 (Payload::Control(Control::Stop), ActorId::Launcher) => {
-                    return write_memory(t.me(), out)
+                    cpu.write(t.me(), out)?;
+                    return write_memory(t.me(), out);
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                    cpu.step_begun();
                     schedule.apply_link_faults(m.header.step, &mut t, topology);
                     t.update_connections();
                 }

@@ -15,6 +15,7 @@ mod seed000;
 mod seed001;
 mod seed003;
 mod seed004;
+mod seed004_trackers;
 
 use std::path::PathBuf;
 
@@ -225,6 +226,7 @@ pub fn computed_catalogue() -> Vec<Computed> {
     all.extend(censoring::experiments());
     all.extend(seed003::experiments());
     all.extend(seed004::experiments());
+    all.extend(seed004_trackers::experiments());
     all
 }
 

@@ -53,50 +53,10 @@ const SHOWN: [usize; 6] = [1, 5, 10, 25, 50, 100];
 
 fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let scenario = Scenario::from_toml(SEED004_SCENARIO, "seed004.toml", &[])?;
-    let topology = Topology::from_scenario(&scenario, "seed004.toml")?;
-    let models = scenario.models()?;
-    let sensors: Vec<ObservationModel> = topology
-        .node_sensors
+    let curves: Vec<Curves> = SIZES
         .iter()
-        .map(|own| {
-            let s = own
-                .first()
-                .context("seed004.toml gives every node its sensor")?;
-            Ok(models.law.at(topology.sensor_positions[*s as usize]))
-        })
+        .map(|&size| Curves::compute(&scenario, size))
         .collect::<anyhow::Result<_>>()?;
-    let terms: Vec<SensorTerm> = sensors
-        .iter()
-        .map(|model| SensorTerm {
-            model,
-            measurement: Measurement::Raw,
-        })
-        .collect();
-    let neighbours: Vec<Vec<usize>> = topology
-        .neighbours
-        .iter()
-        .map(|ns| ns.iter().map(|&n| n as usize).collect())
-        .collect();
-    let mean = State::from(scenario.target.initial_state());
-    let steps = scenario.steps as usize;
-    let bounds = SIZES
-        .iter()
-        .map(|&size| {
-            let mut rng = ChaCha8Rng::seed_from_u64(SEED);
-            diffusion_bounds(
-                &models.dynamics,
-                &terms,
-                &neighbours,
-                &mean,
-                &models.prior_cov,
-                steps,
-                size,
-                &mut rng,
-            )
-            .map_err(|e| anyhow::anyhow!("{e}"))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let curves: Vec<Curves> = bounds.iter().map(|b| Curves::of(b, steps)).collect();
 
     std::fs::create_dir_all(dir)?;
     let csv = dir.join("seed004-bounds.csv");
@@ -114,12 +74,55 @@ fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
 }
 
 /// Both bounds, metres, from step 0 to the last.
-struct Curves {
-    rndex: Vec<f64>,
-    centralized: Vec<f64>,
+pub(super) struct Curves {
+    pub rndex: Vec<f64>,
+    pub centralized: Vec<f64>,
 }
 
 impl Curves {
+    /// The RndEx-PF and centralized PCRLB of a seed 004 scenario (one RSS
+    /// sensor per node, raw measurements) over its steps, at `size`.
+    pub(super) fn compute(scenario: &Scenario, size: MonteCarloSize) -> anyhow::Result<Self> {
+        let topology = Topology::from_scenario(scenario, &scenario.name)?;
+        let models = scenario.models()?;
+        let sensors: Vec<ObservationModel> = topology
+            .node_sensors
+            .iter()
+            .map(|own| {
+                let s = own
+                    .first()
+                    .context("a seed 004 scenario gives every node its sensor")?;
+                Ok(models.law.at(topology.sensor_positions[*s as usize]))
+            })
+            .collect::<anyhow::Result<_>>()?;
+        let terms: Vec<SensorTerm> = sensors
+            .iter()
+            .map(|model| SensorTerm {
+                model,
+                measurement: Measurement::Raw,
+            })
+            .collect();
+        let neighbours: Vec<Vec<usize>> = topology
+            .neighbours
+            .iter()
+            .map(|ns| ns.iter().map(|&n| n as usize).collect())
+            .collect();
+        let steps = scenario.steps as usize;
+        let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+        let bounds = diffusion_bounds(
+            &models.dynamics,
+            &terms,
+            &neighbours,
+            &State::from(scenario.target.initial_state()),
+            &models.prior_cov,
+            steps,
+            size,
+            &mut rng,
+        )
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(Self::of(&bounds, steps))
+    }
+
     fn of(b: &DiffusionBounds, steps: usize) -> Self {
         let nan = f64::NAN;
         Self {
@@ -212,21 +215,38 @@ fn check(curves: &[Curves]) -> Check {
 }
 
 fn draw(path: &Path, curves: &[Curves]) -> Result<(), Box<dyn std::error::Error>> {
+    let mut lines: Vec<(String, &[f64])> =
+        vec![("centralized PCRLB".into(), &curves[0].centralized[..])];
+    for (c, size) in curves.iter().zip(&SIZES) {
+        lines.push((format!("RndEx-PF PCRLB, {}", label(size)), &c.rndex[..]));
+    }
+    draw_lines(
+        path,
+        "seed004-bounds: RndEx-PF and centralized PCRLB, 25 RSS nodes",
+        "position bound, m",
+        &lines,
+    )
+}
+
+/// Curves over steps 1.. (step 0, the prior's 7 m, would flatten the
+/// rest), one colour each, with a legend.
+pub(super) fn draw_lines(
+    path: &Path,
+    caption: &str,
+    y_desc: &str,
+    lines: &[(String, &[f64])],
+) -> Result<(), Box<dyn std::error::Error>> {
     let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE)?;
-    let steps = curves[0].rndex.len() - 1;
-    // From step 1: step 0 is the prior's 7 m and would flatten the rest.
-    let top = curves
+    let steps = lines.iter().map(|(_, v)| v.len()).max().unwrap_or(1).max(2) - 1;
+    let top = lines
         .iter()
-        .flat_map(|c| c.rndex.iter().chain(&c.centralized).skip(1))
+        .flat_map(|(_, v)| v.iter().skip(1))
         .copied()
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max);
     let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "seed004-bounds: RndEx-PF and centralized PCRLB, 25 RSS nodes",
-            ("sans-serif", 20),
-        )
+        .caption(caption, ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
@@ -234,27 +254,16 @@ fn draw(path: &Path, curves: &[Curves]) -> Result<(), Box<dyn std::error::Error>
     chart
         .configure_mesh()
         .x_desc("time, s")
-        .y_desc("position bound, m")
+        .y_desc(y_desc)
         .draw()?;
-    let mut series: Vec<(String, &Vec<f64>, RGBAColor)> = vec![(
-        "centralized PCRLB".into(),
-        &curves[0].centralized,
-        Palette99::pick(0).to_rgba(),
-    )];
-    for (i, (c, size)) in curves.iter().zip(&SIZES).enumerate() {
-        series.push((
-            format!("RndEx-PF PCRLB, {}", label(size)),
-            &c.rndex,
-            Palette99::pick(i + 1).to_rgba(),
-        ));
-    }
-    for (name, values, colour) in series {
+    for (i, (name, values)) in lines.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
         chart
             .draw_series(LineSeries::new(
-                (1..=steps).map(|n| (n, values[n])),
+                (1..values.len()).map(|n| (n, values[n])),
                 colour.stroke_width(2),
             ))?
-            .label(name)
+            .label(name.as_str())
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
             });

@@ -1,0 +1,545 @@
+//! Seed 004's trackers, run: its Fig. 1 (the four trackers' RMS position
+//! error over time beside the RndEx-PF and centralized PCRLB, a Monte Carlo
+//! in `sim`) and its Table I (each tracker's communication and processing
+//! cost, measured on a real network of processes in real time).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use bounds::diffusion::MonteCarloSize;
+use fusion_graph::accounting::Accounting;
+use fusion_graph::scenario::{Scenario, SEED004_SCENARIO};
+use fusion_graph::transport::RunId;
+use fusion_graph::wire::MessageKind;
+use fusion_graph::{ActorId, Topology};
+use plotters::prelude::*;
+
+use super::seed004::{draw_lines, Curves};
+use super::{Check, Computed, ComputedReport, Options};
+use crate::montecarlo::run_monte_carlo;
+use crate::results::{write_atomically, AVERAGE_FROM_STEP};
+
+pub fn experiments() -> Vec<Computed> {
+    vec![
+        Computed {
+            name: "seed004-fig1",
+            source: "seed 004, Fig. 1",
+            about: "RMS position error over time of RndEx-PF and the three KL fusion trackers on seed004.toml's 25 RSS nodes (a Monte Carlo of --runs runs in sim), with the RndEx-PF PCRLB (N_T = --trajectories, N_f = 100) and the centralized PCRLB",
+            run: fig1,
+        },
+        Computed {
+            name: "seed004-table",
+            source: "seed 004, Table I",
+            about: "each tracker run as a real network of 50 processes in real time with the paper's 1 s step (--steps steps, 20 by default): RX and TX bytes per second per node between nodes, from the accounting, and the duty cycle, the node processes' CPU time over the step period",
+            run: table,
+        },
+    ]
+}
+
+/// A tracker: its `consensus.protocol` and the paper's name for it.
+#[derive(Debug, Clone, Copy)]
+struct Tracker {
+    protocol: &'static str,
+    label: &'static str,
+    /// Table I's figures: RX B/s, TX B/s, duty cycle %.
+    paper: (f64, f64, f64),
+}
+
+/// In the paper's order of Table I.
+const TRACKERS: [Tracker; 4] = [
+    Tracker {
+        protocol: "random_exchange",
+        label: "RndEx-PF",
+        paper: (148.0, 132.0, 2.9),
+    },
+    Tracker {
+        protocol: "kl_diffusion",
+        label: "non-iterative KL",
+        paper: (317.0, 64.0, 2.6),
+    },
+    Tracker {
+        protocol: "kl_iterative",
+        label: "iterative KL",
+        paper: (2900.0, 604.0, 2.7),
+    },
+    Tracker {
+        protocol: "kl_consensus",
+        label: "consensus KL",
+        paper: (2900.0, 600.0, 1.0),
+    },
+];
+
+fn scenario_of(tracker: &Tracker, extra: &[String]) -> anyhow::Result<(Scenario, Topology)> {
+    let mut overrides = vec![format!("consensus.protocol=\"{}\"", tracker.protocol)];
+    overrides.extend_from_slice(extra);
+    let scenario = Scenario::from_toml(SEED004_SCENARIO, "seed004.toml", &overrides)?;
+    let topology = Topology::from_scenario(&scenario, "seed004.toml")?;
+    Ok((scenario, topology))
+}
+
+// ---------------------------------------------------------------- Fig. 1
+
+/// Per-step RMS position error of each tracker, the centralized filter's,
+/// and the two bounds, from step 0 (the bounds) or 1 (the errors; NaN at 0).
+struct Fig1 {
+    rmse: Vec<Vec<f64>>,
+    centralized_rmse: Vec<f64>,
+    bounds: Curves,
+    size: MonteCarloSize,
+    runs: u32,
+}
+
+fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+    let steps: Vec<String> = options
+        .steps
+        .map(|s| vec![format!("steps={s}")])
+        .unwrap_or_default();
+    let mut rmse = Vec::new();
+    let mut centralized_rmse = Vec::new();
+    for (i, tracker) in TRACKERS.iter().enumerate() {
+        let (scenario, topology) = scenario_of(tracker, &steps)?;
+        // The truth and the measurements come from the same streams for
+        // every tracker: one centralized filter serves them all.
+        let centralized = i == 0;
+        eprintln!("seed004-fig1: {} ({} runs)", tracker.label, options.runs);
+        let mc = run_monte_carlo(
+            &scenario,
+            &topology,
+            &dir.join("runs").join(tracker.protocol),
+            options.runs,
+            options.threads,
+            centralized,
+            &|_| {},
+        )?;
+        let means = mc.series.means();
+        let nan = f64::NAN;
+        rmse.push(
+            std::iter::once(nan)
+                .chain(means.iter().map(|m| m.rmse.unwrap_or(nan)))
+                .collect(),
+        );
+        if centralized {
+            centralized_rmse = std::iter::once(nan)
+                .chain(means.iter().map(|m| m.centralized_rmse.unwrap_or(nan)))
+                .collect();
+        }
+    }
+    let (scenario, _) = scenario_of(&TRACKERS[0], &steps)?;
+    let size = MonteCarloSize {
+        trajectories: options.trajectories,
+        paths: 100,
+    };
+    let fig = Fig1 {
+        rmse,
+        centralized_rmse,
+        bounds: Curves::compute(&scenario, size)?,
+        size,
+        runs: options.runs,
+    };
+    std::fs::create_dir_all(dir)?;
+    let csv = dir.join("seed004-fig1.csv");
+    let svg = dir.join("seed004-fig1.svg");
+    write_atomically(&csv, fig1_csv(&fig).as_bytes())?;
+    let mut lines: Vec<(String, &[f64])> = TRACKERS
+        .iter()
+        .zip(&fig.rmse)
+        .map(|(t, r)| (format!("{} RMSE", t.label), &r[..]))
+        .collect();
+    lines.push(("centralized PF RMSE".into(), &fig.centralized_rmse[..]));
+    lines.push(("RndEx-PF PCRLB".into(), &fig.bounds.rndex[..]));
+    lines.push(("centralized PCRLB".into(), &fig.bounds.centralized[..]));
+    draw_lines(
+        &svg,
+        "seed004-fig1: RMS position error, 25 RSS nodes",
+        "position error, m",
+        &lines,
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))
+    .with_context(|| format!("drawing {}", svg.display()))?;
+    Ok(ComputedReport {
+        check: fig1_check(&fig),
+        csv,
+        svg,
+        table: fig1_table(&fig),
+    })
+}
+
+fn fig1_csv(fig: &Fig1) -> String {
+    let mut out = format!(
+        "# seed004.toml, {} runs; metres; RndEx-PF PCRLB at N_T={} N_f={}\nstep",
+        fig.runs, fig.size.trajectories, fig.size.paths
+    );
+    for t in &TRACKERS {
+        let _ = write!(out, ",rmse_{}", t.protocol);
+    }
+    out.push_str(",rmse_centralized,pcrlb_rndex,pcrlb_centralized\n");
+    for n in 1..fig.bounds.rndex.len() {
+        let _ = write!(out, "{n}");
+        for r in &fig.rmse {
+            let _ = write!(out, ",{:.6}", r[n]);
+        }
+        let _ = writeln!(
+            out,
+            ",{:.6},{:.6},{:.6}",
+            fig.centralized_rmse[n], fig.bounds.rndex[n], fig.bounds.centralized[n]
+        );
+    }
+    out
+}
+
+/// The mean from step [`AVERAGE_FROM_STEP`] on, past the prior's transient.
+fn settled(values: &[f64]) -> f64 {
+    let tail: Vec<f64> = values
+        .iter()
+        .skip(AVERAGE_FROM_STEP as usize)
+        .copied()
+        .collect();
+    tail.iter().sum::<f64>() / tail.len().max(1) as f64
+}
+
+fn fig1_table(fig: &Fig1) -> String {
+    let mut out = format!(
+        "seed 004 Fig. 1 on seed004.toml, {} runs: RMS position error and bounds, metres (mean from step {AVERAGE_FROM_STEP}; the paper gives curves, no figures)\n",
+        fig.runs
+    );
+    let mut row = |name: &str, v: &[f64]| {
+        let _ = writeln!(out, "  {name:<24} {:>7.3}", settled(v));
+    };
+    for (t, r) in TRACKERS.iter().zip(&fig.rmse) {
+        row(t.label, r);
+    }
+    row("centralized PF", &fig.centralized_rmse);
+    row("RndEx-PF PCRLB", &fig.bounds.rndex);
+    row("centralized PCRLB", &fig.bounds.centralized);
+    out
+}
+
+/// The paper's reading of its Fig. 1, each part checked on ours.
+fn fig1_check(fig: &Fig1) -> Check {
+    let [rndex, non_iterative, iterative, consensus] =
+        [0, 1, 2, 3].map(|i| settled(&fig.rmse[i]));
+    let rndex_bound = settled(&fig.bounds.rndex);
+    let central_bound = settled(&fig.bounds.centralized);
+    let claims = [
+        (
+            "RndEx-PF's RMSE is above its PCRLB",
+            rndex > rndex_bound,
+        ),
+        (
+            "RndEx-PF beats consensus KL",
+            rndex < consensus,
+        ),
+        (
+            "non-iterative KL beats RndEx-PF",
+            non_iterative < rndex,
+        ),
+        (
+            "iterative KL beats non-iterative KL",
+            iterative < non_iterative,
+        ),
+        (
+            "iterative KL is below the RndEx-PF PCRLB",
+            iterative < rndex_bound,
+        ),
+        (
+            "every tracker is above the centralized PCRLB",
+            [rndex, non_iterative, iterative, consensus]
+                .iter()
+                .all(|r| *r > central_bound),
+        ),
+    ];
+    let said: Vec<String> = claims
+        .iter()
+        .map(|(claim, holds)| format!("{claim}: {}", if *holds { "yes" } else { "NO" }))
+        .collect();
+    Check {
+        holds: claims.iter().all(|(_, h)| *h),
+        statement: format!(
+            "{} (from step {AVERAGE_FROM_STEP}: RndEx-PF {rndex:.2} m, non-iterative KL {non_iterative:.2} m, iterative KL {iterative:.2} m, consensus KL {consensus:.2} m; RndEx-PF PCRLB {rndex_bound:.2} m, centralized PCRLB {central_bound:.2} m)",
+            said.join("; ")
+        ),
+    }
+}
+
+// ---------------------------------------------------------------- Table I
+
+/// The paper's step: its dynamics are in seconds, and its rates per second.
+const TABLE_PERIOD_MS: f64 = 1000.0;
+const TABLE_STEPS: u32 = 20;
+
+/// One tracker's cost, per node, averaged over the nodes.
+#[derive(Debug, Clone, Copy)]
+struct Cost {
+    /// Bytes per second received from other nodes.
+    rx: f64,
+    /// Bytes per second sent to other nodes, one count per receiving link.
+    tx_per_link: f64,
+    /// The same with a message published on a node's consensus channel
+    /// (which reaches every neighbour) counted once, as a radio broadcast.
+    tx_broadcast: f64,
+    /// CPU time over the step period, %.
+    duty: f64,
+    cpu_ms_per_step: f64,
+    rmse: Option<f64>,
+}
+
+/// Messages that go to one neighbour on a pair channel; every other
+/// node-to-node kind is published on the sender's consensus channel.
+fn is_pairwise(kind: MessageKind) -> bool {
+    matches!(
+        kind,
+        MessageKind::ExchangeRequest | MessageKind::ExchangeReply | MessageKind::ExchangePosterior
+    )
+}
+
+/// Per node and second, from the run's accounting.
+fn traffic(accounting: &Accounting, topology: &Topology, seconds: f64) -> (f64, f64, f64) {
+    let (mut rx, mut tx, mut broadcast) = (0.0, 0.0, 0.0);
+    for ((from, to, kind), c) in accounting.iter() {
+        let (ActorId::Node(f), ActorId::Node(_)) = (from, to) else {
+            continue;
+        };
+        rx += c.received_bytes as f64;
+        tx += c.sent_bytes as f64;
+        broadcast += if is_pairwise(*kind) {
+            c.sent_bytes as f64
+        } else {
+            c.sent_bytes as f64 / topology.neighbours[*f as usize].len().max(1) as f64
+        };
+    }
+    let per = topology.nodes() as f64 * seconds;
+    (rx / per, tx / per, broadcast / per)
+}
+
+fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+    let steps = options.steps.unwrap_or(TABLE_STEPS);
+    let extra = vec![
+        format!("steps={steps}"),
+        format!("clock.step_period_ms={TABLE_PERIOD_MS}"),
+        "clock.mode=\"realtime\"".to_string(),
+        "reference.centralized=false".to_string(),
+    ];
+    let mut costs = Vec::new();
+    for tracker in &TRACKERS {
+        let (scenario, topology) = scenario_of(tracker, &extra)?;
+        let out = dir.join("runs").join(tracker.protocol);
+        eprintln!(
+            "seed004-table: {} as {} processes, {steps} steps of {} s",
+            tracker.label,
+            topology.actors().count(),
+            TABLE_PERIOD_MS / 1e3
+        );
+        costs.push(measure(&scenario, &topology, &out)?);
+    }
+    std::fs::create_dir_all(dir)?;
+    let csv = dir.join("seed004-table.csv");
+    let svg = dir.join("seed004-table.svg");
+    write_atomically(&csv, table_csv(&costs).as_bytes())?;
+    draw_table(&svg, &costs)
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| format!("drawing {}", svg.display()))?;
+    Ok(ComputedReport {
+        check: table_check(&costs),
+        csv,
+        svg,
+        table: table_text(&costs, steps),
+    })
+}
+
+/// Runs one tracker's network and reads its costs back.
+fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Result<Cost> {
+    let options = crate::network::RunOptions {
+        out: out.to_path_buf(),
+        lockstep: false,
+        run_id: RunId::generate(),
+        centralized: false,
+        view: None,
+    };
+    let summary = crate::network::run_network(scenario, topology, options, |_| {})?;
+    let links = links_csv(out);
+    let text =
+        std::fs::read_to_string(&links).with_context(|| format!("reading {}", links.display()))?;
+    let accounting = Accounting::from_csv(&text)
+        .with_context(|| format!("{} is not an accounting table", links.display()))?;
+    let period = scenario.clock.step_period_ms / 1e3;
+    let (rx, tx_per_link, tx_broadcast) =
+        traffic(&accounting, topology, summary.steps as f64 * period);
+    let cpu: Vec<f64> = (0..topology.nodes() as u16)
+        .filter_map(|n| crate::actor_process::read_cpu_per_step(out, ActorId::Node(n)))
+        .collect();
+    anyhow::ensure!(
+        cpu.len() == topology.nodes(),
+        "{} of {} nodes wrote their CPU time",
+        cpu.len(),
+        topology.nodes()
+    );
+    let cpu_per_step = cpu.iter().sum::<f64>() / cpu.len() as f64;
+    Ok(Cost {
+        rx,
+        tx_per_link,
+        tx_broadcast,
+        duty: 100.0 * cpu_per_step / period,
+        cpu_ms_per_step: cpu_per_step * 1e3,
+        rmse: summary.estimates.rmse,
+    })
+}
+
+fn links_csv(out: &Path) -> PathBuf {
+    out.join("links.csv")
+}
+
+fn table_csv(costs: &[Cost]) -> String {
+    let mut out = String::from("protocol,rx_bytes_per_s,tx_bytes_per_s_per_link,tx_bytes_per_s_broadcast,duty_cycle_percent,cpu_ms_per_step,rmse_m,paper_rx,paper_tx,paper_duty\n");
+    for (t, c) in TRACKERS.iter().zip(costs) {
+        let _ = writeln!(
+            out,
+            "{},{:.1},{:.1},{:.1},{:.3},{:.3},{},{},{},{}",
+            t.protocol,
+            c.rx,
+            c.tx_per_link,
+            c.tx_broadcast,
+            c.duty,
+            c.cpu_ms_per_step,
+            c.rmse.map_or(String::new(), |r| format!("{r:.3}")),
+            t.paper.0,
+            t.paper.1,
+            t.paper.2
+        );
+    }
+    out
+}
+
+fn table_text(costs: &[Cost], steps: u32) -> String {
+    let mut out = format!(
+        "seed 004 Table I: {steps} steps of {} s per tracker, 25 node processes and 25 sensor processes; per node, between nodes\n  {:<18} {:>9} {:>11} {:>11} {:>7} {:>10} {:>7}   paper: {:>8} {:>8} {:>6}\n",
+        TABLE_PERIOD_MS / 1e3,
+        "tracker",
+        "RX B/s",
+        "TX B/s",
+        "TX bcast",
+        "duty",
+        "CPU/step",
+        "RMSE",
+        "RX",
+        "TX",
+        "duty"
+    );
+    for (t, c) in TRACKERS.iter().zip(costs) {
+        let _ = writeln!(
+            out,
+            "  {:<18} {:>9.0} {:>11.0} {:>11.0} {:>6.2}% {:>8.2}ms {:>6}m   paper: {:>6.0}B/s {:>6.0}B/s {:>5.1}%",
+            t.label,
+            c.rx,
+            c.tx_per_link,
+            c.tx_broadcast,
+            c.duty,
+            c.cpu_ms_per_step,
+            c.rmse.map_or("-".into(), |r| format!("{r:.2}")),
+            t.paper.0,
+            t.paper.1,
+            t.paper.2
+        );
+    }
+    out.push_str("  TX counts a message once per receiving link (shared memory has no broadcast); TX bcast counts a consensus-channel message once, as the paper's radio does.\n");
+    out
+}
+
+/// The paper's orderings, each checked on ours.
+fn table_check(costs: &[Cost]) -> Check {
+    let [rndex, non_iterative, iterative, consensus] = [0, 1, 2, 3].map(|i| costs[i]);
+    let claims = [
+        (
+            "RX: RndEx-PF < non-iterative KL < iterative KL",
+            rndex.rx < non_iterative.rx && non_iterative.rx < iterative.rx,
+        ),
+        (
+            "RX: consensus KL at least 5x RndEx-PF (the paper: an order of magnitude)",
+            consensus.rx >= 5.0 * rndex.rx,
+        ),
+        (
+            "TX (broadcast): non-iterative KL < RndEx-PF",
+            non_iterative.tx_broadcast < rndex.tx_broadcast,
+        ),
+        (
+            "TX (broadcast): RndEx-PF < consensus KL and iterative KL",
+            rndex.tx_broadcast < consensus.tx_broadcast.min(iterative.tx_broadcast),
+        ),
+        (
+            "duty cycle: consensus KL the lowest",
+            [rndex, non_iterative, iterative]
+                .iter()
+                .all(|c| consensus.duty < c.duty),
+        ),
+    ];
+    let said: Vec<String> = claims
+        .iter()
+        .map(|(claim, holds)| format!("{claim}: {}", if *holds { "yes" } else { "NO" }))
+        .collect();
+    let figures: Vec<String> = TRACKERS
+        .iter()
+        .zip(costs)
+        .map(|(t, c)| {
+            format!(
+                "{} RX {:.0} B/s, TX {:.0} B/s broadcast, duty {:.2} %",
+                t.label, c.rx, c.tx_broadcast, c.duty
+            )
+        })
+        .collect();
+    Check {
+        holds: claims.iter().all(|(_, h)| *h),
+        statement: format!("{} ({})", said.join("; "), figures.join("; ")),
+    }
+}
+
+fn draw_table(path: &Path, costs: &[Cost]) -> Result<(), Box<dyn std::error::Error>> {
+    let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let top = costs
+        .iter()
+        .map(|c| c.rx.max(c.tx_broadcast))
+        .fold(0.0, f64::max)
+        * 1.1;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "seed004-table: bytes per second per node between nodes, real processes",
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..TRACKERS.len() as f64, 0.0..top.max(1.0))?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(TRACKERS.len() * 2 + 1)
+        .x_label_formatter(&|x| {
+            let i = x.floor() as usize;
+            if (x - i as f64 - 0.5).abs() < 0.26 && i < TRACKERS.len() {
+                TRACKERS[i].label.to_string()
+            } else {
+                String::new()
+            }
+        })
+        .y_desc("B/s per node")
+        .draw()?;
+    let bars: [(&str, fn(&Cost) -> f64, usize); 2] =
+        [("RX", |c| c.rx, 0), ("TX, one per broadcast", |c| c.tx_broadcast, 1)];
+    for (name, value, k) in bars {
+        let colour = Palette99::pick(k).to_rgba();
+        chart
+            .draw_series(costs.iter().enumerate().map(|(i, c)| {
+                let left = i as f64 + 0.1 + 0.4 * k as f64;
+                Rectangle::new([(left, 0.0), (left + 0.38, value(c))], colour.filled())
+            }))?
+            .label(name)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
