@@ -1146,6 +1146,45 @@ mod tests {
         }
     }
 
+    /// Seed 004's trackers have no sensor selection, censoring, auxiliary
+    /// FIM or gate: asking for one is an error naming the key.
+    #[test]
+    fn seed004_trackers_refuse_the_cf_dpf_parts_by_name() {
+        for (set, key) in [
+            ("sensors.manager=\"pcrlb\"", "sensors.manager"),
+            ("sensors.max_active_total=5", "sensors.max_active_total"),
+            ("censoring.policy=\"nis\"", "censoring.policy"),
+            ("consensus.auxiliary_fim=true", "consensus.auxiliary_fim"),
+        ] {
+            let overrides = [
+                "consensus.protocol=\"kl_iterative\"".to_string(),
+                set.to_string(),
+            ];
+            let err = Scenario::from_toml(SEED004_SCENARIO, "s.toml", &overrides)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains(key) && err.contains("kl_iterative"),
+                "{set}: {err}"
+            );
+        }
+        let gated = SEED004_SCENARIO.replacen("[filter]", "[filter]\ngate = 10.0", 1);
+        let err = Scenario::from_toml(&gated, "s.toml", &[])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("filter.gate"), "{err}");
+        for protocol in [
+            "random_exchange",
+            "kl_consensus",
+            "kl_diffusion",
+            "kl_iterative",
+        ] {
+            let overrides = [format!("consensus.protocol=\"{protocol}\"")];
+            let s = Scenario::from_toml(SEED004_SCENARIO, "s.toml", &overrides).unwrap();
+            assert!(s.consensus.protocol.is_diffusion());
+        }
+    }
+
     #[test]
     fn broken_faults_name_the_key() {
         let text = format!("{DEFAULT_SCENARIO}\n[[faults]]\nkind = \"loss\"\nlinks = [{{ from = \"*\", to = \"*\" }}]\nat_step = 5\nprobability = 1.5\n");

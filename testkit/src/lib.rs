@@ -98,6 +98,18 @@ pub fn seed001_scenario() -> Scenario {
     .expect("the built-in scenario is valid")
 }
 
+/// Seed 004's scenario: 25 RSS nodes on a lattice, each with its own
+/// sensor, cooperating by random exchange (`consensus.protocol` chooses
+/// among seed 004's four trackers).
+pub fn seed004_scenario() -> Scenario {
+    Scenario::from_toml(
+        fusion_graph::scenario::SEED004_SCENARIO,
+        "<built-in seed 004>",
+        &[],
+    )
+    .expect("the built-in scenario is valid")
+}
+
 /// Holds other network tests of this process off while held: a network of
 /// 235 processes takes every core, and two at once slow each other into
 /// their timeouts.

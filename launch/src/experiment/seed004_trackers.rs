@@ -217,23 +217,13 @@ fn fig1_table(fig: &Fig1) -> String {
 
 /// The paper's reading of its Fig. 1, each part checked on ours.
 fn fig1_check(fig: &Fig1) -> Check {
-    let [rndex, non_iterative, iterative, consensus] =
-        [0, 1, 2, 3].map(|i| settled(&fig.rmse[i]));
+    let [rndex, non_iterative, iterative, consensus] = [0, 1, 2, 3].map(|i| settled(&fig.rmse[i]));
     let rndex_bound = settled(&fig.bounds.rndex);
     let central_bound = settled(&fig.bounds.centralized);
     let claims = [
-        (
-            "RndEx-PF's RMSE is above its PCRLB",
-            rndex > rndex_bound,
-        ),
-        (
-            "RndEx-PF beats consensus KL",
-            rndex < consensus,
-        ),
-        (
-            "non-iterative KL beats RndEx-PF",
-            non_iterative < rndex,
-        ),
+        ("RndEx-PF's RMSE is above its PCRLB", rndex > rndex_bound),
+        ("RndEx-PF beats consensus KL", rndex < consensus),
+        ("non-iterative KL beats RndEx-PF", non_iterative < rndex),
         (
             "iterative KL beats non-iterative KL",
             iterative < non_iterative,
@@ -523,8 +513,11 @@ fn draw_table(path: &Path, costs: &[Cost]) -> Result<(), Box<dyn std::error::Err
         })
         .y_desc("B/s per node")
         .draw()?;
-    let bars: [(&str, fn(&Cost) -> f64, usize); 2] =
-        [("RX", |c| c.rx, 0), ("TX, one per broadcast", |c| c.tx_broadcast, 1)];
+    type Bar = (&'static str, fn(&Cost) -> f64, usize);
+    let bars: [Bar; 2] = [
+        ("RX", |c| c.rx, 0),
+        ("TX, one per broadcast", |c| c.tx_broadcast, 1),
+    ];
     for (name, value, k) in bars {
         let colour = Palette99::pick(k).to_rgba();
         chart
