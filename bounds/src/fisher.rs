@@ -20,12 +20,21 @@ pub fn expected_information(
     measurement: Measurement<'_>,
     x: &State,
 ) -> Mat4 {
-    let e = model.evaluate(x);
-    let scalars = match measurement {
+    information_of(&model.evaluate(x), measurement)
+}
+
+/// [`expected_information`] from a model already evaluated at the state.
+#[inline]
+pub fn information_of(e: &Evaluation, measurement: Measurement<'_>) -> Mat4 {
+    assemble(&scalars_of(e, measurement), e)
+}
+
+#[inline]
+fn scalars_of(e: &Evaluation, measurement: Measurement<'_>) -> FisherScalars {
+    match measurement {
         Measurement::Raw => FisherScalars::raw(e.r),
         Measurement::Quantized(q) => q.fisher_scalars(e.g, e.r),
-    };
-    assemble(&scalars, &e)
+    }
 }
 
 /// The position block of [`expected_information`], for models whose g and R
@@ -36,11 +45,17 @@ pub fn expected_position_information(
     measurement: Measurement<'_>,
     x: &State,
 ) -> nalgebra::Matrix2<f64> {
-    let e = model.evaluate(x);
-    let s = match measurement {
-        Measurement::Raw => FisherScalars::raw(e.r),
-        Measurement::Quantized(q) => q.fisher_scalars(e.g, e.r),
-    };
+    position_information_of(&model.evaluate(x), measurement)
+}
+
+/// [`expected_position_information`] from a model already evaluated at
+/// the state.
+#[inline]
+pub fn position_information_of(
+    e: &Evaluation,
+    measurement: Measurement<'_>,
+) -> nalgebra::Matrix2<f64> {
+    let s = scalars_of(e, measurement);
     let g = e.grad_g.fixed_rows::<2>(0);
     let r = e.grad_r.fixed_rows::<2>(0);
     let gr = g * r.transpose();

@@ -74,7 +74,7 @@ impl FisherTable {
         if s < S_MIN {
             return None;
         }
-        let xu = u.rem_euclid(1.0) * U_POINTS as f64;
+        let xu = crate::modulo(u, 1.0) * U_POINTS as f64;
         let xs = (s.ln() - self.ln_s_min) / self.ln_s_step;
         let iu = xu.floor() as i64;
         // Keep the four-point stencil inside the s range.

@@ -229,7 +229,7 @@ fn offset(x: &State, sensor: [f64; 2]) -> (f64, f64, f64) {
 
 /// Wraps an angle into (−π, π].
 pub fn wrap_angle(a: f64) -> f64 {
-    let w = (a + PI).rem_euclid(2.0 * PI) - PI;
+    let w = crate::modulo(a + PI, 2.0 * PI) - PI;
     if w == -PI {
         PI
     } else {

@@ -18,8 +18,8 @@ use nalgebra::Cholesky;
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
-use crate::fisher::{expected_information, expected_position_information, Measurement};
-use crate::observation::ObservationModel;
+use crate::fisher::{information_of, position_information_of, Measurement};
+use crate::observation::{Evaluation, ObservationModel};
 use crate::{BoundError, Mat4, State};
 
 /// One sensor as the bound sees it: its model and how it reports.
@@ -78,14 +78,30 @@ pub fn observation_information(
     particles: &[State],
     weights: &[f64],
 ) -> Result<Mat4, BoundError> {
+    observation_information_visiting(sensors, particles, weights, |_, _, _| {})
+}
+
+/// [`observation_information`], handing `visit(particle, sensor, model
+/// evaluated there)` each evaluation as it goes: a filter that needs the
+/// likelihood at the same particles (the local filter over its prediction)
+/// takes it from there instead of evaluating every model twice.
+#[inline]
+pub fn observation_information_visiting(
+    sensors: &[SensorTerm<'_>],
+    particles: &[State],
+    weights: &[f64],
+    mut visit: impl FnMut(usize, usize, &Evaluation),
+) -> Result<Mat4, BoundError> {
     check_weights(particles.len(), weights)?;
     if sensors.iter().all(|s| s.model.depends_on_position_only()) {
         // Only the 2×2 position block is non-zero: accumulate just that.
         let mut total = nalgebra::Matrix2::zeros();
-        for (x, &w) in particles.iter().zip(weights) {
+        for (j, (x, &w)) in particles.iter().zip(weights).enumerate() {
             let mut per_particle = nalgebra::Matrix2::zeros();
-            for s in sensors {
-                per_particle += expected_position_information(s.model, s.measurement, x);
+            for (k, s) in sensors.iter().enumerate() {
+                let e = s.model.evaluate(x);
+                per_particle += position_information_of(&e, s.measurement);
+                visit(j, k, &e);
             }
             total += per_particle * w;
         }
@@ -94,10 +110,12 @@ pub fn observation_information(
         return Ok(symmetrized(full));
     }
     let mut total = Mat4::zeros();
-    for (x, &w) in particles.iter().zip(weights) {
+    for (j, (x, &w)) in particles.iter().zip(weights).enumerate() {
         let mut per_particle = Mat4::zeros();
-        for s in sensors {
-            per_particle += expected_information(s.model, s.measurement, x);
+        for (k, s) in sensors.iter().enumerate() {
+            let e = s.model.evaluate(x);
+            per_particle += information_of(&e, s.measurement);
+            visit(j, k, &e);
         }
         total += per_particle * w;
     }

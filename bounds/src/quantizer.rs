@@ -185,7 +185,7 @@ impl Quantizer {
     /// first wrap z into `[lo, hi)`. NaN maps to cell 0.
     pub fn encode(&self, z: f64) -> u32 {
         let z = if self.wrapped {
-            self.edges[0] + (z - self.edges[0]).rem_euclid(self.period())
+            self.edges[0] + crate::modulo(z - self.edges[0], self.period())
         } else {
             z
         };

@@ -12,8 +12,11 @@
 use std::f64::consts::PI;
 
 use bounds::censoring::{CensoringRule, Innovation};
-use bounds::fisher::{ln_cell_probability, observed_information};
-use bounds::pcrlb::{information_update, observation_information};
+use bounds::fisher::observed_information;
+use bounds::observation::Evaluation;
+use bounds::pcrlb::{
+    information_update, observation_information, observation_information_visiting,
+};
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
     ObservationModel, Quantizer, SensorTerm, State,
@@ -100,10 +103,17 @@ impl SensingModel {
     /// `ln p(y | x)` of one observation.
     pub fn ln_likelihood(&self, obs: &Observation, x: &State) -> f64 {
         let model = &self.sensors[obs.sensor as usize];
+        self.ln_likelihood_of(obs, &model.evaluate(x))
+    }
+
+    /// [`ln_likelihood`](Self::ln_likelihood) from the observing sensor's
+    /// model already evaluated at the state.
+    #[inline]
+    fn ln_likelihood_of(&self, obs: &Observation, e: &Evaluation) -> f64 {
+        let model = &self.sensors[obs.sensor as usize];
         match (obs.value, &self.quantizer) {
-            (ObservedValue::Cell(cell), Some(q)) => ln_cell_probability(model, q, cell, x),
+            (ObservedValue::Cell(cell), Some(q)) => q.ln_probability(cell, e.g, e.r),
             (ObservedValue::Raw(z), _) => {
-                let e = model.evaluate(x);
                 let r = if model.is_angular() {
                     wrap_angle(z - e.g)
                 } else {
@@ -141,6 +151,35 @@ impl SensingModel {
             })
             .collect();
         observation_information(&sensors, particles, weights)
+    }
+
+    /// [`observation_information`](Self::observation_information), and
+    /// each particle's `Σ_o ln p(o | x_j)` into `ln_likelihood`, from one
+    /// evaluation of each observing sensor's model per particle.
+    pub fn information_and_likelihood(
+        &self,
+        observations: &[Observation],
+        particles: &[State],
+        weights: &[f64],
+        ln_likelihood: &mut [f64],
+    ) -> Result<Mat4, BoundError> {
+        ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
+        let sensors: Vec<SensorTerm> = observations
+            .iter()
+            .map(|o| SensorTerm {
+                model: &self.sensors[o.sensor as usize],
+                measurement: self.measurement(),
+            })
+            .collect();
+        let information =
+            observation_information_visiting(&sensors, particles, weights, |j, k, e| {
+                ln_likelihood[j] += self.ln_likelihood_of(&observations[k], e);
+            })?;
+        Ok(if observations.is_empty() {
+            Mat4::zeros()
+        } else {
+            information
+        })
     }
 
     /// `J̄_s = Σ_j w_j J_Y,s(x_j)`: what sensor `s` would be expected to add
@@ -244,6 +283,10 @@ pub struct LocalFilter {
     bound: ConditionalBound,
     rng: ChaCha8Rng,
     prediction: PendingPrediction,
+    /// Each predicted particle's log-likelihood, taken while J_Y is
+    /// evaluated there: the updater's first stage. Kept to allocate nothing
+    /// per step.
+    first_stage: Vec<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -267,6 +310,7 @@ impl LocalFilter {
             bound: ConditionalBound::from_prior(&prior.cov)?,
             rng,
             prediction: PendingPrediction::default(),
+            first_stage: vec![0.0; particles],
         })
     }
 
@@ -310,10 +354,11 @@ impl LocalFilter {
             self.prediction
                 .take(&mut self.filter, &model.dynamics, &mut self.rng)?;
 
-        let delta_l = model.observation_information(
+        let delta_l = model.information_and_likelihood(
             observations,
             self.filter.particles(),
             self.filter.uniform_weights(),
+            &mut self.first_stage,
         )?;
         self.bound
             .advance(&terms, model.dynamics.q_inv(), &delta_l)?;
@@ -333,17 +378,31 @@ impl LocalFilter {
         }
         // The full likelihood (dissertation eq. 3.9): what arrived, and the
         // silence of every censored sensor.
-        let stages = self.filter.update_paths(&mut self.rng, |x, before| {
-            observations
+        let silence = |x: &State| silent.iter().map(|s| model.ln_silence(s, x)).sum::<f64>();
+        let late = |before: &State| {
+            lagged
                 .iter()
-                .map(|o| model.ln_likelihood(o, x))
+                .map(|o| model.ln_likelihood(o, before))
                 .sum::<f64>()
-                + silent.iter().map(|s| model.ln_silence(s, x)).sum::<f64>()
-                + lagged
-                    .iter()
-                    .map(|o| model.ln_likelihood(o, before))
-                    .sum::<f64>()
-        });
+        };
+        // The first stage's received part was taken with J_Y above; the
+        // rest is added in the same order as the later stages add it.
+        if !(silent.is_empty() && lagged.is_empty()) {
+            let paths = self.filter.particles().iter().zip(self.filter.previous());
+            for (l, (x, before)) in self.first_stage.iter_mut().zip(paths) {
+                *l = *l + silence(x) + late(before);
+            }
+        }
+        let stages =
+            self.filter
+                .update_paths_from(&mut self.rng, &self.first_stage, |x, before| {
+                    observations
+                        .iter()
+                        .map(|o| model.ln_likelihood(o, x))
+                        .sum::<f64>()
+                        + silence(x)
+                        + late(before)
+                });
         if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
         }
@@ -670,6 +729,70 @@ pub fn clip_negative_eigenvalues(lambda: &Mat4, eta: &State) -> (Mat4, State) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One evaluation per particle and sensor gives the same J_Y sum and the
+    /// same log-likelihoods, bit for bit, as evaluating each on its own, for
+    /// quantized bearings and raw RSS alike (the updater's first stage
+    /// depends on it).
+    #[test]
+    fn shared_evaluation_gives_what_separate_evaluations_give() {
+        use fusion_graph::scenario::{DEFAULT_SCENARIO, SEED004_SCENARIO};
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+
+        for (text, values) in [
+            (
+                DEFAULT_SCENARIO,
+                [ObservedValue::Cell(40), ObservedValue::Cell(200)],
+            ),
+            (
+                SEED004_SCENARIO,
+                [ObservedValue::Raw(-75.0), ObservedValue::Raw(-81.5)],
+            ),
+        ] {
+            let scenario = Scenario::from_toml(text, "s", &[]).unwrap();
+            let topology = Topology::from_scenario(&scenario, "s").unwrap();
+            let model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+            let observations = [
+                Observation {
+                    sensor: 0,
+                    value: values[0],
+                },
+                Observation {
+                    sensor: 3,
+                    value: values[1],
+                },
+            ];
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+            let spread = Normal::new(0.0, 20.0).unwrap();
+            let centre = scenario.target.initial_state();
+            let particles: Vec<State> = (0..200)
+                .map(|_| {
+                    State::new(
+                        centre[0] + spread.sample(&mut rng),
+                        centre[1] + spread.sample(&mut rng),
+                        1.0,
+                        0.0,
+                    )
+                })
+                .collect();
+            let weights = vec![1.0 / 200.0; 200];
+            let mut shared = vec![f64::NAN; 200];
+            let info = model
+                .information_and_likelihood(&observations, &particles, &weights, &mut shared)
+                .unwrap();
+            assert_eq!(
+                info,
+                model
+                    .observation_information(&observations, &particles, &weights)
+                    .unwrap()
+            );
+            for (x, l) in particles.iter().zip(&shared) {
+                let separate: f64 = observations.iter().map(|o| model.ln_likelihood(o, x)).sum();
+                assert_eq!(l.to_bits(), separate.to_bits());
+            }
+        }
+    }
 
     /// The node's ΔL is J_Y averaged over the fusion filter's prediction (the
     /// global predictive density of seed 000, eq. 55), not over the local

@@ -136,18 +136,47 @@ impl ParticleFilter {
     pub fn update_paths<R: Rng + ?Sized>(
         &mut self,
         rng: &mut R,
+        ln_likelihood: impl FnMut(&State, &State) -> f64,
+    ) -> usize {
+        self.update_stages(rng, None, ln_likelihood)
+    }
+
+    /// [`update_paths`](Self::update_paths) with the first stage's
+    /// log-likelihoods already known (`first[j]` for particle j as it
+    /// stands): the caller took them while evaluating the same models for
+    /// something else.
+    pub fn update_paths_from<R: Rng + ?Sized>(
+        &mut self,
+        rng: &mut R,
+        first: &[f64],
+        ln_likelihood: impl FnMut(&State, &State) -> f64,
+    ) -> usize {
+        self.update_stages(rng, Some(first), ln_likelihood)
+    }
+
+    fn update_stages<R: Rng + ?Sized>(
+        &mut self,
+        rng: &mut R,
+        first: Option<&[f64]>,
         mut ln_likelihood: impl FnMut(&State, &State) -> f64,
     ) -> usize {
         let floor = ESS_FLOOR * self.particles.len() as f64;
         let mut done = 0.0;
         for stage in 1..=MAX_STAGES {
-            for ((l, p), q) in self
-                .ln_likelihood
-                .iter_mut()
-                .zip(&self.particles)
-                .zip(&self.previous)
-            {
-                *l = ln_likelihood(p, q);
+            match first {
+                Some(first) if stage == 1 && first.len() == self.ln_likelihood.len() => {
+                    self.ln_likelihood.copy_from_slice(first)
+                }
+                _ => {
+                    for ((l, p), q) in self
+                        .ln_likelihood
+                        .iter_mut()
+                        .zip(&self.particles)
+                        .zip(&self.previous)
+                    {
+                        *l = ln_likelihood(p, q);
+                    }
+                }
             }
             let max = self
                 .ln_likelihood
