@@ -638,6 +638,9 @@ impl DiffusionNode {
                 .filter(|(st, _, _)| *st == step)
                 .map(|(_, _, o)| *o),
         );
+        // In sensor order, not arrival order: the likelihood sums them, and
+        // floating-point sums depend on their order.
+        s.observations.sort_by_key(|o| o.sensor);
         self.relayed.retain(|(st, _, _)| *st != step);
     }
 
