@@ -12,6 +12,7 @@ use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::estimator::{
     Contribution, Evidence, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
+use node::filter::ParticleFilter;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -84,6 +85,38 @@ fn bench(c: &mut Criterion) {
             b.iter_batched(
                 || fusion.clone(),
                 |mut f| black_box(f.step(&model, &sums).unwrap()),
+                BatchSize::LargeInput,
+            )
+        },
+    );
+    // The particle filter alone, no bound: what `bench/peers/stonesoup.sh`
+    // compares with Stone Soup's. Predict, weigh with the three quantized
+    // bearings (tempered as the node does), resample.
+    // From a tracking state, as the other benches: five steps from the prior.
+    let mut filter_rng = ChaCha8Rng::seed_from_u64(3);
+    let mut filter = ParticleFilter::from_gaussian(1000, &prior, &mut filter_rng)
+        .expect("a positive definite prior");
+    for _ in 0..5 {
+        filter.predict(&model.dynamics, &mut filter_rng);
+        filter.update(&mut filter_rng, |x| {
+            observations.iter().map(|o| model.ln_likelihood(o, x)).sum()
+        });
+        filter.resample(&mut filter_rng);
+    }
+    c.bench_function(
+        "particle filter alone: predict, 3 bearings, resample, 1000 particles",
+        |b| {
+            let mut rng = ChaCha8Rng::seed_from_u64(4);
+            b.iter_batched(
+                || filter.clone(),
+                |mut f| {
+                    f.predict(&model.dynamics, &mut rng);
+                    f.update(&mut rng, |x| {
+                        observations.iter().map(|o| model.ln_likelihood(o, x)).sum()
+                    });
+                    f.resample(&mut rng);
+                    black_box(f)
+                },
                 BatchSize::LargeInput,
             )
         },
