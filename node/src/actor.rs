@@ -802,15 +802,8 @@ impl NodeActor {
         if let (Some(c), Some(u)) = (self.censoring.as_mut(), update) {
             c.fed_back = u.posterior;
         }
-        let micros = |d: Duration| d.as_micros().min(u32::MAX as u128) as u32;
         let telemetry = Telemetry {
-            estimate: std::array::from_fn(|i| {
-                if estimate[i].is_finite() {
-                    estimate[i]
-                } else {
-                    0.0
-                }
-            }),
+            estimate: crate::reported_estimate(&estimate),
             bound: finite(update.and_then(|u| u.bound)),
             local_bound: finite(local.bound),
             aux_bound: finite(update.and_then(|u| u.aux_bound)),
@@ -822,23 +815,18 @@ impl NodeActor {
             deadline_missed: self.deadline_missed,
             late_messages: (self.late_messages - self.late_reported) as u32,
             stage_micros: [
-                micros(f.local_time),
-                micros(fusion_time),
-                micros(fused.stats.later_rounds),
-                micros(fused.stats.total),
-                micros(self.selection_time),
+                crate::micros(f.local_time),
+                crate::micros(fusion_time),
+                crate::micros(fused.stats.later_rounds),
+                crate::micros(fused.stats.total),
+                crate::micros(self.selection_time),
             ],
         };
         self.observations = 0;
         self.selection_time = Duration::ZERO;
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
-        out.push(Outgoing {
-            channel: Channel::Telemetry(self.index),
-            message: Message::new(self.id(), f.step, 0, Payload::Telemetry(telemetry)),
-            receivers: vec![ActorId::Launcher],
-            wake: None,
-        });
+        out.push(Outgoing::telemetry(self.index, f.step, telemetry));
     }
 
     /// Runs every remaining stage at once, without waiting for anyone; the

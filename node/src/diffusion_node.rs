@@ -673,15 +673,8 @@ impl DiffusionNode {
             return;
         };
         let estimate = self.tracker.estimate();
-        let micros = |d: Duration| d.as_micros().min(u32::MAX as u128) as u32;
         let telemetry = Telemetry {
-            estimate: std::array::from_fn(|i| {
-                if estimate[i].is_finite() {
-                    estimate[i]
-                } else {
-                    0.0
-                }
-            }),
+            estimate: crate::reported_estimate(&estimate),
             bound: None,
             local_bound: None,
             aux_bound: None,
@@ -693,21 +686,16 @@ impl DiffusionNode {
             deadline_missed: self.deadline_missed,
             late_messages: (self.late_messages - self.late_reported) as u32,
             stage_micros: [
-                micros(s.weigh_time),
-                micros(adopt_time),
-                micros(s.stats.later_rounds),
-                micros(s.stats.total),
+                crate::micros(s.weigh_time),
+                crate::micros(adopt_time),
+                crate::micros(s.stats.later_rounds),
+                crate::micros(s.stats.total),
                 0,
             ],
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
-        out.push(Outgoing {
-            channel: Channel::Telemetry(self.index),
-            message: Message::new(self.id(), s.step, 0, Payload::Telemetry(telemetry)),
-            receivers: vec![ActorId::Launcher],
-            wake: None,
-        });
+        out.push(Outgoing::telemetry(self.index, s.step, telemetry));
     }
 
     /// Ends an overrun step at once with what it has: no more waiting for

@@ -143,14 +143,19 @@ impl SensingModel {
         if observations.is_empty() {
             return Ok(Mat4::zeros());
         }
-        let sensors: Vec<SensorTerm> = observations
+        let sensors = self.terms(observations);
+        observation_information(&sensors, particles, weights)
+    }
+
+    /// Each observing sensor's model and how it reports.
+    fn terms(&self, observations: &[Observation]) -> Vec<SensorTerm<'_>> {
+        observations
             .iter()
             .map(|o| SensorTerm {
                 model: &self.sensors[o.sensor as usize],
                 measurement: self.measurement(),
             })
-            .collect();
-        observation_information(&sensors, particles, weights)
+            .collect()
     }
 
     /// [`observation_information`](Self::observation_information), and
@@ -164,13 +169,7 @@ impl SensingModel {
         ln_likelihood: &mut [f64],
     ) -> Result<Mat4, BoundError> {
         ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
-        let sensors: Vec<SensorTerm> = observations
-            .iter()
-            .map(|o| SensorTerm {
-                model: &self.sensors[o.sensor as usize],
-                measurement: self.measurement(),
-            })
-            .collect();
+        let sensors = self.terms(observations);
         let information =
             observation_information_visiting(&sensors, particles, weights, |j, k, e| {
                 ln_likelihood[j] += self.ln_likelihood_of(&observations[k], e);
