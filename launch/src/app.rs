@@ -352,11 +352,10 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         for e in experiment::catalogue() {
             println!("  {:<18} {}: {}", e.name, e.source, e.about);
         }
+        // Each says in its own words what it runs: some only compute, some
+        // run networks of their own (seed003-speb's sweep, seed004-table).
         for c in experiment::computed_catalogue() {
-            println!(
-                "  {:<18} {}: {} (computed, no network)",
-                c.name, c.source, c.about
-            );
+            println!("  {:<18} {}: {}", c.name, c.source, c.about);
         }
         return Ok(());
     }

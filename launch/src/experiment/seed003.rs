@@ -28,7 +28,7 @@ pub fn experiments() -> Vec<Computed> {
     vec![Computed {
         name: "seed003-speb",
         source: "seed 003, Proposition 1",
-        about: "SPEB(b) = tr((E J_Q(b) + 1/s0^2 I)^-1) + 2 alpha t(b) of the default bearing network for b = 1..16 over a 1 kbit/s sensor link, with the optimal bit depth; the delay of seed 003's packed b bits and of cqnet's whole-byte wire",
+        about: "SPEB(b) = tr((E J_Q(b) + 1/s0^2 I)^-1) + 2 alpha t(b) of the default bearing network for b = 1..16 over a 1 kbit/s sensor link, with the optimal bit depth; the delay of seed 003's packed b bits and of cqnet's whole-byte wire; and the RMSE measured in sim against bit depth over rate-limited links",
         run,
     }]
 }
