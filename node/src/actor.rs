@@ -32,7 +32,7 @@ use crate::fusion::{average_consensus, Fused, Handled, InformationFusion, Inform
 use crate::sensor_manager::{
     self, Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs,
 };
-use crate::Outgoing;
+use crate::{wiring, Outgoing};
 
 /// A node that cannot be built.
 #[derive(Debug, thiserror::Error)]
@@ -356,31 +356,17 @@ impl NodeActor {
 
     /// The channels this node reads.
     pub fn subscriptions(&self) -> Vec<Channel> {
-        let mut v = vec![Channel::Control(self.id())];
-        v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
-        v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
-        v
+        wiring::subscriptions(&self.topology, self.index)
     }
 
     /// The channels this node publishes on.
     pub fn publications(&self) -> Vec<Channel> {
-        vec![
-            Channel::Activation(self.index),
-            Channel::Consensus(self.index),
-            Channel::Telemetry(self.index),
-        ]
+        wiring::publications(self.index)
     }
 
     /// Actors this node sends to (to wake them).
     pub fn peers(&self) -> Vec<ActorId> {
-        let mut v: Vec<ActorId> = self
-            .own_sensors()
-            .iter()
-            .map(|s| ActorId::Sensor(*s))
-            .collect();
-        v.extend(self.neighbours().iter().map(|m| ActorId::Node(*m)));
-        v.push(ActorId::Launcher);
-        v
+        wiring::peers(&self.topology, self.index)
     }
 
     fn own_sensors(&self) -> &[u16] {
@@ -596,10 +582,7 @@ impl NodeActor {
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        // Only a later step of this run moves the node on. A repeated, past
-        // or impossible step (a corrupted or forged message) is dropped:
-        // coasting to step 4·10⁹ would hang the node for good.
-        if step == 0 || step > self.steps || self.last_step.is_some_and(|l| step <= l) {
+        if !wiring::is_next_step(step, self.steps, self.last_step) {
             tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
             return;
         }
@@ -724,17 +707,12 @@ impl NodeActor {
     fn activate(&mut self, step: u32, picks: Vec<usize>, now: Duration, out: &mut Vec<Outgoing>) {
         let own = &self.topology.node_sensors[self.index as usize];
         let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
-        let mask = BitMask::from_indices(picks.iter().copied());
+        let mask = wiring::mask(&picks);
         let payload = match &mut self.censoring {
             None => Payload::Activate { mask },
             Some(c) => c.activate(step, &picks, own, &self.model, mask),
         };
-        out.push(Outgoing {
-            channel: Channel::Activation(self.index),
-            message: Message::new(self.id(), step, 0, payload),
-            receivers: own.iter().map(|s| ActorId::Sensor(*s)).collect(),
-            wake: Some(active.iter().map(|s| ActorId::Sensor(*s)).collect()),
-        });
+        out.push(wiring::activation(self.index, step, own, &picks, payload));
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.phase = Phase::Collecting(Collector::new(step, active, now + self.listen, cells));
     }
@@ -803,7 +781,7 @@ impl NodeActor {
             c.fed_back = u.posterior;
         }
         let telemetry = Telemetry {
-            estimate: crate::reported_estimate(&estimate),
+            estimate: wiring::reported_estimate(&estimate),
             bound: finite(update.and_then(|u| u.bound)),
             local_bound: finite(local.bound),
             aux_bound: finite(update.and_then(|u| u.aux_bound)),
@@ -815,18 +793,18 @@ impl NodeActor {
             deadline_missed: self.deadline_missed,
             late_messages: (self.late_messages - self.late_reported) as u32,
             stage_micros: [
-                crate::micros(f.local_time),
-                crate::micros(fusion_time),
-                crate::micros(fused.stats.later_rounds),
-                crate::micros(fused.stats.total),
-                crate::micros(self.selection_time),
+                wiring::micros(f.local_time),
+                wiring::micros(fusion_time),
+                wiring::micros(fused.stats.later_rounds),
+                wiring::micros(fused.stats.total),
+                wiring::micros(self.selection_time),
             ],
         };
         self.observations = 0;
         self.selection_time = Duration::ZERO;
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
-        out.push(Outgoing::telemetry(self.index, f.step, telemetry));
+        out.push(wiring::telemetry(self.index, f.step, telemetry));
     }
 
     /// Runs every remaining stage at once, without waiting for anyone; the

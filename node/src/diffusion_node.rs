@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use fusion_graph::scenario::{ConsensusProtocol, Scenario};
 use fusion_graph::transport::Channel;
-use fusion_graph::wire::{BitMask, Control, Message, Payload, Telemetry};
+use fusion_graph::wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use rand_chacha::ChaCha8Rng;
 
@@ -30,7 +30,7 @@ use crate::fusion::{
     RandomExchange, RoundStats,
 };
 use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
-use crate::{NodeError, Outgoing, Work};
+use crate::{wiring, NodeError, Outgoing, Work};
 
 /// How a node cooperates, by the scenario's `consensus.protocol`.
 enum Cooperation {
@@ -200,11 +200,10 @@ impl DiffusionNode {
         &self.topology.neighbours[self.index as usize]
     }
 
-    /// The channels this node reads.
+    /// The channels this node reads: a CF/DPF node's, and for random
+    /// exchange each neighbour's channel to it.
     pub fn subscriptions(&self) -> Vec<Channel> {
-        let mut v = vec![Channel::Control(self.id())];
-        v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
-        v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
+        let mut v = wiring::subscriptions(&self.topology, self.index);
         if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
             v.extend(self.neighbours().iter().map(|m| Channel::Pair {
                 from: *m,
@@ -214,13 +213,10 @@ impl DiffusionNode {
         v
     }
 
-    /// The channels this node publishes on.
+    /// The channels this node publishes on: a CF/DPF node's, and for random
+    /// exchange its channel to each neighbour.
     pub fn publications(&self) -> Vec<Channel> {
-        let mut v = vec![
-            Channel::Activation(self.index),
-            Channel::Consensus(self.index),
-            Channel::Telemetry(self.index),
-        ];
+        let mut v = wiring::publications(self.index);
         if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
             v.extend(self.neighbours().iter().map(|m| Channel::Pair {
                 from: self.index,
@@ -232,14 +228,7 @@ impl DiffusionNode {
 
     /// Actors this node sends to (to wake them).
     pub fn peers(&self) -> Vec<ActorId> {
-        let mut v: Vec<ActorId> = self
-            .own_sensors()
-            .iter()
-            .map(|s| ActorId::Sensor(*s))
-            .collect();
-        v.extend(self.neighbours().iter().map(|m| ActorId::Node(*m)));
-        v.push(ActorId::Launcher);
-        v
+        wiring::peers(&self.topology, self.index)
     }
 
     pub fn is_idle(&self) -> bool {
@@ -410,8 +399,7 @@ impl DiffusionNode {
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        // As the CF/DPF node: only a later step of this run moves it on.
-        if step == 0 || step > self.steps || self.last_step.is_some_and(|l| step <= l) {
+        if !wiring::is_next_step(step, self.steps, self.last_step) {
             tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
             return;
         }
@@ -436,19 +424,14 @@ impl DiffusionNode {
             node_sensors: &self.topology.node_sensors,
         });
         let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
-        out.push(Outgoing {
-            channel: Channel::Activation(self.index),
-            message: Message::new(
-                self.id(),
-                step,
-                0,
-                Payload::Activate {
-                    mask: BitMask::from_indices(picks.iter().copied()),
-                },
-            ),
-            receivers: own.iter().map(|s| ActorId::Sensor(*s)).collect(),
-            wake: Some(active.iter().map(|s| ActorId::Sensor(*s)).collect()),
-        });
+        let mask = wiring::mask(&picks);
+        out.push(wiring::activation(
+            self.index,
+            step,
+            &own,
+            &picks,
+            Payload::Activate { mask },
+        ));
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.stepping = Some(Box::new(Stepping {
             step,
@@ -674,7 +657,7 @@ impl DiffusionNode {
         };
         let estimate = self.tracker.estimate();
         let telemetry = Telemetry {
-            estimate: crate::reported_estimate(&estimate),
+            estimate: wiring::reported_estimate(&estimate),
             bound: None,
             local_bound: None,
             aux_bound: None,
@@ -686,16 +669,16 @@ impl DiffusionNode {
             deadline_missed: self.deadline_missed,
             late_messages: (self.late_messages - self.late_reported) as u32,
             stage_micros: [
-                crate::micros(s.weigh_time),
-                crate::micros(adopt_time),
-                crate::micros(s.stats.later_rounds),
-                crate::micros(s.stats.total),
+                wiring::micros(s.weigh_time),
+                wiring::micros(adopt_time),
+                wiring::micros(s.stats.later_rounds),
+                wiring::micros(s.stats.total),
                 0,
             ],
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
-        out.push(Outgoing::telemetry(self.index, s.step, telemetry));
+        out.push(wiring::telemetry(self.index, s.step, telemetry));
     }
 
     /// Ends an overrun step at once with what it has: no more waiting for

@@ -29,6 +29,7 @@ pub mod fusion;
 pub mod gate;
 pub mod processing;
 pub mod sensor_manager;
+mod wiring;
 
 #[cfg(test)]
 mod harness;
@@ -42,7 +43,7 @@ pub use estimator::{
 pub use processing::ProcessingNode;
 
 use fusion_graph::transport::Channel;
-use fusion_graph::wire::{Message, Payload, Telemetry};
+use fusion_graph::wire::Message;
 use fusion_graph::ActorId;
 
 /// A message to publish.
@@ -54,33 +55,4 @@ pub struct Outgoing {
     /// Whom to wake, when not every receiver: the activation reaches all of
     /// a node's sensors but wakes only the active ones.
     pub wake: Option<Vec<ActorId>>,
-}
-
-impl Outgoing {
-    /// A node's telemetry for `step`, to the launcher.
-    pub(crate) fn telemetry(node: u16, step: u32, telemetry: Telemetry) -> Self {
-        Self {
-            channel: Channel::Telemetry(node),
-            message: Message::new(ActorId::Node(node), step, 0, Payload::Telemetry(telemetry)),
-            receivers: vec![ActorId::Launcher],
-            wake: None,
-        }
-    }
-}
-
-/// A stage's time for telemetry: whole microseconds, saturating.
-pub(crate) fn micros(d: std::time::Duration) -> u32 {
-    d.as_micros().min(u32::MAX as u128) as u32
-}
-
-/// An estimate for telemetry: a component that is not finite is sent as 0
-/// (the wire carries no NaN the launcher would have to guard against).
-pub(crate) fn reported_estimate(estimate: &bounds::State) -> [f64; 4] {
-    std::array::from_fn(|i| {
-        if estimate[i].is_finite() {
-            estimate[i]
-        } else {
-            0.0
-        }
-    })
 }

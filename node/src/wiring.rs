@@ -1,0 +1,112 @@
+//! What either processing node (the CF/DPF's [`NodeActor`](crate::NodeActor)
+//! or seed 004's [`DiffusionNode`](crate::DiffusionNode)) reads, publishes
+//! on and wakes, and the messages both send alike: the activation of their
+//! sensors and the step's telemetry.
+
+use std::time::Duration;
+
+use bounds::State;
+use fusion_graph::transport::Channel;
+use fusion_graph::wire::{BitMask, Message, Payload, Telemetry};
+use fusion_graph::{ActorId, Topology};
+
+use crate::Outgoing;
+
+/// The channels node `index` reads: its control, its sensors' observations
+/// and its neighbours' consensus channels.
+pub(crate) fn subscriptions(topology: &Topology, index: u16) -> Vec<Channel> {
+    let mut v = vec![Channel::Control(ActorId::Node(index))];
+    v.extend(
+        topology.node_sensors[index as usize]
+            .iter()
+            .map(|s| Channel::Observation(*s)),
+    );
+    v.extend(
+        topology.neighbours[index as usize]
+            .iter()
+            .map(|m| Channel::Consensus(*m)),
+    );
+    v
+}
+
+/// The channels node `index` publishes on.
+pub(crate) fn publications(index: u16) -> Vec<Channel> {
+    vec![
+        Channel::Activation(index),
+        Channel::Consensus(index),
+        Channel::Telemetry(index),
+    ]
+}
+
+/// The actors node `index` sends to (to wake them): its sensors, its
+/// neighbours, the launcher.
+pub(crate) fn peers(topology: &Topology, index: u16) -> Vec<ActorId> {
+    let mut v: Vec<ActorId> = topology.node_sensors[index as usize]
+        .iter()
+        .map(|s| ActorId::Sensor(*s))
+        .collect();
+    v.extend(
+        topology.neighbours[index as usize]
+            .iter()
+            .map(|m| ActorId::Node(*m)),
+    );
+    v.push(ActorId::Launcher);
+    v
+}
+
+/// Whether a `BeginStep` for `step` moves a node on: only a later step of
+/// this run does. A repeated, past or impossible step (a corrupted or
+/// forged message) is dropped: coasting to step 4·10⁹ would hang the node
+/// for good.
+pub(crate) fn is_next_step(step: u32, steps: u32, last: Option<u32>) -> bool {
+    step != 0 && step <= steps && last.is_none_or(|l| step > l)
+}
+
+/// The activation of `picks` (positions in `own`, the node's sensors): it
+/// reaches every own sensor's queue and wakes the active ones.
+pub(crate) fn activation(
+    node: u16,
+    step: u32,
+    own: &[u16],
+    picks: &[usize],
+    payload: Payload,
+) -> Outgoing {
+    Outgoing {
+        channel: Channel::Activation(node),
+        message: Message::new(ActorId::Node(node), step, 0, payload),
+        receivers: own.iter().map(|s| ActorId::Sensor(*s)).collect(),
+        wake: Some(picks.iter().map(|&i| ActorId::Sensor(own[i])).collect()),
+    }
+}
+
+/// The mask of `picks` for an activation's payload.
+pub(crate) fn mask(picks: &[usize]) -> BitMask {
+    BitMask::from_indices(picks.iter().copied())
+}
+
+/// A node's telemetry for `step`, to the launcher.
+pub(crate) fn telemetry(node: u16, step: u32, telemetry: Telemetry) -> Outgoing {
+    Outgoing {
+        channel: Channel::Telemetry(node),
+        message: Message::new(ActorId::Node(node), step, 0, Payload::Telemetry(telemetry)),
+        receivers: vec![ActorId::Launcher],
+        wake: None,
+    }
+}
+
+/// A stage's time for telemetry: whole microseconds, saturating.
+pub(crate) fn micros(d: Duration) -> u32 {
+    d.as_micros().min(u32::MAX as u128) as u32
+}
+
+/// An estimate for telemetry: a component that is not finite is sent as 0
+/// (the wire carries no NaN the launcher would have to guard against).
+pub(crate) fn reported_estimate(estimate: &State) -> [f64; 4] {
+    std::array::from_fn(|i| {
+        if estimate[i].is_finite() {
+            estimate[i]
+        } else {
+            0.0
+        }
+    })
+}
