@@ -170,14 +170,8 @@ impl SensingModel {
     ) -> Result<Mat4, BoundError> {
         ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
         let sensors = self.terms(observations);
-        let information =
-            observation_information_visiting(&sensors, particles, weights, |j, k, e| {
-                ln_likelihood[j] += self.ln_likelihood_of(&observations[k], e);
-            })?;
-        Ok(if observations.is_empty() {
-            Mat4::zeros()
-        } else {
-            information
+        observation_information_visiting(&sensors, particles, weights, |j, k, e| {
+            ln_likelihood[j] += self.ln_likelihood_of(&observations[k], e);
         })
     }
 
