@@ -7,14 +7,12 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use anyhow::Context;
 use bounds::bit_allocation::{dissertation_problem, estimator_mses, Allocation, Problem};
 use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{Check, Computed, ComputedReport, Options};
-use crate::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -80,20 +78,15 @@ fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     for row in &mut r12 {
         row.mses = Some(estimator_mses(&problem, &row.ours, DRAWS, &mut rng));
     }
-    let csv = dir.join("bit-allocation.csv");
-    let svg = dir.join("bit-allocation.svg");
-    write_atomically(&csv, table_csv(&[(20, &r20), (12, &r12)]).as_bytes())?;
-    draw(&svg, &[(20, &r20), (12, &r12)])
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .with_context(|| format!("drawing {}", svg.display()))?;
-    let table = format!("{}\n{}", print_5_1(&r20), print_5_2(&r12));
-    let check = check(&problem, &r20, &r12);
-    Ok(ComputedReport {
-        check,
-        csv,
-        svg,
-        table,
-    })
+    let tables = [(20, &r20[..]), (12, &r12[..])];
+    ComputedReport::write(
+        dir,
+        "bit-allocation",
+        &table_csv(&tables),
+        |svg| draw(svg, &tables),
+        check(&problem, &r20, &r12),
+        format!("{}\n{}", print_5_1(&r20), print_5_2(&r12)),
+    )
 }
 
 fn rows(problem: &Problem, budget: u32, theirs: impl Fn((u32, u32)) -> Option<f64>) -> Vec<Row> {

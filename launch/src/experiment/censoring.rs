@@ -27,7 +27,6 @@ use rand_distr::StandardNormal;
 use super::{
     Arm, Check, Computed, ComputedReport, Curve, Experiment, Figure, Options, Outcome, Series,
 };
-use crate::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -355,16 +354,14 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
             });
         }
     }
-    let csv = dir.join("censoring-tables.csv");
-    let svg = dir.join("censoring-tables.svg");
-    write_atomically(&csv, table_csv(&rows).as_bytes())?;
-    draw(&svg, &rows).map_err(|e| anyhow::anyhow!("drawing {}: {e}", svg.display()))?;
-    Ok(ComputedReport {
-        check: check(&rows),
-        csv,
-        svg,
-        table: print(&rows),
-    })
+    ComputedReport::write(
+        dir,
+        "censoring-tables",
+        &table_csv(&rows),
+        |svg| draw(svg, &rows),
+        check(&rows),
+        print(&rows),
+    )
 }
 
 fn name(scheme: Feedback) -> &'static str {

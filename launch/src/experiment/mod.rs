@@ -220,6 +220,32 @@ pub struct ComputedReport {
     pub table: String,
 }
 
+impl ComputedReport {
+    /// Writes `<dir>/<name>.csv` and draws `<dir>/<name>.svg`: how every
+    /// computed experiment ends.
+    pub fn write(
+        dir: &std::path::Path,
+        name: &str,
+        csv: &str,
+        draw: impl FnOnce(&std::path::Path) -> Result<(), Box<dyn std::error::Error>>,
+        check: Check,
+        table: String,
+    ) -> anyhow::Result<Self> {
+        let csv_path = dir.join(format!("{name}.csv"));
+        let svg = dir.join(format!("{name}.svg"));
+        write_atomically(&csv_path, csv.as_bytes())?;
+        draw(&svg)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .with_context(|| format!("drawing {}", svg.display()))?;
+        Ok(Self {
+            check,
+            csv: csv_path,
+            svg,
+            table,
+        })
+    }
+}
+
 /// Every computed experiment.
 pub fn computed_catalogue() -> Vec<Computed> {
     let mut all = allocation::experiments();

@@ -94,24 +94,20 @@ impl Depth {
 fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let depths = bound_per_depth().context("the SPEB over bit depths")?;
     let measured = measure(options, dir).context("the RMSE over bit depths")?;
-    let csv = dir.join("seed003-speb.csv");
-    let svg = dir.join("seed003-speb.svg");
-    write_atomically(&csv, table_csv(&depths).as_bytes())?;
     write_atomically(
         &dir.join("seed003-rmse.csv"),
         measured_csv(&measured).as_bytes(),
     )?;
-    draw(&svg, &depths, &measured)
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .with_context(|| format!("drawing {}", svg.display()))?;
     let mut table = print(&depths);
     table.push_str(&print_measured(&measured));
-    Ok(ComputedReport {
-        check: check(&depths, &measured),
-        csv,
-        svg,
+    ComputedReport::write(
+        dir,
+        "seed003-speb",
+        &table_csv(&depths),
+        |svg| draw(svg, &depths, &measured),
+        check(&depths, &measured),
         table,
-    })
+    )
 }
 
 /// The network's RMSE for each depth and link rate: the default scenario,

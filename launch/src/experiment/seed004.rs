@@ -17,7 +17,6 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{Check, Computed, ComputedReport, Options};
-use crate::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -57,20 +56,14 @@ fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         .iter()
         .map(|&size| Curves::compute(&scenario, size))
         .collect::<anyhow::Result<_>>()?;
-
-    std::fs::create_dir_all(dir)?;
-    let csv = dir.join("seed004-bounds.csv");
-    let svg = dir.join("seed004-bounds.svg");
-    write_atomically(&csv, to_csv(&curves).as_bytes())?;
-    draw(&svg, &curves)
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .with_context(|| format!("drawing {}", svg.display()))?;
-    Ok(ComputedReport {
-        check: check(&curves),
-        csv,
-        svg,
-        table: print(&curves),
-    })
+    ComputedReport::write(
+        dir,
+        "seed004-bounds",
+        &to_csv(&curves),
+        |svg| draw(svg, &curves),
+        check(&curves),
+        print(&curves),
+    )
 }
 
 /// Both bounds, metres, from step 0 to the last.

@@ -18,7 +18,7 @@ use plotters::prelude::*;
 use super::seed004::{draw_lines, Curves};
 use super::{Check, Computed, ComputedReport, Options};
 use crate::montecarlo::run_monte_carlo;
-use crate::results::{write_atomically, AVERAGE_FROM_STEP};
+use crate::results::AVERAGE_FROM_STEP;
 
 pub fn experiments() -> Vec<Computed> {
     vec![
@@ -139,10 +139,6 @@ fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         size,
         runs: options.runs,
     };
-    std::fs::create_dir_all(dir)?;
-    let csv = dir.join("seed004-fig1.csv");
-    let svg = dir.join("seed004-fig1.svg");
-    write_atomically(&csv, fig1_csv(&fig).as_bytes())?;
     let mut lines: Vec<(String, &[f64])> = TRACKERS
         .iter()
         .zip(&fig.rmse)
@@ -151,20 +147,21 @@ fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     lines.push(("centralized PF RMSE".into(), &fig.centralized_rmse[..]));
     lines.push(("RndEx-PF PCRLB".into(), &fig.bounds.rndex[..]));
     lines.push(("centralized PCRLB".into(), &fig.bounds.centralized[..]));
-    draw_lines(
-        &svg,
-        "seed004-fig1: RMS position error, 25 RSS nodes",
-        "position error, m",
-        &lines,
+    ComputedReport::write(
+        dir,
+        "seed004-fig1",
+        &fig1_csv(&fig),
+        |svg| {
+            draw_lines(
+                svg,
+                "seed004-fig1: RMS position error, 25 RSS nodes",
+                "position error, m",
+                &lines,
+            )
+        },
+        fig1_check(&fig),
+        fig1_table(&fig),
     )
-    .map_err(|e| anyhow::anyhow!("{e}"))
-    .with_context(|| format!("drawing {}", svg.display()))?;
-    Ok(ComputedReport {
-        check: fig1_check(&fig),
-        csv,
-        svg,
-        table: fig1_table(&fig),
-    })
 }
 
 fn fig1_csv(fig: &Fig1) -> String {
@@ -324,19 +321,14 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         );
         costs.push(measure(&scenario, &topology, &out)?);
     }
-    std::fs::create_dir_all(dir)?;
-    let csv = dir.join("seed004-table.csv");
-    let svg = dir.join("seed004-table.svg");
-    write_atomically(&csv, table_csv(&costs).as_bytes())?;
-    draw_table(&svg, &costs)
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .with_context(|| format!("drawing {}", svg.display()))?;
-    Ok(ComputedReport {
-        check: table_check(&costs),
-        csv,
-        svg,
-        table: table_text(&costs, steps),
-    })
+    ComputedReport::write(
+        dir,
+        "seed004-table",
+        &table_csv(&costs),
+        |svg| draw_table(svg, &costs),
+        table_check(&costs),
+        table_text(&costs, steps),
+    )
 }
 
 /// Runs one tracker's network and reads its costs back.
