@@ -372,11 +372,14 @@ fn name(scheme: Feedback) -> &'static str {
 }
 
 /// The trials of one row, spread over threads; each trial's randomness
-/// depends on its index alone, so the result does not depend on `threads`,
-/// and both schemes see the same trajectories and noise.
+/// depends on its index alone, and they are summed in index order, so the
+/// result does not depend on `threads` or on which thread ran what, and
+/// both schemes see the same trajectories and noise. (Summed in finishing
+/// order, the means, multiples of 1/(20 · trials), fell on the printed
+/// tables' rounding boundary and changed from run to run.)
 fn measure(setup: &Setup, rule: &CensoringRule, scheme: Feedback, threads: usize) -> Measured {
     let next = AtomicU32::new(0);
-    let results: Vec<Vec<Trial>> = std::thread::scope(|scope| {
+    let results: Vec<Vec<(u32, Trial)>> = std::thread::scope(|scope| {
         let workers: Vec<_> = (0..threads)
             .map(|_| {
                 scope.spawn(|| {
@@ -387,7 +390,7 @@ fn measure(setup: &Setup, rule: &CensoringRule, scheme: Feedback, threads: usize
                         if trial >= setup.trials {
                             break done;
                         }
-                        done.push(filter.run(setup, rule, scheme, trial));
+                        done.push((trial, filter.run(setup, rule, scheme, trial)));
                     }
                 })
             })
@@ -397,7 +400,9 @@ fn measure(setup: &Setup, rule: &CensoringRule, scheme: Feedback, threads: usize
             .map(|w| w.join().expect("a trial panicked"))
             .collect()
     });
-    let trials: Vec<Trial> = results.into_iter().flatten().collect();
+    let mut indexed: Vec<(u32, Trial)> = results.into_iter().flatten().collect();
+    indexed.sort_by_key(|(trial, _)| *trial);
+    let trials: Vec<Trial> = indexed.into_iter().map(|(_, t)| t).collect();
     let n = trials.len() as f64;
     // l̄ per trial (the mean over its steps) as the sample, so the standard
     // error respects the correlation between a trial's steps.
