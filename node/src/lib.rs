@@ -16,7 +16,8 @@
 //! - [`actor`]: the CF/DPF node's state machine, tying them together;
 //! - [`diffusion_node`]: seed 004's node, one filter and a Gaussian to
 //!   exchange or fuse;
-//! - [`processing`]: either node behind one face, as the scenario says.
+//! - [`processing`]: either node behind one face, as the scenario says;
+//!   `wiring` holds what both nodes read, publish and send alike.
 
 pub mod actor;
 pub mod centralized;
