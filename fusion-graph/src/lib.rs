@@ -5,6 +5,7 @@
 pub mod accounting;
 pub mod actor;
 pub mod faults;
+pub mod hosts;
 pub mod ledger;
 pub mod models;
 pub mod scenario;

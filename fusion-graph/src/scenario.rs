@@ -41,6 +41,10 @@ pub struct Scenario {
     pub censoring: CensoringConfig,
     #[serde(default)]
     pub faults: Vec<Fault>,
+    /// Several hosts (`cqnet agent` on each): which nodes, with their
+    /// sensors, each runs. Empty: one host.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<crate::hosts::HostConfig>,
 }
 
 /// Censoring at the sensor: of the `active_per_node` sensors a node

@@ -124,6 +124,7 @@ impl Topology {
                 }
             }
         }
+        crate::hosts::Placement::from_scenario(s, &topology, file, false)?;
         Ok(topology)
     }
 

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
+use fusion_graph::hosts::Placement;
 use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
@@ -78,6 +79,9 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
         sweep,
     )?;
     transport.keep_counts_in(&ledger_path(&out, actor))?;
+    if let Some(p) = Placement::from_scenario(&scenario, &topology, "", args.centralized)? {
+        transport.place_on(&p, p.host_of(actor));
+    }
     match actor {
         ActorId::Sensor(i) => {
             sensor_loop(&scenario, &topology, transport, i, &out, args.centralized)

@@ -132,6 +132,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 run_id,
                 centralized: scenario.reference.centralized && !args.no_central,
                 view: None,
+                local_agents: args.local_agents,
             };
             let view = args
                 .view
@@ -184,6 +185,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Fuzz(args) => fuzz(&args),
         Command::Soak(args) => soak(&args),
         Command::Actor(args) => crate::actor_process::run_actor(&args),
+        #[cfg(feature = "zenoh")]
+        Command::Agent(args) => crate::hosts::agent::run_agent(&args),
     }
     .context("cqnet")
 }
@@ -210,6 +213,7 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         run_id,
         centralized: false,
         view: None,
+        local_agents: false,
     };
     let result = crate::network::run_network(&scenario, &topology, options, move |p| {
         if let RunProgress::Step { step: s, rows } = p {

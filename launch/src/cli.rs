@@ -50,6 +50,10 @@ pub enum Command {
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
     Actor(ActorArgs),
+    /// Serve one host of a multi-host scenario (its `[[hosts]]`): start
+    /// this host's actors and bridge when a launcher asks.
+    #[cfg(feature = "zenoh")]
+    Agent(crate::hosts::agent::AgentArgs),
 }
 
 #[derive(Debug, Args, Clone)]
@@ -101,6 +105,10 @@ pub struct RunArgs {
     /// The view's port (0: any free port).
     #[arg(long, default_value_t = 0, requires = "view")]
     pub view_port: u16,
+    /// A scenario with `[[hosts]]`: start every host's agent on this
+    /// machine (simulated hosts) instead of reaching agents already running.
+    #[arg(long)]
+    pub local_agents: bool,
 }
 
 #[derive(Debug, Args)]

@@ -7,6 +7,8 @@ pub mod cli;
 pub mod drive;
 pub mod experiment;
 pub mod fuzz;
+#[cfg(feature = "zenoh")]
+pub mod hosts;
 pub mod montecarlo;
 pub mod network;
 pub mod preflight;

@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
+use fusion_graph::hosts::Placement;
 use fusion_graph::ledger::{read_ledger, LedgerError};
 use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
 use fusion_graph::transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
@@ -40,6 +41,8 @@ pub struct RunOptions {
     pub centralized: bool,
     /// Where to publish the live view's events, if it is served.
     pub view: Option<Arc<Hub>>,
+    /// A scenario with `[[hosts]]`: start every host's agent here.
+    pub local_agents: bool,
 }
 
 /// What the launcher tells its caller as the run goes.
@@ -94,6 +97,13 @@ pub fn run_network(
     std::fs::create_dir_all(options.out.join("accounting"))?;
     let scenario_file = options.out.join("scenario.toml");
     write_atomically(&scenario_file, scenario.to_toml().as_bytes())?;
+    let placement = Placement::from_scenario(scenario, topology, "", options.centralized)?;
+    if placement.is_some() && !cfg!(feature = "zenoh") {
+        bail!("this scenario has [[hosts]]: several hosts need cqnet built with `--features zenoh`");
+    }
+    if placement.is_none() && options.local_agents {
+        bail!("--local-agents: the scenario has no [[hosts]] to start agents for");
+    }
     let spec = ChildSpec {
         executable: std::env::current_exe().context("finding the cqnet executable")?,
         run_id: options.run_id.as_str().to_string(),
@@ -103,6 +113,9 @@ pub fn run_network(
     };
     let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
     let (event_tx, event_rx) = std::sync::mpsc::channel();
+    let options_local_agents = options.local_agents;
+    #[cfg_attr(not(feature = "zenoh"), allow(unused_variables))]
+    let out = options.out.clone();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
@@ -110,12 +123,14 @@ pub fn run_network(
     let world_scenario = scenario.clone();
     let world_topology = topology.clone();
     let run_id = options.run_id.clone();
+    let world_placement = placement.clone();
     let world = std::thread::Builder::new()
         .name("world".into())
         .spawn(move || {
             let result = world_thread(
                 &world_scenario,
                 &world_topology,
+                world_placement.as_ref(),
                 &options,
                 &command_tx,
                 &event_rx,
@@ -131,11 +146,51 @@ pub fn run_network(
         .context("starting the world thread")?;
     // Children are spawned from this (the main) thread, which lives until
     // they are all reaped: their parent-death signal is tied to it.
-    runtime.block_on(supervise(spec, command_rx, event_tx));
+    match &placement {
+        None => runtime.block_on(supervise(spec, command_rx, event_tx)),
+        #[cfg(feature = "zenoh")]
+        Some(placement) => {
+            let hosts = crate::hosts::remote::HostsRun {
+                placement: placement.clone(),
+                topology: topology.clone(),
+                run: run_id.as_str().into(),
+                scenario: scenario.to_toml(),
+                centralized: spec.centralized,
+            };
+            let agents = options_local_agents
+                .then(|| crate::hosts::remote::LocalAgents::start(placement, &spec.scenario_file, &out))
+                .transpose()?;
+            let supervised =
+                crate::hosts::remote::supervise_hosts(hosts, command_rx, event_tx.clone());
+            if let Err(e) = &supervised {
+                tracing::error!(error = %format!("{e:#}"), "could not reach the hosts");
+                let _ = event_tx.send(Event::AllReaped);
+            }
+            if let Some(agents) = agents {
+                agents.reap(Duration::from_secs(10));
+            }
+        }
+        #[cfg(not(feature = "zenoh"))]
+        Some(_) => unreachable!("refused above"),
+    }
     let (result, _) = world
         .join()
         .map_err(|_| anyhow::anyhow!("the world thread panicked"))?;
-    remove_run_resources(&run_id).context("removing the run's shared memory")?;
+    match &placement {
+        None => remove_run_resources(&run_id).context("removing the run's shared memory")?,
+        Some(p) => {
+            // The launcher's host's domain holds the launcher's own ports:
+            // its agent leaves it to us. Local agents' domains are on this
+            // machine too, and removed whatever became of their agents.
+            for h in 0..p.hosts().len() {
+                if h == p.host_of(ActorId::Launcher) || options_local_agents {
+                    remove_run_resources(&p.domain(&run_id, h))
+                        .context("removing the run's shared memory")?;
+                }
+            }
+            0
+        }
+    };
     result
 }
 
@@ -175,12 +230,15 @@ struct WorldState<'a> {
     interrupted: bool,
     /// The membership view each node was last told.
     views: Vec<Vec<bool>>,
+    /// Actors of a lost host whose agent is back, to start again.
+    returning: Vec<ActorId>,
 }
 
 /// The world thread: the launcher's network side, from spawning to results.
 fn world_thread(
     scenario: &Scenario,
     topology: &Topology,
+    placement: Option<&Placement>,
     options: &RunOptions,
     commands: &UnboundedSender<Command>,
     events: &Receiver<Event>,
@@ -189,13 +247,22 @@ fn world_thread(
     let started = Instant::now();
     let mut writer = ResultsWriter::create(&options.out)?;
     let mut recorder = Recorder::new(&mut writer, scenario, topology);
+    // On several hosts the launcher's ports are in its host's domain, and
+    // it wakes the actors of the others through that host's bridge.
+    let domain = match placement {
+        Some(p) => p.domain(&options.run_id, p.host_of(ActorId::Launcher)),
+        None => options.run_id.clone(),
+    };
     let mut t = IceoryxTransport::new(
-        &options.run_id,
+        &domain,
         ActorId::Launcher,
         topology,
         scenario.wire_format(topology),
         link_fault_seed(scenario.seed, ActorId::Launcher),
     )?;
+    if let Some(p) = placement {
+        t.place_on(p, p.host_of(ActorId::Launcher));
+    }
     // The launcher creates the services everyone shares before anyone else opens them.
     t.publish_on(Channel::Tick)?;
     for n in 0..topology.nodes() as u16 {
@@ -223,6 +290,7 @@ fn world_thread(
         step: 0,
         interrupted: false,
         views: Vec::new(),
+        returning: Vec::new(),
     };
     let view = options.view.as_deref();
     if let Some(hub) = view {
@@ -272,7 +340,9 @@ fn world_thread(
 
     for step in 1..=scenario.steps {
         w.step = step;
-        let process_faults = w.apply_process_faults(&schedule, step)?;
+        w.poll_events();
+        let returned = w.restart_returning()?;
+        let process_faults = w.apply_process_faults(&schedule, step)? || returned;
         schedule.apply_link_faults(step, &mut w.transport, topology);
         let views = schedule.membership_views(step, topology, &w.alive);
         let truth = world.advance();
@@ -431,7 +501,11 @@ fn world_thread(
         seconds = started.elapsed().as_secs_f64(),
         "actors stopped"
     );
-    let accounting = merge_accounting(&options.out, topology, w.transport.accounting());
+    let mut accounting = merge_accounting(&options.out, topology, w.transport.accounting());
+    if let Some(p) = placement {
+        let bridges = w.collect_host_counts(&mut accounting);
+        write_hosts_report(&options.out, p, &accounting, &bridges)?;
+    }
     let summary = recorder.finish(
         &accounting,
         RunFacts {
@@ -504,7 +578,8 @@ impl WorldState<'_> {
                 }
                 // Another actor died while a restarted one was starting: a
                 // fault of the run like any other, not a failed start.
-                Ok(e @ Event::Exited { .. }) => self.handle_event(e),
+                Ok(e @ (Event::Exited { .. } | Event::HostBack(_))) => self.handle_event(e),
+                Ok(Event::Counts { .. }) => {}
                 Ok(Event::Interrupted) => bail!("interrupted while starting"),
                 Ok(Event::AllReaped) => bail!("the supervisor stopped"),
                 Err(_) => {
@@ -545,8 +620,63 @@ impl WorldState<'_> {
                 self.set_alive(actor, false);
             }
             Event::Interrupted => self.interrupted = true,
+            Event::HostBack(actors) => self.returning.extend(actors),
             _ => {}
         }
+    }
+
+    /// Starts again the actors of a host that came back, as a scheduled
+    /// restart would: rejoining, and in the membership from this step.
+    fn restart_returning(&mut self) -> anyhow::Result<bool> {
+        let actors = std::mem::take(&mut self.returning);
+        if actors.is_empty() {
+            return Ok(false);
+        }
+        for a in &actors {
+            self.dead.remove(a);
+            self.expected_exits.remove(a);
+            self.commands.send(Command::Spawn {
+                actor: *a,
+                rejoin: true,
+            })?;
+        }
+        self.await_ready(&actors, &mut |_| {})?;
+        self.transport.update_connections();
+        for a in actors {
+            self.set_alive(a, true);
+        }
+        Ok(true)
+    }
+
+    /// Several hosts: every host's actors' counts, merged into `total`, and
+    /// each bridge's own counts.
+    fn collect_host_counts(
+        &mut self,
+        total: &mut Accounting,
+    ) -> Vec<(String, fusion_graph::hosts::BridgeCounts)> {
+        if self.commands.send(Command::Collect).is_err() {
+            return Vec::new();
+        }
+        let deadline = Instant::now() + Duration::from_secs(15);
+        while Instant::now() < deadline {
+            match self.events.recv_timeout(Duration::from_millis(50)) {
+                Ok(Event::Counts {
+                    accounting_csv,
+                    bridges,
+                }) => {
+                    match Accounting::from_csv(&accounting_csv) {
+                        Some(a) => total.merge(&a),
+                        None => tracing::warn!("the hosts' byte counts did not parse"),
+                    }
+                    return bridges;
+                }
+                Ok(e) => self.handle_event(e),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => break,
+            }
+        }
+        tracing::warn!("no byte counts from the hosts");
+        Vec::new()
     }
 
     fn apply_process_faults(
@@ -637,6 +767,48 @@ pub fn traffic_poller(
             });
         }
     })
+}
+
+/// `hosts.json`: the bytes of cqnet's messages between hosts, by pair of
+/// hosts (from the actors' own counts), and what each bridge moved and its
+/// TCP sockets carried.
+fn write_hosts_report(
+    out: &Path,
+    placement: &Placement,
+    accounting: &Accounting,
+    bridges: &[(String, fusion_graph::hosts::BridgeCounts)],
+) -> anyhow::Result<()> {
+    let mut pairs = Vec::new();
+    let name = |a: ActorId| placement.hosts()[placement.host_of(a)].name.clone();
+    let mut by_pair: BTreeMap<(String, String), [u64; 4]> = BTreeMap::new();
+    for ((from, to, _), c) in accounting.iter() {
+        if placement.crosses(*from, *to) {
+            let e = by_pair.entry((name(*from), name(*to))).or_default();
+            e[0] += c.sent_messages;
+            e[1] += c.sent_bytes;
+            e[2] += c.received_messages;
+            e[3] += c.received_bytes;
+        }
+    }
+    for ((from, to), [sm, sb, rm, rb]) in by_pair {
+        pairs.push(serde_json::json!({
+            "from": from, "to": to,
+            "sent_messages": sm, "sent_bytes": sb,
+            "received_messages": rm, "received_bytes": rb,
+        }));
+    }
+    let report = serde_json::json!({
+        "hosts": placement.hosts().iter().map(|h| serde_json::json!({
+            "name": h.name, "endpoint": h.endpoint, "nodes": h.nodes,
+        })).collect::<Vec<_>>(),
+        "between_hosts": pairs,
+        "bridges": bridges.iter().map(|(h, c)| serde_json::json!({ "host": h, "counts": c })).collect::<Vec<_>>(),
+    });
+    write_atomically(
+        &out.join("hosts.json"),
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+    )?;
+    Ok(())
 }
 
 /// The children's memory, as each last wrote it.

@@ -38,6 +38,10 @@ pub enum Command {
     Continue {
         actor: ActorId,
     },
+    /// Several hosts: send the byte counts of every host's actors and
+    /// bridge ([`Event::Counts`]). One host's supervisor has none to send:
+    /// its children's ledgers are on this machine.
+    Collect,
     /// Every child should be exiting now: wait, then terminate the rest.
     Shutdown,
 }
@@ -54,6 +58,16 @@ pub enum Event {
     /// Every child has exited and been reaped.
     AllReaped,
     Interrupted,
+    /// Several hosts: a lost host's agent is back, and these, its actors,
+    /// can be started again.
+    HostBack(Vec<ActorId>),
+    /// Several hosts: the answer to [`Command::Collect`]. Every host's
+    /// actors' counts merged (`Accounting::to_csv`), and each host's
+    /// bridge's counts by host name; a host that did not answer is missing.
+    Counts {
+        accounting_csv: String,
+        bridges: Vec<(String, fusion_graph::hosts::BridgeCounts)>,
+    },
 }
 
 /// How to start a child.
@@ -136,6 +150,7 @@ pub async fn supervise(
                     let _ = kill(Pid::from_raw(pid as i32), NixSignal::SIGCONT);
                 }
             }
+            Some(Command::Collect) => {}
             Some(Command::Shutdown) | None => break,
         }
     }

@@ -19,6 +19,7 @@ use iceoryx2::prelude::*;
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
+use crate::hosts::{actor_of_wake_id, wake_id, Placement};
 use crate::ledger::Ledger;
 use crate::shaper::LinkShaper;
 use crate::topology::Topology;
@@ -272,6 +273,43 @@ pub fn remove_stale_node_directories() -> std::io::Result<usize> {
 
 type Sub = Subscriber<ipc::Service, [u8], ()>;
 type Pub = Publisher<ipc::Service, [u8], ()>;
+type PortFactory =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>;
+
+/// Opens (or creates) a channel's service, sized for its readers the same
+/// way by every actor and by a host's bridge.
+fn open_channel(
+    node: &Node<ipc::Service>,
+    run: &RunId,
+    topology: &Topology,
+    channel: Channel,
+) -> Result<PortFactory, SetupError> {
+    let name = run.service_name(&channel.service_suffix())?;
+    // +1 subscriber: on a host of several, the bridge reads what leaves it.
+    let subs = channel.subscribers(topology) + 1;
+    // +1 publisher: a test may inject raw bytes through a second one.
+    retry(|| {
+        node.service_builder(&name)
+            .publish_subscribe::<[u8]>()
+            .max_publishers(2)
+            .max_subscribers(subs)
+            .max_nodes(subs + 3)
+            .subscriber_max_buffer_size(buffer_len(channel))
+            .history_size(0)
+            .open_or_create()
+    })
+    .map_err(|e| setup(&channel.service_suffix(), e))
+}
+
+/// How an actor wakes actors of other hosts: through its own host's
+/// bridge, whose wake-up service takes the far actor's
+/// [`wake_id`](crate::hosts::wake_id) as the event id.
+struct FarWakes {
+    placement: Placement,
+    host: usize,
+    bridge: Option<Notifier<ipc::Service>>,
+    ids: HashMap<ActorId, EventId>,
+}
 
 pub struct IceoryxTransport {
     me: ActorId,
@@ -286,6 +324,8 @@ pub struct IceoryxTransport {
     notifiers: HashMap<ActorId, Notifier<ipc::Service>>,
     /// Second publishers used by [`inject_raw`](Self::inject_raw).
     raw_publishers: HashMap<Channel, Pub>,
+    /// On a host of several: how actors of the other hosts are woken.
+    far: Option<FarWakes>,
     accounting: Accounting,
     shaper: LinkShaper,
     buffer: Vec<u8>,
@@ -381,6 +421,7 @@ impl IceoryxTransport {
             subscribers: Vec::new(),
             notifiers: HashMap::new(),
             raw_publishers: HashMap::new(),
+            far: None,
             accounting: Accounting::default(),
             shaper: LinkShaper::new(seed),
             buffer: Vec::with_capacity(512),
@@ -389,28 +430,8 @@ impl IceoryxTransport {
         Ok(t)
     }
 
-    fn open_channel(
-        &self,
-        channel: Channel,
-    ) -> Result<
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>,
-        SetupError,
-    > {
-        let name = self.run.service_name(&channel.service_suffix())?;
-        let subs = channel.subscribers(&self.topology) + 1;
-        // +1 publisher: a test may inject raw bytes through a second one.
-        retry(|| {
-            self.node
-                .service_builder(&name)
-                .publish_subscribe::<[u8]>()
-                .max_publishers(2)
-                .max_subscribers(subs)
-                .max_nodes(subs + 3)
-                .subscriber_max_buffer_size(buffer_len(channel))
-                .history_size(0)
-                .open_or_create()
-        })
-        .map_err(|e| setup(&channel.service_suffix(), e))
+    fn open_channel(&self, channel: Channel) -> Result<PortFactory, SetupError> {
+        open_channel(&self.node, &self.run, &self.topology, channel)
     }
 
     fn add_publisher(&mut self, channel: Channel) -> Result<(), SetupError> {
@@ -469,6 +490,18 @@ impl IceoryxTransport {
         self.accounting = Accounting::backed_by(ledger);
         Ok(())
     }
+
+    /// Tells the transport that its actor runs on `host` of `placement`:
+    /// from now on [`notify`](Transport::notify) of an actor elsewhere
+    /// wakes this host's bridge instead. Call it before the first `notify`.
+    pub fn place_on(&mut self, placement: &Placement, host: usize) {
+        self.far = Some(FarWakes {
+            placement: placement.clone(),
+            host,
+            bridge: None,
+            ids: HashMap::new(),
+        });
+    }
 }
 
 impl Transport for IceoryxTransport {
@@ -494,6 +527,17 @@ impl Transport for IceoryxTransport {
 
     /// Prepares to wake `actor` after sending to it.
     fn notify(&mut self, actor: ActorId) -> Result<(), SetupError> {
+        if let Some(far) = self.far.as_mut().filter(|f| f.placement.host_of(actor) != f.host) {
+            if far.bridge.is_none() {
+                let bridge = open_bridge_wake(&self.node, &self.run, &far.placement, far.host, &self.topology)?
+                    .notifier_builder()
+                    .create()
+                    .map_err(|e| setup("bridge notifier", e))?;
+                far.bridge = Some(bridge);
+            }
+            far.ids.insert(actor, EventId::new(wake_id(actor, &self.topology)));
+            return Ok(());
+        }
         if !self.notifiers.contains_key(&actor) {
             let n = open_wake(&self.node, &self.run, actor, &self.topology)?
                 .notifier_builder()
@@ -535,9 +579,13 @@ impl Transport for IceoryxTransport {
             publish(publisher, bytes)
         })?;
         for w in wake {
+            // A failed wake-up only delays the receiver until its timeout.
             if let Some(n) = self.notifiers.get(w) {
-                // A failed wake-up only delays the receiver until its timeout.
                 let _ = n.notify();
+            } else if let Some(far) = &self.far {
+                if let (Some(bridge), Some(id)) = (&far.bridge, far.ids.get(w)) {
+                    let _ = bridge.notify_with_custom_event_id(*id);
+                }
             }
         }
         Ok(())
@@ -647,6 +695,199 @@ fn open_wake(
             .open_or_create()
     })
     .map_err(|e| setup("wake event", e))
+}
+
+/// A host bridge's wake-up service: every actor of the host that sends to
+/// another host notifies it, with the far receiver's wake id.
+fn open_bridge_wake(
+    node: &Node<ipc::Service>,
+    run: &RunId,
+    placement: &Placement,
+    host: usize,
+    topology: &Topology,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
+    let name = run.service_name("wake/bridge")?;
+    // The host's actors, and the launcher's on the first host.
+    let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
+    let ids = wake_id(ActorId::Launcher, topology) + topology.nodes() + topology.sensors();
+    retry(|| {
+        node.service_builder(&name)
+            .event()
+            .max_notifiers(wakers)
+            .max_listeners(2)
+            .max_nodes(wakers + 2)
+            .event_id_max_value(ids)
+            .open_or_create()
+    })
+    .map_err(|e| setup("bridge wake event", e))
+}
+
+/// A node for one side of a host's bridge.
+fn bridge_node(run: &RunId, side: &str) -> Result<Node<ipc::Service>, SetupError> {
+    let config = run.config(DeadNodeSweep::On)?;
+    let name = NodeName::new(&format!("bridge-{side}")).map_err(|e| setup("node name", e))?;
+    NodeBuilder::new()
+        .config(&config)
+        .name(&name)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| setup("node", e))
+}
+
+/// The iceoryx2 side of what leaves a host through its bridge: it reads
+/// every channel published on the host that another host reads, and hears
+/// which far actors the host's actors want woken. Bytes only: nothing that
+/// crosses is decoded or counted by the bridge, so link faults and byte
+/// counts stay the receiving actor's, exactly as within one host.
+pub struct BridgeOutlet {
+    topology: Topology,
+    outgoing: Vec<(Channel, Sub)>,
+    listener: Listener<ipc::Service>,
+    /// Last: the ports above belong to it.
+    _node: Node<ipc::Service>,
+}
+
+impl BridgeOutlet {
+    /// Opens host `host`'s outlet in its domain `run`. Open it before the
+    /// host's actors start, so that no message leaves unread.
+    pub fn open(
+        run: &RunId,
+        placement: &Placement,
+        host: usize,
+        topology: &Topology,
+    ) -> Result<Self, SetupError> {
+        let node = bridge_node(run, "out")?;
+        let mut outgoing = Vec::new();
+        for (channel, _) in placement.outgoing(host, topology) {
+            let sub = open_channel(&node, run, topology, channel)?
+                .subscriber_builder()
+                .create()
+                .map_err(|e| setup("subscriber", e))?;
+            outgoing.push((channel, sub));
+        }
+        let listener = open_bridge_wake(&node, run, placement, host, topology)?
+            .listener_builder()
+            .create()
+            .map_err(|e| setup("bridge listener", e))?;
+        Ok(Self {
+            topology: topology.clone(),
+            outgoing,
+            listener,
+            _node: node,
+        })
+    }
+
+    /// Sleeps until an actor of this host wakes the bridge or `timeout`
+    /// passes; appends the far actors it asked to wake.
+    pub fn wait(&self, timeout: Duration, woken: &mut Vec<ActorId>) -> Result<(), WaitError> {
+        let topology = &self.topology;
+        let mut heard = |e: EventActivation| {
+            if let Some(a) = actor_of_wake_id(e.id.as_value(), topology) {
+                woken.push(a);
+            }
+        };
+        let waited = if timeout < MIN_TIMED_WAIT {
+            self.listener.try_wait(&mut heard)
+        } else {
+            self.listener.timed_wait(&mut heard, timeout)
+        };
+        match waited {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
+            Err(e) => Err(WaitError {
+                source: Box::new(e),
+            }),
+        }
+    }
+
+    /// Hands every waiting message on the outgoing channels to `each`.
+    pub fn drain(&self, mut each: impl FnMut(Channel, &[u8])) -> Result<(), ReceiveError> {
+        for (channel, sub) in &self.outgoing {
+            loop {
+                match sub.receive() {
+                    Ok(Some(sample)) => each(*channel, sample.payload()),
+                    Ok(None) => break,
+                    Err(e) => {
+                        return Err(ReceiveError {
+                            channel: channel.service_suffix(),
+                            source: Box::new(e),
+                        })
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The iceoryx2 side of what comes into a host through its bridge: it
+/// publishes, on this host, every channel published elsewhere that this
+/// host reads, and wakes this host's actors.
+pub struct BridgeInlet {
+    incoming: HashMap<Channel, Pub>,
+    wakers: HashMap<ActorId, Notifier<ipc::Service>>,
+    /// Last: the ports above belong to it.
+    _node: Node<ipc::Service>,
+}
+
+impl BridgeInlet {
+    pub fn open(
+        run: &RunId,
+        placement: &Placement,
+        host: usize,
+        topology: &Topology,
+    ) -> Result<Self, SetupError> {
+        let node = bridge_node(run, "in")?;
+        let mut incoming = HashMap::new();
+        for channel in placement.incoming(host, topology) {
+            let publisher = open_channel(&node, run, topology, channel)?
+                .publisher_builder()
+                .initial_max_slice_len(max_message_len(channel))
+                .create()
+                .map_err(|e| setup("publisher", e))?;
+            incoming.insert(channel, publisher);
+        }
+        let mut local = placement.actors_on(host, topology);
+        if host == placement.host_of(ActorId::Launcher) {
+            local.push(ActorId::Launcher);
+        }
+        let mut wakers = HashMap::new();
+        for actor in local {
+            let n = open_wake(&node, run, actor, topology)?
+                .notifier_builder()
+                .create()
+                .map_err(|e| setup("notifier", e))?;
+            wakers.insert(actor, n);
+        }
+        Ok(Self {
+            incoming,
+            wakers,
+            _node: node,
+        })
+    }
+
+    /// Whether `channel` comes into this host.
+    pub fn takes(&self, channel: Channel) -> bool {
+        self.incoming.contains_key(&channel)
+    }
+
+    /// Publishes bytes from another host on `channel` here. A channel this
+    /// host does not take in is refused.
+    pub fn publish(&self, channel: Channel, bytes: &[u8]) -> Result<(), SendError> {
+        let publisher = self.incoming.get(&channel).ok_or_else(|| SendError::NotPublisher {
+            channel: channel.service_suffix(),
+            actor: "bridge".into(),
+        })?;
+        let _ = publisher.update_connections();
+        publish(publisher, bytes).map_err(|source| SendError::Backend {
+            channel: channel.service_suffix(),
+            source,
+        })
+    }
+
+    /// Wakes an actor of this host; `false` if it is not one.
+    pub fn wake(&self, actor: ActorId) -> bool {
+        self.wakers.get(&actor).is_some_and(|n| n.notify().is_ok())
+    }
 }
 
 /// Opens or creates, retrying while another process is half-way through

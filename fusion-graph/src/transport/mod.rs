@@ -14,13 +14,15 @@ use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 pub mod iceoryx;
 pub mod memory;
 
-pub use iceoryx::{DeadNodeSweep, IceoryxTransport, RunId};
+pub use iceoryx::{BridgeInlet, BridgeOutlet, DeadNodeSweep, IceoryxTransport, RunId};
 pub use memory::{MemoryBus, MemoryTransport};
 
 /// A publish/subscribe channel. Every channel has exactly one publisher, so a
 /// receiver always knows which directed link a message came over, even when
 /// the bytes are garbage.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
 pub enum Channel {
     /// Launcher → every actor: the step and the true state.
     Tick,

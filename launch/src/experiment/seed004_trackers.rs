@@ -339,6 +339,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
         run_id: RunId::generate(),
         centralized: false,
         view: None,
+        local_agents: false,
     };
     let summary = crate::network::run_network(scenario, topology, options, |_| {})?;
     let links = links_csv(out);

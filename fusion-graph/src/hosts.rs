@@ -1,0 +1,381 @@
+//! Several hosts: which host runs which actor, and which channels must
+//! cross between hosts.
+//!
+//! A scenario with a `[[hosts]]` section spreads its network over hosts.
+//! Each host keeps its own iceoryx2 domain (its own run id, so its own
+//! shared-memory prefix); one bridge per host carries every message whose
+//! receiver is elsewhere (see `launch`'s `hosts` module). Nodes are placed
+//! by the scenario, a sensor goes where its node is, and the launcher runs
+//! on the first host listed.
+//!
+//! An actor that wakes another on a different host cannot reach its
+//! listener: it wakes its own host's bridge instead, with the remote actor's
+//! [`wake_id`] as the event id, and the bridge wakes it on the far side
+//! once the bytes are there.
+
+use serde::{Deserialize, Serialize};
+
+use crate::actor::ActorId;
+use crate::scenario::{ConsensusProtocol, Scenario};
+use crate::topology::Topology;
+use crate::transport::{Channel, RunId};
+use crate::ScenarioError;
+
+/// One host of the scenario: its name, the nodes it runs (and so their
+/// sensors), and where its agent listens for Zenoh.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostConfig {
+    /// Lowercase letters, digits and `-`, at most 8 characters: it becomes
+    /// part of the host's iceoryx2 run id.
+    pub name: String,
+    pub nodes: Vec<u16>,
+    /// A Zenoh endpoint, such as `tcp/127.0.0.1:17447`.
+    pub endpoint: String,
+}
+
+const MAX_HOST_NAME: usize = 8;
+
+/// Where every actor of a network runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Placement {
+    hosts: Vec<HostConfig>,
+    node_host: Vec<usize>,
+    sensor_host: Vec<usize>,
+    /// Whether random exchange's pair channels exist.
+    pairs: bool,
+    /// Whether the launcher reads every observation (the centralized reference).
+    centralized: bool,
+}
+
+impl Placement {
+    /// The placement a scenario asks for; `None` for a single-host scenario.
+    /// Checks every host, naming the key at fault.
+    pub fn from_scenario(
+        s: &Scenario,
+        topology: &Topology,
+        file: &str,
+        centralized: bool,
+    ) -> Result<Option<Self>, ScenarioError> {
+        if s.hosts.is_empty() {
+            return Ok(None);
+        }
+        let bad = |key: String, expected: &str, got: String| ScenarioError::Invalid {
+            file: file.into(),
+            key,
+            expected: expected.into(),
+            got,
+        };
+        let mut node_host = vec![usize::MAX; topology.nodes()];
+        for (h, host) in s.hosts.iter().enumerate() {
+            let name_ok = !host.name.is_empty()
+                && host.name.len() <= MAX_HOST_NAME
+                && host
+                    .name
+                    .bytes()
+                    .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
+            if !name_ok {
+                return Err(bad(
+                    format!("hosts[{h}].name"),
+                    "1 to 8 lowercase letters, digits or `-`",
+                    format!("{:?}", host.name),
+                ));
+            }
+            if s.hosts[..h].iter().any(|o| o.name == host.name) {
+                return Err(bad(
+                    format!("hosts[{h}].name"),
+                    "a name no other host has",
+                    format!("{:?}", host.name),
+                ));
+            }
+            if !host.endpoint.contains('/') || s.hosts[..h].iter().any(|o| o.endpoint == host.endpoint) {
+                return Err(bad(
+                    format!("hosts[{h}].endpoint"),
+                    "a Zenoh endpoint (`tcp/<address>:<port>`) no other host has",
+                    format!("{:?}", host.endpoint),
+                ));
+            }
+            for &n in &host.nodes {
+                let slot = node_host.get_mut(n as usize).ok_or_else(|| {
+                    bad(
+                        format!("hosts[{h}].nodes"),
+                        &format!("nodes of this network (0..{})", topology.nodes() - 1),
+                        n.to_string(),
+                    )
+                })?;
+                if *slot != usize::MAX {
+                    return Err(bad(
+                        format!("hosts[{h}].nodes"),
+                        "each node on one host only",
+                        format!("node {n} also on {}", s.hosts[*slot].name),
+                    ));
+                }
+                *slot = h;
+            }
+        }
+        if let Some(n) = node_host.iter().position(|h| *h == usize::MAX) {
+            return Err(bad(
+                "hosts".into(),
+                "every node on a host",
+                format!("node {n} on none"),
+            ));
+        }
+        let sensor_host = topology
+            .sensor_owner
+            .iter()
+            .map(|owner| node_host[*owner as usize])
+            .collect();
+        Ok(Some(Self {
+            hosts: s.hosts.clone(),
+            node_host,
+            sensor_host,
+            pairs: s.consensus.protocol == ConsensusProtocol::RandomExchange,
+            centralized,
+        }))
+    }
+
+    pub fn hosts(&self) -> &[HostConfig] {
+        &self.hosts
+    }
+
+    /// The index of the host named `name`.
+    pub fn host_named(&self, name: &str) -> Option<usize> {
+        self.hosts.iter().position(|h| h.name == name)
+    }
+
+    /// The host `actor` runs on; the launcher's is the first.
+    pub fn host_of(&self, actor: ActorId) -> usize {
+        match actor {
+            ActorId::Launcher => 0,
+            ActorId::Node(n) => self.node_host[n as usize],
+            ActorId::Sensor(s) => self.sensor_host[s as usize],
+        }
+    }
+
+    /// The actors host `h` runs, launcher excluded, nodes first.
+    pub fn actors_on(&self, h: usize, topology: &Topology) -> Vec<ActorId> {
+        topology
+            .actors()
+            .filter(|a| *a != ActorId::Launcher && self.host_of(*a) == h)
+            .collect()
+    }
+
+    /// Host `h`'s iceoryx2 domain: the run id its actors (and its bridge)
+    /// use, so each host's shared memory is its own.
+    pub fn domain(&self, run: &RunId, h: usize) -> RunId {
+        let id = format!("{}-{}", run.as_str(), self.hosts[h].name);
+        RunId::new(&id).expect("a run id and a host name make a run id")
+    }
+
+    /// Every channel of the network, with the actors that read it.
+    pub fn channels(&self, topology: &Topology) -> Vec<(Channel, Vec<ActorId>)> {
+        let mut all = vec![(
+            Channel::Tick,
+            topology.actors().filter(|a| *a != ActorId::Launcher).collect(),
+        )];
+        for n in 0..topology.nodes() as u16 {
+            let sensors = topology.node_sensors[n as usize].iter().map(|s| ActorId::Sensor(*s));
+            let neighbours = || topology.neighbours[n as usize].iter().map(|m| ActorId::Node(*m));
+            all.push((Channel::Activation(n), sensors.collect()));
+            all.push((Channel::Consensus(n), neighbours().collect()));
+            all.push((Channel::Control(ActorId::Node(n)), vec![ActorId::Node(n)]));
+            all.push((Channel::Telemetry(n), vec![ActorId::Launcher]));
+            if self.pairs {
+                for m in neighbours() {
+                    let ActorId::Node(to) = m else { unreachable!() };
+                    all.push((Channel::Pair { from: n, to }, vec![m]));
+                }
+            }
+        }
+        for (s, owner) in topology.sensor_owner.iter().enumerate() {
+            let mut readers = vec![ActorId::Node(*owner)];
+            if self.centralized {
+                readers.push(ActorId::Launcher);
+            }
+            all.push((Channel::Observation(s as u16), readers));
+        }
+        all
+    }
+
+    /// The channels host `h` sends out: published there, read elsewhere.
+    /// With each, the other hosts that read it.
+    pub fn outgoing(&self, h: usize, topology: &Topology) -> Vec<(Channel, Vec<usize>)> {
+        self.channels(topology)
+            .into_iter()
+            .filter(|(c, _)| self.host_of(c.publisher()) == h)
+            .filter_map(|(c, readers)| {
+                let mut far: Vec<usize> = readers
+                    .iter()
+                    .map(|r| self.host_of(*r))
+                    .filter(|g| *g != h)
+                    .collect();
+                far.sort_unstable();
+                far.dedup();
+                (!far.is_empty()).then_some((c, far))
+            })
+            .collect()
+    }
+
+    /// The channels host `h` takes in: published elsewhere, read there.
+    pub fn incoming(&self, h: usize, topology: &Topology) -> Vec<Channel> {
+        self.channels(topology)
+            .into_iter()
+            .filter(|(c, readers)| {
+                self.host_of(c.publisher()) != h && readers.iter().any(|r| self.host_of(*r) == h)
+            })
+            .map(|(c, _)| c)
+            .collect()
+    }
+
+    /// Whether `from → to` crosses between hosts.
+    pub fn crosses(&self, from: ActorId, to: ActorId) -> bool {
+        self.host_of(from) != self.host_of(to)
+    }
+}
+
+/// An actor's event id on its host bridge's wake-up service: the launcher
+/// 0, then the nodes, then the sensors.
+pub fn wake_id(actor: ActorId, topology: &Topology) -> usize {
+    match actor {
+        ActorId::Launcher => 0,
+        ActorId::Node(n) => 1 + n as usize,
+        ActorId::Sensor(s) => 1 + topology.nodes() + s as usize,
+    }
+}
+
+/// The actor a [`wake_id`] names, if any.
+pub fn actor_of_wake_id(id: usize, topology: &Topology) -> Option<ActorId> {
+    let (nodes, sensors) = (topology.nodes(), topology.sensors());
+    match id {
+        0 => Some(ActorId::Launcher),
+        i if i <= nodes => Some(ActorId::Node((i - 1) as u16)),
+        i if i <= nodes + sensors => Some(ActorId::Sensor((i - 1 - nodes) as u16)),
+        _ => None,
+    }
+}
+
+/// What a bridge moved between hosts. `message_bytes` are cqnet's encoded
+/// messages (what the actors' accounting counts); `batch_bytes` what the
+/// bridge handed to Zenoh for them, its framing included; `tcp_*` what the
+/// agent's TCP sockets carried (Zenoh's own framing and its control
+/// traffic too; read from `TCP_INFO`, so connections closed before the
+/// reading are missing).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BridgeCounts {
+    pub batches_sent: u64,
+    pub messages_sent: u64,
+    pub message_bytes_sent: u64,
+    pub wakes_sent: u64,
+    pub batch_bytes_sent: u64,
+    pub batches_received: u64,
+    pub messages_received: u64,
+    pub message_bytes_received: u64,
+    pub batch_bytes_received: u64,
+    /// Batches that did not decode, and frames this host does not take.
+    pub malformed_batches: u64,
+    pub refused_frames: u64,
+    pub tcp_bytes_acked: u64,
+    pub tcp_bytes_received: u64,
+    pub tcp_segments_out: u64,
+}
+
+impl BridgeCounts {
+    pub fn add(&mut self, o: &BridgeCounts) {
+        self.batches_sent += o.batches_sent;
+        self.messages_sent += o.messages_sent;
+        self.message_bytes_sent += o.message_bytes_sent;
+        self.wakes_sent += o.wakes_sent;
+        self.batch_bytes_sent += o.batch_bytes_sent;
+        self.batches_received += o.batches_received;
+        self.messages_received += o.messages_received;
+        self.message_bytes_received += o.message_bytes_received;
+        self.batch_bytes_received += o.batch_bytes_received;
+        self.malformed_batches += o.malformed_batches;
+        self.refused_frames += o.refused_frames;
+        self.tcp_bytes_acked += o.tcp_bytes_acked;
+        self.tcp_bytes_received += o.tcp_bytes_received;
+        self.tcp_segments_out += o.tcp_segments_out;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn three_hosts() -> (Scenario, Topology) {
+        let mut s = Scenario::default_scenario();
+        let t = Topology::from_scenario(&s, "default").unwrap();
+        let n = t.nodes() as u16;
+        s.hosts = (0..3)
+            .map(|h| HostConfig {
+                name: format!("h{h}"),
+                nodes: (0..n).filter(|i| i % 3 == h).collect(),
+                endpoint: format!("tcp/127.0.0.1:{}", 17000 + h),
+            })
+            .collect();
+        (s, t)
+    }
+
+    #[test]
+    fn sensors_go_with_their_node_and_the_launcher_with_the_first_host() {
+        let (s, t) = three_hosts();
+        let p = Placement::from_scenario(&s, &t, "x", true).unwrap().unwrap();
+        assert_eq!(p.host_of(ActorId::Launcher), 0);
+        for (sensor, owner) in t.sensor_owner.iter().enumerate() {
+            assert_eq!(
+                p.host_of(ActorId::Sensor(sensor as u16)),
+                p.host_of(ActorId::Node(*owner))
+            );
+        }
+        let on: usize = (0..3).map(|h| p.actors_on(h, &t).len()).sum();
+        assert_eq!(on, t.nodes() + t.sensors());
+    }
+
+    /// What leaves one host is what the others take in, channel for channel.
+    #[test]
+    fn every_outgoing_channel_is_incoming_on_each_host_that_reads_it() {
+        let (s, t) = three_hosts();
+        let p = Placement::from_scenario(&s, &t, "x", true).unwrap().unwrap();
+        let mut sent = Vec::new();
+        for h in 0..3 {
+            for (c, far) in p.outgoing(h, &t) {
+                sent.extend(far.into_iter().map(|g| (c, g)));
+            }
+        }
+        let mut taken: Vec<(Channel, usize)> = (0..3)
+            .flat_map(|g| p.incoming(g, &t).into_iter().map(move |c| (c, g)))
+            .collect();
+        sent.sort();
+        taken.sort();
+        assert_eq!(sent, taken);
+        // Observations never cross except to the launcher; activations never.
+        assert!(taken.iter().all(|(c, g)| !matches!(c, Channel::Activation(_))
+            && (!matches!(c, Channel::Observation(_)) || *g == 0)));
+    }
+
+    #[test]
+    fn bad_hosts_are_refused_by_key() {
+        let (s, t) = three_hosts();
+        let check = |edit: &dyn Fn(&mut Scenario), key: &str| {
+            let mut s = s.clone();
+            edit(&mut s);
+            let err = Placement::from_scenario(&s, &t, "x", false).unwrap_err().to_string();
+            assert!(err.contains(key), "{err}");
+        };
+        check(&|s| s.hosts[1].name = "Bad".into(), "hosts[1].name");
+        check(&|s| s.hosts[2].name = "h0".into(), "hosts[2].name");
+        check(&|s| s.hosts[1].endpoint = s.hosts[0].endpoint.clone(), "hosts[1].endpoint");
+        check(&|s| s.hosts[0].nodes.push(1), "hosts[0].nodes");
+        check(&|s| s.hosts[0].nodes.push(999), "hosts[0].nodes");
+        check(&|s| { s.hosts[2].nodes.pop(); }, "`hosts`");
+    }
+
+    #[test]
+    fn wake_ids_name_each_actor_once() {
+        let (_, t) = three_hosts();
+        for a in t.actors() {
+            assert_eq!(actor_of_wake_id(wake_id(a, &t), &t), Some(a));
+        }
+        assert_eq!(actor_of_wake_id(1 + t.nodes() + t.sensors(), &t), None);
+    }
+}
