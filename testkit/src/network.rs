@@ -316,6 +316,9 @@ pub enum Target {
     Launcher,
     /// One node or sensor process.
     Actor(ActorId),
+    /// The agent of the host of this name, as `cqnet run --local-agents`
+    /// starts it (several hosts, `--features zenoh`).
+    Agent(&'static str),
 }
 
 /// A pipe read to its end on a thread, readable while it fills.
@@ -452,9 +455,43 @@ impl RunningNetwork {
             (Target::Launcher, Some(c)) => vec![c.id()],
             (Target::Launcher, None) => vec![],
             (Target::Actor(a), _) => {
-                processes_matching(&format!("--run-id {} --actor {a} ", self.run_id.as_str()))
+                // On several hosts an actor's run id is its host's domain,
+                // `<run>-<host>`.
+                let on_one_host = format!("--run-id {} --actor {a} ", self.run_id.as_str());
+                let on_a_host = format!("--run-id {}-", self.run_id.as_str());
+                let by_name = format!(" --actor {a} ");
+                let mut pids = processes_matching(&on_one_host);
+                pids.extend(
+                    processes_matching(&on_a_host)
+                        .into_iter()
+                        .filter(|p| processes_matching(&by_name).contains(p)),
+                );
+                pids
             }
+            (Target::Agent(name), _) => processes_matching(&format!(
+                "--host {name} --dir {}",
+                self.out.join("hosts").join(name).display()
+            )),
         }
+    }
+
+    /// Starts the agent of host `name` again, as `--local-agents` first
+    /// started it (after a test killed it, say). The caller waits for the
+    /// child: it exits once the run is over.
+    pub fn start_agent(&self, name: &str) -> std::io::Result<Child> {
+        let log = std::fs::File::create(self.out.join("logs").join(format!("agent-{name}-again.log")))?;
+        Command::new(&self.executable)
+            .arg("agent")
+            .arg(self.out.join("scenario.toml"))
+            .arg("--host")
+            .arg(name)
+            .arg("--dir")
+            .arg(self.out.join("hosts").join(name))
+            .arg("--once")
+            .stdin(Stdio::null())
+            .stdout(log.try_clone()?)
+            .stderr(log)
+            .spawn()
     }
 
     fn has_exited(&mut self) -> bool {

@@ -1,0 +1,170 @@
+//! Several hosts (`--features zenoh`): the default network's nodes spread
+//! over three simulated hosts on this machine. Each host has its own
+//! iceoryx2 domain and its own `cqnet agent` process (`--local-agents`),
+//! with Zenoh between them over 127.0.0.1, each test on ports of its own.
+#![cfg(feature = "zenoh")]
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use cqnet_testkit::{default_scenario, exclusive, ActorId, Network, Run, Target};
+use fusion_graph::hosts::{HostConfig, Placement};
+use fusion_graph::{Scenario, Topology};
+
+const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
+
+/// Three free ports on 127.0.0.1 (free when asked; nothing else on this
+/// machine is expected to take them in the next seconds).
+fn free_ports() -> Vec<u16> {
+    let listeners: Vec<std::net::TcpListener> = (0..3)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    listeners.iter().map(|l| l.local_addr().unwrap().port()).collect()
+}
+
+/// The default scenario with 3 × 3 sensors a node, one row of nodes on
+/// each of three hosts.
+fn three_hosts(steps: u32) -> Scenario {
+    let mut s = default_scenario();
+    s.steps = steps;
+    s.sensors.per_cell = Some([3, 3]);
+    s.hosts = free_ports()
+        .into_iter()
+        .enumerate()
+        .map(|(h, port)| HostConfig {
+            name: ["a", "b", "c"][h].into(),
+            nodes: (3 * h as u16..3 * h as u16 + 3).collect(),
+            endpoint: format!("tcp/127.0.0.1:{port}"),
+        })
+        .collect();
+    s
+}
+
+fn placement(s: &Scenario) -> (Placement, Topology) {
+    let t = Topology::from_scenario(s, "test").unwrap();
+    (Placement::from_scenario(s, &t, "test", true).unwrap().unwrap(), t)
+}
+
+/// Bytes of cqnet's messages between hosts, by (from host, to host), as
+/// `hosts.json` reports them: (sent messages, sent bytes, received
+/// messages, received bytes).
+fn reported_crossing(run: &Run) -> BTreeMap<(String, String), [u64; 4]> {
+    let text = std::fs::read_to_string(run.out_dir().join("hosts.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["between_hosts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let n = |k: &str| p[k].as_u64().unwrap();
+            (
+                (p["from"].as_str().unwrap().into(), p["to"].as_str().unwrap().into()),
+                [n("sent_messages"), n("sent_bytes"), n("received_messages"), n("received_bytes")],
+            )
+        })
+        .collect()
+}
+
+/// The same network on three hosts, in lockstep, gives `sim`'s answer bit
+/// for bit. Its byte counts are those of the same network on one host,
+/// link by link and kind by kind, and the bytes `hosts.json` reports
+/// between hosts are exactly the one-host run's on the links whose ends
+/// the scenario puts on different hosts, every one received.
+#[test]
+fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts() {
+    let _guard = exclusive();
+    let scenario = three_hosts(6);
+    let patient = |n: Network| {
+        n.executable(CQNET)
+            .set("consensus.round_timeout_ms", 20000)
+            .set("clock.step_timeout_ms", 60000)
+            .lockstep()
+    };
+    let n = patient(Network::new(scenario.clone()).tag("hosts-same")).arg("--local-agents");
+    let r = n.clone().run().unwrap();
+    r.assert_success();
+    let s = n.sim().unwrap();
+    s.assert_success();
+    let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
+    let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
+    a.sort();
+    b.sort();
+    assert_eq!(a.len(), 6 * 10, "nine nodes and the centralized reference, six steps");
+    assert_eq!(a, b);
+
+    let mut one_host = scenario.clone();
+    one_host.hosts.clear();
+    let single = patient(Network::new(one_host).tag("hosts-single")).run().unwrap();
+    single.assert_success();
+    let counts = |run: &Run| -> BTreeMap<_, _> {
+        run.accounting()
+            .iter()
+            .map(|(k, c)| (*k, (c.sent_messages, c.sent_bytes, c.received_messages, c.received_bytes)))
+            .collect()
+    };
+    assert_eq!(counts(&r), counts(&single), "link by link, kind by kind");
+
+    let (p, _) = placement(&scenario);
+    let name = |a: ActorId| p.hosts()[p.host_of(a)].name.clone();
+    let mut expected: BTreeMap<(String, String), [u64; 4]> = BTreeMap::new();
+    for ((from, to, _), c) in single.accounting().iter() {
+        if p.crosses(*from, *to) {
+            let e = expected.entry((name(*from), name(*to))).or_default();
+            e[0] += c.sent_messages;
+            e[1] += c.sent_bytes;
+            e[2] += c.received_messages;
+            e[3] += c.received_bytes;
+        }
+    }
+    let reported = reported_crossing(&r);
+    assert_eq!(reported, expected);
+    assert_eq!(reported.len(), 6, "every ordered pair of hosts talks");
+    assert!(reported.values().all(|[sm, sb, rm, rb]| sm == rm && sb == rb && *sb > 0));
+    r.assert_clean();
+}
+
+/// An agent killed with SIGKILL takes its host's actors with it: their
+/// nodes leave the membership, the others go on, the summary names the
+/// loss. Started again, the agent is set up anew and its nodes rejoin and
+/// report to the end.
+#[test]
+fn an_agent_killed_and_restarted_leaves_and_rejoins_the_run() {
+    let _guard = exclusive();
+    let steps = 40;
+    let running = Network::new(three_hosts(steps))
+        .executable(CQNET)
+        .tag("hosts-kill")
+        .set("clock.step_period_ms", 250)
+        .arg("--local-agents")
+        .start()
+        .unwrap();
+    let mut running = running;
+    assert!(running.wait_for_step(5, Duration::from_secs(60)), "the run did not reach step 5");
+    assert_eq!(running.signal(Target::Agent("b"), "KILL"), 1);
+    assert!(running.wait_for_step(12, Duration::from_secs(60)));
+    let mut again = running.start_agent("b").unwrap();
+    let r = running.wait().unwrap();
+    let status = again.wait().unwrap();
+    r.assert_success();
+    assert!(status.success(), "the restarted agent: {status}");
+    let faults: Vec<String> = r.faults().iter().map(|f| f.fault.clone()).collect();
+    for node in 3..6 {
+        assert!(
+            faults.iter().any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
+            "{faults:?}"
+        );
+    }
+    // Host b's nodes were away for a while and back before the end; the
+    // others reported every step.
+    let steps_of = |node: &str| r.ticks_of(node).map(|t| t.step).collect::<std::collections::BTreeSet<u32>>();
+    for node in ["node-0", "node-8"] {
+        assert_eq!(steps_of(node).len(), steps as usize, "{node}");
+    }
+    for node in ["node-3", "node-4", "node-5"] {
+        let seen = steps_of(node);
+        assert!(seen.contains(&4), "{node} before the loss");
+        assert!(seen.contains(&steps), "{node} after the return: {seen:?}");
+        assert!(seen.len() < steps as usize, "{node} never missed a step");
+    }
+    r.assert_clean();
+}
