@@ -88,7 +88,9 @@ impl Placement {
                     format!("{:?}", host.name),
                 ));
             }
-            if !host.endpoint.contains('/') || s.hosts[..h].iter().any(|o| o.endpoint == host.endpoint) {
+            if !host.endpoint.contains('/')
+                || s.hosts[..h].iter().any(|o| o.endpoint == host.endpoint)
+            {
                 return Err(bad(
                     format!("hosts[{h}].endpoint"),
                     "a Zenoh endpoint (`tcp/<address>:<port>`) no other host has",
@@ -171,11 +173,20 @@ impl Placement {
     pub fn channels(&self, topology: &Topology) -> Vec<(Channel, Vec<ActorId>)> {
         let mut all = vec![(
             Channel::Tick,
-            topology.actors().filter(|a| *a != ActorId::Launcher).collect(),
+            topology
+                .actors()
+                .filter(|a| *a != ActorId::Launcher)
+                .collect(),
         )];
         for n in 0..topology.nodes() as u16 {
-            let sensors = topology.node_sensors[n as usize].iter().map(|s| ActorId::Sensor(*s));
-            let neighbours = || topology.neighbours[n as usize].iter().map(|m| ActorId::Node(*m));
+            let sensors = topology.node_sensors[n as usize]
+                .iter()
+                .map(|s| ActorId::Sensor(*s));
+            let neighbours = || {
+                topology.neighbours[n as usize]
+                    .iter()
+                    .map(|m| ActorId::Node(*m))
+            };
             all.push((Channel::Activation(n), sensors.collect()));
             all.push((Channel::Consensus(n), neighbours().collect()));
             all.push((Channel::Control(ActorId::Node(n)), vec![ActorId::Node(n)]));
@@ -319,7 +330,9 @@ mod tests {
     #[test]
     fn sensors_go_with_their_node_and_the_launcher_with_the_first_host() {
         let (s, t) = three_hosts();
-        let p = Placement::from_scenario(&s, &t, "x", true).unwrap().unwrap();
+        let p = Placement::from_scenario(&s, &t, "x", true)
+            .unwrap()
+            .unwrap();
         assert_eq!(p.host_of(ActorId::Launcher), 0);
         for (sensor, owner) in t.sensor_owner.iter().enumerate() {
             assert_eq!(
@@ -335,7 +348,9 @@ mod tests {
     #[test]
     fn every_outgoing_channel_is_incoming_on_each_host_that_reads_it() {
         let (s, t) = three_hosts();
-        let p = Placement::from_scenario(&s, &t, "x", true).unwrap().unwrap();
+        let p = Placement::from_scenario(&s, &t, "x", true)
+            .unwrap()
+            .unwrap();
         let mut sent = Vec::new();
         for h in 0..3 {
             for (c, far) in p.outgoing(h, &t) {
@@ -349,8 +364,10 @@ mod tests {
         taken.sort();
         assert_eq!(sent, taken);
         // Observations never cross except to the launcher; activations never.
-        assert!(taken.iter().all(|(c, g)| !matches!(c, Channel::Activation(_))
-            && (!matches!(c, Channel::Observation(_)) || *g == 0)));
+        assert!(taken
+            .iter()
+            .all(|(c, g)| !matches!(c, Channel::Activation(_))
+                && (!matches!(c, Channel::Observation(_)) || *g == 0)));
     }
 
     #[test]
@@ -359,15 +376,25 @@ mod tests {
         let check = |edit: &dyn Fn(&mut Scenario), key: &str| {
             let mut s = s.clone();
             edit(&mut s);
-            let err = Placement::from_scenario(&s, &t, "x", false).unwrap_err().to_string();
+            let err = Placement::from_scenario(&s, &t, "x", false)
+                .unwrap_err()
+                .to_string();
             assert!(err.contains(key), "{err}");
         };
         check(&|s| s.hosts[1].name = "Bad".into(), "hosts[1].name");
         check(&|s| s.hosts[2].name = "h0".into(), "hosts[2].name");
-        check(&|s| s.hosts[1].endpoint = s.hosts[0].endpoint.clone(), "hosts[1].endpoint");
-        check(&|s| s.hosts[0].nodes.push(1), "hosts[0].nodes");
+        check(
+            &|s| s.hosts[1].endpoint = s.hosts[0].endpoint.clone(),
+            "hosts[1].endpoint",
+        );
+        check(&|s| s.hosts[0].nodes.push(1), "hosts[1].nodes");
         check(&|s| s.hosts[0].nodes.push(999), "hosts[0].nodes");
-        check(&|s| { s.hosts[2].nodes.pop(); }, "`hosts`");
+        check(
+            &|s| {
+                s.hosts[2].nodes.pop();
+            },
+            "`hosts`",
+        );
     }
 
     #[test]

@@ -99,7 +99,9 @@ pub fn run_network(
     write_atomically(&scenario_file, scenario.to_toml().as_bytes())?;
     let placement = Placement::from_scenario(scenario, topology, "", options.centralized)?;
     if placement.is_some() && !cfg!(feature = "zenoh") {
-        bail!("this scenario has [[hosts]]: several hosts need cqnet built with `--features zenoh`");
+        bail!(
+            "this scenario has [[hosts]]: several hosts need cqnet built with `--features zenoh`"
+        );
     }
     if placement.is_none() && options.local_agents {
         bail!("--local-agents: the scenario has no [[hosts]] to start agents for");
@@ -158,7 +160,9 @@ pub fn run_network(
                 centralized: spec.centralized,
             };
             let agents = options_local_agents
-                .then(|| crate::hosts::remote::LocalAgents::start(placement, &spec.scenario_file, &out))
+                .then(|| {
+                    crate::hosts::remote::LocalAgents::start(placement, &spec.scenario_file, &out)
+                })
                 .transpose()?;
             let supervised =
                 crate::hosts::remote::supervise_hosts(hosts, command_rx, event_tx.clone());

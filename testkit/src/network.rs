@@ -479,7 +479,11 @@ impl RunningNetwork {
     /// started it (after a test killed it, say). The caller waits for the
     /// child: it exits once the run is over.
     pub fn start_agent(&self, name: &str) -> std::io::Result<Child> {
-        let log = std::fs::File::create(self.out.join("logs").join(format!("agent-{name}-again.log")))?;
+        let log = std::fs::File::create(
+            self.out
+                .join("logs")
+                .join(format!("agent-{name}-again.log")),
+        )?;
         Command::new(&self.executable)
             .arg("agent")
             .arg(self.out.join("scenario.toml"))

@@ -19,7 +19,10 @@ fn free_ports() -> Vec<u16> {
     let listeners: Vec<std::net::TcpListener> = (0..3)
         .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
         .collect();
-    listeners.iter().map(|l| l.local_addr().unwrap().port()).collect()
+    listeners
+        .iter()
+        .map(|l| l.local_addr().unwrap().port())
+        .collect()
 }
 
 /// The default scenario with 3 × 3 sensors a node, one row of nodes on
@@ -42,7 +45,12 @@ fn three_hosts(steps: u32) -> Scenario {
 
 fn placement(s: &Scenario) -> (Placement, Topology) {
     let t = Topology::from_scenario(s, "test").unwrap();
-    (Placement::from_scenario(s, &t, "test", true).unwrap().unwrap(), t)
+    (
+        Placement::from_scenario(s, &t, "test", true)
+            .unwrap()
+            .unwrap(),
+        t,
+    )
 }
 
 /// Bytes of cqnet's messages between hosts, by (from host, to host), as
@@ -58,8 +66,16 @@ fn reported_crossing(run: &Run) -> BTreeMap<(String, String), [u64; 4]> {
         .map(|p| {
             let n = |k: &str| p[k].as_u64().unwrap();
             (
-                (p["from"].as_str().unwrap().into(), p["to"].as_str().unwrap().into()),
-                [n("sent_messages"), n("sent_bytes"), n("received_messages"), n("received_bytes")],
+                (
+                    p["from"].as_str().unwrap().into(),
+                    p["to"].as_str().unwrap().into(),
+                ),
+                [
+                    n("sent_messages"),
+                    n("sent_bytes"),
+                    n("received_messages"),
+                    n("received_bytes"),
+                ],
             )
         })
         .collect()
@@ -89,17 +105,33 @@ fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts()
     let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
     a.sort();
     b.sort();
-    assert_eq!(a.len(), 6 * 10, "nine nodes and the centralized reference, six steps");
+    assert_eq!(
+        a.len(),
+        6 * 10,
+        "nine nodes and the centralized reference, six steps"
+    );
     assert_eq!(a, b);
 
     let mut one_host = scenario.clone();
     one_host.hosts.clear();
-    let single = patient(Network::new(one_host).tag("hosts-single")).run().unwrap();
+    let single = patient(Network::new(one_host).tag("hosts-single"))
+        .run()
+        .unwrap();
     single.assert_success();
     let counts = |run: &Run| -> BTreeMap<_, _> {
         run.accounting()
             .iter()
-            .map(|(k, c)| (*k, (c.sent_messages, c.sent_bytes, c.received_messages, c.received_bytes)))
+            .map(|(k, c)| {
+                (
+                    *k,
+                    (
+                        c.sent_messages,
+                        c.sent_bytes,
+                        c.received_messages,
+                        c.received_bytes,
+                    ),
+                )
+            })
             .collect()
     };
     assert_eq!(counts(&r), counts(&single), "link by link, kind by kind");
@@ -119,7 +151,9 @@ fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts()
     let reported = reported_crossing(&r);
     assert_eq!(reported, expected);
     assert_eq!(reported.len(), 6, "every ordered pair of hosts talks");
-    assert!(reported.values().all(|[sm, sb, rm, rb]| sm == rm && sb == rb && *sb > 0));
+    assert!(reported
+        .values()
+        .all(|[sm, sb, rm, rb]| sm == rm && sb == rb && *sb > 0));
     r.assert_clean();
 }
 
@@ -139,7 +173,10 @@ fn an_agent_killed_and_restarted_leaves_and_rejoins_the_run() {
         .start()
         .unwrap();
     let mut running = running;
-    assert!(running.wait_for_step(5, Duration::from_secs(60)), "the run did not reach step 5");
+    assert!(
+        running.wait_for_step(5, Duration::from_secs(60)),
+        "the run did not reach step 5"
+    );
     assert_eq!(running.signal(Target::Agent("b"), "KILL"), 1);
     assert!(running.wait_for_step(12, Duration::from_secs(60)));
     let mut again = running.start_agent("b").unwrap();
@@ -150,13 +187,19 @@ fn an_agent_killed_and_restarted_leaves_and_rejoins_the_run() {
     let faults: Vec<String> = r.faults().iter().map(|f| f.fault.clone()).collect();
     for node in 3..6 {
         assert!(
-            faults.iter().any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
+            faults
+                .iter()
+                .any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
             "{faults:?}"
         );
     }
     // Host b's nodes were away for a while and back before the end; the
     // others reported every step.
-    let steps_of = |node: &str| r.ticks_of(node).map(|t| t.step).collect::<std::collections::BTreeSet<u32>>();
+    let steps_of = |node: &str| {
+        r.ticks_of(node)
+            .map(|t| t.step)
+            .collect::<std::collections::BTreeSet<u32>>()
+    };
     for node in ["node-0", "node-8"] {
         assert_eq!(steps_of(node).len(), steps as usize, "{node}");
     }

@@ -527,15 +527,26 @@ impl Transport for IceoryxTransport {
 
     /// Prepares to wake `actor` after sending to it.
     fn notify(&mut self, actor: ActorId) -> Result<(), SetupError> {
-        if let Some(far) = self.far.as_mut().filter(|f| f.placement.host_of(actor) != f.host) {
+        if let Some(far) = self
+            .far
+            .as_mut()
+            .filter(|f| f.placement.host_of(actor) != f.host)
+        {
             if far.bridge.is_none() {
-                let bridge = open_bridge_wake(&self.node, &self.run, &far.placement, far.host, &self.topology)?
-                    .notifier_builder()
-                    .create()
-                    .map_err(|e| setup("bridge notifier", e))?;
+                let bridge = open_bridge_wake(
+                    &self.node,
+                    &self.run,
+                    &far.placement,
+                    far.host,
+                    &self.topology,
+                )?
+                .notifier_builder()
+                .create()
+                .map_err(|e| setup("bridge notifier", e))?;
                 far.bridge = Some(bridge);
             }
-            far.ids.insert(actor, EventId::new(wake_id(actor, &self.topology)));
+            far.ids
+                .insert(actor, EventId::new(wake_id(actor, &self.topology)));
             return Ok(());
         }
         if !self.notifiers.contains_key(&actor) {
@@ -873,10 +884,13 @@ impl BridgeInlet {
     /// Publishes bytes from another host on `channel` here. A channel this
     /// host does not take in is refused.
     pub fn publish(&self, channel: Channel, bytes: &[u8]) -> Result<(), SendError> {
-        let publisher = self.incoming.get(&channel).ok_or_else(|| SendError::NotPublisher {
-            channel: channel.service_suffix(),
-            actor: "bridge".into(),
-        })?;
+        let publisher = self
+            .incoming
+            .get(&channel)
+            .ok_or_else(|| SendError::NotPublisher {
+                channel: channel.service_suffix(),
+                actor: "bridge".into(),
+            })?;
         let _ = publisher.update_connections();
         publish(publisher, bytes).map_err(|source| SendError::Backend {
             channel: channel.service_suffix(),

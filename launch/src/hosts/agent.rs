@@ -119,9 +119,8 @@ enum Served {
     Interrupted,
 }
 
-type Commands = zenoh::pubsub::Subscriber<
-    zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>,
->;
+type Commands =
+    zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
 
 impl Agent<'_> {
     fn tell(&self, event: &FromAgent) {
@@ -258,7 +257,12 @@ impl Agent<'_> {
 }
 
 /// The byte counts of every actor of this host, from their ledgers.
-fn host_accounting(dir: &Path, placement: &Placement, host: usize, topology: &Topology) -> Accounting {
+fn host_accounting(
+    dir: &Path,
+    placement: &Placement,
+    host: usize,
+    topology: &Topology,
+) -> Accounting {
     let mut total = Accounting::default();
     for actor in placement.actors_on(host, topology) {
         match read_ledger(&ledger_path(dir, actor)) {

@@ -149,7 +149,11 @@ fn run_out(
     ready: &mpsc::Sender<anyhow::Result<()>>,
 ) -> anyhow::Result<()> {
     let outlet = BridgeOutlet::open(&s.domain, &s.placement, s.host, &s.topology)?;
-    let far: HashMap<Channel, Vec<usize>> = s.placement.outgoing(s.host, &s.topology).into_iter().collect();
+    let far: HashMap<Channel, Vec<usize>> = s
+        .placement
+        .outgoing(s.host, &s.topology)
+        .into_iter()
+        .collect();
     let hosts = s.placement.hosts();
     let mut publishers = HashMap::new();
     for (g, host) in hosts.iter().enumerate().filter(|(g, _)| *g != s.host) {
@@ -158,7 +162,9 @@ fn run_out(
             .congestion_control(zenoh::qos::CongestionControl::Block)
             .express(true)
             .wait()
-            .map_err(|e| anyhow::anyhow!("declaring the bridge's publisher to {}: {e}", host.name))?;
+            .map_err(|e| {
+                anyhow::anyhow!("declaring the bridge's publisher to {}: {e}", host.name)
+            })?;
         publishers.insert(g, p);
     }
     let _ = ready.send(Ok(()));
@@ -243,7 +249,10 @@ fn deliver(inlet: &BridgeInlet, bytes: &[u8]) -> BridgeCounts {
         ..Default::default()
     };
     let Some(frames) = decode::<Vec<Frame>>(bytes) else {
-        tracing::warn!(len = bytes.len(), "a batch from another host did not decode; dropped");
+        tracing::warn!(
+            len = bytes.len(),
+            "a batch from another host did not decode; dropped"
+        );
         c.malformed_batches = 1;
         return c;
     };
@@ -276,7 +285,11 @@ fn tcp_totals() -> (u64, u64, u64) {
     for entry in fds.flatten() {
         let is_socket = std::fs::read_link(entry.path())
             .is_ok_and(|t| t.to_string_lossy().starts_with("socket:"));
-        let Some(fd) = entry.file_name().to_str().and_then(|f| f.parse::<i32>().ok()) else {
+        let Some(fd) = entry
+            .file_name()
+            .to_str()
+            .and_then(|f| f.parse::<i32>().ok())
+        else {
             continue;
         };
         if !is_socket {
@@ -319,7 +332,9 @@ mod tests {
         ];
         let bytes = encode(&batch);
         let back: Vec<Frame> = decode(&bytes).unwrap();
-        assert!(matches!(back[0], Frame::Sample { channel: Channel::Consensus(3), ref bytes } if bytes == &[1, 2, 3]));
+        assert!(
+            matches!(back[0], Frame::Sample { channel: Channel::Consensus(3), ref bytes } if bytes == &[1, 2, 3])
+        );
         assert!(matches!(back[1], Frame::Wake(ActorId::Node(4))));
         assert!(decode::<Vec<Frame>>(&[0xff; 7]).is_none());
     }

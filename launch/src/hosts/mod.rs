@@ -47,9 +47,17 @@ pub enum ToAgent {
         scenario: String,
         centralized: bool,
     },
-    Spawn { actor: ActorId, rejoin: bool },
-    Signal { actor: ActorId, signal: Signal },
-    Continue { actor: ActorId },
+    Spawn {
+        actor: ActorId,
+        rejoin: bool,
+    },
+    Signal {
+        actor: ActorId,
+        signal: Signal,
+    },
+    Continue {
+        actor: ActorId,
+    },
     /// Send the byte counts of this host's actors and of its bridge.
     Collect,
     /// Every actor should be exiting: reap them, close the bridge.
@@ -59,7 +67,9 @@ pub enum ToAgent {
 /// What an agent tells the launcher.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub enum FromAgent {
-    SetUp { run: String },
+    SetUp {
+        run: String,
+    },
     Ready(ActorId),
     Exited {
         actor: ActorId,
@@ -73,7 +83,9 @@ pub enum FromAgent {
         bridge: BridgeCounts,
     },
     /// Could not set the run up: why.
-    Failed { message: String },
+    Failed {
+        message: String,
+    },
     /// The run is over here: every actor reaped, the bridge closed.
     Finished,
 }
@@ -109,8 +121,16 @@ fn open_session(listen: Option<&str>, connect: &[String]) -> anyhow::Result<zeno
     set(&mut config, "mode", "\"peer\"".into())?;
     set(&mut config, "scouting/multicast/enabled", "false".into())?;
     let listen: Vec<&str> = listen.into_iter().collect();
-    set(&mut config, "listen/endpoints", serde_json::to_string(&listen)?)?;
-    set(&mut config, "connect/endpoints", serde_json::to_string(connect)?)?;
+    set(
+        &mut config,
+        "listen/endpoints",
+        serde_json::to_string(&listen)?,
+    )?;
+    set(
+        &mut config,
+        "connect/endpoints",
+        serde_json::to_string(connect)?,
+    )?;
     zenoh::open(config)
         .wait()
         .map_err(|e| anyhow::anyhow!("{e}"))

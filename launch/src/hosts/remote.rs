@@ -49,8 +49,14 @@ pub struct HostEvents {
 
 enum Incoming {
     Command(Option<Command>),
-    Alive { host: usize, up: bool },
-    Agent { host: usize, said: Option<FromAgent> },
+    Alive {
+        host: usize,
+        up: bool,
+    },
+    Agent {
+        host: usize,
+        said: Option<FromAgent>,
+    },
 }
 
 #[derive(Default)]
@@ -156,7 +162,9 @@ pub fn supervise_hosts(
                     s.set_up = false;
                     s.lost = true;
                     s.pending.clear();
-                    report.lost.push((hosts[host].name.clone(), started.elapsed().as_secs_f64()));
+                    report
+                        .lost
+                        .push((hosts[host].name.clone(), started.elapsed().as_secs_f64()));
                     tracing::warn!(host = %hosts[host].name, "host lost");
                     for actor in actors_on(host) {
                         let _ = events.send(Event::Exited {
@@ -182,7 +190,9 @@ pub fn supervise_hosts(
                             send(host, &c);
                         }
                         if s.lost {
-                            report.back.push((hosts[host].name.clone(), started.elapsed().as_secs_f64()));
+                            report
+                                .back
+                                .push((hosts[host].name.clone(), started.elapsed().as_secs_f64()));
                             let _ = events.send(Event::HostBack(actors_on(host)));
                         }
                     }
@@ -236,9 +246,10 @@ pub fn supervise_hosts(
                         });
                     }
                 }
-                Command::Signal { actor, signal } => {
-                    send(setup.placement.host_of(actor), &ToAgent::Signal { actor, signal })
-                }
+                Command::Signal { actor, signal } => send(
+                    setup.placement.host_of(actor),
+                    &ToAgent::Signal { actor, signal },
+                ),
                 Command::Continue { actor } => {
                     send(setup.placement.host_of(actor), &ToAgent::Continue { actor })
                 }
@@ -318,7 +329,10 @@ fn forward_commands(mut commands: UnboundedReceiver<Command>, tx: mpsc::Sender<I
 /// one on a single host.
 fn forward_interrupts(events: mpsc::Sender<Event>) {
     std::thread::spawn(move || {
-        let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_all().build() else {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
             return;
         };
         rt.block_on(async move {
@@ -354,7 +368,8 @@ impl LocalAgents {
         let exe = std::env::current_exe().context("finding the cqnet executable")?;
         let mut children = Vec::new();
         for host in placement.hosts() {
-            let log = std::fs::File::create(out.join("logs").join(format!("agent-{}.log", host.name)))?;
+            let log =
+                std::fs::File::create(out.join("logs").join(format!("agent-{}.log", host.name)))?;
             let mut cmd = std::process::Command::new(&exe);
             cmd.arg("agent")
                 .arg(scenario_file)
@@ -373,7 +388,10 @@ impl LocalAgents {
                         .map_err(std::io::Error::from)
                 });
             }
-            children.push(cmd.spawn().with_context(|| format!("starting agent {}", host.name))?);
+            children.push(
+                cmd.spawn()
+                    .with_context(|| format!("starting agent {}", host.name))?,
+            );
         }
         Ok(Self { children })
     }
