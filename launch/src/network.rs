@@ -180,21 +180,19 @@ pub fn run_network(
     let (result, _) = world
         .join()
         .map_err(|_| anyhow::anyhow!("the world thread panicked"))?;
-    match &placement {
-        None => remove_run_resources(&run_id).context("removing the run's shared memory")?,
-        Some(p) => {
-            // The launcher's host's domain holds the launcher's own ports:
-            // its agent leaves it to us. Local agents' domains are on this
-            // machine too, and removed whatever became of their agents.
-            for h in 0..p.hosts().len() {
-                if h == p.host_of(ActorId::Launcher) || options_local_agents {
-                    remove_run_resources(&p.domain(&run_id, h))
-                        .context("removing the run's shared memory")?;
-                }
-            }
-            0
-        }
+    // On several hosts, the launcher's host's domain holds the launcher's
+    // own ports, so its agent leaves it to us; local agents' domains are on
+    // this machine too, and removed whatever became of their agents.
+    let domains: Vec<RunId> = match &placement {
+        None => vec![run_id.clone()],
+        Some(p) => (0..p.hosts().len())
+            .filter(|h| *h == p.host_of(ActorId::Launcher) || options_local_agents)
+            .map(|h| p.domain(&run_id, h))
+            .collect(),
     };
+    for domain in &domains {
+        remove_run_resources(domain).context("removing the run's shared memory")?;
+    }
     result
 }
 
