@@ -648,24 +648,7 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        // iceoryx2 passes the timeout to SO_RCVTIMEO as a timeval, whole
-        // microseconds, and a zero timeval means "block forever": a wait of
-        // less than a microsecond (a held message falling due just now)
-        // would never return. It is a poll.
-        let waited = if timeout < MIN_TIMED_WAIT {
-            self.listener.try_wait(|_| {})
-        } else {
-            self.listener.timed_wait(|_| {}, timeout)
-        };
-        match waited {
-            // A signal cut the wait short: SIGCONT after SIGSTOP does, with
-            // no handler installed. It is a spurious wake-up; every caller
-            // loops, receiving and waiting again, so returning is the retry.
-            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
-            Err(e) => Err(WaitError {
-                source: Box::new(e),
-            }),
-        }
+        listen(&self.listener, timeout, |_| {})
     }
 
     fn now(&self) -> Duration {
@@ -678,6 +661,32 @@ impl Transport for IceoryxTransport {
 
     fn shaper(&mut self) -> &mut LinkShaper {
         &mut self.shaper
+    }
+}
+
+/// Sleeps on `listener` until notified or `timeout` passes, handing each
+/// event to `heard`. iceoryx2 passes the timeout to SO_RCVTIMEO as whole
+/// microseconds, and a zero timeval means "block forever": a wait of less
+/// than a microsecond (a held message falling due just now) would never
+/// return, so it is a poll.
+fn listen(
+    listener: &Listener<ipc::Service>,
+    timeout: Duration,
+    heard: impl FnMut(EventActivation),
+) -> Result<(), WaitError> {
+    let waited = if timeout < MIN_TIMED_WAIT {
+        listener.try_wait(heard)
+    } else {
+        listener.timed_wait(heard, timeout)
+    };
+    match waited {
+        // A signal cut the wait short: SIGCONT after SIGSTOP does, with no
+        // handler installed. It is a spurious wake-up; every caller loops,
+        // receiving and waiting again, so returning is the retry.
+        Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
+        Err(e) => Err(WaitError {
+            source: Box::new(e),
+        }),
     }
 }
 
@@ -797,17 +806,7 @@ impl BridgeOutlet {
                 woken.push(a);
             }
         };
-        let waited = if timeout < MIN_TIMED_WAIT {
-            self.listener.try_wait(&mut heard)
-        } else {
-            self.listener.timed_wait(&mut heard, timeout)
-        };
-        match waited {
-            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
-            Err(e) => Err(WaitError {
-                source: Box::new(e),
-            }),
-        }
+        listen(&self.listener, timeout, &mut heard)
     }
 
     /// Hands every waiting message on the outgoing channels to `each`.

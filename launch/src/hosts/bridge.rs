@@ -204,12 +204,10 @@ fn run_out(
                 .map_err(|e| anyhow::anyhow!("sending a batch to {}: {e}", hosts[g].name))?;
             batch.clear();
         }
-        let mut c = counts.lock().expect("bridge counts");
-        c.batches_sent += std::mem::take(&mut sent.batches_sent);
-        c.messages_sent += std::mem::take(&mut sent.messages_sent);
-        c.message_bytes_sent += std::mem::take(&mut sent.message_bytes_sent);
-        c.wakes_sent += std::mem::take(&mut sent.wakes_sent);
-        c.batch_bytes_sent += std::mem::take(&mut sent.batch_bytes_sent);
+        counts
+            .lock()
+            .expect("bridge counts")
+            .add(&std::mem::take(&mut sent));
     }
     Ok(())
 }
