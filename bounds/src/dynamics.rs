@@ -75,7 +75,24 @@ impl CoordinatedTurn {
 
     /// `f(x) = F(Ω(x)) x`.
     pub fn transition(&self, x: &State) -> State {
+        Self::apply(&TurnTerms::new(self.turn_rate(x), self.period), x)
+    }
+
+    /// `F̃(x) = ∂f/∂x`, including the dependence of Ω on the velocity:
+    /// `F̃ = F(Ω) + (∂F/∂ω · x) (∂Ω/∂x)ᵀ`.
+    pub fn jacobian(&self, x: &State) -> Mat4 {
+        self.jacobian_from(&TurnTerms::new(self.turn_rate(x), self.period), x)
+    }
+
+    /// `f(x)` and `F̃(x)` from one evaluation of the turn's trigonometry:
+    /// a predictor that also carries a bound needs both at every particle.
+    pub fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
         let t = TurnTerms::new(self.turn_rate(x), self.period);
+        (Self::apply(&t, x), self.jacobian_from(&t, x))
+    }
+
+    #[inline]
+    fn apply(t: &TurnTerms, x: &State) -> State {
         let (vx, vy) = (x[2], x[3]);
         State::new(
             x[0] + t.s * vx - t.c * vy,
@@ -85,11 +102,8 @@ impl CoordinatedTurn {
         )
     }
 
-    /// `F̃(x) = ∂f/∂x`, including the dependence of Ω on the velocity:
-    /// `F̃ = F(Ω) + (∂F/∂ω · x) (∂Ω/∂x)ᵀ`.
-    pub fn jacobian(&self, x: &State) -> Mat4 {
-        let omega = self.turn_rate(x);
-        let t = TurnTerms::new(omega, self.period);
+    #[inline]
+    fn jacobian_from(&self, t: &TurnTerms, x: &State) -> Mat4 {
         let mut jac = t.matrix();
         let v = speed(x);
         if self.maneuver_accel > 0.0 && v > self.min_speed {
@@ -221,6 +235,11 @@ impl Dynamics {
         self.model.jacobian(x)
     }
 
+    /// `f(x)` and `F̃(x)` together, cheaper than the two apart.
+    pub fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
+        self.model.transition_and_jacobian(x)
+    }
+
     /// One draw of `ξ ~ N(0, Q)`.
     pub fn sample_noise<R: Rng + ?Sized>(&self, rng: &mut R) -> State {
         let n = State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
@@ -233,8 +252,11 @@ impl Dynamics {
     }
 }
 
+/// ‖v‖. Not `hypot`, whose guard against overflow costs a library call
+/// per particle and is not needed for speeds.
+#[inline]
 fn speed(x: &State) -> f64 {
-    x[2].hypot(x[3])
+    (x[2] * x[2] + x[3] * x[3]).sqrt()
 }
 
 /// The trigonometric entries of F(ω) and their derivatives in ω.
@@ -268,10 +290,15 @@ impl TurnTerms {
             }
         } else {
             let w2 = omega * omega;
-            // 1 − cos ωT = 2 sin²(ωT/2): the subtraction loses half the digits
-            // at the small turn rates of the default scenario.
-            let half = (0.5 * wt).sin();
-            let one_minus_cos = 2.0 * half * half;
+            // 1 − cos ωT = sin²ωT / (1 + cos ωT): the subtraction loses half
+            // the digits at the small turn rates of the default scenario, and
+            // this form needs no second sine. Near a half turn, where 1 + cos
+            // cancels instead, the subtraction is exact enough.
+            let one_minus_cos = if cos > 0.0 {
+                sin * sin / (1.0 + cos)
+            } else {
+                1.0 - cos
+            };
             Self {
                 sin,
                 cos,
@@ -330,6 +357,11 @@ mod tests {
                 }
                 let numeric = central_jacobian(|y| model.transition(y), &x, 1e-6);
                 let analytic = model.jacobian(&x);
+                assert_eq!(
+                    model.transition_and_jacobian(&x),
+                    (model.transition(&x), analytic),
+                    "one evaluation gives what the two apart give"
+                );
                 let err = (numeric - analytic).abs().max();
                 assert!(
                     err < 1e-6,

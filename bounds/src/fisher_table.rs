@@ -22,7 +22,10 @@ const S_POINTS: usize = 224;
 pub const S_MIN: f64 = 0.5;
 pub const S_MAX: f64 = 64.0;
 
-type Row = [[f64; 3]; U_POINTS];
+/// One row, over u, padded with one column before and two after (the
+/// periodic neighbours), so that the four-column stencil of any `u` is
+/// one contiguous run of the row.
+type Row = [[f64; 3]; U_POINTS + 3];
 
 pub struct FisherTable {
     ln_s_min: f64,
@@ -58,9 +61,9 @@ impl FisherTable {
     fn row(&self, is: usize) -> &Row {
         self.rows[is].get_or_init(|| {
             let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
-            Box::new(std::array::from_fn(|iu| {
-                grid_sums(iu as f64 / U_POINTS as f64, s)
-            }))
+            let sums: [[f64; 3]; U_POINTS] =
+                std::array::from_fn(|iu| grid_sums(iu as f64 / U_POINTS as f64, s));
+            Box::new(std::array::from_fn(|c| sums[(c + U_POINTS - 1) % U_POINTS]))
         })
     }
 
@@ -74,20 +77,23 @@ impl FisherTable {
         if s < S_MIN {
             return None;
         }
+        // `modulo` lands in [0, 1), so `xu` is in [0, U_POINTS) and `xs` is
+        // non-negative but for rounding: truncation is their floor.
         let xu = crate::modulo(u, 1.0) * U_POINTS as f64;
         let xs = (s.ln() - self.ln_s_min) / self.ln_s_step;
-        let iu = xu.floor() as i64;
+        let iu = (xu as usize).min(U_POINTS - 1);
         // Keep the four-point stencil inside the s range.
-        let is = (xs.floor() as i64).clamp(1, S_POINTS as i64 - 3);
+        let is = (xs as usize).clamp(1, S_POINTS - 3);
         let wu = lagrange_weights(xu - iu as f64);
         let ws = lagrange_weights(xs - is as f64);
         let mut out = [0.0; 3];
         for (a, wsa) in ws.iter().enumerate() {
-            let row = self.row((is - 1 + a as i64) as usize);
+            // Row column c holds u-column c − 1: columns iu − 1 ..= iu + 2.
+            let stencil: &[[f64; 3]; 4] = self.row(is - 1 + a)[iu..iu + 4]
+                .try_into()
+                .expect("a padded row holds every four-column stencil");
             let mut acc = [0.0; 3];
-            for (b, wub) in wu.iter().enumerate() {
-                let col = (iu - 1 + b as i64).rem_euclid(U_POINTS as i64) as usize;
-                let v = &row[col];
+            for (wub, v) in wu.iter().zip(stencil) {
                 acc[0] += wub * v[0];
                 acc[1] += wub * v[1];
                 acc[2] += wub * v[2];

@@ -47,13 +47,30 @@ pub use quantizer::{quantized_fisher_information, try_quantized_fisher_informati
 /// an ulp of `x` of the exact remainder.
 #[inline]
 pub(crate) fn modulo(x: f64, p: f64) -> f64 {
-    let r = x - (x / p).floor() * p;
+    let r = x - floor(x / p) * p;
     if r >= p {
         r - p
     } else if r < 0.0 {
         r + p
     } else {
         r
+    }
+}
+
+/// `⌊x⌋`, as `f64::floor`, which on this target (x86-64 before SSE4.1 has
+/// no rounding instruction) is a call into a software routine; two
+/// conversions and a compare do it inline.
+#[inline]
+pub(crate) fn floor(x: f64) -> f64 {
+    // From 2⁵² on every f64 is an integer; this also passes NaN and ±∞.
+    if !(x.abs() < 4_503_599_627_370_496.0) {
+        return x;
+    }
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
     }
 }
 
@@ -125,6 +142,17 @@ mod tests {
     /// `modulo` is `rem_euclid` to within rounding, always in `[0, p)`,
     /// across magnitudes and signs (angles of a few turns, cell offsets of
     /// thousands of cells).
+    #[test]
+    fn floor_is_std_floor() {
+        for x in [
+            0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999, -2.000_001, 1e15 + 0.5, -1e15 - 0.5,
+            4.6e18, -4.6e18, 1e300, f64::INFINITY, f64::NEG_INFINITY,
+        ] {
+            assert_eq!(super::floor(x), x.floor(), "floor({x})");
+        }
+        assert!(super::floor(f64::NAN).is_nan());
+    }
+
     #[test]
     fn modulo_is_rem_euclid_within_rounding() {
         let periods = [1.0, 2.0 * std::f64::consts::PI, 0.3];

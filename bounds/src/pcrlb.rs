@@ -57,18 +57,41 @@ pub fn dynamics_terms(
     weights: &[f64],
 ) -> Result<DynamicsTerms, BoundError> {
     check_weights(particles.len(), weights)?;
-    let q_inv = dynamics.q_inv();
-    let mut forms = FormSum::new(q_inv);
-    let mut mean_jac = Mat4::zeros();
+    let mut sum = DynamicsTermsSum::new(dynamics);
     for (x, &w) in particles.iter().zip(weights) {
-        let f = dynamics.jacobian(x);
-        forms.add(&f, w);
-        mean_jac += f * w;
+        sum.add(&dynamics.jacobian(x), w);
     }
-    Ok(DynamicsTerms {
-        b11: forms.total(),
-        b12: -(mean_jac.transpose() * q_inv),
-    })
+    Ok(sum.total())
+}
+
+/// [`dynamics_terms`] accumulated one particle's Jacobian at a time, for a
+/// predictor that computes each `F̃_j` along with `f(x_j)`
+/// ([`Dynamics::transition_and_jacobian`]). The caller checks the weights.
+pub struct DynamicsTermsSum<'q> {
+    forms: FormSum<'q>,
+    mean_jac: Mat4,
+}
+
+impl<'q> DynamicsTermsSum<'q> {
+    pub fn new(dynamics: &'q Dynamics) -> Self {
+        Self {
+            forms: FormSum::new(dynamics.q_inv()),
+            mean_jac: Mat4::zeros(),
+        }
+    }
+
+    #[inline]
+    pub fn add(&mut self, jacobian: &Mat4, weight: f64) {
+        self.forms.add(jacobian, weight);
+        self.mean_jac += jacobian * weight;
+    }
+
+    pub fn total(&self) -> DynamicsTerms {
+        DynamicsTerms {
+            b11: self.forms.total(),
+            b12: -(self.mean_jac.transpose() * self.forms.q_inv),
+        }
+    }
 }
 
 /// `Σ_j w_j F̃_jᵀ Q⁻¹ F̃_j` (B11), accumulated particle by particle.

@@ -294,11 +294,18 @@ impl Quantizer {
         let d = [distance(-1.0), distance(0.0), distance(1.0)];
         let nearest = d[0].min(d[1]).min(d[2]);
         let mut terms = [f64::NEG_INFINITY; 3];
+        let mut summed = 0;
         for (k, &j) in self.shifts().iter().enumerate() {
             if d[k] <= nearest + 10.0 {
                 let (a, b) = self.standardized(index as usize, j, mean, sigma);
                 terms[k] = ln_interval_mass(a, b);
+                summed += 1;
             }
+        }
+        if summed == 1 {
+            // The usual case (cells much narrower than the circle): the sum
+            // is this one term, without three exps and a log to say so.
+            return terms.into_iter().fold(f64::NEG_INFINITY, f64::max);
         }
         ln_sum_exp(&terms)
     }
