@@ -151,7 +151,9 @@ impl ObservationModel {
                 let (dx, dy, d2) = offset(x, sensor);
                 let s2 = sigma_theta * sigma_theta;
                 Evaluation {
-                    g: dx.atan2(dy),
+                    // fdlibm's atan2 (the `libm` crate), within an ulp as
+                    // glibc's is: a third fewer instructions (callgrind).
+                    g: libm::atan2(dx, dy),
                     grad_g: State::new(dy / d2, -dx / d2, 0.0, 0.0),
                     r: s2 * (1.0 + d2 / (d0 * d0)),
                     grad_r: State::new(
