@@ -37,6 +37,24 @@ fn bench(c: &mut Criterion) {
         })
     });
 
+    // The quantizer's part of J_Y alone, over bearings and noise levels a
+    // 1000-particle cloud spreads over.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2);
+    let cloud: Vec<(f64, f64)> = (0..1000)
+        .map(|_| {
+            let sigma = 0.02 * rng.random_range(1.0..2.5_f64);
+            (rng.random_range(-PI..PI), sigma * sigma)
+        })
+        .collect();
+    c.bench_function("Fisher scalars of 1000 particles, 8-bit bearing", |b| {
+        b.iter(|| {
+            cloud
+                .iter()
+                .map(|&(g, r)| q.fisher_scalars(black_box(g), r).gg)
+                .sum::<f64>()
+        })
+    });
+
     let dynamics = default_dynamics();
     let models = [[250.0, 350.0], [50.0, 150.0], [450.0, 450.0]].map(|s| {
         SensorLaw::Bearing {
