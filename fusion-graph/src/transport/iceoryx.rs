@@ -320,7 +320,12 @@ pub struct IceoryxTransport {
     node: Node<ipc::Service>,
     publishers: HashMap<Channel, Pub>,
     subscribers: Vec<(Channel, Sub)>,
+    /// Which subscriptions were heard from since the last `receive`: see
+    /// [`Heard`].
+    heard: Heard,
     listener: Listener<ipc::Service>,
+    /// The event id this actor's wake-ups carry: its own wake id.
+    wake_event: EventId,
     notifiers: HashMap<ActorId, Notifier<ipc::Service>>,
     /// Second publishers used by [`inject_raw`](Self::inject_raw).
     raw_publishers: HashMap<Channel, Pub>,
@@ -419,6 +424,8 @@ impl IceoryxTransport {
             node,
             publishers: HashMap::new(),
             subscribers: Vec::new(),
+            heard: Heard::new(topology),
+            wake_event: EventId::new(wake_id(me, topology)),
             notifiers: HashMap::new(),
             raw_publishers: HashMap::new(),
             far: None,
@@ -592,7 +599,7 @@ impl Transport for IceoryxTransport {
         for w in wake {
             // A failed wake-up only delays the receiver until its timeout.
             if let Some(n) = self.notifiers.get(w) {
-                let _ = n.notify();
+                let _ = n.notify_with_custom_event_id(self.wake_event);
             } else if let Some(far) = &self.far {
                 if let (Some(bridge), Some(id)) = (&far.bridge, far.ids.get(w)) {
                     let _ = bridge.notify_with_custom_event_id(*id);
@@ -618,7 +625,20 @@ impl Transport for IceoryxTransport {
             accounting,
             shaper,
         };
+        let heard = &mut self.heard;
+        if !heard.waited {
+            // Called without a wait since the last receive: take the
+            // wake-ups that came in meanwhile without sleeping.
+            listen(&self.listener, Duration::ZERO, |a| heard.hear(a.id.as_value()))
+                .map_err(|e| ReceiveError {
+                    channel: "wake".into(),
+                    source: e.source,
+                })?;
+        }
         for (channel, sub) in subscribers.iter() {
+            if !heard.may_have_data(*channel) {
+                continue;
+            }
             loop {
                 match sub.receive() {
                     Ok(Some(sample)) => {
@@ -638,6 +658,7 @@ impl Transport for IceoryxTransport {
                 }
             }
         }
+        heard.clear();
         inbound.release(now, out);
         Ok(())
     }
@@ -648,7 +669,18 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        listen(&self.listener, timeout, |_| {})
+        let mut woken = false;
+        let heard = &mut self.heard;
+        listen(&self.listener, timeout, |activation| {
+            woken = true;
+            heard.hear(activation.id.as_value());
+        })?;
+        heard.waited = true;
+        if !woken {
+            // A timeout, or a wake-up that came without its event.
+            heard.everything();
+        }
+        Ok(())
     }
 
     fn now(&self) -> Duration {
@@ -693,6 +725,78 @@ fn listen(
 /// Notifiers a wake-up service takes beyond the actor's peers.
 const WAKE_SLACK: usize = 4;
 
+/// The largest event id of a wake-up service. An actor's wake-ups carry its
+/// own [`wake_id`], so that the woken know who woke them; this last id is
+/// for wake-ups that do not say (a host's bridge bringing messages from
+/// elsewhere).
+fn wake_ids(topology: &Topology) -> usize {
+    1 + topology.nodes() + topology.sensors()
+}
+
+/// Which subscriptions may hold messages, from the wake-ups heard since the
+/// last `receive`.
+///
+/// Polling an empty iceoryx2 subscriber touches its service's shared memory
+/// and its connection's, and a node was polling 25 observation channels and
+/// a handful of others at every wake-up, ten or more a step: the polls were
+/// a tenth of `run`'s CPU, more than any function of the filters but one.
+/// A sensor wakes every receiver of every observation it publishes, after
+/// publishing it, so its channel needs reading only when its wake-up was
+/// heard. Every other channel is read at every `receive`: their publishers
+/// wake only some receivers (a node's activation wakes its active sensors,
+/// its consensus its live neighbours), and the rest must still find the
+/// message when something else wakes them. A wake-up that does not say who
+/// sent it, or a wait that ends without one (a timeout, or a wake-up whose
+/// notification failed), reads everything.
+struct Heard {
+    nodes: usize,
+    sensors: Vec<bool>,
+    everything: bool,
+    /// Whether a wait took the wake-ups since the last `receive`; if not,
+    /// `receive` takes them itself.
+    waited: bool,
+}
+
+impl Heard {
+    fn new(topology: &Topology) -> Self {
+        Self {
+            nodes: topology.nodes(),
+            sensors: vec![false; topology.sensors()],
+            everything: true,
+            waited: false,
+        }
+    }
+
+    /// A wake-up carrying event id `id`.
+    fn hear(&mut self, id: usize) {
+        match id.checked_sub(1 + self.nodes) {
+            Some(s) if s < self.sensors.len() => self.sensors[s] = true,
+            // The launcher's and nodes' channels are read anyway.
+            None => {}
+            Some(_) => self.everything = true,
+        }
+    }
+
+    fn everything(&mut self) {
+        self.everything = true;
+    }
+
+    fn may_have_data(&self, channel: Channel) -> bool {
+        match channel {
+            Channel::Observation(s) => {
+                self.everything || self.sensors.get(s as usize).copied().unwrap_or(true)
+            }
+            _ => true,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.everything = false;
+        self.waited = false;
+        self.sensors.fill(false);
+    }
+}
+
 fn open_wake(
     node: &Node<ipc::Service>,
     run: &RunId,
@@ -700,6 +804,7 @@ fn open_wake(
     topology: &Topology,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
+    let ids = wake_ids(topology);
     // Only an actor's peers wake it (a node's sensors and neighbours and
     // the launcher; a sensor's node and the launcher), and a few more for
     // tools and tests. Sized for everyone, the services' shared memory and
@@ -712,6 +817,7 @@ fn open_wake(
             .max_notifiers(wakers)
             .max_listeners(2)
             .max_nodes(wakers + 2)
+            .event_id_max_value(ids)
             .open_or_create()
     })
     .map_err(|e| setup("wake event", e))
@@ -835,6 +941,8 @@ impl BridgeOutlet {
 pub struct BridgeInlet {
     incoming: HashMap<Channel, Pub>,
     wakers: HashMap<ActorId, Notifier<ipc::Service>>,
+    /// The event id of a wake-up that does not say whose message it brings.
+    anonymous: EventId,
     /// Last: the ports above belong to it.
     _node: Node<ipc::Service>,
 }
@@ -871,6 +979,7 @@ impl BridgeInlet {
         Ok(Self {
             incoming,
             wakers,
+            anonymous: EventId::new(wake_ids(topology)),
             _node: node,
         })
     }
@@ -899,7 +1008,9 @@ impl BridgeInlet {
 
     /// Wakes an actor of this host; `false` if it is not one.
     pub fn wake(&self, actor: ActorId) -> bool {
-        self.wakers.get(&actor).is_some_and(|n| n.notify().is_ok())
+        self.wakers
+            .get(&actor)
+            .is_some_and(|n| n.notify_with_custom_event_id(self.anonymous).is_ok())
     }
 }
 
@@ -971,6 +1082,61 @@ mod tests {
             sensor: Some(sensor),
             node: Some(node),
         }
+    }
+
+    /// Which subscriptions a receive reads, from the wake-ups heard.
+    #[test]
+    fn observation_channels_are_read_when_their_sensor_woke_us() {
+        let topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
+        let mut heard = Heard::new(&topology);
+        let sensor = |s: u16| wake_id(ActorId::Sensor(s), &topology);
+        // Before anything is known, everything is read.
+        assert!(heard.may_have_data(Channel::Observation(3)));
+        heard.clear();
+        assert!(!heard.may_have_data(Channel::Observation(3)));
+        assert!(heard.may_have_data(Channel::Consensus(1)));
+        assert!(heard.may_have_data(Channel::Control(ActorId::Node(0))));
+        heard.hear(sensor(3));
+        assert!(heard.may_have_data(Channel::Observation(3)));
+        assert!(!heard.may_have_data(Channel::Observation(4)));
+        heard.clear();
+        // A node or the launcher waking us says nothing about sensors.
+        heard.hear(wake_id(ActorId::Node(2), &topology));
+        heard.hear(wake_id(ActorId::Launcher, &topology));
+        assert!(!heard.may_have_data(Channel::Observation(3)));
+        // A wake-up that does not say whose message it brings reads all.
+        heard.hear(wake_ids(&topology));
+        assert!(heard.may_have_data(Channel::Observation(3)));
+        heard.clear();
+        heard.everything();
+        assert!(heard.may_have_data(Channel::Observation(200)));
+    }
+
+    /// An observation published without its wake-up is still read once a
+    /// wait times out; one with its wake-up, as soon as the wait returns.
+    #[test]
+    fn an_observation_without_its_wake_up_is_read_after_a_timeout() {
+        let mut p = pair("heard");
+        let Pair { sensor, node, .. } = &mut p;
+        let (sensor, node) = (sensor.as_mut().unwrap(), node.as_mut().unwrap());
+        let mut got = Vec::new();
+        node.receive(node.now(), &mut got).unwrap();
+        assert!(got.is_empty());
+        sensor
+            .send_waking(Channel::Observation(0), &contract::obs(0, 1), &[node.me()], &[])
+            .unwrap();
+        node.wait(Duration::from_millis(2)).unwrap();
+        node.receive(node.now(), &mut got).unwrap();
+        assert_eq!(got.len(), 1, "read after the wait timed out");
+        sensor
+            .send(Channel::Observation(0), &contract::obs(0, 2), &[node.me()])
+            .unwrap();
+        let started = Instant::now();
+        node.wait(Duration::from_secs(5)).unwrap();
+        assert!(started.elapsed() < Duration::from_secs(4), "woken, not timed out");
+        node.receive(node.now(), &mut got).unwrap();
+        assert_eq!(got.len(), 2);
+        assert_eq!(got[1].header.step, 2);
     }
 
     #[test]
