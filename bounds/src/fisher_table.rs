@@ -5,9 +5,12 @@
 //! sums `Σα²/h, Σαβ/h, Σβ²/h` depend on `(u, s)` alone, whatever the bit
 //! depth or range. One table, built once per process, serves every uniform
 //! quantizer wherever its outer cells are out of reach; bicubic Lagrange
-//! interpolation reads it. Rows (one per value of s) are computed on first
-//! use, so a process pays only for the range of σ/Δ it meets. `table_matches_the_exact_sums` bounds its error
-//! against the exact sums (below 1e-6 of the unquantized information).
+//! interpolation reads it. From s = 1 up, where the sums hardly depend on
+//! u, a row is its mean over u and the interpolation is cubic in s alone.
+//! Rows (one per value of s) are computed on first use, so a process pays
+//! only for the range of σ/Δ it meets. `table_matches_the_exact_sums`
+//! bounds its error against the exact sums (below 1e-6 of the unquantized
+//! information).
 
 use std::sync::OnceLock;
 
@@ -22,15 +25,34 @@ const S_POINTS: usize = 224;
 pub const S_MIN: f64 = 0.5;
 pub const S_MAX: f64 = 64.0;
 
-/// One row, over u, padded with one column before and two after (the
-/// periodic neighbours), so that the four-column stencil of any `u` is
-/// one contiguous run of the row.
-type Row = [[f64; 3]; U_POINTS + 3];
+/// Above this s the sums depend on u by less than 1.2e-7 (their
+/// peak-to-peak swing over u is 2.3e-7 at s = 1 for the largest, Σβ²/h of
+/// scale 2, and falls as exp(−2π²s²): 4e-9 at s = 1.1), so the table gives
+/// their mean over u: four rows of one value each instead of four by four.
+const S_FLAT: f64 = 1.0;
+/// Samples over u for the mean of a row that has no grid: the trapezoid
+/// rule is exact for a periodic function up to harmonics of this order,
+/// and the rest are below 1e-30 here.
+const FLAT_SAMPLES: usize = 8;
+
+/// The grid over u of one row, padded with one column before and two after
+/// (the periodic neighbours), so that the four-column stencil of any `u` is
+/// one contiguous run.
+type Grid = [[f64; 3]; U_POINTS + 3];
+
+/// One value of s: the sums' mean over u and, for rows a lookup below
+/// `S_FLAT` can reach, the grid over u.
+struct Row {
+    mean: [f64; 3],
+    grid: Option<Box<Grid>>,
+}
 
 pub struct FisherTable {
     ln_s_min: f64,
     ln_s_step: f64,
-    rows: Vec<OnceLock<Box<Row>>>,
+    /// Rows up to this one have a grid over u.
+    last_grid_row: usize,
+    rows: Vec<OnceLock<Row>>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -47,13 +69,22 @@ pub fn grid_sums(u: f64, s: f64) -> [f64; 3] {
     window_sums((first..=last + 1).map(|m| (m as f64 - u) / s))
 }
 
+fn mean_of(sums: &[[f64; 3]]) -> [f64; 3] {
+    let n = sums.len() as f64;
+    let total = sums.iter().fold([0.0; 3], |t, v| [t[0] + v[0], t[1] + v[1], t[2] + v[2]]);
+    total.map(|t| t / n)
+}
+
 impl FisherTable {
     fn build() -> Self {
         let ln_s_min = S_MIN.ln();
         let ln_s_step = (S_MAX.ln() - ln_s_min) / (S_POINTS - 1) as f64;
+        // A bicubic stencil for s < S_FLAT reaches two rows above floor(xs).
+        let flat_x = (S_FLAT.ln() - ln_s_min) / ln_s_step;
         Self {
             ln_s_min,
             ln_s_step,
+            last_grid_row: (flat_x as usize + 2).min(S_POINTS - 1),
             rows: (0..S_POINTS).map(|_| OnceLock::new()).collect(),
         }
     }
@@ -61,9 +92,23 @@ impl FisherTable {
     fn row(&self, is: usize) -> &Row {
         self.rows[is].get_or_init(|| {
             let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
+            if is > self.last_grid_row {
+                let sums: [[f64; 3]; FLAT_SAMPLES] = std::array::from_fn(|iu| {
+                    grid_sums(iu as f64 / FLAT_SAMPLES as f64, s)
+                });
+                return Row {
+                    mean: mean_of(&sums),
+                    grid: None,
+                };
+            }
             let sums: [[f64; 3]; U_POINTS] =
                 std::array::from_fn(|iu| grid_sums(iu as f64 / U_POINTS as f64, s));
-            Box::new(std::array::from_fn(|c| sums[(c + U_POINTS - 1) % U_POINTS]))
+            Row {
+                mean: mean_of(&sums),
+                grid: Some(Box::new(std::array::from_fn(|c| {
+                    sums[(c + U_POINTS - 1) % U_POINTS]
+                }))),
+            }
         })
     }
 
@@ -77,19 +122,33 @@ impl FisherTable {
         if s < S_MIN {
             return None;
         }
-        // `modulo` lands in [0, 1), so `xu` is in [0, U_POINTS) and `xs` is
-        // non-negative but for rounding: truncation is their floor.
-        let xu = crate::modulo(u, 1.0) * U_POINTS as f64;
         let xs = (s.ln() - self.ln_s_min) / self.ln_s_step;
-        let iu = (xu as usize).min(U_POINTS - 1);
-        // Keep the four-point stencil inside the s range.
+        // Non-negative but for rounding: truncation is the floor. Keep the
+        // four-point stencil inside the s range.
         let is = (xs as usize).clamp(1, S_POINTS - 3);
-        let wu = lagrange_weights(xu - iu as f64);
         let ws = lagrange_weights(xs - is as f64);
         let mut out = [0.0; 3];
+        if s >= S_FLAT {
+            for (a, wsa) in ws.iter().enumerate() {
+                let v = &self.row(is - 1 + a).mean;
+                out[0] += wsa * v[0];
+                out[1] += wsa * v[1];
+                out[2] += wsa * v[2];
+            }
+            return Some(out);
+        }
+        // `modulo` lands in [0, 1), so `xu` is in [0, U_POINTS).
+        let xu = crate::modulo(u, 1.0) * U_POINTS as f64;
+        let iu = (xu as usize).min(U_POINTS - 1);
+        let wu = lagrange_weights(xu - iu as f64);
         for (a, wsa) in ws.iter().enumerate() {
-            // Row column c holds u-column c − 1: columns iu − 1 ..= iu + 2.
-            let stencil: &[[f64; 3]; 4] = self.row(is - 1 + a)[iu..iu + 4]
+            // Grid column c holds u-column c − 1: columns iu − 1 ..= iu + 2.
+            let grid = self
+                .row(is - 1 + a)
+                .grid
+                .as_ref()
+                .expect("rows a lookup below S_FLAT reaches have a grid");
+            let stencil: &[[f64; 3]; 4] = grid[iu..iu + 4]
                 .try_into()
                 .expect("a padded row holds every four-column stencil");
             let mut acc = [0.0; 3];
