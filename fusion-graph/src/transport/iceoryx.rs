@@ -529,6 +529,7 @@ impl Transport for IceoryxTransport {
             .create()
             .map_err(|e| setup("subscriber", e))?;
         self.subscribers.push((channel, sub));
+        self.heard.selective |= matches!(channel, Channel::Observation(_));
         Ok(())
     }
 
@@ -626,7 +627,7 @@ impl Transport for IceoryxTransport {
             shaper,
         };
         let heard = &mut self.heard;
-        if !heard.waited {
+        if !heard.waited && heard.selective {
             // Called without a wait since the last receive: take the
             // wake-ups that came in meanwhile without sleeping.
             listen(&self.listener, Duration::ZERO, |a| heard.hear(a.id.as_value()))
@@ -753,8 +754,10 @@ struct Heard {
     sensors: Vec<bool>,
     everything: bool,
     /// Whether a wait took the wake-ups since the last `receive`; if not,
-    /// `receive` takes them itself.
+    /// `receive` takes them itself (a system call), unless no subscription
+    /// is read selectively.
     waited: bool,
+    selective: bool,
 }
 
 impl Heard {
@@ -764,6 +767,7 @@ impl Heard {
             sensors: vec![false; topology.sensors()],
             everything: true,
             waited: false,
+            selective: false,
         }
     }
 
