@@ -182,7 +182,7 @@ fn fine_cell_sums(s: f64) -> [f64; 3] {
 
 /// Cubic Lagrange weights for nodes −1, 0, 1, 2 at offset `t` from node 0.
 #[inline]
-fn lagrange_weights(t: f64) -> [f64; 4] {
+pub(crate) fn lagrange_weights(t: f64) -> [f64; 4] {
     let (tm1, tp1, tm2) = (t - 1.0, t + 1.0, t - 2.0);
     [
         -t * tm1 * tm2 / 6.0,

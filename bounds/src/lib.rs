@@ -25,6 +25,7 @@ pub mod diffusion;
 pub mod dynamics;
 pub mod fisher;
 pub mod fisher_table;
+pub mod mass_table;
 pub mod normal;
 pub mod observation;
 pub mod pcrlb;
