@@ -40,6 +40,7 @@ type Row = [f64; V_POINTS + 3];
 pub struct LnMassTable {
     ln_s_min: f64,
     ln_s_step: f64,
+    per_ln_s_step: f64,
     rows: Vec<OnceLock<Box<Row>>>,
 }
 
@@ -58,9 +59,11 @@ pub fn exact(v: f64, s: f64) -> f64 {
 impl LnMassTable {
     fn build() -> Self {
         let ln_s_min = S_MIN.ln();
+        let ln_s_step = (S_MAX.ln() - ln_s_min) / (S_POINTS - 1) as f64;
         Self {
             ln_s_min,
-            ln_s_step: (S_MAX.ln() - ln_s_min) / (S_POINTS - 1) as f64,
+            ln_s_step,
+            per_ln_s_step: 1.0 / ln_s_step,
             rows: (0..S_POINTS).map(|_| OnceLock::new()).collect(),
         }
     }
@@ -83,7 +86,7 @@ impl LnMassTable {
             return None;
         }
         let xv = (v + V_MAX) * V_PER_UNIT as f64;
-        let xs = (s.ln() - self.ln_s_min) / self.ln_s_step;
+        let xs = (s.ln() - self.ln_s_min) * self.per_ln_s_step;
         // Both non-negative but for rounding: truncation is the floor.
         let iv = (xv as usize).min(V_POINTS - 2);
         let is = (xs as usize).clamp(1, S_POINTS - 3);

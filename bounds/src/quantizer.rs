@@ -326,6 +326,8 @@ impl Quantizer {
         let (lo, width) = self.uniform?;
         let l = self.cells() as u32;
         let sigma = variance.sqrt();
+        // One division: each is a long wait on this path's critical chain.
+        let per_sigma = 1.0 / sigma;
         let centre = lo + (index as f64 + 0.5) * width;
         let offset = if self.wrapped {
             // The nearest copy, whose edges are within V_MAX σ of the mean
@@ -337,7 +339,7 @@ impl Quantizer {
                 return None;
             }
             let d = mean - centre;
-            d - crate::floor(d / period + 0.5) * period
+            d - crate::floor(d * (1.0 / period) + 0.5) * period
         } else {
             // The outer cells are unbounded: not a cell of the table.
             if index == 0 || index + 1 >= l {
@@ -345,7 +347,7 @@ impl Quantizer {
             }
             mean - centre
         };
-        table().lookup(offset / sigma, sigma / width)
+        table().lookup(offset * per_sigma, sigma * (1.0 / width))
     }
 
     /// `(h_i, ∂h_i/∂g, ∂h_i/∂R)`, with `∂h/∂g = (φ(a) − φ(b))/σ` and
