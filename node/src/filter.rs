@@ -2,7 +2,7 @@
 //! (log-likelihood weights), systematic resampler, and Gaussian summaries.
 //! Buffers are allocated once; a step allocates nothing.
 
-use bounds::pcrlb::{dynamics_terms, DynamicsTermsSum};
+use bounds::pcrlb::DynamicsTermsSum;
 pub use bounds::Gaussian;
 use bounds::{BoundError, Dynamics, DynamicsTerms, Mat4, State};
 use nalgebra::Cholesky;
@@ -381,6 +381,7 @@ pub fn summarize(particles: &[State], weights: &[f64]) -> Gaussian {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bounds::pcrlb::dynamics_terms;
     use bounds::CoordinatedTurn;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;

@@ -324,9 +324,9 @@ pub struct IceoryxTransport {
     /// [`Heard`].
     heard: Heard,
     listener: Listener<ipc::Service>,
-    /// The event id this actor's wake-ups carry: its own wake id.
-    wake_event: EventId,
-    notifiers: HashMap<ActorId, Notifier<ipc::Service>>,
+    /// Each receiver's notifier, with the event id our wake-ups carry in
+    /// its service ([`WakeIds`]).
+    notifiers: HashMap<ActorId, (Notifier<ipc::Service>, EventId)>,
     /// Second publishers used by [`inject_raw`](Self::inject_raw).
     raw_publishers: HashMap<Channel, Pub>,
     /// On a host of several: how actors of the other hosts are woken.
@@ -424,8 +424,7 @@ impl IceoryxTransport {
             node,
             publishers: HashMap::new(),
             subscribers: Vec::new(),
-            heard: Heard::new(topology),
-            wake_event: EventId::new(wake_id(me, topology)),
+            heard: Heard::new(me, topology),
             notifiers: HashMap::new(),
             raw_publishers: HashMap::new(),
             far: None,
@@ -562,7 +561,8 @@ impl Transport for IceoryxTransport {
                 .notifier_builder()
                 .create()
                 .map_err(|e| setup("notifier", e))?;
-            self.notifiers.insert(actor, n);
+            let id = WakeIds::of(actor, &self.topology).id_of(self.me);
+            self.notifiers.insert(actor, (n, EventId::new(id)));
         }
         Ok(())
     }
@@ -599,8 +599,8 @@ impl Transport for IceoryxTransport {
         })?;
         for w in wake {
             // A failed wake-up only delays the receiver until its timeout.
-            if let Some(n) = self.notifiers.get(w) {
-                let _ = n.notify_with_custom_event_id(self.wake_event);
+            if let Some((n, id)) = self.notifiers.get(w) {
+                let _ = n.notify_with_custom_event_id(*id);
             } else if let Some(far) = &self.far {
                 if let (Some(bridge), Some(id)) = (&far.bridge, far.ids.get(w)) {
                     let _ = bridge.notify_with_custom_event_id(*id);
@@ -726,12 +726,55 @@ fn listen(
 /// Notifiers a wake-up service takes beyond the actor's peers.
 const WAKE_SLACK: usize = 4;
 
-/// The largest event id of a wake-up service. An actor's wake-ups carry its
-/// own [`wake_id`], so that the woken know who woke them; this last id is
-/// for wake-ups that do not say (a host's bridge bringing messages from
-/// elsewhere).
-fn wake_ids(topology: &Topology) -> usize {
-    1 + topology.nodes() + topology.sensors()
+/// The event ids of one actor's wake-up service: who woke it, as far as it
+/// needs to know.
+///
+/// - `ANONYMOUS` (0): a wake-up that does not say whose message it brings
+///   (a host's bridge); the woken read everything.
+/// - `OTHER` (1): the launcher or a node; their channels are read at every
+///   receive anyway.
+/// - `2 + k`: the k-th sensor whose observations the actor reads (a node's
+///   own sensors in topology order; every sensor for the launcher).
+///
+/// Ids are numbered per receiver, not per network: iceoryx2 drains a
+/// listener by swapping every id's counter, so a wait costs a locked
+/// instruction per id the service has. A node's service has 27 (its 25
+/// sensors), not the 2,600 of a network-wide numbering at the largest size.
+struct WakeIds {
+    /// The sensors, in id order.
+    sensors: Vec<u16>,
+}
+
+impl WakeIds {
+    const ANONYMOUS: usize = 0;
+    const OTHER: usize = 1;
+
+    fn of(receiver: ActorId, topology: &Topology) -> Self {
+        Self {
+            sensors: match receiver {
+                ActorId::Node(n) => topology.node_sensors[n as usize].clone(),
+                ActorId::Launcher => (0..topology.sensors() as u16).collect(),
+                ActorId::Sensor(_) => Vec::new(),
+            },
+        }
+    }
+
+    /// The largest id.
+    fn max(&self) -> usize {
+        Self::OTHER + self.sensors.len()
+    }
+
+    /// The id wake-ups from `waker` carry.
+    fn id_of(&self, waker: ActorId) -> usize {
+        match waker {
+            ActorId::Sensor(s) => self
+                .sensors
+                .iter()
+                .position(|&x| x == s)
+                .map_or(Self::OTHER, |k| 2 + k),
+            _ => Self::OTHER,
+        }
+    }
 }
 
 /// Which subscriptions may hold messages, from the wake-ups heard since the
@@ -750,7 +793,8 @@ fn wake_ids(topology: &Topology) -> usize {
 /// sent it, or a wait that ends without one (a timeout, or a wake-up whose
 /// notification failed), reads everything.
 struct Heard {
-    nodes: usize,
+    ids: WakeIds,
+    /// Whether each sensor (by sensor index) woke us.
     sensors: Vec<bool>,
     everything: bool,
     /// Whether a wait took the wake-ups since the last `receive`; if not,
@@ -761,9 +805,9 @@ struct Heard {
 }
 
 impl Heard {
-    fn new(topology: &Topology) -> Self {
+    fn new(me: ActorId, topology: &Topology) -> Self {
         Self {
-            nodes: topology.nodes(),
+            ids: WakeIds::of(me, topology),
             sensors: vec![false; topology.sensors()],
             everything: true,
             waited: false,
@@ -773,11 +817,15 @@ impl Heard {
 
     /// A wake-up carrying event id `id`.
     fn hear(&mut self, id: usize) {
-        match id.checked_sub(1 + self.nodes) {
-            Some(s) if s < self.sensors.len() => self.sensors[s] = true,
+        match id {
             // The launcher's and nodes' channels are read anyway.
-            None => {}
-            Some(_) => self.everything = true,
+            WakeIds::OTHER => {}
+            k if k >= 2 && k - 2 < self.ids.sensors.len() => {
+                if let Some(heard) = self.sensors.get_mut(self.ids.sensors[k - 2] as usize) {
+                    *heard = true;
+                }
+            }
+            _ => self.everything = true,
         }
     }
 
@@ -808,7 +856,7 @@ fn open_wake(
     topology: &Topology,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
-    let ids = wake_ids(topology);
+    let ids = WakeIds::of(actor, topology).max();
     // Only an actor's peers wake it (a node's sensors and neighbours and
     // the launcher; a sensor's node and the launcher), and a few more for
     // tools and tests. Sized for everyone, the services' shared memory and
@@ -983,7 +1031,7 @@ impl BridgeInlet {
         Ok(Self {
             incoming,
             wakers,
-            anonymous: EventId::new(wake_ids(topology)),
+            anonymous: EventId::new(WakeIds::ANONYMOUS),
             _node: node,
         })
     }
@@ -1088,29 +1136,42 @@ mod tests {
         }
     }
 
-    /// Which subscriptions a receive reads, from the wake-ups heard.
+    /// Which subscriptions a receive reads, from the wake-ups heard; the
+    /// ids are numbered per receiver.
     #[test]
     fn observation_channels_are_read_when_their_sensor_woke_us() {
         let topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
-        let mut heard = Heard::new(&topology);
-        let sensor = |s: u16| wake_id(ActorId::Sensor(s), &topology);
+        let node = ActorId::Node(4);
+        let own = &topology.node_sensors[4];
+        let (mine, other) = (own[3], topology.node_sensors[0][0]);
+        let ids = WakeIds::of(node, &topology);
+        assert_eq!(ids.max(), 1 + own.len(), "a node's service: its sensors, and two more");
+        assert_eq!(WakeIds::of(ActorId::Sensor(0), &topology).max(), 1);
+        assert_eq!(
+            WakeIds::of(ActorId::Launcher, &topology).max(),
+            1 + topology.sensors()
+        );
+        let mut heard = Heard::new(node, &topology);
         // Before anything is known, everything is read.
-        assert!(heard.may_have_data(Channel::Observation(3)));
+        assert!(heard.may_have_data(Channel::Observation(mine)));
         heard.clear();
-        assert!(!heard.may_have_data(Channel::Observation(3)));
+        assert!(!heard.may_have_data(Channel::Observation(mine)));
         assert!(heard.may_have_data(Channel::Consensus(1)));
-        assert!(heard.may_have_data(Channel::Control(ActorId::Node(0))));
-        heard.hear(sensor(3));
-        assert!(heard.may_have_data(Channel::Observation(3)));
-        assert!(!heard.may_have_data(Channel::Observation(4)));
+        assert!(heard.may_have_data(Channel::Control(node)));
+        heard.hear(ids.id_of(ActorId::Sensor(mine)));
+        assert!(heard.may_have_data(Channel::Observation(mine)));
+        assert!(!heard.may_have_data(Channel::Observation(own[4])));
         heard.clear();
-        // A node or the launcher waking us says nothing about sensors.
-        heard.hear(wake_id(ActorId::Node(2), &topology));
-        heard.hear(wake_id(ActorId::Launcher, &topology));
-        assert!(!heard.may_have_data(Channel::Observation(3)));
+        // A node or the launcher waking us says nothing about sensors, and
+        // neither does a sensor that is not ours.
+        for waker in [ActorId::Node(1), ActorId::Launcher, ActorId::Sensor(other)] {
+            assert_eq!(ids.id_of(waker), WakeIds::OTHER);
+            heard.hear(ids.id_of(waker));
+        }
+        assert!(!heard.may_have_data(Channel::Observation(mine)));
         // A wake-up that does not say whose message it brings reads all.
-        heard.hear(wake_ids(&topology));
-        assert!(heard.may_have_data(Channel::Observation(3)));
+        heard.hear(WakeIds::ANONYMOUS);
+        assert!(heard.may_have_data(Channel::Observation(mine)));
         heard.clear();
         heard.everything();
         assert!(heard.may_have_data(Channel::Observation(200)));
