@@ -71,7 +71,9 @@ pub fn grid_sums(u: f64, s: f64) -> [f64; 3] {
 
 fn mean_of(sums: &[[f64; 3]]) -> [f64; 3] {
     let n = sums.len() as f64;
-    let total = sums.iter().fold([0.0; 3], |t, v| [t[0] + v[0], t[1] + v[1], t[2] + v[2]]);
+    let total = sums
+        .iter()
+        .fold([0.0; 3], |t, v| [t[0] + v[0], t[1] + v[1], t[2] + v[2]]);
     total.map(|t| t / n)
 }
 
@@ -93,9 +95,8 @@ impl FisherTable {
         self.rows[is].get_or_init(|| {
             let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
             if is > self.last_grid_row {
-                let sums: [[f64; 3]; FLAT_SAMPLES] = std::array::from_fn(|iu| {
-                    grid_sums(iu as f64 / FLAT_SAMPLES as f64, s)
-                });
+                let sums: [[f64; 3]; FLAT_SAMPLES] =
+                    std::array::from_fn(|iu| grid_sums(iu as f64 / FLAT_SAMPLES as f64, s));
                 return Row {
                     mean: mean_of(&sums),
                     grid: None,

@@ -146,8 +146,21 @@ mod tests {
     #[test]
     fn floor_is_std_floor() {
         for x in [
-            0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999, -2.000_001, 1e15 + 0.5, -1e15 - 0.5,
-            4.6e18, -4.6e18, 1e300, f64::INFINITY, f64::NEG_INFINITY,
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.999_999,
+            -2.000_001,
+            1e15 + 0.5,
+            -1e15 - 0.5,
+            4.6e18,
+            -4.6e18,
+            1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
         ] {
             assert_eq!(super::floor(x), x.floor(), "floor({x})");
         }

@@ -97,7 +97,10 @@ impl LnMassTable {
             // Row point k holds grid point k − 1: points iv − 1 ..= iv + 2.
             let stencil = &self.row(is - 1 + a)[iv..iv + 4];
             g += wsa
-                * (wv[0] * stencil[0] + wv[1] * stencil[1] + wv[2] * stencil[2] + wv[3] * stencil[3]);
+                * (wv[0] * stencil[0]
+                    + wv[1] * stencil[1]
+                    + wv[2] * stencil[2]
+                    + wv[3] * stencil[3]);
         }
         Some(g - 0.5 * v * v)
     }
@@ -124,7 +127,11 @@ mod tests {
         // The ends of both ranges.
         for (v, s) in [(V_MAX, S_MIN), (-V_MAX, S_MAX), (0.0, S_MIN), (V_MAX, 1.0)] {
             let got = t.lookup(v, s).unwrap();
-            assert!((got - exact(v, s)).abs() < 1e-8, "({v}, {s}): {got} vs {}", exact(v, s));
+            assert!(
+                (got - exact(v, s)).abs() < 1e-8,
+                "({v}, {s}): {got} vs {}",
+                exact(v, s)
+            );
         }
         assert!(t.lookup(V_MAX + 0.1, 1.0).is_none());
         assert!(t.lookup(0.0, S_MIN * 0.99).is_none());

@@ -549,11 +549,18 @@ mod tests {
             for (l, p) in f.ln_likelihood.iter_mut().zip(&f.particles) {
                 *l = -0.5 * sharpness * (p[0] - 103.0).powi(2) / 25.0;
             }
-            let max = f.ln_likelihood.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let max = f
+                .ln_likelihood
+                .iter()
+                .copied()
+                .fold(f64::NEG_INFINITY, f64::max);
             let floor = 500.0;
             let upper = 1.0;
             let ess_upper = f.tempered_ess(upper, max);
-            assert!(ess_upper < floor, "sharpness {sharpness}: nothing to search");
+            assert!(
+                ess_upper < floor,
+                "sharpness {sharpness}: nothing to search"
+            );
             let delta = f.largest_step(upper, max, floor, ess_upper);
             let ess = f.tempered_ess(delta, max);
             let (mut lo, mut hi) = (0.0, upper);

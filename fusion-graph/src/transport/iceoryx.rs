@@ -630,11 +630,13 @@ impl Transport for IceoryxTransport {
         if !heard.waited && heard.selective {
             // Called without a wait since the last receive: take the
             // wake-ups that came in meanwhile without sleeping.
-            listen(&self.listener, Duration::ZERO, |a| heard.hear(a.id.as_value()))
-                .map_err(|e| ReceiveError {
-                    channel: "wake".into(),
-                    source: e.source,
-                })?;
+            listen(&self.listener, Duration::ZERO, |a| {
+                heard.hear(a.id.as_value())
+            })
+            .map_err(|e| ReceiveError {
+                channel: "wake".into(),
+                source: e.source,
+            })?;
         }
         for (channel, sub) in subscribers.iter() {
             if !heard.may_have_data(*channel) {
@@ -1145,7 +1147,11 @@ mod tests {
         let own = &topology.node_sensors[4];
         let (mine, other) = (own[3], topology.node_sensors[0][0]);
         let ids = WakeIds::of(node, &topology);
-        assert_eq!(ids.max(), 1 + own.len(), "a node's service: its sensors, and two more");
+        assert_eq!(
+            ids.max(),
+            1 + own.len(),
+            "a node's service: its sensors, and two more"
+        );
         assert_eq!(WakeIds::of(ActorId::Sensor(0), &topology).max(), 1);
         assert_eq!(
             WakeIds::of(ActorId::Launcher, &topology).max(),
@@ -1188,7 +1194,12 @@ mod tests {
         node.receive(node.now(), &mut got).unwrap();
         assert!(got.is_empty());
         sensor
-            .send_waking(Channel::Observation(0), &contract::obs(0, 1), &[node.me()], &[])
+            .send_waking(
+                Channel::Observation(0),
+                &contract::obs(0, 1),
+                &[node.me()],
+                &[],
+            )
             .unwrap();
         node.wait(Duration::from_millis(2)).unwrap();
         node.receive(node.now(), &mut got).unwrap();
@@ -1198,7 +1209,10 @@ mod tests {
             .unwrap();
         let started = Instant::now();
         node.wait(Duration::from_secs(5)).unwrap();
-        assert!(started.elapsed() < Duration::from_secs(4), "woken, not timed out");
+        assert!(
+            started.elapsed() < Duration::from_secs(4),
+            "woken, not timed out"
+        );
         node.receive(node.now(), &mut got).unwrap();
         assert_eq!(got.len(), 2);
         assert_eq!(got[1].header.step, 2);
