@@ -64,7 +64,7 @@ pub(crate) fn modulo(x: f64, p: f64) -> f64 {
 #[inline]
 pub(crate) fn floor(x: f64) -> f64 {
     // From 2⁵² on every f64 is an integer; this also passes NaN and ±∞.
-    if !(x.abs() < 4_503_599_627_370_496.0) {
+    if x.is_nan() || x.abs() >= 4_503_599_627_370_496.0 {
         return x;
     }
     let t = x as i64 as f64;

@@ -263,8 +263,8 @@ pub fn supervise_hosts(
                     collecting = Some(Instant::now());
                 }
                 Command::Shutdown => {
-                    for h in 0..hosts.len() {
-                        if state[h].set_up {
+                    for (h, s) in state.iter().enumerate() {
+                        if s.set_up {
                             send(h, &ToAgent::Shutdown);
                         }
                     }
