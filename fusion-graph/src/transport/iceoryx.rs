@@ -865,8 +865,20 @@ fn open_wake(
     // set-up grew with the square of the network: 2,600 processes did not
     // start in 400 s.
     let wakers = topology.peers(actor) + WAKE_SLACK;
+    open_event(node, &name, wakers, ids, "wake event")
+}
+
+/// Opens or creates an event service for one listener and `wakers`
+/// notifiers, with event ids up to `ids`.
+fn open_event(
+    node: &Node<ipc::Service>,
+    name: &ServiceName,
+    wakers: usize,
+    ids: usize,
+    what: &str,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
     retry(|| {
-        node.service_builder(&name)
+        node.service_builder(name)
             .event()
             .max_notifiers(wakers)
             .max_listeners(2)
@@ -874,7 +886,7 @@ fn open_wake(
             .event_id_max_value(ids)
             .open_or_create()
     })
-    .map_err(|e| setup("wake event", e))
+    .map_err(|e| setup(what, e))
 }
 
 /// A host bridge's wake-up service: every actor of the host that sends to
@@ -890,16 +902,7 @@ fn open_bridge_wake(
     // The host's actors, and the launcher's on the first host.
     let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
     let ids = wake_id(ActorId::Launcher, topology) + topology.nodes() + topology.sensors();
-    retry(|| {
-        node.service_builder(&name)
-            .event()
-            .max_notifiers(wakers)
-            .max_listeners(2)
-            .max_nodes(wakers + 2)
-            .event_id_max_value(ids)
-            .open_or_create()
-    })
-    .map_err(|e| setup("bridge wake event", e))
+    open_event(node, &name, wakers, ids, "bridge wake event")
 }
 
 /// A node for one side of a host's bridge.
