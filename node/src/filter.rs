@@ -95,9 +95,15 @@ impl ParticleFilter {
     /// Predictor: `x_j(k) ~ p(x(k) | x_j(k−1))`; weights become uniform (the
     /// particles come from the previous step's resampler).
     pub fn predict<R: Rng + ?Sized>(&mut self, dynamics: &Dynamics, rng: &mut R) {
+        self.advance(|p| dynamics.propagate(p, rng));
+    }
+
+    /// Moves every particle by `step`, in order, keeping where it was as
+    /// its previous state; weights become uniform.
+    fn advance(&mut self, mut step: impl FnMut(&State) -> State) {
         self.previous.copy_from_slice(&self.particles);
         for p in self.particles.iter_mut() {
-            *p = dynamics.propagate(p, rng);
+            *p = step(p);
         }
         self.weights.copy_from_slice(&self.uniform);
     }
@@ -115,15 +121,14 @@ impl ParticleFilter {
         }
         // One pass: each particle's Jacobian for the bound and its
         // transition share the turn's trigonometry; the noise is drawn in
-        // the same order as `predict` draws it.
-        self.previous.copy_from_slice(&self.particles);
+        // the same order as `predict` draws it. Weights are uniform here.
         let mut sum = DynamicsTermsSum::new(dynamics);
-        for (p, &w) in self.particles.iter_mut().zip(&self.uniform) {
+        let weight = 1.0 / self.particles.len() as f64;
+        self.advance(|p| {
             let (next, jacobian) = dynamics.transition_and_jacobian(p);
-            sum.add(&jacobian, w);
-            *p = next + dynamics.sample_noise(rng);
-        }
-        self.weights.copy_from_slice(&self.uniform);
+            sum.add(&jacobian, weight);
+            next + dynamics.sample_noise(rng)
+        });
         Ok((sum.total(), self.summary()))
     }
 
