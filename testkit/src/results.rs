@@ -264,6 +264,15 @@ impl Run {
         &self.ticks
     }
 
+    /// Every row of `ticks.csv` as its text, sorted: two runs that
+    /// computed the same thing give equal lists whatever order their rows
+    /// were written in.
+    pub fn sorted_tick_lines(&self) -> Vec<&str> {
+        let mut lines: Vec<&str> = self.ticks.iter().map(|t| t.line.as_str()).collect();
+        lines.sort();
+        lines
+    }
+
     /// One node's rows (`"node-4"`, or `"central"`).
     pub fn ticks_of<'a>(&'a self, node: &'a str) -> impl Iterator<Item = &'a Tick> + 'a {
         self.ticks.iter().filter(move |t| t.node == node)

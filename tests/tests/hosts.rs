@@ -101,10 +101,7 @@ fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts()
     r.assert_success();
     let s = n.sim().unwrap();
     s.assert_success();
-    let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
-    let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
-    a.sort();
-    b.sort();
+    let (a, b) = (r.sorted_tick_lines(), s.sorted_tick_lines());
     assert_eq!(
         a.len(),
         6 * 10,

@@ -54,10 +54,7 @@ fn lockstep_run_reproduces_sim_bit_for_bit() {
     r.assert_success();
     let s = n.sim().unwrap();
     s.assert_success();
-    let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
-    let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
-    a.sort();
-    b.sort();
+    let (a, b) = (r.sorted_tick_lines(), s.sorted_tick_lines());
     assert_eq!(
         a.len(),
         10 * 10,
@@ -85,10 +82,7 @@ fn nis_censoring_on_real_processes_is_sims_bit_for_bit() {
     r.assert_success();
     let s = n.sim().unwrap();
     s.assert_success();
-    let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
-    let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
-    a.sort();
-    b.sort();
+    let (a, b) = (r.sorted_tick_lines(), s.sorted_tick_lines());
     assert_eq!(a.len(), 8 * 9);
     assert_eq!(a, b);
     let sent = r.counters(MessageKind::Observation).sent_messages;

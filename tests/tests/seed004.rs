@@ -79,11 +79,11 @@ fn kl_fusion_in_its_three_forms_sends_k_max_gaussians_per_link_and_step_as_sim_d
         // is which request arrives first).
         let s = network(protocol).sim().unwrap();
         s.assert_success();
-        let mut a: Vec<&str> = r.ticks().iter().map(|t| t.line.as_str()).collect();
-        let mut b: Vec<&str> = s.ticks().iter().map(|t| t.line.as_str()).collect();
-        a.sort();
-        b.sort();
-        assert_eq!(a, b, "{protocol}: run and sim differ");
+        assert_eq!(
+            r.sorted_tick_lines(),
+            s.sorted_tick_lines(),
+            "{protocol}: run and sim differ"
+        );
         let sent = |k| r.counters(k).sent_bytes;
         assert_eq!(
             sent(MessageKind::KlConsensus),
