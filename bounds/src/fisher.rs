@@ -29,8 +29,10 @@ pub fn information_of(e: &Evaluation, measurement: Measurement<'_>) -> Mat4 {
     assemble(&scalars_of(e, measurement), e)
 }
 
+/// The Fisher scalars of one observation through a model evaluated at the
+/// state: `(1/R, 0, 1/(2R²))` raw, the quantizer's otherwise.
 #[inline]
-fn scalars_of(e: &Evaluation, measurement: Measurement<'_>) -> FisherScalars {
+pub fn scalars_of(e: &Evaluation, measurement: Measurement<'_>) -> FisherScalars {
     match measurement {
         Measurement::Raw => FisherScalars::raw(e.r),
         Measurement::Quantized(q) => q.fisher_scalars(e.g, e.r),
@@ -55,7 +57,13 @@ pub fn position_information_of(
     e: &Evaluation,
     measurement: Measurement<'_>,
 ) -> nalgebra::Matrix2<f64> {
-    let s = scalars_of(e, measurement);
+    position_information_from(&scalars_of(e, measurement), e)
+}
+
+/// The position block of [`assemble`]: `J_Y` from the Fisher scalars and
+/// the model's gradients, for a model of the position only.
+#[inline]
+pub fn position_information_from(s: &FisherScalars, e: &Evaluation) -> nalgebra::Matrix2<f64> {
     let g = e.grad_g.fixed_rows::<2>(0);
     let r = e.grad_r.fixed_rows::<2>(0);
     let gr = g * r.transpose();
@@ -64,7 +72,7 @@ pub fn position_information_of(
 
 /// `gg ∇g∇gᵀ + gr (∇g∇Rᵀ + ∇R∇gᵀ) + rr ∇R∇Rᵀ`.
 #[inline]
-fn assemble(s: &FisherScalars, e: &Evaluation) -> Mat4 {
+pub fn assemble(s: &FisherScalars, e: &Evaluation) -> Mat4 {
     let gg = e.grad_g * e.grad_g.transpose();
     if e.grad_r == State::zeros() {
         return gg * s.gg;

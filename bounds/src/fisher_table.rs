@@ -50,6 +50,7 @@ struct Row {
 pub struct FisherTable {
     ln_s_min: f64,
     ln_s_step: f64,
+    per_ln_s_step: f64,
     /// Rows up to this one have a grid over u.
     last_grid_row: usize,
     rows: Vec<OnceLock<Row>>,
@@ -86,6 +87,7 @@ impl FisherTable {
         Self {
             ln_s_min,
             ln_s_step,
+            per_ln_s_step: 1.0 / ln_s_step,
             last_grid_row: (flat_x as usize + 2).min(S_POINTS - 1),
             rows: (0..S_POINTS).map(|_| OnceLock::new()).collect(),
         }
@@ -117,13 +119,19 @@ impl FisherTable {
     /// expansion; `None` below `S_MIN`.
     #[inline]
     pub fn lookup(&self, u: f64, s: f64) -> Option<[f64; 3]> {
+        self.lookup_at(u, s, s.ln())
+    }
+
+    /// [`lookup`](Self::lookup) with `ln s` already known.
+    #[inline]
+    pub fn lookup_at(&self, u: f64, s: f64, ln_s: f64) -> Option<[f64; 3]> {
         if s > S_MAX {
             return Some(fine_cell_sums(s));
         }
         if s < S_MIN {
             return None;
         }
-        let xs = (s.ln() - self.ln_s_min) / self.ln_s_step;
+        let xs = (ln_s - self.ln_s_min) * self.per_ln_s_step;
         // Non-negative but for rounding: truncation is the floor. Keep the
         // four-point stencil inside the s range.
         let is = (xs as usize).clamp(1, S_POINTS - 3);

@@ -82,11 +82,17 @@ impl LnMassTable {
     /// `ln P` at `(v, s)`, or `None` outside the table.
     #[inline]
     pub fn lookup(&self, v: f64, s: f64) -> Option<f64> {
+        self.lookup_at(v, s, s.ln())
+    }
+
+    /// [`lookup`](Self::lookup) with `ln s` already known.
+    #[inline]
+    pub fn lookup_at(&self, v: f64, s: f64, ln_s: f64) -> Option<f64> {
         if !(v.abs() <= V_MAX && (S_MIN..=S_MAX).contains(&s)) {
             return None;
         }
         let xv = (v + V_MAX) * V_PER_UNIT as f64;
-        let xs = (s.ln() - self.ln_s_min) * self.per_ln_s_step;
+        let xs = (ln_s - self.ln_s_min) * self.per_ln_s_step;
         // Both non-negative but for rounding: truncation is the floor.
         let iv = (xv as usize).min(V_POINTS - 2);
         let is = (xs as usize).clamp(1, S_POINTS - 3);

@@ -18,8 +18,9 @@ use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
-use crate::fisher::{information_of, position_information_of, Measurement};
+use crate::fisher::{assemble, position_information_from, scalars_of, Measurement};
 use crate::observation::{Evaluation, ObservationModel};
+use crate::quantizer::FisherScalars;
 use crate::{BoundError, Mat4, State};
 
 /// One sensor as the bound sees it: its model and how it reports.
@@ -172,19 +173,22 @@ pub fn observation_information(
     particles: &[State],
     weights: &[f64],
 ) -> Result<Mat4, BoundError> {
-    observation_information_visiting(sensors, particles, weights, |_, _, _| {})
+    observation_information_with(sensors, particles, weights, |_, k, e| {
+        scalars_of(e, sensors[k].measurement)
+    })
 }
 
-/// [`observation_information`], handing `visit(particle, sensor, model
-/// evaluated there)` each evaluation as it goes: a filter that needs the
-/// likelihood at the same particles (the local filter over its prediction)
-/// takes it from there instead of evaluating every model twice.
+/// [`observation_information`] with each particle's and sensor's Fisher
+/// scalars from `scalars(particle, sensor, model evaluated there)`: a
+/// filter that needs the likelihood at the same particles (the local
+/// filter over its prediction) computes both there, sharing the model's
+/// evaluation and what the two lookups have in common.
 #[inline]
-pub fn observation_information_visiting(
+pub fn observation_information_with(
     sensors: &[SensorTerm<'_>],
     particles: &[State],
     weights: &[f64],
-    mut visit: impl FnMut(usize, usize, &Evaluation),
+    mut scalars: impl FnMut(usize, usize, &Evaluation) -> FisherScalars,
 ) -> Result<Mat4, BoundError> {
     check_weights(particles.len(), weights)?;
     if sensors.iter().all(|s| s.model.depends_on_position_only()) {
@@ -194,8 +198,7 @@ pub fn observation_information_visiting(
             let mut per_particle = nalgebra::Matrix2::zeros();
             for (k, s) in sensors.iter().enumerate() {
                 let e = s.model.evaluate(x);
-                per_particle += position_information_of(&e, s.measurement);
-                visit(j, k, &e);
+                per_particle += position_information_from(&scalars(j, k, &e), &e);
             }
             total += per_particle * w;
         }
@@ -208,8 +211,7 @@ pub fn observation_information_visiting(
         let mut per_particle = Mat4::zeros();
         for (k, s) in sensors.iter().enumerate() {
             let e = s.model.evaluate(x);
-            per_particle += information_of(&e, s.measurement);
-            visit(j, k, &e);
+            per_particle += assemble(&scalars(j, k, &e), &e);
         }
         total += per_particle * w;
     }

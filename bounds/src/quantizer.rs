@@ -27,8 +27,55 @@ pub struct Quantizer {
     bits: u8,
     edges: Vec<f64>,
     wrapped: bool,
-    /// `(lo, cell width)` of a uniform quantizer, for the Fisher table.
-    uniform: Option<(f64, f64)>,
+    /// The cell grid of a uniform quantizer, for the tables.
+    uniform: Option<UniformCells>,
+}
+
+/// Equal cells from `lo`, with the reciprocals the per-particle lookups
+/// multiply by (a division is a long wait on their critical chain).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct UniformCells {
+    lo: f64,
+    width: f64,
+    per_width: f64,
+    /// `1 / (hi − lo)`, for wrapping.
+    per_period: f64,
+}
+
+impl UniformCells {
+    fn new(lo: f64, hi: f64, cells: usize) -> Self {
+        let width = (hi - lo) / cells as f64;
+        Self {
+            lo,
+            width,
+            per_width: 1.0 / width,
+            per_period: 1.0 / (hi - lo),
+        }
+    }
+}
+
+/// What both tables are read at, for one variance: σ, 1/σ, `s = σ/Δ` and
+/// `ln s`, computed once when a particle needs both lookups.
+#[derive(Debug, Clone, Copy)]
+struct Spread {
+    sigma: f64,
+    per_sigma: f64,
+    s: f64,
+    ln_s: f64,
+}
+
+impl Spread {
+    #[inline]
+    fn new(variance: f64, cells: &UniformCells) -> Self {
+        let sigma = variance.sqrt();
+        let s = sigma * cells.per_width;
+        Self {
+            sigma,
+            per_sigma: 1.0 / sigma,
+            s,
+            ln_s: s.ln(),
+        }
+    }
 }
 
 /// `(h, ∂h/∂g, ∂h/∂R)` of one cell at one `(g, R)`.
@@ -113,19 +160,19 @@ impl Quantizer {
             bits,
             edges,
             wrapped: false,
-            uniform: Some((lo, (hi - lo) / l as f64)),
+            uniform: Some(UniformCells::new(lo, hi, l)),
         })
     }
 
     /// `2^bits` equal cells covering `[lo, hi)` periodically (for angles:
     /// `lo = −π`, `hi = π`).
     pub fn uniform_wrapped(bits: u8, lo: f64, hi: f64) -> Result<Self, QuantizerError> {
-        let width = (hi - lo) / (1u64 << bits) as f64;
+        let edges = uniform_edges(bits, lo, hi)?;
         Ok(Self {
             bits,
-            edges: uniform_edges(bits, lo, hi)?,
+            uniform: Some(UniformCells::new(lo, hi, edges.len() - 1)),
+            edges,
             wrapped: true,
-            uniform: Some((lo, width)),
         })
     }
 
@@ -322,24 +369,32 @@ impl Quantizer {
 
     #[inline]
     fn tabled_ln_probability(&self, index: u32, mean: f64, variance: f64) -> Option<f64> {
+        let cells = self.uniform.as_ref()?;
+        self.tabled_ln_probability_at(cells, index, mean, &Spread::new(variance, cells))
+    }
+
+    #[inline]
+    fn tabled_ln_probability_at(
+        &self,
+        cells: &UniformCells,
+        index: u32,
+        mean: f64,
+        spread: &Spread,
+    ) -> Option<f64> {
         use crate::mass_table::{table, V_MAX};
-        let (lo, width) = self.uniform?;
         let l = self.cells() as u32;
-        let sigma = variance.sqrt();
-        // One division: each is a long wait on this path's critical chain.
-        let per_sigma = 1.0 / sigma;
-        let centre = lo + (index as f64 + 0.5) * width;
+        let centre = cells.lo + (index as f64 + 0.5) * cells.width;
         let offset = if self.wrapped {
             // The nearest copy, whose edges are within V_MAX σ of the mean
             // when the table serves it. The others' edges are half a period
             // less half a cell away at least, and must be 10 σ farther than
             // the nearest, as `ln_probability` requires to sum one term.
             let period = self.period();
-            if 0.5 * (period - width) < (V_MAX + 10.0) * sigma {
+            if 0.5 * (period - cells.width) < (V_MAX + 10.0) * spread.sigma {
                 return None;
             }
             let d = mean - centre;
-            d - crate::floor(d * (1.0 / period) + 0.5) * period
+            d - crate::floor(d * cells.per_period + 0.5) * period
         } else {
             // The outer cells are unbounded: not a cell of the table.
             if index == 0 || index + 1 >= l {
@@ -347,7 +402,35 @@ impl Quantizer {
             }
             mean - centre
         };
-        table().lookup(offset * per_sigma, sigma * (1.0 / width))
+        table().lookup_at(offset * spread.per_sigma, spread.s, spread.ln_s)
+    }
+
+    /// [`ln_probability_interpolated`](Self::ln_probability_interpolated)
+    /// of cell `index` and [`fisher_scalars`](Self::fisher_scalars), equal
+    /// to the two called apart, with the square root, reciprocal and
+    /// logarithm they share computed once: the local filter's first stage
+    /// needs both for every particle and sensor.
+    #[inline]
+    pub fn ln_probability_and_fisher(
+        &self,
+        index: u32,
+        mean: f64,
+        variance: f64,
+    ) -> (f64, FisherScalars) {
+        let Some(cells) = self.uniform.as_ref() else {
+            return (
+                self.ln_probability(index, mean, variance),
+                self.fisher_scalars_exact(mean, variance),
+            );
+        };
+        let spread = Spread::new(variance, cells);
+        let ln_h = self
+            .tabled_ln_probability_at(cells, index, mean, &spread)
+            .unwrap_or_else(|| self.ln_probability(index, mean, variance));
+        let fisher = self
+            .tabled_fisher_scalars(cells, mean, &spread)
+            .unwrap_or_else(|| self.fisher_scalars_exact(mean, variance));
+        (ln_h, fisher)
     }
 
     /// `(h_i, ∂h_i/∂g, ∂h_i/∂R)`, with `∂h/∂g = (φ(a) − φ(b))/σ` and
@@ -404,23 +487,42 @@ impl Quantizer {
     /// per-particle hot path.
     #[inline]
     pub fn fisher_scalars(&self, mean: f64, variance: f64) -> FisherScalars {
-        if let Some((lo, width)) = self.uniform {
-            let sigma = variance.sqrt();
-            let reach = WINDOW_SIGMAS * sigma;
-            let inside = if self.wrapped {
-                2.0 * reach < self.period()
-            } else {
-                mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1]
-            };
-            if inside {
-                if let Some(sums) =
-                    crate::fisher_table::table().lookup((mean - lo) / width, sigma / width)
-                {
-                    return scalars_from_sums(sums, variance);
-                }
-            }
+        self.uniform
+            .as_ref()
+            .and_then(|cells| {
+                self.tabled_fisher_scalars(cells, mean, &Spread::new(variance, cells))
+            })
+            .unwrap_or_else(|| self.fisher_scalars_exact(mean, variance))
+    }
+
+    /// The table's Fisher scalars, if the cells within the window are all
+    /// of the uniform grid (not an unbounded outer cell, nor a wrapped
+    /// cell met twice).
+    #[inline]
+    fn tabled_fisher_scalars(
+        &self,
+        cells: &UniformCells,
+        mean: f64,
+        spread: &Spread,
+    ) -> Option<FisherScalars> {
+        let reach = WINDOW_SIGMAS * spread.sigma;
+        let inside = if self.wrapped {
+            2.0 * reach < self.period()
+        } else {
+            mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1]
+        };
+        if !inside {
+            return None;
         }
-        self.fisher_scalars_exact(mean, variance)
+        let u = (mean - cells.lo) * cells.per_width;
+        let sums = crate::fisher_table::table().lookup_at(u, spread.s, spread.ln_s)?;
+        // The same as `scalars_from_sums`, by multiplications.
+        let per_variance = spread.per_sigma * spread.per_sigma;
+        Some(FisherScalars {
+            gg: sums[0] * per_variance,
+            gr: sums[1] * (0.5 * per_variance * spread.per_sigma),
+            rr: sums[2] * (0.25 * per_variance * per_variance),
+        })
     }
 
     /// Fisher scalars summed exactly over the cells within [`WINDOW_SIGMAS`]
@@ -657,7 +759,7 @@ mod tests {
             let span = q.cell_width(1) * q.cells() as f64;
             for _ in 0..20_000 {
                 let sigma = span * rng.random_range(1e-4..0.02_f64);
-                let mean = q.uniform.unwrap().0 + rng.random_range(-0.1..1.1) * span;
+                let mean = q.uniform.unwrap().lo + rng.random_range(-0.1..1.1) * span;
                 let z = mean + sigma * rng.random_range(-14.0..14.0);
                 let cell = q.encode(z);
                 let exact = q.ln_probability(cell, mean, sigma * sigma);
@@ -669,6 +771,35 @@ mod tests {
         assert!(worst < 1e-8, "worst {worst:e}");
         // Most of the draws were read off the table, not the fallback.
         assert!(tabled > 30_000, "{tabled} of 80,000 from the table");
+    }
+
+    /// The local filter's joint lookup gives what the two lookups give
+    /// apart, bit for bit, for uniform (wrapped or not) and non-uniform
+    /// quantizers, in and out of the tables.
+    #[test]
+    fn the_joint_lookup_equals_the_two_apart() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let quantizers = [
+            Quantizer::uniform_wrapped(8, -PI, PI).unwrap(),
+            Quantizer::uniform_wrapped(3, -PI, PI).unwrap(),
+            Quantizer::uniform(8, -100.0, 0.0).unwrap(),
+            Quantizer::from_thresholds(&[-1.0, 0.0, 0.5, 2.0]).unwrap(),
+        ];
+        for q in &quantizers {
+            let (lo, hi) = (q.edges[1], q.edges[q.cells() - 1]);
+            for _ in 0..5_000 {
+                let sigma = (hi - lo) * rng.random_range(1e-4..0.3_f64);
+                let mean = lo + rng.random_range(-0.1..1.1) * (hi - lo);
+                let cell = q.encode(mean + sigma * rng.random_range(-14.0..14.0));
+                let variance = sigma * sigma;
+                let (ln_h, scalars) = q.ln_probability_and_fisher(cell, mean, variance);
+                assert_eq!(
+                    ln_h.to_bits(),
+                    q.ln_probability_interpolated(cell, mean, variance).to_bits()
+                );
+                assert_eq!(scalars, q.fisher_scalars(mean, variance));
+            }
+        }
     }
 
     #[test]

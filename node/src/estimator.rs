@@ -12,10 +12,10 @@
 use std::f64::consts::PI;
 
 use bounds::censoring::{CensoringRule, Innovation};
-use bounds::fisher::observed_information;
+use bounds::fisher::{observed_information, scalars_of};
 use bounds::observation::Evaluation;
 use bounds::pcrlb::{
-    information_update, observation_information, observation_information_visiting,
+    information_update, observation_information, observation_information_with,
 };
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
@@ -171,8 +171,19 @@ impl SensingModel {
     ) -> Result<Mat4, BoundError> {
         ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
         let sensors = self.terms(observations);
-        observation_information_visiting(&sensors, particles, weights, |j, k, e| {
-            ln_likelihood[j] += self.ln_likelihood_of(&observations[k], e);
+        observation_information_with(&sensors, particles, weights, |j, k, e| {
+            let observation = &observations[k];
+            match (observation.value, &self.quantizer) {
+                (ObservedValue::Cell(cell), Some(q)) => {
+                    let (ln_h, scalars) = q.ln_probability_and_fisher(cell, e.g, e.r);
+                    ln_likelihood[j] += ln_h;
+                    scalars
+                }
+                _ => {
+                    ln_likelihood[j] += self.ln_likelihood_of(observation, e);
+                    scalars_of(e, self.measurement())
+                }
+            }
         })
     }
 
