@@ -53,7 +53,8 @@ pub struct FisherTable {
     per_ln_s_step: f64,
     /// Rows up to this one have a grid over u.
     last_grid_row: usize,
-    rows: Vec<OnceLock<Row>>,
+    /// A fixed length, so that indexing a clamped row needs no check.
+    rows: Box<[OnceLock<Row>; S_POINTS]>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -89,11 +90,23 @@ impl FisherTable {
             ln_s_step,
             per_ln_s_step: 1.0 / ln_s_step,
             last_grid_row: (flat_x as usize + 2).min(S_POINTS - 1),
-            rows: (0..S_POINTS).map(|_| OnceLock::new()).collect(),
+            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
         }
     }
 
+    /// Row `is`, built on first use. The fast path (an acquire load) is
+    /// inlined into the lookup; the build is not.
+    #[inline]
     fn row(&self, is: usize) -> &Row {
+        match self.rows[is].get() {
+            Some(row) => row,
+            None => self.build_row(is),
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn build_row(&self, is: usize) -> &Row {
         self.rows[is].get_or_init(|| {
             let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
             if is > self.last_grid_row {
@@ -150,6 +163,10 @@ impl FisherTable {
         let xu = crate::modulo(u, 1.0) * U_POINTS as f64;
         let iu = (xu as usize).min(U_POINTS - 1);
         let wu = lagrange_weights(xu - iu as f64);
+        // Σ over the four rows first, element by element over the stencil's
+        // twelve contiguous values (which the compiler can vectorise), then
+        // over the four columns.
+        let mut acc = [0.0; 12];
         for (a, wsa) in ws.iter().enumerate() {
             // Grid column c holds u-column c − 1: columns iu − 1 ..= iu + 2.
             let grid = self
@@ -157,18 +174,18 @@ impl FisherTable {
                 .grid
                 .as_ref()
                 .expect("rows a lookup below S_FLAT reaches have a grid");
-            let stencil: &[[f64; 3]; 4] = grid[iu..iu + 4]
+            let stencil: &[f64; 12] = grid[iu..iu + 4]
+                .as_flattened()
                 .try_into()
                 .expect("a padded row holds every four-column stencil");
-            let mut acc = [0.0; 3];
-            for (wub, v) in wu.iter().zip(stencil) {
-                acc[0] += wub * v[0];
-                acc[1] += wub * v[1];
-                acc[2] += wub * v[2];
+            for (t, v) in acc.iter_mut().zip(stencil) {
+                *t += wsa * v;
             }
-            out[0] += wsa * acc[0];
-            out[1] += wsa * acc[1];
-            out[2] += wsa * acc[2];
+        }
+        for (wub, column) in wu.iter().zip(acc.chunks_exact(3)) {
+            out[0] += wub * column[0];
+            out[1] += wub * column[1];
+            out[2] += wub * column[2];
         }
         Some(out)
     }
@@ -192,12 +209,15 @@ fn fine_cell_sums(s: f64) -> [f64; 3] {
 /// Cubic Lagrange weights for nodes −1, 0, 1, 2 at offset `t` from node 0.
 #[inline]
 pub(crate) fn lagrange_weights(t: f64) -> [f64; 4] {
+    // By products only: a division by 6 is not a multiplication to the
+    // compiler, and would be two divisions on every lookup's critical path.
+    const SIXTH: f64 = 1.0 / 6.0;
     let (tm1, tp1, tm2) = (t - 1.0, t + 1.0, t - 2.0);
     [
-        -t * tm1 * tm2 / 6.0,
-        tp1 * tm1 * tm2 / 2.0,
-        -tp1 * t * tm2 / 2.0,
-        tp1 * t * tm1 / 6.0,
+        -t * tm1 * tm2 * SIXTH,
+        tp1 * tm1 * tm2 * 0.5,
+        -tp1 * t * tm2 * 0.5,
+        tp1 * t * tm1 * SIXTH,
     ]
 }
 

@@ -41,7 +41,8 @@ pub struct LnMassTable {
     ln_s_min: f64,
     ln_s_step: f64,
     per_ln_s_step: f64,
-    rows: Vec<OnceLock<Box<Row>>>,
+    /// A fixed length, so that indexing a clamped row needs no check.
+    rows: Box<[OnceLock<Box<Row>>; S_POINTS]>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -64,11 +65,22 @@ impl LnMassTable {
             ln_s_min,
             ln_s_step,
             per_ln_s_step: 1.0 / ln_s_step,
-            rows: (0..S_POINTS).map(|_| OnceLock::new()).collect(),
+            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
         }
     }
 
+    /// Row `is`, built on first use; as the Fisher table's.
+    #[inline]
     fn row(&self, is: usize) -> &Row {
+        match self.rows[is].get() {
+            Some(row) => row,
+            None => self.build_row(is),
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn build_row(&self, is: usize) -> &Row {
         self.rows[is].get_or_init(|| {
             let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
             // Point k is at v = (k − 1)/V_PER_UNIT − V_MAX.
@@ -98,16 +110,18 @@ impl LnMassTable {
         let is = (xs as usize).clamp(1, S_POINTS - 3);
         let wv = crate::fisher_table::lagrange_weights(xv - iv as f64);
         let ws = crate::fisher_table::lagrange_weights(xs - is as f64);
-        let mut g = 0.0;
+        // Over the rows first, point by point (vectorisable), then over v.
+        let mut acc = [0.0; 4];
         for (a, wsa) in ws.iter().enumerate() {
             // Row point k holds grid point k − 1: points iv − 1 ..= iv + 2.
-            let stencil = &self.row(is - 1 + a)[iv..iv + 4];
-            g += wsa
-                * (wv[0] * stencil[0]
-                    + wv[1] * stencil[1]
-                    + wv[2] * stencil[2]
-                    + wv[3] * stencil[3]);
+            let stencil: &[f64; 4] = self.row(is - 1 + a)[iv..iv + 4]
+                .try_into()
+                .expect("a padded row holds every four-point stencil");
+            for (t, p) in acc.iter_mut().zip(stencil) {
+                *t += wsa * p;
+            }
         }
+        let g = wv[0] * acc[0] + wv[1] * acc[1] + wv[2] * acc[2] + wv[3] * acc[3];
         Some(g - 0.5 * v * v)
     }
 }

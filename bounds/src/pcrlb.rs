@@ -18,7 +18,7 @@ use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
-use crate::fisher::{assemble, position_information_from, scalars_of, Measurement};
+use crate::fisher::{assemble, position_information_entries, scalars_of, Measurement};
 use crate::observation::{Evaluation, ObservationModel};
 use crate::quantizer::FisherScalars;
 use crate::{BoundError, Mat4, State};
@@ -193,15 +193,22 @@ pub fn observation_information_with(
     check_weights(particles.len(), weights)?;
     if sensors.iter().all(|s| s.model.depends_on_position_only()) {
         // Only the 2×2 position block is non-zero: accumulate just that.
-        let mut total = nalgebra::Matrix2::zeros();
+        let mut total = [0.0; 3];
         for (j, (x, &w)) in particles.iter().zip(weights).enumerate() {
-            let mut per_particle = nalgebra::Matrix2::zeros();
+            let mut per_particle = [0.0; 3];
             for (k, s) in sensors.iter().enumerate() {
                 let e = s.model.evaluate(x);
-                per_particle += position_information_from(&scalars(j, k, &e), &e);
+                let entries = position_information_entries(&scalars(j, k, &e), &e);
+                for (p, v) in per_particle.iter_mut().zip(entries) {
+                    *p += v;
+                }
             }
-            total += per_particle * w;
+            for (t, p) in total.iter_mut().zip(per_particle) {
+                *t += p * w;
+            }
         }
+        let [xx, xy, yy] = total;
+        let total = nalgebra::Matrix2::new(xx, xy, xy, yy);
         let mut full = Mat4::zeros();
         full.fixed_view_mut::<2, 2>(0, 0).copy_from(&total);
         return Ok(symmetrized(full));
@@ -592,6 +599,57 @@ mod tests {
         let step = bound.advance(&terms, dynamics.q_inv(), &obs).unwrap();
         assert!(relative_error(&step.observation_information(), &obs) < 1e-9);
         assert!(bound.position_bound().unwrap() < position_bound(&step.predicted).unwrap());
+    }
+
+    /// For position-only models the sum is taken over the 2×2 position
+    /// block's three distinct entries; it must be the full 4×4 sum of
+    /// [`expected_information`] over the particles.
+    #[test]
+    fn the_position_block_sum_is_the_full_sum() {
+        let q = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
+        let models = [
+            SensorLaw::Bearing {
+                sigma_theta: 0.02,
+                d0: 500.0,
+            }
+            .at([250.0, 250.0]),
+            SensorLaw::Bearing {
+                sigma_theta: 0.05,
+                d0: 100.0,
+            }
+            .at([900.0, 1300.0]),
+        ];
+        let sensors: Vec<SensorTerm> = models
+            .iter()
+            .map(|model| SensorTerm {
+                model,
+                measurement: Measurement::Quantized(&q),
+            })
+            .collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let particles: Vec<State> = (0..300)
+            .map(|_| {
+                State::new(
+                    rng.random_range(0.0..1500.0),
+                    rng.random_range(0.0..1500.0),
+                    rng.random_range(-10.0..10.0),
+                    rng.random_range(-10.0..10.0),
+                )
+            })
+            .collect();
+        let w: Vec<f64> = (0..300).map(|j| (1 + j % 7) as f64).collect();
+        let mut full = Mat4::zeros();
+        for (x, w) in particles.iter().zip(&w) {
+            for model in &models {
+                full +=
+                    crate::fisher::expected_information(model, Measurement::Quantized(&q), x) * *w;
+            }
+        }
+        let blocks = observation_information(&sensors, &particles, &w).unwrap();
+        assert!(
+            relative_error(&blocks, &full) < 1e-12,
+            "{blocks} against {full}"
+        );
     }
 
     #[test]

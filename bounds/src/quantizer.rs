@@ -795,7 +795,8 @@ mod tests {
                 let (ln_h, scalars) = q.ln_probability_and_fisher(cell, mean, variance);
                 assert_eq!(
                     ln_h.to_bits(),
-                    q.ln_probability_interpolated(cell, mean, variance).to_bits()
+                    q.ln_probability_interpolated(cell, mean, variance)
+                        .to_bits()
                 );
                 assert_eq!(scalars, q.fisher_scalars(mean, variance));
             }

@@ -14,9 +14,7 @@ use std::f64::consts::PI;
 use bounds::censoring::{CensoringRule, Innovation};
 use bounds::fisher::{observed_information, scalars_of};
 use bounds::observation::Evaluation;
-use bounds::pcrlb::{
-    information_update, observation_information, observation_information_with,
-};
+use bounds::pcrlb::{information_update, observation_information, observation_information_with};
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
     ObservationModel, Quantizer, SensorTerm, State,
