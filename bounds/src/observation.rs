@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::{ParameterError, State};
 
 /// g, ∇g, R and ∇R at one state.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Evaluation {
     pub g: f64,
     pub grad_g: State,
