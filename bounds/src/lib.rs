@@ -32,6 +32,7 @@ pub mod pcrlb;
 pub mod quantizer;
 pub mod selection;
 pub mod speb;
+pub mod width_axis;
 
 #[cfg(test)]
 mod testing;

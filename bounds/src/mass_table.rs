@@ -6,13 +6,13 @@
 //! `Φ(1/(2s) − v) − Φ(−1/(2s) − v)`, a function of `(v, s)` alone. Its
 //! logarithm falls like `−v²/2`; what is left, `G(v, s) = ln P + v²/2`,
 //! is smooth and slowly varying, and that is what the table holds, over
-//! `|v| ≤ V_MAX` and `S_MIN ≤ s ≤ S_MAX`, read by bicubic Lagrange
-//! interpolation in `(v, ln s)`.
+//! `|v| ≤ V_MAX` and `S_MIN ≤ s < S_MAX`, read by bicubic Lagrange
+//! interpolation in v and s (over [`crate::width_axis`]).
 //!
 //! Why: the quantized likelihood of each particle and sensor took two
 //! `erfc`, their `exp`s and a logarithm, three fifths of the particle
 //! filter's time (`cargo bench -p node -- "particle filter alone"`). The
-//! lookup is a logarithm (of s) and sixteen products.
+//! lookup is sixteen products and the two sets of weights.
 //! `lookup_matches_the_exact_log_mass` bounds its error: below 1e-8 in
 //! `ln P` (2.3e-9 seen), a relative error of 1e-8 in a particle's weight,
 //! far below the filter's Monte Carlo error. Outside the table the caller
@@ -21,28 +21,22 @@
 use std::sync::OnceLock;
 
 use crate::normal::ln_interval_mass;
+use crate::width_axis::{self, Stencil};
 
 /// The table covers `|v| ≤ V_MAX`: particles within 12 σ of the cell.
 pub const V_MAX: f64 = 12.0;
 /// Grid points per unit of v.
 const V_PER_UNIT: usize = 64;
 const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
-/// `S_MIN ≤ σ/Δ ≤ S_MAX`, as the Fisher table.
-pub const S_MIN: f64 = 0.5;
-pub const S_MAX: f64 = 64.0;
-/// Grid points over ln s.
-const S_POINTS: usize = 448;
 
 /// One row over v, padded with one point before and two after so that a
 /// four-point stencil never leaves it.
 type Row = [f64; V_POINTS + 3];
 
 pub struct LnMassTable {
-    ln_s_min: f64,
-    ln_s_step: f64,
-    per_ln_s_step: f64,
-    /// A fixed length, so that indexing a clamped row needs no check.
-    rows: Box<[OnceLock<Box<Row>>; S_POINTS]>,
+    /// One per row of [`crate::width_axis`]; a fixed length, so that indexing
+    /// a stencil's rows needs no check.
+    rows: Box<[OnceLock<Box<Row>>; width_axis::ROWS]>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -59,12 +53,7 @@ pub fn exact(v: f64, s: f64) -> f64 {
 
 impl LnMassTable {
     fn build() -> Self {
-        let ln_s_min = S_MIN.ln();
-        let ln_s_step = (S_MAX.ln() - ln_s_min) / (S_POINTS - 1) as f64;
         Self {
-            ln_s_min,
-            ln_s_step,
-            per_ln_s_step: 1.0 / ln_s_step,
             rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
         }
     }
@@ -82,7 +71,7 @@ impl LnMassTable {
     #[inline(never)]
     fn build_row(&self, is: usize) -> &Row {
         self.rows[is].get_or_init(|| {
-            let s = (self.ln_s_min + is as f64 * self.ln_s_step).exp();
+            let s = width_axis::row_s(is);
             // Point k is at v = (k − 1)/V_PER_UNIT − V_MAX.
             Box::new(std::array::from_fn(|k| {
                 let v = (k as f64 - 1.0) / V_PER_UNIT as f64 - V_MAX;
@@ -94,27 +83,24 @@ impl LnMassTable {
     /// `ln P` at `(v, s)`, or `None` outside the table.
     #[inline]
     pub fn lookup(&self, v: f64, s: f64) -> Option<f64> {
-        self.lookup_at(v, s, s.ln())
+        self.lookup_at(v, &width_axis::stencil(0.5 / s)?)
     }
 
-    /// [`lookup`](Self::lookup) with `ln s` already known.
+    /// [`lookup`](Self::lookup) with the rows over s already found.
     #[inline]
-    pub fn lookup_at(&self, v: f64, s: f64, ln_s: f64) -> Option<f64> {
-        if !(v.abs() <= V_MAX && (S_MIN..=S_MAX).contains(&s)) {
+    pub fn lookup_at(&self, v: f64, rows: &Stencil) -> Option<f64> {
+        if v.is_nan() || v.abs() > V_MAX {
             return None;
         }
         let xv = (v + V_MAX) * V_PER_UNIT as f64;
-        let xs = (ln_s - self.ln_s_min) * self.per_ln_s_step;
-        // Both non-negative but for rounding: truncation is the floor.
+        // Non-negative but for rounding: truncation is the floor.
         let iv = (xv as usize).min(V_POINTS - 2);
-        let is = (xs as usize).clamp(1, S_POINTS - 3);
         let wv = crate::fisher_table::lagrange_weights(xv - iv as f64);
-        let ws = crate::fisher_table::lagrange_weights(xs - is as f64);
         // Over the rows first, point by point (vectorisable), then over v.
         let mut acc = [0.0; 4];
-        for (a, wsa) in ws.iter().enumerate() {
+        for (a, wsa) in rows.weights.iter().enumerate() {
             // Row point k holds grid point k − 1: points iv − 1 ..= iv + 2.
-            let stencil: &[f64; 4] = self.row(is - 1 + a)[iv..iv + 4]
+            let stencil: &[f64; 4] = self.row(rows.first + a)[iv..iv + 4]
                 .try_into()
                 .expect("a padded row holds every four-point stencil");
             for (t, p) in acc.iter_mut().zip(stencil) {
@@ -129,23 +115,38 @@ impl LnMassTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::width_axis::{S_MAX, S_MIN};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn lookup_matches_the_exact_log_mass() {
         let t = table();
+        let inside = |s: f64| s.clamp(S_MIN.next_up(), S_MAX.next_down());
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut worst: f64 = 0.0;
         for _ in 0..50_000 {
             let v = rng.random_range(-V_MAX..=V_MAX);
-            let s = rng.random_range(S_MIN.ln()..S_MAX.ln()).exp();
+            let s = inside(rng.random_range(S_MIN.ln()..S_MAX.ln()).exp());
             let got = t.lookup(v, s).unwrap();
             worst = worst.max((got - exact(v, s)).abs());
         }
+        // And a sweep, whose worst is at the largest |v| and smallest s.
+        let mut s = S_MIN.next_up();
+        while s < S_MAX {
+            for v in [-V_MAX, -7.3, -0.41, 0.0, 2.9, V_MAX] {
+                worst = worst.max((t.lookup(v, s).unwrap() - exact(v, s)).abs());
+            }
+            s *= 1.0037;
+        }
         assert!(worst < 1e-8, "worst error {worst:e}");
         // The ends of both ranges.
-        for (v, s) in [(V_MAX, S_MIN), (-V_MAX, S_MAX), (0.0, S_MIN), (V_MAX, 1.0)] {
+        for (v, s) in [
+            (V_MAX, S_MIN.next_up()),
+            (-V_MAX, S_MAX.next_down()),
+            (0.0, S_MIN.next_up()),
+            (V_MAX, 1.0),
+        ] {
             let got = t.lookup(v, s).unwrap();
             assert!(
                 (got - exact(v, s)).abs() < 1e-8,
@@ -154,7 +155,7 @@ mod tests {
             );
         }
         assert!(t.lookup(V_MAX + 0.1, 1.0).is_none());
-        assert!(t.lookup(0.0, S_MIN * 0.99).is_none());
-        assert!(t.lookup(0.0, S_MAX * 1.01).is_none());
+        assert!(t.lookup(0.0, S_MIN).is_none());
+        assert!(t.lookup(0.0, S_MAX).is_none());
     }
 }

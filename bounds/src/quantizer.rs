@@ -4,6 +4,7 @@
 use std::f64::consts::FRAC_1_SQRT_2;
 
 use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
+use crate::width_axis::{self, Stencil};
 use crate::QuantizerError;
 
 /// Half-width, in standard deviations, of the window of cells summed in the
@@ -55,25 +56,25 @@ impl UniformCells {
 }
 
 /// What both tables are read at, for one variance: σ, 1/σ, `s = σ/Δ` and
-/// `ln s`, computed once when a particle needs both lookups.
+/// the rows over s, found once when a particle needs both lookups.
 #[derive(Debug, Clone, Copy)]
 struct Spread {
     sigma: f64,
     per_sigma: f64,
     s: f64,
-    ln_s: f64,
+    rows: Option<Stencil>,
 }
 
 impl Spread {
     #[inline]
     fn new(variance: f64, cells: &UniformCells) -> Self {
         let sigma = variance.sqrt();
-        let s = sigma * cells.per_width;
+        let per_sigma = 1.0 / sigma;
         Self {
             sigma,
-            per_sigma: 1.0 / sigma,
-            s,
-            ln_s: s.ln(),
+            per_sigma,
+            s: sigma * cells.per_width,
+            rows: width_axis::stencil(0.5 * cells.width * per_sigma),
         }
     }
 }
@@ -402,7 +403,7 @@ impl Quantizer {
             }
             mean - centre
         };
-        table().lookup_at(offset * spread.per_sigma, spread.s, spread.ln_s)
+        table().lookup_at(offset * spread.per_sigma, spread.rows.as_ref()?)
     }
 
     /// [`ln_probability_interpolated`](Self::ln_probability_interpolated)
@@ -515,7 +516,7 @@ impl Quantizer {
             return None;
         }
         let u = (mean - cells.lo) * cells.per_width;
-        let sums = crate::fisher_table::table().lookup_at(u, spread.s, spread.ln_s)?;
+        let sums = crate::fisher_table::table().lookup_at(u, spread.s, spread.rows.as_ref())?;
         // The same as `scalars_from_sums`, by multiplications.
         let per_variance = spread.per_sigma * spread.per_sigma;
         Some(FisherScalars {
