@@ -13,7 +13,6 @@ use std::f64::consts::PI;
 
 use bounds::censoring::{CensoringRule, Innovation};
 use bounds::fisher::{observed_information, scalars_of};
-use bounds::observation::Evaluation;
 use bounds::pcrlb::{information_update, observation_information, observation_information_with};
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
@@ -100,25 +99,25 @@ impl SensingModel {
 
     /// `ln p(y | x)` of one observation.
     pub fn ln_likelihood(&self, obs: &Observation, x: &State) -> f64 {
-        let model = &self.sensors[obs.sensor as usize];
-        self.ln_likelihood_of(obs, &model.evaluate(x))
+        let (g, r) = self.sensors[obs.sensor as usize].mean_and_variance(x);
+        self.ln_likelihood_of(obs, g, r)
     }
 
     /// [`ln_likelihood`](Self::ln_likelihood) from the observing sensor's
-    /// model already evaluated at the state.
+    /// mean g and variance R at the state.
     #[inline]
-    fn ln_likelihood_of(&self, obs: &Observation, e: &Evaluation) -> f64 {
+    fn ln_likelihood_of(&self, obs: &Observation, g: f64, r: f64) -> f64 {
         let model = &self.sensors[obs.sensor as usize];
         match (obs.value, &self.quantizer) {
             // Within 1e-8 of the exact ln h (a weight's relative error).
-            (ObservedValue::Cell(cell), Some(q)) => q.ln_probability_interpolated(cell, e.g, e.r),
+            (ObservedValue::Cell(cell), Some(q)) => q.ln_probability_interpolated(cell, g, r),
             (ObservedValue::Raw(z), _) => {
-                let r = if model.is_angular() {
-                    wrap_angle(z - e.g)
+                let d = if model.is_angular() {
+                    wrap_angle(z - g)
                 } else {
-                    z - e.g
+                    z - g
                 };
-                -0.5 * (r * r / e.r + e.r.ln() + (2.0 * PI).ln())
+                -0.5 * (d * d / r + r.ln() + (2.0 * PI).ln())
             }
             (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
         }
@@ -178,7 +177,7 @@ impl SensingModel {
                     scalars
                 }
                 _ => {
-                    ln_likelihood[j] += self.ln_likelihood_of(observation, e);
+                    ln_likelihood[j] += self.ln_likelihood_of(observation, e.g, e.r);
                     scalars_of(e, self.measurement())
                 }
             }
