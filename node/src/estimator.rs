@@ -670,11 +670,16 @@ impl FusionFilter {
         // exp(−½xᵀΛx + xᵀη) around the predicted mean c (x = c + d), which
         // keeps the exponent's terms small: −½dᵀΛd + dᵀ(η − Λc) + const.
         let linear = eta - lambda * centre;
-        self.filter.update(&mut self.rng, |x| {
+        let stages = self.filter.update(&mut self.rng, |x| {
             let d = x - centre;
             -0.5 * d.dot(&(lambda * d)) + d.dot(&linear)
         });
-        let posterior = self.filter.summary();
+        // After a single stage the particles and weights are those the
+        // importance posterior was summarized from: no second pass.
+        let posterior = match (stages, self.filter.importance_posterior()) {
+            (1, Some((g, _))) => g,
+            _ => self.filter.summary(),
+        };
         self.filter.resample(&mut self.rng);
         self.filter.regularize(&posterior, &mut self.rng);
 

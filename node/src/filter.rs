@@ -372,15 +372,30 @@ pub fn summarize(particles: &[State], weights: &[f64]) -> Gaussian {
     for (p, w) in particles.iter().zip(weights) {
         mean += p * *w;
     }
-    let mut cov = Mat4::zeros();
+    // The ten entries on and above the diagonal, row by row; the rest by
+    // symmetry (a full outer product per particle doubled the arithmetic).
+    let mut upper = [0.0; 10];
     for (p, w) in particles.iter().zip(weights) {
         let d = p - mean;
-        cov += d * d.transpose() * *w;
+        let wd = d * *w;
+        let mut k = 0;
+        for i in 0..4 {
+            for j in i..4 {
+                upper[k] += wd[i] * d[j];
+                k += 1;
+            }
+        }
     }
-    Gaussian {
-        mean,
-        cov: (cov + cov.transpose()) * 0.5,
+    let mut cov = Mat4::zeros();
+    let mut k = 0;
+    for i in 0..4 {
+        for j in i..4 {
+            cov[(i, j)] = upper[k];
+            cov[(j, i)] = upper[k];
+            k += 1;
+        }
     }
+    Gaussian { mean, cov }
 }
 
 #[cfg(test)]
