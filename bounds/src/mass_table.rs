@@ -6,7 +6,7 @@
 //! `Φ(1/(2s) − v) − Φ(−1/(2s) − v)`, a function of `(v, s)` alone. Its
 //! logarithm falls like `−v²/2`; what is left, `G(v, s) = ln P + v²/2`,
 //! is smooth and slowly varying, and that is what the table holds, over
-//! `|v| ≤ V_MAX` and `S_MIN ≤ s < S_MAX`, read by bicubic Lagrange
+//! `|v| ≤ V_MAX` and `S_MIN < s < S_MAX`, read by bicubic Lagrange
 //! interpolation in v and s (over [`crate::width_axis`]).
 //!
 //! Why: the quantized likelihood of each particle and sensor took two
@@ -26,9 +26,9 @@ use crate::width_axis::{self, Stencil};
 /// The table covers `|v| ≤ V_MAX`: particles within 12 σ of the cell.
 pub const V_MAX: f64 = 12.0;
 /// Grid points per unit of v. 64 gave an error of 5.2e-10, but every
-/// process builds its own rows (one exact `ln P` per point, a tenth of a
-/// second's CPU per node process in the default run at 64); 32 halves that
-/// for 1.9e-9.
+/// process builds its own rows, one exact `ln P` per point: 265 million
+/// instructions in a 300-step default `sim` at 64 (callgrind), paid again
+/// by each node process of a `run`. 32 halves that, for 1.9e-9.
 const V_PER_UNIT: usize = 32;
 const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
 

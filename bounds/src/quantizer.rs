@@ -56,7 +56,8 @@ impl UniformCells {
 }
 
 /// What both tables are read at, for one variance: σ, 1/σ, `s = σ/Δ` and
-/// the rows over s, found once when a particle needs both lookups.
+/// the table rows of its half-width `Δ/(2σ)`, found once when a particle
+/// needs both lookups.
 #[derive(Debug, Clone, Copy)]
 struct Spread {
     sigma: f64,
@@ -408,8 +409,8 @@ impl Quantizer {
 
     /// [`ln_probability_interpolated`](Self::ln_probability_interpolated)
     /// of cell `index` and [`fisher_scalars`](Self::fisher_scalars), equal
-    /// to the two called apart, with the square root, reciprocal and
-    /// logarithm they share computed once: the local filter's first stage
+    /// to the two called apart, with what they share (σ, 1/σ and the rows
+    /// of [`crate::width_axis`]) found once: the local filter's first stage
     /// needs both for every particle and sensor.
     #[inline]
     pub fn ln_probability_and_fisher(
