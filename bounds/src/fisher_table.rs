@@ -24,7 +24,7 @@
 use std::sync::OnceLock;
 
 use crate::quantizer::{window_sums, WINDOW_SIGMAS};
-use crate::width_axis::{self, Stencil};
+use crate::width_axis::{self, LazyRows, Stencil};
 
 /// Grid points over the cell fraction u ∈ [0, 1) (periodic).
 const U_POINTS: usize = 128;
@@ -50,9 +50,7 @@ struct Row {
 }
 
 pub struct FisherTable {
-    /// One per row of the s axis; a fixed length, so that indexing a
-    /// stencil's rows needs no check.
-    rows: Box<[OnceLock<Row>; width_axis::ROWS]>,
+    rows: LazyRows<Row>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -80,24 +78,14 @@ fn mean_of(sums: &[[f64; 3]]) -> [f64; 3] {
 impl FisherTable {
     fn build() -> Self {
         Self {
-            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
+            rows: LazyRows::new(),
         }
     }
 
-    /// Row `is`, built on first use. The fast path (an acquire load) is
-    /// inlined into the lookup; the build is not.
+    /// Row `is`, built on first use.
     #[inline]
     fn row(&self, is: usize) -> &Row {
-        match self.rows[is].get() {
-            Some(row) => row,
-            None => self.build_row(is),
-        }
-    }
-
-    #[cold]
-    #[inline(never)]
-    fn build_row(&self, is: usize) -> &Row {
-        self.rows[is].get_or_init(|| {
+        self.rows.get(is, |is| {
             let s = width_axis::row_s(is);
             if !width_axis::below_one(is) {
                 let sums: [[f64; 3]; FLAT_SAMPLES] =

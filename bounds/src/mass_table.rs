@@ -21,7 +21,7 @@
 use std::sync::OnceLock;
 
 use crate::normal::ln_interval_mass;
-use crate::width_axis::{self, Stencil};
+use crate::width_axis::{self, LazyRows, Stencil};
 
 /// The table covers `|v| ≤ V_MAX`: particles within 12 σ of the cell.
 pub const V_MAX: f64 = 12.0;
@@ -37,9 +37,7 @@ const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
 type Row = [f64; V_POINTS + 3];
 
 pub struct LnMassTable {
-    /// One per row of [`crate::width_axis`]; a fixed length, so that indexing
-    /// a stencil's rows needs no check.
-    rows: Box<[OnceLock<Box<Row>>; width_axis::ROWS]>,
+    rows: LazyRows<Box<Row>>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -57,23 +55,14 @@ pub fn exact(v: f64, s: f64) -> f64 {
 impl LnMassTable {
     fn build() -> Self {
         Self {
-            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
+            rows: LazyRows::new(),
         }
     }
 
-    /// Row `is`, built on first use; as the Fisher table's.
+    /// Row `is`, built on first use.
     #[inline]
     fn row(&self, is: usize) -> &Row {
-        match self.rows[is].get() {
-            Some(row) => row,
-            None => self.build_row(is),
-        }
-    }
-
-    #[cold]
-    #[inline(never)]
-    fn build_row(&self, is: usize) -> &Row {
-        self.rows[is].get_or_init(|| {
+        self.rows.get(is, |is| {
             let s = width_axis::row_s(is);
             // Point k is at v = (k − 1)/V_PER_UNIT − V_MAX.
             Box::new(std::array::from_fn(|k| {

@@ -18,6 +18,8 @@
 //! octaves needed twice the rows for the same error (1.1e-9 at 256 rows an
 //! octave, 1.3e-8 at 128), and building them cost every process 50 ms.
 
+use std::sync::OnceLock;
+
 use crate::fisher_table::lagrange_weights;
 
 /// The tables cover `S_MIN < s < S_MAX`, that is `1/128 < w < 1`.
@@ -79,6 +81,43 @@ pub fn stencil(w: f64) -> Option<Stencil> {
         first: octave * ROWS_PER_OCTAVE + k,
         weights: lagrange_weights(x - k as f64),
     })
+}
+
+/// One value per row of the axis, each built on first use, so that a
+/// process pays only for the range of σ/Δ it meets. A fixed length, so
+/// that indexing a stencil's rows needs no check.
+pub struct LazyRows<T> {
+    rows: Box<[OnceLock<T>; ROWS]>,
+}
+
+impl<T> LazyRows<T> {
+    pub fn new() -> Self {
+        Self {
+            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
+        }
+    }
+
+    /// Row `row`, built by `build(row)` if it is not yet. The fast path (an
+    /// acquire load) is inlined into the lookups; the build is not.
+    #[inline]
+    pub fn get(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
+        match self.rows[row].get() {
+            Some(value) => value,
+            None => self.build(row, build),
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn build(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
+        self.rows[row].get_or_init(|| build(row))
+    }
+}
+
+impl<T> Default for LazyRows<T> {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 #[cfg(test)]
