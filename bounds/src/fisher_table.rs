@@ -49,6 +49,7 @@ struct Row {
     grid: Option<Box<Grid>>,
 }
 
+#[derive(Default)]
 pub struct FisherTable {
     rows: LazyRows<Row>,
 }
@@ -56,7 +57,7 @@ pub struct FisherTable {
 /// The process-wide table; its rows fill in as they are first needed.
 pub fn table() -> &'static FisherTable {
     static TABLE: OnceLock<FisherTable> = OnceLock::new();
-    TABLE.get_or_init(FisherTable::build)
+    TABLE.get_or_init(FisherTable::default)
 }
 
 /// Window sums for an infinite grid of unit cells, mean at fraction `u` of
@@ -76,12 +77,6 @@ fn mean_of(sums: &[[f64; 3]]) -> [f64; 3] {
 }
 
 impl FisherTable {
-    fn build() -> Self {
-        Self {
-            rows: LazyRows::new(),
-        }
-    }
-
     /// Row `is`, built on first use.
     #[inline]
     fn row(&self, is: usize) -> &Row {

@@ -36,6 +36,7 @@ const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
 /// four-point stencil never leaves it.
 type Row = [f64; V_POINTS + 3];
 
+#[derive(Default)]
 pub struct LnMassTable {
     rows: LazyRows<Box<Row>>,
 }
@@ -43,7 +44,7 @@ pub struct LnMassTable {
 /// The process-wide table; its rows fill in as they are first needed.
 pub fn table() -> &'static LnMassTable {
     static TABLE: OnceLock<LnMassTable> = OnceLock::new();
-    TABLE.get_or_init(LnMassTable::build)
+    TABLE.get_or_init(LnMassTable::default)
 }
 
 /// `ln P` of a cell of unit width, exactly: standardized mean `v`, `s = σ/Δ`.
@@ -53,12 +54,6 @@ pub fn exact(v: f64, s: f64) -> f64 {
 }
 
 impl LnMassTable {
-    fn build() -> Self {
-        Self {
-            rows: LazyRows::new(),
-        }
-    }
-
     /// Row `is`, built on first use.
     #[inline]
     fn row(&self, is: usize) -> &Row {

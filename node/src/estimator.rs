@@ -408,11 +408,7 @@ impl LocalFilter {
         if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
         }
-        // After a single stage the particles are still the importance-weighted prediction.
-        let posterior = match (stages, self.filter.importance_posterior()) {
-            (1, Some((g, _))) => g,
-            _ => self.filter.summary(),
-        };
+        let posterior = self.filter.posterior_after(stages);
         let mut s_obs = Mat4::zeros();
         if with_observed_information {
             for (x, w) in self.filter.particles().iter().zip(self.filter.weights()) {
@@ -674,12 +670,7 @@ impl FusionFilter {
             let d = x - centre;
             -0.5 * d.dot(&(lambda * d)) + d.dot(&linear)
         });
-        // After a single stage the particles and weights are those the
-        // importance posterior was summarized from: no second pass.
-        let posterior = match (stages, self.filter.importance_posterior()) {
-            (1, Some((g, _))) => g,
-            _ => self.filter.summary(),
-        };
+        let posterior = self.filter.posterior_after(stages);
         self.filter.resample(&mut self.rng);
         self.filter.regularize(&posterior, &mut self.rng);
 

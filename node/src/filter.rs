@@ -241,6 +241,17 @@ impl ParticleFilter {
         self.importance_posterior
     }
 
+    /// The posterior summary after an update that took `stages` stages.
+    /// After a single stage the particles and weights are those the
+    /// importance posterior was summarized from, so that summary is reused
+    /// rather than taken again.
+    pub fn posterior_after(&self, stages: usize) -> Gaussian {
+        match (stages, self.importance_posterior) {
+            (1, Some((g, _))) => g,
+            _ => self.summary(),
+        }
+    }
+
     /// ESS of weights `∝ exp(δ (ℓ_j − max))`.
     fn tempered_ess(&self, delta: f64, max: f64) -> f64 {
         let (mut s1, mut s2) = (0.0, 0.0);
