@@ -1,7 +1,9 @@
 //! Round trip of one consensus-sized message between two processes: through
 //! cqnet's iceoryx2 transport (encode, link shaper, decode, accounting,
-//! wake-up event), and through bare iceoryx2 publish/subscribe with the same
-//! wake-up event, so the cost of our layer is visible.
+//! wake-up event), and through bare iceoryx2 publish/subscribe with a
+//! wake-up event, so the cost of our layer is visible. Bare iceoryx2 runs
+//! twice: with the `ipc` service's event (a Unix datagram socket) and with
+//! the futex event cqnet's transport uses (`transport/futex.rs`).
 //!
 //! `cargo bench -p fusion-graph --bench roundtrip` prints p50 and p99.
 //! The benchmark spawns itself as the echoing process.
@@ -9,6 +11,7 @@
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
+use fusion_graph::transport::futex;
 use fusion_graph::transport::iceoryx::remove_run_resources;
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{ConsensusValues, Message, Payload, WireFormat};
@@ -133,23 +136,20 @@ fn cqnet_echo(run: &RunId) {
     }
 }
 
-type Ports = (
-    Node<ipc::Service>,
-    iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>,
-    iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], ()>,
-    iceoryx2::port::notifier::Notifier<ipc::Service>,
-    iceoryx2::port::listener::Listener<ipc::Service>,
+type Ports<S> = (
+    Node<S>,
+    iceoryx2::port::publisher::Publisher<S, [u8], ()>,
+    iceoryx2::port::subscriber::Subscriber<S, [u8], ()>,
+    iceoryx2::port::notifier::Notifier<S>,
+    iceoryx2::port::listener::Listener<S>,
 );
 
 /// Bare iceoryx2: `[u8]` publish/subscribe plus an event to wake the peer.
-fn bare_ports(run: &RunId, me: &str, peer: &str) -> Ports {
+fn bare_ports<S: Service>(run: &RunId, me: &str, peer: &str) -> Ports<S> {
     let mut config = Config::default();
     config.global.prefix =
         FileName::new(format!("cqnet_{}_", run.as_str().replace('-', "_")).as_bytes()).unwrap();
-    let node = NodeBuilder::new()
-        .config(&config)
-        .create::<ipc::Service>()
-        .unwrap();
+    let node = NodeBuilder::new().config(&config).create::<S>().unwrap();
     let open = |name: &str| {
         node.service_builder(&ServiceName::new(&format!("bare/{}/{name}", run.as_str())).unwrap())
             .publish_subscribe::<[u8]>()
@@ -175,7 +175,7 @@ fn bare_ports(run: &RunId, me: &str, peer: &str) -> Ports {
     (node, publisher, subscriber, notifier, listener)
 }
 
-fn bare_send(p: &iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>, bytes: &[u8]) {
+fn bare_send<S: Service>(p: &iceoryx2::port::publisher::Publisher<S, [u8], ()>, bytes: &[u8]) {
     p.loan_slice_uninit(bytes.len())
         .unwrap()
         .write_from_slice(bytes)
@@ -183,12 +183,14 @@ fn bare_send(p: &iceoryx2::port::publisher::Publisher<ipc::Service, [u8], ()>, b
         .unwrap();
 }
 
-fn bare() -> (f64, f64) {
-    let run = RunId::new(&format!("bench-bare-{}", std::process::id())).unwrap();
+/// The round trip through bare iceoryx2 with service type `S`, whose
+/// echoing process takes `role`.
+fn bare<S: Service>(role: &str) -> (f64, f64) {
+    let run = RunId::new(&format!("bench-{role}-{}", std::process::id())).unwrap();
     // Declared first so that it drops last, after our ports.
     let _echo;
-    let (_node, publisher, subscriber, notifier, listener) = bare_ports(&run, "a", "b");
-    _echo = spawn("bare", &run);
+    let (_node, publisher, subscriber, notifier, listener) = bare_ports::<S>(&run, "a", "b");
+    _echo = spawn(role, &run);
     let bytes = consensus(0).to_bytes(&FORMAT);
     'connect: loop {
         use iceoryx2::port::update_connections::UpdateConnections;
@@ -222,8 +224,8 @@ fn bare() -> (f64, f64) {
     percentiles(times)
 }
 
-fn bare_echo(run: &RunId) {
-    let (_node, publisher, subscriber, notifier, listener) = bare_ports(run, "b", "a");
+fn bare_echo<S: Service>(run: &RunId) {
+    let (_node, publisher, subscriber, notifier, listener) = bare_ports::<S>(run, "b", "a");
     loop {
         let _ = listener.timed_wait(|_| {}, Duration::from_millis(100));
         use iceoryx2::port::update_connections::UpdateConnections;
@@ -240,16 +242,19 @@ fn main() {
         let run = RunId::new(&std::env::var(RUN).unwrap()).unwrap();
         match role.as_str() {
             "cqnet" => cqnet_echo(&run),
-            _ => bare_echo(&run),
+            "futex" => bare_echo::<futex::Service>(&run),
+            _ => bare_echo::<ipc::Service>(&run),
         }
         return;
     }
     let bytes = consensus(0).to_bytes(&FORMAT).len();
-    let (b50, b99) = bare();
+    let (b50, b99) = bare::<ipc::Service>("bare");
+    let (f50, f99) = bare::<futex::Service>("futex");
     let (c50, c99) = cqnet_transport();
     println!(
         "round trip of a {bytes}-byte consensus message between two processes, {ROUNDS} rounds:"
     );
-    println!("  bare iceoryx2 pub/sub + event:   p50 {b50:7.1} µs   p99 {b99:7.1} µs");
-    println!("  cqnet iceoryx2 transport:        p50 {c50:7.1} µs   p99 {c99:7.1} µs");
+    println!("  bare iceoryx2, socket event (ipc):  p50 {b50:7.1} µs   p99 {b99:7.1} µs");
+    println!("  bare iceoryx2, futex event:         p50 {f50:7.1} µs   p99 {f99:7.1} µs");
+    println!("  cqnet's transport (futex event):    p50 {c50:7.1} µs   p99 {c99:7.1} µs");
 }

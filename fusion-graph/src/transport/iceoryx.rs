@@ -16,6 +16,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 
+use super::futex;
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
@@ -271,15 +272,15 @@ pub fn remove_stale_node_directories() -> std::io::Result<usize> {
     Ok(removed)
 }
 
-type Sub = Subscriber<ipc::Service, [u8], ()>;
-type Pub = Publisher<ipc::Service, [u8], ()>;
+type Sub = Subscriber<futex::Service, [u8], ()>;
+type Pub = Publisher<futex::Service, [u8], ()>;
 type PortFactory =
-    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>;
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<futex::Service, [u8], ()>;
 
 /// Opens (or creates) a channel's service, sized for its readers the same
 /// way by every actor and by a host's bridge.
 fn open_channel(
-    node: &Node<ipc::Service>,
+    node: &Node<futex::Service>,
     run: &RunId,
     topology: &Topology,
     channel: Channel,
@@ -307,7 +308,7 @@ fn open_channel(
 struct FarWakes {
     placement: Placement,
     host: usize,
-    bridge: Option<Notifier<ipc::Service>>,
+    bridge: Option<Notifier<futex::Service>>,
     ids: HashMap<ActorId, EventId>,
 }
 
@@ -317,16 +318,16 @@ pub struct IceoryxTransport {
     topology: Topology,
     format: WireFormat,
     start: Instant,
-    node: Node<ipc::Service>,
+    node: Node<futex::Service>,
     publishers: HashMap<Channel, Pub>,
     subscribers: Vec<(Channel, Sub)>,
     /// Which subscriptions were heard from since the last `receive`: see
     /// [`Heard`].
     heard: Heard,
-    listener: Listener<ipc::Service>,
+    listener: Listener<futex::Service>,
     /// Each receiver's notifier, with the event id our wake-ups carry in
     /// its service ([`WakeIds`]).
-    notifiers: HashMap<ActorId, (Notifier<ipc::Service>, EventId)>,
+    notifiers: HashMap<ActorId, (Notifier<futex::Service>, EventId)>,
     /// Second publishers used by [`inject_raw`](Self::inject_raw).
     raw_publishers: HashMap<Channel, Pub>,
     /// On a host of several: how actors of the other hosts are woken.
@@ -359,8 +360,11 @@ fn max_message_len(channel: Channel) -> usize {
 /// the queue, sent before the subscriber's first receive, lost the whole
 /// burst rather than only the oldest samples.
 fn buffer_len(_channel: Channel) -> usize {
-    64
+    SUBSCRIBER_QUEUE
 }
+
+/// Messages each subscriber's queue holds (see `buffer_len`).
+pub const SUBSCRIBER_QUEUE: usize = 64;
 
 /// Whether creating (and dropping) an iceoryx2 node, and opening a service,
 /// first sweep the resources of dead nodes of the run. Both sweeps are
@@ -409,7 +413,7 @@ impl IceoryxTransport {
             .config(&config)
             .name(&name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<ipc::Service>()
+            .create::<futex::Service>()
             .map_err(|e| setup("node", e))?;
         let mut t = Self {
             me,
@@ -705,7 +709,7 @@ impl Transport for IceoryxTransport {
 /// than a microsecond (a held message falling due just now) would never
 /// return, so it is a poll.
 fn listen(
-    listener: &Listener<ipc::Service>,
+    listener: &Listener<futex::Service>,
     timeout: Duration,
     heard: impl FnMut(EventActivation),
 ) -> Result<(), WaitError> {
@@ -852,11 +856,11 @@ impl Heard {
 }
 
 fn open_wake(
-    node: &Node<ipc::Service>,
+    node: &Node<futex::Service>,
     run: &RunId,
     actor: ActorId,
     topology: &Topology,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
     let ids = WakeIds::of(actor, topology).max();
     // Only an actor's peers wake it (a node's sensors and neighbours and
@@ -871,12 +875,12 @@ fn open_wake(
 /// Opens or creates an event service for one listener and `wakers`
 /// notifiers, with event ids up to `ids`.
 fn open_event(
-    node: &Node<ipc::Service>,
+    node: &Node<futex::Service>,
     name: &ServiceName,
     wakers: usize,
     ids: usize,
     what: &str,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
     retry(|| {
         node.service_builder(name)
             .event()
@@ -892,12 +896,12 @@ fn open_event(
 /// A host bridge's wake-up service: every actor of the host that sends to
 /// another host notifies it, with the far receiver's wake id.
 fn open_bridge_wake(
-    node: &Node<ipc::Service>,
+    node: &Node<futex::Service>,
     run: &RunId,
     placement: &Placement,
     host: usize,
     topology: &Topology,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, SetupError> {
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
     let name = run.service_name("wake/bridge")?;
     // The host's actors, and the launcher's on the first host.
     let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
@@ -906,14 +910,14 @@ fn open_bridge_wake(
 }
 
 /// A node for one side of a host's bridge.
-fn bridge_node(run: &RunId, side: &str) -> Result<Node<ipc::Service>, SetupError> {
+fn bridge_node(run: &RunId, side: &str) -> Result<Node<futex::Service>, SetupError> {
     let config = run.config(DeadNodeSweep::On)?;
     let name = NodeName::new(&format!("bridge-{side}")).map_err(|e| setup("node name", e))?;
     NodeBuilder::new()
         .config(&config)
         .name(&name)
         .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
+        .create::<futex::Service>()
         .map_err(|e| setup("node", e))
 }
 
@@ -925,9 +929,9 @@ fn bridge_node(run: &RunId, side: &str) -> Result<Node<ipc::Service>, SetupError
 pub struct BridgeOutlet {
     topology: Topology,
     outgoing: Vec<(Channel, Sub)>,
-    listener: Listener<ipc::Service>,
+    listener: Listener<futex::Service>,
     /// Last: the ports above belong to it.
-    _node: Node<ipc::Service>,
+    _node: Node<futex::Service>,
 }
 
 impl BridgeOutlet {
@@ -997,11 +1001,11 @@ impl BridgeOutlet {
 /// host reads, and wakes this host's actors.
 pub struct BridgeInlet {
     incoming: HashMap<Channel, Pub>,
-    wakers: HashMap<ActorId, Notifier<ipc::Service>>,
+    wakers: HashMap<ActorId, Notifier<futex::Service>>,
     /// The event id of a wake-up that does not say whose message it brings.
     anonymous: EventId,
     /// Last: the ports above belong to it.
-    _node: Node<ipc::Service>,
+    _node: Node<futex::Service>,
 }
 
 impl BridgeInlet {

@@ -11,10 +11,13 @@ use crate::topology::Topology;
 use crate::wire::{Message, MessageKind, WireFormat};
 use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
+pub mod futex;
 pub mod iceoryx;
 pub mod memory;
 
-pub use iceoryx::{BridgeInlet, BridgeOutlet, DeadNodeSweep, IceoryxTransport, RunId};
+pub use iceoryx::{
+    BridgeInlet, BridgeOutlet, DeadNodeSweep, IceoryxTransport, RunId, SUBSCRIBER_QUEUE,
+};
 pub use memory::{MemoryBus, MemoryTransport};
 
 /// A publish/subscribe channel. Every channel has exactly one publisher, so a
