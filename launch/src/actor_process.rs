@@ -18,10 +18,14 @@ use crate::cli::{load_child_scenario, ActorArgs};
 use crate::drive::{run_pending_work, send_all};
 use crate::results::write_atomically;
 
-/// Longest sleep between checks that the launcher is still there. Sensors
-/// are not woken by ticks, only by their activation, so an idle sensor also
-/// drains its queues this often.
+/// A node's longest sleep between checks that the launcher is still there.
 const IDLE_WAIT: Duration = Duration::from_millis(100);
+
+/// A sensor's: it is woken by its activation, and by a tick in turn to
+/// drain its queues (`world::DRAIN_EVERY`), so it need not wake by itself
+/// but to notice a launcher gone (which its parent-death signal also
+/// covers).
+const SENSOR_IDLE_WAIT: Duration = Duration::from_secs(1);
 
 /// Test hook: an actor named in this variable fails at start, so the
 /// launcher's handling of a child that cannot start can be tested.
@@ -92,11 +96,12 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
 }
 
 /// Closes every descriptor this process was started with beyond stdin,
-/// stdout and stderr. iceoryx2 makes its event sockets without
-/// close-on-exec, so a child starts with every socket its launcher held at
-/// that moment: each restarted actor kept about ten, some connected to
-/// listeners long dead, and the soak's descriptors grew with every restart.
-/// Nothing else in an actor has opened a descriptor this early.
+/// stdout and stderr. iceoryx2 makes some descriptors without
+/// close-on-exec (its event sockets did, before the wake-up events became
+/// futexes), so a child started with every one its launcher held at that
+/// moment: each restarted actor kept about ten, some connected to listeners
+/// long dead, and the soak's descriptors grew with every restart. Nothing
+/// else in an actor has opened a descriptor this early.
 fn close_inherited_descriptors() -> std::io::Result<()> {
     // SAFETY: close_range only closes descriptors; none above 2 is in use yet.
     let closed = unsafe { libc::syscall(libc::SYS_close_range, 3u32, u32::MAX, 0u32) };
@@ -227,7 +232,7 @@ fn sensor_loop<T: Transport>(
     let mut inbox = Vec::new();
     let mut step = 0;
     loop {
-        t.wait(IDLE_WAIT)?;
+        t.wait(SENSOR_IDLE_WAIT)?;
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
