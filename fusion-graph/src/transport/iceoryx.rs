@@ -690,6 +690,19 @@ impl Transport for IceoryxTransport {
         Ok(())
     }
 
+    fn poll_wake(&mut self) -> Result<bool, WaitError> {
+        let mut woken = false;
+        let heard = &mut self.heard;
+        listen(&self.listener, Duration::ZERO, |activation| {
+            woken = true;
+            heard.hear(activation.id.as_value());
+        })?;
+        if woken {
+            heard.waited = true;
+        }
+        Ok(woken)
+    }
+
     fn now(&self) -> Duration {
         self.start.elapsed()
     }
@@ -1223,6 +1236,27 @@ mod tests {
         node.receive(node.now(), &mut got).unwrap();
         assert_eq!(got.len(), 2);
         assert_eq!(got[1].header.step, 2);
+    }
+
+    /// `poll_wake` takes a wake-up that came, and one only: it says nothing
+    /// came when nothing did, and the message is read selectively after it.
+    #[test]
+    fn a_poll_takes_a_wake_up_without_sleeping() {
+        let mut p = pair("poll");
+        let Pair { sensor, node, .. } = &mut p;
+        let (sensor, node) = (sensor.as_mut().unwrap(), node.as_mut().unwrap());
+        let mut got = Vec::new();
+        node.receive(node.now(), &mut got).unwrap();
+        assert!(!node.poll_wake().unwrap(), "nothing came");
+        sensor
+            .send(Channel::Observation(0), &contract::obs(0, 1), &[node.me()])
+            .unwrap();
+        assert!(node.poll_wake().unwrap(), "the sensor's wake-up");
+        assert!(!node.heard.everything, "a wake-up that names its sensor");
+        assert!(node.heard.may_have_data(Channel::Observation(0)));
+        node.receive(node.now(), &mut got).unwrap();
+        assert_eq!(got.len(), 1);
+        assert!(!node.poll_wake().unwrap(), "taken once");
     }
 
     #[test]

@@ -147,6 +147,13 @@ pub trait Transport {
     /// Sleeps until this actor is woken or `timeout` passes.
     fn wait(&mut self, timeout: Duration) -> Result<(), WaitError>;
 
+    /// Takes the wake-ups that have already come, without sleeping, and says
+    /// whether there were any: a `wait` that cannot block. A backend with
+    /// nothing to wait for has none.
+    fn poll_wake(&mut self) -> Result<bool, WaitError> {
+        Ok(false)
+    }
+
     /// Time since the transport was created, the clock `receive` expects.
     fn now(&self) -> Duration;
 
