@@ -161,6 +161,9 @@ fn bare_ports<S: Service>(run: &RunId, me: &str, peer: &str) -> Ports<S> {
             &ServiceName::new(&format!("bare/{}/wake/{name}", run.as_str())).unwrap(),
         )
         .event()
+        // As few ids as our wake-up services have, for which iceoryx2
+        // drains a counter each at every wait.
+        .event_id_max_value(27)
         .open_or_create()
         .unwrap()
     };
