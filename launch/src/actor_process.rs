@@ -18,7 +18,9 @@ use crate::cli::{load_child_scenario, ActorArgs};
 use crate::drive::{run_pending_work, send_all};
 use crate::results::write_atomically;
 
-/// A node's longest sleep between checks that the launcher is still there.
+/// Longest sleep between checks that the launcher is still there. Sensors
+/// are not woken by ticks, only by their activation, so an idle sensor also
+/// drains its queues this often.
 const IDLE_WAIT: Duration = Duration::from_millis(100);
 
 /// How long a node polls for a wake-up before it sleeps, while it waits for
@@ -30,12 +32,6 @@ const IDLE_WAIT: Duration = Duration::from_millis(100);
 /// polling costs a core only when it would have idled. It took the round
 /// p50 of `cqnet run` from 177–202 µs to 145–163 (README, performance).
 const SPIN_BEFORE_SLEEP: Duration = Duration::from_micros(50);
-
-/// A sensor's: it is woken by its activation, and by a tick in turn to
-/// drain its queues (`world::DRAIN_EVERY`), so it need not wake by itself
-/// but to notice a launcher gone (which its parent-death signal also
-/// covers).
-const SENSOR_IDLE_WAIT: Duration = Duration::from_secs(1);
 
 /// Test hook: an actor named in this variable fails at start, so the
 /// launcher's handling of a child that cannot start can be tested.
@@ -106,12 +102,11 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
 }
 
 /// Closes every descriptor this process was started with beyond stdin,
-/// stdout and stderr. iceoryx2 makes some descriptors without
-/// close-on-exec (its event sockets did, before the wake-up events became
-/// futexes), so a child started with every one its launcher held at that
-/// moment: each restarted actor kept about ten, some connected to listeners
-/// long dead, and the soak's descriptors grew with every restart. Nothing
-/// else in an actor has opened a descriptor this early.
+/// stdout and stderr. iceoryx2 makes its event sockets without
+/// close-on-exec, so a child starts with every socket its launcher held at
+/// that moment: each restarted actor kept about ten, some connected to
+/// listeners long dead, and the soak's descriptors grew with every restart.
+/// Nothing else in an actor has opened a descriptor this early.
 fn close_inherited_descriptors() -> std::io::Result<()> {
     // SAFETY: close_range only closes descriptors; none above 2 is in use yet.
     let closed = unsafe { libc::syscall(libc::SYS_close_range, 3u32, u32::MAX, 0u32) };
@@ -242,7 +237,7 @@ fn sensor_loop<T: Transport>(
     let mut inbox = Vec::new();
     let mut step = 0;
     loop {
-        t.wait(SENSOR_IDLE_WAIT)?;
+        t.wait(IDLE_WAIT)?;
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;

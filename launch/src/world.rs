@@ -34,32 +34,11 @@ impl World {
     }
 }
 
-/// A sensor is woken by the tick once in this many steps, in turn by its
-/// index, to drain its queues. An active sensor is woken by its activation
-/// and finds the tick queued; one that is seldom active would otherwise
-/// fill its subscriber queues (a tick and an activation a step). Draining
-/// on an idle timer instead woke all 225 sensors ten times a second, and
-/// would overflow the queues at more than 640 steps/s; in turn, a sensor's
-/// queues are at most half full whatever the rate, and a step wakes one
-/// sensor in 32.
-pub const DRAIN_EVERY: u16 = 32;
-const _: () = assert!(2 * DRAIN_EVERY as usize <= fusion_graph::transport::SUBSCRIBER_QUEUE);
-
-/// The sensors among `live` whose turn it is at `step` to be woken by the
-/// tick (see [`DRAIN_EVERY`]).
-fn drained_at(step: u32, live: &[ActorId]) -> Vec<ActorId> {
-    let turn = (step % DRAIN_EVERY as u32) as u16;
-    live.iter()
-        .copied()
-        .filter(|a| matches!(a, ActorId::Sensor(s) if s % DRAIN_EVERY == turn))
-        .collect()
-}
-
 /// The launcher's start of a step, the same in `sim` and `run`: the tick
-/// with the truth to every live sensor (waking only those whose turn it is
-/// to drain their queues, see [`DRAIN_EVERY`]), then, to every live node,
-/// its membership view when it differs from the one it was last told (or
-/// after any kill or restart), and `BeginStep`.
+/// with the truth to every live sensor (waking none: an active sensor is
+/// woken by its activation and finds the tick queued), then, to every live
+/// node, its membership view when it differs from the one it was last told
+/// (or after any kill or restart), and `BeginStep`.
 pub fn begin_step<T: Transport + ?Sized>(
     launcher: &mut T,
     step: u32,
@@ -81,7 +60,7 @@ pub fn begin_step<T: Transport + ?Sized>(
             truth: truth.into(),
         },
     );
-    launcher.send_waking(Channel::Tick, &tick, &sensors, &drained_at(step, &sensors))?;
+    launcher.send_waking(Channel::Tick, &tick, &sensors, &[])?;
     for (n, view) in views.iter().enumerate() {
         // A node is alive when its own view holds it.
         if !view.get(n).copied().unwrap_or(false) {
@@ -113,36 +92,4 @@ pub fn begin_step<T: Transport + ?Sized>(
         )?;
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Over any `DRAIN_EVERY` steps in a row, every live sensor is woken
-    /// once, and no step wakes more than its share.
-    #[test]
-    fn every_live_sensor_drains_once_in_drain_every_steps() {
-        let live: Vec<ActorId> = (0..225u16)
-            .filter(|s| s % 7 != 3)
-            .map(ActorId::Sensor)
-            .collect();
-        for first in [0u32, 1, 5, 1000] {
-            let mut woken = vec![0; 225];
-            for step in first..first + DRAIN_EVERY as u32 {
-                let these = drained_at(step, &live);
-                assert!(these.len() <= 225usize.div_ceil(DRAIN_EVERY as usize));
-                for a in these {
-                    let ActorId::Sensor(s) = a else {
-                        panic!("{a} is not a sensor")
-                    };
-                    woken[s as usize] += 1;
-                }
-            }
-            for s in 0..225u16 {
-                let expected = if s % 7 != 3 { 1 } else { 0 };
-                assert_eq!(woken[s as usize], expected, "sensor {s} from step {first}");
-            }
-        }
-    }
 }

@@ -360,11 +360,8 @@ fn max_message_len(channel: Channel) -> usize {
 /// the queue, sent before the subscriber's first receive, lost the whole
 /// burst rather than only the oldest samples.
 fn buffer_len(_channel: Channel) -> usize {
-    SUBSCRIBER_QUEUE
+    64
 }
-
-/// Messages each subscriber's queue holds (see `buffer_len`).
-pub const SUBSCRIBER_QUEUE: usize = 64;
 
 /// Whether creating (and dropping) an iceoryx2 node, and opening a service,
 /// first sweep the resources of dead nodes of the run. Both sweeps are

@@ -15,9 +15,7 @@ pub mod futex;
 pub mod iceoryx;
 pub mod memory;
 
-pub use iceoryx::{
-    BridgeInlet, BridgeOutlet, DeadNodeSweep, IceoryxTransport, RunId, SUBSCRIBER_QUEUE,
-};
+pub use iceoryx::{BridgeInlet, BridgeOutlet, DeadNodeSweep, IceoryxTransport, RunId};
 pub use memory::{MemoryBus, MemoryTransport};
 
 /// A publish/subscribe channel. Every channel has exactly one publisher, so a
