@@ -480,6 +480,18 @@ impl IceoryxTransport {
         })
     }
 
+    /// Takes the wake-ups that come within `timeout` (none: a poll), noting
+    /// whom they came from in `heard`, and says whether there were any.
+    fn take_wake_ups(&mut self, timeout: Duration) -> Result<bool, WaitError> {
+        let mut woken = false;
+        let heard = &mut self.heard;
+        listen(&self.listener, timeout, |activation| {
+            woken = true;
+            heard.hear(activation.id.as_value());
+        })?;
+        Ok(woken)
+    }
+
     pub fn run(&self) -> &RunId {
         &self.run
     }
@@ -673,30 +685,19 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        let mut woken = false;
-        let heard = &mut self.heard;
-        listen(&self.listener, timeout, |activation| {
-            woken = true;
-            heard.hear(activation.id.as_value());
-        })?;
-        heard.waited = true;
+        let woken = self.take_wake_ups(timeout)?;
+        self.heard.waited = true;
         if !woken {
             // A timeout, or a wake-up that came without its event.
-            heard.everything();
+            self.heard.everything();
         }
         Ok(())
     }
 
     fn poll_wake(&mut self) -> Result<bool, WaitError> {
-        let mut woken = false;
-        let heard = &mut self.heard;
-        listen(&self.listener, Duration::ZERO, |activation| {
-            woken = true;
-            heard.hear(activation.id.as_value());
-        })?;
-        if woken {
-            heard.waited = true;
-        }
+        let woken = self.take_wake_ups(Duration::ZERO)?;
+        // Nothing heard leaves `receive` to take the wake-ups itself.
+        self.heard.waited |= woken;
         Ok(woken)
     }
 
