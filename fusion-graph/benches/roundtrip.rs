@@ -147,8 +147,7 @@ type Ports<S> = (
 /// Bare iceoryx2: `[u8]` publish/subscribe plus an event to wake the peer.
 fn bare_ports<S: Service>(run: &RunId, me: &str, peer: &str) -> Ports<S> {
     let mut config = Config::default();
-    config.global.prefix =
-        FileName::new(format!("cqnet_{}_", run.as_str().replace('-', "_")).as_bytes()).unwrap();
+    config.global.prefix = FileName::new(run.prefix().as_bytes()).unwrap();
     let node = NodeBuilder::new().config(&config).create::<S>().unwrap();
     let open = |name: &str| {
         node.service_builder(&ServiceName::new(&format!("bare/{}/{name}", run.as_str())).unwrap())

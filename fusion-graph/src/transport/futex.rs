@@ -286,12 +286,12 @@ mod tests {
 
     use super::Service;
     use crate::transport::iceoryx::remove_run_resources;
-    use crate::transport::RunId;
+    use crate::transport::{DeadNodeSweep, RunId};
 
-    /// A node of this test's own run, whose files `Cleanup` removes.
+    /// A node of this test's own run, configured as the transport's are,
+    /// whose files `Cleanup` removes.
     fn test_node(run: &RunId) -> Node<Service> {
-        let mut config = Config::default();
-        config.global.prefix = FileName::new(run.prefix().as_bytes()).unwrap();
+        let config = run.config(DeadNodeSweep::Off).unwrap();
         NodeBuilder::new()
             .config(&config)
             .create::<Service>()

@@ -77,7 +77,7 @@ impl RunId {
         format!("cqnet_{}_", self.0.replace('-', "_"))
     }
 
-    fn config(&self, sweep: DeadNodeSweep) -> Result<Config, SetupError> {
+    pub(crate) fn config(&self, sweep: DeadNodeSweep) -> Result<Config, SetupError> {
         let mut config = Config::default();
         config.global.prefix =
             FileName::new(self.prefix().as_bytes()).map_err(|e| setup("run prefix", e))?;
