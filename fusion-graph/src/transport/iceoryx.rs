@@ -624,6 +624,15 @@ impl Transport for IceoryxTransport {
     }
 
     fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), ReceiveError> {
+        if !self.heard.waited && self.heard.selective {
+            // Called without a wait since the last receive: take the
+            // wake-ups that came in meanwhile without sleeping.
+            self.take_wake_ups(Duration::ZERO)
+                .map_err(|e| ReceiveError {
+                    channel: "wake".into(),
+                    source: e.source,
+                })?;
+        }
         let Self {
             me,
             format,
@@ -640,17 +649,6 @@ impl Transport for IceoryxTransport {
             shaper,
         };
         let heard = &mut self.heard;
-        if !heard.waited && heard.selective {
-            // Called without a wait since the last receive: take the
-            // wake-ups that came in meanwhile without sleeping.
-            listen(&self.listener, Duration::ZERO, |a| {
-                heard.hear(a.id.as_value())
-            })
-            .map_err(|e| ReceiveError {
-                channel: "wake".into(),
-                source: e.source,
-            })?;
-        }
         for (channel, sub) in subscribers.iter() {
             if !heard.may_have_data(*channel) {
                 continue;
