@@ -30,7 +30,9 @@ const IDLE_WAIT: Duration = Duration::from_millis(100);
 /// step, and a round waits for its slowest wake-up. Between polls the node
 /// yields, so that any other process runnable on its core goes first: the
 /// polling costs a core only when it would have idled. It took the round
-/// p50 of `cqnet run` from 177–202 µs to 145–163 (README, performance).
+/// p50 of `cqnet run --lockstep --no-central` from 177–202 µs to 145–163
+/// (2026-12-02, alternately with and without; 50 µs was among the best of
+/// 20 to 300).
 const SPIN_BEFORE_SLEEP: Duration = Duration::from_micros(50);
 
 /// Test hook: an actor named in this variable fails at start, so the
