@@ -33,9 +33,16 @@ pub fn information_of(e: &Evaluation, measurement: Measurement<'_>) -> Mat4 {
 /// state: `(1/R, 0, 1/(2R²))` raw, the quantizer's otherwise.
 #[inline]
 pub fn scalars_of(e: &Evaluation, measurement: Measurement<'_>) -> FisherScalars {
+    scalars_of_mean_and_variance(e.g, e.r, measurement)
+}
+
+/// [`scalars_of`] from the model's mean g and variance R alone, all the
+/// scalars depend on.
+#[inline]
+pub fn scalars_of_mean_and_variance(g: f64, r: f64, measurement: Measurement<'_>) -> FisherScalars {
     match measurement {
-        Measurement::Raw => FisherScalars::raw(e.r),
-        Measurement::Quantized(q) => q.fisher_scalars(e.g, e.r),
+        Measurement::Raw => FisherScalars::raw(r),
+        Measurement::Quantized(q) => q.fisher_scalars(g, r),
     }
 }
 
@@ -73,11 +80,24 @@ pub fn position_information_from(s: &FisherScalars, e: &Evaluation) -> nalgebra:
 /// half the arithmetic of the full matrices.
 #[inline]
 pub fn position_information_entries(s: &FisherScalars, e: &Evaluation) -> [f64; 3] {
-    let (gx, gy) = (e.grad_g[0], e.grad_g[1]);
-    let (rx, ry) = (e.grad_r[0], e.grad_r[1]);
+    position_entries(
+        (s.gg, s.gr, s.rr),
+        (e.grad_g[0], e.grad_g[1]),
+        (e.grad_r[0], e.grad_r[1]),
+    )
+}
+
+/// [`position_information_entries`] from the scalars `(gg, gr, rr)` and
+/// the gradients' position entries: one lane of the batched sums.
+#[inline(always)]
+pub fn position_entries(
+    (gg, gr, rr): (f64, f64, f64),
+    (gx, gy): (f64, f64),
+    (rx, ry): (f64, f64),
+) -> [f64; 3] {
     // gg ∇g∇gᵀ + gr (∇g∇Rᵀ + ∇R∇gᵀ) + rr ∇R∇Rᵀ, entry by entry.
-    let (ax, ay) = (s.gg * gx + s.gr * rx, s.gg * gy + s.gr * ry);
-    let (bx, by) = (s.gr * gx + s.rr * rx, s.gr * gy + s.rr * ry);
+    let (ax, ay) = (gg * gx + gr * rx, gg * gy + gr * ry);
+    let (bx, by) = (gr * gx + rr * rx, gr * gy + rr * ry);
     [gx * ax + rx * bx, gx * ay + rx * by, gy * ay + ry * by]
 }
 

@@ -78,7 +78,7 @@ fn mean_of(sums: &[[f64; 3]]) -> [f64; 3] {
 
 impl FisherTable {
     /// Row `is`, built on first use.
-    #[inline]
+    #[inline(always)]
     fn row(&self, is: usize) -> &Row {
         self.rows.get(is, |is| {
             let s = width_axis::row_s(is);
@@ -110,7 +110,7 @@ impl FisherTable {
 
     /// [`lookup`](Self::lookup) with the rows over s already found
     /// (`None` outside the axis).
-    #[inline]
+    #[inline(always)]
     pub fn lookup_at(&self, u: f64, s: f64, rows: Option<&Stencil>) -> Option<[f64; 3]> {
         if s >= S_MAX {
             return Some(fine_cell_sums(s));
@@ -163,7 +163,7 @@ impl FisherTable {
 /// dependence on u is of order exp(−2π²s²), nil here, and the next term is
 /// O(s⁻⁶), below 1e-10 for s > 64. Without it a 13-bit bearing (s ≈ 65)
 /// summed 1,200 cells per particle and sensor; 16 bits, ten thousand.
-#[inline]
+#[inline(always)]
 fn fine_cell_sums(s: f64) -> [f64; 3] {
     let inv2 = 1.0 / (s * s);
     [
@@ -174,7 +174,7 @@ fn fine_cell_sums(s: f64) -> [f64; 3] {
 }
 
 /// Cubic Lagrange weights for nodes −1, 0, 1, 2 at offset `t` from node 0.
-#[inline]
+#[inline(always)]
 pub(crate) fn lagrange_weights(t: f64) -> [f64; 4] {
     // By products only: a division by 6 is not a multiplication to the
     // compiler, and would be two divisions on every lookup's critical path.

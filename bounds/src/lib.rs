@@ -19,6 +19,7 @@
 //! - [`speb`]: seed 003's squared position error bound, information
 //!   against the delay of a rate-limited link.
 
+pub mod batch;
 pub mod bit_allocation;
 pub mod censoring;
 pub mod diffusion;

@@ -55,7 +55,7 @@ pub fn exact(v: f64, s: f64) -> f64 {
 
 impl LnMassTable {
     /// Row `is`, built on first use.
-    #[inline]
+    #[inline(always)]
     fn row(&self, is: usize) -> &Row {
         self.rows.get(is, |is| {
             let s = width_axis::row_s(is);
@@ -76,13 +76,14 @@ impl LnMassTable {
     /// [`lookup`](Self::lookup) with the rows over s already found.
     #[inline]
     pub fn lookup_at(&self, v: f64, rows: &Stencil) -> Option<f64> {
-        if v.is_nan() || v.abs() > V_MAX {
-            return None;
-        }
-        let xv = (v + V_MAX) * V_PER_UNIT as f64;
-        // Non-negative but for rounding: truncation is the floor.
-        let iv = (xv as usize).min(V_POINTS - 2);
-        let wv = crate::fisher_table::lagrange_weights(xv - iv as f64);
+        Some(self.read(&point(v)?, v, rows))
+    }
+
+    /// `ln P` at the point `at` of v (which [`point`] found) and the rows
+    /// over s: the four rows' stencils weighted, then over v.
+    #[inline(always)]
+    pub fn read(&self, at: &Point, v: f64, rows: &Stencil) -> f64 {
+        let Point { iv, weights: wv } = *at;
         // Over the rows first, point by point (vectorisable), then over v.
         let mut acc = [0.0; 4];
         for (a, wsa) in rows.weights.iter().enumerate() {
@@ -95,8 +96,33 @@ impl LnMassTable {
             }
         }
         let g = wv[0] * acc[0] + wv[1] * acc[1] + wv[2] * acc[2] + wv[3] * acc[3];
-        Some(g - 0.5 * v * v)
+        g - 0.5 * v * v
     }
+}
+
+/// Where a lookup reads along v: the stencil's first point (`iv .. iv + 4`
+/// of a padded row) and its cubic weights.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Point {
+    pub iv: usize,
+    pub weights: [f64; 4],
+}
+
+/// The [`Point`] of v, or `None` outside `|v| ≤ V_MAX` (or NaN).
+#[inline(always)]
+pub fn point(v: f64) -> Option<Point> {
+    if v.is_nan() || v.abs() > V_MAX {
+        return None;
+    }
+    let xv = (v + V_MAX) * V_PER_UNIT as f64;
+    // Non-negative but for rounding: truncation is the floor. Through i32,
+    // which vectorises (x86 has no vector conversion to 64-bit integers
+    // before AVX-512): xv < 800.
+    let iv = ((xv as i32) as usize).min(V_POINTS - 2);
+    Some(Point {
+        iv,
+        weights: crate::fisher_table::lagrange_weights(xv - iv as f64),
+    })
 }
 
 #[cfg(test)]

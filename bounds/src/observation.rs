@@ -9,6 +9,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use crate::batch::{Positions, CHUNK};
 use crate::{ParameterError, State};
 
 /// g, ∇g, R and ∇R at one state.
@@ -18,6 +19,32 @@ pub struct Evaluation {
     pub grad_g: State,
     pub r: f64,
     pub grad_r: State,
+}
+
+/// [`Evaluation`]s of one sensor at a batch of states, as arrays, for a
+/// model that depends on the position only: `∇g = (gx, gy, 0, 0)`,
+/// `∇R = (rx, ry, 0, 0)`.
+#[derive(Debug, Clone, Copy)]
+pub struct Evaluations {
+    pub g: [f64; CHUNK],
+    pub r: [f64; CHUNK],
+    pub gx: [f64; CHUNK],
+    pub gy: [f64; CHUNK],
+    pub rx: [f64; CHUNK],
+    pub ry: [f64; CHUNK],
+}
+
+impl Default for Evaluations {
+    fn default() -> Self {
+        Self {
+            g: [0.0; CHUNK],
+            r: [0.0; CHUNK],
+            gx: [0.0; CHUNK],
+            gy: [0.0; CHUNK],
+            rx: [0.0; CHUNK],
+            ry: [0.0; CHUNK],
+        }
+    }
 }
 
 /// Distances below this are treated as this, so that a target passing over a
@@ -207,6 +234,46 @@ impl ObservationModel {
         }
     }
 
+    /// [`evaluate`](Self::evaluate) at a batch of states (`states`, whose
+    /// positions are `at`), bit for bit, for a model whose g and R depend
+    /// on the position only ([`depends_on_position_only`](Self::depends_on_position_only)):
+    /// its gradients' velocity entries are zero and not written. The
+    /// bearing law is vectorised ([`crate::batch`]); the others are
+    /// evaluated state by state.
+    #[inline(always)]
+    pub fn evaluate_batch(&self, states: &[State], at: &Positions, out: &mut Evaluations) {
+        debug_assert!(self.depends_on_position_only() && states.len() <= CHUNK);
+        let sensor = self.sensor;
+        match self.law {
+            SensorLaw::Bearing { sigma_theta, d0 } => {
+                let (mut dx, mut dy, mut d2) = ([0.0; CHUNK], [0.0; CHUNK], [0.0; CHUNK]);
+                for i in 0..CHUNK {
+                    dx[i] = at.x[i] - sensor[0];
+                    dy[i] = at.y[i] - sensor[1];
+                    d2[i] = (dx[i] * dx[i] + dy[i] * dy[i]).max(MIN_DISTANCE * MIN_DISTANCE);
+                }
+                crate::batch::atan2(&dx, &dy, &mut out.g);
+                let s2 = sigma_theta * sigma_theta;
+                for i in 0..CHUNK {
+                    out.gx[i] = dy[i] / d2[i];
+                    out.gy[i] = -dx[i] / d2[i];
+                    out.r[i] = bearing_variance(sigma_theta, d0, d2[i]);
+                    out.rx[i] = 2.0 * s2 * dx[i] / (d0 * d0);
+                    out.ry[i] = 2.0 * s2 * dy[i] / (d0 * d0);
+                }
+            }
+            _ => {
+                for (i, x) in states.iter().enumerate() {
+                    let e = self.evaluate(x);
+                    out.g[i] = e.g;
+                    out.r[i] = e.r;
+                    (out.gx[i], out.gy[i]) = (e.grad_g[0], e.grad_g[1]);
+                    (out.rx[i], out.ry[i]) = (e.grad_r[0], e.grad_r[1]);
+                }
+            }
+        }
+    }
+
     /// g and R at `x`, without the gradients: what a likelihood needs.
     /// The same values as [`evaluate`](Self::evaluate)'s, bit for bit.
     #[inline]
@@ -273,6 +340,69 @@ mod tests {
     use crate::testing::{central_gradient, random_state};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn evaluate_avx2(
+        model: &ObservationModel,
+        states: &[State],
+        at: &Positions,
+        out: &mut Evaluations,
+    ) {
+        model.evaluate_batch(states, at, out)
+    }
+
+    /// The batch is `evaluate` state by state, bit for bit, vectorised or
+    /// not, for every law of the position, with states near, far, and on
+    /// the sensor (the distance floor).
+    #[test]
+    fn the_batch_is_evaluate_bit_for_bit() {
+        let laws = [
+            SensorLaw::Bearing { sigma_theta: 0.05, d0: 200.0 },
+            SensorLaw::Rss { p0: -30.0, zeta: 3.0, d0: 1.0, sigma: 2.0 },
+            SensorLaw::Amplitude { p0: 100.0, alpha: 0.01, exponent: 2.0, sigma: 0.5 },
+            SensorLaw::Linear { h: [1.0, -2.0, 0.0, 0.0], r: 3.0 },
+        ];
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        for law in laws {
+            let model = law.at([120.0, -35.0]);
+            for n in [CHUNK, 23] {
+                let mut states: Vec<State> = (0..n)
+                    .map(|_| {
+                        let scale = 10f64.powf(rng.random_range(-4.0..4.0));
+                        State::new(
+                            120.0 + scale * rng.random_range(-1.0..1.0),
+                            -35.0 + scale * rng.random_range(-1.0..1.0),
+                            rng.random_range(-9.0..9.0),
+                            rng.random_range(-9.0..9.0),
+                        )
+                    })
+                    .collect();
+                states[0] = State::new(120.0, -35.0, 1.0, 1.0);
+                let at = Positions::of(&states);
+                let mut plain = Evaluations::default();
+                model.evaluate_batch(&states, &at, &mut plain);
+                let mut wide = Evaluations::default();
+                if crate::batch::has_avx2() {
+                    // SAFETY: the CPU has AVX2.
+                    unsafe { evaluate_avx2(&model, &states, &at, &mut wide) };
+                } else {
+                    wide = plain;
+                }
+                for (i, x) in states.iter().enumerate() {
+                    let e = model.evaluate(x);
+                    let want = [e.g, e.r, e.grad_g[0], e.grad_g[1], e.grad_r[0], e.grad_r[1]];
+                    for b in [&plain, &wide] {
+                        let got = [b.g[i], b.r[i], b.gx[i], b.gy[i], b.rx[i], b.ry[i]];
+                        assert!(
+                            got.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()),
+                            "{law:?} at {x:?}: {got:?} vs {want:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 
     fn models() -> Vec<ObservationModel> {
         vec![

@@ -18,9 +18,10 @@ use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
 use crate::dynamics::Dynamics;
-use crate::fisher::{assemble, position_information_entries, scalars_of, Measurement};
-use crate::observation::{Evaluation, ObservationModel};
-use crate::quantizer::FisherScalars;
+use crate::batch::{has_avx2, Positions, CHUNK};
+use crate::fisher::{assemble, position_entries, Measurement};
+use crate::observation::{Evaluations, ObservationModel};
+use crate::quantizer::{FisherScalars, TableReads};
 use crate::{BoundError, Mat4, State};
 
 /// One sensor as the bound sees it: its model and how it reports.
@@ -173,56 +174,160 @@ pub fn observation_information(
     particles: &[State],
     weights: &[f64],
 ) -> Result<Mat4, BoundError> {
-    observation_information_with(sensors, particles, weights, |_, k, e| {
-        scalars_of(e, sensors[k].measurement)
+    let mut reads = TableReads::default();
+    observation_information_with(sensors, particles, weights, |_, k, g, r, n, out| {
+        match sensors[k].measurement {
+            Measurement::Quantized(q) => q.fisher_scalars_batch(g, r, n, out, &mut reads),
+            Measurement::Raw => {
+                for (i, &r) in r[..n].iter().enumerate() {
+                    out.set(i, FisherScalars::raw(r));
+                }
+            }
+        }
     })
 }
 
-/// [`observation_information`] with each particle's and sensor's Fisher
-/// scalars from `scalars(particle, sensor, model evaluated there)`: a
-/// filter that needs the likelihood at the same particles (the local
-/// filter over its prediction) computes both there, sharing the model's
-/// evaluation and what the two lookups have in common.
+/// The Fisher scalars of one sensor at a batch of particles, as arrays.
+#[derive(Debug, Clone, Copy)]
+pub struct ScalarBatch {
+    pub gg: [f64; CHUNK],
+    pub gr: [f64; CHUNK],
+    pub rr: [f64; CHUNK],
+}
+
+impl ScalarBatch {
+    #[inline(always)]
+    pub fn set(&mut self, i: usize, s: FisherScalars) {
+        (self.gg[i], self.gr[i], self.rr[i]) = (s.gg, s.gr, s.rr);
+    }
+
+    fn get(&self, i: usize) -> FisherScalars {
+        FisherScalars {
+            gg: self.gg[i],
+            gr: self.gr[i],
+            rr: self.rr[i],
+        }
+    }
+}
+
+impl Default for ScalarBatch {
+    fn default() -> Self {
+        Self {
+            gg: [0.0; CHUNK],
+            gr: [0.0; CHUNK],
+            rr: [0.0; CHUNK],
+        }
+    }
+}
+
+/// [`observation_information`] with the Fisher scalars from
+/// `scalars(first, sensor, g, r, n, out)`: those of sensor `sensor` at the
+/// `n` particles from `first` on, whose model's means and variances are the
+/// first `n` of `g` and `r` (the rest is padding), into `out`. A filter that needs the likelihood at the same
+/// particles (the local filter over its prediction) computes both there,
+/// sharing the model's evaluation and what the two lookups have in common.
+///
+/// Models of the position only (every law but a linear one that reads the
+/// velocity) are evaluated [`CHUNK`] particles at a time, vectorised
+/// ([`crate::batch`]); the sums are taken in the same order either way.
 #[inline]
 pub fn observation_information_with(
     sensors: &[SensorTerm<'_>],
     particles: &[State],
     weights: &[f64],
-    mut scalars: impl FnMut(usize, usize, &Evaluation) -> FisherScalars,
+    mut scalars: impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
 ) -> Result<Mat4, BoundError> {
     check_weights(particles.len(), weights)?;
     if sensors.iter().all(|s| s.model.depends_on_position_only()) {
         // Only the 2×2 position block is non-zero: accumulate just that.
-        let mut total = [0.0; 3];
-        for (j, (x, &w)) in particles.iter().zip(weights).enumerate() {
-            let mut per_particle = [0.0; 3];
-            for (k, s) in sensors.iter().enumerate() {
-                let e = s.model.evaluate(x);
-                let entries = position_information_entries(&scalars(j, k, &e), &e);
-                for (p, v) in per_particle.iter_mut().zip(entries) {
-                    *p += v;
-                }
-            }
-            for (t, p) in total.iter_mut().zip(per_particle) {
-                *t += p * w;
-            }
-        }
-        let [xx, xy, yy] = total;
+        let [xx, xy, yy] = if has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            unsafe { position_information_sum_avx2(sensors, particles, weights, &mut scalars) }
+        } else {
+            position_information_sum(sensors, particles, weights, &mut scalars)
+        };
         let total = nalgebra::Matrix2::new(xx, xy, xy, yy);
         let mut full = Mat4::zeros();
         full.fixed_view_mut::<2, 2>(0, 0).copy_from(&total);
         return Ok(symmetrized(full));
     }
     let mut total = Mat4::zeros();
+    let (mut g, mut r, mut batch) = ([0.0; CHUNK], [0.0; CHUNK], ScalarBatch::default());
     for (j, (x, &w)) in particles.iter().zip(weights).enumerate() {
         let mut per_particle = Mat4::zeros();
         for (k, s) in sensors.iter().enumerate() {
             let e = s.model.evaluate(x);
-            per_particle += assemble(&scalars(j, k, &e), &e);
+            (g[0], r[0]) = (e.g, e.r);
+            scalars(j, k, &g, &r, 1, &mut batch);
+            per_particle += assemble(&batch.get(0), &e);
         }
         total += per_particle * w;
     }
     Ok(symmetrized(total))
+}
+
+/// [`position_information_sum`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn position_information_sum_avx2(
+    sensors: &[SensorTerm<'_>],
+    particles: &[State],
+    weights: &[f64],
+    scalars: &mut impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
+) -> [f64; 3] {
+    position_information_sum(sensors, particles, weights, scalars)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+unsafe fn position_information_sum_avx2(
+    sensors: &[SensorTerm<'_>],
+    particles: &[State],
+    weights: &[f64],
+    scalars: &mut impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
+) -> [f64; 3] {
+    position_information_sum(sensors, particles, weights, scalars)
+}
+
+/// `(xx, xy, yy)` of `Σ_j w_j Σ_s J_s(x_j)` for models of the position
+/// only, a batch of particles at a time: each sensor's model and scalars
+/// over the batch, each particle's entries summed over the sensors in
+/// order, then weighted into the total particle by particle.
+#[inline(always)]
+fn position_information_sum(
+    sensors: &[SensorTerm<'_>],
+    particles: &[State],
+    weights: &[f64],
+    scalars: &mut impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
+) -> [f64; 3] {
+    let mut total = [0.0; 3];
+    let mut e = Evaluations::default();
+    let mut s = ScalarBatch::default();
+    let mut per_particle = [[0.0; CHUNK]; 3];
+    for (c, (states, ws)) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)).enumerate() {
+        let n = states.len();
+        let at = Positions::of(states);
+        per_particle.iter_mut().for_each(|p| p.fill(0.0));
+        for (k, sensor) in sensors.iter().enumerate() {
+            sensor.model.evaluate_batch(states, &at, &mut e);
+            scalars(c * CHUNK, k, &e.g, &e.r, n, &mut s);
+            for i in 0..CHUNK {
+                let entries = position_entries(
+                    (s.gg[i], s.gr[i], s.rr[i]),
+                    (e.gx[i], e.gy[i]),
+                    (e.rx[i], e.ry[i]),
+                );
+                for (p, v) in per_particle.iter_mut().zip(entries) {
+                    p[i] += v;
+                }
+            }
+        }
+        for (i, w) in ws.iter().enumerate() {
+            for (t, p) in total.iter_mut().zip(&per_particle) {
+                *t += p[i] * w;
+            }
+        }
+    }
+    total
 }
 
 /// One step: `L(k+1|k) = Q⁻¹ − B21 (L(k) + B11)⁻¹ B12`, `L(k+1) = L(k+1|k) + obs`.

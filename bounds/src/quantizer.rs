@@ -4,6 +4,8 @@
 use std::f64::consts::FRAC_1_SQRT_2;
 
 use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
+use crate::batch::CHUNK;
+use crate::pcrlb::ScalarBatch;
 use crate::width_axis::{self, Stencil};
 use crate::QuantizerError;
 
@@ -67,7 +69,7 @@ struct Spread {
 }
 
 impl Spread {
-    #[inline]
+    #[inline(always)]
     fn new(variance: f64, cells: &UniformCells) -> Self {
         let sigma = variance.sqrt();
         let per_sigma = 1.0 / sigma;
@@ -76,6 +78,107 @@ impl Spread {
             per_sigma,
             s: sigma * cells.per_width,
             rows: width_axis::stencil(0.5 * cells.width * per_sigma),
+        }
+    }
+}
+
+/// What the tables are read at, for a batch of means and variances, as
+/// arrays: each lane's [`Spread`], and where the likelihood table reads
+/// along v. Found in one branch-free pass over every lane. A caller keeps
+/// one across its batches, so that its arrays are set up once.
+pub struct TableReads {
+    sigma: [f64; CHUNK],
+    per_sigma: [f64; CHUNK],
+    s: [f64; CHUNK],
+    rows_ok: [bool; CHUNK],
+    first: [usize; CHUNK],
+    ws: [[f64; CHUNK]; 4],
+    mass_ok: [bool; CHUNK],
+    v: [f64; CHUNK],
+    iv: [usize; CHUNK],
+    wv: [[f64; CHUNK]; 4],
+    window_tabled: [bool; CHUNK],
+}
+
+impl Default for TableReads {
+    fn default() -> Self {
+        Self {
+            sigma: [0.0; CHUNK],
+            per_sigma: [0.0; CHUNK],
+            s: [0.0; CHUNK],
+            rows_ok: [false; CHUNK],
+            first: [0; CHUNK],
+            ws: [[0.0; CHUNK]; 4],
+            mass_ok: [false; CHUNK],
+            v: [0.0; CHUNK],
+            iv: [0; CHUNK],
+            wv: [[0.0; CHUNK]; 4],
+            window_tabled: [false; CHUNK],
+        }
+    }
+}
+
+impl TableReads {
+    /// Fills every lane from the means and variances; the likelihood
+    /// table's reads (of cell `index`) only `WITH_MASS`.
+    #[inline(always)]
+    fn find<const WITH_MASS: bool>(
+        &mut self,
+        q: &Quantizer,
+        cells: &UniformCells,
+        index: u32,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+    ) {
+        let r = self;
+        for i in 0..CHUNK {
+            let spread = Spread::new(variance[i], cells);
+            (r.sigma[i], r.per_sigma[i], r.s[i]) = (spread.sigma, spread.per_sigma, spread.s);
+            r.rows_ok[i] = spread.rows.is_some();
+            let rows = spread.rows.unwrap_or(Stencil {
+                first: 0,
+                weights: [0.0; 4],
+            });
+            r.first[i] = rows.first;
+            for (a, w) in rows.weights.into_iter().enumerate() {
+                r.ws[a][i] = w;
+            }
+            r.window_tabled[i] = q.window_tabled(mean[i], spread.sigma);
+            if !WITH_MASS {
+                continue;
+            }
+            let offset = q.mass_offset(cells, index, mean[i], spread.sigma);
+            let v = offset.unwrap_or(0.0) * spread.per_sigma;
+            let point = crate::mass_table::point(v);
+            r.mass_ok[i] = offset.is_some() && point.is_some();
+            r.v[i] = v;
+            let point = point.unwrap_or_default();
+            r.iv[i] = point.iv;
+            for (a, w) in point.weights.into_iter().enumerate() {
+                r.wv[a][i] = w;
+            }
+        }
+    }
+
+    /// Lane `i`'s [`Spread`], as `Spread::new` gave it.
+    #[inline(always)]
+    fn spread(&self, i: usize) -> Spread {
+        Spread {
+            sigma: self.sigma[i],
+            per_sigma: self.per_sigma[i],
+            s: self.s[i],
+            rows: self.rows_ok[i].then(|| Stencil {
+                first: self.first[i],
+                weights: [self.ws[0][i], self.ws[1][i], self.ws[2][i], self.ws[3][i]],
+            }),
+        }
+    }
+
+    #[inline(always)]
+    fn mass_point(&self, i: usize) -> crate::mass_table::Point {
+        crate::mass_table::Point {
+            iv: self.iv[i],
+            weights: [self.wv[0][i], self.wv[1][i], self.wv[2][i], self.wv[3][i]],
         }
     }
 }
@@ -383,28 +486,35 @@ impl Quantizer {
         mean: f64,
         spread: &Spread,
     ) -> Option<f64> {
-        use crate::mass_table::{table, V_MAX};
+        let v = self.mass_offset(cells, index, mean, spread.sigma)? * spread.per_sigma;
+        let at = crate::mass_table::point(v)?;
+        Some(crate::mass_table::table().read(&at, v, spread.rows.as_ref()?))
+    }
+
+    /// The mean's offset from cell `index`'s centre, as the likelihood
+    /// table reads it; `None` for a cell the table does not serve.
+    #[inline(always)]
+    fn mass_offset(&self, cells: &UniformCells, index: u32, mean: f64, sigma: f64) -> Option<f64> {
+        use crate::mass_table::V_MAX;
         let l = self.cells() as u32;
         let centre = cells.lo + (index as f64 + 0.5) * cells.width;
-        let offset = if self.wrapped {
+        if self.wrapped {
             // The nearest copy, whose edges are within V_MAX σ of the mean
             // when the table serves it. The others' edges are half a period
             // less half a cell away at least, and must be 10 σ farther than
             // the nearest, as `ln_probability` requires to sum one term.
             let period = self.period();
-            if 0.5 * (period - cells.width) < (V_MAX + 10.0) * spread.sigma {
+            if 0.5 * (period - cells.width) < (V_MAX + 10.0) * sigma {
                 return None;
             }
             let d = mean - centre;
-            d - crate::floor(d * cells.per_period + 0.5) * period
-        } else {
+            Some(d - crate::floor(d * cells.per_period + 0.5) * period)
+        } else if index == 0 || index + 1 >= l {
             // The outer cells are unbounded: not a cell of the table.
-            if index == 0 || index + 1 >= l {
-                return None;
-            }
-            mean - centre
-        };
-        table().lookup_at(offset * spread.per_sigma, spread.rows.as_ref()?)
+            None
+        } else {
+            Some(mean - centre)
+        }
     }
 
     /// [`ln_probability_interpolated`](Self::ln_probability_interpolated)
@@ -433,6 +543,98 @@ impl Quantizer {
             .tabled_fisher_scalars(cells, mean, &spread)
             .unwrap_or_else(|| self.fisher_scalars_exact(mean, variance));
         (ln_h, fisher)
+    }
+
+    /// [`ln_probability_and_fisher`](Self::ln_probability_and_fisher) of
+    /// cell `index` at a batch of means and variances (lanes from `n` on
+    /// are padding, and ignored), equal to it lane by lane, bit for bit:
+    /// what both tables are read at is found for every lane in one pass the
+    /// compiler vectorises ([`crate::batch`]), and the tables are read lane
+    /// by lane after it. A lane the tables do not serve takes the exact
+    /// value, as the scalar call does; so does every lane of a batch too
+    /// short to pay for the pass, or of a quantizer whose cells are uneven.
+    /// `reads` is the pass's scratch.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // a kernel's inputs, outputs and scratch
+    pub fn ln_probability_and_fisher_batch(
+        &self,
+        index: u32,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+        n: usize,
+        ln_h: &mut [f64; CHUNK],
+        out: &mut ScalarBatch,
+        reads: &mut TableReads,
+    ) {
+        let cells = match self.uniform.as_ref() {
+            Some(cells) if n >= CHUNK / 4 => cells,
+            _ => {
+                for i in 0..n {
+                    let (l, f) = self.ln_probability_and_fisher(index, mean[i], variance[i]);
+                    ln_h[i] = l;
+                    out.set(i, f);
+                }
+                return;
+            }
+        };
+        reads.find::<true>(self, cells, index, mean, variance);
+        let mass = crate::mass_table::table();
+        for i in 0..n {
+            let spread = reads.spread(i);
+            ln_h[i] = match (reads.mass_ok[i], &spread.rows) {
+                (true, Some(rows)) => mass.read(&reads.mass_point(i), reads.v[i], rows),
+                _ => self.ln_probability(index, mean[i], variance[i]),
+            };
+            out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
+        }
+    }
+
+    /// [`fisher_scalars`](Self::fisher_scalars) at a batch of means and
+    /// variances, as [`ln_probability_and_fisher_batch`](Self::ln_probability_and_fisher_batch)
+    /// gives them: equal to the scalar call lane by lane, bit for bit.
+    #[inline(always)]
+    pub fn fisher_scalars_batch(
+        &self,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+        n: usize,
+        out: &mut ScalarBatch,
+        reads: &mut TableReads,
+    ) {
+        let cells = match self.uniform.as_ref() {
+            Some(cells) if n >= CHUNK / 4 => cells,
+            _ => {
+                for i in 0..n {
+                    out.set(i, self.fisher_scalars(mean[i], variance[i]));
+                }
+                return;
+            }
+        };
+        reads.find::<false>(self, cells, 0, mean, variance);
+        for i in 0..n {
+            let spread = reads.spread(i);
+            out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
+        }
+    }
+
+    /// Lane `i`'s Fisher scalars from the table if it serves the lane,
+    /// exactly otherwise.
+    #[inline(always)]
+    fn fisher_of_lane(
+        &self,
+        cells: &UniformCells,
+        reads: &TableReads,
+        spread: &Spread,
+        i: usize,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+    ) -> FisherScalars {
+        let tabled = if reads.window_tabled[i] {
+            Self::fisher_read(cells, mean[i], spread)
+        } else {
+            None
+        };
+        tabled.unwrap_or_else(|| self.fisher_scalars_exact(mean[i], variance[i]))
     }
 
     /// `(h_i, ∂h_i/∂g, ∂h_i/∂R)`, with `∂h/∂g = (φ(a) − φ(b))/σ` and
@@ -507,15 +709,28 @@ impl Quantizer {
         mean: f64,
         spread: &Spread,
     ) -> Option<FisherScalars> {
-        let reach = WINDOW_SIGMAS * spread.sigma;
-        let inside = if self.wrapped {
+        if !self.window_tabled(mean, spread.sigma) {
+            return None;
+        }
+        Self::fisher_read(cells, mean, spread)
+    }
+
+    /// Whether the cells within [`WINDOW_SIGMAS`] of the mean are all of the
+    /// uniform grid (not an unbounded outer cell, nor a wrapped cell met
+    /// twice): those the Fisher table serves.
+    #[inline(always)]
+    fn window_tabled(&self, mean: f64, sigma: f64) -> bool {
+        let reach = WINDOW_SIGMAS * sigma;
+        if self.wrapped {
             2.0 * reach < self.period()
         } else {
             mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1]
-        };
-        if !inside {
-            return None;
         }
+    }
+
+    /// The Fisher table's scalars at the mean's place in its cell.
+    #[inline(always)]
+    fn fisher_read(cells: &UniformCells, mean: f64, spread: &Spread) -> Option<FisherScalars> {
         let u = (mean - cells.lo) * cells.per_width;
         let sums = crate::fisher_table::table().lookup_at(u, spread.s, spread.rows.as_ref())?;
         // The same as `scalars_from_sums`, by multiplications.
@@ -674,6 +889,95 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use std::f64::consts::PI;
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn batch_avx2(
+        q: &Quantizer,
+        index: u32,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+        n: usize,
+        ln_h: &mut [f64; CHUNK],
+        out: &mut ScalarBatch,
+        reads: &mut TableReads,
+    ) {
+        q.ln_probability_and_fisher_batch(index, mean, variance, n, ln_h, out, reads)
+    }
+
+    /// The batch is the scalar call lane by lane, bit for bit, vectorised
+    /// or not: wrapped and unwrapped, uniform and uneven cells, the inner
+    /// and outer cells, σ/Δ from 0.05 to 200 (below, across and above
+    /// both tables' axes), means from the cell's centre to 40 σ away, and
+    /// batches long and short.
+    #[test]
+    fn the_batch_is_the_scalar_call_bit_for_bit() {
+        let quantizers = [
+            Quantizer::uniform_wrapped(8, -PI, PI).unwrap(),
+            Quantizer::uniform_wrapped(3, -PI, PI).unwrap(),
+            Quantizer::uniform_wrapped(12, -PI, PI).unwrap(),
+            Quantizer::uniform(8, -100.0, 0.0).unwrap(),
+            Quantizer::uniform(4, -3.0, 3.0).unwrap(),
+            Quantizer::from_thresholds(&[-1.0, 0.0, 0.5, 2.0]).unwrap(),
+        ];
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut reads = TableReads::default();
+        let mut compared = 0;
+        for q in &quantizers {
+            let last = q.cells() as u32 - 1;
+            for index in [0, 1, last / 2, last - 1, last] {
+                let centre = q.representative(index);
+                let width = q.cell_width(last / 2).min(1.0);
+                for n in [CHUNK, 40, CHUNK / 4, 5] {
+                    let (mut mean, mut variance) = ([0.0; CHUNK], [0.0; CHUNK]);
+                    for i in 0..CHUNK {
+                        let sigma = width * 10f64.powf(rng.random_range(-1.3..2.3));
+                        mean[i] = centre + sigma * rng.random_range(-40.0..40.0);
+                        variance[i] = sigma * sigma;
+                    }
+                    let mut plain = ([0.0; CHUNK], ScalarBatch::default());
+                    q.ln_probability_and_fisher_batch(
+                        index, &mean, &variance, n, &mut plain.0, &mut plain.1, &mut reads,
+                    );
+                    let mut fisher_only = ScalarBatch::default();
+                    q.fisher_scalars_batch(&mean, &variance, n, &mut fisher_only, &mut reads);
+                    let mut wide = ([0.0; CHUNK], ScalarBatch::default());
+                    if crate::batch::has_avx2() {
+                        // SAFETY: the CPU has AVX2.
+                        unsafe {
+                            batch_avx2(
+                                q, index, &mean, &variance, n, &mut wide.0, &mut wide.1,
+                                &mut reads,
+                            )
+                        };
+                    } else {
+                        wide = plain;
+                    }
+                    for i in 0..n {
+                        let (ln_h, f) = q.ln_probability_and_fisher(index, mean[i], variance[i]);
+                        assert_eq!(f, q.fisher_scalars(mean[i], variance[i]));
+                        let with_fisher_only = (ln_h, &fisher_only);
+                        for (l, out) in [(plain.0[i], &plain.1), (wide.0[i], &wide.1), with_fisher_only] {
+                            let same = |a: f64, b: f64| a.to_bits() == b.to_bits();
+                            assert!(
+                                same(l, ln_h)
+                                    && same(out.gg[i], f.gg)
+                                    && same(out.gr[i], f.gr)
+                                    && same(out.rr[i], f.rr),
+                                "cell {index}, g {}, R {}: {l} {:?} vs {ln_h} {f:?}",
+                                mean[i],
+                                variance[i],
+                                (out.gg[i], out.gr[i], out.rr[i])
+                            );
+                        }
+                        compared += 1;
+                    }
+                }
+            }
+        }
+        assert!(compared > 3000);
+    }
 
     #[test]
     fn one_threshold_at_the_mean_gives_two_over_pi_sigma_squared() {

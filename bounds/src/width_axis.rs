@@ -63,8 +63,13 @@ pub fn below_one(row: usize) -> bool {
     row >= (OCTAVES - 1) * ROWS_PER_OCTAVE
 }
 
+/// The bits of 2^52, and 2^52: `2^52 + m` for a mantissa `m < 2^52` is
+/// `EXPONENT_52 | m`.
+const EXPONENT_52: u64 = 0x4330_0000_0000_0000;
+const TWO_52: f64 = 4_503_599_627_370_496.0;
+
 /// The stencil at half-width `w`, or `None` outside `(1/128, 1)` (or NaN).
-#[inline]
+#[inline(always)]
 pub fn stencil(w: f64) -> Option<Stencil> {
     if !(w > 0.5 / S_MAX && w < 0.5 / S_MIN) {
         return None;
@@ -74,8 +79,11 @@ pub fn stencil(w: f64) -> Option<Stencil> {
     let octave = ((bits >> 52) as i64 - 1023 - FIRST_OCTAVE) as usize;
     let mantissa = bits & ((1 << 52) - 1);
     // The fraction of the octave in rows, exactly: mantissa / 2^52 · 128.
-    let x = mantissa as f64 * (PER_OCTAVE as f64 / (1u64 << 52) as f64);
-    let k = x as usize;
+    // Exactly `mantissa as f64` (below 2^52), by the bits: x86 has no
+    // vector conversion from 64-bit integers before AVX-512.
+    let mantissa = f64::from_bits(mantissa | EXPONENT_52) - TWO_52;
+    let x = mantissa * (PER_OCTAVE as f64 / (1u64 << 52) as f64);
+    let k = (x as i32) as usize;
     Some(Stencil {
         // Row k − 1 of the octave is its (k − 1 + 1)-th.
         first: octave * ROWS_PER_OCTAVE + k,
@@ -99,7 +107,7 @@ impl<T> LazyRows<T> {
 
     /// Row `row`, built by `build(row)` if it is not yet. The fast path (an
     /// acquire load) is inlined into the lookups; the build is not.
-    #[inline]
+    #[inline(always)]
     pub fn get(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
         match self.rows[row].get() {
             Some(value) => value,

@@ -12,7 +12,9 @@
 use std::f64::consts::PI;
 
 use bounds::censoring::{CensoringRule, Innovation};
-use bounds::fisher::{observed_information, scalars_of};
+use bounds::batch::CHUNK;
+use bounds::quantizer::TableReads;
+use bounds::fisher::{observed_information, scalars_of_mean_and_variance};
 use bounds::pcrlb::{information_update, observation_information, observation_information_with};
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
@@ -168,17 +170,23 @@ impl SensingModel {
     ) -> Result<Mat4, BoundError> {
         ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
         let sensors = self.terms(observations);
-        observation_information_with(&sensors, particles, weights, |j, k, e| {
+        let mut reads = TableReads::default();
+        observation_information_with(&sensors, particles, weights, |first, k, g, r, n, out| {
             let observation = &observations[k];
+            let ln_likelihood = &mut ln_likelihood[first..first + n];
             match (observation.value, &self.quantizer) {
                 (ObservedValue::Cell(cell), Some(q)) => {
-                    let (ln_h, scalars) = q.ln_probability_and_fisher(cell, e.g, e.r);
-                    ln_likelihood[j] += ln_h;
-                    scalars
+                    let mut ln_h = [0.0; CHUNK];
+                    q.ln_probability_and_fisher_batch(cell, g, r, n, &mut ln_h, out, &mut reads);
+                    for (l, h) in ln_likelihood.iter_mut().zip(ln_h) {
+                        *l += h;
+                    }
                 }
                 _ => {
-                    ln_likelihood[j] += self.ln_likelihood_of(observation, e.g, e.r);
-                    scalars_of(e, self.measurement())
+                    for (i, l) in ln_likelihood.iter_mut().enumerate() {
+                        *l += self.ln_likelihood_of(observation, g[i], r[i]);
+                        out.set(i, scalars_of_mean_and_variance(g[i], r[i], self.measurement()));
+                    }
                 }
             }
         })

@@ -1,0 +1,304 @@
+//! Per-particle arithmetic in batches that the compiler vectorises.
+//!
+//! The bounds' hot loops evaluate a sensor's model and its quantized
+//! likelihood and Fisher information at every particle. Written particle by
+//! particle, each evaluation is a chain of scalar operations and library
+//! calls (`atan2`) that no compiler vectorises. Here the same arithmetic is
+//! split into passes over a [`CHUNK`] of particles held as structure of
+//! arrays: branch-free loops that compile to 4-wide AVX2 where the CPU has
+//! it ([`vectorised`]), with the few lanes a pass cannot serve (special
+//! values, a table's edge) redone by the scalar code.
+//!
+//! Every pass gives the scalar code's result bit for bit: lanes do the same
+//! operations in the same order, and Rust never contracts a multiply and an
+//! add into an FMA, so a vectorised lane rounds exactly as the scalar code
+//! does. The tests hold each pass to that.
+
+use crate::State;
+
+/// Particles per batch: enough for the vector loops to run long, few
+/// enough that a batch's arrays (a few kilobytes) stay in L1.
+pub const CHUNK: usize = 64;
+
+/// Whether this CPU has AVX2. A kernel runs a copy of itself compiled for
+/// AVX2 when it does (a `#[target_feature(enable = "avx2")]` function
+/// whose body is the kernel, `#[inline(always)]` down to its loops), and
+/// the baseline build (x86-64's SSE2) otherwise. Either way the result is
+/// the same, bit for bit (see the module's doc); only the speed differs.
+#[inline]
+pub fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The states' positions `p_x`, `p_y`, as two arrays.
+#[derive(Debug, Clone, Copy)]
+pub struct Positions {
+    pub x: [f64; CHUNK],
+    pub y: [f64; CHUNK],
+}
+
+impl Positions {
+    /// The positions of `states` (at most [`CHUNK`], at least one). Lanes
+    /// past the last state repeat it, so that the passes, which run over
+    /// every lane, meet no value a real lane would not.
+    #[inline(always)]
+    pub fn of(states: &[State]) -> Self {
+        debug_assert!(!states.is_empty() && states.len() <= CHUNK);
+        let last = states[states.len() - 1];
+        let mut p = Self {
+            x: [last[0]; CHUNK],
+            y: [last[1]; CHUNK],
+        };
+        for ((x, y), s) in p.x.iter_mut().zip(p.y.iter_mut()).zip(states) {
+            *x = s[0];
+            *y = s[1];
+        }
+        p
+    }
+}
+
+/// fdlibm's (the `libm` crate's) `atan2(y, x)` lane by lane, equal to it
+/// bit for bit. The branches of its argument reduction become selects, so
+/// the loop vectorises; lanes with an argument it treats specially (zero,
+/// infinite or NaN, subnormal, or |y/x| beyond 2^±60) are redone by
+/// `libm::atan2` itself.
+#[inline(always)]
+pub fn atan2(y: &[f64; CHUNK], x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+    let mut ordinary = [false; CHUNK];
+    for i in 0..CHUNK {
+        let (r, ok) = atan2_ordinary(y[i], x[i]);
+        out[i] = r;
+        ordinary[i] = ok;
+    }
+    if ordinary.iter().all(|&ok| ok) {
+        return;
+    }
+    for i in 0..CHUNK {
+        if !ordinary[i] {
+            out[i] = libm::atan2(y[i], x[i]);
+        }
+    }
+}
+
+// fdlibm's constants, by their bits (as its source gives them).
+/// atan(0.5), atan(1), atan(1.5), atan(∞), high parts.
+const ATANHI: [f64; 4] = bits([
+    0x3FDD_AC67_0561_BB4F,
+    0x3FE9_21FB_5444_2D18,
+    0x3FEF_730B_D281_F69B,
+    0x3FF9_21FB_5444_2D18,
+]);
+/// Their low parts.
+const ATANLO: [f64; 4] = bits([
+    0x3C7A_2B7F_222F_65E2,
+    0x3C81_A626_3314_5C07,
+    0x3C70_0788_7AF0_CBBD,
+    0x3C91_A626_3314_5C07,
+]);
+/// The odd polynomial's coefficients.
+const AT: [f64; 11] = bits([
+    0x3FD5_5555_5555_550D,
+    0xBFC9_9999_9998_EBC4,
+    0x3FC2_4924_9200_83FF,
+    0xBFBC_71C6_FE23_1671,
+    0x3FB7_45CD_C54C_206E,
+    0xBFB3_B0F2_AF74_9A6D,
+    0x3FB1_0D66_A0D0_3D51,
+    0xBFAD_DE2D_52DE_FD9A,
+    0x3FA9_7B4B_2476_0DEB,
+    0xBFA2_B444_2C6A_6C2F,
+    0x3F90_AD3A_E322_DA11,
+]);
+const PI: f64 = f64::from_bits(0x4009_21FB_5444_2D18);
+const PI_LO: f64 = f64::from_bits(0x3CA1_A626_3314_5C07);
+
+const fn bits<const N: usize>(b: [u64; N]) -> [f64; N] {
+    let mut out = [0.0; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = f64::from_bits(b[i]);
+        i += 1;
+    }
+    out
+}
+
+/// One lane of [`atan2`]: the result, and whether the lane is ordinary
+/// (otherwise the result is to be discarded). Branch-free.
+#[inline(always)]
+fn atan2_ordinary(y: f64, x: f64) -> (f64, bool) {
+    // The high words, as fdlibm reads them, without their signs.
+    let (iy, ix) = (
+        ((y.to_bits() >> 32) & 0x7fff_ffff) as i64,
+        ((x.to_bits() >> 32) & 0x7fff_ffff) as i64,
+    );
+    // Finite, normal, and exponents less than 60 apart: then fdlibm's
+    // atan2 takes its general path, z = atan(|y/x|), and atan its
+    // polynomial one (2^-60 < |y/x| < 2^60 < 2^66).
+    let ordinary = iy >= 0x0010_0000
+        && ix >= 0x0010_0000
+        && iy < 0x7ff0_0000
+        && ix < 0x7ff0_0000
+        && iy < ix + (60 << 20)
+        && ix < iy + (60 << 20);
+    let t = (y / x).abs();
+    // atan's reduction: each interval's argument as a quotient (over 1
+    // below 7/16, exactly t). Comparing t is comparing its high word, as
+    // fdlibm does, since the bounds' low words are zero.
+    let (c0, c1, c2, c3) = (t < 0.4375, t < 0.6875, t < 1.1875, t < 2.4375);
+    let num = if c0 {
+        t
+    } else if c1 {
+        2. * t - 1.
+    } else if c2 {
+        t - 1.
+    } else if c3 {
+        t - 1.5
+    } else {
+        -1.
+    };
+    let den = if c0 {
+        1.
+    } else if c1 {
+        2. + t
+    } else if c2 {
+        t + 1.
+    } else if c3 {
+        1. + 1.5 * t
+    } else {
+        t
+    };
+    let r = num / den;
+    let z = r * r;
+    let w = z * z;
+    let s1 = z * (AT[0] + w * (AT[2] + w * (AT[4] + w * (AT[6] + w * (AT[8] + w * AT[10])))));
+    let s2 = w * (AT[1] + w * (AT[3] + w * (AT[5] + w * (AT[7] + w * AT[9]))));
+    let (hi, lo) = if c1 {
+        (ATANHI[0], ATANLO[0])
+    } else if c2 {
+        (ATANHI[1], ATANLO[1])
+    } else if c3 {
+        (ATANHI[2], ATANLO[2])
+    } else {
+        (ATANHI[3], ATANLO[3])
+    };
+    let reduced = hi - (r * (s1 + s2) - lo - r);
+    let small = r - r * (s1 + s2);
+    // Below 2^-27 atan returns its argument.
+    let tiny = t < f64::from_bits(0x3e40_0000_0000_0000);
+    let a = if tiny {
+        t
+    } else if c0 {
+        small
+    } else {
+        reduced
+    };
+    let result = match (x < 0.0, y < 0.0) {
+        (false, false) => a,
+        (false, true) => -a,
+        (true, false) => PI - (a - PI_LO),
+        (true, true) => (a - PI_LO) - PI,
+    };
+    (result, ordinary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn atan2_avx2(y: &[f64; CHUNK], x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+        atan2(y, x, out)
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    unsafe fn atan2_avx2(y: &[f64; CHUNK], x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+        atan2(y, x, out)
+    }
+
+    fn check(y: &[f64; CHUNK], x: &[f64; CHUNK]) {
+        let mut out = [0.0; CHUNK];
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            unsafe { atan2_avx2(y, x, &mut out) };
+        } else {
+            atan2(y, x, &mut out);
+        }
+        let mut scalar = [0.0; CHUNK];
+        atan2(y, x, &mut scalar);
+        for i in 0..CHUNK {
+            let want = libm::atan2(y[i], x[i]);
+            for got in [out[i], scalar[i]] {
+                assert!(
+                    got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                    "atan2({:e}, {:e}) = {got:e}, libm {want:e}",
+                    y[i],
+                    x[i]
+                );
+            }
+        }
+    }
+
+    /// Bit for bit libm's, vectorised or not: over random offsets at every
+    /// scale and sign (each of atan's five intervals, all four quadrants),
+    /// and over the special values and the edges of the reduction.
+    #[test]
+    fn atan2_is_libm_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for _ in 0..4000 {
+            let mut y = [0.0; CHUNK];
+            let mut x = [0.0; CHUNK];
+            for i in 0..CHUNK {
+                let scale = 10f64.powf(rng.random_range(-3.0..4.0));
+                y[i] = rng.random_range(-1.0..1.0) * scale;
+                x[i] = rng.random_range(-1.0..1.0) * scale * 10f64.powf(rng.random_range(-2.0..2.0));
+            }
+            check(&y, &x);
+        }
+        let specials = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            0.4375,
+            0.6875,
+            1.1875,
+            2.4375,
+            f64::from_bits(0x3e40_0000_0000_0000),
+            f64::MIN_POSITIVE,
+            f64::MIN_POSITIVE / 4.0,
+            1e-300,
+            1e300,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            2f64.powi(60),
+            2f64.powi(-60),
+            2f64.powi(64),
+            3.0,
+            -7.5,
+        ];
+        let pairs: Vec<(f64, f64)> = specials
+            .iter()
+            .flat_map(|&a| specials.iter().map(move |&b| (a, b)))
+            .collect();
+        for batch in pairs.chunks(CHUNK) {
+            let (mut y, mut x) = ([1.0; CHUNK], [1.0; CHUNK]);
+            for (i, &(a, b)) in batch.iter().enumerate() {
+                (y[i], x[i]) = (a, b);
+            }
+            check(&y, &x);
+            check(&x, &y);
+        }
+    }
+}
