@@ -111,18 +111,28 @@ pub struct Point {
 /// The [`Point`] of v, or `None` outside `|v| ≤ V_MAX` (or NaN).
 #[inline(always)]
 pub fn point(v: f64) -> Option<Point> {
-    if v.is_nan() || v.abs() > V_MAX {
-        return None;
-    }
+    let (inside, at) = point_lane(v);
+    inside.then_some(at)
+}
+
+/// [`point`] without a branch, so that a loop over lanes vectorises:
+/// whether v is inside the table, and its point if it is (a point within
+/// the rows, with meaningless weights, if not).
+#[inline(always)]
+pub fn point_lane(v: f64) -> (bool, Point) {
+    let inside = v.abs() <= V_MAX; // false for NaN
     let xv = (v + V_MAX) * V_PER_UNIT as f64;
     // Non-negative but for rounding: truncation is the floor. Through i32,
     // which vectorises (x86 has no vector conversion to 64-bit integers
-    // before AVX-512): xv < 800.
-    let iv = ((xv as i32) as usize).min(V_POINTS - 2);
-    Some(Point {
-        iv,
-        weights: crate::fisher_table::lagrange_weights(xv - iv as f64),
-    })
+    // before AVX-512): xv < 800 inside, and `as` saturates outside.
+    let iv = (xv as i32).clamp(0, V_POINTS as i32 - 2) as usize;
+    (
+        inside,
+        Point {
+            iv,
+            weights: crate::fisher_table::lagrange_weights(xv - iv as f64),
+        },
+    )
 }
 
 #[cfg(test)]

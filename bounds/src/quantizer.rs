@@ -43,16 +43,31 @@ struct UniformCells {
     per_width: f64,
     /// `1 / (hi − lo)`, for wrapping.
     per_period: f64,
+    /// What the tables' lookups ask of the quantizer, copied here so that
+    /// a loop over particles reads plain fields (an index into `edges` is
+    /// a bounds check, and a branch that stops a loop vectorising):
+    /// whether it wraps, `e_L − e_0`, `e_1` and `e_{L−1}`, and L.
+    wrapped: bool,
+    period: f64,
+    inner: (f64, f64),
+    cells: u32,
 }
 
 impl UniformCells {
-    fn new(lo: f64, hi: f64, cells: usize) -> Self {
+    /// The grid of `edges` (`e_0 = lo`, `e_L = hi` unless they were made
+    /// unbounded).
+    fn new(lo: f64, hi: f64, edges: &[f64], wrapped: bool) -> Self {
+        let cells = edges.len() - 1;
         let width = (hi - lo) / cells as f64;
         Self {
             lo,
             width,
             per_width: 1.0 / width,
             per_period: 1.0 / (hi - lo),
+            wrapped,
+            period: edges[cells] - edges[0],
+            inner: (edges[1], edges[cells - 1]),
+            cells: cells as u32,
         }
     }
 }
@@ -77,8 +92,15 @@ impl Spread {
             sigma,
             per_sigma,
             s: sigma * cells.per_width,
-            rows: width_axis::stencil(0.5 * cells.width * per_sigma),
+            rows: width_axis::stencil(Self::half_width(cells, per_sigma)),
         }
+    }
+
+    /// The cell's half-width in standard deviations, `w = Δ/(2σ)`: where
+    /// the tables' rows are found ([`crate::width_axis`]).
+    #[inline(always)]
+    fn half_width(cells: &UniformCells, per_sigma: f64) -> f64 {
+        0.5 * cells.width * per_sigma
     }
 }
 
@@ -124,35 +146,38 @@ impl TableReads {
     #[inline(always)]
     fn find<const WITH_MASS: bool>(
         &mut self,
-        q: &Quantizer,
         cells: &UniformCells,
         index: u32,
         mean: &[f64; CHUNK],
         variance: &[f64; CHUNK],
     ) {
         let r = self;
+        // Pass by pass, each a plain loop over the lanes, so that each
+        // vectorises.
         for i in 0..CHUNK {
-            let spread = Spread::new(variance[i], cells);
-            (r.sigma[i], r.per_sigma[i], r.s[i]) = (spread.sigma, spread.per_sigma, spread.s);
-            r.rows_ok[i] = spread.rows.is_some();
-            let rows = spread.rows.unwrap_or(Stencil {
-                first: 0,
-                weights: [0.0; 4],
-            });
+            let sigma = variance[i].sqrt();
+            r.sigma[i] = sigma;
+            r.per_sigma[i] = 1.0 / sigma;
+            r.s[i] = sigma * cells.per_width;
+            r.window_tabled[i] = Quantizer::window_tabled(cells, mean[i], sigma);
+        }
+        for i in 0..CHUNK {
+            let (inside, rows) = width_axis::stencil_lane(Spread::half_width(cells, r.per_sigma[i]));
+            r.rows_ok[i] = inside;
             r.first[i] = rows.first;
             for (a, w) in rows.weights.into_iter().enumerate() {
                 r.ws[a][i] = w;
             }
-            r.window_tabled[i] = q.window_tabled(mean[i], spread.sigma);
-            if !WITH_MASS {
-                continue;
-            }
-            let offset = q.mass_offset(cells, index, mean[i], spread.sigma);
-            let v = offset.unwrap_or(0.0) * spread.per_sigma;
-            let point = crate::mass_table::point(v);
-            r.mass_ok[i] = offset.is_some() && point.is_some();
+        }
+        if !WITH_MASS {
+            return;
+        }
+        for i in 0..CHUNK {
+            let offset = Quantizer::mass_offset(cells, index, mean[i], r.sigma[i], f64::floor);
+            let v = offset.unwrap_or(0.0) * r.per_sigma[i];
+            let (inside, point) = crate::mass_table::point_lane(v);
+            r.mass_ok[i] = offset.is_some() && inside;
             r.v[i] = v;
-            let point = point.unwrap_or_default();
             r.iv[i] = point.iv;
             for (a, w) in point.weights.into_iter().enumerate() {
                 r.wv[a][i] = w;
@@ -263,9 +288,9 @@ impl Quantizer {
         edges[l] = f64::INFINITY;
         Ok(Self {
             bits,
+            uniform: Some(UniformCells::new(lo, hi, &edges, false)),
             edges,
             wrapped: false,
-            uniform: Some(UniformCells::new(lo, hi, l)),
         })
     }
 
@@ -275,7 +300,7 @@ impl Quantizer {
         let edges = uniform_edges(bits, lo, hi)?;
         Ok(Self {
             bits,
-            uniform: Some(UniformCells::new(lo, hi, edges.len() - 1)),
+            uniform: Some(UniformCells::new(lo, hi, &edges, true)),
             edges,
             wrapped: true,
         })
@@ -486,30 +511,38 @@ impl Quantizer {
         mean: f64,
         spread: &Spread,
     ) -> Option<f64> {
-        let v = self.mass_offset(cells, index, mean, spread.sigma)? * spread.per_sigma;
+        let v = Self::mass_offset(cells, index, mean, spread.sigma, crate::floor)? * spread.per_sigma;
         let at = crate::mass_table::point(v)?;
         Some(crate::mass_table::table().read(&at, v, spread.rows.as_ref()?))
     }
 
     /// The mean's offset from cell `index`'s centre, as the likelihood
-    /// table reads it; `None` for a cell the table does not serve.
+    /// table reads it; `None` for a cell the table does not serve. `floor`
+    /// is ⌊·⌋, exactly: [`crate::floor`], or in a vectorised loop
+    /// `f64::floor` (a rounding instruction there, a library call
+    /// elsewhere).
     #[inline(always)]
-    fn mass_offset(&self, cells: &UniformCells, index: u32, mean: f64, sigma: f64) -> Option<f64> {
+    fn mass_offset(
+        cells: &UniformCells,
+        index: u32,
+        mean: f64,
+        sigma: f64,
+        floor: impl Fn(f64) -> f64,
+    ) -> Option<f64> {
         use crate::mass_table::V_MAX;
-        let l = self.cells() as u32;
         let centre = cells.lo + (index as f64 + 0.5) * cells.width;
-        if self.wrapped {
+        if cells.wrapped {
             // The nearest copy, whose edges are within V_MAX σ of the mean
             // when the table serves it. The others' edges are half a period
             // less half a cell away at least, and must be 10 σ farther than
             // the nearest, as `ln_probability` requires to sum one term.
-            let period = self.period();
+            let period = cells.period;
             if 0.5 * (period - cells.width) < (V_MAX + 10.0) * sigma {
                 return None;
             }
             let d = mean - centre;
-            Some(d - crate::floor(d * cells.per_period + 0.5) * period)
-        } else if index == 0 || index + 1 >= l {
+            Some(d - floor(d * cells.per_period + 0.5) * period)
+        } else if index == 0 || index + 1 >= cells.cells {
             // The outer cells are unbounded: not a cell of the table.
             None
         } else {
@@ -577,7 +610,7 @@ impl Quantizer {
                 return;
             }
         };
-        reads.find::<true>(self, cells, index, mean, variance);
+        reads.find::<true>(cells, index, mean, variance);
         let mass = crate::mass_table::table();
         for i in 0..n {
             let spread = reads.spread(i);
@@ -610,7 +643,7 @@ impl Quantizer {
                 return;
             }
         };
-        reads.find::<false>(self, cells, 0, mean, variance);
+        reads.find::<false>(cells, 0, mean, variance);
         for i in 0..n {
             let spread = reads.spread(i);
             out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
@@ -709,7 +742,7 @@ impl Quantizer {
         mean: f64,
         spread: &Spread,
     ) -> Option<FisherScalars> {
-        if !self.window_tabled(mean, spread.sigma) {
+        if !Self::window_tabled(cells, mean, spread.sigma) {
             return None;
         }
         Self::fisher_read(cells, mean, spread)
@@ -719,12 +752,12 @@ impl Quantizer {
     /// uniform grid (not an unbounded outer cell, nor a wrapped cell met
     /// twice): those the Fisher table serves.
     #[inline(always)]
-    fn window_tabled(&self, mean: f64, sigma: f64) -> bool {
+    fn window_tabled(cells: &UniformCells, mean: f64, sigma: f64) -> bool {
         let reach = WINDOW_SIGMAS * sigma;
-        if self.wrapped {
-            2.0 * reach < self.period()
+        if cells.wrapped {
+            2.0 * reach < cells.period
         } else {
-            mean - reach >= self.edges[1] && mean + reach <= self.edges[self.cells() - 1]
+            mean - reach >= cells.inner.0 && mean + reach <= cells.inner.1
         }
     }
 

@@ -71,12 +71,19 @@ const TWO_52: f64 = 4_503_599_627_370_496.0;
 /// The stencil at half-width `w`, or `None` outside `(1/128, 1)` (or NaN).
 #[inline(always)]
 pub fn stencil(w: f64) -> Option<Stencil> {
-    if !(w > 0.5 / S_MAX && w < 0.5 / S_MIN) {
-        return None;
-    }
+    let (inside, stencil) = stencil_lane(w);
+    inside.then_some(stencil)
+}
+
+/// [`stencil`] without a branch, so that a loop over lanes vectorises:
+/// whether w is inside the axis, and its stencil if it is (row 0 and
+/// meaningless weights if not).
+#[inline(always)]
+pub fn stencil_lane(w: f64) -> (bool, Stencil) {
+    let inside = w > 0.5 / S_MAX && w < 0.5 / S_MIN;
     let bits = w.to_bits();
     // A positive normal number: the biased exponent, then the mantissa.
-    let octave = ((bits >> 52) as i64 - 1023 - FIRST_OCTAVE) as usize;
+    let octave = ((bits >> 52) as i64).wrapping_sub(1023 + FIRST_OCTAVE) as usize;
     let mantissa = bits & ((1 << 52) - 1);
     // The fraction of the octave in rows, exactly: mantissa / 2^52 · 128.
     // Exactly `mantissa as f64` (below 2^52), by the bits: x86 has no
@@ -84,11 +91,15 @@ pub fn stencil(w: f64) -> Option<Stencil> {
     let mantissa = f64::from_bits(mantissa | EXPONENT_52) - TWO_52;
     let x = mantissa * (PER_OCTAVE as f64 / (1u64 << 52) as f64);
     let k = (x as i32) as usize;
-    Some(Stencil {
-        // Row k − 1 of the octave is its (k − 1 + 1)-th.
-        first: octave * ROWS_PER_OCTAVE + k,
-        weights: lagrange_weights(x - k as f64),
-    })
+    // Row k − 1 of the octave is its (k − 1 + 1)-th.
+    let first = octave.wrapping_mul(ROWS_PER_OCTAVE).wrapping_add(k);
+    (
+        inside,
+        Stencil {
+            first: if inside { first } else { 0 },
+            weights: lagrange_weights(x - k as f64),
+        },
+    )
 }
 
 /// One value per row of the axis, each built on first use, so that a
