@@ -87,6 +87,94 @@ pub fn atan2(y: &[f64; CHUNK], x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
     }
 }
 
+/// The states, component by component: `c[k][i]` is component k of
+/// lane i's state. Lanes past the last state repeat it, as in
+/// [`Positions::of`].
+#[derive(Debug, Clone, Copy)]
+pub struct StateLanes {
+    pub c: [[f64; CHUNK]; 4],
+}
+
+impl StateLanes {
+    #[inline(always)]
+    pub fn of(states: &[State]) -> Self {
+        debug_assert!(!states.is_empty() && states.len() <= CHUNK);
+        let last = states[states.len() - 1];
+        let mut lanes = Self {
+            c: std::array::from_fn(|k| [last[k]; CHUNK]),
+        };
+        for (i, s) in states.iter().enumerate() {
+            for k in 0..4 {
+                lanes.c[k][i] = s[k];
+            }
+        }
+        lanes
+    }
+}
+
+/// fdlibm's (the `libm` crate's) `sincos(x)` lane by lane, equal to it bit
+/// for bit: its polynomial kernels where `2^-27 √2 ≤ |x| ≤ π/4`, `(x, 1)`
+/// below, and `libm::sincos` itself for the lanes beyond (those needing
+/// its argument reduction, or not finite).
+#[inline(always)]
+pub fn sincos(x: &[f64; CHUNK], sin: &mut [f64; CHUNK], cos: &mut [f64; CHUNK]) {
+    let mut ordinary = [false; CHUNK];
+    for i in 0..CHUNK {
+        let (s, c, ok) = sincos_ordinary(x[i]);
+        (sin[i], cos[i], ordinary[i]) = (s, c, ok);
+    }
+    if ordinary.iter().all(|&ok| ok) {
+        return;
+    }
+    for i in 0..CHUNK {
+        if !ordinary[i] {
+            (sin[i], cos[i]) = libm::sincos(x[i]);
+        }
+    }
+}
+
+const S: [f64; 6] = bits([
+    0xBFC5_5555_5555_5549,
+    0x3F81_1111_1110_F8A6,
+    0xBF2A_01A0_19C1_61D5,
+    0x3EC7_1DE3_57B1_FE7D,
+    0xBE5A_E5E6_8A2B_9CEB,
+    0x3DE5_D93A_5ACF_D57C,
+]);
+const C: [f64; 6] = bits([
+    0x3FA5_5555_5555_554C,
+    0xBF56_C16C_16C1_5177,
+    0x3EFA_01A0_19CB_1590,
+    0xBE92_7E4F_809C_52AD,
+    0x3E21_EE9E_BDB4_B1C4,
+    0xBDA8_FAE9_BE88_38D4,
+]);
+
+/// One lane of [`sincos`]: `(sin, cos, ordinary)`. Branch-free.
+#[inline(always)]
+fn sincos_ordinary(x: f64) -> (f64, f64, bool) {
+    let ix = (x.to_bits() >> 32) & 0x7fff_ffff;
+    // |x| ≤ π/4 by fdlibm's high word; below 2^-27 √2 it returns (x, 1).
+    let ordinary = ix <= 0x3fe9_21fb;
+    let tiny = ix < 0x3e46_a09e;
+    // k_sin(x, 0, 0)
+    let z = x * x;
+    let w = z * z;
+    let r = S[1] + z * (S[2] + z * S[3]) + z * w * (S[4] + z * S[5]);
+    let v = z * x;
+    let sin = x + v * (S[0] + z * r);
+    // k_cos(x, 0), its tail `x * y` with y = 0 kept for the sign of zero.
+    let r = z * (C[0] + z * (C[1] + z * C[2])) + w * w * (C[3] + z * (C[4] + z * C[5]));
+    let hz = 0.5 * z;
+    let one_less = 1.0 - hz;
+    let cos = one_less + (((1.0 - one_less) - hz) + (z * r - x * 0.0));
+    if tiny {
+        (x, 1.0, ordinary)
+    } else {
+        (sin, cos, ordinary)
+    }
+}
+
 // fdlibm's constants, by their bits (as its source gives them).
 /// atan(0.5), atan(1), atan(1.5), atan(∞), high parts.
 const ATANHI: [f64; 4] = bits([
@@ -211,6 +299,7 @@ fn atan2_ordinary(y: f64, x: f64) -> (f64, bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::FRAC_PI_4;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -244,6 +333,74 @@ mod tests {
                     y[i],
                     x[i]
                 );
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sincos_avx2(x: &[f64; CHUNK], sin: &mut [f64; CHUNK], cos: &mut [f64; CHUNK]) {
+        sincos(x, sin, cos)
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    unsafe fn sincos_avx2(x: &[f64; CHUNK], sin: &mut [f64; CHUNK], cos: &mut [f64; CHUNK]) {
+        sincos(x, sin, cos)
+    }
+
+    /// Bit for bit libm's, vectorised or not: turns of every size a
+    /// coordinated turn meets (|ωT| from 1e-12 to π/4 and beyond), and
+    /// the edges and special values.
+    #[test]
+    fn sincos_is_libm_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        let mut batches: Vec<[f64; CHUNK]> = (0..2000)
+            .map(|_| {
+                std::array::from_fn(|_| {
+                    let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
+                    sign * 10f64.powf(rng.random_range(-12.0..0.5))
+                })
+            })
+            .collect();
+        let specials = [
+            0.0,
+            -0.0,
+            FRAC_PI_4,
+            -FRAC_PI_4,
+            FRAC_PI_4.next_up(),
+            f64::from_bits(0x3e46_a09e_0000_0000),
+            f64::from_bits(0x3e46_a09d_ffff_ffff),
+            f64::MIN_POSITIVE / 8.0,
+            1e-300,
+            3.0,
+            -1e6,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        let mut edge = [0.5; CHUNK];
+        edge[..specials.len()].copy_from_slice(&specials);
+        batches.push(edge);
+        for x in &batches {
+            let (mut s, mut c) = ([0.0; CHUNK], [0.0; CHUNK]);
+            let (mut sv, mut cv) = ([0.0; CHUNK], [0.0; CHUNK]);
+            sincos(x, &mut s, &mut c);
+            if has_avx2() {
+                // SAFETY: the CPU has AVX2.
+                unsafe { sincos_avx2(x, &mut sv, &mut cv) };
+            } else {
+                (sv, cv) = (s, c);
+            }
+            for i in 0..CHUNK {
+                let (ws, wc) = libm::sincos(x[i]);
+                for (gs, gc) in [(s[i], c[i]), (sv[i], cv[i])] {
+                    let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+                    assert!(
+                        same(gs, ws) && same(gc, wc),
+                        "sincos({:e}) = ({gs:e}, {gc:e}), libm ({ws:e}, {wc:e})",
+                        x[i]
+                    );
+                }
             }
         }
     }

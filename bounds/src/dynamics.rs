@@ -6,6 +6,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use crate::batch::{StateLanes, CHUNK};
 use crate::{Mat4, ParameterError, State};
 
 const POSITIVE: &str = "a finite number > 0";
@@ -70,7 +71,13 @@ impl CoordinatedTurn {
 
     /// Turn rate Ω(x), rad/s (negative: clockwise).
     pub fn turn_rate(&self, x: &State) -> f64 {
-        -self.maneuver_accel / speed(x).max(self.min_speed)
+        self.turn_rate_of(x[2], x[3])
+    }
+
+    /// Ω at the velocity `(vx, vy)`.
+    #[inline(always)]
+    fn turn_rate_of(&self, vx: f64, vy: f64) -> f64 {
+        -self.maneuver_accel / (vx * vx + vy * vy).sqrt().max(self.min_speed)
     }
 
     /// `f(x) = F(Ω(x)) x`.
@@ -91,7 +98,32 @@ impl CoordinatedTurn {
         (Self::apply(&t, x), self.jacobian_from(&t, x))
     }
 
-    #[inline]
+    /// [`transition_and_jacobian`](Self::transition_and_jacobian) at a
+    /// batch of states, bit for bit, vectorised ([`crate::batch`]): f(x)
+    /// and the two blocks of F̃ that vary, `F̃ = [[I, A], [0, B]]`.
+    #[inline(always)]
+    pub fn transition_batch(&self, x: &StateLanes, out: &mut TurnBatch) {
+        let (mut omega, mut wt) = ([0.0; CHUNK], [0.0; CHUNK]);
+        for i in 0..CHUNK {
+            omega[i] = self.turn_rate_of(x.c[2][i], x.c[3][i]);
+            wt[i] = omega[i] * self.period;
+        }
+        let (mut sin, mut cos) = ([0.0; CHUNK], [0.0; CHUNK]);
+        crate::batch::sincos(&wt, &mut sin, &mut cos);
+        for i in 0..CHUNK {
+            let t = TurnTerms::with(omega[i], self.period, sin[i], cos[i]);
+            let lane = State::new(x.c[0][i], x.c[1][i], x.c[2][i], x.c[3][i]);
+            let next = Self::apply(&t, &lane);
+            let (a, b) = self.jacobian_blocks(&t, &lane);
+            for k in 0..4 {
+                out.next[k][i] = next[k];
+                out.a[k][i] = a[k];
+                out.b[k][i] = b[k];
+            }
+        }
+    }
+
+    #[inline(always)]
     fn apply(t: &TurnTerms, x: &State) -> State {
         let (vx, vy) = (x[2], x[3]);
         State::new(
@@ -104,27 +136,47 @@ impl CoordinatedTurn {
 
     #[inline]
     fn jacobian_from(&self, t: &TurnTerms, x: &State) -> Mat4 {
-        let mut jac = t.matrix();
+        let (a, b) = self.jacobian_blocks(t, x);
+        Mat4::new(
+            1.0, 0.0, a[0], a[1], //
+            0.0, 1.0, a[2], a[3], //
+            0.0, 0.0, b[0], b[1], //
+            0.0, 0.0, b[2], b[3],
+        )
+    }
+
+    /// The blocks A (rows 0–1) and B (rows 2–3) of columns 2–3 of
+    /// `F̃ = [[I, A], [0, B]]`, row by row: F(ω)'s, plus `(∂F/∂ω · x)(∂Ω/∂v)ᵀ`
+    /// while the turn rate follows the speed. Branch-free, so that a loop
+    /// over lanes vectorises.
+    #[inline(always)]
+    fn jacobian_blocks(&self, t: &TurnTerms, x: &State) -> ([f64; 4], [f64; 4]) {
+        let (vx, vy) = (x[2], x[3]);
         let v = speed(x);
-        if self.maneuver_accel > 0.0 && v > self.min_speed {
-            let (vx, vy) = (x[2], x[3]);
-            let period = self.period;
-            // ∂(F x)/∂ω
-            let df = State::new(
-                t.ds * vx - t.dc * vy,
-                t.dc * vx + t.ds * vy,
-                -period * (t.sin * vx + t.cos * vy),
-                period * (t.cos * vx - t.sin * vy),
-            );
-            // Ω = −a_m/‖v‖ ⇒ ∂Ω/∂v = a_m v / ‖v‖³
-            let k = self.maneuver_accel / (v * v * v);
-            let (dw_dvx, dw_dvy) = (k * vx, k * vy);
-            for r in 0..4 {
-                jac[(r, 2)] += df[r] * dw_dvx;
-                jac[(r, 3)] += df[r] * dw_dvy;
+        let turning = self.maneuver_accel > 0.0 && v > self.min_speed;
+        let period = self.period;
+        // ∂(F x)/∂ω
+        let df = [
+            t.ds * vx - t.dc * vy,
+            t.dc * vx + t.ds * vy,
+            -period * (t.sin * vx + t.cos * vy),
+            period * (t.cos * vx - t.sin * vy),
+        ];
+        // Ω = −a_m/‖v‖ ⇒ ∂Ω/∂v = a_m v / ‖v‖³
+        let k = self.maneuver_accel / (v * v * v);
+        let (dw_dvx, dw_dvy) = (k * vx, k * vy);
+        let f = [[t.s, -t.c], [t.c, t.s], [t.cos, -t.sin], [t.sin, t.cos]];
+        let entry = |r: usize, c: usize, dw: f64| {
+            if turning {
+                f[r][c] + df[r] * dw
+            } else {
+                f[r][c]
             }
-        }
-        jac
+        };
+        (
+            [entry(0, 0, dw_dvx), entry(0, 1, dw_dvy), entry(1, 0, dw_dvx), entry(1, 1, dw_dvy)],
+            [entry(2, 0, dw_dvx), entry(2, 1, dw_dvy), entry(3, 0, dw_dvx), entry(3, 1, dw_dvy)],
+        )
     }
 
     /// `Q`: `σ_v² [[T³/3 I, T²/2 I], [T²/2 I, T I]]` (continuous) or
@@ -240,6 +292,17 @@ impl Dynamics {
         self.model.transition_and_jacobian(x)
     }
 
+    /// [`CoordinatedTurn::transition_batch`].
+    #[inline(always)]
+    pub fn transition_batch(&self, x: &StateLanes, out: &mut TurnBatch) {
+        self.model.transition_batch(x, out)
+    }
+
+    /// The factor `L` of `Q = L Lᵀ` that [`sample_noise`](Self::sample_noise) draws with.
+    pub fn noise_factor(&self) -> &Mat4 {
+        &self.q_chol
+    }
+
     /// One draw of `ξ ~ N(0, Q)`.
     pub fn sample_noise<R: Rng + ?Sized>(&self, rng: &mut R) -> State {
         let n = State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
@@ -252,6 +315,26 @@ impl Dynamics {
     }
 }
 
+/// f(x) and the varying blocks of `F̃(x) = [[I, A], [0, B]]` at a batch of
+/// states, as arrays: `next[k][i]` is component k of lane i's f(x), and
+/// `a`, `b` the blocks row by row (`a[0]`, `a[1]` its first row).
+#[derive(Debug, Clone, Copy)]
+pub struct TurnBatch {
+    pub next: [[f64; CHUNK]; 4],
+    pub a: [[f64; CHUNK]; 4],
+    pub b: [[f64; CHUNK]; 4],
+}
+
+impl Default for TurnBatch {
+    fn default() -> Self {
+        Self {
+            next: [[0.0; CHUNK]; 4],
+            a: [[0.0; CHUNK]; 4],
+            b: [[0.0; CHUNK]; 4],
+        }
+    }
+}
+
 /// ‖v‖. Not `hypot`, whose guard against overflow costs a library call
 /// per particle and is not needed for speeds.
 #[inline]
@@ -260,6 +343,7 @@ fn speed(x: &State) -> f64 {
 }
 
 /// The trigonometric entries of F(ω) and their derivatives in ω.
+#[derive(Clone, Copy)]
 struct TurnTerms {
     sin: f64,
     cos: f64,
@@ -275,56 +359,61 @@ struct TurnTerms {
 
 impl TurnTerms {
     fn new(omega: f64, period: f64) -> Self {
+        let (sin, cos) = libm::sincos(omega * period);
+        Self::with(omega, period, sin, cos)
+    }
+
+    /// The terms from ω and the sine and cosine of ωT (fdlibm's, so that
+    /// a batch's vectorised ones are the same, [`crate::batch::sincos`]).
+    /// Branch-free: both forms are computed and one kept, so that a loop
+    /// over lanes vectorises.
+    #[inline(always)]
+    fn with(omega: f64, period: f64, sin: f64, cos: f64) -> Self {
         let wt = omega * period;
-        let (sin, cos) = wt.sin_cos();
-        if wt.abs() < SMALL_TURN {
-            let t2 = period * period;
-            let t3 = t2 * period;
-            Self {
-                sin,
-                cos,
-                s: period - omega * omega * t3 / 6.0,
-                c: omega * t2 / 2.0 - omega.powi(3) * t2 * t2 / 24.0,
-                ds: -omega * t3 / 3.0,
-                dc: t2 / 2.0 - omega * omega * t2 * t2 / 8.0,
-            }
+        // Below SMALL_TURN, the Taylor series.
+        let t2 = period * period;
+        let t3 = t2 * period;
+        let small = Self {
+            sin,
+            cos,
+            s: period - omega * omega * t3 / 6.0,
+            c: omega * t2 / 2.0 - omega * omega * omega * t2 * t2 / 24.0,
+            ds: -omega * t3 / 3.0,
+            dc: t2 / 2.0 - omega * omega * t2 * t2 / 8.0,
+        };
+        let w2 = omega * omega;
+        // 1 − cos ωT = sin²ωT / (1 + cos ωT): the subtraction loses half
+        // the digits at the small turn rates of the default scenario, and
+        // this form needs no second sine. Near a half turn, where 1 + cos
+        // cancels instead, the subtraction is exact enough.
+        let one_minus_cos = if cos > 0.0 {
+            sin * sin / (1.0 + cos)
         } else {
-            let w2 = omega * omega;
-            // 1 − cos ωT = sin²ωT / (1 + cos ωT): the subtraction loses half
-            // the digits at the small turn rates of the default scenario, and
-            // this form needs no second sine. Near a half turn, where 1 + cos
-            // cancels instead, the subtraction is exact enough.
-            let one_minus_cos = if cos > 0.0 {
-                sin * sin / (1.0 + cos)
-            } else {
-                1.0 - cos
-            };
-            Self {
-                sin,
-                cos,
-                s: sin / omega,
-                c: one_minus_cos / omega,
-                ds: (period * cos * omega - sin) / w2,
-                dc: (period * sin * omega - one_minus_cos) / w2,
-            }
+            1.0 - cos
+        };
+        let general = Self {
+            sin,
+            cos,
+            s: sin / omega,
+            c: one_minus_cos / omega,
+            ds: (period * cos * omega - sin) / w2,
+            dc: (period * sin * omega - one_minus_cos) / w2,
+        };
+        if wt.abs() < SMALL_TURN {
+            small
+        } else {
+            general
         }
     }
 
-    fn matrix(&self) -> Mat4 {
-        Mat4::new(
-            1.0, 0.0, self.s, -self.c, //
-            0.0, 1.0, self.c, self.s, //
-            0.0, 0.0, self.cos, -self.sin, //
-            0.0, 0.0, self.sin, self.cos,
-        )
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::testing::{central_jacobian, random_state};
-    use rand::SeedableRng;
+    use rand::{Rng, SeedableRng};
+    use std::f64::consts::PI;
     use rand_chacha::ChaCha8Rng;
 
     fn turning() -> CoordinatedTurn {
@@ -334,6 +423,72 @@ mod tests {
             min_speed: 0.1,
             sigma_v: 0.05,
             process_noise: ProcessNoise::Continuous,
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn batch_avx2(model: &CoordinatedTurn, x: &StateLanes, out: &mut TurnBatch) {
+        model.transition_batch(x, out)
+    }
+
+    /// The batch is `transition_and_jacobian` state by state, bit for bit,
+    /// vectorised or not: turning and constant velocity, fast, slow (the
+    /// speed floor), still, and turns from tiny (the Taylor form) to a
+    /// quarter turn and beyond (fdlibm's argument reduction).
+    #[test]
+    fn the_batch_is_transition_and_jacobian_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let sharp = CoordinatedTurn {
+            maneuver_accel: 40.0,
+            ..turning()
+        };
+        for model in [turning(), sharp, CoordinatedTurn::constant_velocity(1.0, 0.5)] {
+            for n in [CHUNK, 17] {
+                let mut states: Vec<State> = (0..n)
+                    .map(|_| {
+                        let speed = 10f64.powf(rng.random_range(-3.0..2.0));
+                        let heading = rng.random_range(-PI..PI);
+                        State::new(
+                            rng.random_range(-500.0..500.0),
+                            rng.random_range(-500.0..500.0),
+                            speed * heading.sin(),
+                            speed * heading.cos(),
+                        )
+                    })
+                    .collect();
+                states[0] = State::new(1.0, 2.0, 0.0, 0.0);
+                let lanes = StateLanes::of(&states);
+                let mut plain = TurnBatch::default();
+                model.transition_batch(&lanes, &mut plain);
+                let mut wide = TurnBatch::default();
+                if crate::batch::has_avx2() {
+                    // SAFETY: the CPU has AVX2.
+                    unsafe { batch_avx2(&model, &lanes, &mut wide) };
+                } else {
+                    wide = plain;
+                }
+                for (i, x) in states.iter().enumerate() {
+                    let (next, jac) = model.transition_and_jacobian(x);
+                    for b in [&plain, &wide] {
+                        let got_jac = Mat4::new(
+                            1.0, 0.0, b.a[0][i], b.a[1][i], //
+                            0.0, 1.0, b.a[2][i], b.a[3][i], //
+                            0.0, 0.0, b.b[0][i], b.b[1][i], //
+                            0.0, 0.0, b.b[2][i], b.b[3][i],
+                        );
+                        let got_next = State::from_fn(|k, _| b.next[k][i]);
+                        let same = |p: &[f64], q: &[f64]| {
+                            p.iter().zip(q).all(|(a, b)| a.to_bits() == b.to_bits())
+                        };
+                        assert!(
+                            same(got_next.as_slice(), next.as_slice())
+                                && same(got_jac.as_slice(), jac.as_slice()),
+                            "{model:?} at {x:?}"
+                        );
+                    }
+                }
+            }
         }
     }
 

@@ -17,7 +17,7 @@
 use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
-use crate::dynamics::Dynamics;
+use crate::dynamics::{Dynamics, TurnBatch};
 use crate::batch::{has_avx2, Positions, CHUNK};
 use crate::fisher::{assemble, position_entries, Measurement};
 use crate::observation::{Evaluations, ObservationModel};
@@ -86,6 +86,22 @@ impl<'q> DynamicsTermsSum<'q> {
     pub fn add(&mut self, jacobian: &Mat4, weight: f64) {
         self.forms.add(jacobian, weight);
         self.mean_jac += jacobian * weight;
+    }
+
+    /// [`add`](Self::add) of the first `n` Jacobians of a batch
+    /// ([`Dynamics::transition_batch`]), in order, each with `weight`.
+    #[inline(always)]
+    pub fn add_batch(&mut self, batch: &TurnBatch, n: usize, weight: f64) {
+        for i in 0..n {
+            let (a, b) = (&batch.a, &batch.b);
+            let jacobian = Mat4::new(
+                1.0, 0.0, a[0][i], a[1][i], //
+                0.0, 1.0, a[2][i], a[3][i], //
+                0.0, 0.0, b[0][i], b[1][i], //
+                0.0, 0.0, b[2][i], b[3][i],
+            );
+            self.add(&jacobian, weight);
+        }
     }
 
     pub fn total(&self) -> DynamicsTerms {

@@ -4,6 +4,8 @@
 
 use bounds::pcrlb::DynamicsTermsSum;
 pub use bounds::Gaussian;
+use bounds::batch::{has_avx2, StateLanes, CHUNK};
+use bounds::dynamics::TurnBatch;
 use bounds::{BoundError, Dynamics, DynamicsTerms, Mat4, State};
 use nalgebra::Cholesky;
 use rand::Rng;
@@ -124,11 +126,23 @@ impl ParticleFilter {
         // the same order as `predict` draws it. Weights are uniform here.
         let mut sum = DynamicsTermsSum::new(dynamics);
         let weight = 1.0 / self.particles.len() as f64;
-        self.advance(|p| {
-            let (next, jacobian) = dynamics.transition_and_jacobian(p);
-            sum.add(&jacobian, weight);
-            next + dynamics.sample_noise(rng)
-        });
+        self.previous.copy_from_slice(&self.particles);
+        let mut batch = TurnBatch::default();
+        for chunk in self.particles.chunks_mut(CHUNK) {
+            transition_batch(dynamics, &StateLanes::of(chunk), &mut batch);
+            sum.add_batch(&batch, chunk.len(), weight);
+            // The noise drawn particle by particle, in order, as `advance` does.
+            for (i, p) in chunk.iter_mut().enumerate() {
+                let next = State::new(
+                    batch.next[0][i],
+                    batch.next[1][i],
+                    batch.next[2][i],
+                    batch.next[3][i],
+                );
+                *p = next + dynamics.sample_noise(rng);
+            }
+        }
+        self.weights.copy_from_slice(&self.uniform);
         Ok((sum.total(), self.summary()))
     }
 
@@ -373,6 +387,23 @@ impl ParticleFilter {
 
 /// `h²` of the Gaussian kernel for `n` particles of dimension 4, below 1
 /// for every `n ≥ 1` (so the shrinkage `√(1 − h²)` is real).
+/// [`Dynamics::transition_batch`], compiled for AVX2 where the CPU has it
+/// (the same result either way, [`bounds::batch`]).
+fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        fn with_avx2(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
+            dynamics.transition_batch(x, out)
+        }
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            return unsafe { with_avx2(dynamics, x, out) };
+        }
+    }
+    dynamics.transition_batch(x, out)
+}
+
 fn kernel_bandwidth_squared(n: usize) -> f64 {
     (4.0 / (n.max(1) as f64 * 6.0)).powf(1.0 / 4.0)
 }
