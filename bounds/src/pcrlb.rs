@@ -71,7 +71,12 @@ pub fn dynamics_terms(
 /// ([`Dynamics::transition_and_jacobian`]). The caller checks the weights.
 pub struct DynamicsTermsSum<'q> {
     forms: FormSum<'q>,
+    /// `Σ w F̃` of the Jacobians that took the long way; those of the form
+    /// `[[I, A], [0, B]]` add to `mean_a`, `mean_b` and, for the identity,
+    /// to `forms.weight` (`1·w` is `w`, and `0·w` adds nothing).
     mean_jac: Mat4,
+    mean_a: Matrix2<f64>,
+    mean_b: Matrix2<f64>,
 }
 
 impl<'q> DynamicsTermsSum<'q> {
@@ -79,37 +84,64 @@ impl<'q> DynamicsTermsSum<'q> {
         Self {
             forms: FormSum::new(dynamics.q_inv()),
             mean_jac: Mat4::zeros(),
+            mean_a: Matrix2::zeros(),
+            mean_b: Matrix2::zeros(),
         }
     }
 
     #[inline]
     pub fn add(&mut self, jacobian: &Mat4, weight: f64) {
-        self.forms.add(jacobian, weight);
-        self.mean_jac += jacobian * weight;
+        match self.forms.blocks_of(jacobian) {
+            Some((a, b)) => self.add_blocks(&a, &b, weight),
+            None => {
+                self.forms.add_general(jacobian, weight);
+                self.mean_jac += jacobian * weight;
+            }
+        }
+    }
+
+    /// [`add`](Self::add) of `F̃ = [[I, A], [0, B]]`, when Q⁻¹ has the
+    /// block form ([`FormSum`]).
+    #[inline(always)]
+    fn add_blocks(&mut self, a: &Matrix2<f64>, b: &Matrix2<f64>, weight: f64) {
+        self.forms.add_blocks(a, b, weight);
+        self.mean_a += a * weight;
+        self.mean_b += b * weight;
     }
 
     /// [`add`](Self::add) of the first `n` Jacobians of a batch
     /// ([`Dynamics::transition_batch`]), in order, each with `weight`.
     #[inline(always)]
     pub fn add_batch(&mut self, batch: &TurnBatch, n: usize, weight: f64) {
+        let (a, b) = (&batch.a, &batch.b);
         for i in 0..n {
-            let (a, b) = (&batch.a, &batch.b);
-            let jacobian = Mat4::new(
-                1.0, 0.0, a[0][i], a[1][i], //
-                0.0, 1.0, a[2][i], a[3][i], //
-                0.0, 0.0, b[0][i], b[1][i], //
-                0.0, 0.0, b[2][i], b[3][i],
-            );
-            self.add(&jacobian, weight);
+            let block_a = Matrix2::new(a[0][i], a[1][i], a[2][i], a[3][i]);
+            let block_b = Matrix2::new(b[0][i], b[1][i], b[2][i], b[3][i]);
+            if self.forms.blocks.is_some() {
+                self.add_blocks(&block_a, &block_b, weight);
+            } else {
+                self.add(&carried(&block_a, &block_b), weight);
+            }
         }
     }
 
     pub fn total(&self) -> DynamicsTerms {
+        let mut mean_jac = carried(&self.mean_a, &self.mean_b);
+        mean_jac[(0, 0)] = self.forms.weight;
+        mean_jac[(1, 1)] = self.forms.weight;
         DynamicsTerms {
             b11: self.forms.total(),
-            b12: -(self.mean_jac.transpose() * self.forms.q_inv),
+            b12: -((self.mean_jac + mean_jac).transpose() * self.forms.q_inv),
         }
     }
+}
+
+/// `[[I, A], [0, B]]`.
+fn carried(a: &Matrix2<f64>, b: &Matrix2<f64>) -> Mat4 {
+    let mut f = Mat4::identity();
+    f.fixed_view_mut::<2, 2>(0, 2).copy_from(a);
+    f.fixed_view_mut::<2, 2>(2, 2).copy_from(b);
+    f
 }
 
 /// `Σ_j w_j F̃_jᵀ Q⁻¹ F̃_j` (B11), accumulated particle by particle.
@@ -150,16 +182,29 @@ impl<'q> FormSum<'q> {
         }
     }
 
+    /// A's and B's blocks of `f = [[I, A], [0, B]]`, if Q⁻¹ has the block
+    /// form and f that form.
     #[inline]
-    fn add(&mut self, f: &Mat4, w: f64) {
+    fn blocks_of(&self, f: &Mat4) -> Option<(Matrix2<f64>, Matrix2<f64>)> {
         let carried = f.fixed_view::<2, 2>(0, 0) == Matrix2::identity()
             && f.fixed_view::<2, 2>(2, 0) == Matrix2::zeros();
-        let (Some((p, r, s)), true) = (self.blocks, carried) else {
-            self.general += (f.transpose() * self.q_inv * f) * w;
-            return;
+        (self.blocks.is_some() && carried).then(|| {
+            (
+                f.fixed_view::<2, 2>(0, 2).into(),
+                f.fixed_view::<2, 2>(2, 2).into(),
+            )
+        })
+    }
+
+    fn add_general(&mut self, f: &Mat4, w: f64) {
+        self.general += (f.transpose() * self.q_inv * f) * w;
+    }
+
+    #[inline(always)]
+    fn add_blocks(&mut self, a: &Matrix2<f64>, b: &Matrix2<f64>, w: f64) {
+        let Some((p, r, s)) = self.blocks else {
+            unreachable!("blocks are added only where Q⁻¹ has the block form");
         };
-        let a: Matrix2<f64> = f.fixed_view::<2, 2>(0, 2).into();
-        let b: Matrix2<f64> = f.fixed_view::<2, 2>(2, 2).into();
         let atb = a.transpose() * b;
         self.weight += w;
         self.off += (a * p + b * r) * w;
@@ -682,9 +727,44 @@ mod tests {
             let mut sum = FormSum::new(&other);
             assert!(sum.blocks.is_none());
             let f = dynamics.jacobian(&particles[1]);
-            sum.add(&f, 1.0);
+            assert!(sum.blocks_of(&f).is_none());
+            sum.add_general(&f, 1.0);
             assert_eq!(sum.total(), f.transpose() * other * f);
         }
+    }
+
+    /// A predictor's batches add up to the same B11 and B12 as its
+    /// particles added one by one, bit for bit.
+    #[test]
+    fn batches_of_jacobians_sum_as_their_particles_do() {
+        let dynamics = Dynamics::new(CoordinatedTurn {
+            period: 1.0,
+            maneuver_accel: 0.1,
+            min_speed: 0.1,
+            sigma_v: 0.05,
+            process_noise: ProcessNoise::Continuous,
+        })
+        .unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let particles: Vec<State> = (0..150)
+            .map(|_| State::new(10.0, -20.0, 3.0, -4.0) + dynamics.sample_noise(&mut rng) * 30.0)
+            .collect();
+        let weight = 1.0 / particles.len() as f64;
+        let mut one_by_one = DynamicsTermsSum::new(&dynamics);
+        for x in &particles {
+            one_by_one.add(&dynamics.jacobian(x), weight);
+        }
+        let mut batched = DynamicsTermsSum::new(&dynamics);
+        let mut batch = TurnBatch::default();
+        for chunk in particles.chunks(CHUNK) {
+            dynamics.transition_batch(&crate::batch::StateLanes::of(chunk), &mut batch);
+            batched.add_batch(&batch, chunk.len(), weight);
+        }
+        let (a, b) = (one_by_one.total(), batched.total());
+        let bits = |m: &Mat4| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.b11), bits(&b.b11));
+        assert_eq!(bits(&a.b12), bits(&b.b12));
+        assert!(a.b11.norm() > 0.0 && a.b12.norm() > 0.0);
     }
 
     #[test]

@@ -144,6 +144,7 @@ impl TableReads {
     /// Fills every lane from the means and variances; the likelihood
     /// table's reads (of cell `index`) only `WITH_MASS`.
     #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // lanes index several arrays at once
     fn find<const WITH_MASS: bool>(
         &mut self,
         cells: &UniformCells,
