@@ -34,6 +34,7 @@ pub mod quantizer;
 pub mod selection;
 pub mod speb;
 pub mod width_axis;
+mod ziggurat_tables;
 
 #[cfg(test)]
 mod testing;

@@ -97,15 +97,26 @@ impl ParticleFilter {
     /// Predictor: `x_j(k) ~ p(x(k) | x_j(k−1))`; weights become uniform (the
     /// particles come from the previous step's resampler).
     pub fn predict<R: Rng + ?Sized>(&mut self, dynamics: &Dynamics, rng: &mut R) {
-        self.advance(|p| dynamics.propagate(p, rng));
+        self.advance(dynamics, rng, |_, _| {});
     }
 
-    /// Moves every particle by `step`, in order, keeping where it was as
-    /// its previous state; weights become uniform.
-    fn advance(&mut self, mut step: impl FnMut(&State) -> State) {
+    /// Moves every particle to `f(x) + ξ`, a batch at a time, keeping where
+    /// it was as its previous state; weights become uniform. `each_batch`
+    /// sees each batch's transitions (and how many are real) before the
+    /// noise is added. The noise is drawn particle by particle, in order,
+    /// as [`Dynamics::propagate`] draws it.
+    fn advance<R: Rng + ?Sized>(
+        &mut self,
+        dynamics: &Dynamics,
+        rng: &mut R,
+        mut each_batch: impl FnMut(&TurnBatch, usize),
+    ) {
         self.previous.copy_from_slice(&self.particles);
-        for p in self.particles.iter_mut() {
-            *p = step(p);
+        let mut batch = TurnBatch::default();
+        for chunk in self.particles.chunks_mut(CHUNK) {
+            transition_batch(dynamics, &StateLanes::of(chunk), &mut batch);
+            each_batch(&batch, chunk.len());
+            add_process_noise(dynamics, &batch, chunk, rng);
         }
         self.weights.copy_from_slice(&self.uniform);
     }
@@ -126,23 +137,7 @@ impl ParticleFilter {
         // the same order as `predict` draws it. Weights are uniform here.
         let mut sum = DynamicsTermsSum::new(dynamics);
         let weight = 1.0 / self.particles.len() as f64;
-        self.previous.copy_from_slice(&self.particles);
-        let mut batch = TurnBatch::default();
-        for chunk in self.particles.chunks_mut(CHUNK) {
-            transition_batch(dynamics, &StateLanes::of(chunk), &mut batch);
-            sum.add_batch(&batch, chunk.len(), weight);
-            // The noise drawn particle by particle, in order, as `advance` does.
-            for (i, p) in chunk.iter_mut().enumerate() {
-                let next = State::new(
-                    batch.next[0][i],
-                    batch.next[1][i],
-                    batch.next[2][i],
-                    batch.next[3][i],
-                );
-                *p = next + dynamics.sample_noise(rng);
-            }
-        }
-        self.weights.copy_from_slice(&self.uniform);
+        self.advance(dynamics, rng, |batch, n| sum.add_batch(batch, n, weight));
         Ok((sum.total(), self.summary()))
     }
 
@@ -379,14 +374,55 @@ impl ParticleFilter {
         let l = chol.l();
         let a = (1.0 - h2).sqrt();
         let pull = posterior.mean * (1.0 - a);
-        for p in self.particles.iter_mut() {
-            *p = *p * a + pull + l * State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
+        let mut draws = [0.0; 4 * CHUNK];
+        for chunk in self.particles.chunks_mut(CHUNK) {
+            let draws = &mut draws[..4 * chunk.len()];
+            standard_normals(rng, draws);
+            for (p, n) in chunk.iter_mut().zip(draws.chunks_exact(4)) {
+                *p = *p * a + pull + l * State::from_column_slice(n);
+            }
         }
     }
 }
 
 /// `h²` of the Gaussian kernel for `n` particles of dimension 4, below 1
 /// for every `n ≥ 1` (so the shrinkage `√(1 − h²)` is real).
+/// Each state of `chunk` moved to its transition in `batch` plus a draw of
+/// the process noise `ξ ~ N(0, Q)`, with the factor and the draws that
+/// [`Dynamics::sample_noise`] takes.
+fn add_process_noise<R: Rng + ?Sized>(
+    dynamics: &Dynamics,
+    batch: &TurnBatch,
+    chunk: &mut [State],
+    rng: &mut R,
+) {
+    let mut draws = [0.0; 4 * CHUNK];
+    let draws = &mut draws[..4 * chunk.len()];
+    standard_normals(rng, draws);
+    let factor = dynamics.noise_factor();
+    for (i, (p, n)) in chunk.iter_mut().zip(draws.chunks_exact(4)).enumerate() {
+        let next = State::from_fn(|k, _| batch.next[k][i]);
+        *p = next + factor * State::from_column_slice(n);
+    }
+}
+
+/// `bounds::batch::standard_normals`, compiled for AVX2 where the CPU has
+/// it (the same draws either way).
+fn standard_normals<R: Rng + ?Sized>(rng: &mut R, out: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        fn with_avx2<R: Rng + ?Sized>(rng: &mut R, out: &mut [f64]) {
+            bounds::batch::standard_normals(rng, out)
+        }
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            return unsafe { with_avx2(rng, out) };
+        }
+    }
+    bounds::batch::standard_normals(rng, out)
+}
+
 /// [`Dynamics::transition_batch`], compiled for AVX2 where the CPU has it
 /// (the same result either way, [`bounds::batch`]).
 fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
