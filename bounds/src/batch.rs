@@ -177,7 +177,9 @@ fn sincos_ordinary(x: f64) -> (f64, f64, bool) {
 
 /// `out.len()` draws of `rand_distr::StandardNormal`: exactly those that
 /// `rng.sample(StandardNormal)` gives one call at a time, leaving `rng`
-/// where those calls would (the test holds it to that).
+/// where those calls would (the test holds ChaCha to that). The words are
+/// taken in bulk (`fill_bytes`), which for rand's generators, block ones
+/// like ChaCha and word ones alike, gives the words of `next_u64`.
 ///
 /// rand_distr's ziggurat takes one 64-bit word a try, and accepts the
 /// first try of 98.8 % of draws. Here the first tries of up to [`CHUNK`]
@@ -196,9 +198,17 @@ pub fn standard_normals<R: rand::RngCore + ?Sized>(rng: &mut R, out: &mut [f64])
         words.copy_within(start..end, 0);
         end -= start;
         let wanted = (out.len() - done).min(CHUNK);
-        while end < wanted {
-            words[end] = rng.next_u64();
-            end += 1;
+        if end < wanted {
+            // In bulk: a block generator's bytes are its 32-bit words in
+            // order, little-endian, two to a `next_u64` (low word first),
+            // so these are the words `next_u64` would give one by one.
+            let mut bytes = [0u8; 8 * CHUNK];
+            let bytes = &mut bytes[..8 * (wanted - end)];
+            rng.fill_bytes(bytes);
+            for (w, b) in words[end..wanted].iter_mut().zip(bytes.chunks_exact(8)) {
+                *w = u64::from_le_bytes(b.try_into().expect("eight bytes"));
+            }
+            end = wanted;
         }
         let (mut x, mut accepted) = ([0.0; CHUNK], [false; CHUNK]);
         for j in 0..CHUNK {

@@ -18,7 +18,7 @@ use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
 use crate::dynamics::{Dynamics, TurnBatch};
-use crate::batch::{has_avx2, Positions, CHUNK};
+use crate::batch::{has_avx2, Positions, StateLanes, CHUNK};
 use crate::fisher::{assemble, position_entries, Measurement};
 use crate::observation::{Evaluations, ObservationModel};
 use crate::quantizer::{FisherScalars, TableReads};
@@ -60,8 +60,27 @@ pub fn dynamics_terms(
 ) -> Result<DynamicsTerms, BoundError> {
     check_weights(particles.len(), weights)?;
     let mut sum = DynamicsTermsSum::new(dynamics);
-    for (x, &w) in particles.iter().zip(weights) {
-        sum.add(&dynamics.jacobian(x), w);
+    let sum_batches = |sum: &mut DynamicsTermsSum| {
+        let mut batch = TurnBatch::default();
+        for (states, ws) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)) {
+            dynamics.transition_batch(&StateLanes::of(states), &mut batch);
+            sum.add_batch(&batch, ws);
+        }
+    };
+    if has_avx2() {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        fn with_avx2(sum: &mut DynamicsTermsSum, f: impl FnOnce(&mut DynamicsTermsSum)) {
+            f(sum)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        fn with_avx2(sum: &mut DynamicsTermsSum, f: impl FnOnce(&mut DynamicsTermsSum)) {
+            f(sum)
+        }
+        // SAFETY: the CPU has AVX2.
+        unsafe { with_avx2(&mut sum, sum_batches) };
+    } else {
+        sum_batches(&mut sum);
     }
     Ok(sum.total())
 }
@@ -109,12 +128,12 @@ impl<'q> DynamicsTermsSum<'q> {
         self.mean_b += b * weight;
     }
 
-    /// [`add`](Self::add) of the first `n` Jacobians of a batch
-    /// ([`Dynamics::transition_batch`]), in order, each with `weight`.
+    /// [`add`](Self::add) of the first `weights.len()` Jacobians of a
+    /// batch ([`Dynamics::transition_batch`]), in order, with their weights.
     #[inline(always)]
-    pub fn add_batch(&mut self, batch: &TurnBatch, n: usize, weight: f64) {
+    pub fn add_batch(&mut self, batch: &TurnBatch, weights: &[f64]) {
         let (a, b) = (&batch.a, &batch.b);
-        for i in 0..n {
+        for (i, &weight) in weights.iter().enumerate() {
             let block_a = Matrix2::new(a[0][i], a[1][i], a[2][i], a[3][i]);
             let block_b = Matrix2::new(b[0][i], b[1][i], b[2][i], b[3][i]);
             if self.forms.blocks.is_some() {
@@ -758,7 +777,7 @@ mod tests {
         let mut batch = TurnBatch::default();
         for chunk in particles.chunks(CHUNK) {
             dynamics.transition_batch(&crate::batch::StateLanes::of(chunk), &mut batch);
-            batched.add_batch(&batch, chunk.len(), weight);
+            batched.add_batch(&batch, &vec![weight; chunk.len()]);
         }
         let (a, b) = (one_by_one.total(), batched.total());
         let bits = |m: &Mat4| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();

@@ -612,14 +612,59 @@ impl Quantizer {
             }
         };
         reads.find::<true>(cells, index, mean, variance);
-        let mass = crate::mass_table::table();
         for i in 0..n {
+            ln_h[i] = self.ln_probability_of_lane(index, reads, i, mean, variance);
             let spread = reads.spread(i);
-            ln_h[i] = match (reads.mass_ok[i], &spread.rows) {
-                (true, Some(rows)) => mass.read(&reads.mass_point(i), reads.v[i], rows),
-                _ => self.ln_probability(index, mean[i], variance[i]),
-            };
             out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
+        }
+    }
+
+    /// [`ln_probability_interpolated`](Self::ln_probability_interpolated)
+    /// of cell `index` at a batch of means and variances, as
+    /// [`ln_probability_and_fisher_batch`](Self::ln_probability_and_fisher_batch)
+    /// gives it: equal to the scalar call lane by lane, bit for bit.
+    #[inline(always)]
+    pub fn ln_probability_batch(
+        &self,
+        index: u32,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+        n: usize,
+        ln_h: &mut [f64; CHUNK],
+        reads: &mut TableReads,
+    ) {
+        let cells = match self.uniform.as_ref() {
+            Some(cells) if n >= CHUNK / 4 => cells,
+            _ => {
+                for i in 0..n {
+                    ln_h[i] = self.ln_probability_interpolated(index, mean[i], variance[i]);
+                }
+                return;
+            }
+        };
+        reads.find::<true>(cells, index, mean, variance);
+        for i in 0..n {
+            ln_h[i] = self.ln_probability_of_lane(index, reads, i, mean, variance);
+        }
+    }
+
+    /// Lane `i`'s `ln h` from the likelihood table if it serves the lane,
+    /// exactly otherwise.
+    #[inline(always)]
+    fn ln_probability_of_lane(
+        &self,
+        index: u32,
+        reads: &TableReads,
+        i: usize,
+        mean: &[f64; CHUNK],
+        variance: &[f64; CHUNK],
+    ) -> f64 {
+        let spread = reads.spread(i);
+        match (reads.mass_ok[i], &spread.rows) {
+            (true, Some(rows)) => {
+                crate::mass_table::table().read(&reads.mass_point(i), reads.v[i], rows)
+            }
+            _ => self.ln_probability(index, mean[i], variance[i]),
         }
     }
 
@@ -976,6 +1021,8 @@ mod tests {
                     );
                     let mut fisher_only = ScalarBatch::default();
                     q.fisher_scalars_batch(&mean, &variance, n, &mut fisher_only, &mut reads);
+                    let mut likelihood_only = [0.0; CHUNK];
+                    q.ln_probability_batch(index, &mean, &variance, n, &mut likelihood_only, &mut reads);
                     let mut wide = ([0.0; CHUNK], ScalarBatch::default());
                     if crate::batch::has_avx2() {
                         // SAFETY: the CPU has AVX2.
@@ -991,6 +1038,11 @@ mod tests {
                     for i in 0..n {
                         let (ln_h, f) = q.ln_probability_and_fisher(index, mean[i], variance[i]);
                         assert_eq!(f, q.fisher_scalars(mean[i], variance[i]));
+                        assert_eq!(
+                            likelihood_only[i].to_bits(),
+                            q.ln_probability_interpolated(index, mean[i], variance[i]).to_bits()
+                        );
+                        assert_eq!(ln_h.to_bits(), likelihood_only[i].to_bits());
                         let with_fisher_only = (ln_h, &fisher_only);
                         for (l, out) in [(plain.0[i], &plain.1), (wide.0[i], &wide.1), with_fisher_only] {
                             let same = |a: f64, b: f64| a.to_bits() == b.to_bits();

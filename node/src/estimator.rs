@@ -12,7 +12,8 @@
 use std::f64::consts::PI;
 
 use bounds::censoring::{CensoringRule, Innovation};
-use bounds::batch::CHUNK;
+use bounds::batch::{has_avx2, Positions, CHUNK};
+use bounds::observation::Evaluations;
 use bounds::quantizer::TableReads;
 use bounds::fisher::{observed_information, scalars_of_mean_and_variance};
 use bounds::pcrlb::{information_update, observation_information, observation_information_with};
@@ -122,6 +123,66 @@ impl SensingModel {
                 -0.5 * (d * d / r + r.ln() + (2.0 * PI).ln())
             }
             (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
+        }
+    }
+
+    /// `Σ_o ln p(o | x_j)` of every particle into `out` (one value per
+    /// particle): bit for bit [`ln_likelihood`](Self::ln_likelihood) summed
+    /// particle by particle, but each observing sensor's model and the
+    /// likelihood table's reads taken a batch of particles at a time,
+    /// vectorised ([`bounds::batch`]).
+    pub fn ln_likelihoods(&self, observations: &[Observation], particles: &[State], out: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx2")]
+            fn with_avx2(m: &SensingModel, o: &[Observation], p: &[State], out: &mut [f64]) {
+                m.ln_likelihoods_batched(o, p, out)
+            }
+            if has_avx2() {
+                // SAFETY: the CPU has AVX2.
+                return unsafe { with_avx2(self, observations, particles, out) };
+            }
+        }
+        self.ln_likelihoods_batched(observations, particles, out)
+    }
+
+    #[inline(always)]
+    fn ln_likelihoods_batched(
+        &self,
+        observations: &[Observation],
+        particles: &[State],
+        out: &mut [f64],
+    ) {
+        let mut e = Evaluations::default();
+        let mut reads = TableReads::default();
+        for (states, out) in particles.chunks(CHUNK).zip(out.chunks_mut(CHUNK)) {
+            // What `Iterator::sum` starts from.
+            out.fill(-0.0);
+            let at = Positions::of(states);
+            for o in observations {
+                let model = &self.sensors[o.sensor as usize];
+                if !model.depends_on_position_only() {
+                    for (l, x) in out.iter_mut().zip(states) {
+                        *l += self.ln_likelihood(o, x);
+                    }
+                    continue;
+                }
+                model.evaluate_batch(states, &at, &mut e);
+                match (o.value, &self.quantizer) {
+                    (ObservedValue::Cell(cell), Some(q)) => {
+                        let mut ln_h = [0.0; CHUNK];
+                        q.ln_probability_batch(cell, &e.g, &e.r, states.len(), &mut ln_h, &mut reads);
+                        for (l, h) in out.iter_mut().zip(ln_h) {
+                            *l += h;
+                        }
+                    }
+                    _ => {
+                        for (i, l) in out.iter_mut().enumerate() {
+                            *l += self.ln_likelihood_of(o, e.g[i], e.r[i]);
+                        }
+                    }
+                }
+            }
         }
     }
 
@@ -403,16 +464,19 @@ impl LocalFilter {
                 *l = *l + silence(x) + late(before);
             }
         }
-        let stages =
-            self.filter
-                .update_paths_from(&mut self.rng, &self.first_stage, |x, before| {
-                    observations
-                        .iter()
-                        .map(|o| model.ln_likelihood(o, x))
-                        .sum::<f64>()
-                        + silence(x)
-                        + late(before)
-                });
+        let stages = self.filter.update_paths_from(
+            &mut self.rng,
+            &self.first_stage,
+            |particles, previous, out| {
+                model.ln_likelihoods(observations, particles, out);
+                if !(silent.is_empty() && lagged.is_empty()) {
+                    let paths = particles.iter().zip(previous);
+                    for (l, (x, before)) in out.iter_mut().zip(paths) {
+                        *l = *l + silence(x) + late(before);
+                    }
+                }
+            },
+        );
         if stages == 0 {
             tracing::warn!("no particle explains this step's observations; keeping the prediction");
         }
@@ -739,7 +803,8 @@ mod tests {
     /// One evaluation per particle and sensor gives the same J_Y sum and the
     /// same log-likelihoods, bit for bit, as evaluating each on its own, for
     /// quantized bearings and raw RSS alike (the updater's first stage
-    /// depends on it).
+    /// depends on it), and so do the batched log-likelihoods of its later
+    /// stages (three full batches and a short one).
     #[test]
     fn shared_evaluation_gives_what_separate_evaluations_give() {
         use fusion_graph::scenario::{DEFAULT_SCENARIO, SEED004_SCENARIO};
@@ -793,9 +858,12 @@ mod tests {
                     .observation_information(&observations, &particles, &weights)
                     .unwrap()
             );
-            for (x, l) in particles.iter().zip(&shared) {
+            let mut batched = vec![f64::NAN; 200];
+            model.ln_likelihoods(&observations, &particles, &mut batched);
+            for ((x, l), b) in particles.iter().zip(&shared).zip(&batched) {
                 let separate: f64 = observations.iter().map(|o| model.ln_likelihood(o, x)).sum();
                 assert_eq!(l.to_bits(), separate.to_bits());
+                assert_eq!(b.to_bits(), separate.to_bits());
             }
         }
     }

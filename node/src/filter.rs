@@ -137,7 +137,8 @@ impl ParticleFilter {
         // the same order as `predict` draws it. Weights are uniform here.
         let mut sum = DynamicsTermsSum::new(dynamics);
         let weight = 1.0 / self.particles.len() as f64;
-        self.advance(dynamics, rng, |batch, n| sum.add_batch(batch, n, weight));
+        let weights = [weight; CHUNK];
+        self.advance(dynamics, rng, |batch, n| sum.add_batch(batch, &weights[..n]));
         Ok((sum.total(), self.summary()))
     }
 
@@ -162,20 +163,35 @@ impl ParticleFilter {
     pub fn update_paths<R: Rng + ?Sized>(
         &mut self,
         rng: &mut R,
-        ln_likelihood: impl FnMut(&State, &State) -> f64,
+        mut ln_likelihood: impl FnMut(&State, &State) -> f64,
     ) -> usize {
-        self.update_stages(rng, None, ln_likelihood)
+        self.update_stages(rng, None, |particles, previous, out| {
+            for ((l, x), before) in out.iter_mut().zip(particles).zip(previous) {
+                *l = ln_likelihood(x, before);
+            }
+        })
     }
 
-    /// [`update_paths`](Self::update_paths) with the first stage's
-    /// log-likelihoods already known (`first[j]` for particle j as it
-    /// stands): the caller took them while evaluating the same models for
-    /// something else.
+    /// [`update`](Self::update) with the log-likelihoods of all particles
+    /// at once, `ln_likelihood(particles, out)`, for a caller that
+    /// evaluates them in batches.
+    pub fn update_batched<R: Rng + ?Sized>(
+        &mut self,
+        rng: &mut R,
+        mut ln_likelihood: impl FnMut(&[State], &mut [f64]),
+    ) -> usize {
+        self.update_stages(rng, None, |particles, _, out| ln_likelihood(particles, out))
+    }
+
+    /// The updater with the first stage's log-likelihoods already known
+    /// (`first[j]` for particle j as it stands): the caller took them while
+    /// evaluating the same models for something else. Each later stage's
+    /// come from `ln_likelihood(particles, previous, out)`, over the paths.
     pub fn update_paths_from<R: Rng + ?Sized>(
         &mut self,
         rng: &mut R,
         first: &[f64],
-        ln_likelihood: impl FnMut(&State, &State) -> f64,
+        ln_likelihood: impl FnMut(&[State], &[State], &mut [f64]),
     ) -> usize {
         self.update_stages(rng, Some(first), ln_likelihood)
     }
@@ -184,7 +200,7 @@ impl ParticleFilter {
         &mut self,
         rng: &mut R,
         first: Option<&[f64]>,
-        mut ln_likelihood: impl FnMut(&State, &State) -> f64,
+        mut ln_likelihood: impl FnMut(&[State], &[State], &mut [f64]),
     ) -> usize {
         let floor = ESS_FLOOR * self.particles.len() as f64;
         let mut done = 0.0;
@@ -193,16 +209,7 @@ impl ParticleFilter {
                 Some(first) if stage == 1 && first.len() == self.ln_likelihood.len() => {
                     self.ln_likelihood.copy_from_slice(first)
                 }
-                _ => {
-                    for ((l, p), q) in self
-                        .ln_likelihood
-                        .iter_mut()
-                        .zip(&self.particles)
-                        .zip(&self.previous)
-                    {
-                        *l = ln_likelihood(p, q);
-                    }
-                }
+                _ => ln_likelihood(&self.particles, &self.previous, &mut self.ln_likelihood),
             }
             let max = self
                 .ln_likelihood

@@ -102,8 +102,8 @@ impl Workload {
         rng: &mut ChaCha8Rng,
     ) {
         filter.predict(&model.dynamics, rng);
-        filter.update(rng, |x| {
-            observations.iter().map(|o| model.ln_likelihood(o, x)).sum()
+        filter.update_batched(rng, |particles, out| {
+            model.ln_likelihoods(observations, particles, out)
         });
         filter.resample(rng);
     }
