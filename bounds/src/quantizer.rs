@@ -612,8 +612,8 @@ impl Quantizer {
             }
         };
         reads.find::<true>(cells, index, mean, variance);
-        for i in 0..n {
-            ln_h[i] = self.ln_probability_of_lane(index, reads, i, mean, variance);
+        for (i, l) in ln_h[..n].iter_mut().enumerate() {
+            *l = self.ln_probability_of_lane(index, reads, i, mean, variance);
             let spread = reads.spread(i);
             out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
         }
@@ -643,8 +643,8 @@ impl Quantizer {
             }
         };
         reads.find::<true>(cells, index, mean, variance);
-        for i in 0..n {
-            ln_h[i] = self.ln_probability_of_lane(index, reads, i, mean, variance);
+        for (i, l) in ln_h[..n].iter_mut().enumerate() {
+            *l = self.ln_probability_of_lane(index, reads, i, mean, variance);
         }
     }
 
