@@ -60,29 +60,34 @@ pub fn dynamics_terms(
 ) -> Result<DynamicsTerms, BoundError> {
     check_weights(particles.len(), weights)?;
     let mut sum = DynamicsTermsSum::new(dynamics);
-    let sum_batches = |sum: &mut DynamicsTermsSum| {
-        let mut batch = TurnBatch::default();
-        for (states, ws) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)) {
-            dynamics.transition_batch(&StateLanes::of(states), &mut batch);
-            sum.add_batch(&batch, ws);
-        }
-    };
     if has_avx2() {
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2")]
-        fn with_avx2(sum: &mut DynamicsTermsSum, f: impl FnOnce(&mut DynamicsTermsSum)) {
-            f(sum)
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        fn with_avx2(sum: &mut DynamicsTermsSum, f: impl FnOnce(&mut DynamicsTermsSum)) {
-            f(sum)
-        }
         // SAFETY: the CPU has AVX2.
-        unsafe { with_avx2(&mut sum, sum_batches) };
+        unsafe { add_batches_avx2(dynamics, particles, weights, &mut sum) };
     } else {
-        sum_batches(&mut sum);
+        add_batches(dynamics, particles, weights, &mut sum);
     }
     Ok(sum.total())
+}
+
+/// Adds every particle's Jacobian to `sum`, a batch at a time.
+#[inline(always)]
+fn add_batches(dynamics: &Dynamics, particles: &[State], weights: &[f64], sum: &mut DynamicsTermsSum) {
+    let mut batch = TurnBatch::default();
+    for (states, ws) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)) {
+        dynamics.transition_batch(&StateLanes::of(states), &mut batch);
+        sum.add_batch(&batch, ws);
+    }
+}
+
+/// [`add_batches`] compiled for AVX2.
+#[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
+unsafe fn add_batches_avx2(
+    dynamics: &Dynamics,
+    particles: &[State],
+    weights: &[f64],
+    sum: &mut DynamicsTermsSum,
+) {
+    add_batches(dynamics, particles, weights, sum)
 }
 
 /// [`dynamics_terms`] accumulated one particle's Jacobian at a time, for a
@@ -254,17 +259,77 @@ pub fn observation_information(
     particles: &[State],
     weights: &[f64],
 ) -> Result<Mat4, BoundError> {
-    let mut reads = TableReads::default();
-    observation_information_with(sensors, particles, weights, |_, k, g, r, n, out| {
-        match sensors[k].measurement {
-            Measurement::Quantized(q) => q.fisher_scalars_batch(g, r, n, out, &mut reads),
+    observation_information_with(
+        sensors,
+        particles,
+        weights,
+        ExpectedScalars {
+            sensors,
+            reads: TableReads::default(),
+        },
+    )
+}
+
+/// The Fisher scalars of a batch of particles, as
+/// [`observation_information_with`] asks for them: `scalars(first, sensor,
+/// g, r, n, out)`. Closures are such sources; a named one with an
+/// `#[inline(always)]` method is certain to be compiled into the kernel's
+/// AVX2 copy, where a closure the compiler declines to inline is not.
+pub trait BatchScalars {
+    fn scalars(
+        &mut self,
+        first: usize,
+        sensor: usize,
+        g: &[f64; CHUNK],
+        r: &[f64; CHUNK],
+        n: usize,
+        out: &mut ScalarBatch,
+    );
+}
+
+impl<F: FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch)> BatchScalars
+    for F
+{
+    #[inline(always)]
+    fn scalars(
+        &mut self,
+        first: usize,
+        sensor: usize,
+        g: &[f64; CHUNK],
+        r: &[f64; CHUNK],
+        n: usize,
+        out: &mut ScalarBatch,
+    ) {
+        self(first, sensor, g, r, n, out)
+    }
+}
+
+/// The expected information's scalars: each sensor's as it reports.
+struct ExpectedScalars<'a> {
+    sensors: &'a [SensorTerm<'a>],
+    reads: TableReads,
+}
+
+impl BatchScalars for ExpectedScalars<'_> {
+    #[inline(always)]
+    fn scalars(
+        &mut self,
+        _first: usize,
+        sensor: usize,
+        g: &[f64; CHUNK],
+        r: &[f64; CHUNK],
+        n: usize,
+        out: &mut ScalarBatch,
+    ) {
+        match self.sensors[sensor].measurement {
+            Measurement::Quantized(q) => q.fisher_scalars_batch(g, r, n, out, &mut self.reads),
             Measurement::Raw => {
                 for (i, &r) in r[..n].iter().enumerate() {
                     out.set(i, FisherScalars::raw(r));
                 }
             }
         }
-    })
+    }
 }
 
 /// The Fisher scalars of one sensor at a batch of particles, as arrays.
@@ -315,7 +380,7 @@ pub fn observation_information_with(
     sensors: &[SensorTerm<'_>],
     particles: &[State],
     weights: &[f64],
-    mut scalars: impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
+    mut scalars: impl BatchScalars,
 ) -> Result<Mat4, BoundError> {
     check_weights(particles.len(), weights)?;
     if sensors.iter().all(|s| s.model.depends_on_position_only()) {
@@ -338,7 +403,7 @@ pub fn observation_information_with(
         for (k, s) in sensors.iter().enumerate() {
             let e = s.model.evaluate(x);
             (g[0], r[0]) = (e.g, e.r);
-            scalars(j, k, &g, &r, 1, &mut batch);
+            scalars.scalars(j, k, &g, &r, 1, &mut batch);
             per_particle += assemble(&batch.get(0), &e);
         }
         total += per_particle * w;
@@ -347,23 +412,12 @@ pub fn observation_information_with(
 }
 
 /// [`position_information_sum`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
 unsafe fn position_information_sum_avx2(
     sensors: &[SensorTerm<'_>],
     particles: &[State],
     weights: &[f64],
-    scalars: &mut impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
-) -> [f64; 3] {
-    position_information_sum(sensors, particles, weights, scalars)
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-unsafe fn position_information_sum_avx2(
-    sensors: &[SensorTerm<'_>],
-    particles: &[State],
-    weights: &[f64],
-    scalars: &mut impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
+    scalars: &mut impl BatchScalars,
 ) -> [f64; 3] {
     position_information_sum(sensors, particles, weights, scalars)
 }
@@ -377,7 +431,7 @@ fn position_information_sum(
     sensors: &[SensorTerm<'_>],
     particles: &[State],
     weights: &[f64],
-    scalars: &mut impl FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch),
+    scalars: &mut impl BatchScalars,
 ) -> [f64; 3] {
     let mut total = [0.0; 3];
     let mut e = Evaluations::default();
@@ -389,7 +443,7 @@ fn position_information_sum(
         per_particle.iter_mut().for_each(|p| p.fill(0.0));
         for (k, sensor) in sensors.iter().enumerate() {
             sensor.model.evaluate_batch(states, &at, &mut e);
-            scalars(c * CHUNK, k, &e.g, &e.r, n, &mut s);
+            scalars.scalars(c * CHUNK, k, &e.g, &e.r, n, &mut s);
             for i in 0..CHUNK {
                 let entries = position_entries(
                     (s.gg[i], s.gr[i], s.rr[i]),

@@ -16,7 +16,10 @@ use bounds::batch::{has_avx2, Positions, CHUNK};
 use bounds::observation::Evaluations;
 use bounds::quantizer::TableReads;
 use bounds::fisher::{observed_information, scalars_of_mean_and_variance};
-use bounds::pcrlb::{information_update, observation_information, observation_information_with};
+use bounds::pcrlb::{
+    information_update, observation_information, observation_information_with, BatchScalars,
+    ScalarBatch,
+};
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
     ObservationModel, Quantizer, SensorTerm, State,
@@ -231,26 +234,13 @@ impl SensingModel {
     ) -> Result<Mat4, BoundError> {
         ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
         let sensors = self.terms(observations);
-        let mut reads = TableReads::default();
-        observation_information_with(&sensors, particles, weights, |first, k, g, r, n, out| {
-            let observation = &observations[k];
-            let ln_likelihood = &mut ln_likelihood[first..first + n];
-            match (observation.value, &self.quantizer) {
-                (ObservedValue::Cell(cell), Some(q)) => {
-                    let mut ln_h = [0.0; CHUNK];
-                    q.ln_probability_and_fisher_batch(cell, g, r, n, &mut ln_h, out, &mut reads);
-                    for (l, h) in ln_likelihood.iter_mut().zip(ln_h) {
-                        *l += h;
-                    }
-                }
-                _ => {
-                    for (i, l) in ln_likelihood.iter_mut().enumerate() {
-                        *l += self.ln_likelihood_of(observation, g[i], r[i]);
-                        out.set(i, scalars_of_mean_and_variance(g[i], r[i], self.measurement()));
-                    }
-                }
-            }
-        })
+        let first_stage = FirstStage {
+            model: self,
+            observations,
+            ln_likelihood,
+            reads: TableReads::default(),
+        };
+        observation_information_with(&sensors, particles, weights, first_stage)
     }
 
     /// `J̄_s = Σ_j w_j J_Y,s(x_j)`: what sensor `s` would be expected to add
@@ -276,6 +266,50 @@ impl SensingModel {
             // For a raw Gaussian observation the expected and observed
             // information differ only by terms with zero mean; use the expected one.
             _ => bounds::expected_information(model, Measurement::Raw, x),
+        }
+    }
+}
+
+/// The local filter's first stage, as [`observation_information_with`]
+/// asks for its Fisher scalars: each batch's log-likelihoods added into
+/// `ln_likelihood` from the same evaluations and table reads. A named type,
+/// so that its `#[inline(always)]` method is compiled into the kernel's
+/// AVX2 copy.
+struct FirstStage<'a> {
+    model: &'a SensingModel,
+    observations: &'a [Observation],
+    ln_likelihood: &'a mut [f64],
+    reads: TableReads,
+}
+
+impl BatchScalars for FirstStage<'_> {
+    #[inline(always)]
+    fn scalars(
+        &mut self,
+        first: usize,
+        k: usize,
+        g: &[f64; CHUNK],
+        r: &[f64; CHUNK],
+        n: usize,
+        out: &mut ScalarBatch,
+    ) {
+        let observation = &self.observations[k];
+        let ln_likelihood = &mut self.ln_likelihood[first..first + n];
+        match (observation.value, &self.model.quantizer) {
+            (ObservedValue::Cell(cell), Some(q)) => {
+                let mut ln_h = [0.0; CHUNK];
+                q.ln_probability_and_fisher_batch(cell, g, r, n, &mut ln_h, out, &mut self.reads);
+                for (l, h) in ln_likelihood.iter_mut().zip(ln_h) {
+                    *l += h;
+                }
+            }
+            _ => {
+                let measurement = self.model.measurement();
+                for (i, l) in ln_likelihood.iter_mut().enumerate() {
+                    *l += self.model.ln_likelihood_of(observation, g[i], r[i]);
+                    out.set(i, scalars_of_mean_and_variance(g[i], r[i], measurement));
+                }
+            }
         }
     }
 }
