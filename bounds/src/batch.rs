@@ -1,19 +1,24 @@
 //! Per-particle arithmetic in batches that the compiler vectorises.
 //!
-//! The bounds' hot loops evaluate a sensor's model and its quantized
-//! likelihood and Fisher information at every particle. Written particle by
-//! particle, each evaluation is a chain of scalar operations and library
-//! calls (`atan2`) that no compiler vectorises. Here the same arithmetic is
-//! split into passes over a [`CHUNK`] of particles held as structure of
-//! arrays: branch-free loops that compile to 4-wide AVX2 where the CPU has
-//! it ([`vectorised`]), with the few lanes a pass cannot serve (special
-//! values, a table's edge) redone by the scalar code.
+//! The filters and bounds do the same arithmetic at every particle: a
+//! sensor's model and its quantized likelihood and Fisher information, the
+//! coordinated turn and its Jacobian, normal draws. Written particle by
+//! particle, each is a chain of scalar operations and library calls
+//! (`atan2`, `sincos`) that no compiler vectorises. Here the same
+//! arithmetic is split into passes over a [`CHUNK`] of particles held as
+//! arrays: branch-free loops that compile to 4-wide AVX2 in a kernel's
+//! copy compiled for it ([`has_avx2`]), with the few lanes a pass cannot
+//! serve (special values, a table's edge, a draw the ziggurat rejects)
+//! redone by the scalar code.
 //!
 //! Every pass gives the scalar code's result bit for bit: lanes do the same
 //! operations in the same order, and Rust never contracts a multiply and an
 //! add into an FMA, so a vectorised lane rounds exactly as the scalar code
-//! does. The tests hold each pass to that.
+//! does. The library functions the lanes replace are written out from the
+//! same source (fdlibm's `atan2` and `sincos`, as the `libm` crate has
+//! them; rand_distr's ziggurat). The tests hold each pass to that.
 
+use crate::ziggurat_tables::{ZIG_NORM_F as F, ZIG_NORM_R as R, ZIG_NORM_X as X};
 use crate::State;
 
 /// Particles per batch: enough for the vector loops to run long, few
@@ -64,29 +69,6 @@ impl Positions {
     }
 }
 
-/// fdlibm's (the `libm` crate's) `atan2(y, x)` lane by lane, equal to it
-/// bit for bit. The branches of its argument reduction become selects, so
-/// the loop vectorises; lanes with an argument it treats specially (zero,
-/// infinite or NaN, subnormal, or |y/x| beyond 2^±60) are redone by
-/// `libm::atan2` itself.
-#[inline(always)]
-pub fn atan2(y: &[f64; CHUNK], x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
-    let mut ordinary = [false; CHUNK];
-    for i in 0..CHUNK {
-        let (r, ok) = atan2_ordinary(y[i], x[i]);
-        out[i] = r;
-        ordinary[i] = ok;
-    }
-    if ordinary.iter().all(|&ok| ok) {
-        return;
-    }
-    for i in 0..CHUNK {
-        if !ordinary[i] {
-            out[i] = libm::atan2(y[i], x[i]);
-        }
-    }
-}
-
 /// The states, component by component: `c[k][i]` is component k of
 /// lane i's state. Lanes past the last state repeat it, as in
 /// [`Positions::of`].
@@ -112,182 +94,40 @@ impl StateLanes {
     }
 }
 
-/// fdlibm's (the `libm` crate's) `sincos(x)` lane by lane, equal to it bit
-/// for bit: its polynomial kernels where `2^-27 √2 ≤ |x| ≤ π/4`, `(x, 1)`
-/// below, and `libm::sincos` itself for the lanes beyond (those needing
-/// its argument reduction, or not finite).
+/// Constants written by their bits, as fdlibm's source gives them.
+const fn bits<const N: usize>(b: [u64; N]) -> [f64; N] {
+    let mut out = [0.0; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = f64::from_bits(b[i]);
+        i += 1;
+    }
+    out
+}
+
+/// fdlibm's (the `libm` crate's) `atan2(y, x)` lane by lane, equal to it
+/// bit for bit. The branches of its argument reduction become selects, so
+/// the loop vectorises; lanes with an argument it treats specially (zero,
+/// infinite or NaN, subnormal, or |y/x| beyond 2^±60) are redone by
+/// `libm::atan2` itself.
 #[inline(always)]
-pub fn sincos(x: &[f64; CHUNK], sin: &mut [f64; CHUNK], cos: &mut [f64; CHUNK]) {
+pub fn atan2(y: &[f64; CHUNK], x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
     let mut ordinary = [false; CHUNK];
     for i in 0..CHUNK {
-        let (s, c, ok) = sincos_ordinary(x[i]);
-        (sin[i], cos[i], ordinary[i]) = (s, c, ok);
+        let (r, ok) = atan2_ordinary(y[i], x[i]);
+        out[i] = r;
+        ordinary[i] = ok;
     }
     if ordinary.iter().all(|&ok| ok) {
         return;
     }
     for i in 0..CHUNK {
         if !ordinary[i] {
-            (sin[i], cos[i]) = libm::sincos(x[i]);
+            out[i] = libm::atan2(y[i], x[i]);
         }
     }
 }
 
-const S: [f64; 6] = bits([
-    0xBFC5_5555_5555_5549,
-    0x3F81_1111_1110_F8A6,
-    0xBF2A_01A0_19C1_61D5,
-    0x3EC7_1DE3_57B1_FE7D,
-    0xBE5A_E5E6_8A2B_9CEB,
-    0x3DE5_D93A_5ACF_D57C,
-]);
-const C: [f64; 6] = bits([
-    0x3FA5_5555_5555_554C,
-    0xBF56_C16C_16C1_5177,
-    0x3EFA_01A0_19CB_1590,
-    0xBE92_7E4F_809C_52AD,
-    0x3E21_EE9E_BDB4_B1C4,
-    0xBDA8_FAE9_BE88_38D4,
-]);
-
-/// One lane of [`sincos`]: `(sin, cos, ordinary)`. Branch-free.
-#[inline(always)]
-fn sincos_ordinary(x: f64) -> (f64, f64, bool) {
-    let ix = (x.to_bits() >> 32) & 0x7fff_ffff;
-    // |x| ≤ π/4 by fdlibm's high word; below 2^-27 √2 it returns (x, 1).
-    let ordinary = ix <= 0x3fe9_21fb;
-    let tiny = ix < 0x3e46_a09e;
-    // k_sin(x, 0, 0)
-    let z = x * x;
-    let w = z * z;
-    let r = S[1] + z * (S[2] + z * S[3]) + z * w * (S[4] + z * S[5]);
-    let v = z * x;
-    let sin = x + v * (S[0] + z * r);
-    // k_cos(x, 0), its tail `x * y` with y = 0 kept for the sign of zero.
-    let r = z * (C[0] + z * (C[1] + z * C[2])) + w * w * (C[3] + z * (C[4] + z * C[5]));
-    let hz = 0.5 * z;
-    let one_less = 1.0 - hz;
-    let cos = one_less + (((1.0 - one_less) - hz) + (z * r - x * 0.0));
-    if tiny {
-        (x, 1.0, ordinary)
-    } else {
-        (sin, cos, ordinary)
-    }
-}
-
-/// `out.len()` draws of `rand_distr::StandardNormal`: exactly those that
-/// `rng.sample(StandardNormal)` gives one call at a time, leaving `rng`
-/// where those calls would (the test holds ChaCha to that). The words are
-/// taken in bulk (`fill_bytes`), which for rand's generators, block ones
-/// like ChaCha and word ones alike, gives the words of `next_u64`.
-///
-/// rand_distr's ziggurat takes one 64-bit word a try, and accepts the
-/// first try of 98.8 % of draws. Here the first tries of up to [`CHUNK`]
-/// draws are made at once, vectorised; a draw whose first try fails goes
-/// on as rand_distr's does, taking its further words from the batch's
-/// unused ones first, which then move up for the next draws. The words
-/// are the same, in the same order, so every draw is.
-#[inline(always)]
-pub fn standard_normals<R: rand::RngCore + ?Sized>(rng: &mut R, out: &mut [f64]) {
-    // Words drawn and not yet used: `words[start..end]`. Never more than
-    // draws remain, since every draw uses at least one.
-    let mut words = [0u64; CHUNK];
-    let (mut start, mut end) = (0, 0);
-    let mut done = 0;
-    while done < out.len() {
-        words.copy_within(start..end, 0);
-        end -= start;
-        let wanted = (out.len() - done).min(CHUNK);
-        if end < wanted {
-            // In bulk: a block generator's bytes are its 32-bit words in
-            // order, little-endian, two to a `next_u64` (low word first),
-            // so these are the words `next_u64` would give one by one.
-            let mut bytes = [0u8; 8 * CHUNK];
-            let bytes = &mut bytes[..8 * (wanted - end)];
-            rng.fill_bytes(bytes);
-            for (w, b) in words[end..wanted].iter_mut().zip(bytes.chunks_exact(8)) {
-                *w = u64::from_le_bytes(b.try_into().expect("eight bytes"));
-            }
-            end = wanted;
-        }
-        let (mut x, mut accepted) = ([0.0; CHUNK], [false; CHUNK]);
-        for j in 0..CHUNK {
-            (x[j], accepted[j]) = first_try(words[j]);
-        }
-        let run = accepted[..end].iter().position(|&ok| !ok).unwrap_or(end);
-        out[done..done + run].copy_from_slice(&x[..run]);
-        (done, start) = (done + run, run);
-        if start < end {
-            let rejected = words[start];
-            start += 1;
-            let mut next = || {
-                if start < end {
-                    start += 1;
-                    words[start - 1]
-                } else {
-                    rng.next_u64()
-                }
-            };
-            out[done] = after_first_try(rejected, &mut next);
-            done += 1;
-        }
-    }
-}
-
-use crate::ziggurat_tables::{ZIG_NORM_F as F, ZIG_NORM_R as R, ZIG_NORM_X as X};
-
-/// The ziggurat's try with the word `bits`: its x, and whether x is
-/// accepted outright. As rand_distr's `ziggurat` (symmetric): the low 8
-/// bits pick the layer, the high 52 make u in [−1, 1).
-#[inline(always)]
-fn first_try(bits: u64) -> (f64, bool) {
-    let i = (bits & 0xff) as usize;
-    let u = f64::from_bits((bits >> 12) | (1024 << 52)) - 3.0;
-    let x = u * X[i];
-    (x, x.abs() < X[i + 1])
-}
-
-/// The rest of rand_distr's ziggurat for a draw whose try with `bits`
-/// was not accepted outright, each further word from `next`.
-#[cold]
-fn after_first_try(mut bits: u64, next: &mut impl FnMut() -> u64) -> f64 {
-    loop {
-        let i = (bits & 0xff) as usize;
-        let u = f64::from_bits((bits >> 12) | (1024 << 52)) - 3.0;
-        let x = u * X[i];
-        if x.abs() < X[i + 1] {
-            return x;
-        }
-        if i == 0 {
-            return normal_tail(u, next);
-        }
-        // StandardUniform's f64: the top 53 bits over 2^53.
-        let uniform = (next() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-        if F[i + 1] + (F[i] - F[i + 1]) * uniform < (-x * x / 2.0).exp() {
-            return x;
-        }
-        bits = next();
-    }
-}
-
-/// rand_distr's draw from the normal's tail beyond R (its `zero_case`).
-fn normal_tail(u: f64, next: &mut impl FnMut() -> u64) -> f64 {
-    // Open01's f64: the top 52 bits as a mantissa in [1, 2), less 1 − ε/2.
-    let mut open01 = || f64::from_bits((next() >> 12) | (1023 << 52)) - (1.0 - f64::EPSILON / 2.0);
-    let (mut x, mut y) = (1.0f64, 0.0f64);
-    while -2.0 * y < x * x {
-        let (x_, y_) = (open01(), open01());
-        x = x_.ln() / R;
-        y = y_.ln();
-    }
-    if u < 0.0 {
-        x - R
-    } else {
-        R - x
-    }
-}
-
-// fdlibm's constants, by their bits (as its source gives them).
 /// atan(0.5), atan(1), atan(1.5), atan(∞), high parts.
 const ATANHI: [f64; 4] = bits([
     0x3FDD_AC67_0561_BB4F,
@@ -318,16 +158,6 @@ const AT: [f64; 11] = bits([
 ]);
 const PI: f64 = f64::from_bits(0x4009_21FB_5444_2D18);
 const PI_LO: f64 = f64::from_bits(0x3CA1_A626_3314_5C07);
-
-const fn bits<const N: usize>(b: [u64; N]) -> [f64; N] {
-    let mut out = [0.0; N];
-    let mut i = 0;
-    while i < N {
-        out[i] = f64::from_bits(b[i]);
-        i += 1;
-    }
-    out
-}
 
 /// One lane of [`atan2`]: the result, and whether the lane is ordinary
 /// (otherwise the result is to be discarded). Branch-free.
@@ -406,6 +236,181 @@ fn atan2_ordinary(y: f64, x: f64) -> (f64, bool) {
         (true, true) => (a - PI_LO) - PI,
     };
     (result, ordinary)
+}
+
+/// fdlibm's (the `libm` crate's) `sincos(x)` lane by lane, equal to it bit
+/// for bit: its polynomial kernels where `2^-27 √2 ≤ |x| ≤ π/4`, `(x, 1)`
+/// below, and `libm::sincos` itself for the lanes beyond (those needing
+/// its argument reduction, or not finite).
+#[inline(always)]
+pub fn sincos(x: &[f64; CHUNK], sin: &mut [f64; CHUNK], cos: &mut [f64; CHUNK]) {
+    let mut ordinary = [false; CHUNK];
+    for i in 0..CHUNK {
+        let (s, c, ok) = sincos_ordinary(x[i]);
+        (sin[i], cos[i], ordinary[i]) = (s, c, ok);
+    }
+    if ordinary.iter().all(|&ok| ok) {
+        return;
+    }
+    for i in 0..CHUNK {
+        if !ordinary[i] {
+            (sin[i], cos[i]) = libm::sincos(x[i]);
+        }
+    }
+}
+
+/// k_sin's coefficients.
+const S: [f64; 6] = bits([
+    0xBFC5_5555_5555_5549,
+    0x3F81_1111_1110_F8A6,
+    0xBF2A_01A0_19C1_61D5,
+    0x3EC7_1DE3_57B1_FE7D,
+    0xBE5A_E5E6_8A2B_9CEB,
+    0x3DE5_D93A_5ACF_D57C,
+]);
+/// k_cos's coefficients.
+const C: [f64; 6] = bits([
+    0x3FA5_5555_5555_554C,
+    0xBF56_C16C_16C1_5177,
+    0x3EFA_01A0_19CB_1590,
+    0xBE92_7E4F_809C_52AD,
+    0x3E21_EE9E_BDB4_B1C4,
+    0xBDA8_FAE9_BE88_38D4,
+]);
+
+/// One lane of [`sincos`]: `(sin, cos, ordinary)`. Branch-free.
+#[inline(always)]
+fn sincos_ordinary(x: f64) -> (f64, f64, bool) {
+    let ix = (x.to_bits() >> 32) & 0x7fff_ffff;
+    // |x| ≤ π/4 by fdlibm's high word; below 2^-27 √2 it returns (x, 1).
+    let ordinary = ix <= 0x3fe9_21fb;
+    let tiny = ix < 0x3e46_a09e;
+    // k_sin(x, 0, 0)
+    let z = x * x;
+    let w = z * z;
+    let r = S[1] + z * (S[2] + z * S[3]) + z * w * (S[4] + z * S[5]);
+    let v = z * x;
+    let sin = x + v * (S[0] + z * r);
+    // k_cos(x, 0), its tail `x * y` with y = 0 kept for the sign of zero.
+    let r = z * (C[0] + z * (C[1] + z * C[2])) + w * w * (C[3] + z * (C[4] + z * C[5]));
+    let hz = 0.5 * z;
+    let one_less = 1.0 - hz;
+    let cos = one_less + (((1.0 - one_less) - hz) + (z * r - x * 0.0));
+    if tiny {
+        (x, 1.0, ordinary)
+    } else {
+        (sin, cos, ordinary)
+    }
+}
+
+/// `out.len()` draws of `rand_distr::StandardNormal`: exactly those that
+/// `rng.sample(StandardNormal)` gives one call at a time, leaving `rng`
+/// where those calls would (the test holds ChaCha to that). The words are
+/// taken in bulk (`fill_bytes`), which for rand's generators, block ones
+/// like ChaCha and word ones alike, gives the words of `next_u64`.
+///
+/// rand_distr's ziggurat takes one 64-bit word a try, and accepts the
+/// first try of 98.8 % of draws. Here the first tries of up to [`CHUNK`]
+/// draws are made at once, vectorised; a draw whose first try fails goes
+/// on as rand_distr's does, taking its further words from the batch's
+/// unused ones first, which then move up for the next draws. The words
+/// are the same, in the same order, so every draw is.
+#[inline(always)]
+pub fn standard_normals<G: rand::RngCore + ?Sized>(rng: &mut G, out: &mut [f64]) {
+    // Words drawn and not yet used: `words[start..end]`. Never more than
+    // draws remain, since every draw uses at least one.
+    let mut words = [0u64; CHUNK];
+    let (mut start, mut end) = (0, 0);
+    let mut done = 0;
+    while done < out.len() {
+        words.copy_within(start..end, 0);
+        end -= start;
+        let wanted = (out.len() - done).min(CHUNK);
+        if end < wanted {
+            // In bulk: a block generator's bytes are its 32-bit words in
+            // order, little-endian, two to a `next_u64` (low word first),
+            // so these are the words `next_u64` would give one by one.
+            let mut bytes = [0u8; 8 * CHUNK];
+            let bytes = &mut bytes[..8 * (wanted - end)];
+            rng.fill_bytes(bytes);
+            for (w, b) in words[end..wanted].iter_mut().zip(bytes.chunks_exact(8)) {
+                *w = u64::from_le_bytes(b.try_into().expect("eight bytes"));
+            }
+            end = wanted;
+        }
+        let (mut x, mut accepted) = ([0.0; CHUNK], [false; CHUNK]);
+        for j in 0..CHUNK {
+            (x[j], accepted[j]) = first_try(words[j]);
+        }
+        let run = accepted[..end].iter().position(|&ok| !ok).unwrap_or(end);
+        out[done..done + run].copy_from_slice(&x[..run]);
+        (done, start) = (done + run, run);
+        if start < end {
+            let rejected = words[start];
+            start += 1;
+            let mut next = || {
+                if start < end {
+                    start += 1;
+                    words[start - 1]
+                } else {
+                    rng.next_u64()
+                }
+            };
+            out[done] = after_first_try(rejected, &mut next);
+            done += 1;
+        }
+    }
+}
+
+/// The ziggurat's try with the word `bits`: its x, and whether x is
+/// accepted outright. As rand_distr's `ziggurat` (symmetric): the low 8
+/// bits pick the layer, the high 52 make u in [−1, 1).
+#[inline(always)]
+fn first_try(bits: u64) -> (f64, bool) {
+    let i = (bits & 0xff) as usize;
+    let u = f64::from_bits((bits >> 12) | (1024 << 52)) - 3.0;
+    let x = u * X[i];
+    (x, x.abs() < X[i + 1])
+}
+
+/// The rest of rand_distr's ziggurat for a draw whose try with `bits`
+/// was not accepted outright, each further word from `next`.
+#[cold]
+fn after_first_try(mut bits: u64, next: &mut impl FnMut() -> u64) -> f64 {
+    loop {
+        let i = (bits & 0xff) as usize;
+        let u = f64::from_bits((bits >> 12) | (1024 << 52)) - 3.0;
+        let x = u * X[i];
+        if x.abs() < X[i + 1] {
+            return x;
+        }
+        if i == 0 {
+            return normal_tail(u, next);
+        }
+        // StandardUniform's f64: the top 53 bits over 2^53.
+        let uniform = (next() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+        if F[i + 1] + (F[i] - F[i + 1]) * uniform < (-x * x / 2.0).exp() {
+            return x;
+        }
+        bits = next();
+    }
+}
+
+/// rand_distr's draw from the normal's tail beyond R (its `zero_case`).
+fn normal_tail(u: f64, next: &mut impl FnMut() -> u64) -> f64 {
+    // Open01's f64: the top 52 bits as a mantissa in [1, 2), less 1 − ε/2.
+    let mut open01 = || f64::from_bits((next() >> 12) | (1023 << 52)) - (1.0 - f64::EPSILON / 2.0);
+    let (mut x, mut y) = (1.0f64, 0.0f64);
+    while -2.0 * y < x * x {
+        let (x_, y_) = (open01(), open01());
+        x = x_.ln() / R;
+        y = y_.ln();
+    }
+    if u < 0.0 {
+        x - R
+    } else {
+        R - x
+    }
 }
 
 #[cfg(test)]

@@ -105,9 +105,10 @@ impl Spread {
 }
 
 /// What the tables are read at, for a batch of means and variances, as
-/// arrays: each lane's [`Spread`], and where the likelihood table reads
-/// along v. Found in one branch-free pass over every lane. A caller keeps
-/// one across its batches, so that its arrays are set up once.
+/// arrays: each lane's σ, 1/σ and σ/Δ, the rows over σ/Δ, and where the
+/// likelihood table reads along v. Found in plain passes over every lane,
+/// which vectorise. A caller keeps one across its batches, so that its
+/// arrays are set up once.
 pub struct TableReads {
     sigma: [f64; CHUNK],
     per_sigma: [f64; CHUNK],
