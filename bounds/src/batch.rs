@@ -416,9 +416,9 @@ fn normal_tail(u: f64, next: &mut impl FnMut() -> u64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::f64::consts::FRAC_PI_4;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+    use std::f64::consts::FRAC_PI_4;
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
@@ -511,7 +511,8 @@ mod tests {
             for i in 0..CHUNK {
                 let (ws, wc) = libm::sincos(x[i]);
                 for (gs, gc) in [(s[i], c[i]), (sv[i], cv[i])] {
-                    let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+                    let same =
+                        |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
                     assert!(
                         same(gs, ws) && same(gc, wc),
                         "sincos({:e}) = ({gs:e}, {gc:e}), libm ({ws:e}, {wc:e})",
@@ -573,7 +574,8 @@ mod tests {
             for i in 0..CHUNK {
                 let scale = 10f64.powf(rng.random_range(-3.0..4.0));
                 y[i] = rng.random_range(-1.0..1.0) * scale;
-                x[i] = rng.random_range(-1.0..1.0) * scale * 10f64.powf(rng.random_range(-2.0..2.0));
+                x[i] =
+                    rng.random_range(-1.0..1.0) * scale * 10f64.powf(rng.random_range(-2.0..2.0));
             }
             check(&y, &x);
         }

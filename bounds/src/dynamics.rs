@@ -174,8 +174,18 @@ impl CoordinatedTurn {
             }
         };
         (
-            [entry(0, 0, dw_dvx), entry(0, 1, dw_dvy), entry(1, 0, dw_dvx), entry(1, 1, dw_dvy)],
-            [entry(2, 0, dw_dvx), entry(2, 1, dw_dvy), entry(3, 0, dw_dvx), entry(3, 1, dw_dvy)],
+            [
+                entry(0, 0, dw_dvx),
+                entry(0, 1, dw_dvy),
+                entry(1, 0, dw_dvx),
+                entry(1, 1, dw_dvy),
+            ],
+            [
+                entry(2, 0, dw_dvx),
+                entry(2, 1, dw_dvy),
+                entry(3, 0, dw_dvx),
+                entry(3, 1, dw_dvy),
+            ],
         )
     }
 
@@ -405,7 +415,6 @@ impl TurnTerms {
             general
         }
     }
-
 }
 
 #[cfg(test)]
@@ -413,8 +422,8 @@ mod tests {
     use super::*;
     use crate::testing::{central_jacobian, random_state};
     use rand::{Rng, SeedableRng};
-    use std::f64::consts::PI;
     use rand_chacha::ChaCha8Rng;
+    use std::f64::consts::PI;
 
     fn turning() -> CoordinatedTurn {
         CoordinatedTurn {
@@ -443,7 +452,11 @@ mod tests {
             maneuver_accel: 40.0,
             ..turning()
         };
-        for model in [turning(), sharp, CoordinatedTurn::constant_velocity(1.0, 0.5)] {
+        for model in [
+            turning(),
+            sharp,
+            CoordinatedTurn::constant_velocity(1.0, 0.5),
+        ] {
             for n in [CHUNK, 17] {
                 let mut states: Vec<State> = (0..n)
                     .map(|_| {

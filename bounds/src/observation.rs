@@ -358,10 +358,26 @@ mod tests {
     #[test]
     fn the_batch_is_evaluate_bit_for_bit() {
         let laws = [
-            SensorLaw::Bearing { sigma_theta: 0.05, d0: 200.0 },
-            SensorLaw::Rss { p0: -30.0, zeta: 3.0, d0: 1.0, sigma: 2.0 },
-            SensorLaw::Amplitude { p0: 100.0, alpha: 0.01, exponent: 2.0, sigma: 0.5 },
-            SensorLaw::Linear { h: [1.0, -2.0, 0.0, 0.0], r: 3.0 },
+            SensorLaw::Bearing {
+                sigma_theta: 0.05,
+                d0: 200.0,
+            },
+            SensorLaw::Rss {
+                p0: -30.0,
+                zeta: 3.0,
+                d0: 1.0,
+                sigma: 2.0,
+            },
+            SensorLaw::Amplitude {
+                p0: 100.0,
+                alpha: 0.01,
+                exponent: 2.0,
+                sigma: 0.5,
+            },
+            SensorLaw::Linear {
+                h: [1.0, -2.0, 0.0, 0.0],
+                r: 3.0,
+            },
         ];
         let mut rng = ChaCha8Rng::seed_from_u64(8);
         for law in laws {
@@ -395,7 +411,9 @@ mod tests {
                     for b in [&plain, &wide] {
                         let got = [b.g[i], b.r[i], b.gx[i], b.gy[i], b.rx[i], b.ry[i]];
                         assert!(
-                            got.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()),
+                            got.iter()
+                                .zip(want)
+                                .all(|(a, b)| a.to_bits() == b.to_bits()),
                             "{law:?} at {x:?}: {got:?} vs {want:?}"
                         );
                     }

@@ -17,8 +17,8 @@
 use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
-use crate::dynamics::{Dynamics, TurnBatch};
 use crate::batch::{has_avx2, Positions, StateLanes, CHUNK};
+use crate::dynamics::{Dynamics, TurnBatch};
 use crate::fisher::{assemble, position_entries, Measurement};
 use crate::observation::{Evaluations, ObservationModel};
 use crate::quantizer::{FisherScalars, TableReads};
@@ -71,7 +71,12 @@ pub fn dynamics_terms(
 
 /// Adds every particle's Jacobian to `sum`, a batch at a time.
 #[inline(always)]
-fn add_batches(dynamics: &Dynamics, particles: &[State], weights: &[f64], sum: &mut DynamicsTermsSum) {
+fn add_batches(
+    dynamics: &Dynamics,
+    particles: &[State],
+    weights: &[f64],
+    sum: &mut DynamicsTermsSum,
+) {
     let mut batch = TurnBatch::default();
     for (states, ws) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)) {
         dynamics.transition_batch(&StateLanes::of(states), &mut batch);
@@ -437,7 +442,11 @@ fn position_information_sum(
     let mut e = Evaluations::default();
     let mut s = ScalarBatch::default();
     let mut per_particle = [[0.0; CHUNK]; 3];
-    for (c, (states, ws)) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)).enumerate() {
+    for (c, (states, ws)) in particles
+        .chunks(CHUNK)
+        .zip(weights.chunks(CHUNK))
+        .enumerate()
+    {
         let n = states.len();
         let at = Positions::of(states);
         per_particle.iter_mut().for_each(|p| p.fill(0.0));

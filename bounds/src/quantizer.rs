@@ -3,8 +3,8 @@
 
 use std::f64::consts::FRAC_1_SQRT_2;
 
-use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
 use crate::batch::CHUNK;
+use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
 use crate::pcrlb::ScalarBatch;
 use crate::width_axis::{self, Stencil};
 use crate::QuantizerError;
@@ -164,7 +164,8 @@ impl TableReads {
             r.window_tabled[i] = Quantizer::window_tabled(cells, mean[i], sigma);
         }
         for i in 0..CHUNK {
-            let (inside, rows) = width_axis::stencil_lane(Spread::half_width(cells, r.per_sigma[i]));
+            let (inside, rows) =
+                width_axis::stencil_lane(Spread::half_width(cells, r.per_sigma[i]));
             r.rows_ok[i] = inside;
             r.first[i] = rows.first;
             for (a, w) in rows.weights.into_iter().enumerate() {
@@ -513,7 +514,8 @@ impl Quantizer {
         mean: f64,
         spread: &Spread,
     ) -> Option<f64> {
-        let v = Self::mass_offset(cells, index, mean, spread.sigma, crate::floor)? * spread.per_sigma;
+        let v =
+            Self::mass_offset(cells, index, mean, spread.sigma, crate::floor)? * spread.per_sigma;
         let at = crate::mass_table::point(v)?;
         Some(crate::mass_table::table().read(&at, v, spread.rows.as_ref()?))
     }
@@ -616,7 +618,10 @@ impl Quantizer {
         for (i, l) in ln_h[..n].iter_mut().enumerate() {
             *l = self.ln_probability_of_lane(index, reads, i, mean, variance);
             let spread = reads.spread(i);
-            out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
+            out.set(
+                i,
+                self.fisher_of_lane(cells, reads, &spread, i, mean, variance),
+            );
         }
     }
 
@@ -693,7 +698,10 @@ impl Quantizer {
         reads.find::<false>(cells, 0, mean, variance);
         for i in 0..n {
             let spread = reads.spread(i);
-            out.set(i, self.fisher_of_lane(cells, reads, &spread, i, mean, variance));
+            out.set(
+                i,
+                self.fisher_of_lane(cells, reads, &spread, i, mean, variance),
+            );
         }
     }
 
@@ -1018,18 +1026,37 @@ mod tests {
                     }
                     let mut plain = ([0.0; CHUNK], ScalarBatch::default());
                     q.ln_probability_and_fisher_batch(
-                        index, &mean, &variance, n, &mut plain.0, &mut plain.1, &mut reads,
+                        index,
+                        &mean,
+                        &variance,
+                        n,
+                        &mut plain.0,
+                        &mut plain.1,
+                        &mut reads,
                     );
                     let mut fisher_only = ScalarBatch::default();
                     q.fisher_scalars_batch(&mean, &variance, n, &mut fisher_only, &mut reads);
                     let mut likelihood_only = [0.0; CHUNK];
-                    q.ln_probability_batch(index, &mean, &variance, n, &mut likelihood_only, &mut reads);
+                    q.ln_probability_batch(
+                        index,
+                        &mean,
+                        &variance,
+                        n,
+                        &mut likelihood_only,
+                        &mut reads,
+                    );
                     let mut wide = ([0.0; CHUNK], ScalarBatch::default());
                     if crate::batch::has_avx2() {
                         // SAFETY: the CPU has AVX2.
                         unsafe {
                             batch_avx2(
-                                q, index, &mean, &variance, n, &mut wide.0, &mut wide.1,
+                                q,
+                                index,
+                                &mean,
+                                &variance,
+                                n,
+                                &mut wide.0,
+                                &mut wide.1,
                                 &mut reads,
                             )
                         };
@@ -1041,11 +1068,16 @@ mod tests {
                         assert_eq!(f, q.fisher_scalars(mean[i], variance[i]));
                         assert_eq!(
                             likelihood_only[i].to_bits(),
-                            q.ln_probability_interpolated(index, mean[i], variance[i]).to_bits()
+                            q.ln_probability_interpolated(index, mean[i], variance[i])
+                                .to_bits()
                         );
                         assert_eq!(ln_h.to_bits(), likelihood_only[i].to_bits());
                         let with_fisher_only = (ln_h, &fisher_only);
-                        for (l, out) in [(plain.0[i], &plain.1), (wide.0[i], &wide.1), with_fisher_only] {
+                        for (l, out) in [
+                            (plain.0[i], &plain.1),
+                            (wide.0[i], &wide.1),
+                            with_fisher_only,
+                        ] {
                             let same = |a: f64, b: f64| a.to_bits() == b.to_bits();
                             assert!(
                                 same(l, ln_h)

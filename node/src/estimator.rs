@@ -11,15 +11,15 @@
 
 use std::f64::consts::PI;
 
-use bounds::censoring::{CensoringRule, Innovation};
 use bounds::batch::{has_avx2, Positions, CHUNK};
-use bounds::observation::Evaluations;
-use bounds::quantizer::TableReads;
+use bounds::censoring::{CensoringRule, Innovation};
 use bounds::fisher::{observed_information, scalars_of_mean_and_variance};
+use bounds::observation::Evaluations;
 use bounds::pcrlb::{
     information_update, observation_information, observation_information_with, BatchScalars,
     ScalarBatch,
 };
+use bounds::quantizer::TableReads;
 use bounds::{
     wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
     ObservationModel, Quantizer, SensorTerm, State,
@@ -134,7 +134,12 @@ impl SensingModel {
     /// particle by particle, but each observing sensor's model and the
     /// likelihood table's reads taken a batch of particles at a time,
     /// vectorised ([`bounds::batch`]).
-    pub fn ln_likelihoods(&self, observations: &[Observation], particles: &[State], out: &mut [f64]) {
+    pub fn ln_likelihoods(
+        &self,
+        observations: &[Observation],
+        particles: &[State],
+        out: &mut [f64],
+    ) {
         #[cfg(target_arch = "x86_64")]
         {
             #[target_feature(enable = "avx2")]
@@ -174,7 +179,14 @@ impl SensingModel {
                 match (o.value, &self.quantizer) {
                     (ObservedValue::Cell(cell), Some(q)) => {
                         let mut ln_h = [0.0; CHUNK];
-                        q.ln_probability_batch(cell, &e.g, &e.r, states.len(), &mut ln_h, &mut reads);
+                        q.ln_probability_batch(
+                            cell,
+                            &e.g,
+                            &e.r,
+                            states.len(),
+                            &mut ln_h,
+                            &mut reads,
+                        );
                         for (l, h) in out.iter_mut().zip(ln_h) {
                             *l += h;
                         }

@@ -2,10 +2,10 @@
 //! (log-likelihood weights), systematic resampler, and Gaussian summaries.
 //! Buffers are allocated once; a step allocates nothing.
 
-use bounds::pcrlb::DynamicsTermsSum;
-pub use bounds::Gaussian;
 use bounds::batch::{has_avx2, StateLanes, CHUNK};
 use bounds::dynamics::TurnBatch;
+use bounds::pcrlb::DynamicsTermsSum;
+pub use bounds::Gaussian;
 use bounds::{BoundError, Dynamics, DynamicsTerms, Mat4, State};
 use nalgebra::Cholesky;
 use rand::Rng;
@@ -138,7 +138,9 @@ impl ParticleFilter {
         let mut sum = DynamicsTermsSum::new(dynamics);
         let weight = 1.0 / self.particles.len() as f64;
         let weights = [weight; CHUNK];
-        self.advance(dynamics, rng, |batch, n| sum.add_batch(batch, &weights[..n]));
+        self.advance(dynamics, rng, |batch, n| {
+            sum.add_batch(batch, &weights[..n])
+        });
         Ok((sum.total(), self.summary()))
     }
 
@@ -394,6 +396,10 @@ impl ParticleFilter {
 
 /// `h²` of the Gaussian kernel for `n` particles of dimension 4, below 1
 /// for every `n ≥ 1` (so the shrinkage `√(1 − h²)` is real).
+fn kernel_bandwidth_squared(n: usize) -> f64 {
+    (4.0 / (n.max(1) as f64 * 6.0)).powf(1.0 / 4.0)
+}
+
 /// Each state of `chunk` moved to its transition in `batch` plus a draw of
 /// the process noise `ξ ~ N(0, Q)`, with the factor and the draws that
 /// [`Dynamics::sample_noise`] takes.
@@ -445,10 +451,6 @@ fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
         }
     }
     dynamics.transition_batch(x, out)
-}
-
-fn kernel_bandwidth_squared(n: usize) -> f64 {
-    (4.0 / (n.max(1) as f64 * 6.0)).powf(1.0 / 4.0)
 }
 
 /// Weighted mean and covariance.
