@@ -554,6 +554,13 @@ impl Quantizer {
         }
     }
 
+    /// The uniform cells, if the tables serve this quantizer and a batch of
+    /// `n` lanes is long enough to pay for finding their reads in a pass.
+    #[inline(always)]
+    fn batch_cells(&self, n: usize) -> Option<&UniformCells> {
+        self.uniform.as_ref().filter(|_| n >= CHUNK / 4)
+    }
+
     /// [`ln_probability_interpolated`](Self::ln_probability_interpolated)
     /// of cell `index` and [`fisher_scalars`](Self::fisher_scalars), equal
     /// to the two called apart, with what they share (σ, 1/σ and the rows
@@ -603,16 +610,13 @@ impl Quantizer {
         out: &mut ScalarBatch,
         reads: &mut TableReads,
     ) {
-        let cells = match self.uniform.as_ref() {
-            Some(cells) if n >= CHUNK / 4 => cells,
-            _ => {
-                for i in 0..n {
-                    let (l, f) = self.ln_probability_and_fisher(index, mean[i], variance[i]);
-                    ln_h[i] = l;
-                    out.set(i, f);
-                }
-                return;
+        let Some(cells) = self.batch_cells(n) else {
+            for i in 0..n {
+                let (l, f) = self.ln_probability_and_fisher(index, mean[i], variance[i]);
+                ln_h[i] = l;
+                out.set(i, f);
             }
+            return;
         };
         reads.find::<true>(cells, index, mean, variance);
         for (i, l) in ln_h[..n].iter_mut().enumerate() {
@@ -639,14 +643,11 @@ impl Quantizer {
         ln_h: &mut [f64; CHUNK],
         reads: &mut TableReads,
     ) {
-        let cells = match self.uniform.as_ref() {
-            Some(cells) if n >= CHUNK / 4 => cells,
-            _ => {
-                for i in 0..n {
-                    ln_h[i] = self.ln_probability_interpolated(index, mean[i], variance[i]);
-                }
-                return;
+        let Some(cells) = self.batch_cells(n) else {
+            for i in 0..n {
+                ln_h[i] = self.ln_probability_interpolated(index, mean[i], variance[i]);
             }
+            return;
         };
         reads.find::<true>(cells, index, mean, variance);
         for (i, l) in ln_h[..n].iter_mut().enumerate() {
@@ -686,14 +687,11 @@ impl Quantizer {
         out: &mut ScalarBatch,
         reads: &mut TableReads,
     ) {
-        let cells = match self.uniform.as_ref() {
-            Some(cells) if n >= CHUNK / 4 => cells,
-            _ => {
-                for i in 0..n {
-                    out.set(i, self.fisher_scalars(mean[i], variance[i]));
-                }
-                return;
+        let Some(cells) = self.batch_cells(n) else {
+            for i in 0..n {
+                out.set(i, self.fisher_scalars(mean[i], variance[i]));
             }
+            return;
         };
         reads.find::<false>(cells, 0, mean, variance);
         for i in 0..n {
