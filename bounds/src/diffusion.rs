@@ -3,7 +3,7 @@
 //!
 //! Under random exchange, node r's posterior at step n is the one its
 //! exchange partner held at n − 1, updated with every measurement of r's
-//! closed neighbourhood N[r]. Followed back in time, a posterior walks a
+//! closed neighbourhood N\[r\]. Followed back in time, a posterior walks a
 //! random path through the network, and conditioned on that path its Fisher
 //! information obeys Tichavsky's recursion (eq. 4) with
 //! `D22 = Q⁻¹ + Σ_{ℓ∈N[r_n]} E J_ℓ(x_n)` (eq. 7). The path-free bound of
