@@ -620,8 +620,9 @@ impl Quantizer {
         };
         reads.find::<true>(cells, index, mean, variance);
         for (i, l) in ln_h[..n].iter_mut().enumerate() {
-            *l = self.ln_probability_of_lane(index, reads, i, mean, variance);
+            // Each lane's Spread is rebuilt once, for both tables.
             let spread = reads.spread(i);
+            *l = self.ln_probability_of_lane(index, reads, &spread, i, mean, variance);
             out.set(
                 i,
                 self.fisher_of_lane(cells, reads, &spread, i, mean, variance),
@@ -651,7 +652,7 @@ impl Quantizer {
         };
         reads.find::<true>(cells, index, mean, variance);
         for (i, l) in ln_h[..n].iter_mut().enumerate() {
-            *l = self.ln_probability_of_lane(index, reads, i, mean, variance);
+            *l = self.ln_probability_of_lane(index, reads, &reads.spread(i), i, mean, variance);
         }
     }
 
@@ -662,11 +663,11 @@ impl Quantizer {
         &self,
         index: u32,
         reads: &TableReads,
+        spread: &Spread,
         i: usize,
         mean: &[f64; CHUNK],
         variance: &[f64; CHUNK],
     ) -> f64 {
-        let spread = reads.spread(i);
         match (reads.mass_ok[i], &spread.rows) {
             (true, Some(rows)) => {
                 crate::mass_table::table().read(&reads.mass_point(i), reads.v[i], rows)
