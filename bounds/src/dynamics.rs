@@ -297,11 +297,6 @@ impl Dynamics {
         self.model.jacobian(x)
     }
 
-    /// `f(x)` and `F̃(x)` together, cheaper than the two apart.
-    pub fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
-        self.model.transition_and_jacobian(x)
-    }
-
     /// [`CoordinatedTurn::transition_batch`].
     #[inline(always)]
     pub fn transition_batch(&self, x: &StateLanes, out: &mut TurnBatch) {

@@ -97,7 +97,7 @@ unsafe fn add_batches_avx2(
 
 /// [`dynamics_terms`] accumulated one particle's Jacobian at a time, for a
 /// predictor that computes each `F̃_j` along with `f(x_j)`
-/// ([`Dynamics::transition_and_jacobian`]). The caller checks the weights.
+/// ([`Dynamics::transition_batch`]). The caller checks the weights.
 pub struct DynamicsTermsSum<'q> {
     forms: FormSum<'q>,
     /// `Σ w F̃` of the Jacobians that took the long way; those of the form
