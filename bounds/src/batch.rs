@@ -15,8 +15,8 @@
 //! operations in the same order, and Rust never contracts a multiply and an
 //! add into an FMA, so a vectorised lane rounds exactly as the scalar code
 //! does. The library functions the lanes replace are written out from the
-//! same source (fdlibm's `atan2` and `sincos`, as the `libm` crate has
-//! them; rand_distr's ziggurat). The tests hold each pass to that.
+//! same source (fdlibm's `atan2`, `sincos` and `exp`, as the `libm` crate
+//! has them; rand_distr's ziggurat). The tests hold each pass to that.
 
 use crate::ziggurat_tables::{ZIG_NORM_F as F, ZIG_NORM_R as R, ZIG_NORM_X as X};
 use crate::State;
@@ -303,6 +303,90 @@ fn sincos_ordinary(x: f64) -> (f64, f64, bool) {
     }
 }
 
+/// fdlibm's (the `libm` crate's) `exp(x)` lane by lane, equal to it bit
+/// for bit: its argument reduction's three cases become selects, and its
+/// final `scalbn` a product by 2^k, which it is for every k a lane below
+/// |x| = 708.39 meets. Lanes from there on (overflow, underflow to a
+/// subnormal or zero, infinite, NaN) are redone by `libm::exp` itself.
+#[inline(always)]
+pub fn exp(x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+    let mut ordinary = [false; CHUNK];
+    for i in 0..CHUNK {
+        let (r, ok) = exp_ordinary(x[i]);
+        out[i] = r;
+        ordinary[i] = ok;
+    }
+    if ordinary.iter().all(|&ok| ok) {
+        return;
+    }
+    for i in 0..CHUNK {
+        if !ordinary[i] {
+            out[i] = libm::exp(x[i]);
+        }
+    }
+}
+
+/// ln 2 in two parts (`k · LN2_HI` is exact for the k met), and 1/ln 2.
+const LN2_HI: f64 = f64::from_bits(0x3FE6_2E42_FEE0_0000);
+const LN2_LO: f64 = f64::from_bits(0x3DEA_39EF_3579_3C76);
+const INV_LN2: f64 = f64::from_bits(0x3FF7_1547_652B_82FE);
+/// The rational approximation's polynomial in r².
+const EXP_P: [f64; 5] = bits([
+    0x3FC5_5555_5555_553E,
+    0xBF66_C16C_16BE_BD93,
+    0x3F11_566A_AF25_DE2C,
+    0xBEBB_BD41_C5D2_6BF1,
+    0x3E66_3769_72BE_A4D0,
+]);
+
+/// One lane of [`exp`]: the result, and whether the lane is ordinary
+/// (otherwise the result is to be discarded). Branch-free.
+#[inline(always)]
+fn exp_ordinary(x: f64) -> (f64, bool) {
+    // fdlibm compares the high word of |x| with these; the same tests on
+    // |x| itself, as doubles, vectorise where the words would not.
+    // `hx < w` is `|x| < at(w)`, `hx > w` is `|x| ≥ at(w + 1)`.
+    const fn at(high_word: u64) -> f64 {
+        f64::from_bits(high_word << 32)
+    }
+    let a = x.abs();
+    let ordinary = a < at(0x4086_232b); // |x| < 708.39, and not NaN
+    let reduced = a >= at(0x3fd6_2e43); // |x| > ln 2 / 2
+    let far = a >= at(0x3ff0_a2b2); // |x| ≥ 3 ln 2 / 2
+    let tiny = a < at(0x3e30_0001); // |x| ≤ 2^-28: 1 + x
+                                    // x = k ln 2 + r, |r| ≤ ln 2 / 2. Between ln 2 / 2 and 3 ln 2 / 2,
+                                    // k = ±1; beyond, x/ln 2 rounded half away from zero: fdlibm's
+                                    // `(int)` truncation, here `trunc` (a rounding instruction where
+                                    // vectorised), equal to it for every ordinary lane.
+    let k_far = (INV_LN2 * x + 0.5f64.copysign(x)).trunc();
+    let k = if reduced {
+        if far {
+            k_far
+        } else {
+            1f64.copysign(x)
+        }
+    } else {
+        0.0
+    };
+    // With k = 0 these are fdlibm's `hi = x, lo = 0` exactly.
+    let hi = x - k * LN2_HI;
+    let lo = k * LN2_LO;
+    let r = hi - lo;
+    let rr = r * r;
+    let c =
+        r - rr * (EXP_P[0] + rr * (EXP_P[1] + rr * (EXP_P[2] + rr * (EXP_P[3] + rr * EXP_P[4]))));
+    let y = 1.0 + (r * c / (2.0 - c) - lo + hi);
+    // scalbn(y, k) is y · 2^k for −1022 ≤ k ≤ 1023, as every ordinary lane
+    // has it, and y · 2⁰ = y. 2^k from the bits of k + 1023 + 2^52, whose
+    // low word is the integer k + 1023.
+    let biased = (k + (1023.0 + TWO_52)).to_bits() & 0x7ff;
+    let scale = f64::from_bits(biased << 52);
+    (if tiny { 1.0 + x } else { y * scale }, ordinary)
+}
+
+/// 2^52: below it, `v + 2^52` holds the integer v in its low bits.
+const TWO_52: f64 = 4_503_599_627_370_496.0;
+
 /// `out.len()` draws of `rand_distr::StandardNormal`: exactly those that
 /// `rng.sample(StandardNormal)` gives one call at a time, leaving `rng`
 /// where those calls would (the test holds ChaCha to that). The words are
@@ -559,6 +643,91 @@ mod tests {
                 assert_eq!(ours.get_word_pos(), theirs.get_word_pos());
             }
             assert!(tails > 50, "{tails} draws from the tail");
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn exp_avx2(x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+        exp(x, out)
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    unsafe fn exp_avx2(x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+        exp(x, out)
+    }
+
+    /// Bit for bit libm's, vectorised or not: the tempering exponents
+    /// (−50 to 0) and every scale either side, the edges of the reduction's
+    /// three cases and of the lanes handed to libm, and the special values.
+    #[test]
+    fn exp_is_libm_bit_for_bit() {
+        let check = |x: &[f64; CHUNK]| {
+            let mut out = [0.0; CHUNK];
+            if has_avx2() {
+                // SAFETY: the CPU has AVX2.
+                unsafe { exp_avx2(x, &mut out) };
+            } else {
+                exp(x, &mut out);
+            }
+            let mut scalar = [0.0; CHUNK];
+            exp(x, &mut scalar);
+            for i in 0..CHUNK {
+                let want = libm::exp(x[i]);
+                for got in [out[i], scalar[i]] {
+                    assert!(
+                        got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                        "exp({:e}) = {got:e}, libm {want:e}",
+                        x[i]
+                    );
+                }
+            }
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        for _ in 0..6000 {
+            let mut x = [0.0; CHUNK];
+            for v in x.iter_mut() {
+                *v = match rng.random_range(0..3) {
+                    0 => rng.random_range(-50.0..0.0),
+                    1 => rng.random_range(-760.0..760.0),
+                    _ => rng.random_range(-1.0..1.0) * 10f64.powf(rng.random_range(-12.0..1.0)),
+                };
+            }
+            check(&x);
+        }
+        // Each threshold's high word, and the doubles either side of it.
+        let edges = [0x4086_232b_u64, 0x3fd6_2e42, 0x3ff0_a2b2, 0x3e30_0000]
+            .into_iter()
+            .flat_map(|w| {
+                let at = f64::from_bits(w << 32);
+                [
+                    at.next_down(),
+                    at,
+                    at.next_up(),
+                    f64::from_bits((w << 32) | 0xffff_ffff),
+                ]
+            });
+        let mut specials: Vec<f64> = edges
+            .chain([
+                0.0,
+                f64::MIN_POSITIVE,
+                1e-310,
+                0.5 * std::f64::consts::LN_2,
+                1.5 * std::f64::consts::LN_2,
+                709.78,
+                709.8,
+                745.13,
+                745.2,
+                f64::MAX,
+                f64::INFINITY,
+                f64::NAN,
+            ])
+            .collect();
+        specials.extend(specials.clone().iter().map(|v| -v));
+        for batch in specials.chunks(CHUNK) {
+            let mut x = [0.25; CHUNK];
+            x[..batch.len()].copy_from_slice(batch);
+            check(&x);
         }
     }
 
