@@ -115,6 +115,9 @@ pub fn point(v: f64) -> Option<Point> {
     inside.then_some(at)
 }
 
+/// 2^52: below it, `n + 2^52` holds the integer n in its low bits.
+const TWO_52: f64 = 4_503_599_627_370_496.0;
+
 /// [`point`] without a branch, so that a loop over lanes vectorises:
 /// whether v is inside the table, and its point if it is (a point within
 /// the rows, with meaningless weights, if not).
@@ -122,15 +125,17 @@ pub fn point(v: f64) -> Option<Point> {
 pub fn point_lane(v: f64) -> (bool, Point) {
     let inside = v.abs() <= V_MAX; // false for NaN
     let xv = (v + V_MAX) * V_PER_UNIT as f64;
-    // Non-negative but for rounding: truncation is the floor. Through i32,
-    // which vectorises (x86 has no vector conversion to 64-bit integers
-    // before AVX-512): xv < 800 inside, and `as` saturates outside.
-    let iv = (xv as i32).clamp(0, V_POINTS as i32 - 2) as usize;
+    // ⌊xv⌋ within the rows (0 for NaN: `max` takes the number), as a
+    // double, then its bits as the integer: both vectorise, where a
+    // conversion to an integer saturates lane by lane. Inside, xv is in
+    // [0, 768], so this is the truncation `as` would give.
+    let at = xv.floor().max(0.0).min((V_POINTS - 2) as f64);
+    let iv = ((at + TWO_52).to_bits() - TWO_52.to_bits()) as usize;
     (
         inside,
         Point {
             iv,
-            weights: crate::fisher_table::lagrange_weights(xv - iv as f64),
+            weights: crate::fisher_table::lagrange_weights(xv - at),
         },
     )
 }
@@ -138,6 +143,30 @@ pub fn point_lane(v: f64) -> (bool, Point) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The point found through the floor and the bits is the truncation
+    /// of `(v + V_MAX) · V_PER_UNIT`, with the same weights, bit for bit,
+    /// across the table and at its edges; outside, a point within the rows.
+    #[test]
+    fn the_point_is_the_truncation() {
+        let mut v = -V_MAX;
+        while v <= V_MAX {
+            for v in [v, v.next_up(), v.next_down()] {
+                let (inside, at) = point_lane(v);
+                let xv = (v + V_MAX) * V_PER_UNIT as f64;
+                let iv = (xv as i32).clamp(0, V_POINTS as i32 - 2) as usize;
+                assert_eq!(inside, v.abs() <= V_MAX, "{v}");
+                assert_eq!(at.iv, iv, "{v}");
+                let want = crate::fisher_table::lagrange_weights(xv - iv as f64);
+                assert_eq!(at.weights.map(f64::to_bits), want.map(f64::to_bits), "{v}");
+            }
+            v += 0.003_17;
+        }
+        for v in [f64::NAN, f64::INFINITY, -1e300, 1e300, 12.5, -12.5] {
+            let (inside, at) = point_lane(v);
+            assert!(!inside && at.iv <= V_POINTS - 2, "{v}");
+        }
+    }
     use crate::width_axis::{S_MAX, S_MIN};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;

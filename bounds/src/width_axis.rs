@@ -85,19 +85,25 @@ pub fn stencil_lane(w: f64) -> (bool, Stencil) {
     // A positive normal number: the biased exponent, then the mantissa.
     let octave = ((bits >> 52) as i64).wrapping_sub(1023 + FIRST_OCTAVE) as usize;
     let mantissa = bits & ((1 << 52) - 1);
-    // The fraction of the octave in rows, exactly: mantissa / 2^52 · 128.
-    // Exactly `mantissa as f64` (below 2^52), by the bits: x86 has no
-    // vector conversion from 64-bit integers before AVX-512.
-    let mantissa = f64::from_bits(mantissa | EXPONENT_52) - TWO_52;
-    let x = mantissa * (PER_OCTAVE as f64 / (1u64 << 52) as f64);
-    let k = (x as i32) as usize;
+    // The place in the octave in rows is x = mantissa / 2^52 · 128, whose
+    // whole part k is the mantissa's top seven bits and whose fraction
+    // x − k is its low 45 bits over 2^45, exactly. Both by the bits, which
+    // vectorise: x86 has no vector conversion between doubles and 64-bit
+    // integers before AVX-512, and a 32-bit one saturates lane by lane.
+    const FRACTION_BITS: u32 = 52 - PER_OCTAVE.trailing_zeros();
+    const _: () = assert!(PER_OCTAVE.is_power_of_two());
+    let k = (mantissa >> FRACTION_BITS) as usize;
+    let fraction = mantissa & ((1 << FRACTION_BITS) - 1);
+    // `fraction as f64`, exactly (below 2^52), by the bits.
+    let fraction =
+        (f64::from_bits(fraction | EXPONENT_52) - TWO_52) * (1.0 / (1u64 << FRACTION_BITS) as f64);
     // Row k − 1 of the octave is its (k − 1 + 1)-th.
     let first = octave.wrapping_mul(ROWS_PER_OCTAVE).wrapping_add(k);
     (
         inside,
         Stencil {
             first: if inside { first } else { 0 },
-            weights: lagrange_weights(x - k as f64),
+            weights: lagrange_weights(fraction),
         },
     )
 }
@@ -142,6 +148,28 @@ impl<T> Default for LazyRows<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stencil's row and weights from the mantissa's bits are those of
+    /// the plain arithmetic, `x = mantissa · 128 / 2^52` truncated, bit for
+    /// bit.
+    #[test]
+    fn the_bits_give_the_truncation() {
+        let mut w = 0.5 / S_MAX * 1.000_001;
+        while w < 0.5 / S_MIN {
+            for w in [w, w.next_up(), w.next_down()] {
+                let (inside, st) = stencil_lane(w);
+                let bits = w.to_bits();
+                let octave = ((bits >> 52) as i64 - 1023 - FIRST_OCTAVE) as usize;
+                let x = (bits & ((1 << 52) - 1)) as f64 * (PER_OCTAVE as f64 / 2f64.powi(52));
+                let k = x as usize;
+                assert!(inside);
+                assert_eq!(st.first, octave * ROWS_PER_OCTAVE + k, "{w}");
+                let want = lagrange_weights(x - k as f64).map(f64::to_bits);
+                assert_eq!(st.weights.map(f64::to_bits), want, "{w}");
+            }
+            w *= 1.000_37;
+        }
+    }
 
     /// The stencil's rows bracket w: the second at or below it, the third
     /// above, one spacing apart, and the weights put w where it is.
