@@ -350,14 +350,16 @@ fn exp_ordinary(x: f64) -> (f64, bool) {
         f64::from_bits(high_word << 32)
     }
     let a = x.abs();
-    let ordinary = a < at(0x4086_232b); // |x| < 708.39, and not NaN
-    let reduced = a >= at(0x3fd6_2e43); // |x| > ln 2 / 2
-    let far = a >= at(0x3ff0_a2b2); // |x| ≥ 3 ln 2 / 2
-    let tiny = a < at(0x3e30_0001); // |x| ≤ 2^-28: 1 + x
-                                    // x = k ln 2 + r, |r| ≤ ln 2 / 2. Between ln 2 / 2 and 3 ln 2 / 2,
-                                    // k = ±1; beyond, x/ln 2 rounded half away from zero: fdlibm's
-                                    // `(int)` truncation, here `trunc` (a rounding instruction where
-                                    // vectorised), equal to it for every ordinary lane.
+    // |x| < 708.39 (and not NaN); |x| > ln 2 / 2; |x| ≥ 3 ln 2 / 2; and
+    // |x| ≤ 2^-28, where exp(x) is 1 + x.
+    let ordinary = a < at(0x4086_232b);
+    let reduced = a >= at(0x3fd6_2e43);
+    let far = a >= at(0x3ff0_a2b2);
+    let tiny = a < at(0x3e30_0001);
+    // x = k ln 2 + r, |r| ≤ ln 2 / 2. Between ln 2 / 2 and 3 ln 2 / 2,
+    // k = ±1; beyond, x/ln 2 rounded half away from zero: fdlibm's `(int)`
+    // truncation, here `trunc` (a rounding instruction where vectorised),
+    // equal to it for every ordinary lane.
     let k_far = (INV_LN2 * x + 0.5f64.copysign(x)).trunc();
     let k = if reduced {
         if far {

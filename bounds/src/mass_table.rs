@@ -143,6 +143,9 @@ pub fn point_lane(v: f64) -> (bool, Point) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::width_axis::{S_MAX, S_MIN};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     /// The point found through the floor and the bits is the truncation
     /// of `(v + V_MAX) · V_PER_UNIT`, with the same weights, bit for bit,
@@ -167,9 +170,6 @@ mod tests {
             assert!(!inside && at.iv <= V_POINTS - 2, "{v}");
         }
     }
-    use crate::width_axis::{S_MAX, S_MIN};
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn lookup_matches_the_exact_log_mass() {
