@@ -277,9 +277,10 @@ pub fn observation_information(
 
 /// The Fisher scalars of a batch of particles, as
 /// [`observation_information_with`] asks for them: `scalars(first, sensor,
-/// g, r, n, out)`. Closures are such sources; a named one with an
-/// `#[inline(always)]` method is certain to be compiled into the kernel's
-/// AVX2 copy, where a closure the compiler declines to inline is not.
+/// g, r, n, out)`. A source is a named type with an `#[inline(always)]`
+/// method, not a closure: it is then certain to be compiled into the
+/// kernel's AVX2 copy, where a closure the compiler declines to inline is
+/// not (that cost the bound update a third).
 pub trait BatchScalars {
     fn scalars(
         &mut self,
@@ -290,23 +291,6 @@ pub trait BatchScalars {
         n: usize,
         out: &mut ScalarBatch,
     );
-}
-
-impl<F: FnMut(usize, usize, &[f64; CHUNK], &[f64; CHUNK], usize, &mut ScalarBatch)> BatchScalars
-    for F
-{
-    #[inline(always)]
-    fn scalars(
-        &mut self,
-        first: usize,
-        sensor: usize,
-        g: &[f64; CHUNK],
-        r: &[f64; CHUNK],
-        n: usize,
-        out: &mut ScalarBatch,
-    ) {
-        self(first, sensor, g, r, n, out)
-    }
 }
 
 /// The expected information's scalars: each sensor's as it reports.
