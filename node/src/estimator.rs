@@ -502,25 +502,29 @@ impl LocalFilter {
                 .map(|o| model.ln_likelihood(o, before))
                 .sum::<f64>()
         };
-        // The first stage's received part was taken with J_Y above; the
-        // rest is added in the same order as the later stages add it.
-        if !(silent.is_empty() && lagged.is_empty()) {
-            let paths = self.filter.particles().iter().zip(self.filter.previous());
-            for (l, (x, before)) in self.first_stage.iter_mut().zip(paths) {
+        // Adds the silences and the late observations to each path's
+        // received part, in the same order at every stage.
+        let add_rest = |out: &mut [f64], particles: &[State], previous: &[State]| {
+            if silent.is_empty() && lagged.is_empty() {
+                return;
+            }
+            let paths = particles.iter().zip(previous);
+            for (l, (x, before)) in out.iter_mut().zip(paths) {
                 *l = *l + silence(x) + late(before);
             }
-        }
+        };
+        // The first stage's received part was taken with J_Y above.
+        add_rest(
+            &mut self.first_stage,
+            self.filter.particles(),
+            self.filter.previous(),
+        );
         let stages = self.filter.update_paths_from(
             &mut self.rng,
             &self.first_stage,
             |particles, previous, out| {
                 model.ln_likelihoods(observations, particles, out);
-                if !(silent.is_empty() && lagged.is_empty()) {
-                    let paths = particles.iter().zip(previous);
-                    for (l, (x, before)) in out.iter_mut().zip(paths) {
-                        *l = *l + silence(x) + late(before);
-                    }
-                }
+                add_rest(out, particles, previous);
             },
         );
         if stages == 0 {
