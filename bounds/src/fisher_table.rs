@@ -24,6 +24,7 @@
 use std::sync::OnceLock;
 
 use crate::quantizer::{window_sums, WINDOW_SIGMAS};
+use crate::shared_rows::SharedRows;
 use crate::width_axis::{self, LazyRows, Stencil};
 
 /// Grid points over the cell fraction u ∈ [0, 1) (periodic).
@@ -41,17 +42,17 @@ const FLAT_SAMPLES: usize = 8;
 /// The grid over u of one row, padded with one column before and two after
 /// (the periodic neighbours), so that the four-column stencil of any `u` is
 /// one contiguous run.
-type Grid = [[f64; 3]; U_POINTS + 3];
+pub type Grid = [[f64; 3]; U_POINTS + 3];
 
-/// One value of s: the sums' mean over u and, below s = 1, the grid over u.
-struct Row {
-    mean: [f64; 3],
-    grid: Option<Box<Grid>>,
-}
+/// The sums' mean over u at one value of s.
+pub type Means = [f64; 3];
 
+/// Per value of s, the sums' mean over u and, below s = 1, the grid over u
+/// (whose row of means is taken from it).
 #[derive(Default)]
 pub struct FisherTable {
-    rows: LazyRows<Row>,
+    means: LazyRows<Means>,
+    grids: LazyRows<Grid>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -77,28 +78,37 @@ fn mean_of(sums: &[[f64; 3]]) -> [f64; 3] {
 }
 
 impl FisherTable {
-    /// Row `is`, built on first use.
+    /// The means of row `is`, built on first use.
     #[inline(always)]
-    fn row(&self, is: usize) -> &Row {
-        self.rows.get(is, |is| {
-            let s = width_axis::row_s(is);
-            if !width_axis::below_one(is) {
-                let sums: [[f64; 3]; FLAT_SAMPLES] =
-                    std::array::from_fn(|iu| grid_sums(iu as f64 / FLAT_SAMPLES as f64, s));
-                return Row {
-                    mean: mean_of(&sums),
-                    grid: None,
-                };
+    fn means(&self, is: usize) -> &Means {
+        self.means.get(is, |is| {
+            if width_axis::below_one(is) {
+                let grid = self.grid(is);
+                return mean_of(&grid[1..=U_POINTS]);
             }
+            let s = width_axis::row_s(is);
+            let sums: [[f64; 3]; FLAT_SAMPLES] =
+                std::array::from_fn(|iu| grid_sums(iu as f64 / FLAT_SAMPLES as f64, s));
+            mean_of(&sums)
+        })
+    }
+
+    /// The grid of row `is` (one below s = 1), built on first use.
+    #[inline(always)]
+    fn grid(&self, is: usize) -> &Grid {
+        debug_assert!(width_axis::below_one(is));
+        self.grids.get(is, |is| {
+            let s = width_axis::row_s(is);
             let sums: [[f64; 3]; U_POINTS] =
                 std::array::from_fn(|iu| grid_sums(iu as f64 / U_POINTS as f64, s));
-            Row {
-                mean: mean_of(&sums),
-                grid: Some(Box::new(std::array::from_fn(|c| {
-                    sums[(c + U_POINTS - 1) % U_POINTS]
-                }))),
-            }
+            std::array::from_fn(|c| sums[(c + U_POINTS - 1) % U_POINTS])
         })
+    }
+
+    /// Rows not built yet come from (or go to) memory other processes share.
+    pub(crate) fn share(&self, means: SharedRows<Means>, grids: SharedRows<Grid>) {
+        self.means.share(means);
+        self.grids.share(grids);
     }
 
     /// Interpolated sums at `(u, s)`; from `S_MAX` up, the fine-cell
@@ -119,7 +129,7 @@ impl FisherTable {
         let mut out = [0.0; 3];
         if !width_axis::below_one(first) {
             for (a, wsa) in ws.iter().enumerate() {
-                let v = &self.row(first + a).mean;
+                let v = self.means(first + a);
                 out[0] += wsa * v[0];
                 out[1] += wsa * v[1];
                 out[2] += wsa * v[2];
@@ -136,11 +146,7 @@ impl FisherTable {
         let mut acc = [0.0; 12];
         for (a, wsa) in ws.iter().enumerate() {
             // Grid column c holds u-column c − 1: columns iu − 1 ..= iu + 2.
-            let grid = self
-                .row(first + a)
-                .grid
-                .as_ref()
-                .expect("rows below s = 1 have a grid");
+            let grid = self.grid(first + a);
             let stencil: &[f64; 12] = grid[iu..iu + 4]
                 .as_flattened()
                 .try_into()

@@ -32,6 +32,7 @@ pub mod observation;
 pub mod pcrlb;
 pub mod quantizer;
 pub mod selection;
+pub mod shared_rows;
 pub mod speb;
 pub mod width_axis;
 mod ziggurat_tables;

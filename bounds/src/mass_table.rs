@@ -21,6 +21,7 @@
 use std::sync::OnceLock;
 
 use crate::normal::ln_interval_mass;
+use crate::shared_rows::SharedRows;
 use crate::width_axis::{self, LazyRows, Stencil};
 
 /// The table covers `|v| ≤ V_MAX`: particles within 12 σ of the cell.
@@ -34,11 +35,11 @@ const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
 
 /// One row over v, padded with one point before and two after so that a
 /// four-point stencil never leaves it.
-type Row = [f64; V_POINTS + 3];
+pub type MassRow = [f64; V_POINTS + 3];
 
 #[derive(Default)]
 pub struct LnMassTable {
-    rows: LazyRows<Box<Row>>,
+    rows: LazyRows<MassRow>,
 }
 
 /// The process-wide table; its rows fill in as they are first needed.
@@ -56,15 +57,20 @@ pub fn exact(v: f64, s: f64) -> f64 {
 impl LnMassTable {
     /// Row `is`, built on first use.
     #[inline(always)]
-    fn row(&self, is: usize) -> &Row {
+    fn row(&self, is: usize) -> &MassRow {
         self.rows.get(is, |is| {
             let s = width_axis::row_s(is);
             // Point k is at v = (k − 1)/V_PER_UNIT − V_MAX.
-            Box::new(std::array::from_fn(|k| {
+            std::array::from_fn(|k| {
                 let v = (k as f64 - 1.0) / V_PER_UNIT as f64 - V_MAX;
                 exact(v, s) + 0.5 * v * v
-            }))
+            })
         })
+    }
+
+    /// Rows not built yet come from (or go to) memory other processes share.
+    pub(crate) fn share(&self, rows: SharedRows<MassRow>) {
+        self.rows.share(rows);
     }
 
     /// `ln P` at `(v, s)`, or `None` outside the table.

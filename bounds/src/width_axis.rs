@@ -21,6 +21,7 @@
 use std::sync::OnceLock;
 
 use crate::fisher_table::lagrange_weights;
+use crate::shared_rows::{PlainRow, SharedRows};
 
 /// The tables cover `S_MIN < s < S_MAX`, that is `1/128 < w < 1`.
 pub const S_MIN: f64 = 0.5;
@@ -110,15 +111,19 @@ pub fn stencil_lane(w: f64) -> (bool, Stencil) {
 
 /// One value per row of the axis, each built on first use, so that a
 /// process pays only for the range of σ/Δ it meets. A fixed length, so
-/// that indexing a stencil's rows needs no check.
-pub struct LazyRows<T> {
-    rows: Box<[OnceLock<T>; ROWS]>,
+/// that indexing a stencil's rows needs no check. The rows are this
+/// process's own, or live in memory that several processes share
+/// ([`crate::shared_rows`]); the lookups read them alike.
+pub struct LazyRows<T: PlainRow> {
+    rows: Box<[OnceLock<T::Kept>; ROWS]>,
+    shared: OnceLock<SharedRows<T>>,
 }
 
-impl<T> LazyRows<T> {
+impl<T: PlainRow> LazyRows<T> {
     pub fn new() -> Self {
         Self {
             rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
+            shared: OnceLock::new(),
         }
     }
 
@@ -127,19 +132,33 @@ impl<T> LazyRows<T> {
     #[inline(always)]
     pub fn get(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
         match self.rows[row].get() {
-            Some(value) => value,
+            Some(kept) => T::kept(kept),
             None => self.build(row, build),
         }
     }
 
+    /// From now on, rows not built yet come from (or go to) `shared`.
+    /// Returns false if the rows were shared already.
+    pub fn share(&self, shared: SharedRows<T>) -> bool {
+        self.shared.set(shared).is_ok()
+    }
+
+    /// A row lives as long as the process: the tables are process-wide,
+    /// and a row in shared memory is never unmapped.
     #[cold]
     #[inline(never)]
     fn build(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
-        self.rows[row].get_or_init(|| build(row))
+        let kept = self.rows[row].get_or_init(|| {
+            T::keep(match self.shared.get() {
+                Some(shared) => shared.get_or_build(row, build),
+                None => Box::leak(Box::new(build(row))),
+            })
+        });
+        T::kept(kept)
     }
 }
 
-impl<T> Default for LazyRows<T> {
+impl<T: PlainRow> Default for LazyRows<T> {
     fn default() -> Self {
         Self::new()
     }

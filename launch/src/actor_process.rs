@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::hosts::Placement;
+use fusion_graph::transport::iceoryx::map_run_memory;
 use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
@@ -98,8 +99,32 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
         ActorId::Sensor(i) => {
             sensor_loop(&scenario, &topology, transport, i, &out, args.centralized)
         }
-        ActorId::Node(i) => node_loop(&scenario, &topology, transport, i, &out, args.rejoin),
+        ActorId::Node(i) => {
+            share_table_rows(&run);
+            node_loop(&scenario, &topology, transport, i, &out, args.rejoin)
+        }
         ActorId::Launcher => unreachable!("checked above"),
+    }
+}
+
+/// Puts this node's table rows in memory the run's nodes share, so that
+/// between them they build each row once (`bounds::shared_rows`). A
+/// failure costs only time: the node builds its own rows, as `sim` does.
+fn share_table_rows(run: &RunId) {
+    let len = bounds::shared_rows::shared_table_bytes();
+    let shared = map_run_memory(run, "table_rows", len)
+        .map_err(anyhow::Error::from)
+        .and_then(|memory| {
+            // Rows are read until the process ends: so is the mapping kept.
+            let memory = Box::leak(Box::new(memory));
+            // SAFETY: the run's own file, zeroed when made, mapped for the
+            // rest of the process; the run's nodes are this executable and
+            // write it only through the shared tables.
+            unsafe { bounds::shared_rows::share_table_rows(memory.as_mut_ptr(), memory.len()) }
+                .map_err(anyhow::Error::from)
+        });
+    if let Err(e) = shared {
+        tracing::warn!(error = %e, "table rows not shared; this node builds its own");
     }
 }
 

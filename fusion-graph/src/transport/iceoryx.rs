@@ -114,6 +114,29 @@ pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
     Ok(removed)
 }
 
+/// Memory the run's processes share beside iceoryx2's (the tables' rows,
+/// `bounds::shared_rows`): a file on tmpfs named with the run's prefix, so
+/// that [`remove_run_resources`] and the sweep of abandoned runs remove it
+/// with the rest. Made `len` bytes long, zeroed, by whichever process opens
+/// it first; the others map what it made.
+pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<memmap2::MmapMut> {
+    let path = std::path::Path::new(RESOURCE_DIRS[0]).join(format!("{}{name}", run.prefix()));
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)?;
+    // Growing a file to the length it has already changes nothing, so two
+    // processes that both find it short cannot undo each other's rows.
+    if file.metadata()?.len() < len as u64 {
+        file.set_len(len as u64)?;
+    }
+    // SAFETY: the file belongs to this run and only its processes map it;
+    // none shrinks it (all grow it to the same length, at most).
+    unsafe { memmap2::MmapOptions::new().len(len).map_mut(&file) }
+}
+
 /// Where launchers register their runs: one file per run id, holding the
 /// launcher's pid and its start time (so a reused pid is not mistaken for it).
 const RUN_REGISTRY: &str = "/tmp/cqnet-runs";
