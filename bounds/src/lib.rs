@@ -22,6 +22,7 @@
 pub mod batch;
 pub mod bit_allocation;
 pub mod censoring;
+pub mod chacha;
 pub mod diffusion;
 pub mod dynamics;
 pub mod fisher;

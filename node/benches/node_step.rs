@@ -4,9 +4,9 @@
 
 use std::hint::black_box;
 
+use bounds::chacha::WideChaCha8;
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 
 #[path = "common/workload.rs"]
 mod workload;
@@ -41,7 +41,7 @@ fn bench(c: &mut Criterion) {
     c.bench_function(
         "particle filter alone: predict, 3 bearings, resample, 1000 particles",
         |b| {
-            let mut rng = ChaCha8Rng::seed_from_u64(4);
+            let mut rng = WideChaCha8::seed_from_u64(4);
             b.iter_batched(
                 || w.filter.clone(),
                 |mut f| {

@@ -16,8 +16,8 @@
 use std::hint::black_box;
 use std::process::ExitCode;
 
+use bounds::chacha::WideChaCha8;
 use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 
 #[path = "../benches/common/workload.rs"]
 mod workload;
@@ -37,7 +37,7 @@ fn main() -> ExitCode {
     let w = Workload::new();
     let model = &w.model;
     let evidence = Workload::evidence(&w.observations);
-    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let mut rng = WideChaCha8::seed_from_u64(4);
     for _ in 0..times {
         match part.as_str() {
             "local" => {

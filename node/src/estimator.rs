@@ -13,6 +13,7 @@ use std::f64::consts::PI;
 
 use bounds::batch::{has_avx2, Positions, CHUNK};
 use bounds::censoring::{CensoringRule, Innovation};
+use bounds::chacha::WideChaCha8;
 use bounds::fisher::{observed_information, scalars_of_mean_and_variance};
 use bounds::observation::Evaluations;
 use bounds::pcrlb::{
@@ -366,7 +367,7 @@ impl PendingPrediction {
         &mut self,
         filter: &mut ParticleFilter,
         dynamics: &Dynamics,
-        rng: &mut ChaCha8Rng,
+        rng: &mut WideChaCha8,
     ) -> Result<(), BoundError> {
         if self.0.is_none() {
             self.0 = Some(filter.predict_for_bound(dynamics, rng)?);
@@ -379,7 +380,7 @@ impl PendingPrediction {
         &mut self,
         filter: &mut ParticleFilter,
         dynamics: &Dynamics,
-        rng: &mut ChaCha8Rng,
+        rng: &mut WideChaCha8,
     ) -> Result<(DynamicsTerms, Gaussian), BoundError> {
         self.make(filter, dynamics, rng)?;
         Ok(self.0.take().expect("made above"))
@@ -398,7 +399,7 @@ impl PendingPrediction {
 pub struct LocalFilter {
     filter: ParticleFilter,
     bound: ConditionalBound,
-    rng: ChaCha8Rng,
+    rng: WideChaCha8,
     prediction: PendingPrediction,
     /// Each predicted particle's log-likelihood, taken while J_Y is
     /// evaluated there: the updater's first stage. Kept to allocate nothing
@@ -415,11 +416,9 @@ pub struct LocalUpdate {
 }
 
 impl LocalFilter {
-    pub fn new(
-        particles: usize,
-        prior: &Gaussian,
-        mut rng: ChaCha8Rng,
-    ) -> Result<Self, BoundError> {
+    pub fn new(particles: usize, prior: &Gaussian, rng: ChaCha8Rng) -> Result<Self, BoundError> {
+        // The same stream, sixteen blocks at a time (`bounds::chacha`).
+        let mut rng = WideChaCha8::from_rand_chacha(&rng);
         let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng)
             .ok_or(BoundError::NotPositiveDefinite("P_0"))?;
         Ok(Self {
@@ -649,7 +648,7 @@ pub struct FusionFilter {
     bound: ConditionalBound,
     /// `J_AUX(k)` and the baseline bound computed from it.
     aux: Option<ConditionalBound>,
-    rng: ChaCha8Rng,
+    rng: WideChaCha8,
     prediction: PendingPrediction,
 }
 
@@ -666,8 +665,10 @@ impl FusionFilter {
         particles: usize,
         prior: &Gaussian,
         with_aux: bool,
-        mut rng: ChaCha8Rng,
+        rng: ChaCha8Rng,
     ) -> Result<Self, BoundError> {
+        // The same stream, sixteen blocks at a time (`bounds::chacha`).
+        let mut rng = WideChaCha8::from_rand_chacha(&rng);
         let filter = ParticleFilter::from_gaussian(particles, prior, &mut rng)
             .ok_or(BoundError::NotPositiveDefinite("P_0"))?;
         let bound = ConditionalBound::from_prior(&prior.cov)?;

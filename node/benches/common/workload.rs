@@ -5,6 +5,7 @@
 //! the global CQ/dPCRLB (1000 particles), the particle filter alone, and
 //! the node's ΔL, each from a state reached by running a few steps.
 
+use bounds::chacha::WideChaCha8;
 use bounds::State;
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::estimator::{
@@ -70,7 +71,7 @@ impl Workload {
             fusion.step(&model, &sums).unwrap();
         }
         // The particle filter alone, five steps from the prior.
-        let mut filter_rng = ChaCha8Rng::seed_from_u64(3);
+        let mut filter_rng = WideChaCha8::seed_from_u64(3);
         let mut filter = ParticleFilter::from_gaussian(1000, &prior, &mut filter_rng)
             .expect("a positive definite prior");
         for _ in 0..5 {
@@ -99,7 +100,7 @@ impl Workload {
         model: &SensingModel,
         observations: &[Observation],
         filter: &mut ParticleFilter,
-        rng: &mut ChaCha8Rng,
+        rng: &mut WideChaCha8,
     ) {
         filter.predict(&model.dynamics, rng);
         filter.update_batched(rng, |particles, out| {
