@@ -383,8 +383,13 @@ fn max_message_len(channel: Channel) -> usize {
 /// the queue, sent before the subscriber's first receive, lost the whole
 /// burst rather than only the oldest samples.
 fn buffer_len(_channel: Channel) -> usize {
-    64
+    QUEUE_DEPTH
 }
+
+/// The depth of every subscriber's queue ([`buffer_len`]): what a receiver
+/// that does not run may fall behind by before its oldest messages are
+/// overwritten.
+pub const QUEUE_DEPTH: usize = 64;
 
 /// Whether creating (and dropping) an iceoryx2 node, and opening a service,
 /// first sweep the resources of dead nodes of the run. Both sweeps are
