@@ -19,9 +19,10 @@ use crate::cli::{load_child_scenario, ActorArgs};
 use crate::drive::{run_pending_work, send_all};
 use crate::results::write_atomically;
 
-/// Longest sleep between checks that the launcher is still there. Sensors
-/// are not woken by ticks, only by their activation, so an idle sensor also
-/// drains its queues this often.
+/// Longest sleep between checks that the launcher is still there. A
+/// sensor is woken by its activation, and by the tick only once in
+/// `world::DRAIN_PERIOD` steps (to drain its queues), so a slow run's idle
+/// sensor also drains them this often.
 const IDLE_WAIT: Duration = Duration::from_millis(100);
 
 /// How long a node polls for a wake-up before it sleeps, while it waits for
