@@ -31,12 +31,12 @@ const CONSTANTS: [u32; 4] = [0x6170_7865, 0x3320_646e, 0x7962_2d32, 0x6b20_6574]
 /// ChaCha8 with a 64-bit block counter and a 64-bit stream id, as
 /// rand_chacha lays them out.
 #[derive(Clone, Debug)]
-pub struct WideChaCha8(Blocks16);
+pub struct WideChaCha8(Engine);
 
 // One generator a filter: a box would put a pointer in front of every draw.
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
-enum Blocks16 {
+enum Engine {
     /// Sixteen blocks at a time (the CPU has AVX-512).
     Wide(BlockRng<Core>),
     /// rand_chacha's four.
@@ -79,14 +79,15 @@ impl BlockRngCore for Core {
 
     #[inline]
     fn generate(&mut self, results: &mut Blocks) {
+        let state = self.state();
+        self.block = self.block.wrapping_add(BLOCKS as u64);
         #[cfg(target_arch = "x86_64")]
         // SAFETY: a `Core` is made only where the CPU has AVX-512 (`with_blocks`).
         unsafe {
-            avx512::blocks(&self.state(), &mut results.0)
+            avx512::blocks(&state, &mut results.0)
         };
         #[cfg(not(target_arch = "x86_64"))]
-        unreachable!("a wide generator is made only where the CPU has AVX-512");
-        self.block = self.block.wrapping_add(BLOCKS as u64);
+        unreachable!("a wide generator is made only where the CPU has AVX-512 ({state:?})");
     }
 }
 
@@ -118,7 +119,7 @@ impl WideChaCha8 {
             let mut rng = ChaCha8Rng::from_seed(seed);
             rng.set_stream(stream);
             rng.set_word_pos(word);
-            return Self(Blocks16::Narrow(rng));
+            return Self(Engine::Narrow(rng));
         }
         let key = std::array::from_fn(|i| {
             u32::from_le_bytes(seed[4 * i..4 * i + 4].try_into().expect("four bytes"))
@@ -129,7 +130,7 @@ impl WideChaCha8 {
             block: (word / BLOCK_WORDS as u128) as u64,
         });
         rng.generate_and_set((word % BLOCK_WORDS as u128) as usize);
-        Self(Blocks16::Wide(rng))
+        Self(Engine::Wide(rng))
     }
 
     /// The generator where `rng` stands: the same words from here on.
@@ -142,24 +143,24 @@ impl RngCore for WideChaCha8 {
     #[inline]
     fn next_u32(&mut self) -> u32 {
         match &mut self.0 {
-            Blocks16::Wide(rng) => rng.next_u32(),
-            Blocks16::Narrow(rng) => rng.next_u32(),
+            Engine::Wide(rng) => rng.next_u32(),
+            Engine::Narrow(rng) => rng.next_u32(),
         }
     }
 
     #[inline]
     fn next_u64(&mut self) -> u64 {
         match &mut self.0 {
-            Blocks16::Wide(rng) => rng.next_u64(),
-            Blocks16::Narrow(rng) => rng.next_u64(),
+            Engine::Wide(rng) => rng.next_u64(),
+            Engine::Narrow(rng) => rng.next_u64(),
         }
     }
 
     #[inline]
     fn fill_bytes(&mut self, dest: &mut [u8]) {
         match &mut self.0 {
-            Blocks16::Wide(rng) => rng.fill_bytes(dest),
-            Blocks16::Narrow(rng) => rng.fill_bytes(dest),
+            Engine::Wide(rng) => rng.fill_bytes(dest),
+            Engine::Narrow(rng) => rng.fill_bytes(dest),
         }
     }
 }
@@ -187,7 +188,7 @@ fn has_avx512() -> bool {
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{BLOCKS, BLOCK_WORDS, WORDS};
+    use super::{BLOCK_WORDS, WORDS};
     use std::arch::x86_64::*;
 
     /// Sixteen blocks from `state` (the first block's input; the others
@@ -227,67 +228,61 @@ mod avx512 {
         }
         let blocks = transpose(x);
         for (j, b) in blocks.into_iter().enumerate() {
-            debug_assert!(j < BLOCKS);
             // SAFETY: block j's sixteen words lie within `out`.
             unsafe { _mm512_storeu_epi32(out.as_mut_ptr().add(BLOCK_WORDS * j).cast(), b) };
         }
     }
 
-    #[inline(always)]
+    #[target_feature(enable = "avx512f")]
+    #[inline]
     fn quarter_round(x: &mut [__m512i; 16], a: usize, b: usize, c: usize, d: usize) {
-        // SAFETY (of each intrinsic): called only from `blocks`, compiled
-        // with AVX-512F.
-        unsafe {
-            x[a] = _mm512_add_epi32(x[a], x[b]);
-            x[d] = _mm512_rol_epi32::<16>(_mm512_xor_si512(x[d], x[a]));
-            x[c] = _mm512_add_epi32(x[c], x[d]);
-            x[b] = _mm512_rol_epi32::<12>(_mm512_xor_si512(x[b], x[c]));
-            x[a] = _mm512_add_epi32(x[a], x[b]);
-            x[d] = _mm512_rol_epi32::<8>(_mm512_xor_si512(x[d], x[a]));
-            x[c] = _mm512_add_epi32(x[c], x[d]);
-            x[b] = _mm512_rol_epi32::<7>(_mm512_xor_si512(x[b], x[c]));
-        }
+        x[a] = _mm512_add_epi32(x[a], x[b]);
+        x[d] = _mm512_rol_epi32::<16>(_mm512_xor_si512(x[d], x[a]));
+        x[c] = _mm512_add_epi32(x[c], x[d]);
+        x[b] = _mm512_rol_epi32::<12>(_mm512_xor_si512(x[b], x[c]));
+        x[a] = _mm512_add_epi32(x[a], x[b]);
+        x[d] = _mm512_rol_epi32::<8>(_mm512_xor_si512(x[d], x[a]));
+        x[c] = _mm512_add_epi32(x[c], x[d]);
+        x[b] = _mm512_rol_epi32::<7>(_mm512_xor_si512(x[b], x[c]));
     }
 
     /// Register i holds word i of the sixteen blocks; returns register j
     /// holding block j's sixteen words. Within 128-bit lanes first (rows
     /// in fours), then the 4 × 4 lanes.
-    #[inline(always)]
+    #[target_feature(enable = "avx512f")]
+    #[inline]
     fn transpose(x: [__m512i; 16]) -> [__m512i; 16] {
-        // SAFETY (of each intrinsic): as above.
-        unsafe {
-            // Lane L of y[2i] holds words 4L, 4L + 1 of rows 2i, 2i + 1
-            // interleaved; y[2i + 1] words 4L + 2, 4L + 3.
-            let mut y = [_mm512_setzero_si512(); 16];
-            for i in 0..8 {
-                y[2 * i] = _mm512_unpacklo_epi32(x[2 * i], x[2 * i + 1]);
-                y[2 * i + 1] = _mm512_unpackhi_epi32(x[2 * i], x[2 * i + 1]);
-            }
-            // Lane L of z[4g + k]: column 4L + k of rows 4g .. 4g + 3.
-            let mut z = [_mm512_setzero_si512(); 16];
-            for g in 0..4 {
-                let r = 4 * g;
-                z[r] = _mm512_unpacklo_epi64(y[r], y[r + 2]);
-                z[r + 1] = _mm512_unpackhi_epi64(y[r], y[r + 2]);
-                z[r + 2] = _mm512_unpacklo_epi64(y[r + 1], y[r + 3]);
-                z[r + 3] = _mm512_unpackhi_epi64(y[r + 1], y[r + 3]);
-            }
-            // Column 4L + k is lane L of z[k], z[4 + k], z[8 + k], z[12 + k]:
-            // a 4 × 4 transpose of 128-bit lanes.
-            let mut out = [_mm512_setzero_si512(); 16];
-            for k in 0..4 {
-                let (a, b, c, d) = (z[k], z[4 + k], z[8 + k], z[12 + k]);
-                let p = _mm512_shuffle_i32x4::<0x44>(a, b); // a0 a1 b0 b1
-                let q = _mm512_shuffle_i32x4::<0xEE>(a, b); // a2 a3 b2 b3
-                let r = _mm512_shuffle_i32x4::<0x44>(c, d); // c0 c1 d0 d1
-                let s = _mm512_shuffle_i32x4::<0xEE>(c, d); // c2 c3 d2 d3
-                out[k] = _mm512_shuffle_i32x4::<0x88>(p, r); // a0 b0 c0 d0
-                out[4 + k] = _mm512_shuffle_i32x4::<0xDD>(p, r); // a1 b1 c1 d1
-                out[8 + k] = _mm512_shuffle_i32x4::<0x88>(q, s);
-                out[12 + k] = _mm512_shuffle_i32x4::<0xDD>(q, s);
-            }
-            out
+        // Lane L of y[2i] holds words 4L, 4L + 1 of rows 2i, 2i + 1
+        // interleaved; y[2i + 1] words 4L + 2, 4L + 3.
+        let mut y = [_mm512_setzero_si512(); 16];
+        for i in 0..8 {
+            y[2 * i] = _mm512_unpacklo_epi32(x[2 * i], x[2 * i + 1]);
+            y[2 * i + 1] = _mm512_unpackhi_epi32(x[2 * i], x[2 * i + 1]);
         }
+        // Lane L of z[4g + k]: column 4L + k of rows 4g .. 4g + 3.
+        let mut z = [_mm512_setzero_si512(); 16];
+        for g in 0..4 {
+            let r = 4 * g;
+            z[r] = _mm512_unpacklo_epi64(y[r], y[r + 2]);
+            z[r + 1] = _mm512_unpackhi_epi64(y[r], y[r + 2]);
+            z[r + 2] = _mm512_unpacklo_epi64(y[r + 1], y[r + 3]);
+            z[r + 3] = _mm512_unpackhi_epi64(y[r + 1], y[r + 3]);
+        }
+        // Column 4L + k is lane L of z[k], z[4 + k], z[8 + k], z[12 + k]:
+        // a 4 × 4 transpose of 128-bit lanes.
+        let mut out = [_mm512_setzero_si512(); 16];
+        for k in 0..4 {
+            let (a, b, c, d) = (z[k], z[4 + k], z[8 + k], z[12 + k]);
+            let p = _mm512_shuffle_i32x4::<0x44>(a, b); // a0 a1 b0 b1
+            let q = _mm512_shuffle_i32x4::<0xEE>(a, b); // a2 a3 b2 b3
+            let r = _mm512_shuffle_i32x4::<0x44>(c, d); // c0 c1 d0 d1
+            let s = _mm512_shuffle_i32x4::<0xEE>(c, d); // c2 c3 d2 d3
+            out[k] = _mm512_shuffle_i32x4::<0x88>(p, r); // a0 b0 c0 d0
+            out[4 + k] = _mm512_shuffle_i32x4::<0xDD>(p, r); // a1 b1 c1 d1
+            out[8 + k] = _mm512_shuffle_i32x4::<0x88>(q, s);
+            out[12 + k] = _mm512_shuffle_i32x4::<0xDD>(q, s);
+        }
+        out
     }
 }
 
