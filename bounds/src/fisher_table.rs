@@ -42,10 +42,10 @@ const FLAT_SAMPLES: usize = 8;
 /// The grid over u of one row, padded with one column before and two after
 /// (the periodic neighbours), so that the four-column stencil of any `u` is
 /// one contiguous run.
-pub type Grid = [[f64; 3]; U_POINTS + 3];
+pub(crate) type Grid = [[f64; 3]; U_POINTS + 3];
 
 /// The sums' mean over u at one value of s.
-pub type Means = [f64; 3];
+pub(crate) type Means = [f64; 3];
 
 /// Per value of s, the sums' mean over u and, below s = 1, the grid over u
 /// (whose row of means is taken from it).

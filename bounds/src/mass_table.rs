@@ -35,7 +35,7 @@ const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
 
 /// One row over v, padded with one point before and two after so that a
 /// four-point stencil never leaves it.
-pub type MassRow = [f64; V_POINTS + 3];
+pub(crate) type MassRow = [f64; V_POINTS + 3];
 
 #[derive(Default)]
 pub struct LnMassTable {

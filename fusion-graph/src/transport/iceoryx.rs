@@ -35,9 +35,12 @@ use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 const ICEORYX_ROOT: &str = "/dev/shm/cqnet-iceoryx2/";
 /// The default root, where runs of earlier versions left their files.
 const LEGACY_ICEORYX_ROOT: &str = "/tmp/iceoryx2";
+/// Where shared memory lives: iceoryx2's segments and the run's own files
+/// (`map_run_memory`).
+const SHARED_MEMORY: &str = "/dev/shm";
 /// What cleanup searches (recursively): the shared memory, whose tree holds
 /// `ICEORYX_ROOT`, and the legacy root.
-const RESOURCE_DIRS: [&str; 2] = ["/dev/shm", LEGACY_ICEORYX_ROOT];
+const RESOURCE_DIRS: [&str; 2] = [SHARED_MEMORY, LEGACY_ICEORYX_ROOT];
 /// How often to retry opening a service that another process is creating.
 const OPEN_ATTEMPTS: u32 = 100;
 /// The shortest wait handed to iceoryx2's timed wait; shorter ones poll.
@@ -120,7 +123,7 @@ pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
 /// with the rest. Made `len` bytes long, zeroed, by whichever process opens
 /// it first; the others map what it made.
 pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<memmap2::MmapMut> {
-    let path = std::path::Path::new(RESOURCE_DIRS[0]).join(format!("{}{name}", run.prefix()));
+    let path = std::path::Path::new(SHARED_MEMORY).join(format!("{}{name}", run.prefix()));
     let file = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
