@@ -2,12 +2,10 @@
 //! once by whichever process first needs it, read by the others.
 //!
 //! Why: the likelihood and Fisher tables build their rows on first use
-//! (`width_axis::LazyRows`), a few hundred thousand instructions a row. In
-//! `cqnet sim` one process builds each row once; in `cqnet run` every node
-//! process built every row it met, nine times over, and kept nine copies
-//! of the same numbers in the two cores' caches: 125 million instructions
-//! a node in the first 200 steps (callgrind), a tenth of a node's work in a
-//! 300-step run.
+//! (`width_axis::LazyRows`). In `cqnet sim` one process builds each row
+//! once; in `cqnet run` every node process built every row it met, nine
+//! times over, and kept its own copy of the same numbers: 125 million of a
+//! node's 1,075 million instructions in a 200-step run (callgrind).
 //!
 //! The memory is mapped by the caller (this crate does no I/O) and starts
 //! zeroed. Its layout: a header word, then per table a state word for each
