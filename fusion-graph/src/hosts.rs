@@ -4,7 +4,7 @@
 //! A scenario with a `[[hosts]]` section spreads its network over hosts.
 //! Each host keeps its own iceoryx2 domain (its own run id, so its own
 //! shared-memory prefix); one bridge per host carries every message whose
-//! receiver is elsewhere (see `launch`'s `hosts` module). Nodes are placed
+//! receiver is elsewhere (see the runtime's `hosts` module). Nodes are placed
 //! by the scenario, a sensor goes where its node is, and the launcher runs
 //! on the first host listed.
 //!

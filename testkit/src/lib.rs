@@ -67,14 +67,14 @@ pub use fusion_graph::accounting::{Accounting, Counters};
 pub use fusion_graph::scenario::{Fault, LinkSelector, Scenario, Signal};
 pub use fusion_graph::wire::MessageKind;
 pub use fusion_graph::ActorId;
-pub use launch::summary::{AppliedFault, FaultCost, Summary};
+pub use runtime::summary::{AppliedFault, FaultCost, Summary};
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
 pub use results::{Run, Tick};
 
 /// The `cqnet` program's `main`, for a binary of your own crate (see the
 /// crate's documentation).
 pub fn cqnet_main() -> std::process::ExitCode {
-    launch::app::main()
+    cqnet::app::main()
 }
 
 /// The built-in default scenario: 9 processing nodes on a 3 × 3 grid, 225

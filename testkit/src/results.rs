@@ -11,7 +11,7 @@ use fusion_graph::transport::iceoryx::run_resources;
 use fusion_graph::transport::RunId;
 use fusion_graph::wire::MessageKind;
 use fusion_graph::ActorId;
-use launch::summary::{AppliedFault, FaultCost, Summary};
+use runtime::summary::{AppliedFault, FaultCost, Summary};
 
 use crate::network::kill_and_clean;
 

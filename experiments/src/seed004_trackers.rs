@@ -17,8 +17,8 @@ use plotters::prelude::*;
 
 use super::seed004::{draw_lines, Curves};
 use super::{Check, Computed, ComputedReport, Options};
-use crate::montecarlo::run_monte_carlo;
-use crate::results::AVERAGE_FROM_STEP;
+use runtime::montecarlo::run_monte_carlo;
+use runtime::results::AVERAGE_FROM_STEP;
 
 pub fn experiments() -> Vec<Computed> {
     vec![
@@ -333,7 +333,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
 
 /// Runs one tracker's network and reads its costs back.
 fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Result<Cost> {
-    let options = crate::network::RunOptions {
+    let options = runtime::network::RunOptions {
         out: out.to_path_buf(),
         lockstep: false,
         run_id: RunId::generate(),
@@ -341,7 +341,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
         view: None,
         local_agents: false,
     };
-    let summary = crate::network::run_network(scenario, topology, options, |_| {})?;
+    let summary = runtime::network::run_network(scenario, topology, options, |_| {})?;
     let links = links_csv(out);
     let text =
         std::fs::read_to_string(&links).with_context(|| format!("reading {}", links.display()))?;
@@ -351,7 +351,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
     let (rx, tx_per_link, tx_broadcast) =
         traffic(&accounting, topology, summary.steps as f64 * period);
     let cpu: Vec<f64> = (0..topology.nodes() as u16)
-        .filter_map(|n| crate::actor_process::read_cpu_per_step(out, ActorId::Node(n)))
+        .filter_map(|n| runtime::actor_process::read_cpu_per_step(out, ActorId::Node(n)))
         .collect();
     anyhow::ensure!(
         cpu.len() == topology.nodes(),

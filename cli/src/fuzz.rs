@@ -438,7 +438,7 @@ fn scenario_outcome(text: &str, overrides: &[String]) -> String {
     };
     let _ = scenario.network_prior(&models);
     let _ = scenario.wire_format(&topology);
-    let _ = crate::preflight::estimated_memory(&scenario, &topology, true);
+    let _ = runtime::preflight::estimated_memory(&scenario, &topology, true);
     "ok".into()
 }
 
@@ -519,7 +519,7 @@ impl Actors {
             node.handle(&message, self.now, &mut out);
             let mut guard = 0;
             loop {
-                crate::drive::run_pending_work(node, || self.now, &mut out);
+                runtime::drive::run_pending_work(node, || self.now, &mut out);
                 node.handle_timeout(self.now, &mut out);
                 sent += out.len();
                 out.clear();

@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use fusion_graph::accounting::Accounting;
 use fusion_graph::wire::{encoded_len, MessageKind};
 use fusion_graph::{Scenario, Topology};
-use launch::results::ResultsWriter;
-use launch::sim::run_in_process;
-use launch::summary::Summary;
+use runtime::results::ResultsWriter;
+use runtime::sim::run_in_process;
+use runtime::summary::Summary;
 
 fn out_dir(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("sim-{name}-{}", std::process::id()))

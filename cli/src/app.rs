@@ -9,15 +9,15 @@ use clap::Parser;
 use crate::cli::{
     builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, FuzzArgs, SoakArgs, ViewArgs,
 };
-use crate::experiment::{self, Entry, Experiment};
-use crate::montecarlo::run_monte_carlo;
-use crate::network::RunProgress;
-use crate::progress::{step_message, Progress};
-use crate::results::{write_atomically, ResultsWriter};
-use crate::summary::print_table;
+use experiments::{self as experiment, Entry, Experiment};
+use runtime::montecarlo::run_monte_carlo;
+use runtime::network::RunProgress;
+use runtime::progress::{step_message, Progress};
+use runtime::results::{write_atomically, ResultsWriter};
+use runtime::summary::print_table;
 use crate::view::replay::{replay, FinishedRun};
 use crate::view::server::ViewServer;
-use crate::view::Hub;
+use runtime::feed::Hub;
 
 /// `cqnet`'s `main`.
 pub fn main() -> std::process::ExitCode {
@@ -65,7 +65,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             if args.runs == 1 {
                 let mut writer = ResultsWriter::create(&args.out)?;
                 let progress = Progress::new("sim", "steps", scenario.steps as u64);
-                let summary = crate::sim::run_in_process(
+                let summary = runtime::sim::run_in_process(
                     &scenario,
                     &topology,
                     &mut writer,
@@ -126,7 +126,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 Some(id) => fusion_graph::transport::RunId::new(id)?,
                 None => fusion_graph::transport::RunId::generate(),
             };
-            let options = crate::network::RunOptions {
+            let options = runtime::network::RunOptions {
                 out: args.out.clone(),
                 lockstep: args.lockstep,
                 run_id,
@@ -138,7 +138,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 .view
                 .then(|| start_live_view(&scenario, &topology, &args.out, args.view_port))
                 .transpose()?;
-            let options = crate::network::RunOptions {
+            let options = runtime::network::RunOptions {
                 view: view.as_ref().map(|(hub, _)| hub.clone()),
                 ..options
             };
@@ -146,7 +146,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let processes = topology.actors().count() as u64;
             let progress = Progress::new("run", "processes ready", processes);
             let summary =
-                crate::network::run_network(&scenario, &topology, options, move |p| match p {
+                runtime::network::run_network(&scenario, &topology, options, move |p| match p {
                     RunProgress::Starting { ready, .. } => progress.set(ready as u64, ""),
                     RunProgress::Running => {
                         progress.set_total(steps);
@@ -184,9 +184,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::View(args) => view_finished_run(&args),
         Command::Fuzz(args) => fuzz(&args),
         Command::Soak(args) => soak(&args),
-        Command::Actor(args) => crate::actor_process::run_actor(&args),
+        Command::Actor(args) => runtime::actor_process::run_actor(&args),
         #[cfg(feature = "zenoh")]
-        Command::Agent(args) => crate::hosts::agent::run_agent(&args),
+        Command::Agent(args) => runtime::hosts::agent::run_agent(&args),
     }
     .context("cqnet")
 }
@@ -207,7 +207,7 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         std::time::Duration::from_secs_f64(args.sample_every),
     );
     let progress = Progress::new("soak", "steps", args.steps as u64);
-    let options = crate::network::RunOptions {
+    let options = runtime::network::RunOptions {
         out: args.out.clone(),
         lockstep: false,
         run_id,
@@ -215,7 +215,7 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         view: None,
         local_agents: false,
     };
-    let result = crate::network::run_network(&scenario, &topology, options, move |p| {
+    let result = runtime::network::run_network(&scenario, &topology, options, move |p| {
         if let RunProgress::Step { step: s, rows } = p {
             step.store(s, Ordering::Relaxed);
             progress.set(s as u64, step_message(rows));
@@ -317,7 +317,7 @@ fn start_live_view(
     port: u16,
 ) -> anyhow::Result<(Arc<Hub>, ViewServer)> {
     let hub = Arc::new(Hub::default());
-    let poll = crate::network::traffic_poller(hub.clone(), topology.clone(), out.to_path_buf());
+    let poll = runtime::network::traffic_poller(hub.clone(), topology.clone(), out.to_path_buf());
     let server = ViewServer::start(hub.clone(), port, Some(poll))?;
     eprintln!(
         "cqnet: live view of `{}` at {}",

@@ -171,7 +171,7 @@ pub fn write_samples(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
             s.shm_entries
         ));
     }
-    crate::results::write_atomically(path, text.as_bytes())
+    runtime::results::write_atomically(path, text.as_bytes())
 }
 
 /// How one figure moved over the run: the mean of the samples in the

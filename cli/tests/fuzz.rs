@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use launch::fuzz::{corpus_inputs, replay, run, Campaign, Target};
+use cqnet::fuzz::{corpus_inputs, replay, run, Campaign, Target};
 
 /// The corpus kept in the repository, grown by `cqnet fuzz`.
 fn saved_corpus() -> &'static Path {

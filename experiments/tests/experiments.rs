@@ -3,7 +3,7 @@
 //! check) cannot rot. The papers' results themselves need the full size;
 //! their figures are in the README.
 
-use launch::experiment::{self, Figure, Options};
+use experiments::{self as experiment, Figure, Options};
 
 #[test]
 fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {

@@ -16,7 +16,7 @@ use axum::Router;
 use futures_util::stream::{self, Stream, StreamExt};
 use tokio::sync::broadcast::error::RecvError;
 
-use super::Hub;
+use runtime::feed::{Hub, Poll};
 
 /// The page: plain HTML and JS, no build step, nothing fetched from elsewhere.
 const PAGE: &str = include_str!("page.html");
@@ -27,10 +27,6 @@ pub struct ViewServer {
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<JoinHandle<()>>,
 }
-
-/// Work the server's thread does once a second while it serves (the live
-/// view reads the actors' byte counters this way).
-pub type Poll = Box<dyn FnMut() + Send>;
 
 impl ViewServer {
     /// Binds 127.0.0.1:`port` (0: any free port) now, so a port in use is an

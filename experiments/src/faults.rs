@@ -7,8 +7,8 @@
 //! own: how far it drags the estimate, and what the innovation gate gives back.
 
 use super::{Arm, Check, Curve, Experiment, Figure, Outcome, Series};
-use crate::results::{steps_to_recover, window_rmse};
-use crate::summary::{RECOVERY_FACTOR, RECOVERY_HOLD};
+use runtime::results::{steps_to_recover, window_rmse};
+use runtime::summary::{RECOVERY_FACTOR, RECOVERY_HOLD};
 
 /// Steps `WINDOW.0..WINDOW.1` carry the fault.
 pub const WINDOW: (u32, u32) = (20, 35);

@@ -1,15 +1,12 @@
-//! The live view of a network: a small web page on 127.0.0.1 that draws the
-//! map, the true track, each node's estimate, error and bound, the traffic on
-//! every fusion-graph link and a timeline of the faults.
+//! The events a live view of a network draws: the map, the true track, each
+//! node's estimate, error and bound, the traffic on every fusion-graph link
+//! and the faults.
 //!
-//! The launcher (`cqnet run --view`) and the replay of a finished run
-//! (`cqnet view OUT_DIR`) build the same [`ViewEvent`]s and publish them to a
-//! [`Hub`]; the [`server`] streams the hub to each open page as server-sent
-//! events, the history first, so a page opened late (or reloaded) draws the
-//! whole run so far.
-
-pub mod replay;
-pub mod server;
+//! The launcher ([`crate::network`]) and the replay of a finished run build
+//! the same [`ViewEvent`]s and publish them to a [`Hub`]; whoever serves a
+//! page (the `cqnet` command's web server) subscribes to the hub and gets the
+//! history first, so a page opened late (or reloaded) draws the whole run so
+//! far.
 
 use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -22,6 +19,10 @@ use tokio::sync::broadcast;
 
 use crate::results::TickRow;
 use crate::summary::AppliedFault;
+
+/// Work a server's thread does once a second while it serves (the live
+/// view reads the actors' byte counters this way).
+pub type Poll = Box<dyn FnMut() + Send>;
 
 /// One thing the page draws. Serialized as JSON with a `type` tag.
 #[derive(Debug, Clone, Serialize, PartialEq)]

@@ -2,7 +2,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO, SEED004_SCENARIO};
 use fusion_graph::Topology;
@@ -49,11 +48,11 @@ pub enum Command {
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
-    Actor(ActorArgs),
+    Actor(runtime::actor_process::ActorArgs),
     /// Serve one host of a multi-host scenario (its `[[hosts]]`): start
     /// this host's actors and bridge when a launcher asks.
     #[cfg(feature = "zenoh")]
-    Agent(crate::hosts::agent::AgentArgs),
+    Agent(runtime::hosts::agent::AgentArgs),
 }
 
 #[derive(Debug, Args, Clone)]
@@ -192,25 +191,6 @@ pub struct ExperimentArgs {
     pub trajectories: u32,
 }
 
-#[derive(Debug, Args)]
-pub struct ActorArgs {
-    #[arg(long)]
-    pub run_id: String,
-    #[arg(long)]
-    pub actor: String,
-    /// The run's effective scenario, written by the launcher.
-    #[arg(long)]
-    pub scenario: PathBuf,
-    /// Sensors: also send observations to the launcher's centralized reference.
-    #[arg(long)]
-    pub centralized: bool,
-    /// Started mid-run (a restart): a node rejoins from a neighbour's fused
-    /// posterior, and every actor first sweeps the iceoryx2 resources its
-    /// dead predecessor left.
-    #[arg(long)]
-    pub rejoin: bool,
-}
-
 /// The scenario the arguments name, validated, with its topology.
 pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)> {
     let (scenario, source) = match &args.scenario {
@@ -233,12 +213,4 @@ pub fn builtin_scenario(seed001: bool, seed004: bool) -> &'static str {
         (_, true) => SEED004_SCENARIO,
         _ => DEFAULT_SCENARIO,
     }
-}
-
-/// Loads the scenario file a launcher wrote for its children.
-pub fn load_child_scenario(path: &std::path::Path) -> anyhow::Result<(Scenario, Topology)> {
-    let scenario =
-        Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
-    let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
-    Ok((scenario, topology))
 }

@@ -21,8 +21,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{Check, Computed, ComputedReport, Options};
-use crate::montecarlo::run_monte_carlo;
-use crate::results::write_atomically;
+use runtime::montecarlo::run_monte_carlo;
+use runtime::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {

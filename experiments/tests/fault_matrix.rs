@@ -11,7 +11,7 @@
 //! Real processes add nothing here that
 //! `tests/network.rs` does not already show for kills and link faults.
 
-use launch::experiment::{self, faults, Options};
+use experiments::{self as experiment, faults, Options};
 
 fn run(name: &str) -> experiment::Report {
     let out = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))

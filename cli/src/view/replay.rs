@@ -15,8 +15,8 @@ use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Fault;
 use fusion_graph::Topology;
 
-use super::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
-use crate::summary::Summary;
+use runtime::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
+use runtime::summary::Summary;
 
 /// A finished run, read back.
 pub struct FinishedRun {

@@ -15,7 +15,6 @@ use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::ProcessingNode;
 use sensor::SensorActor;
 
-use crate::cli::{load_child_scenario, ActorArgs};
 use crate::drive::{run_pending_work, send_all};
 use crate::results::write_atomically;
 
@@ -404,4 +403,31 @@ mod tests {
             "the spin did not end"
         );
     }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ActorArgs {
+    #[arg(long)]
+    pub run_id: String,
+    #[arg(long)]
+    pub actor: String,
+    /// The run's effective scenario, written by the launcher.
+    #[arg(long)]
+    pub scenario: PathBuf,
+    /// Sensors: also send observations to the launcher's centralized reference.
+    #[arg(long)]
+    pub centralized: bool,
+    /// Started mid-run (a restart): a node rejoins from a neighbour's fused
+    /// posterior, and every actor first sweeps the iceoryx2 resources its
+    /// dead predecessor left.
+    #[arg(long)]
+    pub rejoin: bool,
+}
+
+/// Loads the scenario file a launcher wrote for its children.
+pub fn load_child_scenario(path: &std::path::Path) -> anyhow::Result<(Scenario, Topology)> {
+    let scenario =
+        Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
+    let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
+    Ok((scenario, topology))
 }

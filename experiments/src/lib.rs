@@ -28,8 +28,8 @@ use fusion_graph::Topology;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::montecarlo::run_monte_carlo;
-use crate::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
+use runtime::montecarlo::run_monte_carlo;
+use runtime::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
 
 /// A named, reproducible experiment.
 pub struct Experiment {
@@ -375,7 +375,7 @@ pub fn run(
             .transpose()
             .with_context(|| format!("non-conditional PCRLB of arm `{}`", arm.label))?;
         let per_step = |bytes: f64| bytes / scenario.steps as f64;
-        let kinds_per_step = |kinds: &[&str], value: &dyn Fn(&crate::results::Traffic) -> f64| {
+        let kinds_per_step = |kinds: &[&str], value: &dyn Fn(&runtime::results::Traffic) -> f64| {
             mc.per_run
                 .iter()
                 .flat_map(|s| {

@@ -28,7 +28,7 @@ use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRo
 use crate::sim::central_telemetry;
 use crate::summary::{AppliedFault, ChildrenMemory, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
-use crate::view::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
+use crate::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use crate::world::World;
 
 /// How long children get to start and say `ready`.
@@ -752,7 +752,7 @@ pub fn traffic_poller(
     hub: Arc<Hub>,
     topology: Topology,
     out: PathBuf,
-) -> crate::view::server::Poll {
+) -> crate::feed::Poll {
     Box::new(move || {
         let mut accounting = Accounting::default();
         for n in 0..topology.nodes() as u16 {

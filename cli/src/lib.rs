@@ -1,0 +1,10 @@
+//! The `cqnet` command: the runtime, the experiments and the tools around
+//! them (the live view's web server, the fuzzer, the soak) behind one
+//! command line. A library too, so that a user's own binary can serve as
+//! launcher and actor (`cqnet::app::main`).
+
+pub mod app;
+pub mod cli;
+pub mod fuzz;
+pub mod soak;
+pub mod view;
