@@ -9,15 +9,15 @@ use clap::Parser;
 use crate::cli::{
     builtin_scenario, load_scenario, Cli, Command, ExperimentArgs, FuzzArgs, SoakArgs, ViewArgs,
 };
+use crate::view::replay::{replay, FinishedRun};
+use crate::view::server::ViewServer;
 use experiments::{self as experiment, Entry, Experiment};
+use runtime::feed::Hub;
 use runtime::montecarlo::run_monte_carlo;
 use runtime::network::RunProgress;
 use runtime::progress::{step_message, Progress};
 use runtime::results::{write_atomically, ResultsWriter};
 use runtime::summary::print_table;
-use crate::view::replay::{replay, FinishedRun};
-use crate::view::server::ViewServer;
-use runtime::feed::Hub;
 
 /// `cqnet`'s `main`.
 pub fn main() -> std::process::ExitCode {

@@ -300,7 +300,7 @@ fn decode_actor(v: u64) -> Option<ActorId> {
 
 /// A link as one nonzero word: a marker bit, from, to and kind.
 fn encode_key((from, to, kind): LinkKey) -> u64 {
-    1 << 56 | encode_actor(from) << 32 | encode_actor(to) << 8 | kind as u64
+    1 << 56 | encode_actor(from) << 32 | encode_actor(to) << 8 | kind.code() as u64
 }
 
 fn decode_key(v: u64) -> Option<LinkKey> {

@@ -8,6 +8,8 @@ pub mod faults;
 pub mod hosts;
 pub mod ledger;
 pub mod models;
+pub mod payloads;
+pub mod registered;
 pub mod scenario;
 pub mod shaper;
 pub mod topology;

@@ -5,7 +5,68 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use crate::registered::Role;
 use crate::ScenarioError;
+
+/// A choice a scenario spells by name (a fusion protocol, a sensor
+/// manager): the built-in ones, then those the program registered
+/// ([`crate::registered`]). An unknown name is refused at its key, listing
+/// the names it could have been.
+macro_rules! named_choice {
+    ($ty:ident, $role:expr, $what:literal) => {
+        impl $ty {
+            /// The name the scenario file spells it with.
+            pub fn name(self) -> &'static str {
+                match self {
+                    Self::Registered(name) => name,
+                    built_in => Self::BUILT_IN
+                        .iter()
+                        .find(|(v, _)| *v == built_in)
+                        .map(|(_, n)| *n)
+                        .expect("every built-in has a name"),
+                }
+            }
+
+            /// The built-in or registered choice called `name`.
+            pub fn from_name(name: &str) -> Option<Self> {
+                Self::BUILT_IN
+                    .iter()
+                    .find(|(_, n)| *n == name)
+                    .map(|(v, _)| *v)
+                    .or_else(|| crate::registered::lookup($role, name).map(Self::Registered))
+            }
+
+            fn expected() -> String {
+                Self::BUILT_IN
+                    .iter()
+                    .map(|(_, n)| *n)
+                    .chain(crate::registered::names($role))
+                    .map(|n| format!("`{n}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }
+        }
+
+        impl Serialize for $ty {
+            fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+                s.serialize_str(self.name())
+            }
+        }
+
+        impl<'de> Deserialize<'de> for $ty {
+            fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+                let name = String::deserialize(d)?;
+                Self::from_name(&name).ok_or_else(|| {
+                    serde::de::Error::custom(format!(
+                        "unknown {} `{name}`, expected one of {}",
+                        $what,
+                        Self::expected()
+                    ))
+                })
+            }
+        }
+    };
+}
 
 /// The built-in default scenario (math.md's table).
 pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/default.toml");
@@ -149,10 +210,12 @@ pub struct SensorLayout {
     /// Which sensors each node activates (seed 001's comparison).
     #[serde(default)]
     pub manager: SensorManagerKind,
+    /// The manager's own parameters, which it checks (`node::registry`).
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub manager_params: toml::Table,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum SensorManagerKind {
     /// `active_per_node` of the node's own sensors, uniformly at random (seed 000).
     #[default]
@@ -166,7 +229,20 @@ pub enum SensorManagerKind {
     /// The same greedy selection scored by the non-conditional (Tichavsky)
     /// bound, carried along the estimate.
     PcrlbNonconditional,
+    /// A manager the program registered under this name (`node::registry`).
+    Registered(&'static str),
 }
+
+impl SensorManagerKind {
+    const BUILT_IN: [(Self, &'static str); 4] = [
+        (Self::Random, "random"),
+        (Self::Closest, "closest"),
+        (Self::Pcrlb, "pcrlb"),
+        (Self::PcrlbNonconditional, "pcrlb_nonconditional"),
+    ];
+}
+
+named_choice!(SensorManagerKind, Role::Manager, "sensor manager");
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -239,8 +315,7 @@ pub struct FilterConfig {
     pub gate: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ConsensusProtocol {
     /// N_c rounds of average consensus with Metropolis weights.
     Average,
@@ -258,17 +333,22 @@ pub enum ConsensusProtocol {
     /// Seed 004's iterative KL with local cooperation: the closed
     /// neighbourhood's measurements, then `rounds` rounds (K_max).
     KlIterative,
+    /// A protocol the program registered under this name (`node::registry`).
+    Registered(&'static str),
 }
 
-/// A protocol's name as the scenario file spells it.
-fn serde_plain_name(p: ConsensusProtocol) -> String {
-    toml::Value::try_from(p)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_else(|| format!("{p:?}"))
-}
+named_choice!(ConsensusProtocol, Role::Protocol, "fusion protocol");
 
 impl ConsensusProtocol {
+    const BUILT_IN: [(Self, &'static str); 6] = [
+        (Self::Average, "average"),
+        (Self::Exact, "exact"),
+        (Self::RandomExchange, "random_exchange"),
+        (Self::KlConsensus, "kl_consensus"),
+        (Self::KlDiffusion, "kl_diffusion"),
+        (Self::KlIterative, "kl_iterative"),
+    ];
+
     /// One of seed 004's trackers: one particle filter per node, summarized
     /// as a Gaussian, rather than the CF/DPF.
     pub fn is_diffusion(self) -> bool {
@@ -284,6 +364,9 @@ impl ConsensusProtocol {
 pub struct ConsensusConfig {
     pub rounds: u32,
     pub protocol: ConsensusProtocol,
+    /// The protocol's own parameters, which it checks (`node::registry`).
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub params: toml::Table,
     #[serde(default)]
     pub auxiliary_fim: bool,
     pub round_timeout_ms: f64,
@@ -631,7 +714,7 @@ impl Scenario {
                 key: key.into(),
                 expected: format!(
                     "its default with consensus.protocol = \"{}\" (seed 004's trackers have no such part)",
-                    serde_plain_name(protocol)
+                    protocol.name()
                 ),
                 got,
             })
@@ -954,7 +1037,9 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), S
             .ok_or_else(|| bad(&format!("`{part}` is not a section")))?;
     }
     let last = parts[parts.len() - 1];
-    if !current.contains_key(last) && !is_optional_key(last) {
+    // A part's own parameters are its to check, not the schema's.
+    let in_params = parts.len() >= 2 && is_params_table(parts[parts.len() - 2]);
+    if !current.contains_key(last) && !is_optional_key(last) && !in_params {
         return Err(bad(&format!("no key `{last}` in the scenario")));
     }
     current.insert(last.to_string(), value);
@@ -963,7 +1048,12 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), S
 
 /// Sections that may be absent from a scenario file; `--set` creates them.
 fn is_optional_section(section: &str) -> bool {
-    matches!(section, "censoring" | "reference")
+    matches!(section, "censoring" | "reference") || is_params_table(section)
+}
+
+/// The tables of parameters a protocol or a manager reads for itself.
+fn is_params_table(section: &str) -> bool {
+    matches!(section, "params" | "manager_params")
 }
 
 /// Keys that may be absent from a scenario file but can be set.
@@ -989,6 +1079,8 @@ fn is_optional_key(key: &str) -> bool {
             | "positions"
             | "per_cell"
             | "manager"
+            | "params"
+            | "manager_params"
             | "gate"
     )
 }

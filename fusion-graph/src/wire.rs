@@ -15,6 +15,7 @@ use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
+use crate::payloads::{self, ProtocolBody, ProtocolKind};
 use crate::WireError;
 
 /// Bumped whenever the encoding changes.
@@ -35,7 +36,8 @@ fn config() -> Config {
         .with_limit::<MAX_MESSAGE_BYTES>()
 }
 
-/// Message kinds, also the unit of byte accounting.
+/// Message kinds, also the unit of byte accounting: the built-in ones, and
+/// those protocols register for their own payloads ([`crate::payloads`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[repr(u8)]
 pub enum MessageKind {
@@ -76,6 +78,8 @@ pub enum MessageKind {
     /// A node relays its own sensor's measurement to its neighbours, so
     /// that each assimilates its closed neighbourhood's: sensor, value.
     NeighbourObservation = 17,
+    /// A protocol's own payload, under the kind byte it registered.
+    Protocol(ProtocolKind) = 128,
     /// Accounting only: bytes whose kind could not be read.
     Malformed = 255,
 }
@@ -101,7 +105,7 @@ impl MessageKind {
             15 => ExchangeReply,
             16 => ExchangePosterior,
             17 => NeighbourObservation,
-            _ => return None,
+            k => Protocol(ProtocolKind::registered(k)?),
         })
     }
 
@@ -125,7 +129,34 @@ impl MessageKind {
             ExchangeReply => "exchange_reply",
             ExchangePosterior => "exchange_posterior",
             NeighbourObservation => "neighbour_observation",
+            Protocol(k) => k.name(),
             Malformed => "malformed",
+        }
+    }
+
+    /// The kind byte on the wire.
+    pub fn code(self) -> u8 {
+        use MessageKind::*;
+        match self {
+            Tick => 1,
+            Activate => 2,
+            Observation => 3,
+            RawObservation => 4,
+            Consensus => 5,
+            ConsensusAux => 6,
+            Control => 7,
+            Telemetry => 8,
+            StateTransfer => 9,
+            MinConsensus => 10,
+            ActivateFeedback => 11,
+            ActivateFeedbackCovariance => 12,
+            KlConsensus => 13,
+            ExchangeRequest => 14,
+            ExchangeReply => 15,
+            ExchangePosterior => 16,
+            NeighbourObservation => 17,
+            Protocol(k) => k.code(),
+            Malformed => 255,
         }
     }
 }
@@ -301,6 +332,8 @@ pub enum Payload {
         sensor: u16,
         value: f64,
     },
+    /// A protocol's own payload ([`crate::payloads`]).
+    Protocol(ProtocolBody),
 }
 
 /// A proposal in min-consensus: the smallest `cost` wins, ties going to the
@@ -350,6 +383,7 @@ impl Payload {
             Payload::ExchangeReply { .. } => MessageKind::ExchangeReply,
             Payload::ExchangePosterior(_) => MessageKind::ExchangePosterior,
             Payload::NeighbourObservation { .. } => MessageKind::NeighbourObservation,
+            Payload::Protocol(body) => MessageKind::Protocol(body.kind),
         }
     }
 }
@@ -393,7 +427,7 @@ impl Message {
         let (sender_kind, sender_index) = self.header.sender.to_wire();
         let h = WireHeader {
             version: WIRE_VERSION,
-            kind: self.header.kind as u8,
+            kind: self.header.kind.code(),
             sender_kind,
             sender_index,
             step: self.header.step,
@@ -433,6 +467,7 @@ impl Message {
                 put(sensor, out);
                 put(value, out);
             }
+            Payload::Protocol(body) => out.extend_from_slice(&body.bytes),
         }
     }
 
@@ -571,6 +606,7 @@ impl Message {
                     value: finite([value])?[0],
                 }
             }
+            MessageKind::Protocol(k) => payloads::decode_body(k, body)?,
             MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
         };
         Ok(Self {
@@ -612,6 +648,7 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::ExchangeReply => 1,
                 MessageKind::ExchangePosterior => 8 * 14,
                 MessageKind::NeighbourObservation => 2 + 8,
+                MessageKind::Protocol(k) => k.body_len(),
                 _ => return None,
             },
     )

@@ -28,10 +28,8 @@ use crate::estimator::{
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
-use crate::fusion::{average_consensus, Fused, Handled, InformationFusion, InformationVector};
-use crate::sensor_manager::{
-    self, Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs,
-};
+use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
+use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs};
 use crate::{wiring, Outgoing};
 
 /// A node that cannot be built.
@@ -47,6 +45,8 @@ pub enum NodeError {
     NotDiffusion(ConsensusProtocol),
     #[error("consensus.protocol {0:?} is one of seed 004's trackers, not the CF/DPF")]
     NotCfDpf(ConsensusProtocol),
+    #[error(transparent)]
+    Param(#[from] crate::registry::ParamError),
     #[error("consensus.protocol = \"exact\" needs the exact-sum oracle of one process (`cqnet sim`): real processes have no exact network sum")]
     NoExactSums,
 }
@@ -262,24 +262,19 @@ pub struct NodeActor {
 }
 
 impl NodeActor {
-    /// The node as the scenario describes it: uniform random sensor
-    /// selection and average consensus.
+    /// The node as the scenario describes it: its sensor manager and fusion
+    /// protocol are the registry's (`crate::registry`) for the names the
+    /// scenario gives.
     pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
         match scenario.consensus.protocol {
             ConsensusProtocol::Exact => return Err(NodeError::NoExactSums),
             p if p.is_diffusion() => return Err(NodeError::NotCfDpf(p)),
             _ => {}
         }
-        let c = &scenario.consensus;
-        let protocol = average_consensus(
-            index,
-            topology,
-            c.rounds as u16,
-            Duration::from_secs_f64(c.round_timeout_ms / 1e3),
-            c.auxiliary_fim,
-        );
-        let manager = sensor_manager::for_scenario(scenario, topology, index);
-        Self::with_parts(scenario, topology, index, manager, Box::new(protocol))
+        let protocol = crate::registry::information_fusion(scenario, topology, index)?
+            .expect("the CF/DPF's protocol is average consensus or a registered one");
+        let manager = crate::registry::manager(scenario, topology, index)?;
+        Self::with_parts(scenario, topology, index, manager, protocol)
     }
 
     /// The node with a sensor manager and a fusion protocol of the caller's choice.

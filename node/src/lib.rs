@@ -16,6 +16,8 @@
 //! - [`actor`]: the CF/DPF node's state machine, tying them together;
 //! - [`diffusion_node`]: seed 004's node, one filter and a Gaussian to
 //!   exchange or fuse;
+//! - [`registry`]: the fusion protocols and sensor managers a scenario can
+//!   name, the built-in ones and those a program registers;
 //! - [`processing`]: either node behind one face, as the scenario says;
 //!   `wiring` holds what both nodes read, publish and send alike.
 
@@ -29,6 +31,7 @@ pub mod filter;
 pub mod fusion;
 pub mod gate;
 pub mod processing;
+pub mod registry;
 pub mod sensor_manager;
 mod wiring;
 

@@ -24,11 +24,11 @@ use node::CentralizedReference;
 use tokio::sync::mpsc::UnboundedSender;
 
 use crate::actor_process::{ledger_path, memory_path, stop_message};
+use crate::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::sim::central_telemetry;
 use crate::summary::{AppliedFault, ChildrenMemory, Summary};
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
-use crate::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use crate::world::World;
 
 /// How long children get to start and say `ready`.
@@ -66,6 +66,7 @@ pub fn run_network(
     if scenario.consensus.protocol == ConsensusProtocol::Exact {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
     }
+    node::registry::check(scenario, topology)?;
     crate::preflight::check(scenario, topology, options.centralized)?;
     // Runs whose launcher was SIGKILLed left their shared memory behind:
     // clear those (and only those) before adding ours.
@@ -748,11 +749,7 @@ fn publish_late_rows(view: Option<&Hub>, rows: &[TickRow], step: u32) {
 
 /// The live view's once-a-second look at the link traffic: each node's
 /// ledger as it stands, over the steps run so far.
-pub fn traffic_poller(
-    hub: Arc<Hub>,
-    topology: Topology,
-    out: PathBuf,
-) -> crate::feed::Poll {
+pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate::feed::Poll {
     Box::new(move || {
         let mut accounting = Accounting::default();
         for n in 0..topology.nodes() as u16 {

@@ -16,7 +16,6 @@ use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
 use fusion_graph::wire::{Message, Payload, Telemetry};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
-use node::sensor_manager;
 use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
 use sensor::SensorActor;
 
@@ -143,7 +142,7 @@ impl InProcessNetwork {
                 scenario,
                 topology,
                 i,
-                sensor_manager::for_scenario(scenario, topology, i),
+                node::registry::manager(scenario, topology, i)?,
                 Box::new(ExactSums::new(
                     i,
                     topology,
@@ -424,6 +423,7 @@ pub fn run_in_process(
     mut on_step: impl FnMut(u32, &[TickRow]),
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
+    node::registry::check(scenario, topology)?;
     let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
     let mut recorder = Recorder::new(writer, scenario, topology);
     for step in 1..=scenario.steps {

@@ -67,9 +67,9 @@ pub use fusion_graph::accounting::{Accounting, Counters};
 pub use fusion_graph::scenario::{Fault, LinkSelector, Scenario, Signal};
 pub use fusion_graph::wire::MessageKind;
 pub use fusion_graph::ActorId;
-pub use runtime::summary::{AppliedFault, FaultCost, Summary};
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
 pub use results::{Run, Tick};
+pub use runtime::summary::{AppliedFault, FaultCost, Summary};
 
 /// The `cqnet` program's `main`, for a binary of your own crate (see the
 /// crate's documentation).

@@ -62,7 +62,8 @@ impl<M: SensorManager + 'static> From<Box<M>> for Manager {
     }
 }
 
-/// The scenario's manager (`sensors.manager`) for node `node`.
+/// The scenario's built-in manager (`sensors.manager`) for node `node`;
+/// [`crate::registry::manager`] is the way in for any manager.
 pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Manager {
     let negotiated = |scoring| {
         // The prior's covariance is diagonal (filter.prior_std, validated
@@ -87,6 +88,9 @@ pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Mana
         SensorManagerKind::Closest => Manager::Alone(Box::new(Closest::for_scenario(scenario))),
         SensorManagerKind::Pcrlb => negotiated(Scoring::Conditional),
         SensorManagerKind::PcrlbNonconditional => negotiated(Scoring::NonConditional),
+        SensorManagerKind::Registered(_) => {
+            unreachable!("crate::registry::manager builds registered managers")
+        }
     }
 }
 
