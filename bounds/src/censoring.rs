@@ -8,7 +8,7 @@
 //! upper l/N quantile of that χ² (eq. 3.8).
 //!
 //! Silence is then information. For a scalar measurement with noise
-//! variance r the likelihood of silence at a state x is (eq. 3.14; math.md
+//! variance r the likelihood of silence at a state x is (eq. 3.14; docs/equations.md
 //! gives the form the proof yields, with the root over `η s` alone)
 //!
 //! ```text

@@ -23,9 +23,9 @@
 
 use std::sync::OnceLock;
 
-use crate::quantizer::{window_sums, WINDOW_SIGMAS};
-use crate::shared_rows::SharedRows;
-use crate::width_axis::{self, LazyRows, Stencil};
+use crate::cell_sums::{window_sums, WINDOW_SIGMAS};
+use crate::shared_rows::{LazyRows, PlainRow, SharedRows};
+use crate::width_axis::{self, lagrange_weights, Stencil};
 
 /// Grid points over the cell fraction u ∈ [0, 1) (periodic).
 const U_POINTS: usize = 128;
@@ -46,6 +46,21 @@ pub(crate) type Grid = [[f64; 3]; U_POINTS + 3];
 
 /// The sums' mean over u at one value of s.
 pub(crate) type Means = [f64; 3];
+
+crate::shared_rows::kept_by_reference!(Grid);
+
+// SAFETY: three f64.
+unsafe impl PlainRow for Means {
+    type Kept = Self;
+    #[inline(always)]
+    fn keep(row: &'static Self) -> Self::Kept {
+        *row
+    }
+    #[inline(always)]
+    fn kept(kept: &Self::Kept) -> &Self {
+        kept
+    }
+}
 
 /// Per value of s, the sums' mean over u and, below s = 1, the grid over u
 /// (whose row of means is taken from it).
@@ -176,21 +191,6 @@ fn fine_cell_sums(s: f64) -> [f64; 3] {
         1.0 - inv2 / 12.0 + inv2 * inv2 / 144.0,
         0.0,
         2.0 - inv2 / 3.0 + inv2 * inv2 / 20.0,
-    ]
-}
-
-/// Cubic Lagrange weights for nodes −1, 0, 1, 2 at offset `t` from node 0.
-#[inline(always)]
-pub(crate) fn lagrange_weights(t: f64) -> [f64; 4] {
-    // By products only: a division by 6 is not a multiplication to the
-    // compiler, and would be two divisions on every lookup's critical path.
-    const SIXTH: f64 = 1.0 / 6.0;
-    let (tm1, tp1, tm2) = (t - 1.0, t + 1.0, t - 2.0);
-    [
-        -t * tm1 * tm2 * SIXTH,
-        tp1 * tm1 * tm2 * 0.5,
-        -tp1 * t * tm2 * 0.5,
-        tp1 * t * tm1 * SIXTH,
     ]
 }
 

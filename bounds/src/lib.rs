@@ -21,6 +21,7 @@
 
 pub mod batch;
 pub mod bit_allocation;
+pub mod cell_sums;
 pub mod censoring;
 pub mod chacha;
 pub mod diffusion;
@@ -35,6 +36,7 @@ pub mod quantizer;
 pub mod selection;
 pub mod shared_rows;
 pub mod speb;
+pub mod table_memory;
 pub mod width_axis;
 mod ziggurat_tables;
 

@@ -21,8 +21,8 @@
 use std::sync::OnceLock;
 
 use crate::normal::ln_interval_mass;
-use crate::shared_rows::SharedRows;
-use crate::width_axis::{self, LazyRows, Stencil};
+use crate::shared_rows::{LazyRows, PlainRow, SharedRows};
+use crate::width_axis::{self, lagrange_weights, Stencil};
 
 /// The table covers `|v| ≤ V_MAX`: particles within 12 σ of the cell.
 pub const V_MAX: f64 = 12.0;
@@ -36,6 +36,8 @@ const V_POINTS: usize = 2 * V_MAX as usize * V_PER_UNIT + 1;
 /// One row over v, padded with one point before and two after so that a
 /// four-point stencil never leaves it.
 pub(crate) type MassRow = [f64; V_POINTS + 3];
+
+crate::shared_rows::kept_by_reference!(MassRow);
 
 #[derive(Default)]
 pub struct LnMassTable {
@@ -141,7 +143,7 @@ pub fn point_lane(v: f64) -> (bool, Point) {
         inside,
         Point {
             iv,
-            weights: crate::fisher_table::lagrange_weights(xv - at),
+            weights: lagrange_weights(xv - at),
         },
     )
 }
@@ -166,7 +168,7 @@ mod tests {
                 let iv = (xv as i32).clamp(0, V_POINTS as i32 - 2) as usize;
                 assert_eq!(inside, v.abs() <= V_MAX, "{v}");
                 assert_eq!(at.iv, iv, "{v}");
-                let want = crate::fisher_table::lagrange_weights(xv - iv as f64);
+                let want = crate::width_axis::lagrange_weights(xv - iv as f64);
                 assert_eq!(at.weights.map(f64::to_bits), want.map(f64::to_bits), "{v}");
             }
             v += 0.003_17;

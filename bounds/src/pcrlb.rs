@@ -18,10 +18,12 @@ use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 
 use crate::batch::{has_avx2, Positions, StateLanes, CHUNK};
+use crate::cell_sums::FisherScalars;
+pub use crate::cell_sums::ScalarBatch;
 use crate::dynamics::{Dynamics, TurnBatch};
 use crate::fisher::{assemble, position_entries, Measurement};
 use crate::observation::{Evaluations, ObservationModel};
-use crate::quantizer::{FisherScalars, TableReads};
+use crate::quantizer::TableReads;
 use crate::{BoundError, Mat4, State};
 
 /// One sensor as the bound sees it: its model and how it reports.
@@ -317,39 +319,6 @@ impl BatchScalars for ExpectedScalars<'_> {
                     out.set(i, FisherScalars::raw(r));
                 }
             }
-        }
-    }
-}
-
-/// The Fisher scalars of one sensor at a batch of particles, as arrays.
-#[derive(Debug, Clone, Copy)]
-pub struct ScalarBatch {
-    pub gg: [f64; CHUNK],
-    pub gr: [f64; CHUNK],
-    pub rr: [f64; CHUNK],
-}
-
-impl ScalarBatch {
-    #[inline(always)]
-    pub fn set(&mut self, i: usize, s: FisherScalars) {
-        (self.gg[i], self.gr[i], self.rr[i]) = (s.gg, s.gr, s.rr);
-    }
-
-    fn get(&self, i: usize) -> FisherScalars {
-        FisherScalars {
-            gg: self.gg[i],
-            gr: self.gr[i],
-            rr: self.rr[i],
-        }
-    }
-}
-
-impl Default for ScalarBatch {
-    fn default() -> Self {
-        Self {
-            gg: [0.0; CHUNK],
-            gr: [0.0; CHUNK],
-            rr: [0.0; CHUNK],
         }
     }
 }

@@ -1,20 +1,12 @@
 //! The sensor's quantizer: cells, encoding to bytes, cell probabilities
 //! `h_i(x)` and their sensitivities, and the per-observation Fisher scalars.
 
-use std::f64::consts::FRAC_1_SQRT_2;
-
 use crate::batch::CHUNK;
+use crate::cell_sums::{accumulate, scalars_from_sums, window_sums};
+pub use crate::cell_sums::{FisherScalars, ScalarBatch, WINDOW_SIGMAS};
 use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
-use crate::pcrlb::ScalarBatch;
 use crate::width_axis::{self, Stencil};
 use crate::QuantizerError;
-
-/// Half-width, in standard deviations, of the window of cells summed in the
-/// Fisher information. A cell whose nearer edge is `a` standard deviations
-/// away contributes about `a³ φ(a)` times the unquantized information `1/R`;
-/// at 9 that is below 1e-15. `fisher_window_drops_less_than_tolerance` checks
-/// that the dropped part stays below 1e-12 of the unquantized information.
-pub const WINDOW_SIGMAS: f64 = 9.0;
 
 /// Largest supported bit depth (2^16 cells): the most any experiment sweeps
 /// (seed 003 goes to 16), and the one limit the scenario checks against.
@@ -217,67 +209,6 @@ pub struct CellSensitivity {
     pub probability: f64,
     pub d_mean: f64,
     pub d_variance: f64,
-}
-
-/// The three scalars that give the Fisher information of one quantized
-/// observation: with `∇h_i = (∂h_i/∂g) ∇g + (∂h_i/∂R) ∇R`,
-/// `J_Y = gg ∇g∇gᵀ + gr (∇g∇Rᵀ + ∇R∇gᵀ) + rr ∇R∇Rᵀ`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct FisherScalars {
-    pub gg: f64,
-    pub gr: f64,
-    pub rr: f64,
-}
-
-impl FisherScalars {
-    /// The unquantized observation: `J_Z = ∇g∇gᵀ/R + ∇R∇Rᵀ/(2R²)`.
-    pub fn raw(r: f64) -> Self {
-        Self {
-            gg: 1.0 / r,
-            gr: 0.0,
-            rr: 0.5 / (r * r),
-        }
-    }
-}
-
-/// Standardized edge `t = (e − g)/σ` with the values every adjacent cell
-/// needs, so each edge costs one `erfc` and one `exp`.
-#[derive(Clone, Copy)]
-struct Edge {
-    t: f64,
-    pdf: f64,
-    x_pdf: f64,
-    /// `Q(t)` for `t ≥ 0`, `Φ(t)` for `t < 0`: the tail that is small.
-    tail: f64,
-}
-
-impl Edge {
-    #[inline]
-    fn at(t: f64) -> Self {
-        let tail = if t >= 0.0 {
-            normal::upper_tail(t)
-        } else {
-            normal::cdf(t)
-        };
-        Self {
-            t,
-            pdf: normal::pdf(t),
-            x_pdf: normal::x_pdf(t),
-            tail,
-        }
-    }
-
-    /// Mass between this edge and a higher one.
-    #[inline]
-    fn mass_to(&self, upper: &Edge) -> f64 {
-        if self.t >= 0.0 {
-            self.tail - upper.tail
-        } else if upper.t <= 0.0 {
-            upper.tail - self.tail
-        } else {
-            0.5 * (libm::erf(upper.t * FRAC_1_SQRT_2) - libm::erf(self.t * FRAC_1_SQRT_2))
-        }
-    }
 }
 
 impl Quantizer {
@@ -885,51 +816,6 @@ impl Quantizer {
         }
         let l = self.cells() as i64;
         self.edges[m.rem_euclid(l) as usize] + m.div_euclid(l) as f64 * self.period()
-    }
-}
-
-/// `Σα²/h, Σαβ/h, Σβ²/h` over the cells between consecutive standardized
-/// edges, each edge costing one `erfc` and one `exp`.
-#[inline]
-pub(crate) fn window_sums(mut edges: impl Iterator<Item = f64>) -> [f64; 3] {
-    let mut sums = [0.0; 3];
-    let Some(first) = edges.next() else {
-        return sums;
-    };
-    let mut lower = Edge::at(first);
-    for t in edges {
-        let upper = Edge::at(t);
-        accumulate(
-            &mut sums,
-            lower.mass_to(&upper),
-            lower.pdf - upper.pdf,
-            lower.x_pdf - upper.x_pdf,
-        );
-        lower = upper;
-    }
-    sums
-}
-
-/// Adds one cell's `α²/h, αβ/h, β²/h` (standardized α, β).
-#[inline]
-fn accumulate(sums: &mut [f64; 3], h: f64, alpha: f64, beta: f64) {
-    if h > 0.0 {
-        // α/h before α·(α/h): 1/h alone overflows for a subnormal h.
-        let (a, b) = (alpha / h, beta / h);
-        sums[0] += alpha * a;
-        sums[1] += alpha * b;
-        sums[2] += beta * b;
-    }
-}
-
-/// `∂h/∂g = α/σ`, `∂h/∂R = β/(2R)`.
-#[inline]
-fn scalars_from_sums(sums: [f64; 3], variance: f64) -> FisherScalars {
-    let sigma = variance.sqrt();
-    FisherScalars {
-        gg: sums[0] / variance,
-        gr: sums[1] / (2.0 * variance * sigma),
-        rr: sums[2] / (4.0 * variance * variance),
     }
 }
 

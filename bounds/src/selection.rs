@@ -1,4 +1,4 @@
-//! PCRLB-driven sensor selection (seed 001 §4; math.md, "PCRLB sensor
+//! PCRLB-driven sensor selection (seed 001 §4; docs/equations.md, "PCRLB sensor
 //! selection"): the cost of a set of active sensors and the greedy choice,
 //! as pure functions.
 //!
@@ -39,7 +39,7 @@ pub struct Candidate {
 }
 
 /// The order of (cost, node, sensor) proposals: lower cost first, then the
-/// smaller node, then the smaller sensor (math.md's tie-break, so that every
+/// smaller node, then the smaller sensor (docs/equations.md's tie-break, so that every
 /// node agrees). Min-consensus on the wire uses the same order.
 pub fn proposal_order(a: (f64, u16, u16), b: (f64, u16, u16)) -> Ordering {
     a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2)))

@@ -2,7 +2,7 @@
 //! once by whichever process first needs it, read by the others.
 //!
 //! Why: the likelihood and Fisher tables build their rows on first use
-//! (`width_axis::LazyRows`). In `cqnet sim` one process builds each row
+//! ([`LazyRows`]). In `cqnet sim` one process builds each row
 //! once; in `cqnet run` every node process built every row it met, nine
 //! times over, and kept its own copy of the same numbers: 125 million of a
 //! node's 1,075 million instructions in a 200-step run (callgrind).
@@ -21,7 +21,8 @@
 //! bit whoever built it.
 
 use std::marker::PhantomData;
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use crate::width_axis::ROWS;
@@ -58,20 +59,7 @@ macro_rules! kept_by_reference {
     )*};
 }
 
-kept_by_reference!(crate::mass_table::MassRow, crate::fisher_table::Grid);
-
-// SAFETY: three f64.
-unsafe impl PlainRow for crate::fisher_table::Means {
-    type Kept = Self;
-    #[inline(always)]
-    fn keep(row: &'static Self) -> Self::Kept {
-        *row
-    }
-    #[inline(always)]
-    fn kept(kept: &Self::Kept) -> &Self {
-        kept
-    }
-}
+pub(crate) use kept_by_reference;
 
 const EMPTY: u32 = 0;
 const BUILDING: u32 = 1;
@@ -83,7 +71,7 @@ const WAIT_FOR_BUILDER: Duration = Duration::from_millis(2);
 
 /// Offsets are kept to cache lines, so that no row shares a line with a
 /// state word that others write.
-const LINE: usize = 64;
+pub(crate) const LINE: usize = 64;
 
 const fn round_up(n: usize) -> usize {
     n.div_ceil(LINE) * LINE
@@ -112,7 +100,7 @@ impl<T: PlainRow> SharedRows<T> {
     /// `base` is aligned to a cache line, valid for [`Self::BYTES`] bytes for
     /// the rest of the process, zeroed or written only by `SharedRows<T>`
     /// of this build, and touched by nothing else.
-    unsafe fn at(base: *mut u8) -> Self {
+    pub(crate) unsafe fn at(base: *mut u8) -> Self {
         const { assert!(align_of::<T>() <= LINE) };
         Self {
             states: base.cast(),
@@ -160,80 +148,64 @@ impl<T: PlainRow> SharedRows<T> {
     }
 }
 
-/// What goes wrong in sharing the tables' rows.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
-pub enum ShareError {
-    #[error("shared table memory of {got} bytes; the tables need {need}")]
-    TooSmall { got: usize, need: usize },
-    #[error("shared table memory is not aligned to {LINE} bytes")]
-    Misaligned,
-    #[error("shared table memory holds another build's layout (header {found:#x}, this build's {expected:#x})")]
-    OtherLayout { found: u64, expected: u64 },
+/// One value per row of the axis, each built on first use, so that a
+/// process pays only for the range of σ/Δ it meets. A fixed length, so
+/// that indexing a stencil's rows needs no check. The rows are this
+/// process's own, or live in memory that several processes share
+/// ([`crate::shared_rows`]); the lookups read them alike.
+pub struct LazyRows<T: PlainRow> {
+    rows: Box<[OnceLock<T::Kept>; ROWS]>,
+    shared: OnceLock<SharedRows<T>>,
 }
 
-/// The header: a constant and this build's row sizes, so that a process of
-/// another build (another row layout) finds a mismatch, not wrong rows.
-fn layout_word() -> u64 {
-    let sizes = (size_of::<crate::mass_table::MassRow>() as u64)
-        ^ (size_of::<crate::fisher_table::Means>() as u64) << 16
-        ^ (size_of::<crate::fisher_table::Grid>() as u64) << 32;
-    0xC0DE_0000_0000_0000 ^ sizes ^ (ROWS as u64) << 48
+impl<T: PlainRow> LazyRows<T> {
+    pub fn new() -> Self {
+        Self {
+            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
+            shared: OnceLock::new(),
+        }
+    }
+
+    /// Row `row`, built by `build(row)` if it is not yet. The fast path (an
+    /// acquire load) is inlined into the lookups; the build is not.
+    #[inline(always)]
+    pub fn get(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
+        match self.rows[row].get() {
+            Some(kept) => T::kept(kept),
+            None => self.build(row, build),
+        }
+    }
+
+    /// From now on, rows not built yet come from (or go to) `shared`.
+    /// Returns false if the rows were shared already.
+    pub fn share(&self, shared: SharedRows<T>) -> bool {
+        self.shared.set(shared).is_ok()
+    }
+
+    /// A row lives as long as the process: the tables are process-wide,
+    /// and a row in shared memory is never unmapped.
+    #[cold]
+    #[inline(never)]
+    fn build(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
+        let kept = self.rows[row].get_or_init(|| {
+            T::keep(match self.shared.get() {
+                Some(shared) => shared.get_or_build(row, build),
+                None => Box::leak(Box::new(build(row))),
+            })
+        });
+        T::kept(kept)
+    }
 }
 
-/// Bytes that [`share_table_rows`] needs.
-pub const fn shared_table_bytes() -> usize {
-    LINE + SharedRows::<crate::mass_table::MassRow>::BYTES
-        + SharedRows::<crate::fisher_table::Means>::BYTES
-        + SharedRows::<crate::fisher_table::Grid>::BYTES
-}
-
-/// Puts the rows of this process's likelihood and Fisher tables in
-/// `memory`, which other processes map too. Rows built before the call
-/// stay this process's own; every later one is shared.
-///
-/// # Safety
-/// `memory` must stay mapped for the rest of the process, start zeroed,
-/// and be written only through this function's tables, in this process
-/// and in every other that maps it.
-pub unsafe fn share_table_rows(memory: *mut u8, len: usize) -> Result<(), ShareError> {
-    let need = shared_table_bytes();
-    if len < need {
-        return Err(ShareError::TooSmall { got: len, need });
+impl<T: PlainRow> Default for LazyRows<T> {
+    fn default() -> Self {
+        Self::new()
     }
-    if !(memory as usize).is_multiple_of(LINE) {
-        return Err(ShareError::Misaligned);
-    }
-    let expected = layout_word();
-    // SAFETY: aligned, within `memory`, and only ever touched atomically.
-    let header = unsafe { &*memory.cast::<AtomicU64>() };
-    match header.compare_exchange(0, expected, Ordering::AcqRel, Ordering::Acquire) {
-        Ok(_) => {}
-        Err(found) if found == expected => {}
-        Err(found) => return Err(ShareError::OtherLayout { found, expected }),
-    }
-    let mut at = LINE;
-    let mut next = |bytes: usize| {
-        // SAFETY: the regions tile `memory`, each at a multiple of LINE.
-        let base = unsafe { memory.add(at) };
-        at += bytes;
-        base
-    };
-    // SAFETY: each region is within `memory`, line-aligned, and the
-    // caller's promise covers the rest.
-    unsafe {
-        let mass = SharedRows::at(next(SharedRows::<crate::mass_table::MassRow>::BYTES));
-        let means = SharedRows::at(next(SharedRows::<crate::fisher_table::Means>::BYTES));
-        let grids = SharedRows::at(next(SharedRows::<crate::fisher_table::Grid>::BYTES));
-        crate::mass_table::table().share(mass);
-        crate::fisher_table::table().share(means, grids);
-    }
-    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::width_axis::LazyRows;
     use std::alloc::{alloc_zeroed, Layout};
     use std::sync::atomic::AtomicUsize;
 
@@ -348,34 +320,6 @@ mod tests {
         for row in 0..ROWS {
             let want = if row % 7 == 0 { READY } else { EMPTY };
             assert_eq!(shared.state(row).load(Ordering::Acquire), want, "row {row}");
-        }
-    }
-
-    #[test]
-    fn memory_too_small_misaligned_or_of_another_layout_is_refused() {
-        let need = shared_table_bytes();
-        let base = memory(need + LINE);
-        // SAFETY: each call is refused before it touches the tables.
-        unsafe {
-            assert_eq!(
-                share_table_rows(base, need - 1),
-                Err(ShareError::TooSmall {
-                    got: need - 1,
-                    need
-                })
-            );
-            assert_eq!(
-                share_table_rows(base.add(8), need),
-                Err(ShareError::Misaligned)
-            );
-            (*base.cast::<AtomicU64>()).store(0xBAD, Ordering::Relaxed);
-            assert_eq!(
-                share_table_rows(base, need),
-                Err(ShareError::OtherLayout {
-                    found: 0xBAD,
-                    expected: layout_word()
-                })
-            );
         }
     }
 }

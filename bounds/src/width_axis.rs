@@ -18,11 +18,6 @@
 //! octaves needed twice the rows for the same error (1.1e-9 at 256 rows an
 //! octave, 1.3e-8 at 128), and building them cost every process 50 ms.
 
-use std::sync::OnceLock;
-
-use crate::fisher_table::lagrange_weights;
-use crate::shared_rows::{PlainRow, SharedRows};
-
 /// The tables cover `S_MIN < s < S_MAX`, that is `1/128 < w < 1`.
 pub const S_MIN: f64 = 0.5;
 pub const S_MAX: f64 = 64.0;
@@ -109,59 +104,19 @@ pub fn stencil_lane(w: f64) -> (bool, Stencil) {
     )
 }
 
-/// One value per row of the axis, each built on first use, so that a
-/// process pays only for the range of σ/Δ it meets. A fixed length, so
-/// that indexing a stencil's rows needs no check. The rows are this
-/// process's own, or live in memory that several processes share
-/// ([`crate::shared_rows`]); the lookups read them alike.
-pub struct LazyRows<T: PlainRow> {
-    rows: Box<[OnceLock<T::Kept>; ROWS]>,
-    shared: OnceLock<SharedRows<T>>,
-}
-
-impl<T: PlainRow> LazyRows<T> {
-    pub fn new() -> Self {
-        Self {
-            rows: Box::new(std::array::from_fn(|_| OnceLock::new())),
-            shared: OnceLock::new(),
-        }
-    }
-
-    /// Row `row`, built by `build(row)` if it is not yet. The fast path (an
-    /// acquire load) is inlined into the lookups; the build is not.
-    #[inline(always)]
-    pub fn get(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
-        match self.rows[row].get() {
-            Some(kept) => T::kept(kept),
-            None => self.build(row, build),
-        }
-    }
-
-    /// From now on, rows not built yet come from (or go to) `shared`.
-    /// Returns false if the rows were shared already.
-    pub fn share(&self, shared: SharedRows<T>) -> bool {
-        self.shared.set(shared).is_ok()
-    }
-
-    /// A row lives as long as the process: the tables are process-wide,
-    /// and a row in shared memory is never unmapped.
-    #[cold]
-    #[inline(never)]
-    fn build(&self, row: usize, build: impl FnOnce(usize) -> T) -> &T {
-        let kept = self.rows[row].get_or_init(|| {
-            T::keep(match self.shared.get() {
-                Some(shared) => shared.get_or_build(row, build),
-                None => Box::leak(Box::new(build(row))),
-            })
-        });
-        T::kept(kept)
-    }
-}
-
-impl<T: PlainRow> Default for LazyRows<T> {
-    fn default() -> Self {
-        Self::new()
-    }
+/// Cubic Lagrange weights for nodes −1, 0, 1, 2 at offset `t` from node 0.
+#[inline(always)]
+pub fn lagrange_weights(t: f64) -> [f64; 4] {
+    // By products only: a division by 6 is not a multiplication to the
+    // compiler, and would be two divisions on every lookup's critical path.
+    const SIXTH: f64 = 1.0 / 6.0;
+    let (tm1, tp1, tm2) = (t - 1.0, t + 1.0, t - 2.0);
+    [
+        -t * tm1 * tm2 * SIXTH,
+        tp1 * tm1 * tm2 * 0.5,
+        -tp1 * t * tm2 * 0.5,
+        tp1 * t * tm1 * SIXTH,
+    ]
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ use std::alloc::{alloc_zeroed, Layout};
 
 use bounds::fisher_table::{self, FisherTable};
 use bounds::mass_table::{self, LnMassTable};
-use bounds::shared_rows::{share_table_rows, shared_table_bytes};
+use bounds::table_memory::{share_table_rows, shared_table_bytes};
 
 #[test]
 fn shared_rows_read_as_private_ones_do() {

@@ -56,8 +56,11 @@ fn init_logging(actor: Option<&str>, quiet: bool) {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Scenario { seed001, seed004 } => {
-            print!("{}", builtin_scenario(seed001, seed004));
+        Command::Scenario {
+            sensor_selection,
+            random_exchange,
+        } => {
+            print!("{}", builtin_scenario(sensor_selection, random_exchange));
             Ok::<(), anyhow::Error>(())
         }
         Command::Sim(args) => {
@@ -357,7 +360,7 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
             println!("  {:<18} {}: {}", e.name, e.source, e.about);
         }
         // Each says in its own words what it runs: some only compute, some
-        // run networks of their own (seed003-speb's sweep, seed004-table).
+        // run networks of their own (bit-depth-delay's sweep, random-exchange-cost).
         for c in experiment::computed_catalogue() {
             println!("  {:<18} {}: {}", c.name, c.source, c.about);
         }

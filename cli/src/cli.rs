@@ -39,12 +39,13 @@ pub enum Command {
     Clean,
     /// Print a built-in scenario to copy and edit.
     Scenario {
-        /// Print the scenario literal to seed 001 instead of the default.
-        #[arg(long, conflicts_with = "seed004")]
-        seed001: bool,
-        /// Print seed 004's RSS network instead of the default.
-        #[arg(long)]
-        seed004: bool,
+        /// The sensor-selection scenario (25 bearing sensors a cell, at most
+        /// 4 active per node and 18 in all) instead of the default.
+        #[arg(long, alias = "seed001", conflicts_with = "random_exchange")]
+        sensor_selection: bool,
+        /// The random-exchange network of 25 RSS nodes instead of the default.
+        #[arg(long, alias = "seed004")]
+        random_exchange: bool,
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
@@ -207,8 +208,8 @@ pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)
     Ok((scenario, topology))
 }
 
-pub fn builtin_scenario(seed001: bool, seed004: bool) -> &'static str {
-    match (seed001, seed004) {
+pub fn builtin_scenario(sensor_selection: bool, random_exchange: bool) -> &'static str {
+    match (sensor_selection, random_exchange) {
         (true, _) => SEED001_SCENARIO,
         (_, true) => SEED004_SCENARIO,
         _ => DEFAULT_SCENARIO,

@@ -4,18 +4,18 @@
 //! arms it runs (each a Monte Carlo of its own), the figure (which series of
 //! which arm to draw) and a check that says in words whether the paper's
 //! qualitative result holds. Adding one is adding an entry to a catalogue
-//! (`seed000.rs` is the first); the runner, the CSV, the SVG and the
+//! (`distributed_bound.rs` is the first); the runner, the CSV, the SVG and the
 //! command line are shared.
 
 mod allocation;
+mod bit_depth;
 mod censoring;
+mod distributed_bound;
 pub mod faults;
 mod figure;
-mod seed000;
-mod seed001;
-mod seed003;
-mod seed004;
-mod seed004_trackers;
+mod random_exchange_bounds;
+mod random_exchange_trackers;
+mod sensor_selection;
 
 use std::path::PathBuf;
 
@@ -250,9 +250,9 @@ impl ComputedReport {
 pub fn computed_catalogue() -> Vec<Computed> {
     let mut all = allocation::experiments();
     all.extend(censoring::experiments());
-    all.extend(seed003::experiments());
-    all.extend(seed004::experiments());
-    all.extend(seed004_trackers::experiments());
+    all.extend(bit_depth::experiments());
+    all.extend(random_exchange_bounds::experiments());
+    all.extend(random_exchange_trackers::experiments());
     all
 }
 
@@ -302,8 +302,8 @@ pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
 
 /// Every experiment, in the order `cqnet experiment` lists them.
 pub fn catalogue() -> Vec<Experiment> {
-    let mut all = seed000::experiments();
-    all.extend(seed001::experiments());
+    let mut all = distributed_bound::experiments();
+    all.extend(sensor_selection::experiments());
     all.extend(censoring::network_experiments());
     all.extend(faults::experiments());
     all

@@ -16,23 +16,12 @@
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
+use crate::channel::{Channel, RunId};
 use crate::scenario::{ConsensusProtocol, Scenario};
 use crate::topology::Topology;
-use crate::transport::{Channel, RunId};
 use crate::ScenarioError;
 
-/// One host of the scenario: its name, the nodes it runs (and so their
-/// sensors), and where its agent listens for Zenoh.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct HostConfig {
-    /// Lowercase letters, digits and `-`, at most 8 characters: it becomes
-    /// part of the host's iceoryx2 run id.
-    pub name: String,
-    pub nodes: Vec<u16>,
-    /// A Zenoh endpoint, such as `tcp/127.0.0.1:17447`.
-    pub endpoint: String,
-}
+pub use crate::scenario::HostConfig;
 
 const MAX_HOST_NAME: usize = 8;
 

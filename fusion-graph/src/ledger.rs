@@ -1,4 +1,4 @@
-//! Byte counts that survive SIGKILL: an actor's [`Accounting`] mirrored,
+//! Byte counts that survive SIGKILL: an actor's accounting mirrored,
 //! counter by counter, into a memory-mapped file.
 //!
 //! A process killed with SIGKILL runs no more code, so counts written "at
@@ -32,8 +32,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use memmap2::MmapMut;
 
-use crate::accounting::{Accounting, Counters, LinkKey};
 use crate::actor::ActorId;
+use crate::counters::{Counters, LinkKey, Links, Pair};
 use crate::wire::MessageKind;
 
 const MAGIC: u64 = u64::from_le_bytes(*b"CQLEDG02");
@@ -46,16 +46,6 @@ const JOURNAL_SLOT: usize = 3;
 const JOURNAL_PAIR: usize = 4;
 const JOURNAL_MESSAGES: usize = 5;
 const JOURNAL_BYTES: usize = 6;
-
-/// Which pair of [`Counters`] an update touches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Pair {
-    Sent = 0,
-    Received = 1,
-    Dropped = 2,
-    Malformed = 3,
-    Duplicated = 4,
-}
 
 /// What went wrong opening or reading a ledger.
 #[derive(Debug, thiserror::Error)]
@@ -199,10 +189,10 @@ impl Ledger {
         Ok(())
     }
 
-    /// The counts as they stand, as an [`Accounting`].
-    pub fn accounting(&self) -> Accounting {
+    /// The counts as they stand.
+    pub fn counts(&self) -> Links {
         decode(&snapshot(self.words()), &self.path)
-            .map(|d| d.accounting)
+            .map(|d| d.links)
             .unwrap_or_default()
     }
 }
@@ -210,7 +200,7 @@ impl Ledger {
 /// Reads the ledger an actor left at `path`, undoing the update a kill
 /// interrupted. Safe to call while the actor still runs (the launcher's live
 /// view does): the figures are then a moment's, not a final count.
-pub fn read_ledger(path: &Path) -> Result<Accounting, LedgerError> {
+pub fn read_ledger(path: &Path) -> Result<Links, LedgerError> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| LedgerError::Io {
         path: name.clone(),
@@ -220,7 +210,7 @@ pub fn read_ledger(path: &Path) -> Result<Accounting, LedgerError> {
         .chunks_exact(8)
         .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
         .collect();
-    Ok(decode(&words, &name)?.accounting)
+    Ok(decode(&words, &name)?.links)
 }
 
 fn snapshot(words: &[AtomicU64]) -> Vec<u64> {
@@ -232,7 +222,7 @@ fn slot_base(i: usize) -> usize {
 }
 
 struct Decoded {
-    accounting: Accounting,
+    links: Links,
     keys: Vec<LinkKey>,
 }
 
@@ -265,12 +255,12 @@ fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
         slots[journal - 1][1 + 2 * pair] = words[JOURNAL_MESSAGES];
         slots[journal - 1][2 + 2 * pair] = words[JOURNAL_BYTES];
     }
-    let mut accounting = Accounting::default();
+    let mut links = Links::default();
     let mut keys = Vec::with_capacity(used);
     for s in &slots {
         let key = decode_key(s[0]).ok_or_else(|| damaged("a slot holds no link"))?;
         keys.push(key);
-        accounting.add_counters(
+        links.add(
             key,
             &Counters {
                 sent_messages: s[1],
@@ -286,7 +276,7 @@ fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
             },
         );
     }
-    Ok(Decoded { accounting, keys })
+    Ok(Decoded { links, keys })
 }
 
 fn encode_actor(a: ActorId) -> u64 {
@@ -375,7 +365,7 @@ mod tests {
             MessageKind::Observation,
         );
         assert_eq!((c.dropped_messages, c.dropped_bytes), (1, 12));
-        assert_eq!(l.accounting(), a);
+        assert_eq!(l.counts(), a);
     }
 
     /// A kill between any two stores of an update: the reader sees the

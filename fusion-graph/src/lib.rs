@@ -4,11 +4,15 @@
 
 pub mod accounting;
 pub mod actor;
+pub mod channel;
+pub mod counters;
 pub mod faults;
 pub mod hosts;
+pub mod layout;
 pub mod ledger;
 pub mod models;
 pub mod payloads;
+pub mod protocol_kinds;
 pub mod registered;
 pub mod scenario;
 pub mod shaper;

@@ -123,7 +123,7 @@ impl Scenario {
     }
 
     /// The prior every filter starts from: `N(m_0, P_0)` with `m_0` drawn
-    /// once per run from `N(x_true(0), P_0)` (math.md's default scenario).
+    /// once per run from `N(x_true(0), P_0)` (docs/equations.md's default scenario).
     pub fn network_prior(&self, models: &Models) -> Gaussian {
         let sd = State::from(self.filter.prior_std);
         let truth = State::from(self.target.initial_state());

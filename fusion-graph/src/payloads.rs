@@ -14,40 +14,11 @@
 //! too, to name them in `links.csv`): they are the same program, so
 //! registering in `main` before anything else does it.
 
-use std::sync::OnceLock;
+pub use crate::protocol_kinds::{ProtocolBody, ProtocolKind, RegisterError, PROTOCOL_KINDS};
 
-use serde::{Deserialize, Serialize};
-
-use crate::wire::{Message, MessageKind, Payload, MAX_MESSAGE_BYTES};
+use crate::protocol_kinds;
+use crate::wire::{Message, MessageKind, Payload, HEADER_BYTES, MAX_MESSAGE_BYTES};
 use crate::WireError;
-
-/// The kind bytes left to protocols' own payloads.
-pub const PROTOCOL_KINDS: std::ops::RangeInclusive<u8> = 128..=254;
-
-/// A kind byte claimed by a protocol's payload (one of [`PROTOCOL_KINDS`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-pub struct ProtocolKind(u8);
-
-impl ProtocolKind {
-    pub fn code(self) -> u8 {
-        self.0
-    }
-
-    /// The kind for `code` if a payload is registered under it.
-    pub fn registered(code: u8) -> Option<Self> {
-        slot(code)?.get().map(|_| Self(code))
-    }
-
-    /// The registered payload's name.
-    pub fn name(self) -> &'static str {
-        entry(self).name
-    }
-
-    /// The registered payload's body size in bytes.
-    pub fn body_len(self) -> usize {
-        entry(self).len
-    }
-}
 
 /// A protocol's message body: a fixed size, its own encoding, and a
 /// decoding that refuses whatever the protocol would not accept.
@@ -76,16 +47,17 @@ pub trait ProtocolPayload: Sized {
             "{} encodes its declared size",
             Self::NAME
         );
-        Payload::Protocol(ProtocolBody {
-            kind: ProtocolKind(Self::KIND),
-            bytes,
-        })
+        let kind = ProtocolKind::registered(Self::KIND)
+            .unwrap_or_else(|| panic!("payload {:?} is sent before it is registered", Self::NAME));
+        Payload::Protocol(ProtocolBody { kind, bytes })
     }
 
     /// This payload, if `payload` is one; `None` for any other kind.
     fn from_payload(payload: &Payload) -> Option<Self> {
         match payload {
-            Payload::Protocol(body) if body.kind.0 == Self::KIND => Self::decode(&body.bytes).ok(),
+            Payload::Protocol(body) if body.kind.code() == Self::KIND => {
+                Self::decode(&body.bytes).ok()
+            }
             _ => None,
         }
     }
@@ -96,117 +68,25 @@ pub trait ProtocolPayload: Sized {
     }
 }
 
-/// A protocol payload as it travels: its kind and its encoded body.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ProtocolBody {
-    pub kind: ProtocolKind,
-    pub bytes: Vec<u8>,
-}
-
-/// Why a payload could not be registered.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum RegisterError {
-    #[error("payload {name:?}: kind {kind} is outside {}..={}, the kinds left to protocols", PROTOCOL_KINDS.start(), PROTOCOL_KINDS.end())]
-    KindOutOfRange { name: &'static str, kind: u8 },
-    #[error("payload {name:?}: kind {kind} is already {taken:?}'s")]
-    KindTaken {
-        name: &'static str,
-        kind: u8,
-        taken: &'static str,
-    },
-    #[error("payload {name:?}: {len} bytes do not fit in a message")]
-    TooLong { name: &'static str, len: usize },
-    #[error(
-        "payload {name:?}: a name is lowercase letters, digits and '_', and not a built-in kind's"
-    )]
-    BadName { name: &'static str },
-}
-
 /// Registers `P`, so that messages of its kind are decoded, sized and
 /// counted. Registering the same payload again is harmless.
 pub fn register<P: ProtocolPayload>() -> Result<ProtocolKind, RegisterError> {
-    let (name, kind) = (P::NAME, P::KIND);
-    let slot = slot(kind).ok_or(RegisterError::KindOutOfRange { name, kind })?;
+    let name = P::NAME;
     let well_formed = !name.is_empty()
         && name
             .bytes()
             .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
-    let builtin = (0..PROTOCOL_KINDS.start().to_owned())
+    let built_in = (0..*PROTOCOL_KINDS.start())
         .filter_map(MessageKind::from_u8)
         .chain([MessageKind::Malformed])
         .any(|k| k.name() == name);
-    if !well_formed || builtin {
+    if !well_formed || built_in {
         return Err(RegisterError::BadName { name });
     }
-    if crate::wire::HEADER_BYTES + P::LEN > MAX_MESSAGE_BYTES {
+    if HEADER_BYTES + P::LEN > MAX_MESSAGE_BYTES {
         return Err(RegisterError::TooLong { name, len: P::LEN });
     }
-    let entry = slot.get_or_init(|| Entry {
-        name,
-        len: P::LEN,
-        check: |body| P::decode(body).map(drop),
-    });
-    if entry.name != name || entry.len != P::LEN {
-        return Err(RegisterError::KindTaken {
-            name,
-            kind,
-            taken: entry.name,
-        });
-    }
-    if let Some(other) = (PROTOCOL_KINDS)
-        .filter(|&k| k != kind)
-        .filter_map(ProtocolKind::registered)
-        .find(|k| k.name() == name)
-    {
-        return Err(RegisterError::KindTaken {
-            name,
-            kind: other.0,
-            taken: name,
-        });
-    }
-    Ok(ProtocolKind(kind))
-}
-
-/// Decodes a registered kind's body, checking its length and letting the
-/// protocol refuse it.
-pub(crate) fn decode_body(kind: ProtocolKind, body: &[u8]) -> Result<Payload, WireError> {
-    let entry = entry(kind);
-    if body.len() != entry.len {
-        return Err(WireError::Length {
-            expected: entry.len,
-            got: body.len(),
-        });
-    }
-    (entry.check)(body)?;
-    Ok(Payload::Protocol(ProtocolBody {
-        kind,
-        bytes: body.to_vec(),
-    }))
-}
-
-struct Entry {
-    name: &'static str,
-    len: usize,
-    /// The protocol's own decoding, its value dropped.
-    check: fn(&[u8]) -> Result<(), WireError>,
-}
-
-const SLOTS: usize = 127;
-
-/// One slot per kind byte of [`PROTOCOL_KINDS`], set once: reading a
-/// registered kind costs no lock on the receive path.
-static REGISTERED: [OnceLock<Entry>; SLOTS] = [const { OnceLock::new() }; SLOTS];
-
-fn slot(code: u8) -> Option<&'static OnceLock<Entry>> {
-    PROTOCOL_KINDS
-        .contains(&code)
-        .then(|| &REGISTERED[(code - PROTOCOL_KINDS.start()) as usize])
-}
-
-fn entry(kind: ProtocolKind) -> &'static Entry {
-    slot(kind.0)
-        .and_then(OnceLock::get)
-        .expect("a ProtocolKind exists only for a registered payload")
+    protocol_kinds::claim(P::KIND, name, P::LEN, |body| P::decode(body).map(drop))
 }
 
 #[cfg(test)]

@@ -68,12 +68,12 @@ macro_rules! named_choice {
     };
 }
 
-/// The built-in default scenario (math.md's table).
+/// The built-in default scenario (docs/equations.md's table).
 pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/default.toml");
 /// The scenario literal to seed 001.
-pub const SEED001_SCENARIO: &str = include_str!("../scenarios/seed001.toml");
+pub const SEED001_SCENARIO: &str = include_str!("../scenarios/sensor-selection.toml");
 /// Seed 004's network: 25 nodes, each with one co-located RSS sensor.
-pub const SEED004_SCENARIO: &str = include_str!("../scenarios/seed004.toml");
+pub const SEED004_SCENARIO: &str = include_str!("../scenarios/random-exchange.toml");
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -105,7 +105,7 @@ pub struct Scenario {
     /// Several hosts (`cqnet agent` on each): which nodes, with their
     /// sensors, each runs. Empty: one host.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub hosts: Vec<crate::hosts::HostConfig>,
+    pub hosts: Vec<HostConfig>,
 }
 
 /// Censoring at the sensor: of the `active_per_node` sensors a node
@@ -196,6 +196,19 @@ pub const MAX_SENSORS: u64 = u16::MAX as u64;
 pub struct NodeLayout {
     pub grid: Option<[u32; 2]>,
     pub positions: Option<Vec<[f64; 2]>>,
+}
+
+/// One host of the scenario: its name, the nodes it runs (and so their
+/// sensors), and where its agent listens for Zenoh.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostConfig {
+    /// Lowercase letters, digits and `-`, at most 8 characters: it becomes
+    /// part of the host's iceoryx2 run id.
+    pub name: String,
+    pub nodes: Vec<u16>,
+    /// A Zenoh endpoint, such as `tcp/127.0.0.1:17447`.
+    pub endpoint: String,
 }
 
 /// Either a grid inside each node's cell, or explicit positions (each sensor
@@ -1094,7 +1107,7 @@ mod tests {
         let d = Scenario::default_scenario();
         assert_eq!(d.quantizer.bits, 8);
         assert_eq!(d.filter.particles, 1000);
-        let s = Scenario::from_toml(SEED001_SCENARIO, "seed001.toml", &[]).unwrap();
+        let s = Scenario::from_toml(SEED001_SCENARIO, "sensor-selection.toml", &[]).unwrap();
         assert_eq!(s.dynamics.sigma_v, 1.6);
         assert_eq!(s.sensors.max_active_total, Some(18));
         // Round trip through TOML.

@@ -1,11 +1,13 @@
-//! The network built from a scenario: where nodes and sensors are, which
-//! sensors each node owns, the fusion graph, and Metropolis consensus weights.
+//! The network as a graph: where nodes and sensors are, which sensors each
+//! node owns, the fusion graph, and Metropolis consensus weights. How a
+//! scenario lays it out is [`crate::layout`].
 
 use std::collections::VecDeque;
 
 use crate::actor::ActorId;
-use crate::scenario::{Fault, Scenario};
-use crate::ScenarioError;
+use crate::channel::Channel;
+#[cfg(test)]
+use crate::scenario::Scenario;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Topology {
@@ -41,91 +43,16 @@ impl Topology {
         }
     }
 
-    /// Builds the topology and checks the fusion graph and the fault
-    /// schedule's actor names against it.
-    pub fn from_scenario(s: &Scenario, file: &str) -> Result<Self, ScenarioError> {
-        let (node_positions, cells) = place_nodes(s);
-        let (sensor_positions, sensor_owner) = place_sensors(s, &node_positions, cells.as_ref());
-        let mut node_sensors = vec![Vec::new(); node_positions.len()];
-        for (i, owner) in sensor_owner.iter().enumerate() {
-            node_sensors[*owner as usize].push(i as u16);
+    /// How many subscribers `channel` has in this network (the launcher's
+    /// centralized reference reads every observation).
+    pub fn subscribers(&self, channel: Channel) -> usize {
+        match channel {
+            Channel::Tick => self.nodes() + self.sensors(),
+            Channel::Activation(n) => self.node_sensors[n as usize].len(),
+            Channel::Observation(_) => 2,
+            Channel::Consensus(n) => self.neighbours[n as usize].len(),
+            Channel::Control(_) | Channel::Telemetry(_) | Channel::Pair { .. } => 1,
         }
-        let r2 = s.fusion_graph.radius * s.fusion_graph.radius;
-        let neighbours = (0..node_positions.len())
-            .map(|a| {
-                (0..node_positions.len())
-                    .filter(|&b| b != a && dist2(node_positions[a], node_positions[b]) <= r2)
-                    .map(|b| b as u16)
-                    .collect()
-            })
-            .collect();
-        let topology = Self {
-            node_positions,
-            sensor_positions,
-            sensor_owner,
-            node_sensors,
-            neighbours,
-        };
-        if !s.fusion_graph.allow_disconnected
-            && topology.components(&topology.all_alive()).len() > 1
-        {
-            return Err(ScenarioError::Invalid {
-                file: file.into(),
-                key: "fusion_graph.radius".into(),
-                expected:
-                    "a radius that connects every node (or fusion_graph.allow_disconnected = true)"
-                        .into(),
-                got: format!(
-                    "{} m gives a disconnected fusion graph",
-                    s.fusion_graph.radius
-                ),
-            });
-        }
-        // A node activates at most the sensors it has: a cap above every
-        // node's count is a mistake, not a wish (with a grid, every node has
-        // the same count).
-        let most = topology.most_sensors_per_node();
-        if s.sensors.active_per_node as usize > most {
-            return Err(ScenarioError::Invalid {
-                file: file.into(),
-                key: "sensors.active_per_node".into(),
-                expected: format!("at most the sensors of a node ({most} at the most)"),
-                got: s.sensors.active_per_node.to_string(),
-            });
-        }
-        for (i, f) in s.faults.iter().enumerate() {
-            for name in f.actor_names() {
-                let sensors_only = matches!(f, Fault::Sensor { .. });
-                let ok = name.parse::<ActorId>().ok().is_some_and(|a| {
-                    topology.contains(a)
-                        && a != ActorId::Launcher
-                        && (!sensors_only || matches!(a, ActorId::Sensor(_)))
-                });
-                if !ok {
-                    let key = f.actors_key();
-                    let expected = if sensors_only {
-                        format!(
-                            "a sensor of this network (sensor-0..sensor-{})",
-                            topology.sensors() - 1
-                        )
-                    } else {
-                        format!(
-                            "an actor of this network (node-0..node-{}, sensor-0..sensor-{})",
-                            topology.nodes() - 1,
-                            topology.sensors() - 1
-                        )
-                    };
-                    return Err(ScenarioError::Invalid {
-                        file: file.into(),
-                        key: format!("faults[{i}].{key}"),
-                        expected,
-                        got: name.to_string(),
-                    });
-                }
-            }
-        }
-        crate::hosts::Placement::from_scenario(s, &topology, file, false)?;
-        Ok(topology)
     }
 
     pub fn nodes(&self) -> usize {
@@ -257,74 +184,8 @@ impl Topology {
     }
 }
 
-fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
+pub(crate) fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
-}
-
-/// Grid cell size and origin of each node, when nodes sit on a grid.
-struct Cells {
-    width: f64,
-    height: f64,
-    origins: Vec<[f64; 2]>,
-}
-
-fn place_nodes(s: &Scenario) -> (Vec<[f64; 2]>, Option<Cells>) {
-    if let Some(p) = &s.nodes.positions {
-        return (p.clone(), None);
-    }
-    let [cols, rows] = s.nodes.grid.expect("validated: grid or positions");
-    let (w, h) = (s.region.width / cols as f64, s.region.height / rows as f64);
-    let mut positions = Vec::new();
-    let mut origins = Vec::new();
-    for r in 0..rows {
-        for c in 0..cols {
-            let origin = [c as f64 * w, r as f64 * h];
-            origins.push(origin);
-            positions.push([origin[0] + w / 2.0, origin[1] + h / 2.0]);
-        }
-    }
-    (
-        positions,
-        Some(Cells {
-            width: w,
-            height: h,
-            origins,
-        }),
-    )
-}
-
-fn place_sensors(
-    s: &Scenario,
-    nodes: &[[f64; 2]],
-    cells: Option<&Cells>,
-) -> (Vec<[f64; 2]>, Vec<u16>) {
-    if let (Some([nx, ny]), Some(cells)) = (s.sensors.per_cell, cells) {
-        let mut positions = Vec::new();
-        let mut owner = Vec::new();
-        for (n, origin) in cells.origins.iter().enumerate() {
-            for j in 0..ny {
-                for i in 0..nx {
-                    // Centres of an nx × ny sub-grid: 50, 150, …, 450 m in a 500 m cell.
-                    positions.push([
-                        origin[0] + (i as f64 + 0.5) * cells.width / nx as f64,
-                        origin[1] + (j as f64 + 0.5) * cells.height / ny as f64,
-                    ]);
-                    owner.push(n as u16);
-                }
-            }
-        }
-        return (positions, owner);
-    }
-    let positions = s.sensors.positions.clone().unwrap_or_default();
-    let owner = positions
-        .iter()
-        .map(|p| {
-            (0..nodes.len())
-                .min_by(|&a, &b| dist2(*p, nodes[a]).total_cmp(&dist2(*p, nodes[b])))
-                .unwrap_or(0) as u16
-        })
-        .collect();
-    (positions, owner)
 }
 
 #[cfg(test)]
@@ -335,9 +196,13 @@ mod tests {
     /// sensor stands where the node does, and the graph is the 4-lattice.
     #[test]
     fn seed004_puts_one_sensor_on_each_node_of_a_lattice() {
-        let s =
-            Scenario::from_toml(crate::scenario::SEED004_SCENARIO, "seed004.toml", &[]).unwrap();
-        let t = Topology::from_scenario(&s, "seed004.toml").unwrap();
+        let s = Scenario::from_toml(
+            crate::scenario::SEED004_SCENARIO,
+            "random-exchange.toml",
+            &[],
+        )
+        .unwrap();
+        let t = Topology::from_scenario(&s, "random-exchange.toml").unwrap();
         assert_eq!((t.nodes(), t.sensors()), (25, 25));
         for (n, sensors) in t.node_sensors.iter().enumerate() {
             assert_eq!(sensors.len(), 1);

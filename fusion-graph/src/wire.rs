@@ -15,7 +15,7 @@ use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
-use crate::payloads::{self, ProtocolBody, ProtocolKind};
+use crate::protocol_kinds::{self, ProtocolBody, ProtocolKind};
 use crate::WireError;
 
 /// Bumped whenever the encoding changes.
@@ -606,7 +606,13 @@ impl Message {
                     value: finite([value])?[0],
                 }
             }
-            MessageKind::Protocol(k) => payloads::decode_body(k, body)?,
+            MessageKind::Protocol(k) => {
+                protocol_kinds::check_body(k, body)?;
+                Payload::Protocol(ProtocolBody {
+                    kind: k,
+                    bytes: body.to_vec(),
+                })
+            }
             MessageKind::Malformed => unreachable!("never decoded from a kind byte"),
         };
         Ok(Self {

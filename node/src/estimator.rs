@@ -9,325 +9,16 @@
 //!   before consensus, so that the node's observation information ΔL is
 //!   taken over the global predictive particles (seed 000, eq. 55).
 
-use std::f64::consts::PI;
-
-use bounds::batch::{has_avx2, Positions, CHUNK};
-use bounds::censoring::{CensoringRule, Innovation};
 use bounds::chacha::WideChaCha8;
-use bounds::fisher::{observed_information, scalars_of_mean_and_variance};
-use bounds::observation::Evaluations;
-use bounds::pcrlb::{
-    information_update, observation_information, observation_information_with, BatchScalars,
-    ScalarBatch,
-};
-use bounds::quantizer::TableReads;
-use bounds::{
-    wrap_angle, BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, Measurement,
-    ObservationModel, Quantizer, SensorTerm, State,
-};
-use fusion_graph::{Models, Scenario, ScenarioError, Topology};
+use bounds::pcrlb::information_update;
+use bounds::{BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, State};
 use nalgebra::{Cholesky, SymmetricEigen};
 use rand_chacha::ChaCha8Rng;
 
 use crate::filter::{Gaussian, ParticleFilter};
+pub use crate::sensing::{Evidence, Observation, ObservedValue, SensingModel, Silence};
 
-/// One received observation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Observation {
-    pub sensor: u16,
-    pub value: ObservedValue,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ObservedValue {
-    Cell(u32),
-    Raw(f64),
-}
-
-/// An active sensor that stayed silent under NIS censoring, with the
-/// innovation statistics it censored by: its silence is a measurement.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Silence {
-    pub sensor: u16,
-    pub innovation: Innovation,
-    pub rule: CensoringRule,
-}
-
-/// What a step tells the local filter about the target.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Evidence<'a> {
-    /// This step's observations, sorted by sensor.
-    pub received: &'a [Observation],
-    /// Observations of the step before that arrived after it closed: each
-    /// is weighed at the time it was taken, on each particle's path.
-    pub lagged: &'a [Observation],
-    /// Active sensors that censored themselves this step.
-    pub silent: &'a [Silence],
-}
-
-impl Evidence<'_> {
-    fn is_empty(&self) -> bool {
-        self.received.is_empty() && self.lagged.is_empty() && self.silent.is_empty()
-    }
-}
-
-/// What the estimators share: the dynamics, every sensor's model and the quantizer.
-#[derive(Debug, Clone)]
-pub struct SensingModel {
-    pub dynamics: Dynamics,
-    pub sensors: Vec<ObservationModel>,
-    pub quantizer: Option<Quantizer>,
-}
-
-impl SensingModel {
-    /// The scenario's models, with every sensor of the topology.
-    pub fn from_scenario(scenario: &Scenario, topology: &Topology) -> Result<Self, ScenarioError> {
-        Ok(Self::new(&scenario.models()?, topology))
-    }
-
-    pub fn new(models: &Models, topology: &Topology) -> Self {
-        Self {
-            sensors: topology
-                .sensor_positions
-                .iter()
-                .map(|p| models.law.at(*p))
-                .collect(),
-            dynamics: models.dynamics.clone(),
-            quantizer: models.quantizer.clone(),
-        }
-    }
-
-    fn measurement(&self) -> Measurement<'_> {
-        match &self.quantizer {
-            Some(q) => Measurement::Quantized(q),
-            None => Measurement::Raw,
-        }
-    }
-
-    /// `ln p(y | x)` of one observation.
-    pub fn ln_likelihood(&self, obs: &Observation, x: &State) -> f64 {
-        let (g, r) = self.sensors[obs.sensor as usize].mean_and_variance(x);
-        self.ln_likelihood_of(obs, g, r)
-    }
-
-    /// [`ln_likelihood`](Self::ln_likelihood) from the observing sensor's
-    /// mean g and variance R at the state.
-    #[inline]
-    fn ln_likelihood_of(&self, obs: &Observation, g: f64, r: f64) -> f64 {
-        let model = &self.sensors[obs.sensor as usize];
-        match (obs.value, &self.quantizer) {
-            // Within 1e-8 of the exact ln h (a weight's relative error).
-            (ObservedValue::Cell(cell), Some(q)) => q.ln_probability_interpolated(cell, g, r),
-            (ObservedValue::Raw(z), _) => {
-                let d = if model.is_angular() {
-                    wrap_angle(z - g)
-                } else {
-                    z - g
-                };
-                -0.5 * (d * d / r + r.ln() + (2.0 * PI).ln())
-            }
-            (ObservedValue::Cell(_), None) => f64::NEG_INFINITY,
-        }
-    }
-
-    /// `Σ_o ln p(o | x_j)` of every particle into `out` (one value per
-    /// particle): bit for bit [`ln_likelihood`](Self::ln_likelihood) summed
-    /// particle by particle, but each observing sensor's model and the
-    /// likelihood table's reads taken a batch of particles at a time,
-    /// vectorised ([`bounds::batch`]).
-    pub fn ln_likelihoods(
-        &self,
-        observations: &[Observation],
-        particles: &[State],
-        out: &mut [f64],
-    ) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            #[target_feature(enable = "avx2")]
-            fn with_avx2(m: &SensingModel, o: &[Observation], p: &[State], out: &mut [f64]) {
-                m.ln_likelihoods_batched(o, p, out)
-            }
-            if has_avx2() {
-                // SAFETY: the CPU has AVX2.
-                return unsafe { with_avx2(self, observations, particles, out) };
-            }
-        }
-        self.ln_likelihoods_batched(observations, particles, out)
-    }
-
-    #[inline(always)]
-    fn ln_likelihoods_batched(
-        &self,
-        observations: &[Observation],
-        particles: &[State],
-        out: &mut [f64],
-    ) {
-        let mut e = Evaluations::default();
-        let mut reads = TableReads::default();
-        for (states, out) in particles.chunks(CHUNK).zip(out.chunks_mut(CHUNK)) {
-            // What `Iterator::sum` starts from.
-            out.fill(-0.0);
-            let at = Positions::of(states);
-            for o in observations {
-                let model = &self.sensors[o.sensor as usize];
-                if !model.depends_on_position_only() {
-                    for (l, x) in out.iter_mut().zip(states) {
-                        *l += self.ln_likelihood(o, x);
-                    }
-                    continue;
-                }
-                model.evaluate_batch(states, &at, &mut e);
-                match (o.value, &self.quantizer) {
-                    (ObservedValue::Cell(cell), Some(q)) => {
-                        let mut ln_h = [0.0; CHUNK];
-                        q.ln_probability_batch(
-                            cell,
-                            &e.g,
-                            &e.r,
-                            states.len(),
-                            &mut ln_h,
-                            &mut reads,
-                        );
-                        for (l, h) in out.iter_mut().zip(ln_h) {
-                            *l += h;
-                        }
-                    }
-                    _ => {
-                        for (i, l) in out.iter_mut().enumerate() {
-                            *l += self.ln_likelihood_of(o, e.g[i], e.r[i]);
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    /// `ln P(silent | x)` of a censored sensor: its innovation, given x,
-    /// is `N(h(x) − h(x̂), r(x))`, inside the window with this probability.
-    pub fn ln_silence(&self, silence: &Silence, x: &State) -> f64 {
-        let e = self.sensors[silence.sensor as usize].evaluate(x);
-        silence.innovation.ln_silence(&silence.rule, e.g, e.r)
-    }
-
-    /// `Σ_s Σ_j w_j J_Y,s(x_j)`: the expected information of the observed
-    /// sensors over a particle set (zero with no observations).
-    pub fn observation_information(
-        &self,
-        observations: &[Observation],
-        particles: &[State],
-        weights: &[f64],
-    ) -> Result<Mat4, BoundError> {
-        if observations.is_empty() {
-            return Ok(Mat4::zeros());
-        }
-        let sensors = self.terms(observations);
-        observation_information(&sensors, particles, weights)
-    }
-
-    /// Each observing sensor's model and how it reports.
-    fn terms(&self, observations: &[Observation]) -> Vec<SensorTerm<'_>> {
-        observations
-            .iter()
-            .map(|o| SensorTerm {
-                model: &self.sensors[o.sensor as usize],
-                measurement: self.measurement(),
-            })
-            .collect()
-    }
-
-    /// [`observation_information`](Self::observation_information), and
-    /// each particle's `Σ_o ln p(o | x_j)` into `ln_likelihood`, from one
-    /// evaluation of each observing sensor's model per particle.
-    pub fn information_and_likelihood(
-        &self,
-        observations: &[Observation],
-        particles: &[State],
-        weights: &[f64],
-        ln_likelihood: &mut [f64],
-    ) -> Result<Mat4, BoundError> {
-        ln_likelihood.iter_mut().for_each(|l| *l = 0.0);
-        let sensors = self.terms(observations);
-        let first_stage = FirstStage {
-            model: self,
-            observations,
-            ln_likelihood,
-            reads: TableReads::default(),
-        };
-        observation_information_with(&sensors, particles, weights, first_stage)
-    }
-
-    /// `J̄_s = Σ_j w_j J_Y,s(x_j)`: what sensor `s` would be expected to add
-    /// over a particle set, before anything is observed (sensor selection).
-    pub fn expected_information(
-        &self,
-        sensor: u16,
-        particles: &[State],
-        weights: &[f64],
-    ) -> Result<Mat4, BoundError> {
-        let term = SensorTerm {
-            model: &self.sensors[sensor as usize],
-            measurement: self.measurement(),
-        };
-        observation_information(&[term], particles, weights)
-    }
-
-    /// `−∇² ln p(y | x)`: the observed information at the received value.
-    pub fn observed_information(&self, obs: &Observation, x: &State) -> Mat4 {
-        let model = &self.sensors[obs.sensor as usize];
-        match (obs.value, &self.quantizer) {
-            (ObservedValue::Cell(cell), Some(q)) => observed_information(model, q, cell, x),
-            // For a raw Gaussian observation the expected and observed
-            // information differ only by terms with zero mean; use the expected one.
-            _ => bounds::expected_information(model, Measurement::Raw, x),
-        }
-    }
-}
-
-/// The local filter's first stage, as [`observation_information_with`]
-/// asks for its Fisher scalars: each batch's log-likelihoods added into
-/// `ln_likelihood` from the same evaluations and table reads. A named type,
-/// so that its `#[inline(always)]` method is compiled into the kernel's
-/// AVX2 copy.
-struct FirstStage<'a> {
-    model: &'a SensingModel,
-    observations: &'a [Observation],
-    ln_likelihood: &'a mut [f64],
-    reads: TableReads,
-}
-
-impl BatchScalars for FirstStage<'_> {
-    #[inline(always)]
-    fn scalars(
-        &mut self,
-        first: usize,
-        k: usize,
-        g: &[f64; CHUNK],
-        r: &[f64; CHUNK],
-        n: usize,
-        out: &mut ScalarBatch,
-    ) {
-        let observation = &self.observations[k];
-        let ln_likelihood = &mut self.ln_likelihood[first..first + n];
-        match (observation.value, &self.model.quantizer) {
-            (ObservedValue::Cell(cell), Some(q)) => {
-                let mut ln_h = [0.0; CHUNK];
-                q.ln_probability_and_fisher_batch(cell, g, r, n, &mut ln_h, out, &mut self.reads);
-                for (l, h) in ln_likelihood.iter_mut().zip(ln_h) {
-                    *l += h;
-                }
-            }
-            _ => {
-                let measurement = self.model.measurement();
-                for (i, l) in ln_likelihood.iter_mut().enumerate() {
-                    *l += self.model.ln_likelihood_of(observation, g[i], r[i]);
-                    out.set(i, scalars_of_mean_and_variance(g[i], r[i], measurement));
-                }
-            }
-        }
-    }
-}
-
-/// A node's information contribution for one step (math.md, "Estimator" and
+/// A node's information contribution for one step (docs/equations.md, "Estimator" and
 /// "Distributed bound"): everything that goes into consensus.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contribution {
@@ -373,6 +64,18 @@ impl PendingPrediction {
             self.0 = Some(filter.predict_for_bound(dynamics, rng)?);
         }
         Ok(())
+    }
+
+    /// The predicted particles, predicting `filter` first unless this
+    /// step's prediction is already made: both filters' predictor.
+    fn particles<'f>(
+        &mut self,
+        filter: &'f mut ParticleFilter,
+        dynamics: &Dynamics,
+        rng: &mut WideChaCha8,
+    ) -> Result<&'f [State], BoundError> {
+        self.make(filter, dynamics, rng)?;
+        Ok(filter.particles())
     }
 
     /// This step's prediction (made now if it was not), for the updater.
@@ -446,8 +149,7 @@ impl LocalFilter {
     /// call before [`update`](Self::update) changes nothing) and returns them.
     pub fn predict(&mut self, model: &SensingModel) -> Result<&[State], BoundError> {
         self.prediction
-            .make(&mut self.filter, &model.dynamics, &mut self.rng)?;
-        Ok(self.filter.particles())
+            .particles(&mut self.filter, &model.dynamics, &mut self.rng)
     }
 
     /// Updater: weights the predicted particles by the observations received
@@ -718,15 +420,14 @@ impl FusionFilter {
     /// before consensus, for [`observation_information`](Self::observation_information).
     pub fn predict(&mut self, model: &SensingModel) -> Result<&[State], BoundError> {
         self.prediction
-            .make(&mut self.filter, &model.dynamics, &mut self.rng)?;
-        Ok(self.filter.particles())
+            .particles(&mut self.filter, &model.dynamics, &mut self.rng)
     }
 
     /// The node's ΔL for the CQ/dPCRLB: its observed sensors' information
     /// averaged over this filter's *predicted* particles, the approximation
     /// of the global predictive density that seed 000's Result 2 (eq. 55)
-    /// takes the expectation over. (math.md writes it over the local
-    /// filter's particles; those are far wider than the global posterior,
+    /// takes the expectation over. (Over the local filter's particles, as
+    /// the paper's text reads, the clouds are far wider than the global posterior,
     /// and at coarse quantization, where J_Y is a comb of peaks at the cell
     /// edges, that put the distributed bound below the centralized one.)
     pub fn observation_information(
@@ -850,6 +551,9 @@ pub fn clip_negative_eigenvalues(lambda: &Mat4, eta: &State) -> (Mat4, State) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bounds::Measurement;
+    use fusion_graph::{Scenario, Topology};
+    use std::f64::consts::PI;
 
     /// One evaluation per particle and sensor gives the same J_Y sum and the
     /// same log-likelihoods, bit for bit, as evaluating each on its own, for

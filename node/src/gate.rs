@@ -16,7 +16,7 @@
 use bounds::{wrap_angle, Mat4, State};
 use nalgebra::Cholesky;
 
-use crate::estimator::{Observation, ObservedValue, SensingModel};
+use crate::sensing::{Observation, ObservedValue, SensingModel};
 
 /// `ν²/S` of one observation against the predicted particles (equally
 /// weighted), with `information` (the local bound's J) setting the floor.

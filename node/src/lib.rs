@@ -5,6 +5,7 @@
 //! Rooms, by estimation role:
 //! - [`filter`]: the particle filter's predictor, updater, resampler and
 //!   regulariser;
+//! - [`sensing`]: the sensors' models and what a step's observations say;
 //! - [`estimator`]: the CF/DPF's local and fusion filters with their bounds;
 //! - [`sensor_manager`]: which sensors a node activates;
 //! - [`collector`]: a step's observations, and which sensors stayed silent;
@@ -32,6 +33,7 @@ pub mod fusion;
 pub mod gate;
 pub mod processing;
 pub mod registry;
+pub mod sensing;
 pub mod sensor_manager;
 mod wiring;
 

@@ -111,7 +111,7 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
 /// between them they build each row once (`bounds::shared_rows`). A
 /// failure costs only time: the node builds its own rows, as `sim` does.
 fn share_table_rows(run: &RunId) {
-    let len = bounds::shared_rows::shared_table_bytes();
+    let len = bounds::table_memory::shared_table_bytes();
     let shared = map_run_memory(run, "table_rows", len)
         .map_err(anyhow::Error::from)
         .and_then(|memory| {
@@ -120,7 +120,7 @@ fn share_table_rows(run: &RunId) {
             // SAFETY: the run's own file, zeroed when made, mapped for the
             // rest of the process; the run's nodes are this executable and
             // write it only through the shared tables.
-            unsafe { bounds::shared_rows::share_table_rows(memory.as_mut_ptr(), memory.len()) }
+            unsafe { bounds::table_memory::share_table_rows(memory.as_mut_ptr(), memory.len()) }
                 .map_err(anyhow::Error::from)
         });
     if let Err(e) = shared {

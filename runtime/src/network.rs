@@ -11,10 +11,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
+use fusion_graph::accounting::read_ledger;
 use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::hosts::Placement;
-use fusion_graph::ledger::{read_ledger, LedgerError};
+use fusion_graph::ledger::LedgerError;
 use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
 use fusion_graph::transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};

@@ -10,6 +10,10 @@ use fusion_graph::accounting::Accounting;
 use fusion_graph::wire::{MessageKind, Telemetry};
 use serde::Serialize;
 
+pub use crate::summary::{
+    steps_to_recover, window_rmse, BoundTraffic, Estimates, StepMeans, Traffic,
+};
+
 /// Steps before this are left out of the averages (the filters' transient).
 pub const AVERAGE_FROM_STEP: u32 = 10;
 
@@ -31,6 +35,74 @@ impl TickRow {
 }
 
 const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed\n";
+
+/// A row of `ticks.csv` as read back (the live view's replay and the
+/// testkit read it; [`ResultsWriter`] writes it): a node's (or the
+/// centralized reference's) report for a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tick {
+    /// The step, from 1.
+    pub step: u32,
+    /// `node-<i>` or `central`.
+    pub node: String,
+    /// The target's true position, metres.
+    pub truth: [f64; 2],
+    /// The node's fused position estimate, metres.
+    pub estimate: [f64; 2],
+    /// Position error, metres.
+    pub error: f64,
+    /// CQ/dPCRLB position bound, metres.
+    pub bound: Option<f64>,
+    /// The bound of the node's own sensors alone, metres.
+    pub local_bound: Option<f64>,
+    /// The auxiliary-FIM baseline bound, when it ran, metres.
+    pub aux_bound: Option<f64>,
+    /// Consensus rounds the node completed.
+    pub rounds_completed: u32,
+    /// Neighbours heard in the last round.
+    pub live_neighbours: u32,
+    /// Observations the node's filters used.
+    pub observations: u32,
+    /// The node finished after its step's deadline.
+    pub deadline_missed: bool,
+    /// The row as written.
+    pub line: String,
+}
+
+impl Tick {
+    /// The row `line`, or `None` if it is not one: fewer than its first
+    /// eight columns (step to bound), or a value that does not parse.
+    /// Columns after those may be missing, and read as empty.
+    pub fn parse(line: &str) -> Option<Self> {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() < 8 {
+            return None;
+        }
+        let num = |i: usize| f.get(i)?.parse::<f64>().ok();
+        // A later column that is absent reads as 0; one that is there must parse.
+        let int = |i: usize| f.get(i).map_or(Some(0), |v| v.parse::<u32>().ok());
+        Some(Self {
+            step: int(0)?,
+            node: f.get(1)?.to_string(),
+            truth: [num(2)?, num(3)?],
+            estimate: [num(4)?, num(5)?],
+            error: num(6)?,
+            bound: num(7),
+            local_bound: num(8),
+            aux_bound: num(9),
+            rounds_completed: int(10)?,
+            live_neighbours: int(11)?,
+            observations: int(12)?,
+            deadline_missed: f.get(13) == Some(&"1"),
+            line: line.to_string(),
+        })
+    }
+
+    /// A processing node's row (not the centralized reference's).
+    pub fn is_node(&self) -> bool {
+        self.node != "central"
+    }
+}
 
 pub struct ResultsWriter {
     dir: PathBuf,
@@ -185,17 +257,6 @@ struct StepSums {
     central_bound: (f64, u64),
 }
 
-/// One step's means: over nodes and runs; the RMSEs are root mean squares.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepMeans {
-    pub step: u32,
-    pub rmse: Option<f64>,
-    pub bound: Option<f64>,
-    pub aux_bound: Option<f64>,
-    pub centralized_rmse: Option<f64>,
-    pub centralized_bound: Option<f64>,
-}
-
 impl StepSeries {
     pub fn add(&mut self, r: &TickRow) {
         let i = r.step.saturating_sub(1) as usize;
@@ -247,80 +308,6 @@ impl StepSeries {
             })
             .collect()
     }
-}
-
-/// Accuracy figures, averaged over nodes and steps from `from_step` on.
-#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
-pub struct Estimates {
-    pub from_step: u32,
-    /// Position RMSE of the nodes' fused estimates, metres.
-    pub rmse: Option<f64>,
-    /// Mean CQ/dPCRLB position bound, metres.
-    pub mean_bound: Option<f64>,
-    pub mean_local_bound: Option<f64>,
-    /// Mean auxiliary-FIM baseline bound, when it ran.
-    pub mean_aux_bound: Option<f64>,
-    pub centralized_rmse: Option<f64>,
-    pub mean_centralized_bound: Option<f64>,
-}
-
-/// The root mean square of the per-step RMSEs of steps `from..to` (steps
-/// with no report left out); `None` if there are none.
-pub fn window_rmse(means: &[StepMeans], from: u32, to: u32) -> Option<f64> {
-    let squares: Vec<f64> = means
-        .iter()
-        .filter(|m| (from..to).contains(&m.step))
-        .filter_map(|m| m.rmse.map(|r| r * r))
-        .collect();
-    (!squares.is_empty()).then(|| (squares.iter().sum::<f64>() / squares.len() as f64).sqrt())
-}
-
-/// Steps from `end` until `recovered(step, rmse)` holds for `hold` steps
-/// running; `None` if the run ends first.
-pub fn steps_to_recover(
-    means: &[StepMeans],
-    end: u32,
-    hold: u32,
-    recovered: impl Fn(u32, f64) -> bool,
-) -> Option<u32> {
-    let mut run_start = None;
-    for m in means.iter().filter(|m| m.step >= end) {
-        match m.rmse {
-            Some(r) if recovered(m.step, r) => {
-                let start = *run_start.get_or_insert(m.step);
-                if m.step + 1 - start >= hold {
-                    return Some(start - end);
-                }
-            }
-            _ => run_start = None,
-        }
-    }
-    None
-}
-
-/// Bytes sent per message kind, in total and per step.
-#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
-pub struct Traffic {
-    pub kind: String,
-    pub messages: u64,
-    pub bytes: u64,
-    pub bytes_per_step: f64,
-    pub dropped_messages: u64,
-    pub malformed_messages: u64,
-    /// Extra copies an injected `duplicate` fault made.
-    #[serde(default)]
-    pub duplicated_messages: u64,
-    /// See [`Counters::unaccounted_messages`](fusion_graph::accounting::Counters::unaccounted_messages).
-    pub unaccounted_messages: i64,
-}
-
-/// Bytes of bound information carried by consensus: ΔL (10 numbers) per
-/// consensus message for CQ/dPCRLB; the auxiliary-FIM baseline needs S_obs
-/// (10 more) per round as well.
-#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
-pub struct BoundTraffic {
-    pub cq_dpcrlb_bytes: u64,
-    pub auxiliary_fim_bytes: Option<u64>,
 }
 
 pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraffic) {

@@ -4,8 +4,6 @@ use serde::{Deserialize, Serialize};
 
 use fusion_graph::scenario::{Fault, Scenario};
 
-use crate::results::{BoundTraffic, Estimates, Traffic};
-
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct AppliedFault {
     pub step: u32,
@@ -52,8 +50,7 @@ impl AppliedFault {
     }
 
     /// Fills in the RMSE figures from the run's per-step means.
-    pub fn measure(&mut self, means: &[crate::results::StepMeans]) {
-        use crate::results::{steps_to_recover, window_rmse};
+    pub fn measure(&mut self, means: &[StepMeans]) {
         let start = self.step;
         let end = self.until_step.unwrap_or(u32::MAX);
         self.rmse_before = window_rmse(means, start.saturating_sub(BEFORE_STEPS), start);
@@ -456,6 +453,91 @@ pub fn print_table(s: &Summary) {
             )
         );
     }
+}
+
+/// One step's means: over nodes and runs; the RMSEs are root mean squares.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepMeans {
+    pub step: u32,
+    pub rmse: Option<f64>,
+    pub bound: Option<f64>,
+    pub aux_bound: Option<f64>,
+    pub centralized_rmse: Option<f64>,
+    pub centralized_bound: Option<f64>,
+}
+
+/// Accuracy figures, averaged over nodes and steps from `from_step` on.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
+pub struct Estimates {
+    pub from_step: u32,
+    /// Position RMSE of the nodes' fused estimates, metres.
+    pub rmse: Option<f64>,
+    /// Mean CQ/dPCRLB position bound, metres.
+    pub mean_bound: Option<f64>,
+    pub mean_local_bound: Option<f64>,
+    /// Mean auxiliary-FIM baseline bound, when it ran.
+    pub mean_aux_bound: Option<f64>,
+    pub centralized_rmse: Option<f64>,
+    pub mean_centralized_bound: Option<f64>,
+}
+
+/// The root mean square of the per-step RMSEs of steps `from..to` (steps
+/// with no report left out); `None` if there are none.
+pub fn window_rmse(means: &[StepMeans], from: u32, to: u32) -> Option<f64> {
+    let squares: Vec<f64> = means
+        .iter()
+        .filter(|m| (from..to).contains(&m.step))
+        .filter_map(|m| m.rmse.map(|r| r * r))
+        .collect();
+    (!squares.is_empty()).then(|| (squares.iter().sum::<f64>() / squares.len() as f64).sqrt())
+}
+
+/// Steps from `end` until `recovered(step, rmse)` holds for `hold` steps
+/// running; `None` if the run ends first.
+pub fn steps_to_recover(
+    means: &[StepMeans],
+    end: u32,
+    hold: u32,
+    recovered: impl Fn(u32, f64) -> bool,
+) -> Option<u32> {
+    let mut run_start = None;
+    for m in means.iter().filter(|m| m.step >= end) {
+        match m.rmse {
+            Some(r) if recovered(m.step, r) => {
+                let start = *run_start.get_or_insert(m.step);
+                if m.step + 1 - start >= hold {
+                    return Some(start - end);
+                }
+            }
+            _ => run_start = None,
+        }
+    }
+    None
+}
+
+/// Bytes sent per message kind, in total and per step.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
+pub struct Traffic {
+    pub kind: String,
+    pub messages: u64,
+    pub bytes: u64,
+    pub bytes_per_step: f64,
+    pub dropped_messages: u64,
+    pub malformed_messages: u64,
+    /// Extra copies an injected `duplicate` fault made.
+    #[serde(default)]
+    pub duplicated_messages: u64,
+    /// See [`Counters::unaccounted_messages`](fusion_graph::accounting::Counters::unaccounted_messages).
+    pub unaccounted_messages: i64,
+}
+
+/// Bytes of bound information carried by consensus: ΔL (10 numbers) per
+/// consensus message for CQ/dPCRLB; the auxiliary-FIM baseline needs S_obs
+/// (10 more) per round as well.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
+pub struct BoundTraffic {
+    pub cq_dpcrlb_bytes: u64,
+    pub auxiliary_fim_bytes: Option<u64>,
 }
 
 #[cfg(test)]

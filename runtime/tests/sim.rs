@@ -70,7 +70,7 @@ fn distributed_bound_comes_close_to_the_centralized_one() {
     );
     assert!(
         dist > 0.5 && dist < 3.0,
-        "bound {dist} m is outside math.md's 1-2 m ballpark"
+        "bound {dist} m is outside docs/equations.md's 1-2 m ballpark"
     );
     // RMSE: at most twice the centralized filter's, and not far below the bound
     // (one 60-step run: allow 25 % of Monte Carlo slack below it).

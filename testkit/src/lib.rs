@@ -58,6 +58,7 @@
 
 #![warn(missing_docs)]
 
+mod cleanup;
 mod network;
 mod results;
 

@@ -10,11 +10,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use fusion_graph::scenario::{Fault, Scenario};
-use fusion_graph::transport::iceoryx::remove_run_resources;
 use fusion_graph::transport::RunId;
 use fusion_graph::ActorId;
 
-use crate::results::{processes_matching, processes_with, read_ticks, Run};
+use crate::cleanup::{kill_and_clean, processes_matching};
+use crate::results::{read_ticks, Run};
 use crate::Error;
 
 /// The longest a network may run before it is killed and its test fails,
@@ -550,13 +550,4 @@ impl Drop for RunningNetwork {
             kill_and_clean(&self.run_id);
         }
     }
-}
-
-/// Kills whatever process still carries the run id and removes the run's
-/// shared memory.
-pub(crate) fn kill_and_clean(run_id: &RunId) {
-    for pid in processes_with(run_id.as_str()) {
-        let _ = Command::new("kill").arg("-9").arg(pid.to_string()).status();
-    }
-    let _ = remove_run_resources(run_id);
 }

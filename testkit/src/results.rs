@@ -13,67 +13,9 @@ use fusion_graph::wire::MessageKind;
 use fusion_graph::ActorId;
 use runtime::summary::{AppliedFault, FaultCost, Summary};
 
-use crate::network::kill_and_clean;
+use crate::cleanup::{kill_and_clean, processes_with};
 
-/// One row of `ticks.csv`: a node's (or the centralized reference's) report
-/// for a step.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Tick {
-    /// The step, from 1.
-    pub step: u32,
-    /// `node-<i>` or `central`.
-    pub node: String,
-    /// The target's true position, metres.
-    pub truth: [f64; 2],
-    /// The node's fused position estimate, metres.
-    pub estimate: [f64; 2],
-    /// Position error, metres.
-    pub error: f64,
-    /// CQ/dPCRLB position bound, metres.
-    pub bound: Option<f64>,
-    /// The bound of the node's own sensors alone, metres.
-    pub local_bound: Option<f64>,
-    /// The auxiliary-FIM baseline bound, when it ran, metres.
-    pub aux_bound: Option<f64>,
-    /// Consensus rounds the node completed.
-    pub rounds_completed: u32,
-    /// Neighbours heard in the last round.
-    pub live_neighbours: u32,
-    /// Observations the node's filters used.
-    pub observations: u32,
-    /// The node finished after its step's deadline.
-    pub deadline_missed: bool,
-    /// The row as written.
-    pub line: String,
-}
-
-impl Tick {
-    fn parse(line: &str) -> Option<Self> {
-        let f: Vec<&str> = line.split(',').collect();
-        let num = |i: usize| f.get(i)?.parse::<f64>().ok();
-        let int = |i: usize| f.get(i)?.parse::<u32>().ok();
-        Some(Self {
-            step: int(0)?,
-            node: f.get(1)?.to_string(),
-            truth: [num(2)?, num(3)?],
-            estimate: [num(4)?, num(5)?],
-            error: num(6)?,
-            bound: num(7),
-            local_bound: num(8),
-            aux_bound: num(9),
-            rounds_completed: int(10)?,
-            live_neighbours: int(11)?,
-            observations: int(12)?,
-            deadline_missed: f.get(13)? == &"1",
-            line: line.to_string(),
-        })
-    }
-
-    /// A processing node's row (not the centralized reference's).
-    pub fn is_node(&self) -> bool {
-        self.node != "central"
-    }
-}
+pub use runtime::results::Tick;
 
 /// Every row of a `ticks.csv` (none if it is missing); panics on a row that
 /// does not parse, naming it.
@@ -340,35 +282,6 @@ impl Drop for Run {
 fn rmse<'a>(ticks: impl Iterator<Item = &'a Tick>) -> f64 {
     let (sum, n) = ticks.fold((0.0, 0usize), |(s, n), t| (s + t.error * t.error, n + 1));
     (sum / n as f64).sqrt()
-}
-
-/// Processes whose command line carries run id `run_id` (as `--run-id
-/// <id>`, so that run `x-1` is not mistaken for `x-10`).
-pub(crate) fn processes_with(run_id: &str) -> Vec<u32> {
-    processes_matching(&format!("--run-id {run_id} "))
-}
-
-/// Processes whose command line contains `needle`.
-pub(crate) fn processes_matching(needle: &str) -> Vec<u32> {
-    let mut pids = Vec::new();
-    let Ok(entries) = std::fs::read_dir("/proc") else {
-        return pids;
-    };
-    for e in entries.flatten() {
-        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
-            continue;
-        };
-        if pid == std::process::id() {
-            continue;
-        }
-        if let Ok(cmdline) = std::fs::read(e.path().join("cmdline")) {
-            let cmdline = String::from_utf8_lossy(&cmdline).replace('\0', " ");
-            if cmdline.contains(needle) {
-                pids.push(pid);
-            }
-        }
-    }
-    pids
 }
 
 #[cfg(test)]

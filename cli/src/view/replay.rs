@@ -9,13 +9,14 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Duration;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Fault;
 use fusion_graph::Topology;
 
 use runtime::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
+use runtime::results::Tick;
 use runtime::summary::Summary;
 
 /// A finished run, read back.
@@ -59,34 +60,21 @@ impl FinishedRun {
 
 type Steps = BTreeMap<u32, ([f64; 2], Vec<NodeEstimate>)>;
 
-/// `ticks.csv`: `step,node,true_x,true_y,est_x,est_y,error,bound,…`.
+/// `ticks.csv`, read by [`Tick::parse`], into each step's truth and reports.
 fn parse_ticks(text: &str) -> anyhow::Result<Steps> {
     let mut steps = Steps::new();
     for (i, line) in text.lines().enumerate().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() < 8 {
-            bail!("line {}: {} fields, expected at least 8", i + 1, f.len());
-        }
-        let num = |k: usize| -> anyhow::Result<f64> {
-            f[k].parse().with_context(|| {
-                format!(
-                    "line {}: field {} is not a number: {:?}",
-                    i + 1,
-                    k + 1,
-                    f[k]
-                )
-            })
-        };
-        let step: u32 = f[0]
-            .parse()
-            .with_context(|| format!("line {}: step {:?}", i + 1, f[0]))?;
-        let entry = steps.entry(step).or_insert_with(|| ([0.0; 2], Vec::new()));
-        entry.0 = [num(2)?, num(3)?];
+        let tick = Tick::parse(line)
+            .ok_or_else(|| anyhow::anyhow!("line {}: not a row of ticks.csv: {line:?}", i + 1))?;
+        let entry = steps
+            .entry(tick.step)
+            .or_insert_with(|| ([0.0; 2], Vec::new()));
+        entry.0 = tick.truth;
         entry.1.push(NodeEstimate {
-            node: f[1].to_string(),
-            estimate: [num(4)?, num(5)?],
-            error: num(6)?,
-            bound: f[7].parse().ok(),
+            node: tick.node,
+            estimate: tick.estimate,
+            error: tick.error,
+            bound: tick.bound,
         });
     }
     Ok(steps)

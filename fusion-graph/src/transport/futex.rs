@@ -285,7 +285,7 @@ mod tests {
     use iceoryx2::prelude::*;
 
     use super::Service;
-    use crate::transport::iceoryx::remove_run_resources;
+    use crate::transport::iceoryx::{remove_run_resources, RunResources};
     use crate::transport::{DeadNodeSweep, RunId};
 
     /// A node of this test's own run, configured as the transport's are,

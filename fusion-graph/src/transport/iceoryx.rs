@@ -20,292 +20,33 @@ use super::futex;
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
-use crate::hosts::{actor_of_wake_id, wake_id, Placement};
+use crate::channel::RunId;
+use crate::hosts::{wake_id, Placement};
 use crate::ledger::Ledger;
 use crate::shaper::LinkShaper;
 use crate::topology::Topology;
 use crate::wire::{Message, MessageKind, WireFormat, HEADER_BYTES};
 use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
-/// Where iceoryx2 keeps its files besides `/dev/shm`.
-/// Where iceoryx2 keeps a run's service and node files: on tmpfs beside the
-/// shared memory. On the default `/tmp/iceoryx2` (ext4 here) a fifth of the
-/// start-up CPU of 936 processes went to the file system allocating inodes
-/// among the many that earlier runs created and deleted.
-const ICEORYX_ROOT: &str = "/dev/shm/cqnet-iceoryx2/";
-/// The default root, where runs of earlier versions left their files.
-const LEGACY_ICEORYX_ROOT: &str = "/tmp/iceoryx2";
-/// Where shared memory lives: iceoryx2's segments and the run's own files
-/// (`map_run_memory`).
-const SHARED_MEMORY: &str = "/dev/shm";
-/// What cleanup searches (recursively): the shared memory, whose tree holds
-/// `ICEORYX_ROOT`, and the legacy root.
-const RESOURCE_DIRS: [&str; 2] = [SHARED_MEMORY, LEGACY_ICEORYX_ROOT];
-/// How often to retry opening a service that another process is creating.
-const OPEN_ATTEMPTS: u32 = 100;
+pub(crate) use super::resources::RunResources;
+pub use super::resources::{
+    map_run_memory, remove_run_resources, remove_stale_node_directories, run_resources,
+    sweep_abandoned_runs, DeadNodeSweep, RunLease,
+};
+use super::resources::{retry, setup};
+use super::wake::{open_bridge_wake, open_wake, Heard, WakeIds};
+
 /// The shortest wait handed to iceoryx2's timed wait; shorter ones poll.
 const MIN_TIMED_WAIT: Duration = Duration::from_micros(1);
 
-/// A run's identity: lowercase letters, digits and `-`, at most 32 characters.
-#[derive(Debug, Clone, PartialEq, Eq, Hash)]
-pub struct RunId(String);
-
-impl RunId {
-    pub fn new(id: &str) -> Result<Self, SetupError> {
-        let ok = !id.is_empty()
-            && id.len() <= 32
-            && id
-                .bytes()
-                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
-        if !ok {
-            return Err(SetupError::BadRunId { id: id.into() });
-        }
-        Ok(Self(id.into()))
-    }
-
-    /// A fresh id from the process id and the clock.
-    pub fn generate() -> Self {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos());
-        Self(format!("r{}-{:x}", std::process::id(), nanos & 0xffff_ffff))
-    }
-
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-
-    /// The file-name prefix of every iceoryx2 resource of this run.
-    pub fn prefix(&self) -> String {
-        format!("cqnet_{}_", self.0.replace('-', "_"))
-    }
-
-    pub(crate) fn config(&self, sweep: DeadNodeSweep) -> Result<Config, SetupError> {
-        let mut config = Config::default();
-        config.global.prefix =
-            FileName::new(self.prefix().as_bytes()).map_err(|e| setup("run prefix", e))?;
-        config
-            .global
-            .set_root_path(&Path::new(ICEORYX_ROOT.as_bytes()).map_err(|e| setup("root path", e))?);
-        let on = sweep == DeadNodeSweep::On;
-        config.global.node.cleanup_dead_nodes_on_creation = on;
-        config.global.node.cleanup_dead_nodes_on_destruction = on;
-        config.global.service.cleanup_dead_nodes_on_open = on;
-        Ok(config)
-    }
-
-    fn service_name(&self, suffix: &str) -> Result<ServiceName, SetupError> {
-        ServiceName::new(&format!("cqnet/{}/{suffix}", self.0)).map_err(|e| setup(suffix, e))
-    }
-}
-
-impl std::fmt::Display for RunId {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-/// Removes every file of a run's iceoryx2 resources (shared memory and the
-/// static service files). Returns how many were removed. Call it only once
-/// every process of the run has exited and been reaped.
-pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
-    let prefix = run.prefix();
-    let mut removed = 0;
-    for dir in RESOURCE_DIRS {
-        removed += remove_with_prefix(std::path::Path::new(dir), &prefix)?;
-    }
-    Ok(removed)
-}
-
-/// Memory the run's processes share beside iceoryx2's (the tables' rows,
-/// `bounds::shared_rows`): a file on tmpfs named with the run's prefix, so
-/// that [`remove_run_resources`] and the sweep of abandoned runs remove it
-/// with the rest. Made `len` bytes long, zeroed, by whichever process opens
-/// it first; the others map what it made.
-pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<memmap2::MmapMut> {
-    let path = std::path::Path::new(SHARED_MEMORY).join(format!("{}{name}", run.prefix()));
-    let file = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)?;
-    // Growing a file to the length it has already changes nothing, so two
-    // processes that both find it short cannot undo each other's rows.
-    if file.metadata()?.len() < len as u64 {
-        file.set_len(len as u64)?;
-    }
-    // SAFETY: the file belongs to this run and only its processes map it;
-    // none shrinks it (all grow it to the same length, at most).
-    unsafe { memmap2::MmapOptions::new().len(len).map_mut(&file) }
-}
-
-/// Where launchers register their runs: one file per run id, holding the
-/// launcher's pid and its start time (so a reused pid is not mistaken for it).
-const RUN_REGISTRY: &str = "/tmp/cqnet-runs";
-
-/// A launcher's claim on its run's resources, held for the run's lifetime.
-/// A launcher killed with SIGKILL cannot clean up; its lease outlives it,
-/// and [`sweep_abandoned_runs`] finds the run by it.
-#[derive(Debug)]
-pub struct RunLease {
-    path: std::path::PathBuf,
-}
-
-impl RunLease {
-    /// Registers `run` as this process's.
-    pub fn acquire(run: &RunId) -> std::io::Result<Self> {
-        std::fs::create_dir_all(RUN_REGISTRY)?;
-        let pid = std::process::id();
-        let started = process_start_time(pid).unwrap_or_default();
-        let path = std::path::Path::new(RUN_REGISTRY).join(run.as_str());
-        std::fs::write(&path, format!("{pid} {started}\n"))?;
-        Ok(Self { path })
-    }
-}
-
-impl Drop for RunLease {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.path);
-    }
-}
-
-/// Removes the resources of every registered run whose launcher is gone
-/// (no process with its pid and start time), and their leases; runs whose
-/// launcher lives are left alone. Returns the runs cleaned.
-pub fn sweep_abandoned_runs() -> std::io::Result<Vec<RunId>> {
-    let mut cleaned = Vec::new();
-    let entries = match std::fs::read_dir(RUN_REGISTRY) {
-        Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(cleaned),
-        Err(e) => return Err(e),
-    };
-    for entry in entries.flatten() {
-        let Ok(run) = RunId::new(&entry.file_name().to_string_lossy()) else {
-            continue;
-        };
-        let lease = std::fs::read_to_string(entry.path()).unwrap_or_default();
-        let mut fields = lease.split_whitespace();
-        let pid = fields.next().and_then(|p| p.parse::<u32>().ok());
-        let started = fields.next().and_then(|t| t.parse::<u64>().ok());
-        let alive = match (pid, started) {
-            (Some(pid), Some(started)) => process_start_time(pid) == Some(started),
-            _ => false,
-        };
-        if !alive {
-            remove_run_resources(&run)?;
-            let _ = std::fs::remove_file(entry.path());
-            cleaned.push(run);
-        }
-    }
-    Ok(cleaned)
-}
-
-/// A process's start time in clock ticks since boot (`/proc/<pid>/stat`,
-/// field 22); `None` if there is no such process.
-fn process_start_time(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The command name (field 2) is in parentheses and may hold spaces.
-    let after_name = &stat[stat.rfind(')')? + 2..];
-    after_name.split_whitespace().nth(19)?.parse().ok()
-}
-
-/// Files of the run that still exist (for cleanup checks).
-pub fn run_resources(run: &RunId) -> Vec<std::path::PathBuf> {
-    let prefix = run.prefix();
-    let mut found = Vec::new();
-    for dir in RESOURCE_DIRS {
-        collect_with_prefix(std::path::Path::new(dir), &prefix, &mut found);
-    }
-    found
-}
-
-fn collect_with_prefix(dir: &std::path::Path, prefix: &str, found: &mut Vec<std::path::PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let path = e.path();
-        if e.file_name().to_string_lossy().starts_with(prefix) {
-            found.push(path);
-        } else if path.is_dir() {
-            collect_with_prefix(&path, prefix, found);
-        }
-    }
-}
-
-fn remove_with_prefix(dir: &std::path::Path, prefix: &str) -> std::io::Result<usize> {
-    let mut found = Vec::new();
-    collect_with_prefix(dir, prefix, &mut found);
-    let mut n = 0;
-    let mut parents = std::collections::BTreeSet::new();
-    for p in found {
-        let r = if p.is_dir() {
-            std::fs::remove_dir_all(&p)
-        } else {
-            std::fs::remove_file(&p)
-        };
-        match r {
-            Ok(()) => n += 1,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(e),
-        }
-        if let Some(parent) = p.parent().filter(|parent| *parent != dir) {
-            parents.insert(parent.to_path_buf());
-        }
-    }
-    // iceoryx2 keeps each node's files in a directory named by the node's
-    // id, without the run's prefix: the ones this removal emptied are the
-    // run's. (Left behind, 15,297 had piled up on the development machine.)
-    for parent in parents {
-        if std::fs::remove_dir(&parent).is_ok() {
-            n += 1;
-        }
-    }
-    Ok(n)
-}
-
-/// How old an empty node directory must be before a sweep takes it: a
-/// live node's directory is empty for a moment between its creation and
-/// its first file.
-const EMPTY_NODE_DIR_AGE: Duration = Duration::from_secs(60);
-
-/// Removes the empty node directories older than a minute that runs from
-/// before cleanup removed them left in iceoryx2's node folders. Returns
-/// how many were removed.
-pub fn remove_stale_node_directories() -> std::io::Result<usize> {
-    let mut removed = 0;
-    for root in [ICEORYX_ROOT, LEGACY_ICEORYX_ROOT] {
-        let nodes = std::path::Path::new(root).join("nodes");
-        let entries = match std::fs::read_dir(&nodes) {
-            Ok(e) => e,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-            Err(e) => return Err(e),
-        };
-        for e in entries.flatten() {
-            let old_enough = e
-                .metadata()
-                .and_then(|m| m.modified())
-                .ok()
-                .and_then(|t| t.elapsed().ok())
-                .is_some_and(|age| age >= EMPTY_NODE_DIR_AGE);
-            // remove_dir refuses a directory with anything in it.
-            if old_enough && std::fs::remove_dir(e.path()).is_ok() {
-                removed += 1;
-            }
-        }
-    }
-    Ok(removed)
-}
-
-type Sub = Subscriber<futex::Service, [u8], ()>;
-type Pub = Publisher<futex::Service, [u8], ()>;
-type PortFactory =
+pub(crate) type Sub = Subscriber<futex::Service, [u8], ()>;
+pub(crate) type Pub = Publisher<futex::Service, [u8], ()>;
+pub(crate) type PortFactory =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<futex::Service, [u8], ()>;
 
 /// Opens (or creates) a channel's service, sized for its readers the same
 /// way by every actor and by a host's bridge.
-fn open_channel(
+pub(crate) fn open_channel(
     node: &Node<futex::Service>,
     run: &RunId,
     topology: &Topology,
@@ -313,7 +54,7 @@ fn open_channel(
 ) -> Result<PortFactory, SetupError> {
     let name = run.service_name(&channel.service_suffix())?;
     // +1 subscriber: on a host of several, the bridge reads what leaves it.
-    let subs = channel.subscribers(topology) + 1;
+    let subs = topology.subscribers(channel) + 1;
     // +1 publisher: a test may inject raw bytes through a second one.
     retry(|| {
         node.service_builder(&name)
@@ -364,7 +105,7 @@ pub struct IceoryxTransport {
 }
 
 /// Largest message each channel carries, which sizes its shared memory.
-fn max_message_len(channel: Channel) -> usize {
+pub(crate) fn max_message_len(channel: Channel) -> usize {
     HEADER_BYTES
         + match channel {
             Channel::Tick | Channel::Observation(_) => 48,
@@ -393,26 +134,6 @@ fn buffer_len(_channel: Channel) -> usize {
 /// that does not run may fall behind by before its oldest messages are
 /// overwritten.
 pub const QUEUE_DEPTH: usize = 64;
-
-/// Whether creating (and dropping) an iceoryx2 node, and opening a service,
-/// first sweep the resources of dead nodes of the run. Both sweeps are
-/// linear in the network, so with every actor starting at once they made
-/// start-up quadratic:
-/// - the node sweep lists every node of the run, and the processes queued
-///   on the node directory's lock (936 processes took 110 s);
-/// - the service sweep reads the details of every node attached to the
-///   service, and every actor opens the tick service, to which all of them
-///   are attached (2,600 processes: a fifth of all CPU time in start-up,
-///   240 ready after 120 s).
-///
-/// At a run's first start nothing has died yet, and the launcher removes
-/// everything at the end; an actor restarted after a kill still sweeps, so
-/// that its dead predecessor's ports do not hold places it needs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DeadNodeSweep {
-    On,
-    Off,
-}
 
 impl IceoryxTransport {
     /// Creates this actor's iceoryx2 node and its wake-up listener.
@@ -748,7 +469,7 @@ impl Transport for IceoryxTransport {
 /// microseconds, and a zero timeval means "block forever": a wait of less
 /// than a microsecond (a held message falling due just now) would never
 /// return, so it is a poll.
-fn listen(
+pub(crate) fn listen(
     listener: &Listener<futex::Service>,
     timeout: Duration,
     heard: impl FnMut(EventActivation),
@@ -769,377 +490,8 @@ fn listen(
     }
 }
 
-/// Notifiers a wake-up service takes beyond the actor's peers.
-const WAKE_SLACK: usize = 4;
-
-/// The event ids of one actor's wake-up service: who woke it, as far as it
-/// needs to know.
-///
-/// - `ANONYMOUS` (0): a wake-up that does not say whose message it brings
-///   (a host's bridge); the woken read everything.
-/// - `OTHER` (1): the launcher or a node; their channels are read at every
-///   receive anyway.
-/// - `2 + k`: the k-th sensor whose observations the actor reads (a node's
-///   own sensors in topology order; every sensor for the launcher).
-///
-/// Ids are numbered per receiver, not per network: iceoryx2 drains a
-/// listener by swapping every id's counter, so a wait costs a locked
-/// instruction per id the service has. A node's service has 27 (its 25
-/// sensors), not the 2,600 of a network-wide numbering at the largest size.
-struct WakeIds {
-    /// The sensors, in id order.
-    sensors: Vec<u16>,
-}
-
-impl WakeIds {
-    const ANONYMOUS: usize = 0;
-    const OTHER: usize = 1;
-
-    fn of(receiver: ActorId, topology: &Topology) -> Self {
-        Self {
-            sensors: match receiver {
-                ActorId::Node(n) => topology.node_sensors[n as usize].clone(),
-                ActorId::Launcher => (0..topology.sensors() as u16).collect(),
-                ActorId::Sensor(_) => Vec::new(),
-            },
-        }
-    }
-
-    /// The largest id.
-    fn max(&self) -> usize {
-        Self::OTHER + self.sensors.len()
-    }
-
-    /// The id wake-ups from `waker` carry.
-    fn id_of(&self, waker: ActorId) -> usize {
-        match waker {
-            ActorId::Sensor(s) => self
-                .sensors
-                .iter()
-                .position(|&x| x == s)
-                .map_or(Self::OTHER, |k| 2 + k),
-            _ => Self::OTHER,
-        }
-    }
-}
-
-/// Which subscriptions may hold messages, from the wake-ups heard since the
-/// last `receive`.
-///
-/// Polling an empty iceoryx2 subscriber touches its service's shared memory
-/// and its connection's, and a node was polling 25 observation channels and
-/// a handful of others at every wake-up, ten or more a step: the polls were
-/// a tenth of `run`'s CPU, more than any function of the filters but one.
-/// A sensor wakes every receiver of every observation it publishes, after
-/// publishing it, so its channel needs reading only when its wake-up was
-/// heard. Every other channel is read at every `receive`: their publishers
-/// wake only some receivers (a node's activation wakes its active sensors,
-/// its consensus its live neighbours), and the rest must still find the
-/// message when something else wakes them. A wake-up that does not say who
-/// sent it, or a wait that ends without one (a timeout, or a wake-up whose
-/// notification failed), reads everything.
-struct Heard {
-    ids: WakeIds,
-    /// Whether each sensor (by sensor index) woke us.
-    sensors: Vec<bool>,
-    everything: bool,
-    /// Whether a wait took the wake-ups since the last `receive`; if not,
-    /// `receive` takes them itself (a system call), unless no subscription
-    /// is read selectively.
-    waited: bool,
-    selective: bool,
-}
-
-impl Heard {
-    fn new(me: ActorId, topology: &Topology) -> Self {
-        Self {
-            ids: WakeIds::of(me, topology),
-            sensors: vec![false; topology.sensors()],
-            everything: true,
-            waited: false,
-            selective: false,
-        }
-    }
-
-    /// A wake-up carrying event id `id`.
-    fn hear(&mut self, id: usize) {
-        match id {
-            // The launcher's and nodes' channels are read anyway.
-            WakeIds::OTHER => {}
-            k if k >= 2 && k - 2 < self.ids.sensors.len() => {
-                if let Some(heard) = self.sensors.get_mut(self.ids.sensors[k - 2] as usize) {
-                    *heard = true;
-                }
-            }
-            _ => self.everything = true,
-        }
-    }
-
-    fn everything(&mut self) {
-        self.everything = true;
-    }
-
-    fn may_have_data(&self, channel: Channel) -> bool {
-        match channel {
-            Channel::Observation(s) => {
-                self.everything || self.sensors.get(s as usize).copied().unwrap_or(true)
-            }
-            _ => true,
-        }
-    }
-
-    fn clear(&mut self) {
-        self.everything = false;
-        self.waited = false;
-        self.sensors.fill(false);
-    }
-}
-
-fn open_wake(
-    node: &Node<futex::Service>,
-    run: &RunId,
-    actor: ActorId,
-    topology: &Topology,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
-    let name = run.service_name(&format!("wake/{actor}"))?;
-    let ids = WakeIds::of(actor, topology).max();
-    // Only an actor's peers wake it (a node's sensors and neighbours and
-    // the launcher; a sensor's node and the launcher), and a few more for
-    // tools and tests. Sized for everyone, the services' shared memory and
-    // set-up grew with the square of the network: 2,600 processes did not
-    // start in 400 s.
-    let wakers = topology.peers(actor) + WAKE_SLACK;
-    open_event(node, &name, wakers, ids, "wake event")
-}
-
-/// Opens or creates an event service for one listener and `wakers`
-/// notifiers, with event ids up to `ids`.
-fn open_event(
-    node: &Node<futex::Service>,
-    name: &ServiceName,
-    wakers: usize,
-    ids: usize,
-    what: &str,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
-    retry(|| {
-        node.service_builder(name)
-            .event()
-            .max_notifiers(wakers)
-            .max_listeners(2)
-            .max_nodes(wakers + 2)
-            .event_id_max_value(ids)
-            .open_or_create()
-    })
-    .map_err(|e| setup(what, e))
-}
-
-/// A host bridge's wake-up service: every actor of the host that sends to
-/// another host notifies it, with the far receiver's wake id.
-fn open_bridge_wake(
-    node: &Node<futex::Service>,
-    run: &RunId,
-    placement: &Placement,
-    host: usize,
-    topology: &Topology,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
-    let name = run.service_name("wake/bridge")?;
-    // The host's actors, and the launcher's on the first host.
-    let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
-    let ids = wake_id(ActorId::Launcher, topology) + topology.nodes() + topology.sensors();
-    open_event(node, &name, wakers, ids, "bridge wake event")
-}
-
-/// A node for one side of a host's bridge.
-fn bridge_node(run: &RunId, side: &str) -> Result<Node<futex::Service>, SetupError> {
-    let config = run.config(DeadNodeSweep::On)?;
-    let name = NodeName::new(&format!("bridge-{side}")).map_err(|e| setup("node name", e))?;
-    NodeBuilder::new()
-        .config(&config)
-        .name(&name)
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<futex::Service>()
-        .map_err(|e| setup("node", e))
-}
-
-/// The iceoryx2 side of what leaves a host through its bridge: it reads
-/// every channel published on the host that another host reads, and hears
-/// which far actors the host's actors want woken. Bytes only: nothing that
-/// crosses is decoded or counted by the bridge, so link faults and byte
-/// counts stay the receiving actor's, exactly as within one host.
-pub struct BridgeOutlet {
-    topology: Topology,
-    outgoing: Vec<(Channel, Sub)>,
-    listener: Listener<futex::Service>,
-    /// Last: the ports above belong to it.
-    _node: Node<futex::Service>,
-}
-
-impl BridgeOutlet {
-    /// Opens host `host`'s outlet in its domain `run`. Open it before the
-    /// host's actors start, so that no message leaves unread.
-    pub fn open(
-        run: &RunId,
-        placement: &Placement,
-        host: usize,
-        topology: &Topology,
-    ) -> Result<Self, SetupError> {
-        let node = bridge_node(run, "out")?;
-        let mut outgoing = Vec::new();
-        for (channel, _) in placement.outgoing(host, topology) {
-            let sub = open_channel(&node, run, topology, channel)?
-                .subscriber_builder()
-                .create()
-                .map_err(|e| setup("subscriber", e))?;
-            outgoing.push((channel, sub));
-        }
-        let listener = open_bridge_wake(&node, run, placement, host, topology)?
-            .listener_builder()
-            .create()
-            .map_err(|e| setup("bridge listener", e))?;
-        Ok(Self {
-            topology: topology.clone(),
-            outgoing,
-            listener,
-            _node: node,
-        })
-    }
-
-    /// Sleeps until an actor of this host wakes the bridge or `timeout`
-    /// passes; appends the far actors it asked to wake.
-    pub fn wait(&self, timeout: Duration, woken: &mut Vec<ActorId>) -> Result<(), WaitError> {
-        let topology = &self.topology;
-        let mut heard = |e: EventActivation| {
-            if let Some(a) = actor_of_wake_id(e.id.as_value(), topology) {
-                woken.push(a);
-            }
-        };
-        listen(&self.listener, timeout, &mut heard)
-    }
-
-    /// Hands every waiting message on the outgoing channels to `each`.
-    pub fn drain(&self, mut each: impl FnMut(Channel, &[u8])) -> Result<(), ReceiveError> {
-        for (channel, sub) in &self.outgoing {
-            loop {
-                match sub.receive() {
-                    Ok(Some(sample)) => each(*channel, sample.payload()),
-                    Ok(None) => break,
-                    Err(e) => {
-                        return Err(ReceiveError {
-                            channel: channel.service_suffix(),
-                            source: Box::new(e),
-                        })
-                    }
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-/// The iceoryx2 side of what comes into a host through its bridge: it
-/// publishes, on this host, every channel published elsewhere that this
-/// host reads, and wakes this host's actors.
-pub struct BridgeInlet {
-    incoming: HashMap<Channel, Pub>,
-    wakers: HashMap<ActorId, Notifier<futex::Service>>,
-    /// The event id of a wake-up that does not say whose message it brings.
-    anonymous: EventId,
-    /// Last: the ports above belong to it.
-    _node: Node<futex::Service>,
-}
-
-impl BridgeInlet {
-    pub fn open(
-        run: &RunId,
-        placement: &Placement,
-        host: usize,
-        topology: &Topology,
-    ) -> Result<Self, SetupError> {
-        let node = bridge_node(run, "in")?;
-        let mut incoming = HashMap::new();
-        for channel in placement.incoming(host, topology) {
-            let publisher = open_channel(&node, run, topology, channel)?
-                .publisher_builder()
-                .initial_max_slice_len(max_message_len(channel))
-                .create()
-                .map_err(|e| setup("publisher", e))?;
-            incoming.insert(channel, publisher);
-        }
-        let mut local = placement.actors_on(host, topology);
-        if host == placement.host_of(ActorId::Launcher) {
-            local.push(ActorId::Launcher);
-        }
-        let mut wakers = HashMap::new();
-        for actor in local {
-            let n = open_wake(&node, run, actor, topology)?
-                .notifier_builder()
-                .create()
-                .map_err(|e| setup("notifier", e))?;
-            wakers.insert(actor, n);
-        }
-        Ok(Self {
-            incoming,
-            wakers,
-            anonymous: EventId::new(WakeIds::ANONYMOUS),
-            _node: node,
-        })
-    }
-
-    /// Whether `channel` comes into this host.
-    pub fn takes(&self, channel: Channel) -> bool {
-        self.incoming.contains_key(&channel)
-    }
-
-    /// Publishes bytes from another host on `channel` here. A channel this
-    /// host does not take in is refused.
-    pub fn publish(&self, channel: Channel, bytes: &[u8]) -> Result<(), SendError> {
-        let publisher = self
-            .incoming
-            .get(&channel)
-            .ok_or_else(|| SendError::NotPublisher {
-                channel: channel.service_suffix(),
-                actor: "bridge".into(),
-            })?;
-        let _ = publisher.update_connections();
-        publish(publisher, bytes).map_err(|source| SendError::Backend {
-            channel: channel.service_suffix(),
-            source,
-        })
-    }
-
-    /// Wakes an actor of this host; `false` if it is not one.
-    pub fn wake(&self, actor: ActorId) -> bool {
-        self.wakers
-            .get(&actor)
-            .is_some_and(|n| n.notify_with_custom_event_id(self.anonymous).is_ok())
-    }
-}
-
-/// Opens or creates, retrying while another process is half-way through
-/// creating the same service (a known race at start-up).
-fn retry<T, E: std::fmt::Debug>(mut f: impl FnMut() -> Result<T, E>) -> Result<T, E> {
-    let mut attempt = 0;
-    loop {
-        match f() {
-            Ok(v) => return Ok(v),
-            Err(e) if attempt + 1 >= OPEN_ATTEMPTS => return Err(e),
-            Err(_) => {
-                attempt += 1;
-                std::thread::sleep(Duration::from_millis(5 + (attempt as u64 % 7)));
-            }
-        }
-    }
-}
-
-fn setup<E: std::error::Error + Send + Sync + 'static>(what: &str, e: E) -> SetupError {
-    SetupError::Backend {
-        what: what.into(),
-        source: Box::new(e),
-    }
-}
-
 /// Moves one message's bytes into shared memory.
-fn publish(publisher: &Pub, bytes: &[u8]) -> Result<(), BackendError> {
+pub(crate) fn publish(publisher: &Pub, bytes: &[u8]) -> Result<(), BackendError> {
     let sample = publisher.loan_slice_uninit(bytes.len())?;
     sample.write_from_slice(bytes).send()?;
     Ok(())

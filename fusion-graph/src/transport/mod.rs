@@ -7,91 +7,20 @@ use std::time::Duration;
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
 use crate::shaper::{Admission, LinkShaper, Tampering};
-use crate::topology::Topology;
 use crate::wire::{Message, MessageKind, WireFormat};
 use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
+mod bridge_ends;
 pub mod futex;
 pub mod iceoryx;
 pub mod memory;
+mod resources;
+mod wake;
 
-pub use iceoryx::{BridgeInlet, BridgeOutlet, DeadNodeSweep, IceoryxTransport, RunId};
+pub use crate::channel::{Channel, RunId};
+pub use bridge_ends::{BridgeInlet, BridgeOutlet};
+pub use iceoryx::{DeadNodeSweep, IceoryxTransport};
 pub use memory::{MemoryBus, MemoryTransport};
-
-/// A publish/subscribe channel. Every channel has exactly one publisher, so a
-/// receiver always knows which directed link a message came over, even when
-/// the bytes are garbage.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
-)]
-pub enum Channel {
-    /// Launcher → every actor: the step and the true state.
-    Tick,
-    /// Node → its sensors: which are active this step.
-    Activation(u16),
-    /// Sensor → its node (and the centralized reference).
-    Observation(u16),
-    /// Node → its fusion-graph neighbours.
-    Consensus(u16),
-    /// Node → one neighbour: a message for it alone (random exchange), so
-    /// that it reaches, and is counted for, that neighbour only.
-    Pair { from: u16, to: u16 },
-    /// Launcher → one actor.
-    Control(ActorId),
-    /// Node → launcher.
-    Telemetry(u16),
-}
-
-impl Channel {
-    /// The one actor that publishes on this channel.
-    pub fn publisher(self) -> ActorId {
-        match self {
-            Channel::Tick | Channel::Control(_) => ActorId::Launcher,
-            Channel::Activation(n) | Channel::Consensus(n) | Channel::Telemetry(n) => {
-                ActorId::Node(n)
-            }
-            Channel::Pair { from, .. } => ActorId::Node(from),
-            Channel::Observation(s) => ActorId::Sensor(s),
-        }
-    }
-
-    /// Only a channel's one publisher may publish on it.
-    pub fn check_publisher(self, actor: ActorId) -> Result<(), SetupError> {
-        if self.publisher() == actor {
-            Ok(())
-        } else {
-            Err(SetupError::NotPublisher {
-                channel: self.service_suffix(),
-                actor: actor.to_string(),
-            })
-        }
-    }
-
-    /// The part of the service name after `cqnet/<run>/`.
-    pub fn service_suffix(self) -> String {
-        match self {
-            Channel::Tick => "tick".into(),
-            Channel::Activation(n) => format!("act/node-{n}"),
-            Channel::Observation(s) => format!("obs/sensor-{s}"),
-            Channel::Consensus(n) => format!("cons/node-{n}"),
-            Channel::Pair { from, to } => format!("pair/node-{from}/node-{to}"),
-            Channel::Control(a) => format!("ctl/{a}"),
-            Channel::Telemetry(n) => format!("telemetry/node-{n}"),
-        }
-    }
-
-    /// How many subscribers the channel has in a network of this topology
-    /// (the launcher's centralized reference reads every observation).
-    pub fn subscribers(self, t: &Topology) -> usize {
-        match self {
-            Channel::Tick => t.nodes() + t.sensors(),
-            Channel::Activation(n) => t.node_sensors[n as usize].len(),
-            Channel::Observation(_) => 2,
-            Channel::Consensus(n) => t.neighbours[n as usize].len(),
-            Channel::Control(_) | Channel::Telemetry(_) | Channel::Pair { .. } => 1,
-        }
-    }
-}
 
 /// The transport contract: setup, then send, receive and wait. Accounting:
 /// `send` records one sent message per intended receiver; `receive` records

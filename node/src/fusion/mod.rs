@@ -7,7 +7,7 @@
 //!
 //! - [`AverageConsensus`]: N_c rounds of Metropolis average consensus on the
 //!   information vector (δη, δΛ, ΔL [, S_obs]); the network sums are N_f
-//!   times the average (math.md, "Average consensus").
+//!   times the average (docs/equations.md, "Average and min consensus").
 //! - [`ExactSums`]: the exact network sums from an oracle the in-process
 //!   driver shares between its nodes; a checking mode of `sim`.
 //! - [`MinConsensus`]: the network's smallest proposal in as many rounds as

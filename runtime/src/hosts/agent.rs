@@ -9,9 +9,9 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
+use fusion_graph::accounting::read_ledger;
 use fusion_graph::accounting::Accounting;
 use fusion_graph::hosts::Placement;
-use fusion_graph::ledger::read_ledger;
 use fusion_graph::transport::iceoryx::remove_run_resources;
 use fusion_graph::transport::RunId;
 use fusion_graph::{Scenario, Topology};

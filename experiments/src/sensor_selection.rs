@@ -26,7 +26,7 @@ const MANAGERS: [Arm; 4] = [
 
 pub fn experiments() -> Vec<Experiment> {
     vec![Experiment {
-        name: "seed001-fig2",
+        name: "sensor-selection",
         source: "seed 001, Fig. 2",
         about: "position RMSE over time under the conditional-PCRLB, non-conditional-PCRLB, closest and random sensor managers, with the bytes each costs per step",
         scenario: SEED001_SCENARIO,

@@ -15,7 +15,7 @@ use fusion_graph::wire::MessageKind;
 use fusion_graph::{ActorId, Topology};
 use plotters::prelude::*;
 
-use super::seed004::{draw_lines, Curves};
+use super::random_exchange_bounds::{draw_lines, Curves};
 use super::{Check, Computed, ComputedReport, Options};
 use runtime::montecarlo::run_monte_carlo;
 use runtime::results::AVERAGE_FROM_STEP;
@@ -23,13 +23,13 @@ use runtime::results::AVERAGE_FROM_STEP;
 pub fn experiments() -> Vec<Computed> {
     vec![
         Computed {
-            name: "seed004-fig1",
+            name: "random-exchange-trackers",
             source: "seed 004, Fig. 1",
-            about: "RMS position error over time of RndEx-PF and the three KL fusion trackers on seed004.toml's 25 RSS nodes (a Monte Carlo of --runs runs in sim), with the RndEx-PF PCRLB (the paper's N_T = 10^4, N_f = 10^3) and the centralized PCRLB",
+            about: "RMS position error over time of RndEx-PF and the three KL fusion trackers on random-exchange.toml's 25 RSS nodes (a Monte Carlo of --runs runs in sim), with the RndEx-PF PCRLB (the paper's N_T = 10^4, N_f = 10^3) and the centralized PCRLB",
             run: fig1,
         },
         Computed {
-            name: "seed004-table",
+            name: "random-exchange-cost",
             source: "seed 004, Table I",
             about: "each tracker run as a real network of 50 processes in real time with the paper's 1 s step (--steps steps, 20 by default): RX and TX bytes per second per node between nodes, from the accounting, and the duty cycle, the node processes' CPU time over the step period",
             run: table,
@@ -73,8 +73,8 @@ const TRACKERS: [Tracker; 4] = [
 fn scenario_of(tracker: &Tracker, extra: &[String]) -> anyhow::Result<(Scenario, Topology)> {
     let mut overrides = vec![format!("consensus.protocol=\"{}\"", tracker.protocol)];
     overrides.extend_from_slice(extra);
-    let scenario = Scenario::from_toml(SEED004_SCENARIO, "seed004.toml", &overrides)?;
-    let topology = Topology::from_scenario(&scenario, "seed004.toml")?;
+    let scenario = Scenario::from_toml(SEED004_SCENARIO, "random-exchange.toml", &overrides)?;
+    let topology = Topology::from_scenario(&scenario, "random-exchange.toml")?;
     Ok((scenario, topology))
 }
 
@@ -102,7 +102,10 @@ fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         // The truth and the measurements come from the same streams for
         // every tracker: one centralized filter serves them all.
         let centralized = i == 0;
-        eprintln!("seed004-fig1: {} ({} runs)", tracker.label, options.runs);
+        eprintln!(
+            "random-exchange-trackers: {} ({} runs)",
+            tracker.label, options.runs
+        );
         let mc = run_monte_carlo(
             &scenario,
             &topology,
@@ -127,7 +130,7 @@ fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     }
     let (scenario, _) = scenario_of(&TRACKERS[0], &steps)?;
     // The paper's sizes: a few seconds, and smaller N_T is far off
-    // (seed004-bounds).
+    // (random-exchange-bounds).
     let size = MonteCarloSize {
         trajectories: 10_000,
         paths: 1000,
@@ -149,12 +152,12 @@ fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     lines.push(("centralized PCRLB".into(), &fig.bounds.centralized[..]));
     ComputedReport::write(
         dir,
-        "seed004-fig1",
+        "random-exchange-trackers",
         &fig1_csv(&fig),
         |svg| {
             draw_lines(
                 svg,
-                "seed004-fig1: RMS position error, 25 RSS nodes",
+                "random-exchange-trackers: RMS position error, 25 RSS nodes",
                 "position error, m",
                 &lines,
             )
@@ -166,7 +169,7 @@ fn fig1(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
 
 fn fig1_csv(fig: &Fig1) -> String {
     let mut out = format!(
-        "# seed004.toml, {} runs; metres; RndEx-PF PCRLB at N_T={} N_f={}\nstep",
+        "# random-exchange.toml, {} runs; metres; RndEx-PF PCRLB at N_T={} N_f={}\nstep",
         fig.runs, fig.size.trajectories, fig.size.paths
     );
     for t in &TRACKERS {
@@ -199,7 +202,7 @@ fn settled(values: &[f64]) -> f64 {
 
 fn fig1_table(fig: &Fig1) -> String {
     let mut out = format!(
-        "seed 004 Fig. 1 on seed004.toml, {} runs: RMS position error and bounds, metres (mean from step {AVERAGE_FROM_STEP}; the paper gives curves, no figures)\n",
+        "seed 004 Fig. 1 on random-exchange.toml, {} runs: RMS position error and bounds, metres (mean from step {AVERAGE_FROM_STEP}; the paper gives curves, no figures)\n",
         fig.runs
     );
     let mut row = |name: &str, v: &[f64]| {
@@ -314,7 +317,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         let (scenario, topology) = scenario_of(tracker, &extra)?;
         let out = dir.join("runs").join(tracker.protocol);
         eprintln!(
-            "seed004-table: {} as {} processes, {steps} steps of {} s",
+            "random-exchange-cost: {} as {} processes, {steps} steps of {} s",
             tracker.label,
             topology.actors().count(),
             TABLE_PERIOD_MS / 1e3
@@ -323,7 +326,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     }
     ComputedReport::write(
         dir,
-        "seed004-table",
+        "random-exchange-cost",
         &table_csv(&costs),
         |svg| draw_table(svg, &costs),
         table_check(&costs),
@@ -487,7 +490,7 @@ fn draw_table(path: &Path, costs: &[Cost]) -> Result<(), Box<dyn std::error::Err
         * 1.1;
     let mut chart = ChartBuilder::on(&root)
         .caption(
-            "seed004-table: bytes per second per node between nodes, real processes",
+            "random-exchange-cost: bytes per second per node between nodes, real processes",
             ("sans-serif", 20),
         )
         .margin(12)

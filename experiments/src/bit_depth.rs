@@ -26,7 +26,7 @@ use runtime::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
-        name: "seed003-speb",
+        name: "bit-depth-delay",
         source: "seed 003, Proposition 1",
         about: "SPEB(b) = tr((E J_Q(b) + 1/s0^2 I)^-1) + 2 alpha t(b) of the default bearing network for b = 1..16 over a 1 kbit/s sensor link, with the optimal bit depth; the delay of seed 003's packed b bits and of cqnet's whole-byte wire; and the RMSE measured in sim against bit depth over rate-limited links",
         run,
@@ -95,14 +95,14 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let depths = bound_per_depth().context("the SPEB over bit depths")?;
     let measured = measure(options, dir).context("the RMSE over bit depths")?;
     write_atomically(
-        &dir.join("seed003-rmse.csv"),
+        &dir.join("bit-depth-delay-rmse.csv"),
         measured_csv(&measured).as_bytes(),
     )?;
     let mut table = print(&depths);
     table.push_str(&print_measured(&measured));
     ComputedReport::write(
         dir,
-        "seed003-speb",
+        "bit-depth-delay",
         &table_csv(&depths),
         |svg| draw(svg, &depths, &measured),
         check(&depths, &measured),
@@ -128,7 +128,7 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                             LINK.latency * 1e3
                         ));
                     }
-                    let source = format!("seed003-speb at {rate} bit/s, {bits} bits");
+                    let source = format!("bit-depth-delay at {rate} bit/s, {bits} bits");
                     let scenario =
                         Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, &source, &overrides)?;
                     let topology = Topology::from_scenario(&scenario, &source)?;
@@ -213,10 +213,10 @@ fn print_measured(measured: &[Measured]) -> String {
 fn bound_per_depth() -> anyhow::Result<Vec<Depth>> {
     let base = Scenario::from_toml(
         fusion_graph::scenario::DEFAULT_SCENARIO,
-        "seed003-speb",
+        "bit-depth-delay",
         &[],
     )?;
-    let topology = Topology::from_scenario(&base, "seed003-speb")?;
+    let topology = Topology::from_scenario(&base, "bit-depth-delay")?;
     let models = base.models()?;
     let prior_var = base.filter.prior_std[0].powi(2);
     let centre = [base.region.width / 2.0, base.region.height / 2.0];
@@ -237,7 +237,7 @@ fn bound_per_depth() -> anyhow::Result<Vec<Depth>> {
         .map(|bits| {
             let scenario = Scenario::from_toml(
                 fusion_graph::scenario::DEFAULT_SCENARIO,
-                "seed003-speb",
+                "bit-depth-delay",
                 &[format!("quantizer.bits={bits}")],
             )?;
             let q = scenario
@@ -406,7 +406,7 @@ fn draw(
     let mut chart = ChartBuilder::on(&root)
         .caption(
             format!(
-                "seed003-speb: SPEB against bit depth (alpha {ALPHA} m²/s, {} bit/s link)",
+                "bit-depth-delay: SPEB against bit depth (alpha {ALPHA} m²/s, {} bit/s link)",
                 LINK.rate
             ),
             ("sans-serif", 20),

@@ -1,5 +1,5 @@
 //! Seed 004's bounds (its Fig. 1 without the trackers' curves): the
-//! RndEx-PF PCRLB and the centralized PCRLB of `seed004.toml`'s 25-node RSS
+//! RndEx-PF PCRLB and the centralized PCRLB of `random-exchange.toml`'s 25-node RSS
 //! network, and how the RndEx bound moves with its Monte Carlo sizes N_T
 //! (trajectories) and N_f (paths).
 
@@ -20,9 +20,9 @@ use super::{Check, Computed, ComputedReport, Options};
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
-        name: "seed004-bounds",
+        name: "random-exchange-bounds",
         source: "seed 004, Fig. 1 (bounds)",
-        about: "the RndEx-PF PCRLB (Fisher matrices conditioned on random-exchange paths, eqs. 4-16) and the centralized PCRLB of seed004.toml's 25 RSS nodes over 100 s, at the paper's N_T = 10^4, N_f = 10^3 and at smaller sizes",
+        about: "the RndEx-PF PCRLB (Fisher matrices conditioned on random-exchange paths, eqs. 4-16) and the centralized PCRLB of random-exchange.toml's 25 RSS nodes over 100 s, at the paper's N_T = 10^4, N_f = 10^3 and at smaller sizes",
         run,
     }]
 }
@@ -51,14 +51,14 @@ const SEED: u64 = 4;
 const SHOWN: [usize; 6] = [1, 5, 10, 25, 50, 100];
 
 fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
-    let scenario = Scenario::from_toml(SEED004_SCENARIO, "seed004.toml", &[])?;
+    let scenario = Scenario::from_toml(SEED004_SCENARIO, "random-exchange.toml", &[])?;
     let curves: Vec<Curves> = SIZES
         .iter()
         .map(|&size| Curves::compute(&scenario, size))
         .collect::<anyhow::Result<_>>()?;
     ComputedReport::write(
         dir,
-        "seed004-bounds",
+        "random-exchange-bounds",
         &to_csv(&curves),
         |svg| draw(svg, &curves),
         check(&curves),
@@ -134,7 +134,7 @@ fn label(size: &MonteCarloSize) -> String {
 }
 
 fn to_csv(curves: &[Curves]) -> String {
-    let mut out = String::from("# seed004.toml; bounds in metres, sqrt of the mean over nodes of tr_pos(J*^-1)\nstep,centralized");
+    let mut out = String::from("# random-exchange.toml; bounds in metres, sqrt of the mean over nodes of tr_pos(J*^-1)\nstep,centralized");
     for size in &SIZES {
         let _ = write!(out, ",rndex_T{}_f{}", size.trajectories, size.paths);
     }
@@ -150,7 +150,7 @@ fn to_csv(curves: &[Curves]) -> String {
 }
 
 fn print(curves: &[Curves]) -> String {
-    let mut out = String::from("seed 004's bounds on seed004.toml, metres (the paper's Fig. 1 gives curves, no figures to compare)\n  step  centralized");
+    let mut out = String::from("seed 004's bounds on random-exchange.toml, metres (the paper's Fig. 1 gives curves, no figures to compare)\n  step  centralized");
     for size in &SIZES {
         let _ = write!(out, "  {:>20}", format!("RndEx {}", label(size)));
     }
@@ -215,7 +215,7 @@ fn draw(path: &Path, curves: &[Curves]) -> Result<(), Box<dyn std::error::Error>
     }
     draw_lines(
         path,
-        "seed004-bounds: RndEx-PF and centralized PCRLB, 25 RSS nodes",
+        "random-exchange-bounds: RndEx-PF and centralized PCRLB, 25 RSS nodes",
         "position bound, m",
         &lines,
     )

@@ -17,7 +17,7 @@ const RAW: Arm = Arm {
 pub fn experiments() -> Vec<Experiment> {
     vec![
         Experiment {
-            name: "seed000-fig1b",
+            name: "bound-aux-fim",
             source: "seed 000, Fig. 1(b)",
             about: "raw dPCRLB against the 8-bit CQ/dPCRLB, each with L_G and with the auxiliary FIM",
             scenario: DEFAULT_SCENARIO,
@@ -54,7 +54,7 @@ pub fn experiments() -> Vec<Experiment> {
             check: check_fig1b,
         },
         Experiment {
-            name: "seed000-fig1c",
+            name: "bound-against-bits",
             source: "seed 000, Fig. 1(c)",
             about: "the CQ/dPCRLB for 4 to 8 bits and raw: it approaches raw as bits grow",
             scenario: DEFAULT_SCENARIO,
@@ -117,7 +117,7 @@ pub fn experiments() -> Vec<Experiment> {
             check: check_fig1c,
         },
         Experiment {
-            name: "seed000-central",
+            name: "distributed-against-centralized",
             source: "seed 000, Result 2",
             about: "the distributed against the centralized conditional bound, with the non-conditional (Tichavsky) PCRLB and the RMSEs",
             scenario: DEFAULT_SCENARIO,
@@ -156,7 +156,7 @@ pub fn experiments() -> Vec<Experiment> {
             check: check_central,
         },
         Experiment {
-            name: "seed000-traffic",
+            name: "bound-traffic",
             source: "seed 000, Result 2 against seed 001, Theorem 1",
             about: "bytes of bound information per step: CQ/dPCRLB (ΔL) against the auxiliary-FIM baseline (ΔL and S_obs), from the accounting",
             scenario: DEFAULT_SCENARIO,
