@@ -14,17 +14,17 @@
 
 use std::time::Duration;
 
-use bounds::censoring::{CensoringRule, Feedback, Innovation, NisCensor};
 use bounds::{BoundError, State};
-use fusion_graph::scenario::{CensoringPolicy, ConsensusProtocol, FeedbackKind, Scenario};
+use fusion_graph::scenario::{CensoringPolicy, ConsensusProtocol, Scenario};
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 
+use crate::censoring::NodeCensoring;
 use crate::collector::{Collected, Collector, Lagging, Offer};
 use crate::estimator::{
     Contribution, Evidence, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, Observation,
-    ObservedValue, SensingModel, Silence,
+    ObservedValue, SensingModel,
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
@@ -49,111 +49,6 @@ pub enum NodeError {
     Param(#[from] crate::registry::ParamError),
     #[error("consensus.protocol = \"exact\" needs the exact-sum oracle of one process (`cqnet sim`): real processes have no exact network sum")]
     NoExactSums,
-}
-
-/// The node's side of NIS censoring: what it feeds back, its copy of each
-/// own sensor's censoring state, and the innovations its active sensors
-/// censor by this step, so that it can weigh their silence.
-#[derive(Debug)]
-struct NodeCensoring {
-    feedback: FeedbackKind,
-    /// By position in the node's own sensor list.
-    censors: Vec<NisCensor>,
-    /// The latest fused posterior, fed back with the next activation.
-    fed_back: Gaussian,
-    /// This step's active sensors and their innovation statistics.
-    pending: (u32, Vec<(u16, Innovation)>),
-    /// CFoMD: censor, but weigh nothing for silence.
-    ignore_silence: bool,
-}
-
-impl NodeCensoring {
-    fn for_scenario(
-        scenario: &Scenario,
-        models: &fusion_graph::Models,
-        topology: &Topology,
-        index: u16,
-    ) -> Result<Option<Self>, NodeError> {
-        let c = &scenario.censoring;
-        if c.policy != CensoringPolicy::Nis {
-            return Ok(None);
-        }
-        let rule =
-            CensoringRule::for_budget(c.budget, scenario.sensors.active_per_node as usize, 1)
-                .map_err(|e| {
-                    NodeError::Scenario(fusion_graph::ScenarioError::Invalid {
-                        file: scenario.name.clone(),
-                        key: "censoring.budget".into(),
-                        expected: e.expected.into(),
-                        got: e.value.to_string(),
-                    })
-                })?;
-        let own = topology.node_sensors[index as usize].len();
-        Ok(Some(Self {
-            feedback: c.feedback,
-            censors: vec![NisCensor::new(rule, models.prior_cov); own],
-            fed_back: scenario.network_prior(models),
-            pending: (0, Vec::new()),
-            ignore_silence: c.ignore_silence,
-        }))
-    }
-
-    /// The activation with the feedback, and the innovations the activated
-    /// sensors will censor by (the same computation as theirs).
-    fn activate(
-        &mut self,
-        step: u32,
-        picks: &[usize],
-        own: &[u16],
-        model: &SensingModel,
-        mask: BitMask,
-    ) -> Payload {
-        let covariance =
-            (self.feedback == FeedbackKind::EstimateAndCovariance).then_some(self.fed_back.cov);
-        let feedback = Feedback {
-            estimate: self.fed_back.mean,
-            covariance,
-        };
-        let innovations = picks
-            .iter()
-            .map(|&i| {
-                let sensor = own[i];
-                let innovation = self.censors[i].innovation(
-                    step,
-                    &feedback,
-                    &model.sensors[sensor as usize],
-                    &model.dynamics,
-                );
-                (sensor, innovation)
-            })
-            .collect();
-        self.pending = (step, innovations);
-        Payload::ActivateWithFeedback {
-            mask,
-            estimate: feedback.estimate.into(),
-            covariance: covariance.as_ref().map(pack_matrix),
-        }
-    }
-
-    /// The step's silent sensors as measurements.
-    fn silences(&self, step: u32, silent: &[u16]) -> Vec<Silence> {
-        let (pending_step, innovations) = &self.pending;
-        if *pending_step != step || self.ignore_silence {
-            return Vec::new();
-        }
-        let rule = self.censors.first().map(|c| c.rule);
-        innovations
-            .iter()
-            .filter(|(s, _)| silent.contains(s))
-            .filter_map(|(sensor, innovation)| {
-                rule.map(|rule| Silence {
-                    sensor: *sensor,
-                    innovation: *innovation,
-                    rule,
-                })
-            })
-            .collect()
-    }
 }
 
 /// A heavy stage the driver runs and times.

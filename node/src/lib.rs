@@ -23,6 +23,7 @@
 //!   `wiring` holds what both nodes read, publish and send alike.
 
 pub mod actor;
+mod censoring;
 pub mod centralized;
 pub mod collector;
 pub mod diffusion;

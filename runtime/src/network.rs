@@ -251,260 +251,30 @@ fn world_thread(
     let started = Instant::now();
     let mut writer = ResultsWriter::create(&options.out)?;
     let mut recorder = Recorder::new(&mut writer, scenario, topology);
-    // On several hosts the launcher's ports are in its host's domain, and
-    // it wakes the actors of the others through that host's bridge.
-    let domain = match placement {
-        Some(p) => p.domain(&options.run_id, p.host_of(ActorId::Launcher)),
-        None => options.run_id.clone(),
-    };
-    let mut t = IceoryxTransport::new(
-        &domain,
-        ActorId::Launcher,
-        topology,
-        scenario.wire_format(topology),
-        link_fault_seed(scenario.seed, ActorId::Launcher),
-    )?;
-    if let Some(p) = placement {
-        t.place_on(p, p.host_of(ActorId::Launcher));
-    }
-    // The launcher creates the services everyone shares before anyone else opens them.
-    t.publish_on(Channel::Tick)?;
-    for n in 0..topology.nodes() as u16 {
-        t.publish_on(Channel::Control(ActorId::Node(n)))?;
-        t.subscribe(Channel::Telemetry(n))?;
-    }
-    if options.centralized {
-        for s in 0..topology.sensors() as u16 {
-            t.subscribe(Channel::Observation(s))?;
-        }
-    }
-    for a in topology.actors() {
-        t.notify(a)?;
-    }
-    let mut w = WorldState {
-        transport: t,
-        commands,
-        events,
-        alive: vec![true; topology.nodes()],
-        sensors_alive: vec![true; topology.sensors()],
-        expected_exits: HashSet::new(),
-        unexpected_exits: Vec::new(),
-        crashed: Vec::new(),
-        dead: HashSet::new(),
-        step: 0,
-        interrupted: false,
-        views: Vec::new(),
-        returning: Vec::new(),
-    };
+    let transport = launcher_transport(scenario, topology, placement, options)?;
+    let mut w = WorldState::new(transport, topology, commands, events);
     let view = options.view.as_deref();
     if let Some(hub) = view {
         hub.publish(&setup_event(scenario, topology, "live"));
     }
-    let actors: Vec<ActorId> = topology.actors().collect();
-    for a in &actors {
-        commands.send(Command::Spawn {
-            actor: *a,
-            rejoin: false,
-        })?;
-    }
-    let of = actors.len();
-    w.await_ready(&actors, &mut |ready| {
-        progress(RunProgress::Starting { ready, of });
-        if let Some(hub) = view {
-            hub.publish(&ViewEvent::Starting { ready, of });
-        }
-    })?;
-    progress(RunProgress::Running);
-    w.transport.update_connections();
+    w.start_everyone(topology, view, progress)?;
     let startup_seconds = started.elapsed().as_secs_f64();
-    tracing::info!(
-        actors = actors.len(),
-        seconds = startup_seconds,
-        "every actor is ready"
-    );
-
-    let mut world = World::new(scenario)?;
-    let mut central = options
-        .centralized
-        .then(|| CentralizedReference::new(scenario, topology))
-        .transpose()
-        .context("centralized reference")?;
-    let schedule = FaultSchedule::new(&scenario.faults);
-    let period = Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3);
-    let step_timeout = Duration::from_secs_f64(scenario.clock.step_timeout_ms / 1e3);
     let lockstep = options.lockstep || scenario.clock.mode == ClockMode::Lockstep;
-    let mut truths: BTreeMap<u32, [f64; 4]> = BTreeMap::new();
-    let run_start = Instant::now();
-    let mut inbox = Vec::new();
-    let mut steps_done = 0;
-    // This step's reports and the sensors heard, for the progress and the view.
-    let mut step_rows: Vec<TickRow> = Vec::new();
-    let mut active_sensors = std::collections::BTreeSet::new();
-    let mut crashes_shown = 0;
-
-    for step in 1..=scenario.steps {
-        w.step = step;
-        w.poll_events();
-        let returned = w.restart_returning()?;
-        let process_faults = w.apply_process_faults(&schedule, step)? || returned;
-        schedule.apply_link_faults(step, &mut w.transport, topology);
-        let views = schedule.membership_views(step, topology, &w.alive);
-        let truth = world.advance();
-        truths.insert(step, truth.into());
-        // Reports later than the horizon are left out, so their truths go too.
-        while let Some(oldest) = truths.first_entry() {
-            if *oldest.key() + crate::results::LATE_ROW_HORIZON >= step {
-                break;
-            }
-            oldest.remove();
-        }
-        recorder.begin_step(step);
-        crate::world::begin_step(
-            &mut w.transport,
-            step,
-            truth,
-            &w.sensors_alive,
-            &views,
-            &w.views,
-            process_faults,
-        )?;
-        w.views = views;
-        let step_start = Instant::now();
-        let step_end = if lockstep {
-            step_start + step_timeout
-        } else {
-            run_start + period * step
-        };
-        loop {
-            let all_in = recorder.reports(step) >= w.alive.iter().filter(|a| **a).count();
-            if (lockstep && all_in) || Instant::now() >= step_end || w.interrupted {
-                break;
-            }
-            let left = step_end.saturating_duration_since(Instant::now());
-            w.transport.wait(left.min(Duration::from_millis(50)))?;
-            inbox.clear();
-            let now = w.transport.now();
-            w.transport.receive(now, &mut inbox)?;
-            let mut rows = Vec::new();
-            for m in inbox.drain(..) {
-                match (m.payload, m.header.sender) {
-                    (Payload::Telemetry(tel), ActorId::Node(n)) => {
-                        let Some(truth) = truths.get(&m.header.step) else {
-                            continue;
-                        };
-                        rows.push(TickRow {
-                            step: m.header.step,
-                            node: format!("node-{n}"),
-                            truth: *truth,
-                            telemetry: tel,
-                        });
-                    }
-                    (
-                        payload @ (Payload::Observation { .. } | Payload::RawObservation { .. }),
-                        sender,
-                    ) => {
-                        if let (ActorId::Sensor(s), true) = (sender, m.header.step == step) {
-                            active_sensors.insert(s);
-                        }
-                        if let Some(c) = central.as_mut() {
-                            c.observe(&Message {
-                                header: m.header,
-                                payload,
-                            });
-                        }
-                    }
-                    _ => {}
-                }
-            }
-            publish_late_rows(view, &rows, step);
-            step_rows.extend(rows.iter().filter(|r| r.step == step).cloned());
-            recorder.record(rows)?;
-            w.poll_events();
-        }
-        if let Some(c) = central.as_mut() {
-            let update = c.finish_step().context("centralized reference")?;
-            let row = TickRow {
-                step,
-                node: "central".into(),
-                truth: truth.into(),
-                telemetry: central_telemetry(update.estimate, update.bound),
-            };
-            step_rows.push(row.clone());
-            recorder.record(vec![row])?;
-        }
-        steps_done = step;
-        if let Some(hub) = view {
-            let dead: Vec<u16> = (0..topology.nodes() as u16)
-                .filter(|n| !w.alive[*n as usize])
-                .collect();
-            hub.publish(&step_event(
-                &schedule,
-                topology,
-                step,
-                [truth[0], truth[1]],
-                &active_sensors,
-                &dead,
-            ));
-            hub.publish(&ViewEvent::Estimates {
-                step,
-                rows: step_rows.iter().map(NodeEstimate::of).collect(),
-            });
-            for (actor, at, status) in &w.crashed[crashes_shown..] {
-                hub.publish(&ViewEvent::Fault(crash_fault(*actor, *at, status)));
-            }
-            crashes_shown = w.crashed.len();
-        }
-        progress(RunProgress::Step {
-            step,
-            rows: &step_rows,
-        });
-        step_rows.clear();
-        active_sensors.clear();
-        if w.interrupted {
-            break;
-        }
-    }
-    let wall_steps = run_start.elapsed().as_secs_f64();
+    let (steps_done, wall_steps) = run_steps(
+        scenario,
+        topology,
+        options,
+        lockstep,
+        &mut w,
+        &mut recorder,
+        progress,
+    )?;
     tracing::info!(
         steps = steps_done,
         seconds = started.elapsed().as_secs_f64(),
         "steps done"
     );
-
-    // Stop everyone and gather their byte counts.
-    let last = steps_done;
-    for n in 0..topology.nodes() as u16 {
-        let to = ActorId::Node(n);
-        let _ = w.transport.send(
-            Channel::Control(to),
-            &Message::new(ActorId::Launcher, last, 0, Payload::Control(Control::Stop)),
-            &[to],
-        );
-    }
-    let sensors: Vec<ActorId> = (0..topology.sensors() as u16)
-        .map(ActorId::Sensor)
-        .collect();
-    let _ = w
-        .transport
-        .send(Channel::Tick, &stop_message(last), &sensors);
-    let mut exited: HashSet<ActorId> = HashSet::new();
-    let live: HashSet<ActorId> = topology.actors().filter(|a| w.is_alive(*a)).collect();
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while !live.is_subset(&exited) && Instant::now() < deadline {
-        match w.events.recv_timeout(Duration::from_millis(50)) {
-            Ok(Event::Exited { actor, .. }) => {
-                exited.insert(actor);
-            }
-            Ok(_) | Err(RecvTimeoutError::Timeout) => {}
-            Err(RecvTimeoutError::Disconnected) => break,
-        }
-    }
-    tracing::info!(
-        exited = exited.len(),
-        of = live.len(),
-        seconds = started.elapsed().as_secs_f64(),
-        "actors stopped"
-    );
+    w.stop_everyone(topology, steps_done, started);
     let mut accounting = merge_accounting(&options.out, topology, w.transport.accounting());
     if let Some(p) = placement {
         let bridges = w.collect_host_counts(&mut accounting);
@@ -548,7 +318,332 @@ fn world_thread(
     Ok(summary)
 }
 
-impl WorldState<'_> {
+/// The launcher's own ports: it creates the services everyone shares
+/// before anyone else opens them. On several hosts they are in its host's
+/// domain, and it wakes the actors of the others through that host's bridge.
+fn launcher_transport(
+    scenario: &Scenario,
+    topology: &Topology,
+    placement: Option<&Placement>,
+    options: &RunOptions,
+) -> anyhow::Result<IceoryxTransport> {
+    let domain = match placement {
+        Some(p) => p.domain(&options.run_id, p.host_of(ActorId::Launcher)),
+        None => options.run_id.clone(),
+    };
+    let mut t = IceoryxTransport::new(
+        &domain,
+        ActorId::Launcher,
+        topology,
+        scenario.wire_format(topology),
+        link_fault_seed(scenario.seed, ActorId::Launcher),
+    )?;
+    if let Some(p) = placement {
+        t.place_on(p, p.host_of(ActorId::Launcher));
+    }
+    t.publish_on(Channel::Tick)?;
+    for n in 0..topology.nodes() as u16 {
+        t.publish_on(Channel::Control(ActorId::Node(n)))?;
+        t.subscribe(Channel::Telemetry(n))?;
+    }
+    if options.centralized {
+        for s in 0..topology.sensors() as u16 {
+            t.subscribe(Channel::Observation(s))?;
+        }
+    }
+    for a in topology.actors() {
+        t.notify(a)?;
+    }
+    Ok(t)
+}
+
+/// The steps, from the first to the scenario's last or an interruption:
+/// each ticks the world, applies the faults, gathers the nodes' reports
+/// (and the centralized reference's observations) until every live node
+/// reported (lockstep) or the step's time is up. Returns the steps done
+/// and the seconds they took.
+fn run_steps(
+    scenario: &Scenario,
+    topology: &Topology,
+    options: &RunOptions,
+    lockstep: bool,
+    w: &mut WorldState<'_>,
+    recorder: &mut Recorder<'_>,
+    progress: &mut dyn FnMut(RunProgress<'_>),
+) -> anyhow::Result<(u32, f64)> {
+    let view = options.view.as_deref();
+    let mut world = World::new(scenario)?;
+    let mut reports = StepReports {
+        central: options
+            .centralized
+            .then(|| CentralizedReference::new(scenario, topology))
+            .transpose()
+            .context("centralized reference")?,
+        truths: BTreeMap::new(),
+        inbox: Vec::new(),
+        rows: Vec::new(),
+        active_sensors: std::collections::BTreeSet::new(),
+    };
+    let schedule = FaultSchedule::new(&scenario.faults);
+    let period = Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3);
+    let step_timeout = Duration::from_secs_f64(scenario.clock.step_timeout_ms / 1e3);
+    let run_start = Instant::now();
+    let mut steps_done = 0;
+    let mut crashes_shown = 0;
+
+    for step in 1..=scenario.steps {
+        w.step = step;
+        w.poll_events();
+        let returned = w.restart_returning()?;
+        let process_faults = w.apply_process_faults(&schedule, step)? || returned;
+        schedule.apply_link_faults(step, &mut w.transport, topology);
+        let views = schedule.membership_views(step, topology, &w.alive);
+        let truth = world.advance();
+        reports.remember_truth(step, truth.into());
+        recorder.begin_step(step);
+        crate::world::begin_step(
+            &mut w.transport,
+            step,
+            truth,
+            &w.sensors_alive,
+            &views,
+            &w.views,
+            process_faults,
+        )?;
+        w.views = views;
+        let step_start = Instant::now();
+        let step_end = if lockstep {
+            step_start + step_timeout
+        } else {
+            run_start + period * step
+        };
+        loop {
+            let all_in = recorder.reports(step) >= w.alive.iter().filter(|a| **a).count();
+            if (lockstep && all_in) || Instant::now() >= step_end || w.interrupted {
+                break;
+            }
+            let left = step_end.saturating_duration_since(Instant::now());
+            w.transport.wait(left.min(Duration::from_millis(50)))?;
+            let rows = reports.take(&mut w.transport, step)?;
+            publish_late_rows(view, &rows, step);
+            reports
+                .rows
+                .extend(rows.iter().filter(|r| r.step == step).cloned());
+            recorder.record(rows)?;
+            w.poll_events();
+        }
+        if let Some(c) = reports.central.as_mut() {
+            let update = c.finish_step().context("centralized reference")?;
+            let row = TickRow {
+                step,
+                node: "central".into(),
+                truth: truth.into(),
+                telemetry: central_telemetry(update.estimate, update.bound),
+            };
+            reports.rows.push(row.clone());
+            recorder.record(vec![row])?;
+        }
+        steps_done = step;
+        if let Some(hub) = view {
+            let dead: Vec<u16> = (0..topology.nodes() as u16)
+                .filter(|n| !w.alive[*n as usize])
+                .collect();
+            hub.publish(&step_event(
+                &schedule,
+                topology,
+                step,
+                [truth[0], truth[1]],
+                &reports.active_sensors,
+                &dead,
+            ));
+            hub.publish(&ViewEvent::Estimates {
+                step,
+                rows: reports.rows.iter().map(NodeEstimate::of).collect(),
+            });
+            for (actor, at, status) in &w.crashed[crashes_shown..] {
+                hub.publish(&ViewEvent::Fault(crash_fault(*actor, *at, status)));
+            }
+            crashes_shown = w.crashed.len();
+        }
+        progress(RunProgress::Step {
+            step,
+            rows: &reports.rows,
+        });
+        reports.rows.clear();
+        reports.active_sensors.clear();
+        if w.interrupted {
+            break;
+        }
+    }
+    Ok((steps_done, run_start.elapsed().as_secs_f64()))
+}
+
+/// What the launcher hears in a step: the nodes' reports, and the
+/// observations the centralized reference weighs.
+struct StepReports {
+    central: Option<CentralizedReference>,
+    /// The true state of each step still within the late-report horizon.
+    truths: BTreeMap<u32, [f64; 4]>,
+    inbox: Vec<Message>,
+    /// This step's reports, for the progress and the view.
+    rows: Vec<TickRow>,
+    /// The sensors heard this step, for the view.
+    active_sensors: std::collections::BTreeSet<u16>,
+}
+
+impl StepReports {
+    /// Keeps `step`'s truth; reports later than the horizon are left out,
+    /// so their truths go.
+    fn remember_truth(&mut self, step: u32, truth: [f64; 4]) {
+        self.truths.insert(step, truth);
+        while let Some(oldest) = self.truths.first_entry() {
+            if *oldest.key() + crate::results::LATE_ROW_HORIZON >= step {
+                break;
+            }
+            oldest.remove();
+        }
+    }
+
+    /// Takes what has arrived: the nodes' reports as rows (of this step or
+    /// a late one), the observations into the centralized reference.
+    fn take(
+        &mut self,
+        transport: &mut IceoryxTransport,
+        step: u32,
+    ) -> anyhow::Result<Vec<TickRow>> {
+        self.inbox.clear();
+        let now = transport.now();
+        transport.receive(now, &mut self.inbox)?;
+        let mut rows = Vec::new();
+        for m in self.inbox.drain(..) {
+            match (m.payload, m.header.sender) {
+                (Payload::Telemetry(tel), ActorId::Node(n)) => {
+                    let Some(truth) = self.truths.get(&m.header.step) else {
+                        continue;
+                    };
+                    rows.push(TickRow {
+                        step: m.header.step,
+                        node: format!("node-{n}"),
+                        truth: *truth,
+                        telemetry: tel,
+                    });
+                }
+                (
+                    payload @ (Payload::Observation { .. } | Payload::RawObservation { .. }),
+                    sender,
+                ) => {
+                    if let (ActorId::Sensor(s), true) = (sender, m.header.step == step) {
+                        self.active_sensors.insert(s);
+                    }
+                    if let Some(c) = self.central.as_mut() {
+                        c.observe(&Message {
+                            header: m.header,
+                            payload,
+                        });
+                    }
+                }
+                _ => {}
+            }
+        }
+        Ok(rows)
+    }
+}
+
+impl<'a> WorldState<'a> {
+    fn new(
+        transport: IceoryxTransport,
+        topology: &Topology,
+        commands: &'a UnboundedSender<Command>,
+        events: &'a Receiver<Event>,
+    ) -> Self {
+        Self {
+            transport,
+            commands,
+            events,
+            alive: vec![true; topology.nodes()],
+            sensors_alive: vec![true; topology.sensors()],
+            expected_exits: HashSet::new(),
+            unexpected_exits: Vec::new(),
+            crashed: Vec::new(),
+            dead: HashSet::new(),
+            step: 0,
+            interrupted: false,
+            views: Vec::new(),
+            returning: Vec::new(),
+        }
+    }
+
+    /// Spawns every actor and waits until each said it is ready, showing
+    /// how many are.
+    fn start_everyone(
+        &mut self,
+        topology: &Topology,
+        view: Option<&Hub>,
+        progress: &mut dyn FnMut(RunProgress<'_>),
+    ) -> anyhow::Result<()> {
+        let started = Instant::now();
+        let actors: Vec<ActorId> = topology.actors().collect();
+        for a in &actors {
+            self.commands.send(Command::Spawn {
+                actor: *a,
+                rejoin: false,
+            })?;
+        }
+        let of = actors.len();
+        self.await_ready(&actors, &mut |ready| {
+            progress(RunProgress::Starting { ready, of });
+            if let Some(hub) = view {
+                hub.publish(&ViewEvent::Starting { ready, of });
+            }
+        })?;
+        progress(RunProgress::Running);
+        self.transport.update_connections();
+        tracing::info!(
+            actors = actors.len(),
+            seconds = started.elapsed().as_secs_f64(),
+            "every actor is ready"
+        );
+        Ok(())
+    }
+
+    /// Tells every actor to stop after step `last`, and waits (10 s at
+    /// most) until the live ones have exited, so that their byte counts
+    /// are final.
+    fn stop_everyone(&mut self, topology: &Topology, last: u32, started: Instant) {
+        for n in 0..topology.nodes() as u16 {
+            let to = ActorId::Node(n);
+            let _ = self.transport.send(
+                Channel::Control(to),
+                &Message::new(ActorId::Launcher, last, 0, Payload::Control(Control::Stop)),
+                &[to],
+            );
+        }
+        let sensors: Vec<ActorId> = (0..topology.sensors() as u16)
+            .map(ActorId::Sensor)
+            .collect();
+        let _ = self
+            .transport
+            .send(Channel::Tick, &stop_message(last), &sensors);
+        let mut exited: HashSet<ActorId> = HashSet::new();
+        let live: HashSet<ActorId> = topology.actors().filter(|a| self.is_alive(*a)).collect();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !live.is_subset(&exited) && Instant::now() < deadline {
+            match self.events.recv_timeout(Duration::from_millis(50)) {
+                Ok(Event::Exited { actor, .. }) => {
+                    exited.insert(actor);
+                }
+                Ok(_) | Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => break,
+            }
+        }
+        tracing::info!(
+            exited = exited.len(),
+            of = live.len(),
+            seconds = started.elapsed().as_secs_f64(),
+            "actors stopped"
+        );
+    }
+
     fn is_alive(&self, a: ActorId) -> bool {
         match a {
             ActorId::Node(i) => self.alive[i as usize],

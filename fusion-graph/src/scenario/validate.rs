@@ -1,0 +1,312 @@
+//! Every value of a scenario checked against its range and against the
+//! others; an error names the file and the key.
+
+use super::*;
+
+impl Scenario {
+    /// Seed 004's trackers are a different node: one particle filter
+    /// weighed with raw or quantized measurements and fused as a Gaussian.
+    /// The CF/DPF's parts that have no meaning there are refused by name
+    /// rather than ignored.
+    fn validate_diffusion(&self, file: &str) -> Result<(), ScenarioError> {
+        let protocol = self.consensus.protocol;
+        if !protocol.is_diffusion() {
+            return Ok(());
+        }
+        let refuse = |key: &str, got: String| {
+            Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: key.into(),
+                expected: format!(
+                    "its default with consensus.protocol = \"{}\" (seed 004's trackers have no such part)",
+                    protocol.name()
+                ),
+                got,
+            })
+        };
+        if self.sensors.manager != SensorManagerKind::Random {
+            return refuse("sensors.manager", format!("{:?}", self.sensors.manager));
+        }
+        if let Some(m) = self.sensors.max_active_total {
+            return refuse("sensors.max_active_total", m.to_string());
+        }
+        if self.censoring.policy != CensoringPolicy::Off {
+            return refuse("censoring.policy", format!("{:?}", self.censoring.policy));
+        }
+        if self.consensus.auxiliary_fim {
+            return refuse("consensus.auxiliary_fim", "true".into());
+        }
+        if self.filter.gate > 0.0 {
+            return refuse("filter.gate", self.filter.gate.to_string());
+        }
+        Ok(())
+    }
+
+    /// Checks every value's range; the error names the file and the key.
+    pub fn validate(&self, file: &str) -> Result<(), ScenarioError> {
+        let bad = |key: &str, expected: &str, got: String| {
+            Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: key.into(),
+                expected: expected.into(),
+                got,
+            })
+        };
+        let positive = |key: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                bad(key, "a finite number > 0", v.to_string())
+            }
+        };
+        let non_negative = |key: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                bad(key, "a finite number >= 0", v.to_string())
+            }
+        };
+
+        if self.steps == 0 {
+            return bad("steps", "at least 1", "0".into());
+        }
+        positive("region.width", self.region.width)?;
+        positive("region.height", self.region.height)?;
+        match (&self.nodes.grid, &self.nodes.positions) {
+            (Some(g), None) if g[0] > 0 && g[1] > 0 => {}
+            (Some(g), None) => return bad("nodes.grid", "two counts >= 1", format!("{g:?}")),
+            (None, Some(p)) if !p.is_empty() => {}
+            _ => {
+                return bad(
+                    "nodes",
+                    "exactly one of `grid` or `positions` (non-empty)",
+                    "neither or both".into(),
+                )
+            }
+        }
+        match (&self.sensors.per_cell, &self.sensors.positions) {
+            (Some(g), None) if g[0] > 0 && g[1] > 0 => {
+                if self.nodes.grid.is_none() {
+                    return bad(
+                        "sensors.per_cell",
+                        "a node grid (nodes.grid) to place the sensors in",
+                        "explicit node positions".into(),
+                    );
+                }
+            }
+            (Some(g), None) => return bad("sensors.per_cell", "two counts >= 1", format!("{g:?}")),
+            (None, Some(p)) if !p.is_empty() => {}
+            _ => {
+                return bad(
+                    "sensors",
+                    "exactly one of `per_cell` or `positions` (non-empty)",
+                    "neither or both".into(),
+                )
+            }
+        }
+        // Indices are u16 on the wire, and every actor is a process: a
+        // network past these is refused here, before its topology is built
+        // (a 1000 × 1000 grid once took the machine's memory doing so).
+        let at_most = |key: &str, count: u64, max: u64, what: &str| {
+            if count > max {
+                bad(
+                    key,
+                    &format!("at most {max} {what}"),
+                    format!("{count} {what}"),
+                )
+            } else {
+                Ok(())
+            }
+        };
+        let (nodes, nodes_key) = match (&self.nodes.grid, &self.nodes.positions) {
+            (Some(g), _) => (g[0] as u64 * g[1] as u64, "nodes.grid"),
+            (_, Some(p)) => (p.len() as u64, "nodes.positions"),
+            _ => (0, "nodes"),
+        };
+        at_most(nodes_key, nodes, MAX_NODES, "nodes")?;
+        let (sensors, sensors_key) = match (&self.sensors.per_cell, &self.sensors.positions) {
+            (Some(g), _) => (g[0] as u64 * g[1] as u64 * nodes, "sensors.per_cell"),
+            (_, Some(p)) => (p.len() as u64, "sensors.positions"),
+            _ => (0, "sensors"),
+        };
+        at_most(sensors_key, sensors, MAX_SENSORS, "sensors")?;
+        if self.sensors.active_per_node == 0 {
+            return bad("sensors.active_per_node", "at least 1", "0".into());
+        }
+        positive("censoring.listen_ms", self.censoring.listen_ms)?;
+        let budget = self.censoring.budget;
+        if self.censoring.policy != CensoringPolicy::Off
+            && !(budget > 0.0 && budget <= self.sensors.active_per_node as f64)
+        {
+            return bad(
+                "censoring.budget",
+                &format!(
+                    "more than 0 and at most sensors.active_per_node ({})",
+                    self.sensors.active_per_node
+                ),
+                budget.to_string(),
+            );
+        }
+        positive("fusion_graph.radius", self.fusion_graph.radius)?;
+        for (i, v) in self.target.position.iter().enumerate() {
+            if !v.is_finite() {
+                return bad(
+                    &format!("target.position[{i}]"),
+                    "a finite number",
+                    v.to_string(),
+                );
+            }
+        }
+        if !self.target.course_deg.is_finite() {
+            return bad(
+                "target.course_deg",
+                "a finite number",
+                self.target.course_deg.to_string(),
+            );
+        }
+        non_negative("target.speed", self.target.speed)?;
+        if self.filter.particles < 10 {
+            return bad(
+                "filter.particles",
+                "at least 10",
+                self.filter.particles.to_string(),
+            );
+        }
+        // The dynamics, the observation law, the quantizer and the prior,
+        // through the constructors the actors use.
+        self.models_named(file)?;
+        if self.consensus.rounds == 0 {
+            return bad("consensus.rounds", "at least 1", "0".into());
+        }
+        positive(
+            "consensus.round_timeout_ms",
+            self.consensus.round_timeout_ms,
+        )?;
+        self.validate_diffusion(file)?;
+        non_negative("filter.gate", self.filter.gate)?;
+        positive("clock.step_period_ms", self.clock.step_period_ms)?;
+        positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
+        for (i, f) in self.faults.iter().enumerate() {
+            let key = |k: &str| format!("faults[{i}].{k}");
+            if f.at_step() == 0 || f.at_step() > self.steps {
+                return bad(
+                    &key("at_step"),
+                    &format!("a step from 1 to {}", self.steps),
+                    f.at_step().to_string(),
+                );
+            }
+            let probability = |k: &str, p: f64| {
+                if (0.0..=1.0).contains(&p) {
+                    Ok(())
+                } else {
+                    bad(&key(k), "a probability in [0, 1]", p.to_string())
+                }
+            };
+            if let Some(links) = f.links() {
+                non_empty(file, &key("links"), links.len())?;
+                for (j, l) in links.iter().enumerate() {
+                    if let Some(p) = l.fraction {
+                        probability(&format!("links[{j}].fraction"), p)?;
+                    }
+                }
+            }
+            match f {
+                Fault::Delay {
+                    latency_ms,
+                    jitter_ms,
+                    rate_bps,
+                    ..
+                } => {
+                    non_negative(&key("latency_ms"), *latency_ms)?;
+                    non_negative(&key("jitter_ms"), *jitter_ms)?;
+                    non_negative(&key("rate_bps"), *rate_bps)?;
+                }
+                Fault::Loss { probability: p, .. }
+                | Fault::Duplicate { probability: p, .. }
+                | Fault::Corrupt { probability: p, .. } => probability("probability", *p)?,
+                Fault::Reorder {
+                    probability: p,
+                    delay_ms,
+                    ..
+                } => {
+                    probability("probability", *p)?;
+                    positive(&key("delay_ms"), *delay_ms)?;
+                }
+                Fault::BurstLoss {
+                    enter_bad,
+                    leave_bad,
+                    loss_good,
+                    loss_bad,
+                    ..
+                } => {
+                    probability("enter_bad", *enter_bad)?;
+                    probability("leave_bad", *leave_bad)?;
+                    probability("loss_good", *loss_good)?;
+                    probability("loss_bad", *loss_bad)?;
+                }
+                Fault::Sensor {
+                    sensors,
+                    mode,
+                    fraction,
+                    bias,
+                    phantom,
+                    ..
+                } => {
+                    non_empty(file, &key("sensors"), sensors.len())?;
+                    if let Some(p) = fraction {
+                        probability("fraction", *p)?;
+                    }
+                    match (mode, bias, phantom) {
+                        (SensorMode::Bias, None, _) => {
+                            return bad(&key("bias"), "a bias for mode \"bias\"", "none".into())
+                        }
+                        (SensorMode::Bias, Some(b), _) if !b.is_finite() => {
+                            return bad(&key("bias"), "a finite number", b.to_string())
+                        }
+                        (SensorMode::Byzantine, _, None) => {
+                            return bad(
+                                &key("phantom"),
+                                "the phantom's offset [dx, dy] for mode \"byzantine\"",
+                                "none".into(),
+                            )
+                        }
+                        (SensorMode::Byzantine, _, Some(p)) if !p.iter().all(|v| v.is_finite()) => {
+                            return bad(&key("phantom"), "finite numbers", format!("{p:?}"))
+                        }
+                        _ => {}
+                    }
+                }
+                Fault::Partition { groups, .. } => {
+                    if groups.len() < 2 {
+                        return bad(
+                            &key("groups"),
+                            "at least two groups",
+                            groups.len().to_string(),
+                        );
+                    }
+                }
+                Fault::Kill { restart_after, .. } => {
+                    if *restart_after == Some(0) {
+                        return bad(&key("restart_after"), "at least 1 step", "0".into());
+                    }
+                }
+            }
+            if !matches!(f, Fault::Kill { .. }) && f.end_step() == Some(f.at_step()) {
+                return bad(&key("duration"), "at least 1 step", "0".into());
+            }
+        }
+        Ok(())
+    }
+}
+
+fn non_empty(file: &str, key: &str, len: usize) -> Result<(), ScenarioError> {
+    if len == 0 {
+        return Err(ScenarioError::Invalid {
+            file: file.into(),
+            key: key.into(),
+            expected: "at least one entry".into(),
+            got: "none".into(),
+        });
+    }
+    Ok(())
+}
