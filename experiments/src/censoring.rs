@@ -19,6 +19,7 @@ use bounds::censoring::{CensoringRule, VectorSilence};
 use bounds::dynamics::{CoordinatedTurn, ProcessNoise};
 use bounds::{Mat4, ObservationModel, SensorLaw, State};
 use nalgebra::{Matrix2, SMatrix, Vector2};
+use node::filter::systematic_resample;
 use plotters::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -427,7 +428,12 @@ struct Trial {
 }
 
 /// A fusion centre's particle filter with its buffers, reused over trials
-/// so that the steps allocate nothing.
+/// so that the steps allocate nothing. Its resampler is the node's
+/// ([`systematic_resample`]); its weighing is the dissertation's, untempered
+/// and unregularised, with the likelihood of silence, and its predictor
+/// takes the setups' process noise, singular along an axis the target does
+/// not move on. The node's own filter tempers and regularises, which would
+/// change the reproduced tables.
 struct TrialFilter {
     particles: Vec<State>,
     resampled: Vec<State>,
@@ -577,20 +583,10 @@ impl TrialFilter {
         (mean, cov)
     }
 
-    /// Systematic resampling.
+    /// The node's systematic resampler.
     fn resample(&mut self, rng: &mut ChaCha8Rng) {
-        let n = self.particles.len();
-        let step = 1.0 / n as f64;
-        let mut u = rng.random::<f64>() * step;
-        let (mut i, mut cumulative) = (0, self.weights[0]);
-        for slot in self.resampled.iter_mut() {
-            while u > cumulative && i + 1 < n {
-                i += 1;
-                cumulative += self.weights[i];
-            }
-            *slot = self.particles[i];
-            u += step;
-        }
+        let (particles, resampled) = (&self.particles, &mut self.resampled);
+        systematic_resample(&self.weights, rng, |slot, i| resampled[slot] = particles[i]);
         std::mem::swap(&mut self.particles, &mut self.resampled);
     }
 }

@@ -350,24 +350,12 @@ impl ParticleFilter {
 
     /// Systematic resampling: one uniform draw, N evenly spaced pointers.
     pub fn resample<R: Rng + ?Sized>(&mut self, rng: &mut R) {
-        let n = self.particles.len();
-        let step = 1.0 / n as f64;
-        let mut u = rng.random::<f64>() * step;
-        let mut cumulative = self.weights[0];
-        let mut i = 0;
-        for (slot, slot_previous) in self
-            .scratch
-            .iter_mut()
-            .zip(self.scratch_previous.iter_mut())
-        {
-            while u > cumulative && i + 1 < n {
-                i += 1;
-                cumulative += self.weights[i];
-            }
-            *slot = self.particles[i];
-            *slot_previous = self.previous[i];
-            u += step;
-        }
+        let (particles, previous) = (&self.particles, &self.previous);
+        let (scratch, scratch_previous) = (&mut self.scratch, &mut self.scratch_previous);
+        systematic_resample(&self.weights, rng, |slot, i| {
+            scratch[slot] = particles[i];
+            scratch_previous[slot] = previous[i];
+        });
         std::mem::swap(&mut self.particles, &mut self.scratch);
         std::mem::swap(&mut self.previous, &mut self.scratch_previous);
         self.weights.copy_from_slice(&self.uniform);
@@ -497,6 +485,30 @@ fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
         }
     }
     dynamics.transition_batch(x, out)
+}
+
+/// The systematic resampler: one uniform draw places `n` evenly spaced
+/// points on the weights' cumulative sum; `take(slot, ancestor)` is called
+/// for each of the `n` new particles in order, with the old particle it
+/// copies. Allocates nothing.
+pub fn systematic_resample<R: Rng + ?Sized>(
+    weights: &[f64],
+    rng: &mut R,
+    mut take: impl FnMut(usize, usize),
+) {
+    let n = weights.len();
+    let step = 1.0 / n as f64;
+    let mut u = rng.random::<f64>() * step;
+    let mut cumulative = weights[0];
+    let mut i = 0;
+    for slot in 0..n {
+        while u > cumulative && i + 1 < n {
+            i += 1;
+            cumulative += weights[i];
+        }
+        take(slot, i);
+        u += step;
+    }
 }
 
 /// Weighted mean and covariance.
