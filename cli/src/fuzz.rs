@@ -494,7 +494,7 @@ impl Actors {
                 format!("consensus.protocol=\"{protocol}\""),
             ];
             let seed004 = Scenario::from_toml(SEED004_SCENARIO, "seed004", &overrides)
-                .expect("the built-in seed 004 scenario");
+                .expect("the built-in random-exchange scenario");
             let lattice = Topology::from_scenario(&seed004, "seed004").expect("its topology");
             nodes.push(ProcessingNode::for_scenario(&seed004, &lattice, 12).expect("node-12"));
         }

@@ -27,8 +27,8 @@ use runtime::results::write_atomically;
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
         name: "bit-depth-delay",
-        source: "seed 003, Proposition 1",
-        about: "SPEB(b) = tr((E J_Q(b) + 1/s0^2 I)^-1) + 2 alpha t(b) of the default bearing network for b = 1..16 over a 1 kbit/s sensor link, with the optimal bit depth; the delay of seed 003's packed b bits and of cqnet's whole-byte wire; and the RMSE measured in sim against bit depth over rate-limited links",
+        source: "Zhao et al. (bit depth against delay), Proposition 1",
+        about: "SPEB(b) = tr((E J_Q(b) + 1/s0^2 I)^-1) + 2 alpha t(b) of the default bearing network for b = 1..16 over a 1 kbit/s sensor link, with the optimal bit depth; the delay of the bit-depth paper's packed b bits and of cqnet's whole-byte wire; and the RMSE measured in sim against bit depth over rate-limited links",
         run,
     }]
 }
@@ -430,7 +430,7 @@ fn draw(
         .draw()?;
     let series: [Series; 4] = [
         (
-            "SPEB, seed 003's packed bits",
+            "SPEB, the bit-depth paper's packed bits",
             |d| d.packed.total(),
             Palette99::pick(0).to_rgba(),
         ),

@@ -18,7 +18,7 @@ pub fn experiments() -> Vec<Experiment> {
     vec![
         Experiment {
             name: "bound-aux-fim",
-            source: "seed 000, Fig. 1(b)",
+            source: "Mohammadi, Asif et al. (CQ/dPCRLB), Fig. 1(b)",
             about: "raw dPCRLB against the 8-bit CQ/dPCRLB, each with L_G and with the auxiliary FIM",
             scenario: DEFAULT_SCENARIO,
             base: &["consensus.auxiliary_fim=true", "reference.centralized=false"],
@@ -55,7 +55,7 @@ pub fn experiments() -> Vec<Experiment> {
         },
         Experiment {
             name: "bound-against-bits",
-            source: "seed 000, Fig. 1(c)",
+            source: "Mohammadi, Asif et al. (CQ/dPCRLB), Fig. 1(c)",
             about: "the CQ/dPCRLB for 4 to 8 bits and raw: it approaches raw as bits grow",
             scenario: DEFAULT_SCENARIO,
             base: &["reference.centralized=false"],
@@ -118,7 +118,7 @@ pub fn experiments() -> Vec<Experiment> {
         },
         Experiment {
             name: "distributed-against-centralized",
-            source: "seed 000, Result 2",
+            source: "Mohammadi, Asif et al. (CQ/dPCRLB), Result 2",
             about: "the distributed against the centralized conditional bound, with the non-conditional (Tichavsky) PCRLB and the RMSEs",
             scenario: DEFAULT_SCENARIO,
             base: &["reference.centralized=true"],
@@ -157,7 +157,7 @@ pub fn experiments() -> Vec<Experiment> {
         },
         Experiment {
             name: "bound-traffic",
-            source: "seed 000, Result 2 against seed 001, Theorem 1",
+            source: "Mohammadi, Asif et al. (CQ/dPCRLB), Result 2, against Mohammadi and Asif (selection), Theorem 1",
             about: "bytes of bound information per step: CQ/dPCRLB (ΔL) against the auxiliary-FIM baseline (ΔL and S_obs), from the accounting",
             scenario: DEFAULT_SCENARIO,
             base: &["consensus.auxiliary_fim=true", "reference.centralized=false"],

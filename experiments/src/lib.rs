@@ -34,7 +34,7 @@ use runtime::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
 /// A named, reproducible experiment.
 pub struct Experiment {
     pub name: &'static str,
-    /// Where in the papers it comes from, e.g. "seed 000, Fig. 1(c)".
+    /// Where in the papers it comes from, e.g. "Mohammadi, Asif et al. (CQ/dPCRLB), Fig. 1(c)".
     pub source: &'static str,
     /// What it shows, in a sentence.
     pub about: &'static str,

@@ -21,7 +21,7 @@ use super::{Check, Computed, ComputedReport, Options};
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
         name: "random-exchange-bounds",
-        source: "seed 004, Fig. 1 (bounds)",
+        source: "the RndEx-PF PCRLB paper, Fig. 1 (bounds)",
         about: "the RndEx-PF PCRLB (Fisher matrices conditioned on random-exchange paths, eqs. 4-16) and the centralized PCRLB of random-exchange.toml's 25 RSS nodes over 100 s, at the paper's N_T = 10^4, N_f = 10^3 and at smaller sizes",
         run,
     }]
@@ -84,7 +84,7 @@ impl Curves {
             .map(|own| {
                 let s = own
                     .first()
-                    .context("a seed 004 scenario gives every node its sensor")?;
+                    .context("a random-exchange scenario gives every node its sensor")?;
                 Ok(models.law.at(topology.sensor_positions[*s as usize]))
             })
             .collect::<anyhow::Result<_>>()?;
@@ -150,7 +150,7 @@ fn to_csv(curves: &[Curves]) -> String {
 }
 
 fn print(curves: &[Curves]) -> String {
-    let mut out = String::from("seed 004's bounds on random-exchange.toml, metres (the paper's Fig. 1 gives curves, no figures to compare)\n  step  centralized");
+    let mut out = String::from("the RndEx-PF and centralized bounds on random-exchange.toml, metres (the paper's Fig. 1 gives curves, no figures to compare)\n  step  centralized");
     for size in &SIZES {
         let _ = write!(out, "  {:>20}", format!("RndEx {}", label(size)));
     }

@@ -24,13 +24,13 @@ pub fn experiments() -> Vec<Computed> {
     vec![
         Computed {
             name: "random-exchange-trackers",
-            source: "seed 004, Fig. 1",
+            source: "the RndEx-PF PCRLB paper, Fig. 1",
             about: "RMS position error over time of RndEx-PF and the three KL fusion trackers on random-exchange.toml's 25 RSS nodes (a Monte Carlo of --runs runs in sim), with the RndEx-PF PCRLB (the paper's N_T = 10^4, N_f = 10^3) and the centralized PCRLB",
             run: fig1,
         },
         Computed {
             name: "random-exchange-cost",
-            source: "seed 004, Table I",
+            source: "the RndEx-PF PCRLB paper, Table I",
             about: "each tracker run as a real network of 50 processes in real time with the paper's 1 s step (--steps steps, 20 by default): RX and TX bytes per second per node between nodes, from the accounting, and the duty cycle, the node processes' CPU time over the step period",
             run: table,
         },
@@ -202,7 +202,7 @@ fn settled(values: &[f64]) -> f64 {
 
 fn fig1_table(fig: &Fig1) -> String {
     let mut out = format!(
-        "seed 004 Fig. 1 on random-exchange.toml, {} runs: RMS position error and bounds, metres (mean from step {AVERAGE_FROM_STEP}; the paper gives curves, no figures)\n",
+        "the random-exchange paper's Fig. 1 on random-exchange.toml, {} runs: RMS position error and bounds, metres (mean from step {AVERAGE_FROM_STEP}; the paper gives curves, no figures)\n",
         fig.runs
     );
     let mut row = |name: &str, v: &[f64]| {
@@ -400,7 +400,7 @@ fn table_csv(costs: &[Cost]) -> String {
 
 fn table_text(costs: &[Cost], steps: u32) -> String {
     let mut out = format!(
-        "seed 004 Table I: {steps} steps of {} s per tracker, 25 node processes and 25 sensor processes; per node, between nodes\n  {:<18} {:>9} {:>11} {:>11} {:>7} {:>10} {:>7}   paper: {:>8} {:>8} {:>6}\n",
+        "the random-exchange paper's Table I: {steps} steps of {} s per tracker, 25 node processes and 25 sensor processes; per node, between nodes\n  {:<18} {:>9} {:>11} {:>11} {:>7} {:>10} {:>7}   paper: {:>8} {:>8} {:>6}\n",
         TABLE_PERIOD_MS / 1e3,
         "tracker",
         "RX B/s",

@@ -27,7 +27,7 @@ const MANAGERS: [Arm; 4] = [
 pub fn experiments() -> Vec<Experiment> {
     vec![Experiment {
         name: "sensor-selection",
-        source: "seed 001, Fig. 2",
+        source: "Mohammadi and Asif (selection), Fig. 2",
         about: "position RMSE over time under the conditional-PCRLB, non-conditional-PCRLB, closest and random sensor managers, with the bytes each costs per step",
         scenario: SEED001_SCENARIO,
         base: &["reference.centralized=false"],

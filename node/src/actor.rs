@@ -41,9 +41,11 @@ pub enum NodeError {
     Filter { node: u16, source: BoundError },
     #[error("the centralized reference: {0}")]
     Reference(BoundError),
-    #[error("consensus.protocol {0:?} is not one of seed 004's trackers")]
+    #[error("consensus.protocol {0:?} is not one of the random-exchange and KL trackers")]
     NotDiffusion(ConsensusProtocol),
-    #[error("consensus.protocol {0:?} is one of seed 004's trackers, not the CF/DPF")]
+    #[error(
+        "consensus.protocol {0:?} is one of the random-exchange and KL trackers, not the CF/DPF"
+    )]
     NotCfDpf(ConsensusProtocol),
     #[error(transparent)]
     Param(#[from] crate::registry::ParamError),

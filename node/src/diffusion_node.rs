@@ -288,7 +288,7 @@ impl DiffusionNode {
                 Handled::Taken => self.poll_protocol(),
                 Handled::Late => self.late_messages += 1,
                 Handled::NotMine => {
-                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a seed 004 node")
+                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a random-exchange or KL node")
                 }
             },
         }

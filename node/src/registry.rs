@@ -207,7 +207,7 @@ fn register(
 
 /// The fusion protocol the scenario names, for node `node`: average
 /// consensus, or a registered protocol. The other built-ins are not built
-/// here: exact sums need `sim`'s oracle, and seed 004's trackers are nodes
+/// here: exact sums need `sim`'s oracle, and the random-exchange and KL trackers are nodes
 /// of their own.
 pub fn information_fusion(
     scenario: &Scenario,

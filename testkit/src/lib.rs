@@ -93,7 +93,7 @@ pub fn default_scenario() -> Scenario {
 pub fn seed001_scenario() -> Scenario {
     Scenario::from_toml(
         fusion_graph::scenario::SEED001_SCENARIO,
-        "<built-in seed 001>",
+        "<built-in sensor-selection>",
         &[],
     )
     .expect("the built-in scenario is valid")
@@ -105,7 +105,7 @@ pub fn seed001_scenario() -> Scenario {
 pub fn seed004_scenario() -> Scenario {
     Scenario::from_toml(
         fusion_graph::scenario::SEED004_SCENARIO,
-        "<built-in seed 004>",
+        "<built-in random-exchange>",
         &[],
     )
     .expect("the built-in scenario is valid")

@@ -18,7 +18,7 @@ impl Scenario {
                 file: file.into(),
                 key: key.into(),
                 expected: format!(
-                    "its default with consensus.protocol = \"{}\" (seed 004's trackers have no such part)",
+                    "its default with consensus.protocol = \"{}\" (the random-exchange and KL trackers have no such part)",
                     protocol.name()
                 ),
                 got,
