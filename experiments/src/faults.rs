@@ -232,7 +232,7 @@ pub fn experiments() -> Vec<Experiment> {
     vec![
         Experiment {
             name: "fault-matrix",
-            source: "issue 13: the fault matrix",
+            source: "cqnet's fault injection",
             about: "every fault kind at two scopes, steps 20-34, against no fault: completion, accounting, RMSE during and after, steps to recover",
             scenario: fusion_graph::scenario::DEFAULT_SCENARIO,
             // With the innovation gate, reference arm included: without it
@@ -249,7 +249,7 @@ pub fn experiments() -> Vec<Experiment> {
         },
         Experiment {
             name: "byzantine",
-            source: "issue 13: a Byzantine sensor and the innovation gate",
+            source: "cqnet's fault injection and innovation gate",
             about: "30% of the sensors report a phantom 300 m east of the target for steps 20-34, with and without the innovation gate (nu^2/S <= 10.83)",
             scenario: fusion_graph::scenario::DEFAULT_SCENARIO,
             base: &["reference.centralized=false", "steps=60"],

@@ -1,4 +1,4 @@
-//! The fault matrix (issue 13): every fault kind at two scopes, on the
+//! The fault matrix: every fault kind at two scopes, on the
 //! virtual clock, each cell against the run with no fault. Each cell must
 //! complete, account for every message, and bring the RMSE back to within
 //! `RECOVERY_FACTOR` of the no-fault run's after the fault ends; it prints
