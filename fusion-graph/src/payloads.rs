@@ -219,5 +219,24 @@ mod tests {
             register::<Low>(),
             Err(RegisterError::KindOutOfRange { kind: 5, .. })
         ));
+        /// The probe's name under another kind: refused, and the kind
+        /// stays free.
+        struct Twin;
+        impl ProtocolPayload for Twin {
+            const KIND: u8 = 202;
+            const NAME: &'static str = "probe";
+            const LEN: usize = 1;
+            fn encode(&self, out: &mut Vec<u8>) {
+                out.push(0)
+            }
+            fn decode(_: &[u8]) -> Result<Self, WireError> {
+                Ok(Twin)
+            }
+        }
+        assert!(matches!(
+            register::<Twin>(),
+            Err(RegisterError::NameTaken { kind: 200, .. })
+        ));
+        assert_eq!(ProtocolKind::registered(202), None);
     }
 }

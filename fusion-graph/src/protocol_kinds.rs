@@ -55,6 +55,8 @@ pub enum RegisterError {
         kind: u8,
         taken: &'static str,
     },
+    #[error("payload {name:?}: the name is kind {kind}'s already")]
+    NameTaken { name: &'static str, kind: u8 },
     #[error("payload {name:?}: {len} bytes do not fit in a message")]
     TooLong { name: &'static str, len: usize },
     #[error(
@@ -73,23 +75,24 @@ pub fn claim(
     check: fn(&[u8]) -> Result<(), WireError>,
 ) -> Result<ProtocolKind, RegisterError> {
     let slot = slot(kind).ok_or(RegisterError::KindOutOfRange { name, kind })?;
+    // The name is checked before the kind is claimed: a refused payload
+    // must leave its kind byte free.
+    if let Some(other) = PROTOCOL_KINDS
+        .filter(|&k| k != kind)
+        .filter_map(ProtocolKind::registered)
+        .find(|k| k.name() == name)
+    {
+        return Err(RegisterError::NameTaken {
+            name,
+            kind: other.0,
+        });
+    }
     let entry = slot.get_or_init(|| Entry { name, len, check });
     if entry.name != name || entry.len != len {
         return Err(RegisterError::KindTaken {
             name,
             kind,
             taken: entry.name,
-        });
-    }
-    if let Some(other) = PROTOCOL_KINDS
-        .filter(|&k| k != kind)
-        .filter_map(ProtocolKind::registered)
-        .find(|k| k.name() == name)
-    {
-        return Err(RegisterError::KindTaken {
-            name,
-            kind: other.0,
-            taken: name,
         });
     }
     Ok(ProtocolKind(kind))
