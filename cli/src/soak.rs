@@ -8,7 +8,8 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use fusion_graph::scenario::{Fault, Scenario, Signal};
+use fusion_graph::faults::{Fault, Kill, Signal};
+use fusion_graph::scenario::Scenario;
 use fusion_graph::transport::iceoryx::run_resources;
 use fusion_graph::transport::RunId;
 use fusion_graph::Topology;
@@ -41,12 +42,12 @@ pub fn add_periodic_kills(scenario: &mut Scenario, topology: &Topology, every: u
             format!("node-{}", k % topology.nodes()),
             format!("sensor-{}", (k * 37) % topology.sensors()),
         ] {
-            scenario.faults.push(Fault::Kill {
+            scenario.faults.push(Fault::Kill(Kill {
                 actor,
                 at_step: at,
                 signal: Signal::Kill,
                 restart_after: Some(down),
-            });
+            }));
         }
         at += every;
         k += 1;
@@ -269,7 +270,7 @@ mod tests {
             .faults
             .iter()
             .map(|f| match f {
-                Fault::Kill { actor, at_step, .. } => (actor.clone(), *at_step),
+                Fault::Kill(k) => (k.actor.clone(), k.at_step),
                 _ => unreachable!(),
             })
             .collect();

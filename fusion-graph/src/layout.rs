@@ -5,7 +5,7 @@
 
 use crate::actor::ActorId;
 use crate::hosts::Placement;
-use crate::scenario::{Fault, Scenario};
+use crate::scenario::Scenario;
 use crate::topology::{dist2, Topology};
 use crate::ScenarioError;
 
@@ -63,16 +63,15 @@ impl Topology {
             });
         }
         for (i, f) in s.faults.iter().enumerate() {
-            for name in f.actor_names() {
-                let sensors_only = matches!(f, Fault::Sensor { .. });
+            let targets = f.kind().targets();
+            for name in targets.names {
                 let ok = name.parse::<ActorId>().ok().is_some_and(|a| {
                     topology.contains(a)
                         && a != ActorId::Launcher
-                        && (!sensors_only || matches!(a, ActorId::Sensor(_)))
+                        && (!targets.sensors_only || matches!(a, ActorId::Sensor(_)))
                 });
                 if !ok {
-                    let key = f.actors_key();
-                    let expected = if sensors_only {
+                    let expected = if targets.sensors_only {
                         format!(
                             "a sensor of this network (sensor-0..sensor-{})",
                             topology.sensors() - 1
@@ -86,7 +85,7 @@ impl Topology {
                     };
                     return Err(ScenarioError::Invalid {
                         file: file.into(),
-                        key: format!("faults[{i}].{key}"),
+                        key: format!("faults[{i}].{}", targets.key),
                         expected,
                         got: name.to_string(),
                     });

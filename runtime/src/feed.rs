@@ -282,11 +282,14 @@ mod tests {
     #[test]
     fn a_partition_cuts_the_links_across_it_and_only_while_it_holds() {
         let (mut s, t) = default_topology();
-        s.faults.push(fusion_graph::scenario::Fault::Partition {
-            groups: vec![vec!["node-0".into()], vec!["node-1".into()]],
-            at_step: 5,
-            duration: Some(3),
-        });
+        s.faults.push(
+            fusion_graph::faults::Partition {
+                groups: vec![vec!["node-0".into()], vec!["node-1".into()]],
+                at_step: 5,
+                duration: Some(3),
+            }
+            .into(),
+        );
         let schedule = FaultSchedule::new(&s.faults);
         let links = fusion_links(&t);
         let i = links

@@ -46,7 +46,7 @@ impl AppliedFault {
     }
 
     pub fn from_fault(f: &Fault) -> Self {
-        Self::new(f.at_step(), f.end_step(), describe(f))
+        Self::new(f.at_step(), f.end_step(), f.kind().describe())
     }
 
     /// Fills in the RMSE figures from the run's per-step means.
@@ -65,96 +65,6 @@ impl AppliedFault {
             _ => None,
         };
     }
-}
-
-fn describe(f: &Fault) -> String {
-    use fusion_graph::scenario::SensorMode;
-    match f {
-        Fault::Delay {
-            links,
-            latency_ms,
-            jitter_ms,
-            rate_bps,
-            ..
-        } => format!(
-            "delay {latency_ms} ms ± {jitter_ms} ms{} on {}",
-            if *rate_bps > 0.0 {
-                format!(", rate {rate_bps} bit/s")
-            } else {
-                String::new()
-            },
-            links_text(links)
-        ),
-        Fault::Loss {
-            links, probability, ..
-        } => format!("loss {probability} on {}", links_text(links)),
-        Fault::Partition { groups, .. } => format!("partition {groups:?}"),
-        Fault::Kill {
-            actor,
-            signal,
-            restart_after,
-            ..
-        } => format!(
-            "kill {actor} with {signal:?}{}",
-            restart_after.map_or(String::new(), |r| format!(", restart after {r} steps"))
-        ),
-        Fault::Duplicate {
-            links, probability, ..
-        } => format!("duplicate {probability} on {}", links_text(links)),
-        Fault::Reorder {
-            links,
-            probability,
-            delay_ms,
-            ..
-        } => format!(
-            "reorder {probability} (held back {delay_ms} ms) on {}",
-            links_text(links)
-        ),
-        Fault::Corrupt {
-            links, probability, ..
-        } => format!("corrupt {probability} on {}", links_text(links)),
-        Fault::BurstLoss {
-            links,
-            enter_bad,
-            leave_bad,
-            loss_good,
-            loss_bad,
-            ..
-        } => format!(
-            "burst loss (Gilbert-Elliott p={enter_bad} r={leave_bad}, loss {loss_good}/{loss_bad}) on {}",
-            links_text(links)
-        ),
-        Fault::Sensor {
-            sensors,
-            mode,
-            fraction,
-            bias,
-            phantom,
-            ..
-        } => {
-            let what = match mode {
-                SensorMode::Stuck => "stuck".to_string(),
-                SensorMode::Dropout => "dropout".to_string(),
-                SensorMode::Bias => format!("bias {}", bias.unwrap_or(0.0)),
-                SensorMode::Byzantine => {
-                    format!("byzantine, phantom at {:?} m", phantom.unwrap_or_default())
-                }
-            };
-            let share = fraction.map_or(String::new(), |f| format!(" ({f} of them)"));
-            format!("sensor {what} on {}{share}", sensors.join(", "))
-        }
-    }
-}
-
-fn links_text(links: &[fusion_graph::scenario::LinkSelector]) -> String {
-    links
-        .iter()
-        .map(|l| match l.fraction {
-            Some(f) => format!("{}->{} ({f} of them)", l.from, l.to),
-            None => format!("{}->{}", l.from, l.to),
-        })
-        .collect::<Vec<_>>()
-        .join(", ")
 }
 
 /// What the faults cost, over the whole run.

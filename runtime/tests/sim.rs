@@ -261,11 +261,14 @@ fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
 fn a_partition_leaves_every_link_balanced() {
     let (mut s, _) = scenario(&["steps=12"]);
     let names = |v: &[u16]| v.iter().map(|n| format!("node-{n}")).collect();
-    s.faults.push(fusion_graph::scenario::Fault::Partition {
-        groups: vec![names(&[0, 1, 3, 4]), names(&[2, 5, 6, 7, 8])],
-        at_step: 4,
-        duration: Some(4),
-    });
+    s.faults.push(
+        fusion_graph::faults::Partition {
+            groups: vec![names(&[0, 1, 3, 4]), names(&[2, 5, 6, 7, 8])],
+            at_step: 4,
+            duration: Some(4),
+        }
+        .into(),
+    );
     let t = Topology::from_scenario(&s, "default").unwrap();
     let dir = out_dir("partition-balance");
     let mut w = ResultsWriter::create(&dir).unwrap();

@@ -6,7 +6,7 @@
 //! Cargo runs it with `cargo test` (it is declared with `test = true`), and
 //! `cargo run --example network_test` runs it as a program.
 
-use cqnet_testkit::{default_scenario, exclusive, ActorId, Fault, MessageKind, Network};
+use cqnet_testkit::{default_scenario, exclusive, ActorId, MessageKind, Network, Partition};
 
 #[test]
 fn a_partition_stops_consensus_across_it_and_tracking_recovers() {
@@ -32,7 +32,7 @@ fn partition_run_checks() {
         // A short round timeout: a node stops waiting for the far side soon.
         .set("consensus.round_timeout_ms", 100)
         .set("clock.step_timeout_ms", 2000)
-        .fault(Fault::Partition {
+        .fault(Partition {
             groups: vec![
                 vec![
                     "node-0".into(),

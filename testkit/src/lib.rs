@@ -3,7 +3,7 @@
 //! messages dropped, each node's error and bound, and what each fault cost.
 //!
 //! ```
-//! use cqnet_testkit::{default_scenario, exclusive, ActorId, Fault, MessageKind, Network, Signal};
+//! use cqnet_testkit::{default_scenario, exclusive, ActorId, Kill, MessageKind, Network, Signal};
 //!
 //! let _one_network_at_a_time = exclusive();
 //! let mut scenario = default_scenario();
@@ -15,7 +15,7 @@
 //!     // a round that times out sends fewer bytes.
 //!     .set("consensus.round_timeout_ms", 20000)
 //!     .set("clock.step_timeout_ms", 60000)
-//!     .fault(Fault::Kill {
+//!     .fault(Kill {
 //!         actor: "node-4".into(),
 //!         at_step: 10,
 //!         signal: Signal::Kill,
@@ -65,7 +65,11 @@ mod results;
 use std::sync::{Mutex, MutexGuard};
 
 pub use fusion_graph::accounting::{Accounting, Counters};
-pub use fusion_graph::scenario::{Fault, LinkSelector, Scenario, Signal};
+pub use fusion_graph::faults::{
+    BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector, Loss, Partition,
+    Reorder, SensorMode, Signal,
+};
+pub use fusion_graph::scenario::Scenario;
 pub use fusion_graph::wire::MessageKind;
 pub use fusion_graph::ActorId;
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};

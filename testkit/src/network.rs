@@ -95,8 +95,8 @@ impl Network {
     }
 
     /// Adds a fault to the scenario's schedule.
-    pub fn fault(mut self, fault: Fault) -> Self {
-        self.faults.push(fault);
+    pub fn fault(mut self, fault: impl Into<Fault>) -> Self {
+        self.faults.push(fault.into());
         self
     }
 

@@ -7,8 +7,8 @@
 use std::time::Duration;
 
 use cqnet_testkit::{
-    default_scenario, exclusive, seed001_scenario, ActorId, Fault, LinkSelector, MessageKind,
-    Network, Run, Signal, Target,
+    default_scenario, exclusive, seed001_scenario, ActorId, Delay, Fault, Kill, LinkSelector,
+    Loss, MessageKind, Network, Partition, Run, Signal, Target,
 };
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
@@ -35,12 +35,12 @@ fn patient(n: Network) -> Network {
 }
 
 fn kill(actor: &str, at_step: u32, signal: Signal, restart_after: Option<u32>) -> Fault {
-    Fault::Kill {
+    Fault::Kill(Kill {
         actor: actor.into(),
         at_step,
         signal,
         restart_after,
-    }
+    })
 }
 
 /// How long a test waits for a run to reach the step it acts at.
@@ -196,7 +196,7 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
         .no_central()
         .set("consensus.round_timeout_ms", 100)
         .set("clock.step_timeout_ms", 1500)
-        .fault(Fault::Delay {
+        .fault(Delay {
             links: vec![link("node-0", "node-1")],
             at_step: 5,
             duration: Some(10),
@@ -204,13 +204,13 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
             jitter_ms: 0.0,
             rate_bps: 0.0,
         })
-        .fault(Fault::Loss {
+        .fault(Loss {
             links: vec![link("*", "*")],
             at_step: 10,
             duration: Some(10),
             probability: 0.3,
         })
-        .fault(Fault::Partition {
+        .fault(Partition {
             groups: vec![
                 group(&["node-0", "node-1", "node-3", "node-4"]),
                 group(&["node-2", "node-5", "node-6", "node-7", "node-8"]),

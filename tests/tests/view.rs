@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use base64::Engine;
-use cqnet_testkit::{default_scenario, exclusive, Fault, Network, Signal};
+use cqnet_testkit::{default_scenario, exclusive, Kill, Network, Partition, Signal};
 use serde_json::{json, Value};
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
@@ -209,7 +209,7 @@ fn the_live_view_of_a_real_run_shows_the_nodes_and_a_growing_track() {
         .tag("view")
         .arg("--view")
         // Faults for the page to show: a cut across the grid and a stopped node.
-        .fault(Fault::Partition {
+        .fault(Partition {
             groups: vec![
                 group(&["node-0", "node-1", "node-3", "node-4"]),
                 group(&["node-2", "node-5", "node-6", "node-7", "node-8"]),
@@ -217,7 +217,7 @@ fn the_live_view_of_a_real_run_shows_the_nodes_and_a_growing_track() {
             at_step: 3,
             duration: Some(40),
         })
-        .fault(Fault::Kill {
+        .fault(Kill {
             actor: "node-8".into(),
             at_step: 3,
             signal: Signal::Stop,

@@ -84,10 +84,9 @@ fn parse_ticks(text: &str) -> anyhow::Result<Steps> {
 fn killed_nodes(faults: &[Fault], step: u32) -> Vec<u16> {
     faults
         .iter()
-        .filter(|f| matches!(f, Fault::Kill { .. }))
-        .filter(|f| step >= f.at_step() && f.end_step().is_none_or(|e| step < e))
+        .filter(|f| f.holds(step))
         .filter_map(|f| match f {
-            Fault::Kill { actor, .. } => match actor.parse() {
+            Fault::Kill(kill) => match kill.actor.parse() {
                 Ok(fusion_graph::ActorId::Node(n)) => Some(n),
                 _ => None,
             },

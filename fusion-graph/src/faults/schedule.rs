@@ -2,13 +2,12 @@
 //! on each receiver's incoming links, and which actors die or come back.
 //! Every actor can evaluate it itself, so link faults need no control traffic.
 
-use std::time::Duration;
-
 use crate::actor::ActorId;
-use crate::scenario::{Fault, LinkSelector, SensorMode, Signal};
-use crate::shaper::{GilbertElliott, LinkRule};
+use crate::shaper::LinkRule;
 use crate::topology::Topology;
 use crate::transport::Transport;
+
+use super::{Fault, SensorFault, Signal};
 
 #[derive(Debug, Clone)]
 pub struct FaultSchedule {
@@ -29,71 +28,6 @@ pub enum ProcessEvent {
     },
 }
 
-fn active(at: u32, end: Option<u32>, step: u32) -> bool {
-    step >= at && end.is_none_or(|e| step < e)
-}
-
-fn matches(sel: &str, actor: ActorId) -> bool {
-    match sel {
-        "*" => true,
-        "node-*" => matches!(actor, ActorId::Node(_)),
-        "sensor-*" => matches!(actor, ActorId::Sensor(_)),
-        _ => sel.parse::<ActorId>().is_ok_and(|a| a == actor),
-    }
-}
-
-/// A number in [0, 1) fixed by its inputs: every process that evaluates
-/// the schedule picks the same share of links or sensors (SplitMix64).
-fn unit_hash(words: &[u64]) -> f64 {
-    let mut h = 0x9E37_79B9_7F4A_7C15u64;
-    for w in words {
-        h ^= *w;
-        h = h.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = h;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        h = z ^ (z >> 31);
-    }
-    (h >> 11) as f64 / (1u64 << 53) as f64
-}
-
-fn actor_word(a: ActorId) -> u64 {
-    let (kind, index) = a.to_wire();
-    (kind as u64) << 16 | index as u64
-}
-
-/// Whether a fraction `fraction` of what a selector matches takes in this
-/// one; `salt` tells the faults (and selectors) apart.
-fn in_share(fraction: Option<f64>, salt: &[u64]) -> bool {
-    fraction.is_none_or(|f| f >= 1.0 || unit_hash(salt) < f)
-}
-
-fn link_matches(links: &[LinkSelector], fault: usize, from: ActorId, to: ActorId) -> bool {
-    links.iter().enumerate().any(|(j, l)| {
-        matches(&l.from, from)
-            && matches(&l.to, to)
-            && in_share(
-                l.fraction,
-                &[fault as u64, j as u64, actor_word(from), actor_word(to)],
-            )
-    })
-}
-
-/// What a faulty sensor does this step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum SensorFault {
-    Stuck,
-    Bias(f64),
-    Dropout,
-    /// Reports the phantom target at this offset from the true one.
-    Byzantine([f64; 2]),
-}
-
-/// Combines independent probabilities of the same event.
-fn either(a: f64, b: f64) -> f64 {
-    1.0 - (1.0 - a) * (1.0 - b)
-}
-
 impl FaultSchedule {
     pub fn new(faults: &[Fault]) -> Self {
         Self {
@@ -109,71 +43,8 @@ impl FaultSchedule {
     pub fn link_rule(&self, step: u32, from: ActorId, to: ActorId) -> LinkRule {
         let mut rule = LinkRule::default();
         for (i, f) in self.faults.iter().enumerate() {
-            if !active(f.at_step(), f.end_step(), step) {
-                continue;
-            }
-            if let Fault::Partition { groups, .. } = f {
-                let group_of =
-                    |a: ActorId| groups.iter().position(|g| g.iter().any(|n| matches(n, a)));
-                if let (Some(a), Some(b)) = (group_of(from), group_of(to)) {
-                    rule.blocked |= a != b;
-                }
-                continue;
-            }
-            if !f.links().is_some_and(|l| link_matches(l, i, from, to)) {
-                continue;
-            }
-            match f {
-                Fault::Delay {
-                    latency_ms,
-                    jitter_ms,
-                    rate_bps,
-                    ..
-                } => {
-                    rule.latency = rule.latency.max(Duration::from_secs_f64(latency_ms / 1e3));
-                    rule.jitter = rule.jitter.max(Duration::from_secs_f64(jitter_ms / 1e3));
-                    // Two limits on one link: the slower holds.
-                    if *rate_bps > 0.0 {
-                        rule.rate = if rule.rate > 0.0 {
-                            rule.rate.min(*rate_bps)
-                        } else {
-                            *rate_bps
-                        };
-                    }
-                }
-                Fault::Loss { probability, .. } => rule.loss = either(rule.loss, *probability),
-                Fault::Duplicate { probability, .. } => {
-                    rule.duplicate = either(rule.duplicate, *probability)
-                }
-                Fault::Corrupt { probability, .. } => {
-                    rule.corrupt = either(rule.corrupt, *probability)
-                }
-                Fault::Reorder {
-                    probability,
-                    delay_ms,
-                    ..
-                } => {
-                    rule.reorder = either(rule.reorder, *probability);
-                    rule.reorder_delay = rule
-                        .reorder_delay
-                        .max(Duration::from_secs_f64(delay_ms / 1e3));
-                }
-                Fault::BurstLoss {
-                    enter_bad,
-                    leave_bad,
-                    loss_good,
-                    loss_bad,
-                    ..
-                } => {
-                    // One chain per link: the later fault's, if two overlap.
-                    rule.burst = Some(GilbertElliott {
-                        enter_bad: *enter_bad,
-                        leave_bad: *leave_bad,
-                        loss_good: *loss_good,
-                        loss_bad: *loss_bad,
-                    });
-                }
-                Fault::Partition { .. } | Fault::Kill { .. } | Fault::Sensor { .. } => {}
+            if f.holds(step) {
+                f.kind().shape_link(i, from, to, &mut rule);
             }
         }
         rule
@@ -182,36 +53,16 @@ impl FaultSchedule {
     /// What sensor `sensor` does instead of measuring honestly at `step`,
     /// if a fault holds it (the first that does, in schedule order).
     pub fn sensor_fault(&self, step: u32, sensor: u16) -> Option<SensorFault> {
-        let me = ActorId::Sensor(sensor);
-        self.faults.iter().enumerate().find_map(|(i, f)| {
-            let Fault::Sensor {
-                sensors,
-                mode,
-                fraction,
-                bias,
-                phantom,
-                ..
-            } = f
-            else {
-                return None;
-            };
-            let chosen = active(f.at_step(), f.end_step(), step)
-                && sensors.iter().any(|s| matches(s, me))
-                && in_share(*fraction, &[i as u64, actor_word(me)]);
-            chosen.then(|| match mode {
-                SensorMode::Stuck => SensorFault::Stuck,
-                SensorMode::Bias => SensorFault::Bias(bias.unwrap_or(0.0)),
-                SensorMode::Dropout => SensorFault::Dropout,
-                SensorMode::Byzantine => SensorFault::Byzantine(phantom.unwrap_or([0.0, 0.0])),
-            })
-        })
+        self.faults
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| f.holds(step))
+            .find_map(|(i, f)| f.kind().sensor_fault(i, ActorId::Sensor(sensor)))
     }
 
     /// Whether any fault acts on links (so receivers must set rules).
     fn has_link_faults(&self) -> bool {
-        self.faults
-            .iter()
-            .any(|f| f.links().is_some() || matches!(f, Fault::Partition { .. }))
+        self.faults.iter().any(|f| f.kind().acts_on_links())
     }
 
     /// Every non-clear rule on `to`'s incoming links at `step`, over the
@@ -292,39 +143,19 @@ impl FaultSchedule {
 
     /// Kills and restarts due exactly at `step`.
     pub fn process_events(&self, step: u32) -> Vec<ProcessEvent> {
-        let mut v = Vec::new();
+        let mut events = Vec::new();
         for f in &self.faults {
-            if let Fault::Kill {
-                actor,
-                at_step,
-                signal,
-                restart_after,
-            } = f
-            {
-                let Ok(actor) = actor.parse::<ActorId>() else {
-                    continue;
-                };
-                if *at_step == step {
-                    v.push(ProcessEvent::Kill {
-                        actor,
-                        signal: *signal,
-                    });
-                }
-                if restart_after.is_some_and(|r| at_step + r == step) {
-                    v.push(ProcessEvent::Restart {
-                        actor,
-                        signal: *signal,
-                    });
-                }
-            }
+            f.kind().process_events(step, &mut events);
         }
-        v
+        events
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::faults::select::matches;
+    use std::time::Duration;
     use crate::scenario::{Scenario, DEFAULT_SCENARIO};
 
     fn schedule(extra: &str) -> (FaultSchedule, Topology) {

@@ -1,0 +1,75 @@
+//! Gilbert–Elliott burst loss: per link a two-state chain, stepped once per
+//! message, that enters the bad state with `enter_bad` and leaves it with
+//! `leave_bad`; a message is lost with `loss_good` or `loss_bad`.
+
+use serde::{Deserialize, Serialize};
+
+use super::select::{check_links, link_targets, links_text, takes_link};
+use super::{Check, FaultKind, LinkSelector, Targets, Window};
+use crate::actor::ActorId;
+use crate::shaper::{GilbertElliott, LinkRule};
+use crate::ScenarioError;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BurstLoss {
+    pub links: Vec<LinkSelector>,
+    pub at_step: u32,
+    pub duration: Option<u32>,
+    pub enter_bad: f64,
+    pub leave_bad: f64,
+    #[serde(default)]
+    pub loss_good: f64,
+    #[serde(default = "certain")]
+    pub loss_bad: f64,
+}
+
+fn certain() -> f64 {
+    1.0
+}
+
+impl FaultKind for BurstLoss {
+    fn window(&self) -> Window {
+        Window::lasting(self.at_step, self.duration)
+    }
+
+    fn targets(&self) -> Targets<'_> {
+        link_targets(&self.links)
+    }
+
+    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
+        check_links(&self.links, check)?;
+        check.probability("enter_bad", self.enter_bad)?;
+        check.probability("leave_bad", self.leave_bad)?;
+        check.probability("loss_good", self.loss_good)?;
+        check.probability("loss_bad", self.loss_bad)?;
+        check.duration(self.duration)
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "burst loss (Gilbert-Elliott p={} r={}, loss {}/{}) on {}",
+            self.enter_bad,
+            self.leave_bad,
+            self.loss_good,
+            self.loss_bad,
+            links_text(&self.links)
+        )
+    }
+
+    fn acts_on_links(&self) -> bool {
+        true
+    }
+
+    fn shape_link(&self, fault: usize, from: ActorId, to: ActorId, rule: &mut LinkRule) {
+        if takes_link(&self.links, fault, from, to) {
+            // One chain per link: the later fault's, if two overlap.
+            rule.burst = Some(GilbertElliott {
+                enter_bad: self.enter_bad,
+                leave_bad: self.leave_bad,
+                loss_good: self.loss_good,
+                loss_bad: self.loss_bad,
+            });
+        }
+    }
+}

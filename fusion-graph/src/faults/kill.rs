@@ -1,0 +1,69 @@
+//! An actor's process signalled at a step, and restarted (or continued,
+//! after SIGSTOP) `restart_after` steps later.
+
+use serde::{Deserialize, Serialize};
+
+use super::{Check, FaultKind, ProcessEvent, Targets, Window};
+use crate::actor::ActorId;
+use crate::ScenarioError;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Signal {
+    #[serde(rename = "SIGKILL")]
+    Kill,
+    #[serde(rename = "SIGTERM")]
+    Term,
+    #[serde(rename = "SIGSTOP")]
+    Stop,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Kill {
+    pub actor: String,
+    pub at_step: u32,
+    pub signal: Signal,
+    pub restart_after: Option<u32>,
+}
+
+impl FaultKind for Kill {
+    fn window(&self) -> Window {
+        Window::lasting(self.at_step, self.restart_after)
+    }
+
+    fn targets(&self) -> Targets<'_> {
+        Targets {
+            key: "actor",
+            names: vec![self.actor.as_str()],
+            sensors_only: false,
+        }
+    }
+
+    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
+        if self.restart_after == Some(0) {
+            return Err(check.fail("restart_after", "at least 1 step", 0));
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        let restart = self
+            .restart_after
+            .map_or(String::new(), |r| format!(", restart after {r} steps"));
+        format!("kill {} with {:?}{restart}", self.actor, self.signal)
+    }
+
+    fn process_events(&self, step: u32, events: &mut Vec<ProcessEvent>) {
+        // The topology's check has refused a name that is not an actor.
+        let Ok(actor) = self.actor.parse::<ActorId>() else {
+            return;
+        };
+        let signal = self.signal;
+        if self.at_step == step {
+            events.push(ProcessEvent::Kill { actor, signal });
+        }
+        if self.window().end == Some(step) {
+            events.push(ProcessEvent::Restart { actor, signal });
+        }
+    }
+}
