@@ -19,7 +19,7 @@ use bounds::censoring::{CensoringRule, VectorSilence};
 use bounds::dynamics::{CoordinatedTurn, ProcessNoise};
 use bounds::{Mat4, ObservationModel, SensorLaw, State};
 use nalgebra::{Matrix2, SMatrix, Vector2};
-use node::filter::systematic_resample;
+use node::filter::{Gaussian, ParticleFilter};
 use plotters::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -384,7 +384,7 @@ fn measure(setup: &Setup, rule: &CensoringRule, scheme: Feedback, threads: usize
         let workers: Vec<_> = (0..threads)
             .map(|_| {
                 scope.spawn(|| {
-                    let mut filter = TrialFilter::new(setup.particles);
+                    let mut filter = TrialFilter::new(setup);
                     let mut done = Vec::new();
                     loop {
                         let trial = next.fetch_add(1, Ordering::Relaxed);
@@ -427,27 +427,77 @@ struct Trial {
     squared_error: f64,
 }
 
-/// A fusion centre's particle filter with its buffers, reused over trials
-/// so that the steps allocate nothing. Its resampler is the node's
-/// ([`systematic_resample`]); its weighing is the dissertation's, untempered
-/// and unregularised, with the likelihood of silence, and its predictor
-/// takes the setups' process noise, singular along an axis the target does
-/// not move on. The node's own filter tempers and regularises, which would
-/// change the reproduced tables.
+/// A fusion centre's particle filter, the node's ([`ParticleFilter`]), with
+/// the step's sensor reports, reused over trials so that the steps allocate
+/// little. It predicts with the setups' own process noise, singular along
+/// an axis the target does not move on ([`ParticleFilter::predict_linear`]),
+/// and weighs in one untempered stage: the dissertation's tables come from
+/// the textbook filter, and the node's tempering and regularization would
+/// change them.
 struct TrialFilter {
-    particles: Vec<State>,
-    resampled: Vec<State>,
-    ln_weights: Vec<f64>,
-    weights: Vec<f64>,
+    filter: ParticleFilter,
+    reports: Vec<Report>,
+}
+
+/// What the centre learnt from one sensor this step.
+enum Report {
+    /// Its measurement.
+    Received { sensor: usize, z: Vector2<f64> },
+    /// Its silence: the prediction `g` it was measured against, S and R.
+    Silent {
+        sensor: usize,
+        g: Vector2<f64>,
+        s: Matrix2<f64>,
+        r: Matrix2<f64>,
+        /// For a two-component sensor, the Monte Carlo of its silence.
+        vector: Option<VectorSilence>,
+    },
+}
+
+impl Report {
+    /// `ln p(report | x)`.
+    fn ln_likelihood(&self, sensors: &[Vec<ObservationModel>], rule: &CensoringRule, x: &State) -> f64 {
+        match self {
+            Report::Received { sensor, z } => sensors[*sensor]
+                .iter()
+                .enumerate()
+                .map(|(c, model)| {
+                    let e = model.evaluate(x);
+                    -0.5 * (z[c] - e.g).powi(2) / e.r
+                })
+                .sum(),
+            Report::Silent {
+                sensor, g, s, r, vector: None,
+            } => {
+                let mu = sensors[*sensor][0].evaluate(x).g - g[0];
+                rule.ln_silence_probability(mu, s[(0, 0)], r[(0, 0)])
+            }
+            Report::Silent {
+                sensor, g, vector: Some(silence), ..
+            } => {
+                let sensor = &sensors[*sensor];
+                let m = Vector2::new(sensor[0].evaluate(x).g - g[0], sensor[1].evaluate(x).g - g[1]);
+                // Half a draw keeps a particle no draw supports from a weight
+                // of zero, which one silent sensor could otherwise give them all.
+                let p = (silence.probability(&m) * SILENCE_DRAWS as f64 + 0.5)
+                    / (SILENCE_DRAWS as f64 + 1.0);
+                p.ln()
+            }
+        }
+    }
 }
 
 impl TrialFilter {
-    fn new(n: usize) -> Self {
+    fn new(setup: &Setup) -> Self {
+        let prior = Gaussian {
+            mean: setup.prior_mean,
+            cov: setup.prior_cov,
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
         Self {
-            particles: vec![State::zeros(); n],
-            resampled: vec![State::zeros(); n],
-            ln_weights: vec![0.0; n],
-            weights: vec![0.0; n],
+            filter: ParticleFilter::from_gaussian(setup.particles, &prior, &mut rng)
+                .expect("every setup's prior is positive definite"),
+            reports: Vec::with_capacity(setup.sensors.len()),
         }
     }
 
@@ -455,6 +505,10 @@ impl TrialFilter {
         let mut rng = ChaCha8Rng::seed_from_u64(SEED ^ ((trial as u64) << 20) ^ table_key(setup));
         let f = setup.dynamics.jacobian(&State::zeros());
         let (q, q_factor) = setup.process_noise();
+        let prior = Gaussian {
+            mean: setup.prior_mean,
+            cov: setup.prior_cov,
+        };
         let prior_factor = cholesky_or_diagonal(&setup.prior_cov);
         let gaussian =
             |rng: &mut ChaCha8Rng| State::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
@@ -463,9 +517,9 @@ impl TrialFilter {
         } else {
             setup.prior_mean
         };
-        for p in self.particles.iter_mut() {
-            *p = setup.prior_mean + prior_factor * gaussian(&mut rng);
-        }
+        self.filter
+            .reset_gaussian(&prior, &mut rng)
+            .expect("every setup's prior is positive definite");
         // The node's posterior (what it feeds back) and each sensor's own
         // Kalman covariance (CFwMD).
         let (mut estimate, mut estimate_cov) = (setup.prior_mean, setup.prior_cov);
@@ -477,12 +531,10 @@ impl TrialFilter {
         let mut silence_rng = ChaCha8Rng::seed_from_u64(SEED.wrapping_add(trial as u64));
         for _ in 0..setup.steps {
             truth = f * truth + q_factor * gaussian(&mut rng);
-            for p in self.particles.iter_mut() {
-                *p = f * *p + q_factor * gaussian(&mut rng);
-            }
+            self.filter.predict_linear(&f, &q_factor, &mut rng);
             let predicted = f * estimate;
             let predicted_cov = f * estimate_cov * f.transpose() + q;
-            self.ln_weights.fill(0.0);
+            self.reports.clear();
             for (i, sensor) in setup.sensors.iter().enumerate() {
                 let local = f * local_cov[i] * f.transpose() + q;
                 let (g, s, r) = innovation_statistics(
@@ -499,95 +551,40 @@ impl TrialFilter {
                 let s_inv = s
                     .try_inverse()
                     .expect("S = G P Gᵀ + R is positive definite");
-                let nis = nu.dot(&(s_inv * nu));
-                if rule.sends(nis) {
+                if rule.sends(nu.dot(&(s_inv * nu))) {
                     out.sent += 1;
-                    self.weigh_received(sensor, &z);
+                    self.reports.push(Report::Received { sensor: i, z });
                 } else {
-                    self.weigh_silent(sensor, rule, &g, &s, &r, &mut silence_rng);
+                    let vector = (sensor.len() > 1).then(|| {
+                        VectorSilence::new(rule, &s, &r, SILENCE_DRAWS, &mut silence_rng)
+                            .expect("S and R are positive definite")
+                    });
+                    self.reports.push(Report::Silent {
+                        sensor: i,
+                        g,
+                        s,
+                        r,
+                        vector,
+                    });
                 }
             }
-            let (mean, cov) = self.normalize_and_estimate();
+            let reports = &self.reports;
+            self.filter.update_untempered(|particles, out| {
+                for (l, x) in out.iter_mut().zip(particles) {
+                    *l = reports
+                        .iter()
+                        .map(|report| report.ln_likelihood(&setup.sensors, rule, x))
+                        .sum();
+                }
+            });
+            let posterior = self.filter.summary();
             out.squared_error += (0..setup.axes)
-                .map(|a| (mean[a] - truth[a]).powi(2))
+                .map(|a| (posterior.mean[a] - truth[a]).powi(2))
                 .sum::<f64>();
-            (estimate, estimate_cov) = (mean, cov);
-            self.resample(&mut rng);
+            (estimate, estimate_cov) = (posterior.mean, posterior.cov);
+            self.filter.resample(&mut rng);
         }
         out
-    }
-
-    fn weigh_received(&mut self, sensor: &[ObservationModel], z: &Vector2<f64>) {
-        for (lw, x) in self.ln_weights.iter_mut().zip(&self.particles) {
-            for (c, model) in sensor.iter().enumerate() {
-                let e = model.evaluate(x);
-                *lw -= 0.5 * (z[c] - e.g).powi(2) / e.r;
-            }
-        }
-    }
-
-    /// The likelihood of silence at each particle: the closed form for a
-    /// scalar sensor, Monte Carlo over common draws for a vector one.
-    fn weigh_silent(
-        &mut self,
-        sensor: &[ObservationModel],
-        rule: &CensoringRule,
-        g: &Vector2<f64>,
-        s: &Matrix2<f64>,
-        r: &Matrix2<f64>,
-        rng: &mut ChaCha8Rng,
-    ) {
-        if sensor.len() == 1 {
-            for (lw, x) in self.ln_weights.iter_mut().zip(&self.particles) {
-                let mu = sensor[0].evaluate(x).g - g[0];
-                *lw += rule.ln_silence_probability(mu, s[(0, 0)], r[(0, 0)]);
-            }
-            return;
-        }
-        let silence = VectorSilence::new(rule, s, r, SILENCE_DRAWS, rng)
-            .expect("S and R are positive definite");
-        for (lw, x) in self.ln_weights.iter_mut().zip(&self.particles) {
-            let m = Vector2::new(
-                sensor[0].evaluate(x).g - g[0],
-                sensor[1].evaluate(x).g - g[1],
-            );
-            // Half a draw keeps a particle no draw supports from a weight of
-            // zero, which one silent sensor could otherwise give them all.
-            let p = (silence.probability(&m) * SILENCE_DRAWS as f64 + 0.5)
-                / (SILENCE_DRAWS as f64 + 1.0);
-            *lw += p.ln();
-        }
-    }
-
-    fn normalize_and_estimate(&mut self) -> (State, Mat4) {
-        let max = self
-            .ln_weights
-            .iter()
-            .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
-        let mut total = 0.0;
-        for (w, lw) in self.weights.iter_mut().zip(&self.ln_weights) {
-            *w = (lw - max).exp();
-            total += *w;
-        }
-        let mut mean = State::zeros();
-        for (w, x) in self.weights.iter_mut().zip(&self.particles) {
-            *w /= total;
-            mean += x * *w;
-        }
-        let mut cov = Mat4::zeros();
-        for (w, x) in self.weights.iter().zip(&self.particles) {
-            let d = x - mean;
-            cov += d * d.transpose() * *w;
-        }
-        (mean, cov)
-    }
-
-    /// The node's systematic resampler.
-    fn resample(&mut self, rng: &mut ChaCha8Rng) {
-        let (particles, resampled) = (&self.particles, &mut self.resampled);
-        systematic_resample(&self.weights, rng, |slot, i| resampled[slot] = particles[i]);
-        std::mem::swap(&mut self.particles, &mut self.resampled);
     }
 }
 

@@ -128,6 +128,28 @@ impl ParticleFilter {
         self.weights.copy_from_slice(&self.uniform);
     }
 
+    /// Predictor for a linear model `x(k) = F x(k−1) + L ε`, `ε ~ N(0, I)`,
+    /// with any factor `L` of Q, a singular one included (white-noise
+    /// acceleration sampled once a step, or a target held to one axis),
+    /// which [`Dynamics`] refuses because the bound's recursion needs Q⁻¹.
+    /// Draws as [`predict`](Self::predict) does; weights become uniform.
+    pub fn predict_linear<R: Rng + ?Sized>(&mut self, f: &Mat4, noise_factor: &Mat4, rng: &mut R) {
+        std::mem::swap(&mut self.previous, &mut self.particles);
+        let mut draws = [0.0; 4 * CHUNK];
+        for (chunk, before) in self
+            .particles
+            .chunks_mut(CHUNK)
+            .zip(self.previous.chunks(CHUNK))
+        {
+            let draws = &mut draws[..4 * chunk.len()];
+            standard_normals(rng, draws);
+            for ((p, x), n) in chunk.iter_mut().zip(before).zip(draws.chunks_exact(4)) {
+                *p = f * x + noise_factor * State::from_column_slice(n);
+            }
+        }
+        self.weights.copy_from_slice(&self.uniform);
+    }
+
     /// Predictor step for a filter that also carries a bound: B11 and B12
     /// over the particles before the prediction, then the prediction and its
     /// summary.
@@ -205,6 +227,23 @@ impl ParticleFilter {
         self.update_stages(rng, Some(first), ln_likelihood)
     }
 
+    /// The bootstrap updater in one stage, without tempering or
+    /// regularization: weights `∝ p(y | x_j)` from `ln_likelihood(particles,
+    /// out)`. For a model whose tables must come out of the textbook filter
+    /// itself; the node's own filter uses [`update`](Self::update). Returns
+    /// false, leaving the weights uniform, if no particle has a finite
+    /// likelihood.
+    pub fn update_untempered(&mut self, ln_likelihood: impl FnOnce(&[State], &mut [f64])) -> bool {
+        ln_likelihood(&self.particles, &mut self.ln_likelihood);
+        let max = self.largest_ln_likelihood();
+        if !max.is_finite() {
+            self.weights.copy_from_slice(&self.uniform);
+            return false;
+        }
+        self.set_tempered_weights(1.0, max);
+        true
+    }
+
     fn update_stages<R: Rng + ?Sized>(
         &mut self,
         rng: &mut R,
@@ -220,11 +259,7 @@ impl ParticleFilter {
                 }
                 _ => ln_likelihood(&self.particles, &self.previous, &mut self.ln_likelihood),
             }
-            let max = self
-                .ln_likelihood
-                .iter()
-                .copied()
-                .fold(f64::NEG_INFINITY, f64::max);
+            let max = self.largest_ln_likelihood();
             if !max.is_finite() {
                 self.weights.copy_from_slice(&self.uniform);
                 return 0;
@@ -246,6 +281,13 @@ impl ParticleFilter {
             self.regularize(&posterior, rng);
         }
         MAX_STAGES
+    }
+
+    fn largest_ln_likelihood(&self) -> f64 {
+        self.ln_likelihood
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max)
     }
 
     /// Normalized weights `∝ exp(δ (ℓ_j − max))`.
@@ -678,6 +720,59 @@ mod tests {
         let s = f.summary();
         assert!((s.mean[0] - 102.5).abs() < 0.1, "{}", s.mean[0]);
         assert!((s.cov[(0, 0)] - 12.5).abs() < 0.4, "{}", s.cov[(0, 0)]);
+    }
+
+    /// One untempered stage is Bayes' rule on the importance weights: the
+    /// Kalman update's mean and variance, even for a likelihood sharp
+    /// enough that the tempered updater would split it.
+    #[test]
+    fn the_untempered_update_is_the_kalman_update_in_one_stage() {
+        // Prior N(100, 25) on p_x, observation 104 with variance 4: posterior
+        // mean 100 + 25/29 · 4 and variance 25 · 4 / 29.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut f = ParticleFilter::from_gaussian(200_000, &prior(), &mut rng).unwrap();
+        let weighed = f.update_untempered(|particles, out| {
+            for (l, p) in out.iter_mut().zip(particles) {
+                *l = -0.5 * (p[0] - 104.0).powi(2) / 4.0;
+            }
+        });
+        assert!(weighed);
+        let s = f.summary();
+        assert!((s.mean[0] - (100.0 + 100.0 / 29.0)).abs() < 0.05, "{}", s.mean[0]);
+        assert!((s.cov[(0, 0)] - 100.0 / 29.0).abs() < 0.1, "{}", s.cov[(0, 0)]);
+        assert!(!f.update_untempered(|_, out| out.fill(f64::NEG_INFINITY)));
+        assert!(f.weights().iter().all(|w| *w == f.uniform_weights()[0]));
+    }
+
+    /// The linear predictor moves the cloud's covariance to F P Fᵀ + L Lᵀ,
+    /// with a singular L: nothing is added along the axes L leaves out.
+    #[test]
+    fn the_linear_predictor_adds_a_singular_noise_where_it_acts_only() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let mut f = ParticleFilter::from_gaussian(200_000, &prior(), &mut rng).unwrap();
+        let mut transition = Mat4::identity();
+        transition[(0, 2)] = 1.0;
+        transition[(1, 3)] = 1.0;
+        let mut factor = Mat4::zeros();
+        factor[(0, 0)] = 0.5;
+        factor[(2, 0)] = 1.0;
+        let first = f.particles()[0];
+        f.predict_linear(&transition, &factor, &mut rng);
+        assert_eq!(f.previous()[0], first, "each particle keeps its ancestor");
+        let before = prior().cov;
+        let expected = transition * before * transition.transpose() + factor * factor.transpose();
+        let got = f.summary().cov;
+        for i in 0..4 {
+            for j in 0..4 {
+                let scale = (expected[(i, i)] * expected[(j, j)]).sqrt();
+                assert!(
+                    (got[(i, j)] - expected[(i, j)]).abs() < 0.02 * scale,
+                    "({i}, {j}): {} against {}",
+                    got[(i, j)],
+                    expected[(i, j)]
+                );
+            }
+        }
     }
 
     #[test]
