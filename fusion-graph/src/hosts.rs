@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
 use crate::channel::{Channel, RunId};
-use crate::scenario::{ConsensusProtocol, Scenario};
+use crate::registered::Shape;
+use crate::scenario::Scenario;
 use crate::topology::Topology;
 use crate::ScenarioError;
 
@@ -120,7 +121,7 @@ impl Placement {
             hosts: s.hosts.clone(),
             node_host,
             sensor_host,
-            pairs: s.consensus.protocol == ConsensusProtocol::RandomExchange,
+            pairs: s.consensus.protocol.shape() == Shape::Tracker { pairs: true },
             centralized,
         }))
     }

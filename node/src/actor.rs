@@ -15,6 +15,7 @@
 use std::time::Duration;
 
 use bounds::{BoundError, State};
+use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, ConsensusProtocol, Scenario};
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
@@ -41,10 +42,11 @@ pub enum NodeError {
     Filter { node: u16, source: BoundError },
     #[error("the centralized reference: {0}")]
     Reference(BoundError),
-    #[error("consensus.protocol {0:?} is not one of the random-exchange and KL trackers")]
+    #[error("consensus.protocol \"{}\" is not one of the random-exchange and KL trackers", .0.name())]
     NotDiffusion(ConsensusProtocol),
     #[error(
-        "consensus.protocol {0:?} is one of the random-exchange and KL trackers, not the CF/DPF"
+        "consensus.protocol \"{}\" is one of the random-exchange and KL trackers, not the CF/DPF",
+        .0.name()
     )]
     NotCfDpf(ConsensusProtocol),
     #[error(transparent)]
@@ -163,13 +165,14 @@ impl NodeActor {
     /// protocol are the registry's (`crate::registry`) for the names the
     /// scenario gives.
     pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
-        match scenario.consensus.protocol {
-            ConsensusProtocol::Exact => return Err(NodeError::NoExactSums),
-            p if p.is_diffusion() => return Err(NodeError::NotCfDpf(p)),
-            _ => {}
+        let protocol = scenario.consensus.protocol;
+        match protocol.shape() {
+            Shape::ExactSums => return Err(NodeError::NoExactSums),
+            Shape::Tracker { .. } => return Err(NodeError::NotCfDpf(protocol)),
+            Shape::Rounds => {}
         }
         let protocol = crate::registry::information_fusion(scenario, topology, index)?
-            .expect("the CF/DPF's protocol is average consensus or a registered one");
+            .expect("a protocol of rounds has a builder");
         let manager = crate::registry::manager(scenario, topology, index)?;
         Self::with_parts(scenario, topology, index, manager, protocol)
     }

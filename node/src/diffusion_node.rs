@@ -16,7 +16,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::scenario::{ConsensusProtocol, Scenario};
+use fusion_graph::scenario::Scenario;
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
@@ -32,8 +32,9 @@ use crate::fusion::{
 use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
 use crate::{wiring, NodeError, Outgoing, Work};
 
-/// How a node cooperates, by the scenario's `consensus.protocol`.
-enum Cooperation {
+/// How a tracker node cooperates, by the scenario's `consensus.protocol`;
+/// the registry ([`crate::registry`]) builds it by name.
+pub enum Cooperation {
     RandomExchange(RandomExchange),
     Kl {
         fusion: KlFusion,
@@ -44,6 +45,33 @@ enum Cooperation {
 }
 
 impl Cooperation {
+    /// RndEx-PF's: a posterior swapped with one random neighbour a step.
+    pub fn random_exchange(scenario: &Scenario, topology: &Topology, index: u16) -> Self {
+        Cooperation::RandomExchange(RandomExchange::new(
+            index,
+            topology,
+            round_timeout(scenario),
+            stream_rng(scenario.seed, ActorId::Node(index), 0, Stream::Exchange),
+        ))
+    }
+
+    /// KL fusion of the posteriors over `rounds` rounds, after weighing the
+    /// closed neighbourhood's measurements (`neighbourhood`) or the node's
+    /// own only.
+    pub fn kl(
+        scenario: &Scenario,
+        topology: &Topology,
+        index: u16,
+        rounds: u32,
+        neighbourhood: bool,
+    ) -> Self {
+        Cooperation::Kl {
+            fusion: kl_fusion(index, topology, rounds as u16, round_timeout(scenario))
+                .presume_gone_after(2),
+            neighbourhood,
+        }
+    }
+
     fn uses_neighbourhood(&self) -> bool {
         match self {
             Cooperation::RandomExchange(_) => true,
@@ -137,8 +165,18 @@ pub struct DiffusionNode {
     deadline_missed: bool,
 }
 
+fn round_timeout(scenario: &Scenario) -> Duration {
+    Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)
+}
+
 impl DiffusionNode {
-    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
+    /// Node `index` of a tracker network, cooperating as `cooperation` says.
+    pub fn new(
+        scenario: &Scenario,
+        topology: &Topology,
+        index: u16,
+        cooperation: Cooperation,
+    ) -> Result<Self, NodeError> {
         let models = scenario.models()?;
         let model = SensingModel::new(&models, topology);
         let prior = scenario.network_prior(&models);
@@ -149,24 +187,6 @@ impl DiffusionNode {
             node: index,
             source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
         })?;
-        let c = &scenario.consensus;
-        let round_timeout = Duration::from_secs_f64(c.round_timeout_ms / 1e3);
-        let kl = |rounds: u32, neighbourhood| Cooperation::Kl {
-            fusion: kl_fusion(index, topology, rounds as u16, round_timeout).presume_gone_after(2),
-            neighbourhood,
-        };
-        let cooperation = match c.protocol {
-            ConsensusProtocol::RandomExchange => Cooperation::RandomExchange(RandomExchange::new(
-                index,
-                topology,
-                round_timeout,
-                stream_rng(scenario.seed, id, 0, Stream::Exchange),
-            )),
-            ConsensusProtocol::KlConsensus => kl(c.rounds, false),
-            ConsensusProtocol::KlDiffusion => kl(1, true),
-            ConsensusProtocol::KlIterative => kl(c.rounds, true),
-            other => return Err(NodeError::NotDiffusion(other)),
-        };
         Ok(Self {
             index,
             topology: topology.clone(),
@@ -177,7 +197,7 @@ impl DiffusionNode {
             cooperation,
             active_per_node: scenario.sensors.active_per_node as usize,
             view: topology.all_alive(),
-            listen: round_timeout,
+            listen: round_timeout(scenario),
             steps: scenario.steps,
             last_step: None,
             stepping: None,

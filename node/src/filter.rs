@@ -738,8 +738,16 @@ mod tests {
         });
         assert!(weighed);
         let s = f.summary();
-        assert!((s.mean[0] - (100.0 + 100.0 / 29.0)).abs() < 0.05, "{}", s.mean[0]);
-        assert!((s.cov[(0, 0)] - 100.0 / 29.0).abs() < 0.1, "{}", s.cov[(0, 0)]);
+        assert!(
+            (s.mean[0] - (100.0 + 100.0 / 29.0)).abs() < 0.05,
+            "{}",
+            s.mean[0]
+        );
+        assert!(
+            (s.cov[(0, 0)] - 100.0 / 29.0).abs() < 0.1,
+            "{}",
+            s.cov[(0, 0)]
+        );
         assert!(!f.update_untempered(|_, out| out.fill(f64::NEG_INFINITY)));
         assert!(f.weights().iter().all(|w| *w == f.uniform_weights()[0]));
     }

@@ -45,8 +45,8 @@ impl ProcessingNode {
         topology: &Topology,
         index: u16,
     ) -> Result<Self, NodeError> {
-        if scenario.consensus.protocol.is_diffusion() {
-            DiffusionNode::new(scenario, topology, index).map(Self::from)
+        if let Some(cooperation) = crate::registry::cooperation(scenario, topology, index)? {
+            DiffusionNode::new(scenario, topology, index, cooperation).map(Self::from)
         } else {
             NodeActor::new(scenario, topology, index).map(Self::from)
         }

@@ -11,16 +11,16 @@
 //! program that does it.
 
 use std::collections::BTreeMap;
-use std::sync::RwLock;
+use std::sync::{LazyLock, RwLock};
 use std::time::Duration;
 
 use fusion_graph::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
-use fusion_graph::registered::{self, Role};
-use fusion_graph::scenario::{ConsensusProtocol, SensorManagerKind};
+use fusion_graph::registered::{self, Role, Shape};
 use fusion_graph::{Scenario, Topology};
 
+use crate::diffusion_node::Cooperation;
 use crate::fusion::{average_consensus, InformationFusion};
-use crate::sensor_manager::{self, Manager};
+use crate::sensor_manager::{self, Closest, Manager, Scoring, UniformRandom};
 
 /// What a protocol or manager is built from: the run's scenario and
 /// topology, the node it serves, and its own parameters.
@@ -118,6 +118,8 @@ impl<'a> Params<'a> {
 pub type ProtocolBuilder = fn(&Setup<'_>) -> Result<InformationFusion, ParamError>;
 /// Builds a node's sensor manager.
 pub type ManagerBuilder = fn(&Setup<'_>) -> Result<Manager, ParamError>;
+/// Builds a tracker node's cooperation (the random-exchange and KL trackers).
+type TrackerBuilder = fn(&Setup<'_>) -> Result<Cooperation, ParamError>;
 
 /// Why a registration or a scenario's choice was refused.
 #[derive(Debug, thiserror::Error)]
@@ -132,13 +134,121 @@ pub enum RegistryError {
     Param(#[from] ParamError),
 }
 
-#[derive(Default)]
+/// What every name builds: the parts cqnet ships, then the program's.
 struct Parts {
     protocols: BTreeMap<&'static str, ProtocolBuilder>,
+    trackers: BTreeMap<&'static str, TrackerBuilder>,
     managers: BTreeMap<&'static str, ManagerBuilder>,
 }
 
-static PARTS: RwLock<Option<Parts>> = RwLock::new(None);
+impl Parts {
+    fn built_in() -> Self {
+        let protocols = BTreeMap::from([("average", average as ProtocolBuilder)]);
+        let trackers = BTreeMap::from([
+            ("random_exchange", random_exchange as TrackerBuilder),
+            ("kl_consensus", kl_consensus),
+            ("kl_diffusion", kl_diffusion),
+            ("kl_iterative", kl_iterative),
+        ]);
+        let managers = BTreeMap::from([
+            ("random", random as ManagerBuilder),
+            ("closest", closest),
+            ("pcrlb", pcrlb),
+            ("pcrlb_nonconditional", pcrlb_nonconditional),
+        ]);
+        Self {
+            protocols,
+            trackers,
+            managers,
+        }
+    }
+}
+
+static PARTS: LazyLock<RwLock<Parts>> = LazyLock::new(|| RwLock::new(Parts::built_in()));
+
+fn parts() -> std::sync::RwLockReadGuard<'static, Parts> {
+    PARTS.read().unwrap_or_else(|p| p.into_inner())
+}
+
+// The built-in parts take no parameters.
+
+fn average(setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
+    setup.params.only(&[])?;
+    let c = &setup.scenario.consensus;
+    Ok(Box::new(average_consensus(
+        setup.node,
+        setup.topology,
+        c.rounds as u16,
+        Duration::from_secs_f64(c.round_timeout_ms / 1e3),
+        c.auxiliary_fim,
+    )))
+}
+
+fn random_exchange(setup: &Setup<'_>) -> Result<Cooperation, ParamError> {
+    setup.params.only(&[])?;
+    Ok(Cooperation::random_exchange(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+    ))
+}
+
+fn kl_consensus(setup: &Setup<'_>) -> Result<Cooperation, ParamError> {
+    kl(setup, setup.scenario.consensus.rounds, false)
+}
+
+fn kl_diffusion(setup: &Setup<'_>) -> Result<Cooperation, ParamError> {
+    kl(setup, 1, true)
+}
+
+fn kl_iterative(setup: &Setup<'_>) -> Result<Cooperation, ParamError> {
+    kl(setup, setup.scenario.consensus.rounds, true)
+}
+
+fn kl(setup: &Setup<'_>, rounds: u32, neighbourhood: bool) -> Result<Cooperation, ParamError> {
+    setup.params.only(&[])?;
+    Ok(Cooperation::kl(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        rounds,
+        neighbourhood,
+    ))
+}
+
+fn random(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(Manager::Alone(Box::new(UniformRandom::for_scenario(
+        setup.scenario,
+    ))))
+}
+
+fn closest(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(Manager::Alone(Box::new(Closest::for_scenario(
+        setup.scenario,
+    ))))
+}
+
+fn pcrlb(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(sensor_manager::negotiated(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        Scoring::Conditional,
+    ))
+}
+
+fn pcrlb_nonconditional(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(sensor_manager::negotiated(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        Scoring::NonConditional,
+    ))
+}
 
 fn valid_name(name: &str) -> bool {
     !name.is_empty()
@@ -150,23 +260,15 @@ fn valid_name(name: &str) -> bool {
 /// Registers a fusion protocol on the CF/DPF's information vectors under
 /// `name`, the value of `consensus.protocol` that chooses it.
 pub fn register_protocol(name: &str, build: ProtocolBuilder) -> Result<(), RegistryError> {
-    let taken = ConsensusProtocol::from_name(name).is_some();
-    register(
-        Role::Protocol,
-        "fusion protocol",
-        name,
-        taken,
-        |parts, n| {
-            parts.protocols.insert(n, build);
-        },
-    )
+    register(Role::Protocol, "fusion protocol", name, |parts, n| {
+        parts.protocols.insert(n, build);
+    })
 }
 
 /// Registers a sensor manager under `name`, the value of `sensors.manager`
 /// that chooses it.
 pub fn register_manager(name: &str, build: ManagerBuilder) -> Result<(), RegistryError> {
-    let taken = SensorManagerKind::from_name(name).is_some();
-    register(Role::Manager, "sensor manager", name, taken, |parts, n| {
+    register(Role::Manager, "sensor manager", name, |parts, n| {
         parts.managers.insert(n, build);
     })
 }
@@ -182,7 +284,6 @@ fn register(
     role: Role,
     what: &'static str,
     name: &str,
-    taken: bool,
     insert: impl FnOnce(&mut Parts, &'static str),
 ) -> Result<(), RegistryError> {
     if !valid_name(name) {
@@ -191,91 +292,81 @@ fn register(
             name: name.into(),
         });
     }
-    if taken {
+    let mut parts = PARTS.write().unwrap_or_else(|p| p.into_inner());
+    // Under the lock, so that two threads cannot both take a name.
+    if registered::lookup(role, name).is_some() {
         return Err(RegistryError::Taken {
             role: what,
             name: name.into(),
         });
     }
-    let mut parts = PARTS.write().unwrap_or_else(|p| p.into_inner());
-    insert(
-        parts.get_or_insert_with(Parts::default),
-        registered::register(role, name),
-    );
+    insert(&mut parts, registered::register(role, name));
     Ok(())
 }
 
-/// The fusion protocol the scenario names, for node `node`: average
-/// consensus, or a registered protocol. The other built-ins are not built
-/// here: exact sums need `sim`'s oracle, and the random-exchange and KL trackers are nodes
-/// of their own.
+fn setup<'a>(
+    scenario: &'a Scenario,
+    topology: &'a Topology,
+    node: u16,
+    params: Params<'a>,
+) -> Setup<'a> {
+    Setup {
+        scenario,
+        topology,
+        node,
+        params,
+    }
+}
+
+fn protocol_params(scenario: &Scenario) -> Params<'_> {
+    Params::new("consensus.params", &scenario.consensus.params)
+}
+
+/// The CF/DPF's fusion protocol the scenario names, for node `node`;
+/// `None` for a protocol of another shape (exact sums come from `sim`'s
+/// oracle, and a tracker is a node of its own, [`cooperation`]).
 pub fn information_fusion(
     scenario: &Scenario,
     topology: &Topology,
     node: u16,
 ) -> Result<Option<InformationFusion>, ParamError> {
-    let c = &scenario.consensus;
-    let params = Params::new("consensus.params", &c.params);
-    match c.protocol {
-        ConsensusProtocol::Average => {
-            params.only(&[])?;
-            Ok(Some(Box::new(average_consensus(
-                node,
-                topology,
-                c.rounds as u16,
-                Duration::from_secs_f64(c.round_timeout_ms / 1e3),
-                c.auxiliary_fim,
-            ))))
+    let protocol = scenario.consensus.protocol;
+    let params = protocol_params(scenario);
+    match protocol.shape() {
+        Shape::Rounds => {
+            let build = *parts()
+                .protocols
+                .get(protocol.name())
+                .expect("a protocol of rounds has a builder");
+            build(&setup(scenario, topology, node, params)).map(Some)
         }
-        ConsensusProtocol::Registered(name) => {
-            let build = protocol_builder(name);
-            build(&Setup {
-                scenario,
-                topology,
-                node,
-                params,
-            })
-            .map(Some)
-        }
-        _ => {
-            params.only(&[])?;
-            Ok(None)
-        }
+        Shape::ExactSums | Shape::Tracker { .. } => params.only(&[]).map(|()| None),
     }
+}
+
+/// How tracker node `node` cooperates, if the scenario names one of the
+/// random-exchange and KL trackers.
+pub fn cooperation(
+    scenario: &Scenario,
+    topology: &Topology,
+    node: u16,
+) -> Result<Option<Cooperation>, ParamError> {
+    let protocol = scenario.consensus.protocol;
+    let Some(build) = parts().trackers.get(protocol.name()).copied() else {
+        return Ok(None);
+    };
+    build(&setup(scenario, topology, node, protocol_params(scenario))).map(Some)
 }
 
 /// The sensor manager the scenario names, for node `node`.
 pub fn manager(scenario: &Scenario, topology: &Topology, node: u16) -> Result<Manager, ParamError> {
+    let name = scenario.sensors.manager.name();
+    let build = *parts()
+        .managers
+        .get(name)
+        .expect("every manager a scenario can name has a builder");
     let params = Params::new("sensors.manager_params", &scenario.sensors.manager_params);
-    match scenario.sensors.manager {
-        SensorManagerKind::Registered(name) => {
-            let build = {
-                let parts = PARTS.read().unwrap_or_else(|p| p.into_inner());
-                *parts
-                    .as_ref()
-                    .and_then(|p| p.managers.get(name))
-                    .expect("a registered name has a builder")
-            };
-            build(&Setup {
-                scenario,
-                topology,
-                node,
-                params,
-            })
-        }
-        _ => {
-            params.only(&[])?;
-            Ok(sensor_manager::for_scenario(scenario, topology, node))
-        }
-    }
-}
-
-fn protocol_builder(name: &'static str) -> ProtocolBuilder {
-    let parts = PARTS.read().unwrap_or_else(|p| p.into_inner());
-    *parts
-        .as_ref()
-        .and_then(|p| p.protocols.get(name))
-        .expect("a registered name has a builder")
+    build(&setup(scenario, topology, node, params))
 }
 
 /// Checks the scenario's choice of protocol and manager and their
@@ -284,6 +375,7 @@ fn protocol_builder(name: &'static str) -> ProtocolBuilder {
 pub fn check(scenario: &Scenario, topology: &Topology) -> Result<(), ParamError> {
     for node in 0..topology.nodes() as u16 {
         information_fusion(scenario, topology, node)?;
+        cooperation(scenario, topology, node)?;
         manager(scenario, topology, node)?;
     }
     Ok(())
@@ -341,10 +433,7 @@ mod tests {
             "consensus.params.rounds=3",
         ])
         .unwrap();
-        assert_eq!(
-            s.consensus.protocol,
-            ConsensusProtocol::Registered("registry_test")
-        );
+        assert!(!s.consensus.protocol.is_built_in());
         assert_eq!(s.consensus.protocol.name(), "registry_test");
         let topology = Topology::from_scenario(&s, "d").unwrap();
         check(&s, &topology).unwrap();

@@ -16,7 +16,8 @@ use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::hosts::Placement;
 use fusion_graph::ledger::LedgerError;
-use fusion_graph::scenario::{ClockMode, ConsensusProtocol, Scenario, Signal};
+use fusion_graph::registered::Shape;
+use fusion_graph::scenario::{ClockMode, Scenario, Signal};
 use fusion_graph::transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
@@ -64,7 +65,7 @@ pub fn run_network(
     options: RunOptions,
     mut progress: impl FnMut(RunProgress<'_>) + Send + 'static,
 ) -> anyhow::Result<Summary> {
-    if scenario.consensus.protocol == ConsensusProtocol::Exact {
+    if scenario.consensus.protocol.shape() == Shape::ExactSums {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
     }
     node::registry::check(scenario, topology)?;

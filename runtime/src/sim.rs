@@ -11,7 +11,8 @@ use anyhow::Context;
 use bounds::State;
 use fusion_graph::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
-use fusion_graph::scenario::{ConsensusProtocol, Scenario};
+use fusion_graph::registered::Shape;
+use fusion_graph::scenario::Scenario;
 use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
 use fusion_graph::wire::{Message, Payload, Telemetry};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
@@ -95,7 +96,7 @@ impl InProcessNetwork {
             });
         }
         let oracle =
-            (scenario.consensus.protocol == ConsensusProtocol::Exact).then(ExactSumOracle::shared);
+            (scenario.consensus.protocol.shape() == Shape::ExactSums).then(ExactSumOracle::shared);
         let mut nodes = Vec::new();
         for i in 0..topology.nodes() as u16 {
             nodes.push(Self::make_node(

@@ -66,8 +66,8 @@ use std::sync::{Mutex, MutexGuard};
 
 pub use fusion_graph::accounting::{Accounting, Counters};
 pub use fusion_graph::faults::{
-    BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector, Loss, Partition,
-    Reorder, SensorMode, Signal,
+    BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector, Loss,
+    Partition, Reorder, SensorMode, Signal,
 };
 pub use fusion_graph::scenario::Scenario;
 pub use fusion_graph::wire::MessageKind;

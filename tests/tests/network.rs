@@ -7,8 +7,8 @@
 use std::time::Duration;
 
 use cqnet_testkit::{
-    default_scenario, exclusive, seed001_scenario, ActorId, Delay, Fault, Kill, LinkSelector,
-    Loss, MessageKind, Network, Partition, Run, Signal, Target,
+    default_scenario, exclusive, seed001_scenario, ActorId, Delay, Fault, Kill, LinkSelector, Loss,
+    MessageKind, Network, Partition, Run, Signal, Target,
 };
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");

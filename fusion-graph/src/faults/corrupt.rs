@@ -34,7 +34,11 @@ impl FaultKind for Corrupt {
     }
 
     fn describe(&self) -> String {
-        format!("corrupt {} on {}", self.probability, links_text(&self.links))
+        format!(
+            "corrupt {} on {}",
+            self.probability,
+            links_text(&self.links)
+        )
     }
 
     fn acts_on_links(&self) -> bool {

@@ -34,7 +34,11 @@ impl FaultKind for Duplicate {
     }
 
     fn describe(&self) -> String {
-        format!("duplicate {} on {}", self.probability, links_text(&self.links))
+        format!(
+            "duplicate {} on {}",
+            self.probability,
+            links_text(&self.links)
+        )
     }
 
     fn acts_on_links(&self) -> bool {

@@ -256,12 +256,21 @@ bias = 0.2
         let again = Scenario::from_toml(&s.to_toml(), "again", &[]).unwrap();
         assert_eq!(again.faults, s.faults);
         let described: Vec<String> = s.faults.iter().map(|f| f.kind().describe()).collect();
-        assert_eq!(described[0], "delay 80 ms ± 5 ms, rate 64000 bit/s on node-1->*");
+        assert_eq!(
+            described[0],
+            "delay 80 ms ± 5 ms, rate 64000 bit/s on node-1->*"
+        );
         assert_eq!(described[1], "loss 0.3 on *->* (0.5 of them)");
-        assert_eq!(described[3], "kill sensor-3 with Stop, restart after 2 steps");
+        assert_eq!(
+            described[3],
+            "kill sensor-3 with Stop, restart after 2 steps"
+        );
         assert_eq!(described[8], "sensor bias 0.2 on sensor-7");
         // A kill's window is its time down.
-        assert_eq!((s.faults[3].at_step(), s.faults[3].end_step()), (4, Some(6)));
+        assert_eq!(
+            (s.faults[3].at_step(), s.faults[3].end_step()),
+            (4, Some(6))
+        );
         assert!(s.faults[2].holds(4) && !s.faults[2].holds(5));
     }
 

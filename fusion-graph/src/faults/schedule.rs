@@ -155,8 +155,8 @@ impl FaultSchedule {
 mod tests {
     use super::*;
     use crate::faults::select::matches;
-    use std::time::Duration;
     use crate::scenario::{Scenario, DEFAULT_SCENARIO};
+    use std::time::Duration;
 
     fn schedule(extra: &str) -> (FaultSchedule, Topology) {
         let s = Scenario::from_toml(&format!("{DEFAULT_SCENARIO}\n{extra}"), "f", &[]).unwrap();

@@ -73,12 +73,7 @@ pub(super) fn in_share(fraction: Option<f64>, salt: &[u64]) -> bool {
 }
 
 /// Whether fault number `fault`'s selectors take the link `from → to`.
-pub(super) fn takes_link(
-    links: &[LinkSelector],
-    fault: usize,
-    from: ActorId,
-    to: ActorId,
-) -> bool {
+pub(super) fn takes_link(links: &[LinkSelector], fault: usize, from: ActorId, to: ActorId) -> bool {
     links.iter().enumerate().any(|(j, l)| {
         matches(&l.from, from)
             && matches(&l.to, to)

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::registered::Role;
+use crate::registered::{Role, Shape};
 use crate::ScenarioError;
 
 mod overrides;
@@ -17,39 +17,35 @@ pub use crate::faults::{
 };
 pub use overrides::apply_override;
 
-/// A choice a scenario spells by name (a fusion protocol, a sensor
-/// manager): the built-in ones, then those the program registered
-/// ([`crate::registered`]). An unknown name is refused at its key, listing
-/// the names it could have been.
-macro_rules! named_choice {
-    ($ty:ident, $role:expr, $what:literal) => {
+/// A part a scenario names (a fusion protocol, a sensor manager): a name
+/// of [`crate::registered`]'s vocabulary, built in or registered by the
+/// program. An unknown name is refused at its key, listing the names it
+/// could have been.
+macro_rules! named_part {
+    ($(#[$doc:meta])* $ty:ident, $role:expr, $what:literal) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        pub struct $ty(&'static str);
+
         impl $ty {
             /// The name the scenario file spells it with.
             pub fn name(self) -> &'static str {
-                match self {
-                    Self::Registered(name) => name,
-                    built_in => Self::BUILT_IN
-                        .iter()
-                        .find(|(v, _)| *v == built_in)
-                        .map(|(_, n)| *n)
-                        .expect("every built-in has a name"),
-                }
+                self.0
             }
 
-            /// The built-in or registered choice called `name`.
+            /// The built-in or registered part called `name`.
             pub fn from_name(name: &str) -> Option<Self> {
-                Self::BUILT_IN
-                    .iter()
-                    .find(|(_, n)| *n == name)
-                    .map(|(v, _)| *v)
-                    .or_else(|| crate::registered::lookup($role, name).map(Self::Registered))
+                crate::registered::lookup($role, name).map(Self)
+            }
+
+            /// Whether it is one of the parts cqnet ships.
+            pub fn is_built_in(self) -> bool {
+                crate::registered::is_built_in($role, self.0)
             }
 
             fn expected() -> String {
-                Self::BUILT_IN
+                crate::registered::names($role)
                     .iter()
-                    .map(|(_, n)| *n)
-                    .chain(crate::registered::names($role))
                     .map(|n| format!("`{n}`"))
                     .collect::<Vec<_>>()
                     .join(", ")
@@ -237,34 +233,33 @@ pub struct SensorLayout {
     pub manager_params: toml::Table,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum SensorManagerKind {
-    /// `active_per_node` of the node's own sensors, uniformly at random (seed 000).
-    #[default]
-    Random,
-    /// The sensors nearest the predicted target position, network-wide,
-    /// at most `active_per_node` per node (seed 001's closest-sensor approach).
-    Closest,
-    /// Greedy selection by the conditional PCRLB, agreed over the fusion
-    /// graph with one min-consensus per chosen sensor (seed 001 §4).
-    Pcrlb,
-    /// The same greedy selection scored by the non-conditional (Tichavsky)
-    /// bound, carried along the estimate.
-    PcrlbNonconditional,
-    /// A manager the program registered under this name (`node::registry`).
-    Registered(&'static str),
-}
+named_part!(
+    /// A sensor manager's name (`sensors.manager`).
+    SensorManagerKind,
+    Role::Manager,
+    "sensor manager"
+);
 
 impl SensorManagerKind {
-    const BUILT_IN: [(Self, &'static str); 4] = [
-        (Self::Random, "random"),
-        (Self::Closest, "closest"),
-        (Self::Pcrlb, "pcrlb"),
-        (Self::PcrlbNonconditional, "pcrlb_nonconditional"),
-    ];
+    /// `active_per_node` of the node's own sensors, uniformly at random.
+    pub const RANDOM: Self = Self("random");
+    /// The sensors nearest the predicted target position, network-wide, at
+    /// most `active_per_node` per node (the closest-sensor baseline of
+    /// sensor selection).
+    pub const CLOSEST: Self = Self("closest");
+    /// Greedy selection by the conditional PCRLB, agreed over the fusion
+    /// graph with one min-consensus per chosen sensor.
+    pub const PCRLB: Self = Self("pcrlb");
+    /// The same greedy selection scored by the non-conditional (Tichavsky)
+    /// bound, carried along the estimate.
+    pub const PCRLB_NONCONDITIONAL: Self = Self("pcrlb_nonconditional");
 }
 
-named_choice!(SensorManagerKind, Role::Manager, "sensor manager");
+impl Default for SensorManagerKind {
+    fn default() -> Self {
+        Self::RANDOM
+    }
+}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -337,47 +332,40 @@ pub struct FilterConfig {
     pub gate: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ConsensusProtocol {
-    /// N_c rounds of average consensus with Metropolis weights.
-    Average,
-    /// The exact network sum, as if consensus had converged: for checking.
-    Exact,
-    /// Seed 004's RndEx-PF: a posterior swapped with one random neighbour,
-    /// then the closed neighbourhood's measurements.
-    RandomExchange,
-    /// Seed 004's consensus KL: `rounds` rounds of KL fusion on posteriors
-    /// weighed with the node's own measurements only.
-    KlConsensus,
-    /// Seed 004's non-iterative KL with local cooperation: the closed
-    /// neighbourhood's measurements, then one round of KL fusion (K_max = 1).
-    KlDiffusion,
-    /// Seed 004's iterative KL with local cooperation: the closed
-    /// neighbourhood's measurements, then `rounds` rounds (K_max).
-    KlIterative,
-    /// A protocol the program registered under this name (`node::registry`).
-    Registered(&'static str),
-}
-
-named_choice!(ConsensusProtocol, Role::Protocol, "fusion protocol");
+named_part!(
+    /// A fusion protocol's name (`consensus.protocol`).
+    ConsensusProtocol,
+    Role::Protocol,
+    "fusion protocol"
+);
 
 impl ConsensusProtocol {
-    const BUILT_IN: [(Self, &'static str); 6] = [
-        (Self::Average, "average"),
-        (Self::Exact, "exact"),
-        (Self::RandomExchange, "random_exchange"),
-        (Self::KlConsensus, "kl_consensus"),
-        (Self::KlDiffusion, "kl_diffusion"),
-        (Self::KlIterative, "kl_iterative"),
-    ];
+    /// N_c rounds of average consensus with Metropolis weights.
+    pub const AVERAGE: Self = Self("average");
+    /// The exact network sum, as if consensus had converged: for checking.
+    pub const EXACT: Self = Self("exact");
+    /// RndEx-PF: a posterior swapped with one random neighbour, then the
+    /// closed neighbourhood's measurements.
+    pub const RANDOM_EXCHANGE: Self = Self("random_exchange");
+    /// Consensus KL: `rounds` rounds of KL fusion on posteriors weighed
+    /// with the node's own measurements only.
+    pub const KL_CONSENSUS: Self = Self("kl_consensus");
+    /// Non-iterative KL with local cooperation: the closed neighbourhood's
+    /// measurements, then one round of KL fusion (K_max = 1).
+    pub const KL_DIFFUSION: Self = Self("kl_diffusion");
+    /// Iterative KL with local cooperation: the closed neighbourhood's
+    /// measurements, then `rounds` rounds (K_max).
+    pub const KL_ITERATIVE: Self = Self("kl_iterative");
 
-    /// One of seed 004's trackers: one particle filter per node, summarized
-    /// as a Gaussian, rather than the CF/DPF.
+    /// What the protocol needs of the network.
+    pub fn shape(self) -> Shape {
+        crate::registered::shape(self.0)
+    }
+
+    /// One of the random-exchange and KL trackers: one particle filter per
+    /// node, summarized as a Gaussian, rather than the CF/DPF.
     pub fn is_diffusion(self) -> bool {
-        matches!(
-            self,
-            Self::RandomExchange | Self::KlConsensus | Self::KlDiffusion | Self::KlIterative
-        )
+        matches!(self.shape(), Shape::Tracker { .. })
     }
 }
 
@@ -503,7 +491,7 @@ mod tests {
         )
         .unwrap();
         assert_eq!(s.quantizer.bits, 4);
-        assert_eq!(s.consensus.protocol, ConsensusProtocol::Exact);
+        assert_eq!(s.consensus.protocol, ConsensusProtocol::EXACT);
         let e = Scenario::from_toml(DEFAULT_SCENARIO, "d", &["quantizer.bitz=4".into()])
             .unwrap_err()
             .to_string();

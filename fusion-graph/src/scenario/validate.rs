@@ -24,8 +24,11 @@ impl Scenario {
                 got,
             })
         };
-        if self.sensors.manager != SensorManagerKind::Random {
-            return refuse("sensors.manager", format!("{:?}", self.sensors.manager));
+        if self.sensors.manager != SensorManagerKind::RANDOM {
+            return refuse(
+                "sensors.manager",
+                format!("\"{}\"", self.sensors.manager.name()),
+            );
         }
         if let Some(m) = self.sensors.max_active_total {
             return refuse("sensors.max_active_total", m.to_string());

@@ -18,7 +18,6 @@ pub use closest::Closest;
 pub use pcrlb::{PcrlbSelection, Scoring, Selected, SelectionInputs};
 pub use random::UniformRandom;
 
-use fusion_graph::scenario::SensorManagerKind;
 use fusion_graph::{Scenario, Topology};
 
 use bounds::{Mat4, State};
@@ -62,36 +61,28 @@ impl<M: SensorManager + 'static> From<Box<M>> for Manager {
     }
 }
 
-/// The scenario's built-in manager (`sensors.manager`) for node `node`;
-/// [`crate::registry::manager`] is the way in for any manager.
-pub fn for_scenario(scenario: &Scenario, topology: &Topology, node: u16) -> Manager {
-    let negotiated = |scoring| {
-        // The prior's covariance is diagonal (filter.prior_std, validated
-        // positive): its information is the reciprocal diagonal.
-        let prior_cov = scenario
-            .models()
-            .map(|m| m.prior_cov)
-            .unwrap_or_else(|_| Mat4::identity());
-        let prior_information = Mat4::from_diagonal(&prior_cov.diagonal().map(|v| 1.0 / v));
-        Manager::Negotiated(Box::new(PcrlbSelection::for_scenario(
-            scenario,
-            topology,
-            node,
-            scoring,
-            prior_information,
-        )))
-    };
-    match scenario.sensors.manager {
-        SensorManagerKind::Random => {
-            Manager::Alone(Box::new(UniformRandom::for_scenario(scenario)))
-        }
-        SensorManagerKind::Closest => Manager::Alone(Box::new(Closest::for_scenario(scenario))),
-        SensorManagerKind::Pcrlb => negotiated(Scoring::Conditional),
-        SensorManagerKind::PcrlbNonconditional => negotiated(Scoring::NonConditional),
-        SensorManagerKind::Registered(_) => {
-            unreachable!("crate::registry::manager builds registered managers")
-        }
-    }
+/// The PCRLB selection scored by `scoring`, for node `node`: greedy, agreed
+/// with the other nodes by min-consensus.
+pub fn negotiated(
+    scenario: &Scenario,
+    topology: &Topology,
+    node: u16,
+    scoring: Scoring,
+) -> Manager {
+    // The prior's covariance is diagonal (filter.prior_std, validated
+    // positive): its information is the reciprocal diagonal.
+    let prior_cov = scenario
+        .models()
+        .map(|m| m.prior_cov)
+        .unwrap_or_else(|_| Mat4::identity());
+    let prior_information = Mat4::from_diagonal(&prior_cov.diagonal().map(|v| 1.0 / v));
+    Manager::Negotiated(Box::new(PcrlbSelection::for_scenario(
+        scenario,
+        topology,
+        node,
+        scoring,
+        prior_information,
+    )))
 }
 
 pub trait SensorManager {
