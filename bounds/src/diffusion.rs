@@ -1,4 +1,4 @@
-//! Seed 004's PCRLB for the random-exchange diffusion filter (RndEx-PF,
+//! The random-exchange paper's PCRLB for the random-exchange diffusion filter (RndEx-PF,
 //! §III), and the centralized PCRLB it is compared with.
 //!
 //! Under random exchange, node r's posterior at step n is the one its
@@ -39,7 +39,7 @@ pub struct MonteCarloSize {
     pub paths: usize,
 }
 
-/// The bounds of seed 004's Fig. 1, step by step from 0 to `steps`.
+/// The bounds of the random-exchange paper's Fig. 1, step by step from 0 to `steps`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DiffusionBounds {
     /// `J*_{n,r}` for each step n and node r.
@@ -116,7 +116,7 @@ pub fn random_matching<R: Rng + ?Sized>(neighbours: &[Vec<usize>], rng: &mut R) 
     partner
 }
 
-/// Seed 004's two bounds. `sensors[r]` is the sensor co-located with node
+/// The random-exchange paper's two bounds. `sensors[r]` is the sensor co-located with node
 /// r; `neighbours[r]` are r's neighbours in the network graph (r itself
 /// excluded), so that its closed neighbourhood is `{r} ∪ neighbours[r]`.
 #[allow(clippy::too_many_arguments)]
@@ -397,7 +397,7 @@ mod tests {
         assert!(b.centralized_position_bound(40).unwrap() < b.rndex_position_bound(40).unwrap());
     }
 
-    /// Seed 004's Fig. 1 ordering: the centralized bound below the RndEx
+    /// The random-exchange paper's Fig. 1 ordering: the centralized bound below the RndEx
     /// bound, which is below a node that never exchanges, for RSS sensors.
     #[test]
     fn diffusion_sits_between_the_centralized_and_the_lone_node() {

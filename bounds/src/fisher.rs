@@ -140,7 +140,7 @@ pub fn score(model: &ObservationModel, q: &Quantizer, index: u32, x: &State) -> 
 
 /// Observed information `−∇² ln h_y(x)` at the received cell `y`: central
 /// differences of the analytic score, symmetrized. Used by the auxiliary-FIM
-/// baseline (seed 001 Theorem 1).
+/// baseline (the selection paper Theorem 1).
 ///
 /// The models give first derivatives only; differencing the analytic score
 /// keeps one order of accuracy over differencing `ln h` twice.

@@ -11,12 +11,12 @@
 //!   local bound, the distributed CQ/dPCRLB and the auxiliary-FIM baseline,
 //!   plus the non-conditional PCRLB by Monte Carlo;
 //! - [`selection`]: the PCRLB cost of a set of active sensors and the
-//!   greedy choice of seed 001;
+//!   greedy choice of the selection paper;
 //! - [`censoring`]: the NIS censoring rule at a sensor and the likelihood
 //!   of its silence (dissertation ch. 3);
 //! - [`bit_allocation`]: quantized data fused with injected noise, and the
 //!   allocation of a budget of bits over sensors (dissertation ch. 5);
-//! - [`speb`]: seed 003's squared position error bound, information
+//! - [`speb`]: the bit-depth paper's squared position error bound, information
 //!   against the delay of a rate-limited link.
 
 pub mod batch;

@@ -1,6 +1,6 @@
 //! Posterior Cramér-Rao bound recursions over weighted particle sets.
 //!
-//! Conditional PCRLB (seed 000 Result 1):
+//! Conditional PCRLB (the CQ/dPCRLB paper Result 1):
 //!
 //! ```text
 //! B11 = Σ_j w_j F̃(x_j)ᵀ Q⁻¹ F̃(x_j)
@@ -11,7 +11,7 @@
 //! ```
 //!
 //! The distributed CQ/dPCRLB (Result 2) and the auxiliary-FIM baseline
-//! (seed 001 Theorem 1) are the same update with the observation term
+//! (the selection paper Theorem 1) are the same update with the observation term
 //! replaced by a network sum, so one function serves all three.
 
 use nalgebra::{Cholesky, Matrix2};

@@ -9,7 +9,7 @@ use crate::width_axis::{self, Stencil};
 use crate::QuantizerError;
 
 /// Largest supported bit depth (2^16 cells): the most any experiment sweeps
-/// (seed 003 goes to 16), and the one limit the scenario checks against.
+/// (the bit-depth paper goes to 16), and the one limit the scenario checks against.
 pub const MAX_BITS: u8 = 16;
 
 /// An N_L-bit quantizer with cell edges `e_0 < e_1 < … < e_L`.

@@ -1,4 +1,4 @@
-//! PCRLB-driven sensor selection (seed 001 §4; docs/equations.md, "PCRLB sensor
+//! PCRLB-driven sensor selection (the selection paper §4; docs/equations.md, "PCRLB sensor
 //! selection"): the cost of a set of active sensors and the greedy choice,
 //! as pure functions.
 //!

@@ -1,4 +1,4 @@
-//! Seed 003: the squared position error bound (SPEB) of a target located
+//! The bit-depth paper: the squared position error bound (SPEB) of a target located
 //! from b-bit observations that take `t(b)` to arrive, while the target
 //! wanders as a random walk of intensity α (position variance per second):
 //!

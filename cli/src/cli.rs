@@ -3,7 +3,9 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO, SEED004_SCENARIO};
+use fusion_graph::scenario::{
+    Scenario, DEFAULT_SCENARIO, RANDOM_EXCHANGE_SCENARIO, SENSOR_SELECTION_SCENARIO,
+};
 use fusion_graph::Topology;
 
 #[derive(Debug, Parser)]
@@ -210,8 +212,8 @@ pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)
 
 pub fn builtin_scenario(sensor_selection: bool, random_exchange: bool) -> &'static str {
     match (sensor_selection, random_exchange) {
-        (true, _) => SEED001_SCENARIO,
-        (_, true) => SEED004_SCENARIO,
+        (true, _) => SENSOR_SELECTION_SCENARIO,
+        (_, true) => RANDOM_EXCHANGE_SCENARIO,
         _ => DEFAULT_SCENARIO,
     }
 }

@@ -26,7 +26,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO, SEED001_SCENARIO, SEED004_SCENARIO};
+use fusion_graph::scenario::{
+    Scenario, DEFAULT_SCENARIO, RANDOM_EXCHANGE_SCENARIO, SENSOR_SELECTION_SCENARIO,
+};
 use fusion_graph::wire::{examples, seal, Message, WireFormat};
 use fusion_graph::Topology;
 use node::ProcessingNode;
@@ -472,7 +474,7 @@ fn shape(message: &str) -> String {
 }
 
 /// A node and a sensor of a small default network, and an interior node of
-/// seed 004's lattice for each kind of its cooperation, handed every input
+/// the random-exchange paper's lattice for each kind of its cooperation, handed every input
 /// that decodes as one message.
 struct Actors {
     nodes: Vec<ProcessingNode>,
@@ -493,7 +495,7 @@ impl Actors {
                 "filter.particles=64".to_string(),
                 format!("consensus.protocol=\"{protocol}\""),
             ];
-            let seed004 = Scenario::from_toml(SEED004_SCENARIO, "seed004", &overrides)
+            let seed004 = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "seed004", &overrides)
                 .expect("the built-in random-exchange scenario");
             let lattice = Topology::from_scenario(&seed004, "seed004").expect("its topology");
             nodes.push(ProcessingNode::for_scenario(&seed004, &lattice, 12).expect("node-12"));
@@ -546,8 +548,8 @@ fn builtin_seeds(target: Target) -> Vec<Vec<u8>> {
             .collect(),
         Target::Scenario => vec![
             DEFAULT_SCENARIO.as_bytes().to_vec(),
-            SEED001_SCENARIO.as_bytes().to_vec(),
-            SEED004_SCENARIO.as_bytes().to_vec(),
+            SENSOR_SELECTION_SCENARIO.as_bytes().to_vec(),
+            RANDOM_EXCHANGE_SCENARIO.as_bytes().to_vec(),
         ],
         Target::Set => vec![b"quantizer.bits=4".to_vec()],
     }

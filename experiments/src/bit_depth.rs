@@ -1,4 +1,4 @@
-//! Seed 003: bit depth against delay. The SPEB of the default scenario's
+//! The bit-depth paper: bit depth against delay. The SPEB of the default scenario's
 //! bearing network for b = 1 … 16 bits, over a rate-limited sensor link,
 //! with its optimal depth; then the RMSE the network measures (`sim`, the
 //! same actors on a virtual clock) with each sensor's link to its node
@@ -33,7 +33,7 @@ pub fn experiments() -> Vec<Computed> {
     }]
 }
 
-/// The link from a sensor to its node, drawn in the figure. Seed 003
+/// The link from a sensor to its node, drawn in the figure. The bit-depth paper
 /// leaves the rate to the system; 1 kbit/s is a low-power radio's share
 /// (an IEEE 802.15.4 channel's 250 kbit/s, duty-cycled and shared by a
 /// cell's 25 sensors, leaves each a few kbit/s at most).
@@ -44,7 +44,7 @@ const LINK: RateLimitedLink = RateLimitedLink {
 /// Further rates, for the optimum's move with the rate.
 const RATES: [f64; 8] = [125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0, 16000.0];
 /// The target's random-walk intensity, m²/s: a position that spreads by
-/// about 3 m in a second. Ours is a coordinated turn; seed 003's bound
+/// about 3 m in a second. Ours is a coordinated turn; the bit-depth paper's bound
 /// needs a random walk, and this is the knob that, with the rate, sets the
 /// optimum.
 const ALPHA: f64 = 10.0;
@@ -59,7 +59,7 @@ const SEED: u64 = 3;
 /// node listens 50 ms for its sensors (the default round timeout); with
 /// 2 ms of latency, 2400 bit/s brings an 8-bit observation (112 bits on the
 /// wire) inside that window and a 9-bit one (120 bits) just outside; at
-/// seed 003's 1000 bit/s every depth arrives a step late.
+/// the bit-depth paper's 1000 bit/s every depth arrives a step late.
 const MEASURED_RATES: [f64; 3] = [0.0, 2400.0, 1000.0];
 /// Monte Carlo runs per (rate, depth): 48 points of 100 steps.
 const MEASURED_RUNS: u32 = 5;
@@ -74,7 +74,7 @@ struct Measured {
 /// One bit depth's bound under both delay models.
 struct Depth {
     bits: u8,
-    /// Seed 003's: the header and exactly b payload bits.
+    /// The bit-depth paper's: the header and exactly b payload bits.
     packed: Speb,
     /// Ours: the header and whole bytes of cell index.
     wire: Speb,
@@ -268,7 +268,7 @@ fn best(depths: &[Depth], pick: fn(&Depth) -> &Speb) -> &Depth {
         .expect("at least one depth")
 }
 
-/// Seed 003's result: the bound has an interior optimum, where one more bit
+/// The bit-depth paper's result: the bound has an interior optimum, where one more bit
 /// of information is worth less than the drift its delay lets in.
 fn check(depths: &[Depth], measured: &[Measured]) -> Check {
     let packed = best(depths, |d| &d.packed);

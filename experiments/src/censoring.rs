@@ -456,7 +456,12 @@ enum Report {
 
 impl Report {
     /// `ln p(report | x)`.
-    fn ln_likelihood(&self, sensors: &[Vec<ObservationModel>], rule: &CensoringRule, x: &State) -> f64 {
+    fn ln_likelihood(
+        &self,
+        sensors: &[Vec<ObservationModel>],
+        rule: &CensoringRule,
+        x: &State,
+    ) -> f64 {
         match self {
             Report::Received { sensor, z } => sensors[*sensor]
                 .iter()
@@ -467,16 +472,26 @@ impl Report {
                 })
                 .sum(),
             Report::Silent {
-                sensor, g, s, r, vector: None,
+                sensor,
+                g,
+                s,
+                r,
+                vector: None,
             } => {
                 let mu = sensors[*sensor][0].evaluate(x).g - g[0];
                 rule.ln_silence_probability(mu, s[(0, 0)], r[(0, 0)])
             }
             Report::Silent {
-                sensor, g, vector: Some(silence), ..
+                sensor,
+                g,
+                vector: Some(silence),
+                ..
             } => {
                 let sensor = &sensors[*sensor];
-                let m = Vector2::new(sensor[0].evaluate(x).g - g[0], sensor[1].evaluate(x).g - g[1]);
+                let m = Vector2::new(
+                    sensor[0].evaluate(x).g - g[0],
+                    sensor[1].evaluate(x).g - g[1],
+                );
                 // Half a draw keeps a particle no draw supports from a weight
                 // of zero, which one silent sensor could otherwise give them all.
                 let p = (silence.probability(&m) * SILENCE_DRAWS as f64 + 0.5)

@@ -1,4 +1,4 @@
-//! Seed 000's figures (CQ/dPCRLB), on the default scenario.
+//! The CQ/dPCRLB paper's figures (CQ/dPCRLB), on the default scenario.
 
 use fusion_graph::scenario::DEFAULT_SCENARIO;
 
@@ -251,7 +251,7 @@ fn check_fig1c(o: &Outcome) -> Check {
     }
 }
 
-/// The distributed bound comes close to the centralized one (seed 000's
+/// The distributed bound comes close to the centralized one (the CQ/dPCRLB paper's
 /// claim for Result 2), and neither claims more than the centralized
 /// filter achieves by much.
 fn check_central(o: &Outcome) -> Check {
@@ -277,7 +277,7 @@ fn check_central(o: &Outcome) -> Check {
     }
 }
 
-/// Seed 000's point against the auxiliary FIM: the same bound for half the
+/// The CQ/dPCRLB paper's point against the auxiliary FIM: the same bound for half the
 /// bound traffic (ΔL alone against ΔL and S_obs).
 fn check_traffic(o: &Outcome) -> Check {
     let a = o.arm(EIGHT_BITS.label);

@@ -13,6 +13,7 @@ mod censoring;
 mod distributed_bound;
 pub mod faults;
 mod figure;
+pub mod paired;
 mod random_exchange_bounds;
 mod random_exchange_trackers;
 mod sensor_selection;
@@ -149,6 +150,9 @@ pub struct ArmOutcome {
     /// Messages sent but neither received, dropped nor malformed: the
     /// magnitudes summed over kinds and runs.
     pub unaccounted_messages: u64,
+    /// Each run's position RMSE from step 10, in seed order: run k of every
+    /// arm has the same seed, so arms compare run by run ([`paired`]).
+    pub per_run_rmse: Vec<Option<f64>>,
 }
 
 impl ArmOutcome {
@@ -411,6 +415,7 @@ pub fn run(
                 .flat_map(|s| s.traffic.iter())
                 .map(|t| t.unaccounted_messages.unsigned_abs())
                 .sum(),
+            per_run_rmse: mc.per_run.iter().map(|s| s.estimates.rmse).collect(),
         });
     }
     let outcome = Outcome {

@@ -1,4 +1,4 @@
-//! Seed 004's bounds (its Fig. 1 without the trackers' curves): the
+//! The random-exchange paper's bounds (its Fig. 1 without the trackers' curves): the
 //! RndEx-PF PCRLB and the centralized PCRLB of `random-exchange.toml`'s 25-node RSS
 //! network, and how the RndEx bound moves with its Monte Carlo sizes N_T
 //! (trajectories) and N_f (paths).
@@ -10,7 +10,7 @@ use anyhow::Context;
 use bounds::diffusion::{diffusion_bounds, DiffusionBounds, MonteCarloSize};
 use bounds::fisher::Measurement;
 use bounds::{ObservationModel, SensorTerm, State};
-use fusion_graph::scenario::{Scenario, SEED004_SCENARIO};
+use fusion_graph::scenario::{Scenario, RANDOM_EXCHANGE_SCENARIO};
 use fusion_graph::Topology;
 use plotters::prelude::*;
 use rand::SeedableRng;
@@ -51,7 +51,7 @@ const SEED: u64 = 4;
 const SHOWN: [usize; 6] = [1, 5, 10, 25, 50, 100];
 
 fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
-    let scenario = Scenario::from_toml(SEED004_SCENARIO, "random-exchange.toml", &[])?;
+    let scenario = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "random-exchange.toml", &[])?;
     let curves: Vec<Curves> = SIZES
         .iter()
         .map(|&size| Curves::compute(&scenario, size))
@@ -73,7 +73,7 @@ pub(super) struct Curves {
 }
 
 impl Curves {
-    /// The RndEx-PF and centralized PCRLB of a seed 004 scenario (one RSS
+    /// The RndEx-PF and centralized PCRLB of a random-exchange scenario (one RSS
     /// sensor per node, raw measurements) over its steps, at `size`.
     pub(super) fn compute(scenario: &Scenario, size: MonteCarloSize) -> anyhow::Result<Self> {
         let topology = Topology::from_scenario(scenario, &scenario.name)?;

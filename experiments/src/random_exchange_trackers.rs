@@ -1,4 +1,4 @@
-//! Seed 004's trackers, run: its Fig. 1 (the four trackers' RMS position
+//! The random-exchange paper's trackers, run: its Fig. 1 (the four trackers' RMS position
 //! error over time beside the RndEx-PF and centralized PCRLB, a Monte Carlo
 //! in `sim`) and its Table I (each tracker's communication and processing
 //! cost, measured on a real network of processes in real time).
@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use bounds::diffusion::MonteCarloSize;
 use fusion_graph::accounting::Accounting;
-use fusion_graph::scenario::{Scenario, SEED004_SCENARIO};
+use fusion_graph::scenario::{Scenario, RANDOM_EXCHANGE_SCENARIO};
 use fusion_graph::transport::RunId;
 use fusion_graph::wire::MessageKind;
 use fusion_graph::{ActorId, Topology};
@@ -73,7 +73,8 @@ const TRACKERS: [Tracker; 4] = [
 fn scenario_of(tracker: &Tracker, extra: &[String]) -> anyhow::Result<(Scenario, Topology)> {
     let mut overrides = vec![format!("consensus.protocol=\"{}\"", tracker.protocol)];
     overrides.extend_from_slice(extra);
-    let scenario = Scenario::from_toml(SEED004_SCENARIO, "random-exchange.toml", &overrides)?;
+    let scenario =
+        Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "random-exchange.toml", &overrides)?;
     let topology = Topology::from_scenario(&scenario, "random-exchange.toml")?;
     Ok((scenario, topology))
 }

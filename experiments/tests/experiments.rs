@@ -17,7 +17,10 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
         trajectories: 50,
     };
     let catalogue = experiment::catalogue();
-    assert!(catalogue.len() >= 4, "seed 000's four experiments");
+    assert!(
+        catalogue.len() >= 4,
+        "the CQ/dPCRLB paper's four experiments"
+    );
     // The fault experiments need their 60 steps (the faults hold for steps
     // 20-34); `tests/fault_matrix.rs` runs them at that size.
     for e in catalogue

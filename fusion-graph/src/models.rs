@@ -167,7 +167,7 @@ pub enum Stream {
     Truth = 7,
     /// A sensor's coin for random censoring.
     Censoring = 8,
-    /// A node's coins and partner choices in random exchange (seed 004).
+    /// A node's coins and partner choices in random exchange (the random-exchange paper).
     Exchange = 9,
 }
 

@@ -192,12 +192,12 @@ pub(crate) fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
 mod tests {
     use super::*;
 
-    /// Seed 004: every node senses and processes, so each node's one
+    /// The random-exchange paper: every node senses and processes, so each node's one
     /// sensor stands where the node does, and the graph is the 4-lattice.
     #[test]
     fn seed004_puts_one_sensor_on_each_node_of_a_lattice() {
         let s = Scenario::from_toml(
-            crate::scenario::SEED004_SCENARIO,
+            crate::scenario::RANDOM_EXCHANGE_SCENARIO,
             "random-exchange.toml",
             &[],
         )

@@ -65,10 +65,10 @@ pub enum MessageKind {
     /// The same with the estimate's covariance (CFwMD2): the mask, 4 f64,
     /// then the 10 of the upper triangle.
     ActivateFeedbackCovariance = 12,
-    /// One round of KL fusion (seed 004): a Gaussian posterior in
+    /// One round of KL fusion (the random-exchange paper): a Gaussian posterior in
     /// information form, η (4) and Λ (10).
     KlConsensus = 13,
-    /// Random exchange (seed 004): a node asks a neighbour to swap
+    /// Random exchange (the random-exchange paper): a node asks a neighbour to swap
     /// posteriors. No body.
     ExchangeRequest = 14,
     /// The neighbour's answer: 1 (accepted) or 0 (already paired).

@@ -65,10 +65,10 @@ pub enum Work {
     LocalFilter,
     /// The fusion filter and the global bounds.
     FusionFilter,
-    /// Seed 004's nodes: the filter's prediction and its weighing with the
+    /// The random-exchange paper's nodes: the filter's prediction and its weighing with the
     /// step's measurements (from the exchanged posterior, in RndEx-PF).
     Weigh,
-    /// Seed 004's KL fusion: the particles redrawn from the fused Gaussian.
+    /// The random-exchange paper's KL fusion: the particles redrawn from the fused Gaussian.
     Adopt,
 }
 

@@ -1,4 +1,4 @@
-//! Seed 004's trackers, one particle filter per node, summarized as a
+//! The random-exchange paper's trackers, one particle filter per node, summarized as a
 //! Gaussian for the network:
 //!
 //! - **RndEx-PF** (§II-B): draw the particles from the Gaussian the
@@ -20,7 +20,7 @@ use rand::Rng;
 use crate::estimator::{Observation, SensingModel};
 use crate::filter::{Gaussian, ParticleFilter};
 
-/// One node's filter in a seed 004 tracker.
+/// One node's filter in a random-exchange or KL tracker.
 pub struct DiffusionTracker {
     filter: ParticleFilter,
 }
@@ -131,7 +131,7 @@ mod tests {
     #[test]
     fn one_step_from_a_gaussian_is_the_kalman_update() {
         let s = Scenario::from_toml(
-            fusion_graph::scenario::SEED004_SCENARIO,
+            fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
             "seed004",
             &["observation={kind=\"linear\", h=[1.0, 0.0, 0.0, 0.0], r=4.0}".into()],
         )
@@ -167,7 +167,7 @@ mod tests {
         assert!((got.cov[(1, 1)] / cov[(1, 1)] - 1.0).abs() < 0.02);
     }
 
-    /// The trackers on seed 004's network for 30 steps, the protocols on the
+    /// The trackers on the random-exchange paper's network for 30 steps, the protocols on the
     /// virtual-clock driver: each tracks better than a node alone with its
     /// one RSS sensor, which measures a range and no bearing. (With this
     /// seed, 30 steps: RndEx 2.14 m, consensus KL 0.88 m, iterative KL with local
@@ -177,8 +177,12 @@ mod tests {
     /// not built yet, to test.)
     #[test]
     fn the_trackers_track_the_seed004_target() {
-        let s =
-            Scenario::from_toml(fusion_graph::scenario::SEED004_SCENARIO, "seed004", &[]).unwrap();
+        let s = Scenario::from_toml(
+            fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
+            "seed004",
+            &[],
+        )
+        .unwrap();
         let t = Topology::from_scenario(&s, "seed004").unwrap();
         let models = s.models().unwrap();
         let model = SensingModel::new(&models, &t);

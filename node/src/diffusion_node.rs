@@ -1,4 +1,4 @@
-//! Seed 004's processing node as an I/O-free state machine: one particle
+//! The random-exchange paper's processing node as an I/O-free state machine: one particle
 //! filter ([`DiffusionTracker`]) summarized as a Gaussian, cooperating by
 //! random exchange (RndEx-PF) or by KL fusion.
 //!
@@ -975,7 +975,7 @@ mod tests {
         assert_eq!(net.report(12, 1).unwrap().observations, 5);
     }
 
-    /// On seed 004's slow target every tracker converges near it: the
+    /// On the random-exchange paper's slow target every tracker converges near it: the
     /// nodes' mean position error after 15 steps is a few metres (the RSS
     /// noise is 4 dB; one node alone is about 3.4 m).
     #[test]

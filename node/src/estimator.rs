@@ -7,7 +7,7 @@
 //! - [`FusionFilter`]: the global posterior, weighted by the consensus sums,
 //!   with the global CQ/dPCRLB and the auxiliary-FIM baseline. It predicts
 //!   before consensus, so that the node's observation information ΔL is
-//!   taken over the global predictive particles (seed 000, eq. 55).
+//!   taken over the global predictive particles (the CQ/dPCRLB paper, eq. 55).
 
 use bounds::chacha::WideChaCha8;
 use bounds::pcrlb::information_update;
@@ -425,7 +425,7 @@ impl FusionFilter {
 
     /// The node's ΔL for the CQ/dPCRLB: its observed sensors' information
     /// averaged over this filter's *predicted* particles, the approximation
-    /// of the global predictive density that seed 000's Result 2 (eq. 55)
+    /// of the global predictive density that the CQ/dPCRLB paper's Result 2 (eq. 55)
     /// takes the expectation over. (Over the local filter's particles, as
     /// the paper's text reads, the clouds are far wider than the global posterior,
     /// and at coarse quantization, where J_Y is a comb of peaks at the cell
@@ -562,7 +562,7 @@ mod tests {
     /// stages (three full batches and a short one).
     #[test]
     fn shared_evaluation_gives_what_separate_evaluations_give() {
-        use fusion_graph::scenario::{DEFAULT_SCENARIO, SEED004_SCENARIO};
+        use fusion_graph::scenario::{DEFAULT_SCENARIO, RANDOM_EXCHANGE_SCENARIO};
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
 
@@ -572,7 +572,7 @@ mod tests {
                 [ObservedValue::Cell(40), ObservedValue::Cell(200)],
             ),
             (
-                SEED004_SCENARIO,
+                RANDOM_EXCHANGE_SCENARIO,
                 [ObservedValue::Raw(-75.0), ObservedValue::Raw(-81.5)],
             ),
         ] {
@@ -624,7 +624,7 @@ mod tests {
     }
 
     /// The node's ΔL is J_Y averaged over the fusion filter's prediction (the
-    /// global predictive density of seed 000, eq. 55), not over the local
+    /// global predictive density of the CQ/dPCRLB paper, eq. 55), not over the local
     /// filter's wider one. At 4 bits, a target in the middle of a bearing
     /// cell, ten noise widths from either edge, gives a quantized
     /// observation next to no information; a cloud wide enough to cross the

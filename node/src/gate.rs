@@ -9,7 +9,7 @@
 //! over the particles, the sensor's noise, and the quantizer's cell
 //! (`Δ²/12`). A particle cloud that has collapsed would make the spread too
 //! small and the gate reject honest observations, so the spread has a
-//! floor from the local conditional PCRLB (seed 000): no estimator's
+//! floor from the local conditional PCRLB (the CQ/dPCRLB paper): no estimator's
 //! covariance is below `J⁻¹`, so neither is the spread of `g` below
 //! `∇gᵀ J⁻¹ ∇g`.
 

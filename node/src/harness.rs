@@ -89,9 +89,9 @@ impl Net {
         Self::of(LINE, overrides)
     }
 
-    /// Seed 004's lattice of 25 nodes, with overrides.
+    /// The random-exchange paper's lattice of 25 nodes, with overrides.
     pub fn seed004_with(overrides: &[&str]) -> Self {
-        Self::of(fusion_graph::scenario::SEED004_SCENARIO, overrides)
+        Self::of(fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO, overrides)
     }
 
     /// The network a scenario describes, its nodes as the scenario says.

@@ -9,13 +9,13 @@
 //! - [`estimator`]: the CF/DPF's local and fusion filters with their bounds;
 //! - [`sensor_manager`]: which sensors a node activates;
 //! - [`collector`]: a step's observations, and which sensors stayed silent;
-//! - [`diffusion`]: seed 004's trackers (RndEx-PF, KL fusion), one particle
+//! - [`diffusion`]: the random-exchange paper's trackers (RndEx-PF, KL fusion), one particle
 //!   filter per node summarized as a Gaussian;
 //! - [`gate`]: the innovation gate that leaves out implausible observations;
 //! - [`fusion`]: the fusion protocols (average consensus, exact sums,
 //!   min-consensus, random exchange, KL fusion) over a shared round engine;
 //! - [`actor`]: the CF/DPF node's state machine, tying them together;
-//! - [`diffusion_node`]: seed 004's node, one filter and a Gaussian to
+//! - [`diffusion_node`]: the random-exchange paper's node, one filter and a Gaussian to
 //!   exchange or fuse;
 //! - [`registry`]: the fusion protocols and sensor managers a scenario can
 //!   name, the built-in ones and those a program registers;

@@ -1,5 +1,5 @@
 //! A processing node of either kind, behind one face for the drivers: the
-//! CF/DPF node ([`NodeActor`]) or one of seed 004's trackers
+//! CF/DPF node ([`NodeActor`]) or one of the random-exchange paper's trackers
 //! ([`DiffusionNode`]), as the scenario's `consensus.protocol` says.
 
 use std::time::Duration;
@@ -57,7 +57,7 @@ impl ProcessingNode {
     }
 
     /// Marks a node started in the middle of a run. A CF/DPF node rejoins
-    /// from a neighbour's fused posterior; a seed 004 node starts from the
+    /// from a neighbour's fused posterior; a random-exchange node starts from the
     /// prior and is pulled back by its exchanges or fusion.
     pub fn expect_rejoin(&mut self) {
         if let ProcessingNode::CfDpf(n) = self {

@@ -1,5 +1,5 @@
 //! What either processing node (the CF/DPF's [`NodeActor`](crate::NodeActor)
-//! or seed 004's [`DiffusionNode`](crate::DiffusionNode)) reads, publishes
+//! or the random-exchange paper's [`DiffusionNode`](crate::DiffusionNode)) reads, publishes
 //! on and wakes, and the messages both send alike: the activation of their
 //! sensors and the step's telemetry.
 

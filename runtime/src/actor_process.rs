@@ -188,7 +188,7 @@ pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
 
 /// Where a node writes `<CPU µs> <steps>`: the user and system CPU time it
 /// spent from its first `BeginStep` to the launcher's Stop, and the steps
-/// begun in it (seed 004's duty cycle).
+/// begun in it (the random-exchange paper's duty cycle).
 pub fn cpu_path(out: &Path, actor: ActorId) -> PathBuf {
     out.join("accounting").join(format!("{actor}.cpu"))
 }

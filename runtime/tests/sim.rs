@@ -1,4 +1,4 @@
-//! `cqnet sim` on the default scenario: the qualitative results of seed 000,
+//! `cqnet sim` on the default scenario: the qualitative results of the CQ/dPCRLB paper,
 //! in CI time (fewer and shorter runs than the 20-run figures in the README,
 //! with tolerances loosened accordingly).
 
@@ -208,13 +208,18 @@ fn nodes_go_on_after_the_centre_node_is_killed() {
     assert_eq!(s.fault_cost.missing_node_steps, 21);
 }
 
-/// Seed 001's closest-sensor manager: at most 4 per node, and the nodes,
+/// The selection paper's closest-sensor manager: at most 4 per node, and the nodes,
 /// each ranking from its own prediction, agree on the set, so the network
 /// activates exactly its cap of 18 every step.
 #[test]
 fn the_closest_manager_activates_the_capped_set_every_step() {
     let o = vec!["sensors.manager=closest".to_string(), "steps=8".to_string()];
-    let s = Scenario::from_toml(fusion_graph::scenario::SEED001_SCENARIO, "seed001", &o).unwrap();
+    let s = Scenario::from_toml(
+        fusion_graph::scenario::SENSOR_SELECTION_SCENARIO,
+        "seed001",
+        &o,
+    )
+    .unwrap();
     let t = Topology::from_scenario(&s, "seed001").unwrap();
     let dir = out_dir("closest");
     let mut w = ResultsWriter::create(&dir).unwrap();
@@ -224,14 +229,19 @@ fn the_closest_manager_activates_the_capped_set_every_step() {
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
 }
 
-/// Seed 001 with the conditional PCRLB manager: 18 sensors every step, at
+/// The selection paper with the conditional PCRLB manager: 18 sensors every step, at
 /// most 4 per node, and the selection's traffic exactly what the protocol
 /// and the message size predict: 18 iterations × 4 rounds (the 3×3 grid's
 /// diameter) × 24 directed links of one proposal each, per step.
 #[test]
 fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     let o = vec!["steps=4".to_string()];
-    let s = Scenario::from_toml(fusion_graph::scenario::SEED001_SCENARIO, "seed001", &o).unwrap();
+    let s = Scenario::from_toml(
+        fusion_graph::scenario::SENSOR_SELECTION_SCENARIO,
+        "seed001",
+        &o,
+    )
+    .unwrap();
     let t = Topology::from_scenario(&s, "seed001").unwrap();
     let dir = out_dir("pcrlb");
     let mut w = ResultsWriter::create(&dir).unwrap();
@@ -404,7 +414,7 @@ fn weighing_silence_beats_ignoring_it_and_random_selection() {
     assert!(weighed < random, "CFwMD2 {weighed} m vs random {random} m");
 }
 
-/// Seed 003's link: at 1000 bit/s every observation (14 bytes) takes 114 ms,
+/// The bit-depth paper's link: at 1000 bit/s every observation (14 bytes) takes 114 ms,
 /// past the 50 ms the node listens. The node weighs each a step late, at
 /// the time it was taken, and keeps tracking; with the same sensors silent
 /// it would not. Fresh observations: none.

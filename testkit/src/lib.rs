@@ -93,22 +93,22 @@ pub fn default_scenario() -> Scenario {
     .expect("the built-in scenario is valid")
 }
 
-/// Seed 001's scenario: PCRLB-driven sensor selection.
-pub fn seed001_scenario() -> Scenario {
+/// The sensor-selection scenario: PCRLB-driven sensor selection.
+pub fn sensor_selection_scenario() -> Scenario {
     Scenario::from_toml(
-        fusion_graph::scenario::SEED001_SCENARIO,
+        fusion_graph::scenario::SENSOR_SELECTION_SCENARIO,
         "<built-in sensor-selection>",
         &[],
     )
     .expect("the built-in scenario is valid")
 }
 
-/// Seed 004's scenario: 25 RSS nodes on a lattice, each with its own
-/// sensor, cooperating by random exchange (`consensus.protocol` chooses
-/// among seed 004's four trackers).
-pub fn seed004_scenario() -> Scenario {
+/// The random-exchange scenario: 25 RSS nodes on a lattice, each with its
+/// own sensor, cooperating by random exchange (`consensus.protocol` chooses
+/// among the four random-exchange and KL trackers).
+pub fn random_exchange_scenario() -> Scenario {
     Scenario::from_toml(
-        fusion_graph::scenario::SEED004_SCENARIO,
+        fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
         "<built-in random-exchange>",
         &[],
     )
@@ -169,6 +169,6 @@ mod tests {
     fn the_built_in_scenarios_load() {
         let t = fusion_graph::Topology::from_scenario(&default_scenario(), "default").unwrap();
         assert_eq!(t.nodes(), 9);
-        assert!(seed001_scenario().steps > 0);
+        assert!(sensor_selection_scenario().steps > 0);
     }
 }

@@ -7,8 +7,8 @@
 use std::time::Duration;
 
 use cqnet_testkit::{
-    default_scenario, exclusive, seed001_scenario, ActorId, Delay, Fault, Kill, LinkSelector, Loss,
-    MessageKind, Network, Partition, Run, Signal, Target,
+    default_scenario, exclusive, sensor_selection_scenario, ActorId, Delay, Fault, Kill,
+    LinkSelector, Loss, MessageKind, Network, Partition, Run, Signal, Target,
 };
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
@@ -618,7 +618,7 @@ fn too_few_file_descriptors_are_refused_before_anything_starts() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// Seed 001's network with the conditional PCRLB manager, node-4 SIGKILLed
+/// The selection paper's network with the conditional PCRLB manager, node-4 SIGKILLed
 /// from outside. The helper polls `ticks.csv` every 2 ms, so the kill lands
 /// within milliseconds of step 10's last report: inside step 11's
 /// selection, which takes about 25 ms of a lockstep step. The step does not
@@ -629,7 +629,7 @@ fn too_few_file_descriptors_are_refused_before_anything_starts() {
 #[test]
 fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     let _guard = exclusive();
-    let mut seed001 = seed001_scenario();
+    let mut seed001 = sensor_selection_scenario();
     seed001.steps = 30;
     let mut running = Network::new(seed001)
         .executable(CQNET)

@@ -1,4 +1,4 @@
-//! Seed 004's four trackers as real networks: 25 node processes, each with
+//! The random-exchange paper's four trackers as real networks: 25 node processes, each with
 //! its own RSS sensor process. Each protocol runs in lockstep with nothing
 //! lost, so every byte it sends is what its message sizes and the lattice
 //! predict: 80 directed links, a 13-byte header, a relayed measurement of
@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use cqnet_testkit::{exclusive, seed004_scenario, MessageKind, Network, Run};
+use cqnet_testkit::{exclusive, random_exchange_scenario, MessageKind, Network, Run};
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
 const STEPS: u64 = 6;
@@ -15,7 +15,7 @@ const RELAY: u64 = 13 + 10;
 const GAUSSIAN: u64 = 13 + 112;
 
 fn network(protocol: &str) -> Network {
-    let mut s = seed004_scenario();
+    let mut s = random_exchange_scenario();
     s.steps = STEPS as u32;
     Network::new(s)
         .executable(CQNET)

@@ -75,10 +75,10 @@ macro_rules! named_part {
 
 /// The built-in default scenario (docs/equations.md's table).
 pub const DEFAULT_SCENARIO: &str = include_str!("../../scenarios/default.toml");
-/// The scenario literal to seed 001.
-pub const SEED001_SCENARIO: &str = include_str!("../../scenarios/sensor-selection.toml");
-/// Seed 004's network: 25 nodes, each with one co-located RSS sensor.
-pub const SEED004_SCENARIO: &str = include_str!("../../scenarios/random-exchange.toml");
+/// The selection paper's scenario (PCRLB sensor selection).
+pub const SENSOR_SELECTION_SCENARIO: &str = include_str!("../../scenarios/sensor-selection.toml");
+/// The random-exchange paper's network: 25 nodes, each with one co-located RSS sensor.
+pub const RANDOM_EXCHANGE_SCENARIO: &str = include_str!("../../scenarios/random-exchange.toml");
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -225,7 +225,7 @@ pub struct SensorLayout {
     pub positions: Option<Vec<[f64; 2]>>,
     pub active_per_node: u32,
     pub max_active_total: Option<u32>,
-    /// Which sensors each node activates (seed 001's comparison).
+    /// Which sensors each node activates (the selection paper's comparison).
     #[serde(default)]
     pub manager: SensorManagerKind,
     /// The manager's own parameters, which it checks (`node::registry`).
@@ -475,7 +475,8 @@ mod tests {
         let d = Scenario::default_scenario();
         assert_eq!(d.quantizer.bits, 8);
         assert_eq!(d.filter.particles, 1000);
-        let s = Scenario::from_toml(SEED001_SCENARIO, "sensor-selection.toml", &[]).unwrap();
+        let s =
+            Scenario::from_toml(SENSOR_SELECTION_SCENARIO, "sensor-selection.toml", &[]).unwrap();
         assert_eq!(s.dynamics.sigma_v, 1.6);
         assert_eq!(s.sensors.max_active_total, Some(18));
         // Round trip through TOML.
@@ -629,7 +630,11 @@ mod tests {
     /// schema. (`filter.gate` was missing from it.)
     #[test]
     fn every_key_with_a_default_can_be_set() {
-        for text in [DEFAULT_SCENARIO, SEED001_SCENARIO, SEED004_SCENARIO] {
+        for text in [
+            DEFAULT_SCENARIO,
+            SENSOR_SELECTION_SCENARIO,
+            RANDOM_EXCHANGE_SCENARIO,
+        ] {
             keys_left_out_can_be_set(text);
         }
     }
@@ -660,7 +665,7 @@ mod tests {
         }
     }
 
-    /// Seed 004's trackers have no sensor selection, censoring, auxiliary
+    /// The random-exchange paper's trackers have no sensor selection, censoring, auxiliary
     /// FIM or gate: asking for one is an error naming the key.
     #[test]
     fn seed004_trackers_refuse_the_cf_dpf_parts_by_name() {
@@ -675,7 +680,7 @@ mod tests {
                 "consensus.protocol=\"kl_iterative\"".to_string(),
                 set.to_string(),
             ];
-            let err = Scenario::from_toml(SEED004_SCENARIO, "s.toml", &overrides)
+            let err = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "s.toml", &overrides)
                 .unwrap_err()
                 .to_string();
             assert!(
@@ -690,7 +695,7 @@ mod tests {
             "kl_iterative",
         ] {
             let overrides = [format!("consensus.protocol=\"{protocol}\"")];
-            let s = Scenario::from_toml(SEED004_SCENARIO, "s.toml", &overrides).unwrap();
+            let s = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "s.toml", &overrides).unwrap();
             assert!(s.consensus.protocol.is_diffusion());
         }
     }

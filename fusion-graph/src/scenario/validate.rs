@@ -4,7 +4,7 @@
 use super::*;
 
 impl Scenario {
-    /// Seed 004's trackers are a different node: one particle filter
+    /// The random-exchange paper's trackers are a different node: one particle filter
     /// weighed with raw or quantized measurements and fused as a Gaussian.
     /// The CF/DPF's parts that have no meaning there are refused by name
     /// rather than ignored.

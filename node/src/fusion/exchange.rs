@@ -1,4 +1,4 @@
-//! Random exchange (seed 004 §III-A, RndEx-PF): each node swaps its
+//! Random exchange (the random-exchange paper §III-A, RndEx-PF): each node swaps its
 //! parametric posterior with one random neighbour, by request and
 //! acknowledgement, and continues the step from the posterior it received.
 //!
@@ -344,8 +344,12 @@ mod tests {
     const ATTEMPT: Duration = Duration::from_millis(20);
 
     fn lattice() -> Topology {
-        let s =
-            Scenario::from_toml(fusion_graph::scenario::SEED004_SCENARIO, "seed004", &[]).unwrap();
+        let s = Scenario::from_toml(
+            fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
+            "seed004",
+            &[],
+        )
+        .unwrap();
         Topology::from_scenario(&s, "seed004").unwrap()
     }
 

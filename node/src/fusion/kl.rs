@@ -1,4 +1,4 @@
-//! Kullback–Leibler fusion (seed 004 §IV): K_max rounds of
+//! Kullback–Leibler fusion (the random-exchange paper §IV): K_max rounds of
 //! `β_r ← Π_ℓ β_ℓ^{a_rℓ}` over the closed neighbourhood, Metropolis weights
 //! `a_rℓ`. For Gaussian β this is average consensus on the natural
 //! parameters, `Λ ← Σ a_rℓ Λ_ℓ` and `η ← Σ a_rℓ η_ℓ` (the paper's eq. after
@@ -137,8 +137,12 @@ mod tests {
     use fusion_graph::Scenario;
 
     fn lattice() -> Topology {
-        let s =
-            Scenario::from_toml(fusion_graph::scenario::SEED004_SCENARIO, "seed004", &[]).unwrap();
+        let s = Scenario::from_toml(
+            fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
+            "seed004",
+            &[],
+        )
+        .unwrap();
         Topology::from_scenario(&s, "seed004").unwrap()
     }
 

@@ -1,7 +1,7 @@
 //! Min-consensus (docs/equations.md, "Average and min consensus"): `v ← min over the closed
 //! neighbourhood`. After as many rounds as the fusion graph's diameter every
 //! node of a connected component holds its smallest proposal. Sensor
-//! selection (seed 001) agrees on the network's best (node, sensor) with it.
+//! selection (the selection paper) agrees on the network's best (node, sensor) with it.
 
 use std::cmp::Ordering;
 use std::time::Duration;

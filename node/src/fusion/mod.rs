@@ -12,9 +12,9 @@
 //!   driver shares between its nodes; a checking mode of `sim`.
 //! - [`MinConsensus`]: the network's smallest proposal in as many rounds as
 //!   the fusion graph's diameter, for sensor selection.
-//! - [`RandomExchange`]: seed 004's RndEx-PF exchange, a posterior swapped
+//! - [`RandomExchange`]: the random-exchange paper's RndEx-PF exchange, a posterior swapped
 //!   with one random neighbour by request and acknowledgement.
-//! - [`KlFusion`]: seed 004's KL fusion, K_max rounds of consensus on the
+//! - [`KlFusion`]: the random-exchange paper's KL fusion, K_max rounds of consensus on the
 //!   natural parameters of the nodes' Gaussian posteriors.
 //!
 //! The round-based ones are a [`RoundEngine`], which keeps the round

@@ -1,4 +1,4 @@
-//! The closest-sensor approach of seed 001's comparison.
+//! The closest-sensor approach of the selection paper's comparison.
 
 use fusion_graph::Scenario;
 

@@ -2,7 +2,7 @@
 //! (Stone Soup's name for the role). The choice goes out as an activation
 //! message, counted like any other, never as a shared random draw.
 //!
-//! - [`UniformRandom`]: seed 000's policy, uniformly at random within the
+//! - [`UniformRandom`]: the CQ/dPCRLB paper's policy, uniformly at random within the
 //!   node's own sensors, honouring a network-wide cap;
 //! - [`Closest`]: the sensors nearest the predicted target, network-wide;
 //! - [`PcrlbSelection`]: greedy selection by the conditional or the

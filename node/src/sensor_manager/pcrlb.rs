@@ -1,4 +1,4 @@
-//! PCRLB-driven distributed sensor selection (seed 001 §4; docs/equations.md, "PCRLB
+//! PCRLB-driven distributed sensor selection (the selection paper §4; docs/equations.md, "PCRLB
 //! sensor selection"): a greedy choice, one sensor per iteration, agreed over
 //! the fusion graph.
 //!
