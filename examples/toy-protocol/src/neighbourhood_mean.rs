@@ -87,7 +87,7 @@ impl RoundRule for NeighbourhoodMean {
     }
 
     fn assemble(&self, pieces: &Option<InformationVector>) -> Option<InformationVector> {
-        pieces.clone()
+        *pieces
     }
 
     fn combine(

@@ -33,7 +33,7 @@ fn assert_toy_parts_ran(run: &Run, kind: MessageKind) {
     // Every directed fusion-graph link carries one message a round.
     for (a, neighbours) in topology.neighbours.iter().enumerate() {
         for &b in neighbours {
-            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b as u16));
+            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b));
             assert_eq!(
                 run.messages(from, to, kind),
                 u64::from(STEPS * ROUNDS),

@@ -3,8 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::check::Check;
+use super::kind::{FaultKind, Targets, Window};
+use super::select::LinkSelector;
 use super::select::{check_links, either, link_targets, links_text, takes_link};
-use super::{Check, FaultKind, LinkSelector, Targets, Window};
 use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;

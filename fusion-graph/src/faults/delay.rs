@@ -5,8 +5,10 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::check::Check;
+use super::kind::{FaultKind, Targets, Window};
+use super::select::LinkSelector;
 use super::select::{check_links, link_targets, links_text, takes_link};
-use super::{Check, FaultKind, LinkSelector, Targets, Window};
 use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;

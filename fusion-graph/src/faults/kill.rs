@@ -3,19 +3,11 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Check, FaultKind, ProcessEvent, Targets, Window};
+use super::check::Check;
+use super::effects::{ProcessEvent, Signal};
+use super::kind::{FaultKind, Targets, Window};
 use crate::actor::ActorId;
 use crate::ScenarioError;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Signal {
-    #[serde(rename = "SIGKILL")]
-    Kill,
-    #[serde(rename = "SIGTERM")]
-    Term,
-    #[serde(rename = "SIGSTOP")]
-    Stop,
-}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -3,8 +3,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::check::Check;
+use super::kind::{FaultKind, Targets, Window};
 use super::select::matches;
-use super::{Check, FaultKind, Targets, Window};
 use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;

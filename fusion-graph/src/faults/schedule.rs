@@ -7,25 +7,12 @@ use crate::shaper::LinkRule;
 use crate::topology::Topology;
 use crate::transport::Transport;
 
-use super::{Fault, SensorFault, Signal};
+use super::effects::{ProcessEvent, SensorFault};
+use super::fault::Fault;
 
 #[derive(Debug, Clone)]
 pub struct FaultSchedule {
     faults: Vec<Fault>,
-}
-
-/// A process-level fault due at a step.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ProcessEvent {
-    Kill {
-        actor: ActorId,
-        signal: Signal,
-    },
-    /// Restart a killed actor (SIGCONT for a stopped one).
-    Restart {
-        actor: ActorId,
-        signal: Signal,
-    },
 }
 
 impl FaultSchedule {
@@ -155,6 +142,7 @@ impl FaultSchedule {
 mod tests {
     use super::*;
     use crate::faults::select::matches;
+    use crate::faults::Signal;
     use crate::scenario::{Scenario, DEFAULT_SCENARIO};
     use std::time::Duration;
 

@@ -6,7 +6,8 @@ use serde::{Deserialize, Serialize};
 use crate::actor::ActorId;
 use crate::ScenarioError;
 
-use super::{Check, Targets};
+use super::check::Check;
+use super::kind::Targets;
 
 /// A directed link selector; `"*"` on either side matches every actor,
 /// `"node-*"` every node and `"sensor-*"` every sensor.

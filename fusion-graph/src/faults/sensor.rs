@@ -4,8 +4,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::check::Check;
+use super::effects::SensorFault;
+use super::kind::{FaultKind, Targets, Window};
 use super::select::{actor_word, in_share, matches};
-use super::{Check, FaultKind, Targets, Window};
 use crate::actor::ActorId;
 use crate::ScenarioError;
 
@@ -22,16 +24,6 @@ pub enum SensorMode {
     /// Sends the cells of a phantom target displaced by `phantom` metres:
     /// consistent, plausible and false.
     Byzantine,
-}
-
-/// What a faulty sensor does at a step, with its values.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum SensorFault {
-    Stuck,
-    Bias(f64),
-    Dropout,
-    /// Reports the phantom target at this offset from the true one.
-    Byzantine([f64; 2]),
 }
 
 /// Spelled `kind = "sensor"` in a scenario.
