@@ -5,10 +5,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::kind::{FaultKind, Targets, Window};
+use super::on_links::{on_its_links, LinkFault};
 use super::select::LinkSelector;
-use super::select::{check_links, link_targets, links_text, takes_link};
-use crate::actor::ActorId;
 use crate::shaper::{GilbertElliott, LinkRule};
 use crate::ScenarioError;
 
@@ -30,48 +28,30 @@ fn certain() -> f64 {
     1.0
 }
 
-impl FaultKind for BurstLoss {
-    fn window(&self) -> Window {
-        Window::lasting(self.at_step, self.duration)
-    }
+impl LinkFault for BurstLoss {
+    on_its_links!();
 
-    fn targets(&self) -> Targets<'_> {
-        link_targets(&self.links)
-    }
-
-    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
-        check_links(&self.links, check)?;
+    fn check_values(&self, check: &Check) -> Result<(), ScenarioError> {
         check.probability("enter_bad", self.enter_bad)?;
         check.probability("leave_bad", self.leave_bad)?;
         check.probability("loss_good", self.loss_good)?;
-        check.probability("loss_bad", self.loss_bad)?;
-        check.duration(self.duration)
+        check.probability("loss_bad", self.loss_bad)
     }
 
-    fn describe(&self) -> String {
+    fn effect(&self) -> String {
         format!(
-            "burst loss (Gilbert-Elliott p={} r={}, loss {}/{}) on {}",
-            self.enter_bad,
-            self.leave_bad,
-            self.loss_good,
-            self.loss_bad,
-            links_text(&self.links)
+            "burst loss (Gilbert-Elliott p={} r={}, loss {}/{})",
+            self.enter_bad, self.leave_bad, self.loss_good, self.loss_bad
         )
     }
 
-    fn acts_on_links(&self) -> bool {
-        true
-    }
-
-    fn shape_link(&self, fault: usize, from: ActorId, to: ActorId, rule: &mut LinkRule) {
-        if takes_link(&self.links, fault, from, to) {
-            // One chain per link: the later fault's, if two overlap.
-            rule.burst = Some(GilbertElliott {
-                enter_bad: self.enter_bad,
-                leave_bad: self.leave_bad,
-                loss_good: self.loss_good,
-                loss_bad: self.loss_bad,
-            });
-        }
+    fn shape(&self, rule: &mut LinkRule) {
+        // One chain per link: the later fault's, if two overlap.
+        rule.burst = Some(GilbertElliott {
+            enter_bad: self.enter_bad,
+            leave_bad: self.leave_bad,
+            loss_good: self.loss_good,
+            loss_bad: self.loss_bad,
+        });
     }
 }

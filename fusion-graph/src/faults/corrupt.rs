@@ -4,10 +4,9 @@
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::kind::{FaultKind, Targets, Window};
+use super::on_links::{on_its_links, LinkFault};
+use super::select::either;
 use super::select::LinkSelector;
-use super::select::{check_links, either, link_targets, links_text, takes_link};
-use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 
@@ -20,36 +19,18 @@ pub struct Corrupt {
     pub probability: f64,
 }
 
-impl FaultKind for Corrupt {
-    fn window(&self) -> Window {
-        Window::lasting(self.at_step, self.duration)
+impl LinkFault for Corrupt {
+    on_its_links!();
+
+    fn check_values(&self, check: &Check) -> Result<(), ScenarioError> {
+        check.probability("probability", self.probability)
     }
 
-    fn targets(&self) -> Targets<'_> {
-        link_targets(&self.links)
+    fn effect(&self) -> String {
+        format!("corrupt {}", self.probability)
     }
 
-    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
-        check_links(&self.links, check)?;
-        check.probability("probability", self.probability)?;
-        check.duration(self.duration)
-    }
-
-    fn describe(&self) -> String {
-        format!(
-            "corrupt {} on {}",
-            self.probability,
-            links_text(&self.links)
-        )
-    }
-
-    fn acts_on_links(&self) -> bool {
-        true
-    }
-
-    fn shape_link(&self, fault: usize, from: ActorId, to: ActorId, rule: &mut LinkRule) {
-        if takes_link(&self.links, fault, from, to) {
-            rule.corrupt = either(rule.corrupt, self.probability);
-        }
+    fn shape(&self, rule: &mut LinkRule) {
+        rule.corrupt = either(rule.corrupt, self.probability);
     }
 }

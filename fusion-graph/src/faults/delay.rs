@@ -6,10 +6,8 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::kind::{FaultKind, Targets, Window};
+use super::on_links::{on_its_links, LinkFault};
 use super::select::LinkSelector;
-use super::select::{check_links, link_targets, links_text, takes_link};
-use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 
@@ -29,45 +27,25 @@ pub struct Delay {
     pub rate_bps: f64,
 }
 
-impl FaultKind for Delay {
-    fn window(&self) -> Window {
-        Window::lasting(self.at_step, self.duration)
-    }
+impl LinkFault for Delay {
+    on_its_links!();
 
-    fn targets(&self) -> Targets<'_> {
-        link_targets(&self.links)
-    }
-
-    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
-        check_links(&self.links, check)?;
+    fn check_values(&self, check: &Check) -> Result<(), ScenarioError> {
         check.non_negative("latency_ms", self.latency_ms)?;
         check.non_negative("jitter_ms", self.jitter_ms)?;
-        check.non_negative("rate_bps", self.rate_bps)?;
-        check.duration(self.duration)
+        check.non_negative("rate_bps", self.rate_bps)
     }
 
-    fn describe(&self) -> String {
+    fn effect(&self) -> String {
         let rate = if self.rate_bps > 0.0 {
             format!(", rate {} bit/s", self.rate_bps)
         } else {
             String::new()
         };
-        format!(
-            "delay {} ms ± {} ms{rate} on {}",
-            self.latency_ms,
-            self.jitter_ms,
-            links_text(&self.links)
-        )
+        format!("delay {} ms ± {} ms{rate}", self.latency_ms, self.jitter_ms)
     }
 
-    fn acts_on_links(&self) -> bool {
-        true
-    }
-
-    fn shape_link(&self, fault: usize, from: ActorId, to: ActorId, rule: &mut LinkRule) {
-        if !takes_link(&self.links, fault, from, to) {
-            return;
-        }
+    fn shape(&self, rule: &mut LinkRule) {
         let ms = |v: f64| Duration::from_secs_f64(v / 1e3);
         rule.latency = rule.latency.max(ms(self.latency_ms));
         rule.jitter = rule.jitter.max(ms(self.jitter_ms));

@@ -3,10 +3,9 @@
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::kind::{FaultKind, Targets, Window};
+use super::on_links::{on_its_links, LinkFault};
+use super::select::either;
 use super::select::LinkSelector;
-use super::select::{check_links, either, link_targets, links_text, takes_link};
-use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 
@@ -19,32 +18,18 @@ pub struct Loss {
     pub probability: f64,
 }
 
-impl FaultKind for Loss {
-    fn window(&self) -> Window {
-        Window::lasting(self.at_step, self.duration)
+impl LinkFault for Loss {
+    on_its_links!();
+
+    fn check_values(&self, check: &Check) -> Result<(), ScenarioError> {
+        check.probability("probability", self.probability)
     }
 
-    fn targets(&self) -> Targets<'_> {
-        link_targets(&self.links)
+    fn effect(&self) -> String {
+        format!("loss {}", self.probability)
     }
 
-    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
-        check_links(&self.links, check)?;
-        check.probability("probability", self.probability)?;
-        check.duration(self.duration)
-    }
-
-    fn describe(&self) -> String {
-        format!("loss {} on {}", self.probability, links_text(&self.links))
-    }
-
-    fn acts_on_links(&self) -> bool {
-        true
-    }
-
-    fn shape_link(&self, fault: usize, from: ActorId, to: ActorId, rule: &mut LinkRule) {
-        if takes_link(&self.links, fault, from, to) {
-            rule.loss = either(rule.loss, self.probability);
-        }
+    fn shape(&self, rule: &mut LinkRule) {
+        rule.loss = either(rule.loss, self.probability);
     }
 }

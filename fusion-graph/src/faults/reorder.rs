@@ -6,10 +6,9 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::kind::{FaultKind, Targets, Window};
+use super::on_links::{on_its_links, LinkFault};
+use super::select::either;
 use super::select::LinkSelector;
-use super::select::{check_links, either, link_targets, links_text, takes_link};
-use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 
@@ -23,41 +22,25 @@ pub struct Reorder {
     pub delay_ms: f64,
 }
 
-impl FaultKind for Reorder {
-    fn window(&self) -> Window {
-        Window::lasting(self.at_step, self.duration)
-    }
+impl LinkFault for Reorder {
+    on_its_links!();
 
-    fn targets(&self) -> Targets<'_> {
-        link_targets(&self.links)
-    }
-
-    fn check(&self, check: &Check) -> Result<(), ScenarioError> {
-        check_links(&self.links, check)?;
+    fn check_values(&self, check: &Check) -> Result<(), ScenarioError> {
         check.probability("probability", self.probability)?;
-        check.positive("delay_ms", self.delay_ms)?;
-        check.duration(self.duration)
+        check.positive("delay_ms", self.delay_ms)
     }
 
-    fn describe(&self) -> String {
+    fn effect(&self) -> String {
         format!(
-            "reorder {} (held back {} ms) on {}",
-            self.probability,
-            self.delay_ms,
-            links_text(&self.links)
+            "reorder {} (held back {} ms)",
+            self.probability, self.delay_ms
         )
     }
 
-    fn acts_on_links(&self) -> bool {
-        true
-    }
-
-    fn shape_link(&self, fault: usize, from: ActorId, to: ActorId, rule: &mut LinkRule) {
-        if takes_link(&self.links, fault, from, to) {
-            rule.reorder = either(rule.reorder, self.probability);
-            rule.reorder_delay = rule
-                .reorder_delay
-                .max(Duration::from_secs_f64(self.delay_ms / 1e3));
-        }
+    fn shape(&self, rule: &mut LinkRule) {
+        rule.reorder = either(rule.reorder, self.probability);
+        rule.reorder_delay = rule
+            .reorder_delay
+            .max(Duration::from_secs_f64(self.delay_ms / 1e3));
     }
 }
