@@ -1,0 +1,129 @@
+//! Censoring in the decentralized network, the dissertation's own future
+//! work: the default scenario with each node censoring its own sensors.
+
+use crate::{Arm, Check, Curve, Experiment, Figure, Outcome, Series};
+
+/// The dissertation's own future work (ch. 8, item 3): censoring in a
+/// decentralized network with consensus. Each node feeds back its fused
+/// estimate with its activations and weighs its own silent sensors; the
+/// budget is 1.5 of its 3 active sensors.
+const NETWORK_ARMS: [Arm; 5] = [
+    Arm {
+        label: "all send",
+        overrides: &["censoring.policy=off"],
+    },
+    Arm {
+        label: "random, l = 1.5",
+        overrides: &["censoring.policy=random", "censoring.budget=1.5"],
+    },
+    Arm {
+        label: "CFoMD2, l = 1.5",
+        overrides: &[
+            "censoring.policy=nis",
+            "censoring.budget=1.5",
+            "censoring.feedback=estimate_and_covariance",
+            "censoring.ignore_silence=true",
+        ],
+    },
+    Arm {
+        label: "CFwMD, l = 1.5",
+        overrides: &["censoring.policy=nis", "censoring.budget=1.5"],
+    },
+    Arm {
+        label: "CFwMD2, l = 1.5",
+        overrides: &[
+            "censoring.policy=nis",
+            "censoring.budget=1.5",
+            "censoring.feedback=estimate_and_covariance",
+        ],
+    },
+];
+
+/// The budget of every censoring arm, per node, and the default scenario's
+/// node count.
+const BUDGET: f64 = 1.5;
+const NODES: f64 = 9.0;
+
+pub fn network_experiments() -> Vec<Experiment> {
+    vec![Experiment {
+        name: "censoring-network",
+        source: "dissertation ch. 3 and ch. 8 (future work 3), in the default scenario",
+        about: "NIS censoring in the decentralized network: position RMSE and bytes of all-send, random selection, censoring that ignores silence (CFoMD2) and censoring that weighs it (CFwMD, CFwMD2), 1.5 of 3 active sensors per node",
+        scenario: fusion_graph::scenario::DEFAULT_SCENARIO,
+        base: &["reference.centralized=false"],
+        arms: &NETWORK_ARMS,
+        figure: Figure::OverTime {
+            y_label: "position RMSE, m",
+            curves: &[
+                Curve {
+                    arm: 0,
+                    series: Series::Rmse,
+                    label: "all send",
+                },
+                Curve {
+                    arm: 1,
+                    series: Series::Rmse,
+                    label: "random, l = 1.5",
+                },
+                Curve {
+                    arm: 2,
+                    series: Series::Rmse,
+                    label: "CFoMD2 (silence ignored)",
+                },
+                Curve {
+                    arm: 3,
+                    series: Series::Rmse,
+                    label: "CFwMD",
+                },
+                Curve {
+                    arm: 4,
+                    series: Series::Rmse,
+                    label: "CFwMD2",
+                },
+            ],
+        },
+        check: check_network,
+    }]
+}
+
+/// The dissertation's ranking carried to the network: at the same budget
+/// CFwMD2 tracks better than random selection and than censoring that
+/// ignores silence, and it holds the budget (within 10 %).
+fn check_network(o: &Outcome) -> Check {
+    let figures: Vec<(String, Option<f64>, f64, f64, f64)> = NETWORK_ARMS
+        .iter()
+        .map(|arm| {
+            let a = o.arm(arm.label);
+            (
+                arm.label.to_string(),
+                a.mean(Series::Rmse),
+                a.observations_per_step / NODES,
+                a.observation_bytes_per_step,
+                a.activation_bytes_per_step,
+            )
+        })
+        .collect();
+    let rmse = |i: usize| figures[i].1.unwrap_or(f64::NAN);
+    let beats_random = rmse(4) < rmse(1);
+    let beats_ignoring = rmse(4) < rmse(2);
+    let budget_held = (figures[4].2 / BUDGET - 1.0).abs() < 0.10;
+    let listed = figures
+        .iter()
+        .map(|(label, r, l, obs, act)| {
+            format!(
+                "{label}: RMSE {} m, {l:.2} transmissions per node-step, {obs:.0} B/step observations, {act:.0} B/step activations",
+                r.map_or("-".into(), |r| format!("{r:.3}"))
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ");
+    Check {
+        holds: beats_random && beats_ignoring && budget_held,
+        statement: format!(
+            "CFwMD2 {} random selection and {} CFoMD2 at the same budget, and {} the budget of {BUDGET}; {listed}",
+            if beats_random { "beats" } else { "does NOT beat" },
+            if beats_ignoring { "beats" } else { "does NOT beat" },
+            if budget_held { "holds" } else { "does NOT hold" },
+        ),
+    }
+}

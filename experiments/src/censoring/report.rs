@@ -1,0 +1,181 @@
+//! What the censoring tables report: the check, the CSV, the printed
+//! tables and the figure.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::setups::{name, setups, SCHEMES};
+use super::trial::Measured;
+use crate::Check;
+
+/// One (setup, l) row: our l̄ for each scheme beside the dissertation's.
+pub(super) struct Row {
+    pub(super) table: &'static str,
+    pub(super) l: f64,
+    pub(super) sensors: usize,
+    /// Per scheme: mean transmissions per step, its standard error, and
+    /// the position RMSE over all steps.
+    pub(super) ours: [Measured; 2],
+    pub(super) theirs: [f64; 2],
+}
+
+/// The dissertation's claim, and what a correct implementation must show:
+/// CFwMD2 holds the budget (l̄ within 5 % of l in every row), and it is
+/// closer to l than CFwMD on average over each table.
+pub(super) fn check(rows: &[Row]) -> Check {
+    let mut statements = Vec::new();
+    let mut holds = true;
+    for table in ["3.1", "3.2", "3.3"] {
+        let of: Vec<&Row> = rows.iter().filter(|r| r.table == table).collect();
+        let gap = |slot: usize| {
+            of.iter()
+                .map(|r| (r.ours[slot].mean - r.l).abs())
+                .sum::<f64>()
+                / of.len() as f64
+        };
+        let worst2 = of
+            .iter()
+            .map(|r| (r.ours[1].mean - r.l).abs() / r.l)
+            .fold(0.0, f64::max);
+        let closer = gap(1) < gap(0);
+        let held = worst2 < 0.05;
+        holds &= closer && held;
+        statements.push(format!(
+            "table {table}: mean |l̄ − l| {:.3} (CFwMD) vs {:.3} (CFwMD2){}, CFwMD2 within {:.1} % of l{}",
+            gap(0),
+            gap(1),
+            if closer { "" } else { " — CFwMD2 NOT closer" },
+            100.0 * worst2,
+            if held { "" } else { " — NOT within 5 %" },
+        ));
+    }
+    Check {
+        holds,
+        statement: statements.join("; "),
+    }
+}
+
+pub(super) fn table_csv(rows: &[Row]) -> String {
+    let mut out = String::from(
+        "table,sensors,l,cfwmd_lbar,cfwmd_stderr,cfwmd_rmse_m,cfwmd2_lbar,cfwmd2_stderr,cfwmd2_rmse_m,dissertation_cfwmd,dissertation_cfwmd2\n",
+    );
+    for r in rows {
+        let _ = writeln!(
+            out,
+            "{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{}",
+            r.table,
+            r.sensors,
+            r.l,
+            r.ours[0].mean,
+            r.ours[0].stderr,
+            r.ours[0].rmse,
+            r.ours[1].mean,
+            r.ours[1].stderr,
+            r.ours[1].rmse,
+            r.theirs[0],
+            r.theirs[1]
+        );
+    }
+    out
+}
+
+pub(super) fn print(rows: &[Row]) -> String {
+    let mut out = String::new();
+    for setup in setups() {
+        let _ = writeln!(
+            out,
+            "Table {}: {} ({} trials, {} particles, {} steps)",
+            setup.table, setup.title, setup.trials, setup.particles, setup.steps
+        );
+        let _ = writeln!(
+            out,
+            "  l     l̄ CFwMD ours (± se)  diss.    l̄ CFwMD2 ours (± se)  diss."
+        );
+        for r in rows.iter().filter(|r| r.table == setup.table) {
+            let _ = writeln!(
+                out,
+                "  {:<4}  {:.4} (± {:.4})   {:.4}   {:.4} (± {:.4})    {:.4}",
+                r.l,
+                r.ours[0].mean,
+                r.ours[0].stderr,
+                r.theirs[0],
+                r.ours[1].mean,
+                r.ours[1].stderr,
+                r.theirs[1]
+            );
+        }
+    }
+    out
+}
+
+/// l̄ − l against l for each table and scheme, ours as lines and the
+/// dissertation's as crosses: zero is the budget held exactly.
+pub(super) fn draw(path: &Path, rows: &[Row]) -> Result<(), Box<dyn std::error::Error>> {
+    let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let excess = |r: &Row, v: f64| (v - r.l) / r.l * 100.0;
+    let span = rows
+        .iter()
+        .flat_map(|r| {
+            [
+                excess(r, r.ours[0].mean),
+                excess(r, r.ours[1].mean),
+                excess(r, r.theirs[0]),
+                excess(r, r.theirs[1]),
+            ]
+        })
+        .fold(5.0_f64, |m, v| m.max(v.abs()));
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "censoring-tables: transmissions against the budget (dissertation Tables 3.1-3.3)",
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.5..6.5, -(span * 1.1)..(span * 1.1))?;
+    chart
+        .configure_mesh()
+        .x_desc("budget l (transmissions per step)")
+        .y_desc("(l̄ − l) / l, %")
+        .draw()?;
+    chart.draw_series(DashedLineSeries::new(
+        [(0.5, 0.0), (6.5, 0.0)],
+        6,
+        4,
+        BLACK.stroke_width(1),
+    ))?;
+    for (t, table) in ["3.1", "3.2", "3.3"].iter().enumerate() {
+        let of: Vec<&Row> = rows.iter().filter(|r| r.table == *table).collect();
+        for (slot, scheme) in SCHEMES.iter().enumerate() {
+            let colour = Palette99::pick(2 * t + slot).to_rgba();
+            let ours: Vec<(f64, f64)> = of
+                .iter()
+                .map(|r| (r.l, excess(r, r.ours[slot].mean)))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(ours.clone(), colour.stroke_width(2)))?
+                .label(format!(
+                    "Table {table}, {}, ours (line), dissertation (crosses)",
+                    name(*scheme)
+                ))
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
+            chart.draw_series(ours.iter().map(|p| Circle::new(*p, 3, colour.filled())))?;
+            chart.draw_series(of.iter().map(|r| {
+                Cross::new((r.l, excess(r, r.theirs[slot])), 6, colour.stroke_width(2))
+            }))?;
+        }
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
