@@ -11,6 +11,12 @@
 //! flipped bit in a cell index or a consensus value would otherwise be
 //! believed.
 
+mod crc;
+mod examples;
+
+use crc::crc16;
+pub use examples::examples;
+
 use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
 
@@ -660,68 +666,6 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
     )
 }
 
-/// CRC-16/CCITT-FALSE (polynomial 0x1021, initial value 0xFFFF): it detects
-/// every error of one, two or an odd number of bits, and every burst of up
-/// to 16, in messages as short as ours.
-const CRC_TABLES: [[u16; 256]; 8] = {
-    let mut tables = [[0u16; 256]; 8];
-    let mut i = 0;
-    while i < 256 {
-        let mut crc = (i as u16) << 8;
-        let mut bit = 0;
-        while bit < 8 {
-            crc = if crc & 0x8000 != 0 {
-                (crc << 1) ^ 0x1021
-            } else {
-                crc << 1
-            };
-            bit += 1;
-        }
-        tables[0][i] = crc;
-        i += 1;
-    }
-    // tables[k][i]: byte i followed by k zero bytes.
-    let mut k = 1;
-    while k < 8 {
-        let mut i = 0;
-        while i < 256 {
-            let prev = tables[k - 1][i];
-            tables[k][i] = (prev << 8) ^ tables[0][(prev >> 8) as usize];
-            i += 1;
-        }
-        k += 1;
-    }
-    tables
-};
-
-/// Eight bytes a step ("slicing by eight"): the register meets the first
-/// two, and each byte's share of the remainder is one lookup, so the eight
-/// lookups do not wait on each other as the byte-wise loop's do. Every
-/// message is checksummed when sent and when received, and byte by byte
-/// that was 2 % of a node process's CPU in `cqnet run`.
-fn crc16(mut crc: u16, bytes: &[u8]) -> u16 {
-    let t = &CRC_TABLES;
-    let mut chunks = bytes.chunks_exact(8);
-    for c in &mut chunks {
-        crc = t[7][((crc >> 8) as u8 ^ c[0]) as usize]
-            ^ t[6][(crc as u8 ^ c[1]) as usize]
-            ^ t[5][c[2] as usize]
-            ^ t[4][c[3] as usize]
-            ^ t[3][c[4] as usize]
-            ^ t[2][c[5] as usize]
-            ^ t[1][c[6] as usize]
-            ^ t[0][c[7] as usize];
-    }
-    crc16_bytewise(crc, chunks.remainder())
-}
-
-fn crc16_bytewise(mut crc: u16, bytes: &[u8]) -> u16 {
-    for b in bytes {
-        crc = (crc << 8) ^ CRC_TABLES[0][((crc >> 8) as u8 ^ b) as usize];
-    }
-    crc
-}
-
 /// The checksum of an encoded message, its own two bytes read as zero.
 /// A message shorter than a header has none (decoding rejects it anyway).
 fn checksum(message: &[u8]) -> u16 {
@@ -813,153 +757,6 @@ pub fn unpack_symmetric(p: &Packed) -> [[f64; 4]; 4] {
     m
 }
 
-/// One message of every kind, with plausible values: the seeds that tests
-/// and `cqnet fuzz` start from.
-pub fn examples() -> Vec<Message> {
-    let c = ConsensusValues {
-        delta_eta: [1.0, 2.0, 3.0, 4.0],
-        delta_lambda: [0.5; 10],
-        delta_l: [-0.25; 10],
-    };
-    let t = Telemetry {
-        estimate: [1.0; 4],
-        bound: Some(1.5),
-        local_bound: None,
-        aux_bound: Some(2.0),
-        rounds_completed: 10,
-        live_neighbours: 4,
-        observations: 3,
-        gated: 1,
-        lagged: 2,
-        deadline_missed: false,
-        late_messages: 2,
-        stage_micros: [1, 2, 3, 4, 5],
-    };
-    vec![
-        Message::new(
-            ActorId::Launcher,
-            7,
-            0,
-            Payload::Tick {
-                truth: [1400.0, 1400.0, -6.4, -7.6],
-            },
-        ),
-        Message::new(
-            ActorId::Node(2),
-            7,
-            0,
-            Payload::Activate {
-                mask: BitMask::from_bytes(vec![0b101, 0, 0, 1]),
-            },
-        ),
-        Message::new(
-            ActorId::Node(2),
-            7,
-            0,
-            Payload::ActivateWithFeedback {
-                mask: BitMask::from_bytes(vec![0b11, 0, 0, 0]),
-                estimate: [1400.0, 1400.0, -6.4, -7.6],
-                covariance: None,
-            },
-        ),
-        Message::new(
-            ActorId::Node(2),
-            7,
-            0,
-            Payload::ActivateWithFeedback {
-                mask: BitMask::from_bytes(vec![0b110, 0, 0, 0]),
-                estimate: [1400.0, 1400.0, -6.4, -7.6],
-                covariance: Some([1.0, 0.1, 0.0, 0.2, 2.0, 0.0, 0.3, 0.5, 0.0, 0.6]),
-            },
-        ),
-        Message::new(
-            ActorId::Sensor(117),
-            7,
-            0,
-            Payload::Observation { cell: 201 },
-        ),
-        Message::new(
-            ActorId::Sensor(3),
-            7,
-            0,
-            Payload::RawObservation { value: -1.25 },
-        ),
-        Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c)),
-        Message::new(
-            ActorId::Node(4),
-            7,
-            9,
-            Payload::ConsensusAux { s_obs: [3.0; 10] },
-        ),
-        Message::new(ActorId::Launcher, 7, 0, Payload::Control(Control::Stop)),
-        Message::new(
-            ActorId::Launcher,
-            7,
-            0,
-            Payload::Control(Control::Membership {
-                alive: BitMask::from_bytes(vec![0xff, 1]),
-            }),
-        ),
-        Message::new(ActorId::Node(0), 7, 0, Payload::Telemetry(t)),
-        Message::new(
-            ActorId::Node(1),
-            7,
-            0,
-            Payload::StateTransfer(StateTransfer {
-                mean: [1.0; 4],
-                covariance: [2.0; 10],
-                information: [3.0; 10],
-                aux_information: [4.0; 10],
-            }),
-        ),
-        Message::new(
-            ActorId::Node(3),
-            7,
-            2,
-            Payload::MinConsensus(Proposal {
-                cost: 2.5,
-                node: 3,
-                sensor: 77,
-                information: [1e-4, -2e-5, 3e-4],
-            }),
-        ),
-        Message::new(
-            ActorId::Node(5),
-            7,
-            3,
-            Payload::KlConsensus(GaussianInformation {
-                eta: [2.0, 2.0, 0.0, 0.0],
-                lambda: [0.04, 0.0, 0.0, 0.0, 0.04, 0.0, 0.0, 400.0, 0.0, 400.0],
-            }),
-        ),
-        Message::new(ActorId::Node(6), 7, 0, Payload::ExchangeRequest),
-        Message::new(
-            ActorId::Node(7),
-            7,
-            0,
-            Payload::ExchangeReply { accepted: true },
-        ),
-        Message::new(
-            ActorId::Node(7),
-            7,
-            0,
-            Payload::ExchangePosterior(GaussianMoments {
-                mean: [50.0, 50.0, 0.0, 0.0],
-                covariance: [25.0, 0.0, 0.0, 0.0, 25.0, 0.0, 0.0, 0.0025, 0.0, 0.0025],
-            }),
-        ),
-        Message::new(
-            ActorId::Node(8),
-            7,
-            0,
-            Payload::NeighbourObservation {
-                sensor: 8,
-                value: -64.5,
-            },
-        ),
-    ]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1001,33 +798,6 @@ mod tests {
                 .len(),
             14
         );
-    }
-
-    #[test]
-    fn the_checksum_is_crc16_ccitt_false() {
-        // The catalogue's check value for this CRC, byte by byte and eight
-        // at a time (with one byte left over).
-        assert_eq!(crc16_bytewise(0xFFFF, b"123456789"), 0x29B1);
-        assert_eq!(crc16(0xFFFF, b"123456789"), 0x29B1);
-    }
-
-    /// Slicing by eight is the byte-wise CRC, from any register, at every
-    /// length around the eight-byte chunks.
-    #[test]
-    fn eight_bytes_a_step_is_the_bytewise_crc() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        for len in 0..=80 {
-            for _ in 0..20 {
-                let bytes: Vec<u8> = (0..len).map(|_| rng.random()).collect();
-                let start: u16 = rng.random();
-                assert_eq!(
-                    crc16(start, &bytes),
-                    crc16_bytewise(start, &bytes),
-                    "{len} bytes from {start:#06x}"
-                );
-            }
-        }
     }
 
     #[test]
