@@ -16,10 +16,10 @@ use std::time::Duration;
 
 use bounds::{BoundError, State};
 use fusion_graph::registered::Shape;
-use fusion_graph::scenario::{CensoringPolicy, ConsensusProtocol, Scenario};
+use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
-use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
+use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 
 use crate::censoring::NodeCensoring;
 use crate::collector::{Collected, Collector, Lagging, Offer};
@@ -31,46 +31,7 @@ use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
 use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs};
-use crate::{wiring, Outgoing};
-
-/// A node that cannot be built.
-#[derive(Debug, thiserror::Error)]
-pub enum NodeError {
-    #[error(transparent)]
-    Scenario(#[from] ScenarioError),
-    #[error("node-{node}: {source}")]
-    Filter { node: u16, source: BoundError },
-    #[error("the centralized reference: {0}")]
-    Reference(BoundError),
-    #[error("consensus.protocol \"{}\" is not one of the random-exchange and KL trackers", .0.name())]
-    NotDiffusion(ConsensusProtocol),
-    #[error(
-        "consensus.protocol \"{}\" is one of the random-exchange and KL trackers, not the CF/DPF",
-        .0.name()
-    )]
-    NotCfDpf(ConsensusProtocol),
-    #[error(transparent)]
-    Param(#[from] crate::registry::ParamError),
-    #[error("consensus.protocol = \"exact\" needs the exact-sum oracle of one process (`cqnet sim`): real processes have no exact network sum")]
-    NoExactSums,
-}
-
-/// A heavy stage the driver runs and times.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Work {
-    /// The PCRLB selection's scores: each own sensor's expected information
-    /// and the predicted information they add to.
-    SelectionScores,
-    /// The local filter's update and the local bound.
-    LocalFilter,
-    /// The fusion filter and the global bounds.
-    FusionFilter,
-    /// The random-exchange paper's nodes: the filter's prediction and its weighing with the
-    /// step's measurements (from the exchanged posterior, in RndEx-PF).
-    Weigh,
-    /// The random-exchange paper's KL fusion: the particles redrawn from the fused Gaussian.
-    Adopt,
-}
+use crate::{wiring, NodeError, Outgoing, Work};
 
 #[derive(Debug)]
 enum Phase {

@@ -7,8 +7,8 @@ use fusion_graph::scenario::Scenario;
 use fusion_graph::wire::{Message, Payload};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 
-use crate::actor::NodeError;
 use crate::estimator::{LocalFilter, LocalUpdate, Observation, ObservedValue, SensingModel};
+use crate::NodeError;
 
 pub struct CentralizedReference {
     model: SensingModel,

@@ -28,6 +28,7 @@ pub mod centralized;
 pub mod collector;
 pub mod diffusion;
 pub mod diffusion_node;
+mod error;
 pub mod estimator;
 pub mod filter;
 pub mod fusion;
@@ -37,17 +38,20 @@ pub mod registry;
 pub mod sensing;
 pub mod sensor_manager;
 mod wiring;
+mod work;
 
 #[cfg(test)]
 mod harness;
 
-pub use actor::{NodeActor, NodeError, Work};
+pub use actor::NodeActor;
 pub use centralized::CentralizedReference;
 pub use diffusion_node::DiffusionNode;
+pub use error::NodeError;
 pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
 pub use processing::ProcessingNode;
+pub use work::Work;
 
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::Message;

@@ -1,0 +1,19 @@
+//! The heavy stages of a node's step, which the driver runs and times
+//! apart from the message handling.
+
+/// A heavy stage the driver runs and times.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Work {
+    /// The PCRLB selection's scores: each own sensor's expected information
+    /// and the predicted information they add to.
+    SelectionScores,
+    /// The local filter's update and the local bound.
+    LocalFilter,
+    /// The fusion filter and the global bounds.
+    FusionFilter,
+    /// The random-exchange paper's nodes: the filter's prediction and its weighing with the
+    /// step's measurements (from the exchanged posterior, in RndEx-PF).
+    Weigh,
+    /// The random-exchange paper's KL fusion: the particles redrawn from the fused Gaussian.
+    Adopt,
+}
