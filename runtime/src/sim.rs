@@ -23,12 +23,14 @@ use sensor::SensorActor;
 use crate::drive::{run_pending_work, send_all};
 use crate::results::{Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::summary::Summary;
-use crate::world::World;
+use crate::world::{SensorStates, World};
 
 struct SensorSlot {
     actor: SensorActor,
     transport: MemoryTransport,
     alive: bool,
+    /// Stopped (SIGSTOP): its queue still takes messages.
+    stopped: bool,
 }
 
 struct NodeSlot {
@@ -93,6 +95,7 @@ impl InProcessNetwork {
                 actor,
                 transport,
                 alive: true,
+                stopped: false,
             });
         }
         let oracle =
@@ -226,12 +229,25 @@ impl InProcessNetwork {
                 }
                 ProcessEvent::Kill {
                     actor: ActorId::Sensor(i),
-                    ..
-                } => self.sensors[i as usize].alive = false,
+                    signal,
+                } => {
+                    let slot = &mut self.sensors[i as usize];
+                    slot.alive = false;
+                    slot.stopped = signal == fusion_graph::scenario::Signal::Stop;
+                }
                 ProcessEvent::Restart {
                     actor: ActorId::Sensor(i),
-                    ..
-                } => self.sensors[i as usize].alive = true,
+                    signal,
+                } => {
+                    // A killed sensor's successor starts with an empty queue;
+                    // a stopped one reads what queued while it was stopped.
+                    if signal != fusion_graph::scenario::Signal::Stop {
+                        self.bus.borrow_mut().clear_inbox(ActorId::Sensor(i));
+                    }
+                    let slot = &mut self.sensors[i as usize];
+                    slot.alive = true;
+                    slot.stopped = false;
+                }
                 _ => {}
             }
         }
@@ -258,12 +274,15 @@ impl InProcessNetwork {
         self.apply_link_faults(step);
         let views = self.membership_views(step);
         let truth = self.world.advance();
-        let sensors_alive: Vec<bool> = self.sensors.iter().map(|s| s.alive).collect();
+        let sensors = SensorStates {
+            alive: self.sensors.iter().map(|s| s.alive).collect(),
+            stopped: self.sensors.iter().map(|s| s.stopped).collect(),
+        };
         crate::world::begin_step(
             &mut self.launcher,
             step,
             truth,
-            &sensors_alive,
+            &sensors,
             &views,
             &self.views,
             process_faults,
@@ -346,11 +365,13 @@ impl InProcessNetwork {
     ) -> anyhow::Result<bool> {
         let mut progressed = false;
         for s in self.sensors.iter_mut() {
-            self.inbox.clear();
-            s.transport.receive(now, &mut self.inbox)?;
+            // A stopped sensor reads nothing until it continues; a dead
+            // one's queue is cleared when its successor starts.
             if !s.alive {
                 continue;
             }
+            self.inbox.clear();
+            s.transport.receive(now, &mut self.inbox)?;
             for m in self.inbox.drain(..) {
                 progressed = true;
                 if let Some(obs) = s.actor.handle(&m) {

@@ -45,6 +45,30 @@ impl World {
 pub const DRAIN_PERIOD: u32 = 32;
 const _: () = assert!(DRAIN_PERIOD as usize <= QUEUE_DEPTH / 2);
 
+/// Where each sensor's process stands, as the launcher knows it.
+#[derive(Debug, Clone)]
+pub struct SensorStates {
+    /// Running: it reads its queue.
+    pub alive: Vec<bool>,
+    /// Stopped (SIGSTOP): its queue takes messages, read when it continues.
+    pub stopped: Vec<bool>,
+}
+
+impl SensorStates {
+    pub fn all_running(sensors: usize) -> Self {
+        Self {
+            alive: vec![true; sensors],
+            stopped: vec![false; sensors],
+        }
+    }
+
+    /// Records a kill (`stopped`: by SIGSTOP) or a restart of sensor `i`.
+    pub fn set(&mut self, i: u16, alive: bool, stopped: bool) {
+        self.alive[i as usize] = alive;
+        self.stopped[i as usize] = stopped;
+    }
+}
+
 /// The live sensors the tick of `step` wakes: those whose turn it is to
 /// drain (each once in [`DRAIN_PERIOD`] steps).
 pub fn drain_wakes(step: u32, sensors_alive: &[bool]) -> Vec<ActorId> {
@@ -61,17 +85,22 @@ pub fn drain_wakes(step: u32, sensors_alive: &[bool]) -> Vec<ActorId> {
 /// and finds the tick queued), then, to every live node, its membership
 /// view when it differs from the one it was last told (or after any kill
 /// or restart), and `BeginStep`.
+///
+/// A stopped sensor (SIGSTOP) is not live but keeps its queue: the tick
+/// reaches it there, to be read when it continues, so it is counted as
+/// sent to it too (it is not woken). A dead sensor's queue is gone.
 pub fn begin_step<T: Transport + ?Sized>(
     launcher: &mut T,
     step: u32,
     truth: State,
-    sensors_alive: &[bool],
+    sensors: &SensorStates,
     views: &[Vec<bool>],
     told: &[Vec<bool>],
     process_faults: bool,
 ) -> Result<(), SendError> {
-    let sensors: Vec<ActorId> = (0..sensors_alive.len() as u16)
-        .filter(|s| sensors_alive[*s as usize])
+    let sensors_alive = &sensors.alive;
+    let queued: Vec<ActorId> = (0..sensors_alive.len() as u16)
+        .filter(|s| sensors_alive[*s as usize] || sensors.stopped[*s as usize])
         .map(ActorId::Sensor)
         .collect();
     let tick = Message::new(
@@ -85,7 +114,7 @@ pub fn begin_step<T: Transport + ?Sized>(
     launcher.send_waking(
         Channel::Tick,
         &tick,
-        &sensors,
+        &queued,
         &drain_wakes(step, sensors_alive),
     )?;
     for (n, view) in views.iter().enumerate() {

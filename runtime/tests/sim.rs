@@ -303,6 +303,40 @@ fn a_partition_leaves_every_link_balanced() {
     }
 }
 
+/// A sensor stopped (SIGSTOP) keeps its queue: the ticks published while
+/// it is stopped wait there, are counted as sent to it, and are received
+/// when it continues. A sensor killed (SIGKILL) loses its queue: its
+/// successor starts empty, and the launcher sends it nothing while it is
+/// dead. Either way the tick link balances; the stopped sensor's once
+/// read 30 sent against 40 received.
+#[test]
+fn a_stopped_or_killed_sensor_leaves_its_tick_link_balanced() {
+    for (signal, name, ticks) in [("SIGSTOP", "stop", 20), ("SIGKILL", "kill", 15)] {
+        let fault = format!(
+            "faults=[{{kind=\"kill\",actor=\"sensor-3\",at_step=5,signal=\"{signal}\",restart_after=5}}]"
+        );
+        let (s, t) = scenario(&["steps=20", &fault]);
+        let dir = out_dir(&format!("sensor-{name}-balance"));
+        let mut w = ResultsWriter::create(&dir).unwrap();
+        run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
+        let links =
+            Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
+        let tick = links.get(
+            fusion_graph::ActorId::Launcher,
+            fusion_graph::ActorId::Sensor(3),
+            MessageKind::Tick,
+        );
+        assert_eq!(tick.sent_messages, ticks, "{signal}: {tick:?}");
+        assert_eq!(tick.received_messages, ticks, "{signal}: {tick:?}");
+        for ((from, to, kind), c) in links.iter() {
+            assert!(
+                c.sent_messages >= c.received_messages + c.dropped_messages,
+                "{signal}: {from}->{to} {kind:?} received more than was sent: {c:?}"
+            );
+        }
+    }
+}
+
 /// Duplicates, reordering and corruption on every link for five steps:
 /// every extra copy and every corrupted message is counted under the kind
 /// that was sent, so each link balances exactly (sent + duplicated =

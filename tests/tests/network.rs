@@ -472,6 +472,35 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
     r.assert_clean();
 }
 
+/// A stopped sensor keeps its queues: the ticks the launcher publishes while
+/// it is stopped wait there and are read when it continues, so they are
+/// counted as sent to it, and every link balances with nothing
+/// unaccounted. They were once left out of the sent count, and the tick
+/// link read 10 sent fewer than received.
+#[test]
+fn a_stopped_sensor_leaves_every_link_balanced() {
+    let _guard = exclusive();
+    let r = small(network("stop-sensor", 20))
+        .lockstep()
+        .no_central()
+        .fault(kill("sensor-3", 5, Signal::Stop, Some(10)))
+        .run()
+        .unwrap();
+    r.assert_success();
+    let tick = r
+        .accounting()
+        .get(ActorId::Launcher, ActorId::Sensor(3), MessageKind::Tick);
+    assert_eq!(
+        (tick.sent_messages, tick.received_messages),
+        (20, 20),
+        "{tick:?}"
+    );
+    for (kind, _) in r.accounting().by_kind() {
+        assert_eq!(r.unaccounted(kind), 0, "{kind:?}");
+    }
+    r.assert_clean();
+}
+
 /// An actor that dies on its own is a fault of the run: the summary lists
 /// it. Here node-4, stopped by the scenario at step 5 until step 25, is
 /// SIGKILLed from outside while stopped; at step 25 the launcher starts it

@@ -68,7 +68,7 @@ pub(super) fn run_steps(
             &mut w.transport,
             step,
             truth,
-            &w.sensors_alive,
+            &w.sensors,
             &views,
             &w.views,
             process_faults,

@@ -18,6 +18,7 @@ use crate::actor_process::stop_message;
 use crate::feed::{Hub, ViewEvent};
 use crate::summary::AppliedFault;
 use crate::supervisor::{Command, Event};
+use crate::world::SensorStates;
 
 use super::options::RunProgress;
 
@@ -29,7 +30,7 @@ pub(super) struct WorldState<'a> {
     pub(super) commands: &'a UnboundedSender<Command>,
     pub(super) events: &'a Receiver<Event>,
     pub(super) alive: Vec<bool>,
-    pub(super) sensors_alive: Vec<bool>,
+    pub(super) sensors: SensorStates,
     /// Actors we killed on purpose (their exit is not an error).
     pub(super) expected_exits: HashSet<ActorId>,
     pub(super) unexpected_exits: Vec<String>,
@@ -59,7 +60,7 @@ impl<'a> WorldState<'a> {
             commands,
             events,
             alive: vec![true; topology.nodes()],
-            sensors_alive: vec![true; topology.sensors()],
+            sensors: SensorStates::all_running(topology.sensors()),
             expected_exits: HashSet::new(),
             unexpected_exits: Vec::new(),
             crashed: Vec::new(),
@@ -145,7 +146,7 @@ impl<'a> WorldState<'a> {
     pub(super) fn is_alive(&self, a: ActorId) -> bool {
         match a {
             ActorId::Node(i) => self.alive[i as usize],
-            ActorId::Sensor(i) => self.sensors_alive[i as usize],
+            ActorId::Sensor(i) => self.sensors.alive[i as usize],
             ActorId::Launcher => true,
         }
     }
@@ -289,7 +290,7 @@ impl<'a> WorldState<'a> {
                         self.expected_exits.insert(actor);
                     }
                     self.commands.send(Command::Signal { actor, signal })?;
-                    self.set_alive(actor, false);
+                    self.set_state(actor, false, signal == Signal::Stop);
                     changed = true;
                 }
                 ProcessEvent::Restart { actor, signal } => {
@@ -317,9 +318,15 @@ impl<'a> WorldState<'a> {
     }
 
     pub(super) fn set_alive(&mut self, actor: ActorId, alive: bool) {
+        self.set_state(actor, alive, false);
+    }
+
+    /// `stopped`: not running, but its process and queues are there
+    /// (SIGSTOP). The launcher's ticks still reach a stopped sensor.
+    fn set_state(&mut self, actor: ActorId, alive: bool, stopped: bool) {
         match actor {
             ActorId::Node(i) => self.alive[i as usize] = alive,
-            ActorId::Sensor(i) => self.sensors_alive[i as usize] = alive,
+            ActorId::Sensor(i) => self.sensors.set(i, alive, stopped),
             ActorId::Launcher => {}
         }
     }
