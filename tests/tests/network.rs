@@ -501,6 +501,38 @@ fn a_stopped_sensor_leaves_every_link_balanced() {
     r.assert_clean();
 }
 
+/// A node that is live but never heard from fails the run, naming it: here
+/// every message node-3 sends is lost, its reports to the launcher too.
+/// The others report every step, so only node-3 is named.
+#[test]
+fn a_live_node_that_never_reports_fails_the_run_naming_it() {
+    let _guard = exclusive();
+    let r = small(network("silent-node", 6))
+        .lockstep()
+        .no_central()
+        .set("consensus.round_timeout_ms", 20)
+        .set("clock.step_timeout_ms", 1000)
+        .fault(Loss {
+            links: vec![LinkSelector::new("node-3", "*")],
+            at_step: 1,
+            duration: None,
+            probability: 1.0,
+        })
+        .run()
+        .unwrap();
+    r.assert_failure_naming(&["node-3 never reported"]);
+    let error = r
+        .stderr()
+        .lines()
+        .find(|l| l.contains("never reported"))
+        .unwrap_or_default();
+    assert!(
+        error.contains("error: node-3 never reported, though"),
+        "only node-3 is silent: {error}"
+    );
+    r.assert_clean();
+}
+
 /// An actor that dies on its own is a fault of the run: the summary lists
 /// it. Here node-4, stopped by the scenario at step 5 until step 25, is
 /// SIGKILLed from outside while stopped; at step 25 the launcher starts it

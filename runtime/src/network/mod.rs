@@ -213,7 +213,7 @@ fn world_thread(
     w.start_everyone(topology, view, progress)?;
     let startup_seconds = started.elapsed().as_secs_f64();
     let lockstep = options.lockstep || scenario.clock.mode == ClockMode::Lockstep;
-    let (steps_done, wall_steps) = run_steps(
+    let (steps_done, wall_steps, holes) = run_steps(
         scenario,
         topology,
         options,
@@ -267,6 +267,9 @@ fn world_thread(
     }
     for e in &w.unexpected_exits {
         tracing::warn!("{e}");
+    }
+    if let Some(silent) = holes.never_heard() {
+        bail!("{silent}; results so far are in {}", options.out.display());
     }
     Ok(summary)
 }

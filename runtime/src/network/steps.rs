@@ -18,7 +18,7 @@ use crate::sim::central_telemetry;
 use crate::world::World;
 
 use super::options::{RunOptions, RunProgress};
-use super::world_state::{crash_fault, WorldState};
+use super::world_state::{crash_fault, name_some, WorldState};
 
 /// The steps, from the first to the scenario's last or an interruption:
 /// each ticks the world, applies the faults, gathers the nodes' reports
@@ -33,8 +33,9 @@ pub(super) fn run_steps(
     w: &mut WorldState<'_>,
     recorder: &mut Recorder<'_>,
     progress: &mut dyn FnMut(RunProgress<'_>),
-) -> anyhow::Result<(u32, f64)> {
+) -> anyhow::Result<(u32, f64, Holes)> {
     let view = options.view.as_deref();
+    let mut holes = Holes::new(topology.nodes());
     let mut world = World::new(scenario)?;
     let mut reports = StepReports {
         central: options
@@ -88,6 +89,7 @@ pub(super) fn run_steps(
             let left = step_end.saturating_duration_since(Instant::now());
             w.transport.wait(left.min(Duration::from_millis(50)))?;
             let rows = reports.take(&mut w.transport, step)?;
+            holes.heard_from(&rows);
             publish_late_rows(view, &rows, step);
             reports
                 .rows
@@ -107,6 +109,7 @@ pub(super) fn run_steps(
             recorder.record(vec![row])?;
         }
         steps_done = step;
+        holes.close_step(step, &w.alive, &reports.rows);
         if let Some(hub) = view {
             let dead: Vec<u16> = (0..topology.nodes() as u16)
                 .filter(|n| !w.alive[*n as usize])
@@ -138,7 +141,89 @@ pub(super) fn run_steps(
             break;
         }
     }
-    Ok((steps_done, run_start.elapsed().as_secs_f64()))
+    Ok((steps_done, run_start.elapsed().as_secs_f64(), holes))
+}
+
+/// The live nodes whose report of a step did not come in time: told as it
+/// happens, and a node never heard from while it was live fails the run.
+pub(super) struct Holes {
+    /// Steps each node was live.
+    live_steps: Vec<u32>,
+    /// Whether each node's report ever arrived, in time or late.
+    heard: Vec<bool>,
+    /// Live node-steps with no report in time, so far.
+    missing: u64,
+    /// Steps with a hole so far, which pace the warnings.
+    steps_with_holes: u32,
+}
+
+impl Holes {
+    fn new(nodes: usize) -> Self {
+        Self {
+            live_steps: vec![0; nodes],
+            heard: vec![false; nodes],
+            missing: 0,
+            steps_with_holes: 0,
+        }
+    }
+
+    fn heard_from(&mut self, rows: &[TickRow]) {
+        for r in rows {
+            if let Ok(ActorId::Node(n)) = r.node.parse::<ActorId>() {
+                self.heard[n as usize] = true;
+            }
+        }
+    }
+
+    /// Counts the live nodes with no report among `rows`, `step`'s reports
+    /// in time, and warns: at the first three steps with a hole, then at
+    /// every twentieth, so that a long run with a lasting hole says so
+    /// without flooding the terminal.
+    fn close_step(&mut self, step: u32, alive: &[bool], rows: &[TickRow]) {
+        let mut missing = Vec::new();
+        for (n, live) in alive.iter().enumerate() {
+            if !*live {
+                continue;
+            }
+            self.live_steps[n] += 1;
+            let me = ActorId::Node(n as u16).to_string();
+            if !rows.iter().any(|r| r.node == me) {
+                missing.push(ActorId::Node(n as u16));
+            }
+        }
+        if missing.is_empty() {
+            return;
+        }
+        self.missing += missing.len() as u64;
+        self.steps_with_holes += 1;
+        if self.steps_with_holes <= 3 || self.steps_with_holes % 20 == 0 {
+            tracing::warn!(
+                "step {step}: no report in time from {} ({} live node-steps without one so far)",
+                name_some(&missing, 5),
+                self.missing
+            );
+        }
+    }
+
+    /// The nodes that were live and never reported, as an error's words.
+    pub(super) fn never_heard(&self) -> Option<String> {
+        let silent: Vec<ActorId> = (0..self.heard.len())
+            .filter(|n| self.live_steps[*n] > 0 && !self.heard[*n])
+            .map(|n| ActorId::Node(n as u16))
+            .collect();
+        let longest = silent
+            .iter()
+            .filter_map(|a| match a {
+                ActorId::Node(n) => Some(self.live_steps[*n as usize]),
+                _ => None,
+            })
+            .max()?;
+        Some(format!(
+            "{} never reported, though live for up to {longest} steps: the run has no estimate from {}",
+            name_some(&silent, 10),
+            if silent.len() == 1 { "it" } else { "them" }
+        ))
+    }
 }
 
 /// What the launcher hears in a step: the nodes' reports, and the

@@ -338,7 +338,7 @@ pub(super) fn crash_fault(actor: ActorId, step: u32, status: &str) -> AppliedFau
 
 /// The first `shown` names, and how many more: 2,358 names in one error
 /// line hide the message.
-fn name_some(actors: &[ActorId], shown: usize) -> String {
+pub(super) fn name_some(actors: &[ActorId], shown: usize) -> String {
     let names: Vec<String> = actors.iter().take(shown).map(ActorId::to_string).collect();
     match actors.len().saturating_sub(shown) {
         0 => names.join(", "),
