@@ -196,7 +196,7 @@ impl Holes {
         }
         self.missing += missing.len() as u64;
         self.steps_with_holes += 1;
-        if self.steps_with_holes <= 3 || self.steps_with_holes % 20 == 0 {
+        if self.steps_with_holes <= 3 || self.steps_with_holes.is_multiple_of(20) {
             tracing::warn!(
                 "step {step}: no report in time from {} ({} live node-steps without one so far)",
                 name_some(&missing, 5),
