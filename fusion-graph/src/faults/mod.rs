@@ -3,7 +3,8 @@
 //! what it does to a link, a sensor or a process, and how a run's summary
 //! describes it. [`FaultSchedule`] evaluates the schedule at a step.
 //!
-//! Adding a kind is its file plus one line in `fault.rs`'s `fault_kinds!` list.
+//! Adding a kind is its file, its `mod` and `pub use` here, and its name
+//! in `fault.rs`'s `fault_kinds!` list.
 
 mod burst_loss;
 mod check;
