@@ -48,7 +48,7 @@ pub fn estimated_memory(scenario: &Scenario, topology: &Topology, centralized: b
 /// Refuses, naming what to change, a run whose memory estimate exceeds
 /// what the machine has available, or whose process count or file
 /// descriptors exceed this user's limits (the descriptor limit is raised
-/// first, as far as the process may: see [`raise_descriptor_limit`]).
+/// first, as far as the process may: see `raise_descriptor_limit`).
 pub fn check(scenario: &Scenario, topology: &Topology, centralized: bool) -> anyhow::Result<()> {
     let children = (topology.nodes() + topology.sensors()) as u64;
     let needed = estimated_memory(scenario, topology, centralized);

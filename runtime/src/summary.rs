@@ -166,8 +166,8 @@ impl Percentiles {
 }
 
 /// Round latencies in fixed memory, however long the run: every whole
-/// microsecond below [`LatencyHistogram::EXACT`] has its own bucket, and
-/// each octave above it [`LatencyHistogram::PER_OCTAVE`] buckets, so a
+/// microsecond below `LatencyHistogram::EXACT` has its own bucket, and
+/// each octave above it `LatencyHistogram::PER_OCTAVE` buckets, so a
 /// percentile is off by under 1.6 %. A list of every round grew by 72 bytes
 /// a step, which the soak counts as a leak.
 #[derive(Debug, Clone)]

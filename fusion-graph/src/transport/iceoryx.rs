@@ -130,7 +130,7 @@ fn buffer_len(_channel: Channel) -> usize {
     QUEUE_DEPTH
 }
 
-/// The depth of every subscriber's queue ([`buffer_len`]): what a receiver
+/// The depth of every subscriber's queue (`buffer_len`): what a receiver
 /// that does not run may fall behind by before its oldest messages are
 /// overwritten.
 pub const QUEUE_DEPTH: usize = 64;
