@@ -4,6 +4,7 @@
 //! the faults and hosts name actors of that network.
 
 use crate::actor::ActorId;
+use crate::check::Check;
 use crate::hosts::Placement;
 use crate::scenario::Scenario;
 use crate::topology::{dist2, Topology};
@@ -83,12 +84,7 @@ impl Topology {
                             topology.sensors() - 1
                         )
                     };
-                    return Err(ScenarioError::Invalid {
-                        file: file.into(),
-                        key: format!("faults[{i}].{}", targets.key),
-                        expected,
-                        got: name.to_string(),
-                    });
+                    return Err(Check::fault(file, i).fail(targets.key, expected, name));
                 }
             }
         }

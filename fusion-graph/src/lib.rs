@@ -5,6 +5,7 @@
 pub mod accounting;
 pub mod actor;
 pub mod channel;
+pub mod check;
 pub mod counters;
 pub mod faults;
 pub mod hosts;

@@ -4,9 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::check::Check;
 use super::on_links::{on_its_links, LinkFault};
 use super::select::LinkSelector;
+use crate::check::Check;
 use crate::shaper::{GilbertElliott, LinkRule};
 use crate::ScenarioError;
 

@@ -3,10 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::check::Check;
 use super::on_links::{on_its_links, LinkFault};
 use super::select::either;
 use super::select::LinkSelector;
+use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 

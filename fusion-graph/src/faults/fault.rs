@@ -3,7 +3,6 @@
 use serde::{Deserialize, Serialize};
 
 use super::burst_loss::BurstLoss;
-use super::check::Check;
 use super::corrupt::Corrupt;
 use super::delay::Delay;
 use super::duplicate::Duplicate;
@@ -13,6 +12,7 @@ use super::loss::Loss;
 use super::partition::Partition;
 use super::reorder::Reorder;
 use super::sensor::FaultySensors;
+use crate::check::Check;
 use crate::ScenarioError;
 
 /// Declares [`Fault`], one variant per kind, spelled in a scenario by its
@@ -73,7 +73,7 @@ impl Fault {
 
     /// Checks entry `index` of a schedule of `steps` steps.
     pub fn check(&self, file: &str, index: usize, steps: u32) -> Result<(), ScenarioError> {
-        let check = Check::new(file, index);
+        let check = Check::fault(file, index);
         let at = self.at_step();
         if at == 0 || at > steps {
             return Err(check.fail("at_step", format!("a step from 1 to {steps}"), at));

@@ -3,10 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::check::Check;
 use super::effects::{ProcessEvent, Signal};
 use super::kind::{FaultKind, Targets, Window};
 use crate::actor::ActorId;
+use crate::check::Check;
 use crate::ScenarioError;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

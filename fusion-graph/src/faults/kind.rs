@@ -5,8 +5,8 @@ use crate::actor::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 
-use super::check::Check;
 use super::effects::{ProcessEvent, SensorFault};
+use crate::check::Check;
 
 /// The steps a fault holds: from `at_step` (counted from 1) up to `end`,
 /// exclusive; `None` holds to the end of the run.

@@ -7,7 +7,6 @@
 //! in `fault.rs`'s `fault_kinds!` list.
 
 mod burst_loss;
-mod check;
 mod corrupt;
 mod delay;
 mod duplicate;
@@ -23,8 +22,8 @@ mod schedule;
 mod select;
 mod sensor;
 
+pub use crate::check::Check;
 pub use burst_loss::BurstLoss;
-pub use check::Check;
 pub use corrupt::Corrupt;
 pub use delay::Delay;
 pub use duplicate::Duplicate;

@@ -2,10 +2,10 @@
 //! and an effect on the rule of each link they take. A kind says what its
 //! effect is; [`FaultKind`] follows for it.
 
-use super::check::Check;
 use super::kind::{FaultKind, Targets, Window};
 use super::select::{check_links, link_targets, links_text, takes_link, LinkSelector};
 use crate::actor::ActorId;
+use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 

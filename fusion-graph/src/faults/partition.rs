@@ -3,10 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::check::Check;
 use super::kind::{FaultKind, Targets, Window};
 use super::select::matches;
 use crate::actor::ActorId;
+use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 

@@ -5,10 +5,10 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::check::Check;
 use super::on_links::{on_its_links, LinkFault};
 use super::select::either;
 use super::select::LinkSelector;
+use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 

@@ -6,8 +6,8 @@ use serde::{Deserialize, Serialize};
 use crate::actor::ActorId;
 use crate::ScenarioError;
 
-use super::check::Check;
 use super::kind::Targets;
+use crate::check::Check;
 
 /// A directed link selector; `"*"` on either side matches every actor,
 /// `"node-*"` every node and `"sensor-*"` every sensor.

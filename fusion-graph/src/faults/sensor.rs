@@ -4,11 +4,11 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::check::Check;
 use super::effects::SensorFault;
 use super::kind::{FaultKind, Targets, Window};
 use super::select::{actor_word, in_share, matches};
 use crate::actor::ActorId;
+use crate::check::Check;
 use crate::ScenarioError;
 
 /// What a faulty sensor does instead of measuring honestly.

@@ -2,6 +2,7 @@
 //! others; an error names the file and the key.
 
 use super::*;
+use crate::check::Check;
 
 impl Scenario {
     /// The random-exchange paper's trackers are a different node: one particle filter
@@ -47,34 +48,13 @@ impl Scenario {
 
     /// Checks every value's range; the error names the file and the key.
     pub fn validate(&self, file: &str) -> Result<(), ScenarioError> {
-        let bad = |key: &str, expected: &str, got: String| {
-            Err(ScenarioError::Invalid {
-                file: file.into(),
-                key: key.into(),
-                expected: expected.into(),
-                got,
-            })
-        };
-        let positive = |key: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                bad(key, "a finite number > 0", v.to_string())
-            }
-        };
-        let non_negative = |key: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                bad(key, "a finite number >= 0", v.to_string())
-            }
-        };
-
+        let check = Check::root(file);
+        let bad = |key: &str, expected: &str, got: String| Err(check.fail(key, expected, got));
         if self.steps == 0 {
             return bad("steps", "at least 1", "0".into());
         }
-        positive("region.width", self.region.width)?;
-        positive("region.height", self.region.height)?;
+        check.positive("region.width", self.region.width)?;
+        check.positive("region.height", self.region.height)?;
         match (&self.nodes.grid, &self.nodes.positions) {
             (Some(g), None) if g[0] > 0 && g[1] > 0 => {}
             (Some(g), None) => return bad("nodes.grid", "two counts >= 1", format!("{g:?}")),
@@ -136,7 +116,7 @@ impl Scenario {
         if self.sensors.active_per_node == 0 {
             return bad("sensors.active_per_node", "at least 1", "0".into());
         }
-        positive("censoring.listen_ms", self.censoring.listen_ms)?;
+        check.positive("censoring.listen_ms", self.censoring.listen_ms)?;
         let budget = self.censoring.budget;
         if self.censoring.policy != CensoringPolicy::Off
             && !(budget > 0.0 && budget <= self.sensors.active_per_node as f64)
@@ -150,7 +130,7 @@ impl Scenario {
                 budget.to_string(),
             );
         }
-        positive("fusion_graph.radius", self.fusion_graph.radius)?;
+        check.positive("fusion_graph.radius", self.fusion_graph.radius)?;
         for (i, v) in self.target.position.iter().enumerate() {
             if !v.is_finite() {
                 return bad(
@@ -167,7 +147,7 @@ impl Scenario {
                 self.target.course_deg.to_string(),
             );
         }
-        non_negative("target.speed", self.target.speed)?;
+        check.non_negative("target.speed", self.target.speed)?;
         if self.filter.particles < 10 {
             return bad(
                 "filter.particles",
@@ -181,14 +161,14 @@ impl Scenario {
         if self.consensus.rounds == 0 {
             return bad("consensus.rounds", "at least 1", "0".into());
         }
-        positive(
+        check.positive(
             "consensus.round_timeout_ms",
             self.consensus.round_timeout_ms,
         )?;
         self.validate_diffusion(file)?;
-        non_negative("filter.gate", self.filter.gate)?;
-        positive("clock.step_period_ms", self.clock.step_period_ms)?;
-        positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
+        check.non_negative("filter.gate", self.filter.gate)?;
+        check.positive("clock.step_period_ms", self.clock.step_period_ms)?;
+        check.positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;
         for (i, f) in self.faults.iter().enumerate() {
             f.check(file, i, self.steps)?;
         }

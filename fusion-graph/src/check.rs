@@ -1,21 +1,39 @@
-//! The checks a fault kind runs on its values, each error naming the key
-//! under `faults[i]` and the file.
+//! The checks a scenario's values go through, each error naming the file
+//! and the full key: the scenario's own (`region.width`) and each fault's
+//! (`faults[2].probability`).
 
 use crate::ScenarioError;
 
 pub struct Check<'a> {
     file: &'a str,
-    index: usize,
+    /// What every key starts with: empty, or `faults[2]`.
+    prefix: String,
 }
 
 impl<'a> Check<'a> {
-    pub fn new(file: &'a str, index: usize) -> Self {
-        Self { file, index }
+    /// Keys as they stand, from the scenario's top.
+    pub fn root(file: &'a str) -> Self {
+        Self {
+            file,
+            prefix: String::new(),
+        }
+    }
+
+    /// Keys under entry `index` of the fault schedule.
+    pub fn fault(file: &'a str, index: usize) -> Self {
+        Self {
+            file,
+            prefix: format!("faults[{index}]"),
+        }
     }
 
     /// The full key of `field`, e.g. `faults[2].probability`.
     pub fn key(&self, field: &str) -> String {
-        format!("faults[{}].{field}", self.index)
+        if self.prefix.is_empty() {
+            field.to_string()
+        } else {
+            format!("{}.{field}", self.prefix)
+        }
     }
 
     pub fn fail(
