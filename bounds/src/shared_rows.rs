@@ -206,18 +206,8 @@ impl<T: PlainRow> Default for LazyRows<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::alloc::{alloc_zeroed, Layout};
+    use crate::testing::line_aligned_memory as memory;
     use std::sync::atomic::AtomicUsize;
-
-    /// Zeroed, line-aligned memory that lives as long as the test process,
-    /// as a mapping does.
-    fn memory(bytes: usize) -> *mut u8 {
-        let layout = Layout::from_size_align(bytes, LINE).unwrap();
-        // SAFETY: a non-zero size; never freed, like a mapping kept for good.
-        let p = unsafe { alloc_zeroed(layout) };
-        assert!(!p.is_null());
-        p
-    }
 
     type Row = [f64; 5];
     kept_by_reference!(Row);

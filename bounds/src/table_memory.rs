@@ -81,17 +81,7 @@ pub unsafe fn share_table_rows(memory: *mut u8, len: usize) -> Result<(), ShareE
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::alloc::{alloc_zeroed, Layout};
-
-    /// Zeroed, line-aligned memory that lives as long as the test process,
-    /// as a mapping does.
-    fn memory(bytes: usize) -> *mut u8 {
-        let layout = Layout::from_size_align(bytes, LINE).unwrap();
-        // SAFETY: a non-zero size; never freed, like a mapping kept for good.
-        let p = unsafe { alloc_zeroed(layout) };
-        assert!(!p.is_null());
-        p
-    }
+    use crate::testing::line_aligned_memory as memory;
 
     #[test]
     fn memory_too_small_misaligned_or_of_another_layout_is_refused() {

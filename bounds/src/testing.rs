@@ -44,3 +44,13 @@ pub fn central_gradient(f: impl Fn(&State) -> f64, x: &State, step: f64, angular
     }
     g
 }
+
+/// Zeroed memory aligned to a cache line, that lives as long as the test
+/// process, as a mapping of the shared tables does.
+pub fn line_aligned_memory(bytes: usize) -> *mut u8 {
+    let layout = std::alloc::Layout::from_size_align(bytes, crate::shared_rows::LINE).unwrap();
+    // SAFETY: a non-zero size; never freed, like a mapping kept for good.
+    let p = unsafe { std::alloc::alloc_zeroed(layout) };
+    assert!(!p.is_null());
+    p
+}
