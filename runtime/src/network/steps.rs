@@ -155,6 +155,17 @@ pub(super) struct Holes {
     missing: u64,
     /// Steps with a hole so far, which pace the warnings.
     steps_with_holes: u32,
+    /// Which nodes reported the step being closed in time (kept to be
+    /// refilled each step).
+    in_time: Vec<bool>,
+}
+
+/// The node a report row is from (`None` for the centralized reference's).
+fn reporting_node(row: &TickRow) -> Option<usize> {
+    match row.node.parse::<ActorId>() {
+        Ok(ActorId::Node(n)) => Some(n as usize),
+        _ => None,
+    }
 }
 
 impl Holes {
@@ -164,14 +175,13 @@ impl Holes {
             heard: vec![false; nodes],
             missing: 0,
             steps_with_holes: 0,
+            in_time: vec![false; nodes],
         }
     }
 
     fn heard_from(&mut self, rows: &[TickRow]) {
-        for r in rows {
-            if let Ok(ActorId::Node(n)) = r.node.parse::<ActorId>() {
-                self.heard[n as usize] = true;
-            }
+        for n in rows.iter().filter_map(reporting_node) {
+            self.heard[n] = true;
         }
     }
 
@@ -180,14 +190,17 @@ impl Holes {
     /// every twentieth, so that a long run with a lasting hole says so
     /// without flooding the terminal.
     fn close_step(&mut self, step: u32, alive: &[bool], rows: &[TickRow]) {
+        self.in_time.fill(false);
+        for n in rows.iter().filter_map(reporting_node) {
+            self.in_time[n] = true;
+        }
         let mut missing = Vec::new();
         for (n, live) in alive.iter().enumerate() {
             if !*live {
                 continue;
             }
             self.live_steps[n] += 1;
-            let me = ActorId::Node(n as u16).to_string();
-            if !rows.iter().any(|r| r.node == me) {
+            if !self.in_time[n] {
                 missing.push(ActorId::Node(n as u16));
             }
         }
