@@ -65,6 +65,15 @@ impl ProcessingNode {
         }
     }
 
+    /// Bounds each step's waiting stages by its period, as real time
+    /// needs ([`NodeActor::bound_steps_by`]). The random-exchange trackers
+    /// bound their steps by their own listening windows and ignore it.
+    pub fn bound_steps_by(&mut self, period: Duration) {
+        if let ProcessingNode::CfDpf(n) = self {
+            n.bound_steps_by(period)
+        }
+    }
+
     pub fn subscriptions(&self) -> Vec<Channel> {
         either!(self, n => n.subscriptions())
     }

@@ -181,7 +181,8 @@ fn average(setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
         c.rounds as u16,
         Duration::from_secs_f64(c.round_timeout_ms / 1e3),
         c.auxiliary_fim,
-    )))
+    )
+    .stop_awaiting_the_late()))
 }
 
 fn random_exchange(setup: &Setup<'_>) -> Result<Cooperation, ParamError> {

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
+use fusion_graph::scenario::ClockMode;
 use fusion_graph::hosts::Placement;
 use fusion_graph::transport::iceoryx::map_run_memory;
 use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
@@ -299,6 +300,9 @@ fn node_loop<T: Transport>(
     let mut actor = ProcessingNode::for_scenario(scenario, topology, index)?;
     if rejoin {
         actor.expect_rejoin();
+    }
+    if scenario.clock.mode == ClockMode::Realtime {
+        actor.bound_steps_by(Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3));
     }
     for c in actor.publications() {
         t.publish_on(c)?;

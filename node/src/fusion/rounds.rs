@@ -108,8 +108,13 @@ pub struct RoundEngine<R: RoundRule> {
     /// Presume a neighbour gone for the rest of the step once it has missed
     /// this many rounds in a row ([`presume_gone_after`](Self::presume_gone_after)).
     gone_after: Option<u16>,
+    /// Stop waiting, for the rest of the step, for a neighbour that missed
+    /// a round ([`stop_awaiting_the_late`](Self::stop_awaiting_the_late)).
+    stop_awaiting: bool,
     /// Consecutive rounds each node has missed in the step `misses_step`.
     misses: Vec<u16>,
+    /// Neighbours not waited for in the rest of the step `misses_step`.
+    late: Vec<bool>,
     misses_step: u32,
     /// The latest step begun: anything older is late.
     current_step: u32,
@@ -134,7 +139,9 @@ impl<R: RoundRule> RoundEngine<R> {
             last_round: rounds,
             round_timeout,
             gone_after: None,
+            stop_awaiting: false,
             misses: vec![0; topology.nodes()],
+            late: vec![false; topology.nodes()],
             misses_step: 0,
             current_step: 0,
             running: None,
@@ -160,6 +167,19 @@ impl<R: RoundRule> RoundEngine<R> {
         self
     }
 
+    /// A neighbour that misses a round's deadline is not waited for in the
+    /// step's remaining rounds: a round completes once the others are in,
+    /// with the late one's value if it happens to be there by then. It is
+    /// waited for again from the next step. Without this, one slow node
+    /// costs each of its neighbours a timeout in every round, which makes
+    /// them late for their own neighbours in turn, and the whole network
+    /// misses the step; with it, a slow node costs one timeout a step, and
+    /// the nodes beyond its neighbours none.
+    pub fn stop_awaiting_the_late(mut self) -> Self {
+        self.stop_awaiting = true;
+        self
+    }
+
     fn presumed_gone(&self, m: u16) -> bool {
         self.gone_after
             .is_some_and(|k| self.misses[m as usize] >= k)
@@ -180,6 +200,7 @@ impl<R: RoundRule> RoundEngine<R> {
         self.done = None;
         if step != self.misses_step {
             self.misses.iter_mut().for_each(|m| *m = 0);
+            self.late.fill(false);
             self.misses_step = step;
         }
         let mut view = view.to_vec();
@@ -245,14 +266,15 @@ impl<R: RoundRule> RoundEngine<R> {
             .and_then(|h| self.rule.assemble(&h.pieces))
     }
 
-    /// Completes the running round if every live neighbour has been heard.
+    /// Completes the running round if every live neighbour still waited
+    /// for has been heard.
     fn try_complete_round(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         let Some(r) = &self.running else {
             return;
         };
         if self
             .live_neighbours(&r.view)
-            .all(|m| self.heard_value(r, m).is_some())
+            .all(|m| self.late[m as usize] || self.heard_value(r, m).is_some())
         {
             self.complete_round(now, out);
         }
@@ -276,6 +298,7 @@ impl<R: RoundRule> RoundEngine<R> {
                 None => {
                     present[m as usize] = false;
                     self.misses[m as usize] += 1;
+                    self.late[m as usize] |= self.stop_awaiting;
                 }
             }
         }
@@ -407,11 +430,105 @@ impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
         self.take_result()
     }
 
-    /// Completes every remaining round with what has been heard.
+    /// Completes every remaining round with what has been heard. The
+    /// result counts only the rounds that had run, not the ones cut short.
     fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<R::Output> {
+        let cut_at = self.running.as_ref().map(|r| r.round - 1);
         while self.running.is_some() {
             self.complete_round(now, out);
         }
+        if let (Some(done), Some(ran)) = (self.done.as_mut(), cut_at) {
+            done.stats.rounds_completed = ran;
+        }
         self.take_result()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::average::average_consensus;
+    use crate::fusion::testing::{drive, Fate};
+    use crate::fusion::InformationVector;
+    use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO};
+
+    const TIMEOUT: Duration = Duration::from_millis(50);
+    const SLOW: u16 = 5;
+
+    /// A 4×4 grid whose links join the four nearest nodes; node 5 is inside.
+    fn grid() -> Topology {
+        let overrides = ["nodes.grid=[4,4]", "region.width=2000", "region.height=2000"]
+            .map(String::from);
+        let s = Scenario::from_toml(DEFAULT_SCENARIO, "grid", &overrides).unwrap();
+        Topology::from_scenario(&s, "grid").unwrap()
+    }
+
+    /// Each node's time from the start of 12 rounds of average consensus to
+    /// its result, when everything node 5 sends takes 80 ms, longer than a
+    /// round's 50 ms timeout.
+    fn times_with_a_slow_node(stop_awaiting: bool) -> (Topology, Vec<Duration>) {
+        let t = grid();
+        let nodes: Vec<_> = (0..16)
+            .map(|i| {
+                let e = average_consensus(i, &t, 12, TIMEOUT, false);
+                if stop_awaiting {
+                    e.stop_awaiting_the_late()
+                } else {
+                    e
+                }
+            })
+            .collect();
+        let value = |i: u16| InformationVector {
+            delta_eta: [i as f64; 4],
+            delta_lambda: [1.0; 10],
+            delta_l: [1.0; 10],
+            s_obs: None,
+        };
+        let latency = |from: u16, _: u16, _: &Payload| {
+            Fate::Deliver(Duration::from_millis(if from == SLOW { 80 } else { 1 }))
+        };
+        let got = drive(nodes, value, &[true; 16], latency, Duration::from_secs(60));
+        let times = got.iter().map(|f| f.as_ref().unwrap().stats.total).collect();
+        (t, times)
+    }
+
+    #[test]
+    fn a_slow_node_costs_its_neighbours_one_timeout_a_step_and_the_others_no_more() {
+        let (t, times) = times_with_a_slow_node(true);
+        let near = &t.neighbours[SLOW as usize];
+        for (n, took) in times.iter().enumerate() {
+            // One timeout, twelve rounds of 1 ms links, and one round's
+            // worth of a neighbour that itself waited out the timeout.
+            assert!(*took < TIMEOUT * 2 + Duration::from_millis(40), "node-{n} took {took:?}");
+            if n as u16 != SLOW && !near.contains(&(n as u16)) {
+                assert!(*took < TIMEOUT + Duration::from_millis(40), "node-{n} took {took:?}");
+            }
+        }
+        // Waiting for the slow node in every round instead stalls everyone
+        // for many timeouts: the case the rule is for.
+        let (_, waited) = times_with_a_slow_node(false);
+        let far = waited.iter().enumerate().filter(|(n, _)| !near.contains(&(*n as u16)));
+        for (n, took) in far.filter(|(n, _)| *n != SLOW as usize) {
+            assert!(*took > TIMEOUT * 4, "node-{n} took only {took:?} waiting every round");
+        }
+    }
+
+    #[test]
+    fn rounds_cut_short_are_not_counted_as_completed() {
+        let t = grid();
+        let mut e = average_consensus(0, &t, 12, TIMEOUT, false);
+        let mut out = Vec::new();
+        let v = InformationVector {
+            delta_eta: [0.0; 4],
+            delta_lambda: [1.0; 10],
+            delta_l: [1.0; 10],
+            s_obs: None,
+        };
+        e.expect_step(1);
+        e.start(1, v, &[true; 16], Duration::ZERO, &mut out);
+        e.handle_timeout(TIMEOUT, &mut out);
+        e.handle_timeout(TIMEOUT * 2, &mut out);
+        let done = e.finish_now(TIMEOUT * 2, &mut out).unwrap();
+        assert_eq!(done.stats.rounds_completed, 2);
     }
 }

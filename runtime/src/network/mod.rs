@@ -45,6 +45,8 @@ pub fn run_network(
     }
     node::registry::check(scenario, topology)?;
     crate::preflight::check(scenario, topology, options.centralized)?;
+    // The children read the clock's mode from the scenario they are given.
+    let scenario = &clocked(scenario, options.lockstep);
     // Runs whose launcher was SIGKILLed left their shared memory behind:
     // clear those (and only those) before adding ours.
     match sweep_abandoned_runs() {
@@ -172,6 +174,16 @@ pub fn run_network(
         remove_run_resources(domain).context("removing the run's shared memory")?;
     }
     result
+}
+
+/// The scenario as the run keeps time: `--lockstep` written into it, so
+/// that the children, and `scenario.toml` in the results, say so.
+fn clocked(scenario: &Scenario, lockstep: bool) -> Scenario {
+    let mut s = scenario.clone();
+    if lockstep {
+        s.clock.mode = ClockMode::Lockstep;
+    }
+    s
 }
 
 /// Waits until an event matches, or the timeout passes.

@@ -58,8 +58,8 @@ pub(super) fn run_steps(
     for step in 1..=scenario.steps {
         w.step = step;
         w.poll_events();
-        let returned = w.restart_returning()?;
-        let process_faults = w.apply_process_faults(&schedule, step)? || returned;
+        let returned = w.restart_returning()? | w.admit_restarted();
+        let process_faults = w.apply_process_faults(&schedule, step, lockstep)? || returned;
         schedule.apply_link_faults(step, &mut w.transport, topology);
         let views = schedule.membership_views(step, topology, &w.alive);
         let truth = world.advance();
@@ -141,7 +141,51 @@ pub(super) fn run_steps(
             break;
         }
     }
-    Ok((steps_done, run_start.elapsed().as_secs_f64(), holes))
+    let wall = run_start.elapsed().as_secs_f64();
+    if !lockstep && !w.interrupted {
+        await_last_reports(steps_done, w, &mut reports, &mut holes, recorder)?;
+    }
+    Ok((steps_done, wall, holes))
+}
+
+/// How long the launcher waits for a lagging node's next report after the
+/// last step, and at most in all.
+const LAST_REPORTS_IDLE: Duration = Duration::from_secs(2);
+const LAST_REPORTS_AT_MOST: Duration = Duration::from_secs(30);
+
+/// In real time the clock ends the steps, not the nodes: a node behind it
+/// is still working on the last steps. Its reports are waited for (late,
+/// as they are), while they keep coming, before the nodes are told to
+/// stop; stopping them at once lost every report still on its way, all of
+/// them in a network that lagged by more than its run.
+fn await_last_reports(
+    last: u32,
+    w: &mut WorldState<'_>,
+    reports: &mut StepReports,
+    holes: &mut Holes,
+    recorder: &mut Recorder<'_>,
+) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let mut idle_until = started + LAST_REPORTS_IDLE;
+    loop {
+        let live = w.alive.iter().filter(|a| **a).count();
+        let now = Instant::now();
+        if recorder.reports(last) >= live
+            || now >= idle_until
+            || now >= started + LAST_REPORTS_AT_MOST
+            || w.interrupted
+        {
+            return Ok(());
+        }
+        w.transport.wait(Duration::from_millis(50))?;
+        let rows = reports.take(&mut w.transport, last + 1)?;
+        if !rows.is_empty() {
+            idle_until = Instant::now() + LAST_REPORTS_IDLE;
+        }
+        holes.heard_from(&rows);
+        recorder.record(rows)?;
+        w.poll_events();
+    }
 }
 
 /// The live nodes whose report of a step did not come in time: told as it

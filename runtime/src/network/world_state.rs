@@ -46,6 +46,11 @@ pub(super) struct WorldState<'a> {
     pub(super) views: Vec<Vec<bool>>,
     /// Actors of a lost host whose agent is back, to start again.
     pub(super) returning: Vec<ActorId>,
+    /// In real time: actors restarted and not yet ready, which the steps
+    /// do not wait for.
+    starting: HashSet<ActorId>,
+    /// Of those, the ones that said `ready`, to join at the next step.
+    ready: Vec<ActorId>,
 }
 
 impl<'a> WorldState<'a> {
@@ -69,6 +74,8 @@ impl<'a> WorldState<'a> {
             interrupted: false,
             views: Vec::new(),
             returning: Vec::new(),
+            starting: HashSet::new(),
+            ready: Vec::new(),
         }
     }
 
@@ -219,6 +226,7 @@ impl<'a> WorldState<'a> {
             }
             Event::Interrupted => self.interrupted = true,
             Event::HostBack(actors) => self.returning.extend(actors),
+            Event::Ready(actor) if self.starting.remove(&actor) => self.ready.push(actor),
             _ => {}
         }
     }
@@ -244,6 +252,19 @@ impl<'a> WorldState<'a> {
             self.set_alive(a, true);
         }
         Ok(true)
+    }
+
+    /// Restarted actors that became ready since the last step join the
+    /// network from this one; true if any did.
+    pub(super) fn admit_restarted(&mut self) -> bool {
+        if self.ready.is_empty() {
+            return false;
+        }
+        self.transport.update_connections();
+        for a in std::mem::take(&mut self.ready) {
+            self.set_alive(a, true);
+        }
+        true
     }
 
     /// Several hosts: every host's actors' counts, merged into `total`, and
@@ -277,10 +298,17 @@ impl<'a> WorldState<'a> {
         Vec::new()
     }
 
+    /// Kills and restarts the actors the schedule says at `step`; true if
+    /// the membership changed. A restarted process takes a while to start:
+    /// in lockstep the step waits for it, so that it is back at the step the
+    /// schedule says; in real time the steps go on, and it joins at the first
+    /// step after it is ready ([`admit_restarted`](Self::admit_restarted)),
+    /// since a launcher that waited would make every node miss its deadline.
     pub(super) fn apply_process_faults(
         &mut self,
         schedule: &FaultSchedule,
         step: u32,
+        lockstep: bool,
     ) -> anyhow::Result<bool> {
         let mut changed = false;
         for event in schedule.process_events(step) {
@@ -306,6 +334,10 @@ impl<'a> WorldState<'a> {
                             actor,
                             rejoin: true,
                         })?;
+                        if !lockstep {
+                            self.starting.insert(actor);
+                            continue;
+                        }
                         self.await_ready(&[actor], &mut |_| {})?;
                         self.transport.update_connections();
                     }
