@@ -111,6 +111,17 @@ pub fn check_body(kind: ProtocolKind, body: &[u8]) -> Result<(), WireError> {
     (entry.check)(body)
 }
 
+/// The longest body of the kinds registered so far: the consensus and pair
+/// channels make room for it (`transport::limits`).
+pub fn longest_body() -> usize {
+    REGISTERED
+        .iter()
+        .filter_map(OnceLock::get)
+        .map(|e| e.len)
+        .max()
+        .unwrap_or(0)
+}
+
 struct Entry {
     name: &'static str,
     len: usize,

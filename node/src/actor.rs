@@ -22,7 +22,7 @@ use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Tele
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 
 use crate::censoring::NodeCensoring;
-use crate::collector::{Collected, Collector, Lagging, Offer};
+use crate::collector::{Collected, Collector, Lagging, Offer, SensorAnswers};
 use crate::estimator::{
     Contribution, Evidence, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, Observation,
     ObservedValue, SensingModel,
@@ -112,6 +112,8 @@ pub struct NodeActor {
     censoring: Option<NodeCensoring>,
     /// Observations that missed their step's collection.
     lagging: Lagging,
+    /// Which own sensors ever answered an activation.
+    answers: SensorAnswers,
     /// The scenario's last step: a step beyond it is not of this run.
     steps: u32,
     late_messages: u64,
@@ -202,6 +204,7 @@ impl NodeActor {
             last_step: None,
             censoring: NodeCensoring::for_scenario(scenario, &models, topology, index)?,
             lagging: Lagging::new(models.quantizer.as_ref().map(|q| q.cells())),
+            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
             steps: scenario.steps,
             late_messages: 0,
             late_reported: 0,
@@ -603,11 +606,13 @@ impl NodeActor {
             Some(c) => c.activate(step, &picks, own, &self.model, mask),
         };
         out.push(wiring::activation(self.index, step, own, &picks, payload));
+        self.answers.activated(&active);
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.phase = Phase::Collecting(Collector::new(step, active, now + self.listen, cells));
     }
 
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
+        self.answers.answered(sensor);
         let (offer, complete) = match &mut self.phase {
             Phase::Collecting(c) => {
                 let offer = c.offer(step, sensor, value);
@@ -667,6 +672,11 @@ impl NodeActor {
         };
         let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
         let estimate = update.map_or(local.estimate, |u| u.estimate);
+        // With censoring, a sensor's silence is its answer.
+        let (unanswered_sensors, first_unanswered) = match self.censoring {
+            None => self.answers.unanswered(),
+            Some(_) => (0, None),
+        };
         if let (Some(c), Some(u)) = (self.censoring.as_mut(), update) {
             c.fed_back = u.posterior;
         }
@@ -689,6 +699,8 @@ impl NodeActor {
                 wiring::micros(fused.stats.total),
                 wiring::micros(self.selection_time),
             ],
+            unanswered_sensors,
+            first_unanswered,
         };
         self.observations = 0;
         self.selection_time = Duration::ZERO;

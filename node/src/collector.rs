@@ -229,3 +229,84 @@ mod tests {
         assert_eq!(done.silent, vec![7]);
     }
 }
+
+/// Which of a node's own sensors have ever answered an activation. A
+/// sensor that is activated again and again and never answers (a dead
+/// process the launcher thinks alive, a link that loses everything) leaves
+/// a hole the launcher must hear of: the node's telemetry names it.
+#[derive(Debug, Clone)]
+pub struct SensorAnswers {
+    own: Vec<u16>,
+    activated: Vec<u16>,
+    answered: Vec<bool>,
+}
+
+/// Activations without an answer before a sensor counts as unanswering:
+/// some may be lost, or late at a step's end (under 30 % loss each way, 5
+/// in a row go unanswered for one sensor in 30).
+pub const UNANSWERED_AFTER: u16 = 5;
+
+impl SensorAnswers {
+    pub fn new(own: &[u16]) -> Self {
+        Self {
+            own: own.to_vec(),
+            activated: vec![0; own.len()],
+            answered: vec![false; own.len()],
+        }
+    }
+
+    fn slot(&self, sensor: u16) -> Option<usize> {
+        self.own.iter().position(|s| *s == sensor)
+    }
+
+    pub fn activated(&mut self, sensors: &[u16]) {
+        for s in sensors {
+            if let Some(i) = self.slot(*s) {
+                self.activated[i] = self.activated[i].saturating_add(1);
+            }
+        }
+    }
+
+    /// An observation from `sensor` arrived, in time or late.
+    pub fn answered(&mut self, sensor: u16) {
+        if let Some(i) = self.slot(sensor) {
+            self.answered[i] = true;
+        }
+    }
+
+    /// How many own sensors were activated at least [`UNANSWERED_AFTER`]
+    /// times and never answered, and the first of them.
+    pub fn unanswered(&self) -> (u16, Option<u16>) {
+        let mut silent = self
+            .own
+            .iter()
+            .zip(&self.activated)
+            .zip(&self.answered)
+            .filter(|((_, n), answered)| **n >= UNANSWERED_AFTER && !**answered)
+            .map(|((s, _), _)| *s);
+        let first = silent.next();
+        (first.map_or(0, |_| 1 + silent.count() as u16), first)
+    }
+}
+
+#[cfg(test)]
+mod answer_tests {
+    use super::*;
+
+    #[test]
+    fn a_sensor_activated_again_and_again_without_an_answer_is_named() {
+        let mut a = SensorAnswers::new(&[10, 11, 12]);
+        for _ in 0..UNANSWERED_AFTER - 1 {
+            a.activated(&[10, 11]);
+        }
+        assert_eq!(a.unanswered(), (0, None), "one activation short");
+        a.activated(&[10, 11]);
+        a.answered(10);
+        assert_eq!(a.unanswered(), (1, Some(11)));
+        a.activated(&[12; UNANSWERED_AFTER as usize]);
+        assert_eq!(a.unanswered(), (2, Some(11)));
+        a.answered(11);
+        a.answered(99); // not ours
+        assert_eq!(a.unanswered(), (1, Some(12)));
+    }
+}

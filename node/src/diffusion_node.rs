@@ -22,7 +22,7 @@ use fusion_graph::wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use rand_chacha::ChaCha8Rng;
 
-use crate::collector::{Collector, Offer};
+use crate::collector::{Collector, Offer, SensorAnswers};
 use crate::diffusion::DiffusionTracker;
 use crate::estimator::{Observation, ObservedValue, SensingModel};
 use crate::fusion::{
@@ -163,6 +163,8 @@ pub struct DiffusionNode {
     late_messages: u64,
     late_reported: u64,
     deadline_missed: bool,
+    /// Which own sensors ever answered an activation.
+    answers: SensorAnswers,
 }
 
 fn round_timeout(scenario: &Scenario) -> Duration {
@@ -205,6 +207,7 @@ impl DiffusionNode {
             late_messages: 0,
             late_reported: 0,
             deadline_missed: false,
+            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
         })
     }
 
@@ -452,6 +455,7 @@ impl DiffusionNode {
             &picks,
             Payload::Activate { mask },
         ));
+        self.answers.activated(&active);
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.stepping = Some(Box::new(Stepping {
             step,
@@ -485,6 +489,7 @@ impl DiffusionNode {
     }
 
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, out: &mut Vec<Outgoing>) {
+        self.answers.answered(sensor);
         let offer = match self.stepping.as_mut().and_then(|s| s.collector.as_mut()) {
             Some(c) => c.offer(step, sensor, value),
             None => Offer::Late,
@@ -676,6 +681,7 @@ impl DiffusionNode {
             return;
         };
         let estimate = self.tracker.estimate();
+        let (unanswered_sensors, first_unanswered) = self.answers.unanswered();
         let telemetry = Telemetry {
             estimate: wiring::reported_estimate(&estimate),
             bound: None,
@@ -695,6 +701,8 @@ impl DiffusionNode {
                 wiring::micros(s.stats.total),
                 0,
             ],
+            unanswered_sensors,
+            first_unanswered,
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

@@ -175,14 +175,16 @@ fn parts() -> std::sync::RwLockReadGuard<'static, Parts> {
 fn average(setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
     setup.params.only(&[])?;
     let c = &setup.scenario.consensus;
-    Ok(Box::new(average_consensus(
-        setup.node,
-        setup.topology,
-        c.rounds as u16,
-        Duration::from_secs_f64(c.round_timeout_ms / 1e3),
-        c.auxiliary_fim,
-    )
-    .stop_awaiting_the_late()))
+    Ok(Box::new(
+        average_consensus(
+            setup.node,
+            setup.topology,
+            c.rounds as u16,
+            Duration::from_secs_f64(c.round_timeout_ms / 1e3),
+            c.auxiliary_fim,
+        )
+        .stop_awaiting_the_late(),
+    ))
 }
 
 fn random_exchange(setup: &Setup<'_>) -> Result<Cooperation, ParamError> {

@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
-use fusion_graph::scenario::ClockMode;
 use fusion_graph::hosts::Placement;
+use fusion_graph::scenario::ClockMode;
 use fusion_graph::transport::iceoryx::map_run_memory;
 use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};

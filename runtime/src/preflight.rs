@@ -1,9 +1,11 @@
 //! Before `cqnet run` spawns anything: will the network fit this machine?
 //! A run that cannot fit should fail at once, with what to change, rather
-//! than after a partial start (processes killed by the OOM killer, or
-//! `fork` refused at the 2,000th child).
+//! than after a partial start (processes killed by the OOM killer, `fork`
+//! refused at the 2,000th child, or a full `/dev/shm` at the 900th).
 
 use anyhow::bail;
+use fusion_graph::registered::Shape;
+use fusion_graph::transport::limits::Footprint;
 use fusion_graph::{Scenario, Topology};
 use nix::sys::resource::{getrlimit, setrlimit, Resource};
 
@@ -74,6 +76,7 @@ pub fn check(scenario: &Scenario, topology: &Topology, centralized: bool) -> any
             );
         }
     }
+    check_footprint(&footprint(scenario, topology, centralized), &machine_room())?;
     let fds = descriptors_needed(topology, centralized);
     raise_descriptor_limit(fds).map_err(|hard| {
         let hint = if centralized {
@@ -87,6 +90,76 @@ pub fn check(scenario: &Scenario, topology: &Topology, centralized: bool) -> any
              /etc/security/limits.conf) or shrink the network{hint}"
         )
     })
+}
+
+/// What the run's iceoryx2 services and shared tables will take of the
+/// machine (`fusion_graph::transport::limits`).
+pub fn footprint(scenario: &Scenario, topology: &Topology, centralized: bool) -> Footprint {
+    let pairs = scenario.consensus.protocol.shape() == Shape::Tracker { pairs: true };
+    let tables = bounds::table_memory::shared_table_bytes() as u64;
+    Footprint::of(topology, pairs, centralized, tables)
+}
+
+/// What this machine offers a run's shared memory and its launcher; `None`
+/// where it cannot be read (nothing is checked against it then).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MachineRoom {
+    /// Bytes free in `/dev/shm`.
+    pub shm_bytes: Option<u64>,
+    /// Files that may still be made in `/dev/shm`.
+    pub shm_files: Option<u64>,
+    /// `vm.max_map_count`: memory maps a process may hold.
+    pub max_maps: Option<u64>,
+}
+
+pub fn machine_room() -> MachineRoom {
+    let shm = nix::sys::statvfs::statvfs("/dev/shm").ok();
+    MachineRoom {
+        shm_bytes: shm
+            .as_ref()
+            .map(|v| v.blocks_available() * v.fragment_size()),
+        // tmpfs mounted with nr_inodes=0 reports no inode limit at all.
+        shm_files: shm
+            .as_ref()
+            .filter(|v| v.files() > 0)
+            .map(|v| v.files_available()),
+        max_maps: std::fs::read_to_string("/proc/sys/vm/max_map_count")
+            .ok()
+            .and_then(|t| t.trim().parse().ok()),
+    }
+}
+
+/// Refuses a run whose shared memory, files in `/dev/shm` or launcher's
+/// memory maps would exceed what the machine offers, naming the limit and
+/// how to raise it.
+pub fn check_footprint(need: &Footprint, room: &MachineRoom) -> anyhow::Result<()> {
+    if let Some(free) = room.shm_bytes.filter(|free| need.shared_bytes > *free) {
+        bail!(
+            "the network needs about {} MB of shared memory in /dev/shm and it has {} MB free: \
+             enlarge /dev/shm (in a container, `docker run --shm-size=…`; otherwise \
+             `mount -o remount,size=… /dev/shm`) or shrink the network (a network's shared \
+             memory grows with the square of its sensors: each keeps a connection to the tick's \
+             queue, which holds room for every sensor)",
+            need.shared_bytes.div_ceil(1 << 20),
+            free >> 20
+        );
+    }
+    if let Some(free) = room.shm_files.filter(|free| need.files > *free) {
+        bail!(
+            "the network needs about {} files in /dev/shm and it may make {free} more: \
+             remount /dev/shm with more inodes (`mount -o remount,nr_inodes=… /dev/shm`) or \
+             shrink the network",
+            need.files
+        );
+    }
+    if let Some(max) = room.max_maps.filter(|max| need.launcher_maps > *max) {
+        bail!(
+            "the launcher would hold about {} memory maps and vm.max_map_count is {max}: \
+             raise it (`sysctl -w vm.max_map_count=…`, as root) or shrink the network",
+            need.launcher_maps
+        );
+    }
+    Ok(())
 }
 
 /// Raises the soft descriptor limit to `needed`, and the hard one too when
@@ -167,6 +240,49 @@ mod tests {
         assert_eq!(large.nodes() + large.sensors(), 2600);
         assert!(descriptors_needed(&large, false) < 20_000);
         assert!(descriptors_needed(&large, true) > 20_000);
+    }
+
+    /// Each limit refuses on its own, naming itself and what to change;
+    /// the default network fits a machine of 64 MB of /dev/shm (a
+    /// container's default), the 2,601-process one does not.
+    #[test]
+    fn a_footprint_beyond_the_machine_is_refused_naming_the_limit() {
+        let (s, t) = default();
+        let need = footprint(&s, &t, true);
+        let docker = MachineRoom {
+            shm_bytes: Some(64 << 20),
+            shm_files: Some(1 << 20),
+            max_maps: Some(65_530),
+        };
+        assert!(check_footprint(&need, &docker).is_ok(), "{need:?}");
+        let mut large = s.clone();
+        large.nodes.grid = Some([10, 10]);
+        large.region.width = 5000.0;
+        large.region.height = 5000.0;
+        let big = Topology::from_scenario(&large, "large").unwrap();
+        let e = check_footprint(&footprint(&large, &big, false), &docker)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("MB of shared memory in /dev/shm") && e.contains("--shm-size"),
+            "{e}"
+        );
+        let few_files = MachineRoom {
+            shm_files: Some(1000),
+            ..docker
+        };
+        let e = check_footprint(&need, &few_files).unwrap_err().to_string();
+        assert!(
+            e.contains("files in /dev/shm") && e.contains("nr_inodes"),
+            "{e}"
+        );
+        let few_maps = MachineRoom {
+            max_maps: Some(500),
+            ..docker
+        };
+        let e = check_footprint(&need, &few_maps).unwrap_err().to_string();
+        assert!(e.contains("vm.max_map_count is 500"), "{e}");
+        assert!(check_footprint(&need, &MachineRoom::default()).is_ok());
     }
 
     #[test]

@@ -364,6 +364,15 @@ pub fn peak_memory_kb() -> Option<u64> {
         .ok()
 }
 
+/// CPU time this process has used, user and system, in seconds (its own
+/// threads, not its children).
+pub fn own_cpu_seconds() -> Option<f64> {
+    use nix::sys::resource::{getrusage, UsageWho};
+    let u = getrusage(UsageWho::RUSAGE_SELF).ok()?;
+    let seconds = |t: nix::sys::time::TimeVal| t.tv_sec() as f64 + t.tv_usec() as f64 / 1e6;
+    Some(seconds(u.user_time()) + seconds(u.system_time()))
+}
+
 /// What a run knows about itself beyond its rows, for the summary.
 pub struct RunFacts {
     pub command: String,
@@ -548,6 +557,7 @@ impl<'w> Recorder<'w> {
             processes: facts.processes,
             startup_seconds: facts.startup_seconds,
             peak_memory_kb: peak_memory_kb(),
+            cpu_seconds: own_cpu_seconds(),
             children_memory_kb: facts.children_memory_kb,
         };
         self.writer.write_summary(&summary)?;
@@ -577,6 +587,8 @@ mod tests {
                 deadline_missed: false,
                 late_messages: 0,
                 stage_micros: [10, 10, 40, 50, 0],
+                unanswered_sensors: 0,
+                first_unanswered: None,
             },
         }
     }

@@ -433,6 +433,8 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         deadline_missed: false,
         late_messages: 0,
         stage_micros: [0; 5],
+        unanswered_sensors: 0,
+        first_unanswered: None,
     }
 }
 

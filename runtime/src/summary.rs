@@ -121,6 +121,9 @@ pub struct Summary {
     pub startup_seconds: Option<f64>,
     /// Peak resident memory of the launcher (or the one `sim` process), kB.
     pub peak_memory_kb: Option<u64>,
+    /// CPU seconds of the launcher (or the one `sim` process) itself.
+    #[serde(default)]
+    pub cpu_seconds: Option<f64>,
     /// `run`: the children's memory, kB.
     pub children_memory_kb: Option<ChildrenMemory>,
 }
@@ -349,6 +352,14 @@ pub fn print_table(s: &Summary) {
         );
     }
     println!("  {:<34} {:>12}", "processes", s.processes);
+    if let Some(cpu) = s.cpu_seconds {
+        let whose = if s.command.starts_with("run") {
+            "launcher CPU, s"
+        } else {
+            "CPU, s"
+        };
+        println!("  {:<34} {:>12.1}", whose, cpu);
+    }
     if let Some(seconds) = s.startup_seconds {
         println!("  {:<34} {:>12.1}", "start-up, s", seconds);
     }

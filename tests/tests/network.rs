@@ -226,7 +226,15 @@ fn delay_loss_and_a_healing_partition_are_survived_and_accounted() {
     assert!(cost.dropped_messages > 100, "{cost:?}");
     assert!(cost.late_messages > 0, "{cost:?}");
     assert!(cost.rounds_with_fewer_neighbours > 0, "{cost:?}");
-    assert_eq!(r.faults().len(), 3);
+    // The three, and the reports the loss took on the nodes' links to the
+    // launcher: the summary lists those holes as a fault of the run.
+    let faults: Vec<&str> = r.faults().iter().map(|f| f.fault.as_str()).collect();
+    assert_eq!(faults.len(), 4, "{faults:?}");
+    assert!(
+        faults[3].starts_with("no report in time from live nodes"),
+        "{faults:?}"
+    );
+    assert!(cost.missing_node_steps > 0, "{cost:?}");
     // Tracking recovers once the partition has healed.
     let late = r.rmse(38..=45);
     assert!(late < 10.0, "RMSE over steps 38-45: {late}");
@@ -529,6 +537,43 @@ fn a_live_node_that_never_reports_fails_the_run_naming_it() {
     assert!(
         error.contains("error: node-3 never reported, though"),
         "only node-3 is silent: {error}"
+    );
+    r.assert_clean();
+}
+
+/// A sensor that is live but never answers its activations fails the run,
+/// naming it, and is told of as it happens: here every message sensor-3
+/// sends is lost, and every sensor is activated every step.
+#[test]
+fn a_live_sensor_that_never_answers_fails_the_run_naming_it() {
+    let _guard = exclusive();
+    let r = small(network("silent-sensor", 6))
+        .lockstep()
+        .no_central()
+        .set("sensors.active_per_node", 9)
+        .set("consensus.round_timeout_ms", 20)
+        .fault(Loss {
+            links: vec![LinkSelector::new("sensor-3", "*")],
+            at_step: 1,
+            duration: None,
+            probability: 1.0,
+        })
+        .run()
+        .unwrap();
+    r.assert_failure_naming(&["sensor-3 (of node-0) never answered an activation"]);
+    assert!(
+        r.stderr()
+            .contains("step 5: sensor-3 has answered none of its activations"),
+        "told as it happens: {}",
+        r.stderr()
+    );
+    assert!(
+        r.summary()
+            .faults
+            .iter()
+            .any(|f| f.fault == "sensors that answered no activation: sensor-3"),
+        "{:?}",
+        r.summary().faults
     );
     r.assert_clean();
 }

@@ -18,7 +18,8 @@ use crate::hosts::{actor_of_wake_id, Placement};
 use crate::topology::Topology;
 use crate::{ReceiveError, SendError, SetupError, WaitError};
 
-use super::iceoryx::{listen, max_message_len, open_channel, publish, Pub, Sub};
+use super::iceoryx::{listen, open_channel, publish, Pub, Sub};
+use super::limits::max_message_len;
 use super::resources::DeadNodeSweep;
 use super::resources::{setup, RunResources};
 use super::wake::{open_bridge_wake, open_wake, WakeIds};

@@ -17,6 +17,8 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 
 use super::futex;
+pub use super::limits::QUEUE_DEPTH;
+use super::limits::{max_message_len, ChannelLimits};
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
 use crate::actor::ActorId;
@@ -25,7 +27,7 @@ use crate::hosts::{wake_id, Placement};
 use crate::ledger::Ledger;
 use crate::shaper::LinkShaper;
 use crate::topology::Topology;
-use crate::wire::{Message, MessageKind, WireFormat, HEADER_BYTES};
+use crate::wire::{Message, MessageKind, WireFormat};
 use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 pub(crate) use super::resources::RunResources;
@@ -44,8 +46,8 @@ pub(crate) type Pub = Publisher<futex::Service, [u8], ()>;
 pub(crate) type PortFactory =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<futex::Service, [u8], ()>;
 
-/// Opens (or creates) a channel's service, sized for its readers the same
-/// way by every actor and by a host's bridge.
+/// Opens (or creates) a channel's service, sized by [`ChannelLimits`] the
+/// same way by every actor and by a host's bridge.
 pub(crate) fn open_channel(
     node: &Node<futex::Service>,
     run: &RunId,
@@ -53,16 +55,14 @@ pub(crate) fn open_channel(
     channel: Channel,
 ) -> Result<PortFactory, SetupError> {
     let name = run.service_name(&channel.service_suffix())?;
-    // +1 subscriber: on a host of several, the bridge reads what leaves it.
-    let subs = topology.subscribers(channel) + 1;
-    // +1 publisher: a test may inject raw bytes through a second one.
+    let limits = ChannelLimits::of(topology, channel);
     retry(|| {
         node.service_builder(&name)
             .publish_subscribe::<[u8]>()
-            .max_publishers(2)
-            .max_subscribers(subs)
-            .max_nodes(subs + 3)
-            .subscriber_max_buffer_size(buffer_len(channel))
+            .max_publishers(limits.publishers)
+            .max_subscribers(limits.subscribers)
+            .max_nodes(limits.nodes)
+            .subscriber_max_buffer_size(limits.queue)
             .history_size(0)
             .open_or_create()
     })
@@ -103,37 +103,6 @@ pub struct IceoryxTransport {
     shaper: LinkShaper,
     buffer: Vec<u8>,
 }
-
-/// Largest message each channel carries, which sizes its shared memory.
-pub(crate) fn max_message_len(channel: Channel) -> usize {
-    HEADER_BYTES
-        + match channel {
-            Channel::Tick | Channel::Observation(_) => 48,
-            // The mask, and the censoring feedback: an estimate and its
-            // packed covariance.
-            Channel::Activation(_) => 48 + 32 + 80,
-            Channel::Consensus(_) => 300,
-            // A posterior swapped in a random exchange: mean and covariance.
-            Channel::Pair { .. } => 120,
-            Channel::Control(_) | Channel::Telemetry(_) => 240,
-        }
-}
-
-/// Queue depth per subscriber, well above any burst the protocol produces (a
-/// consensus neighbour may be a step ahead). A full queue overwrites its
-/// oldest sample rather than blocking the sender, so that a stopped receiver
-/// cannot stall the network; such losses show as sent-but-unaccounted
-/// messages in the results. Seen here with iceoryx2 0.10: a burst larger than
-/// the queue, sent before the subscriber's first receive, lost the whole
-/// burst rather than only the oldest samples.
-fn buffer_len(_channel: Channel) -> usize {
-    QUEUE_DEPTH
-}
-
-/// The depth of every subscriber's queue (`buffer_len`): what a receiver
-/// that does not run may fall behind by before its oldest messages are
-/// overwritten.
-pub const QUEUE_DEPTH: usize = 64;
 
 impl IceoryxTransport {
     /// Creates this actor's iceoryx2 node and its wake-up listener.

@@ -13,6 +13,7 @@ use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 mod bridge_ends;
 pub mod futex;
 pub mod iceoryx;
+pub mod limits;
 pub mod memory;
 mod resources;
 mod wake;

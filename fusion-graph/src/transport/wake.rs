@@ -8,14 +8,12 @@ use super::futex;
 use super::Channel;
 use crate::actor::ActorId;
 use crate::channel::RunId;
-use crate::hosts::{wake_id, Placement};
+use crate::hosts::Placement;
 use crate::topology::Topology;
 use crate::SetupError;
 
+use super::limits::WakeLimits;
 use super::resources::{retry, setup, RunResources};
-
-/// Notifiers a wake-up service takes beyond the actor's peers.
-const WAKE_SLACK: usize = 4;
 
 /// The event ids of one actor's wake-up service: who woke it, as far as it
 /// needs to know.
@@ -147,32 +145,28 @@ pub(crate) fn open_wake(
     topology: &Topology,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
     let name = run.service_name(&format!("wake/{actor}"))?;
-    let ids = WakeIds::of(actor, topology).max();
-    // Only an actor's peers wake it (a node's sensors and neighbours and
-    // the launcher; a sensor's node and the launcher), and a few more for
-    // tools and tests. Sized for everyone, the services' shared memory and
-    // set-up grew with the square of the network: 2,600 processes did not
-    // start in 400 s.
-    let wakers = topology.peers(actor) + WAKE_SLACK;
-    open_event(node, &name, wakers, ids, "wake event")
+    open_event(
+        node,
+        &name,
+        WakeLimits::of_actor(topology, actor),
+        "wake event",
+    )
 }
 
-/// Opens or creates an event service for one listener and `wakers`
-/// notifiers, with event ids up to `ids`.
+/// Opens or creates an event service with `limits`.
 pub(crate) fn open_event(
     node: &Node<futex::Service>,
     name: &ServiceName,
-    wakers: usize,
-    ids: usize,
+    limits: WakeLimits,
     what: &str,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
     retry(|| {
         node.service_builder(name)
             .event()
-            .max_notifiers(wakers)
-            .max_listeners(2)
-            .max_nodes(wakers + 2)
-            .event_id_max_value(ids)
+            .max_notifiers(limits.notifiers)
+            .max_listeners(limits.listeners)
+            .max_nodes(limits.nodes)
+            .event_id_max_value(limits.max_event_id)
             .open_or_create()
     })
     .map_err(|e| setup(what, e))
@@ -188,8 +182,6 @@ pub(crate) fn open_bridge_wake(
     topology: &Topology,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<futex::Service>, SetupError> {
     let name = run.service_name("wake/bridge")?;
-    // The host's actors, and the launcher's on the first host.
-    let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
-    let ids = wake_id(ActorId::Launcher, topology) + topology.nodes() + topology.sensors();
-    open_event(node, &name, wakers, ids, "bridge wake event")
+    let limits = WakeLimits::of_bridge(placement, host, topology);
+    open_event(node, &name, limits, "bridge wake event")
 }

@@ -23,6 +23,8 @@ pub fn examples() -> Vec<Message> {
         deadline_missed: false,
         late_messages: 2,
         stage_micros: [1, 2, 3, 4, 5],
+        unanswered_sensors: 1,
+        first_unanswered: Some(17),
     };
     vec![
         Message::new(

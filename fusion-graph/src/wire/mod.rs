@@ -264,6 +264,11 @@ pub struct Telemetry {
     /// filter), and the sensor selection (from `BeginStep` to the activation;
     /// zero for a manager that chooses alone).
     pub stage_micros: [u32; 5],
+    /// Own sensors activated several times that never answered, and the
+    /// first of them (0 and `None` with censoring, where silence is an
+    /// answer).
+    pub unanswered_sensors: u16,
+    pub first_unanswered: Option<u16>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -457,8 +457,12 @@ mod tests {
 
     /// A 4×4 grid whose links join the four nearest nodes; node 5 is inside.
     fn grid() -> Topology {
-        let overrides = ["nodes.grid=[4,4]", "region.width=2000", "region.height=2000"]
-            .map(String::from);
+        let overrides = [
+            "nodes.grid=[4,4]",
+            "region.width=2000",
+            "region.height=2000",
+        ]
+        .map(String::from);
         let s = Scenario::from_toml(DEFAULT_SCENARIO, "grid", &overrides).unwrap();
         Topology::from_scenario(&s, "grid").unwrap()
     }
@@ -488,7 +492,10 @@ mod tests {
             Fate::Deliver(Duration::from_millis(if from == SLOW { 80 } else { 1 }))
         };
         let got = drive(nodes, value, &[true; 16], latency, Duration::from_secs(60));
-        let times = got.iter().map(|f| f.as_ref().unwrap().stats.total).collect();
+        let times = got
+            .iter()
+            .map(|f| f.as_ref().unwrap().stats.total)
+            .collect();
         (t, times)
     }
 
@@ -499,17 +506,29 @@ mod tests {
         for (n, took) in times.iter().enumerate() {
             // One timeout, twelve rounds of 1 ms links, and one round's
             // worth of a neighbour that itself waited out the timeout.
-            assert!(*took < TIMEOUT * 2 + Duration::from_millis(40), "node-{n} took {took:?}");
+            assert!(
+                *took < TIMEOUT * 2 + Duration::from_millis(40),
+                "node-{n} took {took:?}"
+            );
             if n as u16 != SLOW && !near.contains(&(n as u16)) {
-                assert!(*took < TIMEOUT + Duration::from_millis(40), "node-{n} took {took:?}");
+                assert!(
+                    *took < TIMEOUT + Duration::from_millis(40),
+                    "node-{n} took {took:?}"
+                );
             }
         }
         // Waiting for the slow node in every round instead stalls everyone
         // for many timeouts: the case the rule is for.
         let (_, waited) = times_with_a_slow_node(false);
-        let far = waited.iter().enumerate().filter(|(n, _)| !near.contains(&(*n as u16)));
+        let far = waited
+            .iter()
+            .enumerate()
+            .filter(|(n, _)| !near.contains(&(*n as u16)));
         for (n, took) in far.filter(|(n, _)| *n != SLOW as usize) {
-            assert!(*took > TIMEOUT * 4, "node-{n} took only {took:?} waiting every round");
+            assert!(
+                *took > TIMEOUT * 4,
+                "node-{n} took only {took:?} waiting every round"
+            );
         }
     }
 

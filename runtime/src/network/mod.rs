@@ -5,6 +5,7 @@
 //! main thread) owns the processes.
 
 mod gather;
+mod holes;
 mod options;
 mod steps;
 mod world_state;
@@ -225,7 +226,7 @@ fn world_thread(
     w.start_everyone(topology, view, progress)?;
     let startup_seconds = started.elapsed().as_secs_f64();
     let lockstep = options.lockstep || scenario.clock.mode == ClockMode::Lockstep;
-    let (steps_done, wall_steps, holes) = run_steps(
+    let (steps_done, wall_steps, holes, unanswered) = run_steps(
         scenario,
         topology,
         options,
@@ -265,6 +266,8 @@ fn world_thread(
                 .crashed
                 .iter()
                 .map(|(actor, step, status)| crash_fault(*actor, *step, status))
+                .chain(holes.as_fault())
+                .chain(unanswered.as_fault(steps_done))
                 .collect(),
         },
     )?;
@@ -281,6 +284,9 @@ fn world_thread(
         tracing::warn!("{e}");
     }
     if let Some(silent) = holes.never_heard() {
+        bail!("{silent}; results so far are in {}", options.out.display());
+    }
+    if let Some(silent) = unanswered.never_answered() {
         bail!("{silent}; results so far are in {}", options.out.display());
     }
     Ok(summary)

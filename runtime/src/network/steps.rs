@@ -17,8 +17,9 @@ use crate::results::{Recorder, TickRow};
 use crate::sim::central_telemetry;
 use crate::world::World;
 
+use super::holes::{Holes, Unanswered};
 use super::options::{RunOptions, RunProgress};
-use super::world_state::{crash_fault, name_some, WorldState};
+use super::world_state::{crash_fault, WorldState};
 
 /// The steps, from the first to the scenario's last or an interruption:
 /// each ticks the world, applies the faults, gathers the nodes' reports
@@ -33,9 +34,10 @@ pub(super) fn run_steps(
     w: &mut WorldState<'_>,
     recorder: &mut Recorder<'_>,
     progress: &mut dyn FnMut(RunProgress<'_>),
-) -> anyhow::Result<(u32, f64, Holes)> {
+) -> anyhow::Result<(u32, f64, Holes, Unanswered)> {
     let view = options.view.as_deref();
     let mut holes = Holes::new(topology.nodes());
+    let mut unanswered = Unanswered::default();
     let mut world = World::new(scenario)?;
     let mut reports = StepReports {
         central: options
@@ -90,6 +92,7 @@ pub(super) fn run_steps(
             w.transport.wait(left.min(Duration::from_millis(50)))?;
             let rows = reports.take(&mut w.transport, step)?;
             holes.heard_from(&rows);
+            unanswered.heard_from(&rows, &w.sensors.alive, &schedule);
             publish_late_rows(view, &rows, step);
             reports
                 .rows
@@ -143,9 +146,13 @@ pub(super) fn run_steps(
     }
     let wall = run_start.elapsed().as_secs_f64();
     if !lockstep && !w.interrupted {
-        await_last_reports(steps_done, w, &mut reports, &mut holes, recorder)?;
+        let heard = |rows: &[TickRow], w: &WorldState<'_>| {
+            holes.heard_from(rows);
+            unanswered.heard_from(rows, &w.sensors.alive, &schedule);
+        };
+        await_last_reports(steps_done, w, &mut reports, recorder, heard)?;
     }
-    Ok((steps_done, wall, holes))
+    Ok((steps_done, wall, holes, unanswered))
 }
 
 /// How long the launcher waits for a lagging node's next report after the
@@ -162,8 +169,8 @@ fn await_last_reports(
     last: u32,
     w: &mut WorldState<'_>,
     reports: &mut StepReports,
-    holes: &mut Holes,
     recorder: &mut Recorder<'_>,
+    mut heard: impl FnMut(&[TickRow], &WorldState<'_>),
 ) -> anyhow::Result<()> {
     let started = Instant::now();
     let mut idle_until = started + LAST_REPORTS_IDLE;
@@ -182,104 +189,9 @@ fn await_last_reports(
         if !rows.is_empty() {
             idle_until = Instant::now() + LAST_REPORTS_IDLE;
         }
-        holes.heard_from(&rows);
+        heard(&rows, w);
         recorder.record(rows)?;
         w.poll_events();
-    }
-}
-
-/// The live nodes whose report of a step did not come in time: told as it
-/// happens, and a node never heard from while it was live fails the run.
-pub(super) struct Holes {
-    /// Steps each node was live.
-    live_steps: Vec<u32>,
-    /// Whether each node's report ever arrived, in time or late.
-    heard: Vec<bool>,
-    /// Live node-steps with no report in time, so far.
-    missing: u64,
-    /// Steps with a hole so far, which pace the warnings.
-    steps_with_holes: u32,
-    /// Which nodes reported the step being closed in time (kept to be
-    /// refilled each step).
-    in_time: Vec<bool>,
-}
-
-/// The node a report row is from (`None` for the centralized reference's).
-fn reporting_node(row: &TickRow) -> Option<usize> {
-    match row.node.parse::<ActorId>() {
-        Ok(ActorId::Node(n)) => Some(n as usize),
-        _ => None,
-    }
-}
-
-impl Holes {
-    fn new(nodes: usize) -> Self {
-        Self {
-            live_steps: vec![0; nodes],
-            heard: vec![false; nodes],
-            missing: 0,
-            steps_with_holes: 0,
-            in_time: vec![false; nodes],
-        }
-    }
-
-    fn heard_from(&mut self, rows: &[TickRow]) {
-        for n in rows.iter().filter_map(reporting_node) {
-            self.heard[n] = true;
-        }
-    }
-
-    /// Counts the live nodes with no report among `rows`, `step`'s reports
-    /// in time, and warns: at the first three steps with a hole, then at
-    /// every twentieth, so that a long run with a lasting hole says so
-    /// without flooding the terminal.
-    fn close_step(&mut self, step: u32, alive: &[bool], rows: &[TickRow]) {
-        self.in_time.fill(false);
-        for n in rows.iter().filter_map(reporting_node) {
-            self.in_time[n] = true;
-        }
-        let mut missing = Vec::new();
-        for (n, live) in alive.iter().enumerate() {
-            if !*live {
-                continue;
-            }
-            self.live_steps[n] += 1;
-            if !self.in_time[n] {
-                missing.push(ActorId::Node(n as u16));
-            }
-        }
-        if missing.is_empty() {
-            return;
-        }
-        self.missing += missing.len() as u64;
-        self.steps_with_holes += 1;
-        if self.steps_with_holes <= 3 || self.steps_with_holes.is_multiple_of(20) {
-            tracing::warn!(
-                "step {step}: no report in time from {} ({} live node-steps without one so far)",
-                name_some(&missing, 5),
-                self.missing
-            );
-        }
-    }
-
-    /// The nodes that were live and never reported, as an error's words.
-    pub(super) fn never_heard(&self) -> Option<String> {
-        let silent: Vec<ActorId> = (0..self.heard.len())
-            .filter(|n| self.live_steps[*n] > 0 && !self.heard[*n])
-            .map(|n| ActorId::Node(n as u16))
-            .collect();
-        let longest = silent
-            .iter()
-            .filter_map(|a| match a {
-                ActorId::Node(n) => Some(self.live_steps[*n as usize]),
-                _ => None,
-            })
-            .max()?;
-        Some(format!(
-            "{} never reported, though live for up to {longest} steps: the run has no estimate from {}",
-            name_some(&silent, 10),
-            if silent.len() == 1 { "it" } else { "them" }
-        ))
     }
 }
 
