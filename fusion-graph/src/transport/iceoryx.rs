@@ -525,6 +525,11 @@ mod tests {
             WakeIds::of(ActorId::Launcher, &topology).max(),
             1 + topology.sensors()
         );
+        // The services are sized for the same ids.
+        for a in [node, ActorId::Sensor(0), ActorId::Launcher] {
+            let sized = super::super::limits::WakeLimits::of_actor(&topology, a).max_event_id;
+            assert_eq!(sized, WakeIds::of(a, &topology).max(), "{a}");
+        }
         let mut heard = Heard::new(node, &topology);
         // Before anything is known, everything is read.
         assert!(heard.may_have_data(Channel::Observation(mine)));

@@ -11,7 +11,6 @@ use crate::hosts::{wake_id, Placement};
 use crate::topology::Topology;
 use crate::wire::HEADER_BYTES;
 
-use super::wake::WakeIds;
 use super::Channel;
 
 /// The depth of every subscriber's queue: what a receiver that does not
@@ -122,7 +121,7 @@ impl WakeLimits {
     pub fn of_actor(topology: &Topology, actor: ActorId) -> Self {
         Self::with_wakers(
             topology.peers(actor) + WAKE_SLACK,
-            WakeIds::of(actor, topology).max(),
+            max_wake_id(topology, actor),
         )
     }
 
@@ -133,6 +132,18 @@ impl WakeLimits {
         let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
         let ids = wake_id(ActorId::Launcher, topology) + topology.nodes() + topology.sensors();
         Self::with_wakers(wakers, ids)
+    }
+}
+
+/// The largest event id of an actor's wake-up service, in the numbering
+/// of `wake.rs`'s `WakeIds`: 0 and 1 for a waker that does not say who it
+/// is and for the launcher or a node, then one for each sensor the actor
+/// reads (a node's own, every sensor for the launcher).
+fn max_wake_id(topology: &Topology, actor: ActorId) -> usize {
+    1 + match actor {
+        ActorId::Node(n) => topology.node_sensors[n as usize].len(),
+        ActorId::Launcher => topology.sensors(),
+        ActorId::Sensor(_) => 0,
     }
 }
 
