@@ -48,7 +48,8 @@ impl WakeIds {
         }
     }
 
-    /// The largest id.
+    /// The largest id (`limits::WakeLimits` sizes the service for it).
+    #[cfg(test)]
     pub(crate) fn max(&self) -> usize {
         Self::OTHER + self.sensors.len()
     }

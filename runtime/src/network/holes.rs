@@ -1,6 +1,7 @@
 //! What a run's reports leave out, told as it happens and at the end: live
 //! nodes with no report in time ([`Holes`]), and sensors activated again
-//! and again that never answered ([`Unanswered`]).
+//! and again that never answered ([`Unanswered`]); [`Gaps`] feeds both the
+//! same reports.
 
 use std::collections::BTreeMap;
 
@@ -12,9 +13,57 @@ use crate::summary::AppliedFault;
 
 use super::world_state::name_some;
 
+/// Everything the reports leave out.
+pub(super) struct Gaps {
+    holes: Holes,
+    sensors: Unanswered,
+}
+
+impl Gaps {
+    pub(super) fn new(nodes: usize) -> Self {
+        Self {
+            holes: Holes::new(nodes),
+            sensors: Unanswered::default(),
+        }
+    }
+
+    /// Reports that arrived, of any step.
+    pub(super) fn heard_from(
+        &mut self,
+        rows: &[TickRow],
+        sensors_alive: &[bool],
+        schedule: &FaultSchedule,
+    ) {
+        self.holes.heard_from(rows);
+        self.sensors.heard_from(rows, sensors_alive, schedule);
+    }
+
+    /// `step` is over: `rows` are its reports in time.
+    pub(super) fn close_step(&mut self, step: u32, alive: &[bool], rows: &[TickRow]) {
+        self.holes.close_step(step, alive, rows);
+    }
+
+    /// The gaps as faults of the run, for the summary.
+    pub(super) fn as_faults(&self, last_step: u32) -> Vec<AppliedFault> {
+        self.holes
+            .as_fault()
+            .into_iter()
+            .chain(self.sensors.as_fault(last_step))
+            .collect()
+    }
+
+    /// Why the run failed, if a live node never reported or a live sensor
+    /// never answered.
+    pub(super) fn failure(&self) -> Option<String> {
+        self.holes
+            .never_heard()
+            .or_else(|| self.sensors.never_answered())
+    }
+}
+
 /// The live nodes whose report of a step did not come in time: told as it
 /// happens, and a node never heard from while it was live fails the run.
-pub(super) struct Holes {
+struct Holes {
     /// Steps each node was live.
     live_steps: Vec<u32>,
     /// Whether each node's report ever arrived, in time or late.
@@ -41,7 +90,7 @@ fn reporting_node(row: &TickRow) -> Option<usize> {
 }
 
 impl Holes {
-    pub(super) fn new(nodes: usize) -> Self {
+    fn new(nodes: usize) -> Self {
         Self {
             live_steps: vec![0; nodes],
             heard: vec![false; nodes],
@@ -53,7 +102,7 @@ impl Holes {
         }
     }
 
-    pub(super) fn heard_from(&mut self, rows: &[TickRow]) {
+    fn heard_from(&mut self, rows: &[TickRow]) {
         for n in rows.iter().filter_map(reporting_node) {
             self.heard[n] = true;
         }
@@ -63,7 +112,7 @@ impl Holes {
     /// in time, and warns: at the first three steps with a hole, then at
     /// every twentieth, so that a long run with a lasting hole says so
     /// without flooding the terminal.
-    pub(super) fn close_step(&mut self, step: u32, alive: &[bool], rows: &[TickRow]) {
+    fn close_step(&mut self, step: u32, alive: &[bool], rows: &[TickRow]) {
         self.in_time.fill(false);
         for n in rows.iter().filter_map(reporting_node) {
             self.in_time[n] = true;
@@ -100,7 +149,7 @@ impl Holes {
 
     /// The holes as a fault of the run, for the summary: when, how many,
     /// and the nodes that missed the most.
-    pub(super) fn as_fault(&self) -> Option<AppliedFault> {
+    fn as_fault(&self) -> Option<AppliedFault> {
         let (first, last) = self.span?;
         let mut worst: Vec<(u32, ActorId)> = self
             .missed
@@ -123,7 +172,7 @@ impl Holes {
     }
 
     /// The nodes that were live and never reported, as an error's words.
-    pub(super) fn never_heard(&self) -> Option<String> {
+    fn never_heard(&self) -> Option<String> {
         let silent: Vec<ActorId> = (0..self.heard.len())
             .filter(|n| self.live_steps[*n] > 0 && !self.heard[*n])
             .map(|n| ActorId::Node(n as u16))
@@ -149,7 +198,7 @@ impl Holes {
 /// fault in the summary and fails the run. A sensor that is dead, or that a
 /// `dropout` fault silences, is not counted: its silence is the fault's.
 #[derive(Default)]
-pub(super) struct Unanswered {
+struct Unanswered {
     /// Each sensor told of, with its node and the step it was first told.
     told: BTreeMap<u16, (u16, u32)>,
     /// Each node's latest report: its step, and its first unanswered
@@ -158,12 +207,7 @@ pub(super) struct Unanswered {
 }
 
 impl Unanswered {
-    pub(super) fn heard_from(
-        &mut self,
-        rows: &[TickRow],
-        sensors_alive: &[bool],
-        schedule: &FaultSchedule,
-    ) {
+    fn heard_from(&mut self, rows: &[TickRow], sensors_alive: &[bool], schedule: &FaultSchedule) {
         for r in rows {
             let Some(node) = reporting_node(r) else {
                 continue;
@@ -200,7 +244,7 @@ impl Unanswered {
 
     /// The sensors still unanswered at the end, as a fault of the run for
     /// the summary (those that answered later were only told of).
-    pub(super) fn as_fault(&self, last_step: u32) -> Option<AppliedFault> {
+    fn as_fault(&self, last_step: u32) -> Option<AppliedFault> {
         let silent = self.still_silent();
         let first = silent
             .iter()
@@ -219,7 +263,7 @@ impl Unanswered {
     }
 
     /// The sensors that never answered, as an error's words.
-    pub(super) fn never_answered(&self) -> Option<String> {
+    fn never_answered(&self) -> Option<String> {
         let silent = self.still_silent();
         if silent.is_empty() {
             return None;

@@ -226,7 +226,7 @@ fn world_thread(
     w.start_everyone(topology, view, progress)?;
     let startup_seconds = started.elapsed().as_secs_f64();
     let lockstep = options.lockstep || scenario.clock.mode == ClockMode::Lockstep;
-    let (steps_done, wall_steps, holes, unanswered) = run_steps(
+    let (steps_done, wall_steps, gaps) = run_steps(
         scenario,
         topology,
         options,
@@ -266,8 +266,7 @@ fn world_thread(
                 .crashed
                 .iter()
                 .map(|(actor, step, status)| crash_fault(*actor, *step, status))
-                .chain(holes.as_fault())
-                .chain(unanswered.as_fault(steps_done))
+                .chain(gaps.as_faults(steps_done))
                 .collect(),
         },
     )?;
@@ -283,10 +282,7 @@ fn world_thread(
     for e in &w.unexpected_exits {
         tracing::warn!("{e}");
     }
-    if let Some(silent) = holes.never_heard() {
-        bail!("{silent}; results so far are in {}", options.out.display());
-    }
-    if let Some(silent) = unanswered.never_answered() {
+    if let Some(silent) = gaps.failure() {
         bail!("{silent}; results so far are in {}", options.out.display());
     }
     Ok(summary)

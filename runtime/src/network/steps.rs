@@ -17,7 +17,7 @@ use crate::results::{Recorder, TickRow};
 use crate::sim::central_telemetry;
 use crate::world::World;
 
-use super::holes::{Holes, Unanswered};
+use super::holes::Gaps;
 use super::options::{RunOptions, RunProgress};
 use super::world_state::{crash_fault, WorldState};
 
@@ -34,10 +34,9 @@ pub(super) fn run_steps(
     w: &mut WorldState<'_>,
     recorder: &mut Recorder<'_>,
     progress: &mut dyn FnMut(RunProgress<'_>),
-) -> anyhow::Result<(u32, f64, Holes, Unanswered)> {
+) -> anyhow::Result<(u32, f64, Gaps)> {
     let view = options.view.as_deref();
-    let mut holes = Holes::new(topology.nodes());
-    let mut unanswered = Unanswered::default();
+    let mut gaps = Gaps::new(topology.nodes());
     let mut world = World::new(scenario)?;
     let mut reports = StepReports {
         central: options
@@ -91,8 +90,7 @@ pub(super) fn run_steps(
             let left = step_end.saturating_duration_since(Instant::now());
             w.transport.wait(left.min(Duration::from_millis(50)))?;
             let rows = reports.take(&mut w.transport, step)?;
-            holes.heard_from(&rows);
-            unanswered.heard_from(&rows, &w.sensors.alive, &schedule);
+            gaps.heard_from(&rows, &w.sensors.alive, &schedule);
             publish_late_rows(view, &rows, step);
             reports
                 .rows
@@ -112,7 +110,7 @@ pub(super) fn run_steps(
             recorder.record(vec![row])?;
         }
         steps_done = step;
-        holes.close_step(step, &w.alive, &reports.rows);
+        gaps.close_step(step, &w.alive, &reports.rows);
         if let Some(hub) = view {
             let dead: Vec<u16> = (0..topology.nodes() as u16)
                 .filter(|n| !w.alive[*n as usize])
@@ -147,12 +145,11 @@ pub(super) fn run_steps(
     let wall = run_start.elapsed().as_secs_f64();
     if !lockstep && !w.interrupted {
         let heard = |rows: &[TickRow], w: &WorldState<'_>| {
-            holes.heard_from(rows);
-            unanswered.heard_from(rows, &w.sensors.alive, &schedule);
+            gaps.heard_from(rows, &w.sensors.alive, &schedule)
         };
         await_last_reports(steps_done, w, &mut reports, recorder, heard)?;
     }
-    Ok((steps_done, wall, holes, unanswered))
+    Ok((steps_done, wall, gaps))
 }
 
 /// How long the launcher waits for a lagging node's next report after the
