@@ -11,7 +11,7 @@ use crate::cli::{
 };
 use crate::view::replay::{replay, FinishedRun};
 use crate::view::server::ViewServer;
-use experiments::{self as experiment, Entry, Experiment};
+use experiments::{self as experiment, Entry, Experiment, Verdict};
 use runtime::feed::Hub;
 use runtime::montecarlo::run_monte_carlo;
 use runtime::network::RunProgress;
@@ -393,8 +393,9 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         trajectories: args.trajectories as usize,
     };
     let mut failed = Vec::new();
+    let mut open = Vec::new();
     for entry in &chosen {
-        let (name, holds) = match entry {
+        let (name, verdict) = match entry {
             Entry::Network(e) => {
                 let bar = ExperimentProgress::new(e, args.runs);
                 let report = experiment::run(e, &options, &|arm, done| bar.update(arm, done))?;
@@ -404,22 +405,30 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
                     experiment::verdict_line(e, &report.outcome, &report.check)
                 );
                 println!("  {} and {}", report.csv.display(), report.svg.display());
-                (e.name, report.check.holds)
+                (e.name, report.check.verdict)
             }
             Entry::Computed(c) => {
                 let report = experiment::run_computed(c, &options)?;
                 print!("{}", report.table);
                 println!("{}", experiment::computed_verdict_line(c, &report.check));
                 println!("  {} and {}", report.csv.display(), report.svg.display());
-                (c.name, report.check.holds)
+                (c.name, report.check.verdict)
             }
         };
-        if !holds {
-            failed.push(name);
+        match verdict {
+            Verdict::Holds => {}
+            Verdict::DoesNotHold => failed.push(name),
+            Verdict::NotResolved { .. } => open.push(name),
         }
     }
     if !failed.is_empty() {
         println!("the papers' result did not hold in: {}", failed.join(", "));
+    }
+    if !open.is_empty() {
+        println!(
+            "not resolved at these runs (more runs would say): {}",
+            open.join(", ")
+        );
     }
     Ok(())
 }

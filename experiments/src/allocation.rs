@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Check, Computed, ComputedReport, Options};
+use super::{Check, Computed, ComputedReport, Options, Verdict};
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -142,7 +142,7 @@ fn check(problem: &Problem, r20: &[Row], r12: &[Row]) -> Check {
         && table_5_2_alike;
     let show = |b: Option<(u32, u32)>| b.map_or("none".into(), |(x, y)| format!("({x}, {y})"));
     Check {
-        holds,
+        verdict: Verdict::of(holds),
         statement: format!(
             "optimum {} for R = 20 and {} for R = 12 (dissertation: (12, 8) and (8, 4)); the same feasible allocations; Table 5.2's J {} to its four decimals; Table 5.1's J in {} of {} rows to four decimals and {} within {DEPARTS}; {} rows ({}) lie below 1/MSE3 of their allocation by more than {DEPARTS}, which no Fisher information can",
             show(b20),

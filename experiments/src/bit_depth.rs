@@ -20,7 +20,7 @@ use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Check, Computed, ComputedReport, Options};
+use super::{Check, Computed, ComputedReport, Options, Verdict};
 use runtime::montecarlo::run_monte_carlo;
 use runtime::results::write_atomically;
 
@@ -286,7 +286,7 @@ fn check(depths: &[Depth], measured: &[Measured]) -> Check {
         .collect::<Vec<_>>()
         .join(", ");
     Check {
-        holds: interior && deeper_with_rate,
+        verdict: Verdict::of(interior && deeper_with_rate),
         statement: [
             format!(
             "packed b bits at {} bit/s: the SPEB falls from {:.2} m² at {} bit to {:.2} m² at {} bits and rises to {:.2} m² at {} bits ({}); over cqnet's whole-byte wire the best depth is {} bits ({:.2} m²): 1 to 8 bits cost the same byte; the packed optimum {} with the rate: {}",

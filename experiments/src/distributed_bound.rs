@@ -2,7 +2,7 @@
 
 use fusion_graph::scenario::DEFAULT_SCENARIO;
 
-use super::{Arm, Bar, Check, Curve, Experiment, Figure, Metric, Outcome, Series};
+use super::{Arm, Bar, Check, Curve, Experiment, Figure, Metric, Outcome, Series, Verdict};
 
 /// The default quantizer, and no quantizer: the arms most figures compare.
 const EIGHT_BITS: Arm = Arm {
@@ -205,7 +205,9 @@ fn check_fig1b(o: &Outcome) -> Check {
         relative(q_lg, r_lg),
     );
     Check {
-        holds: q_gap.abs() < 0.05 && r_gap.abs() < 0.05 && above > 0.0 && above < 0.10,
+        verdict: Verdict::of(
+            q_gap.abs() < 0.05 && r_gap.abs() < 0.05 && above > 0.0 && above < 0.10,
+        ),
         statement: format!(
             "L_G and the auxiliary FIM differ by {:+.1} % at 8 bits and {:+.1} % raw \
              (overlap: within 5 %); the 8-bit bound is {:+.1} % above raw \
@@ -233,7 +235,7 @@ fn check_fig1c(o: &Outcome) -> Check {
     let gaps: Vec<f64> = means[..5].iter().map(|b| relative(*b, raw)).collect();
     let shrinking = gaps.windows(2).all(|w| w[1] < w[0]);
     Check {
-        holds: shrinking && gaps[4] > -0.01,
+        verdict: Verdict::of(shrinking && gaps[4] > -0.01),
         statement: format!(
             "the bound's excess over raw ({raw:.3} m) is {} from 4 to 8 bits: {}",
             if shrinking {
@@ -267,7 +269,7 @@ fn check_central(o: &Outcome) -> Check {
     };
     let gap = relative(dist, central);
     Check {
-        holds: gap.abs() < 0.05,
+        verdict: Verdict::of(gap.abs() < 0.05),
         statement: format!(
             "the CQ/dPCRLB is {:+.1} % from the centralized conditional bound (close: within 5 %); \
              means from step 10: CQ/dPCRLB {dist:.3} m, centralized {central:.3} m, \
@@ -286,7 +288,7 @@ fn check_traffic(o: &Outcome) -> Check {
     };
     let cq = a.bound_bytes_per_step;
     Check {
-        holds: cq > 0.0 && aux == 2.0 * cq,
+        verdict: Verdict::of(cq > 0.0 && aux == 2.0 * cq),
         statement: format!(
             "CQ/dPCRLB sends {cq:.0} B of bound information per step, the auxiliary-FIM baseline {aux:.0} B ({:.2}×)",
             aux / cq
@@ -296,7 +298,7 @@ fn check_traffic(o: &Outcome) -> Check {
 
 fn missing(what: &str) -> Check {
     Check {
-        holds: false,
+        verdict: Verdict::of(false),
         statement: format!("{what} is missing from the outcome"),
     }
 }

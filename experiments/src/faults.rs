@@ -6,7 +6,7 @@
 //! it, and how many steps it took to recover. And the Byzantine sensor on its
 //! own: how far it drags the estimate, and what the innovation gate gives back.
 
-use super::{Arm, Check, Curve, Experiment, Figure, Outcome, Series};
+use super::{Arm, Check, Curve, Experiment, Figure, Outcome, Series, Verdict};
 use runtime::results::{steps_to_recover, window_rmse};
 use runtime::summary::{RECOVERY_FACTOR, RECOVERY_HOLD};
 
@@ -348,7 +348,7 @@ fn check_matrix(outcome: &Outcome) -> Check {
         .filter_map(|c| c.recovered_after.map(|k| (k, c.label.as_str())))
         .max();
     Check {
-        holds: failing.is_empty(),
+        verdict: Verdict::of(failing.is_empty()),
         statement: format!(
             "{} of {} cells recover to within {RECOVERY_FACTOR}x the no-fault RMSE after the fault with every message accounted for{}{}",
             cells.len() - failing.len(),
@@ -373,7 +373,7 @@ fn check_byzantine(outcome: &Outcome) -> Check {
         during("30% Byzantine, gated"),
     ) else {
         return Check {
-            holds: false,
+            verdict: Verdict::of(false),
             statement: "an arm reported no estimate during the fault".into(),
         };
     };
@@ -383,12 +383,12 @@ fn check_byzantine(outcome: &Outcome) -> Check {
         after("30% Byzantine, gated"),
     ) else {
         return Check {
-            holds: false,
+            verdict: Verdict::of(false),
             statement: "an arm reported no estimate after the fault".into(),
         };
     };
     Check {
-        holds: defended < dragged && defended_after <= RECOVERY_FACTOR * honest_after,
+        verdict: Verdict::of(defended < dragged && defended_after <= RECOVERY_FACTOR * honest_after),
         statement: format!(
             "RMSE during the fault: honest {honest:.1} m (gated {gated_honest:.1} m); 30% Byzantine sensors drag it to {dragged:.1} m, the gate holds it at {defended:.1} m; after it: honest {honest_after:.1} m, ungated {dragged_after:.1} m, gated {defended_after:.1} m"
         ),

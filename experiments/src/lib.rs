@@ -14,6 +14,7 @@ mod distributed_bound;
 pub mod faults;
 mod figure;
 pub mod paired;
+pub use paired::Verdict;
 mod random_exchange_bounds;
 mod random_exchange_trackers;
 mod sensor_selection;
@@ -119,7 +120,7 @@ pub enum Metric {
 /// Whether the paper's result holds, and the figures that say so.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Check {
-    pub holds: bool,
+    pub verdict: Verdict,
     pub statement: String,
 }
 
@@ -280,11 +281,7 @@ pub fn computed_verdict_line(computed: &Computed, check: &Check) -> String {
         "{} ({}): {}: {}",
         computed.name,
         computed.source,
-        if check.holds {
-            "holds"
-        } else {
-            "does NOT hold"
-        },
+        check.verdict.words(),
         check.statement
     )
 }
@@ -458,11 +455,7 @@ pub fn verdict_line(experiment: &Experiment, outcome: &Outcome, check: &Check) -
         experiment.source,
         outcome.runs,
         outcome.steps,
-        if check.holds {
-            "holds"
-        } else {
-            "does NOT hold"
-        },
+        check.verdict.words(),
         check.statement
     )
 }

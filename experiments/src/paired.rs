@@ -8,9 +8,78 @@
 pub struct Paired {
     pub runs: usize,
     pub mean: f64,
+    /// The differences' sample standard deviation.
+    pub sd: f64,
     /// Half the width of the 95 % interval (Student's t on runs − 1
     /// degrees of freedom).
     pub half_width: f64,
+}
+
+/// What the runs say of a claim: it holds, it does not, or the interval
+/// still holds zero at this many runs. A verdict is never read off a
+/// difference of means the noise could reverse.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    Holds,
+    DoesNotHold,
+    /// At `runs` runs the interval holds zero; about `needed` runs would
+    /// resolve it if the mean difference and its spread stay as measured
+    /// (`None`: the mean difference is zero).
+    NotResolved {
+        runs: usize,
+        needed: Option<usize>,
+    },
+}
+
+impl Verdict {
+    /// A claim checked exactly (arithmetic, or a count), not estimated.
+    pub fn of(holds: bool) -> Self {
+        if holds {
+            Verdict::Holds
+        } else {
+            Verdict::DoesNotHold
+        }
+    }
+
+    /// Several claims that must all hold: one that does not decides; else
+    /// one not resolved leaves the whole not resolved (at the most runs
+    /// any of them needs).
+    pub fn all(verdicts: impl IntoIterator<Item = Verdict>) -> Self {
+        let mut out = Verdict::Holds;
+        for v in verdicts {
+            out = match (out, v) {
+                (Verdict::DoesNotHold, _) | (_, Verdict::DoesNotHold) => Verdict::DoesNotHold,
+                (
+                    Verdict::NotResolved { runs, needed: a },
+                    Verdict::NotResolved { runs: r, needed: b },
+                ) => Verdict::NotResolved {
+                    runs: runs.min(r),
+                    needed: a.zip(b).map(|(a, b)| a.max(b)),
+                },
+                (n @ Verdict::NotResolved { .. }, Verdict::Holds)
+                | (Verdict::Holds, n @ Verdict::NotResolved { .. }) => n,
+                (Verdict::Holds, Verdict::Holds) => Verdict::Holds,
+            };
+        }
+        out
+    }
+
+    pub fn holds(&self) -> bool {
+        *self == Verdict::Holds
+    }
+
+    /// "holds", "does NOT hold", or "not resolved at 20 runs (about 310
+    /// would resolve it)".
+    pub fn words(&self) -> String {
+        match self {
+            Verdict::Holds => "holds".into(),
+            Verdict::DoesNotHold => "does NOT hold".into(),
+            Verdict::NotResolved { runs, needed } => format!(
+                "not resolved at {runs} runs{}",
+                needed.map_or(String::new(), |n| format!(" (about {n} would resolve it)"))
+            ),
+        }
+    }
 }
 
 /// Where a paired difference puts `a` against `b`.
@@ -42,8 +111,40 @@ impl Paired {
         Some(Self {
             runs: n,
             mean,
+            sd: var.sqrt(),
             half_width: t95(n - 1) * (var / n as f64).sqrt(),
         })
+    }
+
+    /// The verdict on the claim that `a` is `expected` of `b` (lower or
+    /// higher): the interval on the expected side holds, on the other side
+    /// does not, across zero not resolved.
+    pub fn verdict(&self, expected: Order) -> Verdict {
+        match self.order() {
+            Order::Unresolved => Verdict::NotResolved {
+                runs: self.runs,
+                needed: self.runs_to_resolve(),
+            },
+            found => Verdict::of(found == expected),
+        }
+    }
+
+    /// The fewest runs whose 95 % interval, with this mean difference and
+    /// spread, would leave out zero: the smallest n with
+    /// t₀.₉₇₅(n − 1)·sd/√n < |mean|. `None` when the mean is zero (or
+    /// past ten million runs).
+    pub fn runs_to_resolve(&self) -> Option<usize> {
+        let m = self.mean.abs();
+        if m == 0.0 || !m.is_finite() {
+            return None;
+        }
+        // The normal's n, then up to where Student's t agrees.
+        let guess = ((1.959_964 * self.sd / m).powi(2)).ceil().max(2.0);
+        if guess > 1e7 {
+            return None;
+        }
+        (2.max(guess as usize / 2)..=10_000_000)
+            .find(|&n| t95(n - 1) * self.sd / (n as f64).sqrt() < m)
     }
 
     pub fn order(&self) -> Order {
@@ -91,6 +192,70 @@ mod tests {
         // Tabulated values at 40 and 120 degrees of freedom.
         assert!((t95(40) - 2.021).abs() < 0.002, "{}", t95(40));
         assert!((t95(120) - 1.980).abs() < 0.001, "{}", t95(120));
+    }
+
+    /// Differences 1, 2, 3, 4, 5: mean 3, sd √2.5, and the interval
+    /// 3 ± 2.776·√2.5/√5 = 3 ± 1.963 (t with 4 degrees of freedom).
+    #[test]
+    fn the_interval_of_a_known_case() {
+        let a: Vec<Option<f64>> = [11.0, 12.0, 13.0, 14.0, 15.0].map(Some).to_vec();
+        let b = vec![Some(10.0); 5];
+        let p = Paired::of(&a, &b).unwrap();
+        assert_eq!(p.runs, 5);
+        assert!((p.mean - 3.0).abs() < 1e-12);
+        assert!((p.sd - 2.5f64.sqrt()).abs() < 1e-12);
+        assert!((p.half_width - 1.963).abs() < 5e-4, "{}", p.half_width);
+        assert_eq!(p.verdict(Order::Higher), Verdict::Holds);
+        assert_eq!(p.verdict(Order::Lower), Verdict::DoesNotHold);
+    }
+
+    /// A mean difference of 0.1 with sd 1 needs about (1.96/0.1)² = 385
+    /// runs; with Student's t, the first n whose interval leaves zero out.
+    #[test]
+    fn the_runs_that_would_resolve_a_difference() {
+        let p = Paired {
+            runs: 20,
+            mean: 0.1,
+            sd: 1.0,
+            half_width: t95(19) / 20f64.sqrt(),
+        };
+        let n = p.runs_to_resolve().unwrap();
+        assert!(t95(n - 1) / (n as f64).sqrt() < 0.1);
+        assert!(t95(n - 2) / ((n - 1) as f64).sqrt() >= 0.1);
+        assert!((385..=390).contains(&n), "{n}");
+        assert_eq!(
+            p.verdict(Order::Lower),
+            Verdict::NotResolved {
+                runs: 20,
+                needed: Some(n)
+            }
+        );
+        assert_eq!(Paired { mean: 0.0, ..p }.runs_to_resolve(), None);
+        assert_eq!(
+            Verdict::NotResolved {
+                runs: 20,
+                needed: Some(n)
+            }
+            .words(),
+            format!("not resolved at 20 runs (about {n} would resolve it)")
+        );
+    }
+
+    #[test]
+    fn claims_together_take_the_weakest_verdict() {
+        let open = |needed| Verdict::NotResolved {
+            runs: 10,
+            needed: Some(needed),
+        };
+        assert_eq!(
+            Verdict::all([Verdict::Holds, Verdict::Holds]),
+            Verdict::Holds
+        );
+        assert_eq!(Verdict::all([Verdict::Holds, open(40), open(90)]), open(90));
+        assert_eq!(
+            Verdict::all([open(40), Verdict::DoesNotHold]),
+            Verdict::DoesNotHold
+        );
     }
 
     #[test]

@@ -16,7 +16,7 @@ use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Check, Computed, ComputedReport, Options};
+use super::{Check, Computed, ComputedReport, Options, Verdict};
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -196,7 +196,7 @@ fn check(curves: &[Curves]) -> Check {
         })
         .collect();
     Check {
-        holds: below,
+        verdict: Verdict::of(below),
         statement: format!(
             "the centralized PCRLB is below the RndEx-PF PCRLB at every step{} (at 100 s: {:.3} m against {:.3} m, ×{ratio_end:.2}); against the paper's N_T = 10^4, N_f = 10^3 the smaller sizes give the RndEx curve {}",
             if below { "" } else { " NOT" },

@@ -3,7 +3,7 @@
 
 use fusion_graph::scenario::SENSOR_SELECTION_SCENARIO;
 
-use super::paired::{Order, Paired};
+use super::paired::{Order, Paired, Verdict};
 use super::{Arm, Check, Curve, Experiment, Figure, Outcome, Series};
 
 const MANAGERS: [Arm; 4] = [
@@ -81,7 +81,7 @@ fn check_fig2(o: &Outcome) -> Check {
         .collect();
     let Some(pairs) = pairs else {
         return Check {
-            holds: false,
+            verdict: Verdict::of(false),
             statement: "fewer than two runs with an RMSE in every arm: nothing to compare".into(),
         };
     };
@@ -94,24 +94,19 @@ fn check_fig2(o: &Outcome) -> Check {
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let (holds, verdict) = if pairs.iter().all(|(_, p)| p.order() == Order::Lower) {
-        (
-            true,
-            "the conditional PCRLB manager's RMSE is the lowest of the four".to_string(),
-        )
-    } else if pairs.iter().any(|(_, p)| p.order() == Order::Higher) {
-        (
-            false,
-            format!(
-                "the conditional PCRLB manager's RMSE is NOT the lowest: {} lower",
-                named(Order::Higher)
-            ),
-        )
-    } else {
-        (
-            false,
-            format!("not resolved at {runs} runs whether the conditional PCRLB manager's RMSE is below {}'s", named(Order::Unresolved)),
-        )
+    let verdict = Verdict::all(pairs.iter().map(|(_, p)| p.verdict(Order::Lower)));
+    let finding = match verdict {
+        Verdict::Holds => {
+            "the conditional PCRLB manager's RMSE is the lowest of the four".to_string()
+        }
+        Verdict::DoesNotHold => format!(
+            "the conditional PCRLB manager's RMSE is NOT the lowest: {} lower",
+            named(Order::Higher)
+        ),
+        Verdict::NotResolved { .. } => format!(
+            "whether the conditional PCRLB manager's RMSE is below {}'s",
+            named(Order::Unresolved)
+        ),
     };
     let intervals = pairs
         .iter()
@@ -133,9 +128,9 @@ fn check_fig2(o: &Outcome) -> Check {
         .collect::<Vec<_>>()
         .join("; ");
     Check {
-        holds,
+        verdict,
         statement: format!(
-            "{verdict}; per-run RMSE of the conditional manager minus each other's, mean and 95 % interval over {runs} paired runs: {intervals}; means from step 10: {figures}"
+            "{finding}; per-run RMSE of the conditional manager minus each other's, mean and 95 % interval over {runs} paired runs: {intervals}; means from step 10: {figures}"
         ),
     }
 }

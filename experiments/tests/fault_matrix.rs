@@ -61,5 +61,5 @@ fn every_fault_kind_at_both_scopes_completes_balances_and_recovers() {
 fn the_innovation_gate_holds_off_byzantine_sensors() {
     let report = run("byzantine");
     eprintln!("{}", report.check.statement);
-    assert!(report.check.holds, "{}", report.check.statement);
+    assert!(report.check.verdict.holds(), "{}", report.check.statement);
 }

@@ -8,7 +8,7 @@ use plotters::prelude::*;
 
 use super::setups::{name, setups, SCHEMES};
 use super::trial::Measured;
-use crate::Check;
+use crate::{Check, Verdict};
 
 /// One (setup, l) row: our l̄ for each scheme beside the dissertation's.
 pub(super) struct Row {
@@ -52,7 +52,7 @@ pub(super) fn check(rows: &[Row]) -> Check {
         ));
     }
     Check {
-        holds,
+        verdict: Verdict::of(holds),
         statement: statements.join("; "),
     }
 }
