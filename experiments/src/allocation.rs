@@ -143,6 +143,7 @@ fn check(problem: &Problem, r20: &[Row], r12: &[Row]) -> Check {
     let show = |b: Option<(u32, u32)>| b.map_or("none".into(), |(x, y)| format!("({x}, {y})"));
     Check {
         verdict: Verdict::of(holds),
+        claims: Vec::new(),
         statement: format!(
             "optimum {} for R = 20 and {} for R = 12 (dissertation: (12, 8) and (8, 4)); the same feasible allocations; Table 5.2's J {} to its four decimals; Table 5.1's J in {} of {} rows to four decimals and {} within {DEPARTS}; {} rows ({}) lie below 1/MSE3 of their allocation by more than {DEPARTS}, which no Fisher information can",
             show(b20),

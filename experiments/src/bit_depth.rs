@@ -287,6 +287,7 @@ fn check(depths: &[Depth], measured: &[Measured]) -> Check {
         .join(", ");
     Check {
         verdict: Verdict::of(interior && deeper_with_rate),
+        claims: Vec::new(),
         statement: [
             format!(
             "packed b bits at {} bit/s: the SPEB falls from {:.2} m² at {} bit to {:.2} m² at {} bits and rises to {:.2} m² at {} bits ({}); over cqnet's whole-byte wire the best depth is {} bits ({:.2} m²): 1 to 8 bits cost the same byte; the packed optimum {} with the rate: {}",

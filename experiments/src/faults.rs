@@ -349,6 +349,7 @@ fn check_matrix(outcome: &Outcome) -> Check {
         .max();
     Check {
         verdict: Verdict::of(failing.is_empty()),
+        claims: Vec::new(),
         statement: format!(
             "{} of {} cells recover to within {RECOVERY_FACTOR}x the no-fault RMSE after the fault with every message accounted for{}{}",
             cells.len() - failing.len(),
@@ -374,6 +375,7 @@ fn check_byzantine(outcome: &Outcome) -> Check {
     ) else {
         return Check {
             verdict: Verdict::of(false),
+            claims: Vec::new(),
             statement: "an arm reported no estimate during the fault".into(),
         };
     };
@@ -384,11 +386,13 @@ fn check_byzantine(outcome: &Outcome) -> Check {
     ) else {
         return Check {
             verdict: Verdict::of(false),
+            claims: Vec::new(),
             statement: "an arm reported no estimate after the fault".into(),
         };
     };
     Check {
         verdict: Verdict::of(defended < dragged && defended_after <= RECOVERY_FACTOR * honest_after),
+        claims: Vec::new(),
         statement: format!(
             "RMSE during the fault: honest {honest:.1} m (gated {gated_honest:.1} m); 30% Byzantine sensors drag it to {dragged:.1} m, the gate holds it at {defended:.1} m; after it: honest {honest_after:.1} m, ungated {dragged_after:.1} m, gated {defended_after:.1} m"
         ),

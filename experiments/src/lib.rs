@@ -14,7 +14,7 @@ mod distributed_bound;
 pub mod faults;
 mod figure;
 pub mod paired;
-pub use paired::Verdict;
+pub use paired::{Order, Paired, Verdict};
 mod random_exchange_bounds;
 mod random_exchange_trackers;
 mod sensor_selection;
@@ -117,11 +117,13 @@ pub enum Metric {
     SelectionBytesPerStep,
 }
 
-/// Whether the paper's result holds, and the figures that say so.
+/// Whether the paper's result holds, and the figures that say so: the
+/// verdict of all its claims together, and each claim with its interval.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Check {
     pub verdict: Verdict,
     pub statement: String,
+    pub claims: Vec<Claim>,
 }
 
 /// What an experiment measured.
@@ -154,6 +156,110 @@ pub struct ArmOutcome {
     /// Each run's position RMSE from step 10, in seed order: run k of every
     /// arm has the same seed, so arms compare run by run ([`paired`]).
     pub per_run_rmse: Vec<Option<f64>>,
+    /// Each run's mean bounds from step 10, in seed order: the CQ/dPCRLB,
+    /// the auxiliary-FIM baseline and the centralized conditional bound.
+    pub per_run_bound: Vec<Option<f64>>,
+    pub per_run_aux_bound: Vec<Option<f64>>,
+    pub per_run_centralized_bound: Vec<Option<f64>>,
+}
+
+/// A track counts as lost in a run whose RMSE is above this many times
+/// its mean bound: one diverged run shows as such instead of hiding in a
+/// mean.
+pub const LOST_TRACK_FACTOR: f64 = 10.0;
+
+/// One claim of a paper as the runs judge it, with the paired interval
+/// behind it when it is estimated (none when it is exact).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Claim {
+    pub claim: String,
+    pub paired: Option<Paired>,
+    /// The interval in the claim's own unit ("+0.90 ± 0.72 % over 10
+    /// runs"); empty for an exact claim.
+    pub interval: String,
+    pub verdict: Verdict,
+}
+
+impl Claim {
+    /// "claim: verdict (interval)", as the statement says it.
+    pub fn said(&self) -> String {
+        if self.interval.is_empty() {
+            format!("{}: {}", self.claim, self.verdict.words())
+        } else {
+            format!(
+                "{}: {} ({})",
+                self.claim,
+                self.verdict.words(),
+                self.interval
+            )
+        }
+    }
+
+    /// The line of `claims.csv`.
+    fn csv_row(&self) -> String {
+        let (mean, half, runs, needed) = match self.paired {
+            Some(p) => (
+                format!("{}", p.mean),
+                format!("{}", p.half_width),
+                p.runs.to_string(),
+                match self.verdict {
+                    Verdict::NotResolved {
+                        needed: Some(n), ..
+                    } => n.to_string(),
+                    _ => String::new(),
+                },
+            ),
+            None => Default::default(),
+        };
+        let verdict = match self.verdict {
+            Verdict::Holds => "holds",
+            Verdict::DoesNotHold => "does not hold",
+            Verdict::NotResolved { .. } => "not resolved",
+        };
+        format!(
+            "\"{}\",{mean},{half},{runs},{needed},{verdict}\n",
+            self.claim.replace('"', "'")
+        )
+    }
+}
+
+/// `claims.csv`: every claim's paired difference, its 95 % half-width,
+/// the runs, the runs that would resolve it, and its verdict; a check
+/// with no claims of its own is one exact row.
+pub fn claims_csv(check: &Check) -> String {
+    let mut out =
+        String::from("claim,mean_difference,half_width_95,runs,runs_to_resolve,verdict\n");
+    if check.claims.is_empty() {
+        out += &Claim {
+            claim: "the experiment's check, exact".into(),
+            paired: None,
+            interval: String::new(),
+            verdict: check.verdict,
+        }
+        .csv_row();
+    }
+    for c in &check.claims {
+        out += &c.csv_row();
+    }
+    out
+}
+
+impl ArmOutcome {
+    /// Runs whose RMSE is above [`LOST_TRACK_FACTOR`] times their bound,
+    /// and the runs with both figures.
+    pub fn lost_tracks(&self) -> (usize, usize) {
+        let pairs = self
+            .per_run_rmse
+            .iter()
+            .zip(&self.per_run_bound)
+            .filter_map(|(r, b)| Some(((*r)?, (*b)?)));
+        let (mut lost, mut of) = (0, 0);
+        for (rmse, bound) in pairs {
+            of += 1;
+            lost += usize::from(rmse > LOST_TRACK_FACTOR * bound);
+        }
+        (lost, of)
+    }
 }
 
 impl ArmOutcome {
@@ -271,6 +377,10 @@ pub fn run_computed(computed: &Computed, options: &Options) -> anyhow::Result<Co
     write_atomically(
         &dir.join("check.txt"),
         format!("{}\n", computed_verdict_line(computed, &report.check)).as_bytes(),
+    )?;
+    write_atomically(
+        &dir.join("claims.csv"),
+        claims_csv(&report.check).as_bytes(),
     )?;
     Ok(report)
 }
@@ -413,6 +523,17 @@ pub fn run(
                 .map(|t| t.unaccounted_messages.unsigned_abs())
                 .sum(),
             per_run_rmse: mc.per_run.iter().map(|s| s.estimates.rmse).collect(),
+            per_run_bound: mc.per_run.iter().map(|s| s.estimates.mean_bound).collect(),
+            per_run_aux_bound: mc
+                .per_run
+                .iter()
+                .map(|s| s.estimates.mean_aux_bound)
+                .collect(),
+            per_run_centralized_bound: mc
+                .per_run
+                .iter()
+                .map(|s| s.estimates.mean_centralized_bound)
+                .collect(),
         });
     }
     let outcome = Outcome {
@@ -439,6 +560,7 @@ pub fn run(
         &dir.join("check.txt"),
         format!("{}\n", verdict_line(experiment, &outcome, &check)).as_bytes(),
     )?;
+    write_atomically(&dir.join("claims.csv"), claims_csv(&check).as_bytes())?;
     Ok(Report {
         outcome,
         check,
@@ -447,16 +569,33 @@ pub fn run(
     })
 }
 
-/// "holds: …" or "does not hold: …", with the experiment's size.
+/// The verdict with the experiment's size, and the tracks lost in each
+/// arm (a run whose RMSE is above ten times its bound).
 pub fn verdict_line(experiment: &Experiment, outcome: &Outcome, check: &Check) -> String {
+    let lost: Vec<String> = outcome
+        .arms
+        .iter()
+        .filter_map(|a| {
+            let (lost, of) = a.lost_tracks();
+            (of > 0).then(|| format!("{} {lost}/{of}", a.label))
+        })
+        .collect();
     format!(
-        "{} ({}; {} runs of {} steps): {}: {}",
+        "{} ({}; {} runs of {} steps): {}: {}{}",
         experiment.name,
         experiment.source,
         outcome.runs,
         outcome.steps,
         check.verdict.words(),
-        check.statement
+        check.statement,
+        if lost.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; runs with a lost track (RMSE above {LOST_TRACK_FACTOR}× the bound): {}",
+                lost.join(", ")
+            )
+        }
     )
 }
 

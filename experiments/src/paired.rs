@@ -134,17 +134,51 @@ impl Paired {
     /// t₀.₉₇₅(n − 1)·sd/√n < |mean|. `None` when the mean is zero (or
     /// past ten million runs).
     pub fn runs_to_resolve(&self) -> Option<usize> {
-        let m = self.mean.abs();
-        if m == 0.0 || !m.is_finite() {
+        self.runs_for_margin(self.mean.abs())
+    }
+
+    /// The fewest runs whose interval's half-width is below `margin`.
+    fn runs_for_margin(&self, margin: f64) -> Option<usize> {
+        if margin <= 0.0 || !margin.is_finite() {
             return None;
         }
         // The normal's n, then up to where Student's t agrees.
-        let guess = ((1.959_964 * self.sd / m).powi(2)).ceil().max(2.0);
+        let guess = ((1.959_964 * self.sd / margin).powi(2)).ceil().max(2.0);
         if guess > 1e7 {
             return None;
         }
         (2.max(guess as usize / 2)..=10_000_000)
-            .find(|&n| t95(n - 1) * self.sd / (n as f64).sqrt() < m)
+            .find(|&n| t95(n - 1) * self.sd / (n as f64).sqrt() < margin)
+    }
+
+    /// The verdict on the claim that the mean lies between `lo` and `hi`
+    /// ("within 5 %"): it holds when the whole interval does, does not
+    /// when none of it does, and is not resolved otherwise, with the runs
+    /// that would put the interval on one side.
+    pub fn verdict_within(&self, lo: f64, hi: f64) -> Verdict {
+        let (a, b) = (self.mean - self.half_width, self.mean + self.half_width);
+        if a > lo && b < hi {
+            return Verdict::Holds;
+        }
+        if b <= lo || a >= hi {
+            return Verdict::DoesNotHold;
+        }
+        let m = self.mean;
+        let margin = if m > lo && m < hi {
+            (m - lo).min(hi - m)
+        } else {
+            (lo - m).max(m - hi)
+        };
+        Verdict::NotResolved {
+            runs: self.runs,
+            needed: self.runs_for_margin(margin),
+        }
+    }
+
+    /// One arm's per-run figures against zero (or a difference already
+    /// taken run by run).
+    pub fn of_values(values: &[Option<f64>]) -> Option<Self> {
+        Self::of(values, &vec![Some(0.0); values.len()])
     }
 
     pub fn order(&self) -> Order {
@@ -238,6 +272,36 @@ mod tests {
             }
             .words(),
             format!("not resolved at 20 runs (about {n} would resolve it)")
+        );
+    }
+
+    /// "Within 5 %": an interval inside holds, one outside does not, one
+    /// across an edge is not resolved.
+    #[test]
+    fn a_claim_of_closeness_takes_the_whole_interval() {
+        let p = |mean, half_width| Paired {
+            runs: 10,
+            mean,
+            sd: half_width * 10f64.sqrt() / t95(9),
+            half_width,
+        };
+        assert_eq!(p(0.01, 0.02).verdict_within(-0.05, 0.05), Verdict::Holds);
+        assert_eq!(
+            p(0.09, 0.02).verdict_within(-0.05, 0.05),
+            Verdict::DoesNotHold
+        );
+        let open = p(0.04, 0.02).verdict_within(-0.05, 0.05);
+        let Verdict::NotResolved {
+            needed: Some(n), ..
+        } = open
+        else {
+            panic!("{open:?}")
+        };
+        // Half-width 0.02 at 10 runs must shrink below the margin 0.01.
+        assert!(n > 10 && t95(n - 1) * p(0.04, 0.02).sd / (n as f64).sqrt() < 0.01);
+        assert_eq!(
+            Paired::of_values(&[Some(1.0), Some(3.0)]).unwrap().mean,
+            2.0
         );
     }
 

@@ -17,7 +17,7 @@ use plotters::prelude::*;
 
 use super::paired::{Order, Paired};
 use super::random_exchange_bounds::{draw_lines, Curves};
-use super::{Check, Computed, ComputedReport, Options, Verdict};
+use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
 use runtime::montecarlo::run_monte_carlo;
 use runtime::results::AVERAGE_FROM_STEP;
 
@@ -236,10 +236,15 @@ fn fig1_check(fig: &Fig1) -> Check {
     let runs = |i: usize| &fig.per_run[i][..];
     let level = |i: usize, bound: f64| vec![Some(bound); fig.per_run[i].len()];
     let claim = |what: &str, a: &[Option<f64>], b: &[Option<f64>], expected: Order| {
-        let p = Paired::of(a, b);
-        let verdict = p.map_or(Verdict::DoesNotHold, |p| p.verdict(expected));
-        let interval = p.map_or("no paired runs".into(), |p| format!("{} m", p.text(3)));
-        (format!("{what}: {} ({interval})", verdict.words()), verdict)
+        let paired = Paired::of(a, b);
+        let verdict = paired.map_or(Verdict::DoesNotHold, |p| p.verdict(expected));
+        let interval = paired.map_or("no paired runs".into(), |p| format!("{} m", p.text(3)));
+        Claim {
+            claim: what.to_string(),
+            paired,
+            interval,
+            verdict,
+        }
     };
     let mut claims = vec![
         claim(
@@ -281,14 +286,15 @@ fn fig1_check(fig: &Fig1) -> Check {
             Order::Higher,
         ));
     }
-    let said: Vec<&str> = claims.iter().map(|(s, _)| s.as_str()).collect();
+    let said: Vec<String> = claims.iter().map(Claim::said).collect();
     Check {
-        verdict: Verdict::all(claims.iter().map(|(_, v)| *v)),
+        verdict: Verdict::all(claims.iter().map(|c| c.verdict)),
         statement: format!(
             "{} (per-run RMSE from step 10, paired over {} runs; mean from step {AVERAGE_FROM_STEP}: RndEx-PF {rndex:.2} m, non-iterative KL {non_iterative:.2} m, iterative KL {iterative:.2} m, consensus KL {consensus:.2} m; RndEx-PF PCRLB {rndex_bound:.2} m, centralized PCRLB {central_bound:.2} m)",
             said.join("; "),
             fig.runs
         ),
+        claims,
     }
 }
 
@@ -514,6 +520,7 @@ fn table_check(costs: &[Cost]) -> Check {
         .collect();
     Check {
         verdict: Verdict::of(claims.iter().all(|(_, h)| *h)),
+        claims: Vec::new(),
         statement: format!("{} ({})", said.join("; "), figures.join("; ")),
     }
 }

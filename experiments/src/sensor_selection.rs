@@ -4,7 +4,7 @@
 use fusion_graph::scenario::SENSOR_SELECTION_SCENARIO;
 
 use super::paired::{Order, Paired, Verdict};
-use super::{Arm, Check, Curve, Experiment, Figure, Outcome, Series};
+use super::{Arm, Check, Claim, Curve, Experiment, Figure, Outcome, Series};
 
 const MANAGERS: [Arm; 4] = [
     Arm {
@@ -82,6 +82,7 @@ fn check_fig2(o: &Outcome) -> Check {
     let Some(pairs) = pairs else {
         return Check {
             verdict: Verdict::of(false),
+            claims: Vec::new(),
             statement: "fewer than two runs with an RMSE in every arm: nothing to compare".into(),
         };
     };
@@ -127,8 +128,18 @@ fn check_fig2(o: &Outcome) -> Check {
         })
         .collect::<Vec<_>>()
         .join("; ");
+    let claims = pairs
+        .iter()
+        .map(|(label, p)| Claim {
+            claim: format!("the conditional PCRLB manager's RMSE is below {label}'s"),
+            paired: Some(*p),
+            interval: format!("{} m over {} runs", p.text(3), p.runs),
+            verdict: p.verdict(Order::Lower),
+        })
+        .collect();
     Check {
         verdict,
+        claims,
         statement: format!(
             "{finding}; per-run RMSE of the conditional manager minus each other's, mean and 95 % interval over {runs} paired runs: {intervals}; means from step 10: {figures}"
         ),

@@ -2,7 +2,7 @@
 //! work: the default scenario with each node censoring its own sensors.
 
 use crate::paired::{Order, Paired, Verdict};
-use crate::{Arm, Check, Curve, Experiment, Figure, Outcome, Series};
+use crate::{Arm, Check, Claim, Curve, Experiment, Figure, Outcome, Series};
 
 /// The dissertation's own future work (ch. 8, item 3): censoring in a
 /// decentralized network with consensus. Each node feeds back its fused
@@ -132,6 +132,26 @@ fn check_network(o: &Outcome) -> Check {
         .join("; ");
     Check {
         verdict: Verdict::all([beats_random, beats_ignoring, Verdict::of(budget_held)]),
+        claims: vec![
+            Claim {
+                claim: "CFwMD2's RMSE is below random selection's at the same budget".into(),
+                paired: vs_random,
+                interval: interval(vs_random),
+                verdict: beats_random,
+            },
+            Claim {
+                claim: "CFwMD2's RMSE is below CFoMD2's".into(),
+                paired: vs_ignoring,
+                interval: interval(vs_ignoring),
+                verdict: beats_ignoring,
+            },
+            Claim {
+                claim: format!("CFwMD2 holds the budget of {BUDGET} (within 10 %)"),
+                paired: None,
+                interval: String::new(),
+                verdict: Verdict::of(budget_held),
+            },
+        ],
         statement: format!(
             "CFwMD2 beats random selection at the same budget: {} (RMSE difference {}); CFwMD2 beats CFoMD2: {} ({}); it {} the budget of {BUDGET}; {listed}",
             beats_random.words(),

@@ -53,6 +53,7 @@ pub(super) fn check(rows: &[Row]) -> Check {
     }
     Check {
         verdict: Verdict::of(holds),
+        claims: Vec::new(),
         statement: statements.join("; "),
     }
 }
