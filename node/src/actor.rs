@@ -1007,9 +1007,10 @@ mod tests {
         let t = net.report(1, 1).unwrap();
         assert_eq!((t.rounds_completed, t.live_neighbours), (6, 1));
         assert!(t.bound.is_some());
-        // Round 4 waited out its timeout; rounds 5 and 6 no longer wait
-        // for node 2 (`RoundEngine::stop_awaiting_the_late`).
-        assert_eq!(net.now, Duration::from_millis(50));
+        // Round 4 waited out its timeout, round 5 only the grace of a
+        // neighbour on probation (10 ms), and round 6 not at all
+        // (`RoundEngine::stop_awaiting_the_late`).
+        assert_eq!(net.now, Duration::from_millis(60));
         // Node 0, two hops from node 2, waited at most for node 1's
         // one timeout, and finishes the step with all its rounds.
         let t0 = net.report(0, 1).unwrap();
