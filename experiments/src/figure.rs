@@ -115,16 +115,32 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
     let root = SVGBackend::new(path, size).into_drawing_area();
     let drawn = match &experiment.figure {
         Figure::OverTime { y_label, curves } => {
-            let lines: Vec<(&str, Vec<(u32, f64)>)> = curves
+            let lines: Vec<Line> = curves
                 .iter()
                 .map(|c| {
-                    let points = outcome.arms[c.arm]
+                    let arm = &outcome.arms[c.arm];
+                    let points = arm
                         .series(c.series)
                         .into_iter()
                         .enumerate()
                         .filter_map(|(i, v)| v.filter(|v| *v > 0.0).map(|v| (i as u32 + 1, v)))
                         .collect();
-                    (c.label, points)
+                    // The RMSE is a Monte Carlo estimate: its band is the
+                    // 95 % interval over runs. The bounds have none drawn.
+                    let band = match c.series {
+                        Series::Rmse => arm
+                            .rmse_band
+                            .iter()
+                            .enumerate()
+                            .filter_map(|(i, b)| b.map(|(lo, hi)| (i as u32 + 1, lo, hi)))
+                            .collect(),
+                        _ => Vec::new(),
+                    };
+                    Line {
+                        label: c.label,
+                        points,
+                        band,
+                    }
                 })
                 .collect();
             over_time(&root, &title, y_label, outcome.steps, &lines)
@@ -239,15 +255,23 @@ fn panels(
     Ok(())
 }
 
+/// A curve over time, with the 95 % band around it when it has one.
+struct Line<'a> {
+    label: &'a str,
+    points: Vec<(u32, f64)>,
+    /// (step, low, high); empty: no band.
+    band: Vec<(u32, f64, f64)>,
+}
+
 fn over_time(
     root: &DrawingArea<SVGBackend, plotters::coord::Shift>,
     title: &str,
     y_label: &str,
     steps: u32,
-    lines: &[(&str, Vec<(u32, f64)>)],
+    lines: &[Line<'_>],
 ) -> DrawResult {
     root.fill(&WHITE)?;
-    let values = lines.iter().flat_map(|(_, p)| p.iter().map(|(_, v)| *v));
+    let values = lines.iter().flat_map(|l| l.points.iter().map(|(_, v)| *v));
     let (lo, hi) = values.fold((f64::INFINITY, 0.0_f64), |(lo, hi), v| {
         (lo.min(v), hi.max(v))
     });
@@ -269,14 +293,34 @@ fn over_time(
         .y_labels(16)
         .y_label_formatter(&|v| format!("{v:.2}"))
         .draw()?;
-    for (i, (label, points)) in lines.iter().enumerate() {
+    for (i, line) in lines.iter().enumerate() {
+        if line.band.len() < 2 {
+            continue;
+        }
+        let colour = Palette99::pick(i).to_rgba();
+        // The band's outline: the high ends forward, the low ends back,
+        // kept inside the chart's range (a low end of 0 has no place on a
+        // log scale).
+        let clamp = |v: f64| v.clamp(lo, hi);
+        let outline: Vec<(u32, f64)> = line
+            .band
+            .iter()
+            .map(|(s, _, h)| (*s, clamp(*h)))
+            .chain(line.band.iter().rev().map(|(s, l, _)| (*s, clamp(*l))))
+            .collect();
+        chart.draw_series(std::iter::once(Polygon::new(
+            outline,
+            colour.mix(0.15).filled(),
+        )))?;
+    }
+    for (i, line) in lines.iter().enumerate() {
         let colour = Palette99::pick(i).to_rgba();
         chart
             .draw_series(LineSeries::new(
-                points.iter().copied(),
+                line.points.iter().copied(),
                 colour.stroke_width(2),
             ))?
-            .label(*label)
+            .label(line.label)
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
     }
     chart

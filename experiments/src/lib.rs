@@ -161,6 +161,23 @@ pub struct ArmOutcome {
     pub per_run_bound: Vec<Option<f64>>,
     pub per_run_aux_bound: Vec<Option<f64>>,
     pub per_run_centralized_bound: Vec<Option<f64>>,
+    /// At steps 1, 2, …: the 95 % interval of the RMSE over runs, drawn as
+    /// a band around the RMSE curve.
+    pub rmse_band: Vec<Option<(f64, f64)>>,
+}
+
+/// Each step's RMSE interval over the runs that reported it.
+fn rmse_bands(per_run: &[Vec<runtime::summary::StepMeans>]) -> Vec<Option<(f64, f64)>> {
+    let steps = per_run.iter().map(Vec::len).max().unwrap_or(0);
+    (0..steps)
+        .map(|k| {
+            let at: Vec<f64> = per_run
+                .iter()
+                .filter_map(|run| run.get(k).and_then(|m| m.rmse))
+                .collect();
+            paired::rmse_interval(&at)
+        })
+        .collect()
 }
 
 /// A track counts as lost in a run whose RMSE is above this many times
@@ -534,6 +551,7 @@ pub fn run(
                 .iter()
                 .map(|s| s.estimates.mean_centralized_bound)
                 .collect(),
+            rmse_band: rmse_bands(&mc.per_run_series),
         });
     }
     let outcome = Outcome {

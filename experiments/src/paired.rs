@@ -197,6 +197,22 @@ impl Paired {
     }
 }
 
+/// The 95 % interval of an RMSE over runs, from each run's mean squared
+/// error: the interval of the mean of the squares (Student's t), its ends
+/// as root mean squares (the lower end at least zero). `None` with fewer
+/// than two runs.
+pub fn rmse_interval(run_rmses: &[f64]) -> Option<(f64, f64)> {
+    let n = run_rmses.len();
+    if n < 2 {
+        return None;
+    }
+    let squares: Vec<f64> = run_rmses.iter().map(|r| r * r).collect();
+    let mean = squares.iter().sum::<f64>() / n as f64;
+    let var = squares.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    let half = t95(n - 1) * (var / n as f64).sqrt();
+    Some(((mean - half).max(0.0).sqrt(), (mean + half).sqrt()))
+}
+
 /// The two-sided 95 % quantile of Student's t with `dof` degrees of
 /// freedom: tabulated to 30, then the normal's with the first correction
 /// term of its expansion (within 0.1 % from 30 on).
@@ -303,6 +319,19 @@ mod tests {
             Paired::of_values(&[Some(1.0), Some(3.0)]).unwrap().mean,
             2.0
         );
+    }
+
+    /// Runs with RMSE 1 and 3: squares 1 and 9, mean 5, sd √32, standard
+    /// error 4, so 5 ± 12.706·4 and the band is from 0 (clamped) to
+    /// √(5 + 50.82).
+    #[test]
+    fn an_rmse_band_is_the_interval_of_the_mean_square() {
+        let (lo, hi) = rmse_interval(&[1.0, 3.0]).unwrap();
+        assert_eq!(lo, 0.0);
+        assert!((hi - (5.0 + 12.706 * 4.0f64).sqrt()).abs() < 1e-9, "{hi}");
+        let (lo, hi) = rmse_interval(&[2.0; 5]).unwrap();
+        assert_eq!((lo, hi), (2.0, 2.0));
+        assert!(rmse_interval(&[1.0]).is_none());
     }
 
     #[test]

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::results::{Estimates, ResultsWriter, StepSeries, AVERAGE_FROM_STEP};
 use crate::sim::run_in_process;
-use crate::summary::Summary;
+use crate::summary::{StepMeans, Summary};
 
 /// Means over runs of each run's averages.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -29,6 +29,10 @@ pub struct MonteCarloSummary {
     /// Per-step sums over every run's nodes, for figures over time.
     #[serde(skip)]
     pub series: StepSeries,
+    /// Each run's per-step means over its nodes, in run order: what an
+    /// interval over runs at each step is taken from.
+    #[serde(skip)]
+    pub per_run_series: Vec<Vec<StepMeans>>,
 }
 
 fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
@@ -53,6 +57,7 @@ pub fn run_monte_carlo(
     let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> =
         Mutex::new((0..runs).map(|_| None).collect());
     let series = Mutex::new(StepSeries::default());
+    let run_means: Mutex<Vec<Vec<StepMeans>>> = Mutex::new(vec![Vec::new(); runs as usize]);
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1).min(runs as usize) {
             scope.spawn(|| loop {
@@ -74,6 +79,10 @@ pub fn run_monte_carlo(
                         .lock()
                         .expect("no worker panics while holding the lock")
                         .merge(&run_series);
+                    run_means
+                        .lock()
+                        .expect("no worker panics while holding the lock")[i as usize] =
+                        run_series.means();
                 }
                 results
                     .lock()
@@ -116,5 +125,6 @@ pub fn run_monte_carlo(
         wall_seconds: started.elapsed().as_secs_f64(),
         per_run,
         series: series.into_inner().expect("workers finished"),
+        per_run_series: run_means.into_inner().expect("workers finished"),
     })
 }
