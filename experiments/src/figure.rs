@@ -275,8 +275,17 @@ fn over_time(
     let (lo, hi) = values.fold((f64::INFINITY, 0.0_f64), |(lo, hi), v| {
         (lo.min(v), hi.max(v))
     });
+    // plotters labels a log axis at powers of ten and their multiples: a
+    // range between two powers (1.2 to 5.3 m) got no label at all, so such
+    // a range starts at the power of ten below it.
     let (lo, hi) = if lo.is_finite() {
-        (lo * 0.9, hi * 1.1)
+        let (lo, hi) = (lo * 0.9, hi * 1.1);
+        let below = 10f64.powf(lo.log10().floor());
+        if below * 10.0 > hi {
+            (below, hi)
+        } else {
+            (lo, hi)
+        }
     } else {
         (0.1, 10.0)
     };
