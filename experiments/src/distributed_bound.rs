@@ -197,34 +197,16 @@ fn relative_per_run(a: &[Option<f64>], b: &[Option<f64>]) -> Vec<Option<f64>> {
         .collect()
 }
 
-/// A claim on per-run relative gaps: `within` (lo, hi), or `order`ed
-/// against zero; "+1.2 ± 0.4 %" beside its verdict.
-fn gap_claim(what: &str, gaps: &[Option<f64>], test: impl Fn(&Paired) -> Verdict) -> Claim {
-    let paired = Paired::of_values(gaps);
-    let verdict = paired.as_ref().map_or(Verdict::DoesNotHold, &test);
-    let text = paired.map_or("no runs".into(), |p| {
+/// A claim on per-run relative gaps, judged by `judge`; "+1.2 ± 0.4 %".
+fn gap_claim(what: &str, gaps: &[Option<f64>], judge: impl Fn(&Paired) -> Verdict) -> Claim {
+    Claim::judged(what, Paired::of_values(gaps), judge, |p| {
         format!(
             "{:+.2} ± {:.2} % over {} runs",
             100.0 * p.mean,
             100.0 * p.half_width,
             p.runs
         )
-    });
-    Claim {
-        claim: what.to_string(),
-        paired,
-        interval: text,
-        verdict,
-    }
-}
-
-fn check_of(claims: Vec<Claim>, figures: String) -> Check {
-    let said: Vec<String> = claims.iter().map(Claim::said).collect();
-    Check {
-        verdict: Verdict::all(claims.iter().map(|c| c.verdict)),
-        statement: format!("{}; {figures}", said.join("; ")),
-        claims,
-    }
+    })
 }
 
 /// "Within each set of plots the bounds virtually overlap"; the quantized
@@ -244,7 +226,7 @@ fn check_fig1b(o: &Outcome) -> Check {
         return missing("a bound of fig. 1(b)");
     };
     let within = |lo, hi| move |p: &Paired| p.verdict_within(lo, hi);
-    check_of(
+    Check::of_claims(
         vec![
             gap_claim(
                 "L_G and the auxiliary FIM overlap at 8 bits (within 5 %)",
@@ -314,7 +296,7 @@ fn check_fig1c(o: &Outcome) -> Check {
         .map(|(l, b)| format!("{l} {:+.1} %", 100.0 * relative(*b, means[5])))
         .collect::<Vec<_>>()
         .join(", ");
-    check_of(
+    Check::of_claims(
         claims,
         format!("means' excess over raw ({:.3} m): {excess}", means[5]),
     )
@@ -333,7 +315,7 @@ fn check_central(o: &Outcome) -> Check {
     ) else {
         return missing("a series of the centralized comparison");
     };
-    check_of(
+    Check::of_claims(
         vec![gap_claim(
             "the CQ/dPCRLB is within 5 % of the centralized conditional bound",
             &relative_per_run(&a.per_run_bound, &a.per_run_centralized_bound),

@@ -198,6 +198,32 @@ pub struct Claim {
 }
 
 impl Claim {
+    /// A claim judged by a paired difference (`judge`), with its interval
+    /// as `interval` words it; with no pairs at all it does not hold.
+    pub fn judged(
+        claim: impl Into<String>,
+        paired: Option<Paired>,
+        judge: impl Fn(&Paired) -> Verdict,
+        interval: impl Fn(&Paired) -> String,
+    ) -> Self {
+        Self {
+            claim: claim.into(),
+            paired,
+            interval: paired.as_ref().map_or("no paired runs".into(), interval),
+            verdict: paired.as_ref().map_or(Verdict::DoesNotHold, judge),
+        }
+    }
+
+    /// A claim checked exactly (a count, a budget).
+    pub fn exact(claim: impl Into<String>, holds: bool) -> Self {
+        Self {
+            claim: claim.into(),
+            paired: None,
+            interval: String::new(),
+            verdict: Verdict::of(holds),
+        }
+    }
+
     /// "claim: verdict (interval)", as the statement says it.
     pub fn said(&self) -> String {
         if self.interval.is_empty() {
@@ -240,6 +266,19 @@ impl Claim {
     }
 }
 
+impl Check {
+    /// A check made of claims: their verdicts together, and a statement
+    /// that says each claim, then `figures`.
+    pub fn of_claims(claims: Vec<Claim>, figures: impl std::fmt::Display) -> Self {
+        let said: Vec<String> = claims.iter().map(Claim::said).collect();
+        Self {
+            verdict: Verdict::all(claims.iter().map(|c| c.verdict)),
+            statement: format!("{}; {figures}", said.join("; ")),
+            claims,
+        }
+    }
+}
+
 /// `claims.csv`: every claim's paired difference, its 95 % half-width,
 /// the runs, the runs that would resolve it, and its verdict; a check
 /// with no claims of its own is one exact row.
@@ -247,13 +286,11 @@ pub fn claims_csv(check: &Check) -> String {
     let mut out =
         String::from("claim,mean_difference,half_width_95,runs,runs_to_resolve,verdict\n");
     if check.claims.is_empty() {
-        out += &Claim {
-            claim: "the experiment's check, exact".into(),
-            paired: None,
-            interval: String::new(),
+        let exact = Claim {
             verdict: check.verdict,
-        }
-        .csv_row();
+            ..Claim::exact("the experiment's check, exact", false)
+        };
+        out += &exact.csv_row();
     }
     for c in &check.claims {
         out += &c.csv_row();

@@ -236,15 +236,12 @@ fn fig1_check(fig: &Fig1) -> Check {
     let runs = |i: usize| &fig.per_run[i][..];
     let level = |i: usize, bound: f64| vec![Some(bound); fig.per_run[i].len()];
     let claim = |what: &str, a: &[Option<f64>], b: &[Option<f64>], expected: Order| {
-        let paired = Paired::of(a, b);
-        let verdict = paired.map_or(Verdict::DoesNotHold, |p| p.verdict(expected));
-        let interval = paired.map_or("no paired runs".into(), |p| format!("{} m", p.text(3)));
-        Claim {
-            claim: what.to_string(),
-            paired,
-            interval,
-            verdict,
-        }
+        Claim::judged(
+            what,
+            Paired::of(a, b),
+            |p| p.verdict(expected),
+            |p| format!("{} m", p.text(3)),
+        )
     };
     let mut claims = vec![
         claim(
@@ -286,16 +283,13 @@ fn fig1_check(fig: &Fig1) -> Check {
             Order::Higher,
         ));
     }
-    let said: Vec<String> = claims.iter().map(Claim::said).collect();
-    Check {
-        verdict: Verdict::all(claims.iter().map(|c| c.verdict)),
-        statement: format!(
-            "{} (per-run RMSE from step 10, paired over {} runs; mean from step {AVERAGE_FROM_STEP}: RndEx-PF {rndex:.2} m, non-iterative KL {non_iterative:.2} m, iterative KL {iterative:.2} m, consensus KL {consensus:.2} m; RndEx-PF PCRLB {rndex_bound:.2} m, centralized PCRLB {central_bound:.2} m)",
-            said.join("; "),
+    Check::of_claims(
+        claims,
+        format!(
+            "per-run RMSE from step 10, paired over {} runs; mean from step {AVERAGE_FROM_STEP}: RndEx-PF {rndex:.2} m, non-iterative KL {non_iterative:.2} m, iterative KL {iterative:.2} m, consensus KL {consensus:.2} m; RndEx-PF PCRLB {rndex_bound:.2} m, centralized PCRLB {central_bound:.2} m",
             fig.runs
         ),
-        claims,
-    }
+    )
 }
 
 // ---------------------------------------------------------------- Table I

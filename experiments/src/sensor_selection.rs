@@ -130,11 +130,13 @@ fn check_fig2(o: &Outcome) -> Check {
         .join("; ");
     let claims = pairs
         .iter()
-        .map(|(label, p)| Claim {
-            claim: format!("the conditional PCRLB manager's RMSE is below {label}'s"),
-            paired: Some(*p),
-            interval: format!("{} m over {} runs", p.text(3), p.runs),
-            verdict: p.verdict(Order::Lower),
+        .map(|(label, p)| {
+            Claim::judged(
+                format!("the conditional PCRLB manager's RMSE is below {label}'s"),
+                Some(*p),
+                |p| p.verdict(Order::Lower),
+                |p| format!("{} m over {} runs", p.text(3), p.runs),
+            )
         })
         .collect();
     Check {
