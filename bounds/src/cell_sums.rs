@@ -72,17 +72,17 @@ impl Default for ScalarBatch {
 /// Standardized edge `t = (e − g)/σ` with the values every adjacent cell
 /// needs, so each edge costs one `erfc` and one `exp`.
 #[derive(Clone, Copy)]
-struct Edge {
-    t: f64,
-    pdf: f64,
-    x_pdf: f64,
+pub(crate) struct Edge {
+    pub(crate) t: f64,
+    pub(crate) pdf: f64,
+    pub(crate) x_pdf: f64,
     /// `Q(t)` for `t ≥ 0`, `Φ(t)` for `t < 0`: the tail that is small.
     tail: f64,
 }
 
 impl Edge {
     #[inline]
-    fn at(t: f64) -> Self {
+    pub(crate) fn at(t: f64) -> Self {
         let tail = if t >= 0.0 {
             normal::upper_tail(t)
         } else {
@@ -98,7 +98,7 @@ impl Edge {
 
     /// Mass between this edge and a higher one.
     #[inline]
-    fn mass_to(&self, upper: &Edge) -> f64 {
+    pub(crate) fn mass_to(&self, upper: &Edge) -> f64 {
         if self.t >= 0.0 {
             self.tail - upper.tail
         } else if upper.t <= 0.0 {
@@ -129,6 +129,17 @@ pub(crate) fn window_sums(mut edges: impl Iterator<Item = f64>) -> [f64; 3] {
         lower = upper;
     }
     sums
+}
+
+/// Adds the cell between two edges, `lower` below `upper`.
+#[inline]
+pub(crate) fn accumulate_between(sums: &mut [f64; 3], lower: &Edge, upper: &Edge) {
+    accumulate(
+        sums,
+        lower.mass_to(upper),
+        lower.pdf - upper.pdf,
+        lower.x_pdf - upper.x_pdf,
+    );
 }
 
 /// Adds one cell's `α²/h, αβ/h, β²/h` (standardized α, β).

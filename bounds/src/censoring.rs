@@ -22,7 +22,9 @@ use nalgebra::{Matrix2, Vector2};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
+use crate::cell_sums::{accumulate, scalars_from_sums, FisherScalars};
 use crate::dynamics::Dynamics;
+use crate::fisher::{assemble, Measurement};
 use crate::normal;
 use crate::observation::{wrap_angle, ObservationModel};
 use crate::{Mat4, ParameterError, State};
@@ -131,6 +133,124 @@ impl Innovation {
     pub fn ln_silence(&self, rule: &CensoringRule, g: f64, r: f64) -> f64 {
         rule.ln_silence_probability(self.of(g), self.variance, r)
     }
+}
+
+impl Innovation {
+    /// Where the sensor stays silent under `rule`: raw values within
+    /// `√(η s)` of the prediction.
+    pub fn silence_window(&self, rule: &CensoringRule) -> SilenceWindow {
+        SilenceWindow {
+            centre: self.predicted,
+            half_width: (rule.threshold * self.variance).sqrt(),
+            angular: self.angular,
+        }
+    }
+}
+
+/// The values of a censoring sensor's measurement for which it stays
+/// silent: `|z − ĥ| < √(η s)`, wrapped for bearings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SilenceWindow {
+    /// `ĥ = h(x̂(k|k−1))`.
+    pub centre: f64,
+    /// `√(η s)`.
+    pub half_width: f64,
+    pub angular: bool,
+}
+
+impl SilenceWindow {
+    /// The window's edges in the measurement's units, unrolled next to a
+    /// mean `g` for bearings, so that `g` and the window are on one line.
+    pub fn edges_near(&self, g: f64) -> (f64, f64) {
+        let centre = if self.angular {
+            g - wrap_angle(g - self.centre)
+        } else {
+            self.centre
+        };
+        // A window as wide as the circle is silence whatever the bearing.
+        let half = if self.angular {
+            self.half_width.min(std::f64::consts::PI)
+        } else {
+            self.half_width
+        };
+        (centre - half, centre + half)
+    }
+
+    /// The Fisher scalars of the censored measurement at a state where the
+    /// sensor's mean is `g` and its variance `r`: information from the
+    /// value when it is sent, and from the silence when it is not.
+    ///
+    /// Raw: with `a`, `b` the window's edges standardized by `(z − g)/√r`
+    /// and `P_s = Φ(b) − Φ(a)`, the continuous part outside the window adds
+    /// `∫ (∂ ln p)² p dz` over `u ∉ [a, b]`, and the silence the one cell
+    /// `[a, b]`:
+    ///
+    /// ```text
+    /// gg = [1 − P_s + bφ(b) − aφ(a) + (φ(a) − φ(b))²/P_s] / r
+    /// ```
+    ///
+    /// (the `gr`, `rr` terms likewise from `∫u³φ` and `∫u⁴φ`). Quantized:
+    /// the cells outside the window and the one merged cell inside it
+    /// ([`Quantizer::censored_fisher_scalars`]).
+    pub fn fisher_scalars(&self, g: f64, r: f64, measurement: Measurement<'_>) -> FisherScalars {
+        let silent = self.edges_near(g);
+        match measurement {
+            Measurement::Quantized(q) => q.censored_fisher_scalars(g, r, silent),
+            Measurement::Raw => raw_censored_scalars(g, r, silent),
+        }
+    }
+
+    /// `J_cens(x)`: the censored measurement's Fisher information.
+    pub fn information(
+        &self,
+        model: &ObservationModel,
+        measurement: Measurement<'_>,
+        x: &State,
+    ) -> Mat4 {
+        let e = model.evaluate(x);
+        assemble(&self.fisher_scalars(e.g, e.r, measurement), &e)
+    }
+}
+
+/// [`SilenceWindow::fisher_scalars`] of a raw measurement, in the
+/// standardized sums of [`crate::cell_sums`]: over the whole line they are
+/// `(1, 0, 2)`, the unquantized `(1/r, 0, 1/(2r²))`, and the window's part
+/// is taken out in closed form (`∫u²φ = Φ − uφ`, `∫(u³ − u)φ = −(u² + 1)φ`,
+/// `∫(u² − 1)²φ = 2Φ − (u³ + u)φ`) and put back as one cell.
+fn raw_censored_scalars(g: f64, r: f64, (lo, hi): (f64, f64)) -> FisherScalars {
+    let sigma = r.sqrt();
+    let (a, b) = ((lo - g) / sigma, (hi - g) / sigma);
+    let (pa, pb) = (normal::pdf(a), normal::pdf(b));
+    let (apa, bpb) = (normal::x_pdf(a), normal::x_pdf(b));
+    let p_s = normal::interval_mass(a, b);
+    // u^k φ(u) at an edge from uφ(u), 0 at ±∞.
+    let times = |u: f64, upu: f64, k: i32| if u.is_finite() { u.powi(k) * upu } else { 0.0 };
+    let mut sums = [
+        1.0 - p_s + bpb - apa,
+        (times(b, bpb, 1) + pb) - (times(a, apa, 1) + pa),
+        2.0 - 2.0 * p_s + (times(b, bpb, 2) + bpb) - (times(a, apa, 2) + apa),
+    ];
+    accumulate(&mut sums, p_s, pa - pb, apa - bpb);
+    scalars_from_sums(sums, r)
+}
+
+/// `Σ_s Σ_j w_j J_cens,s(x_j)`: the expected information of censoring
+/// sensors over a particle set, each with its own silence window, whether
+/// it sent or stayed silent (its silence is a measurement as much as its
+/// value is). Allocates nothing.
+pub fn censored_information<'a>(
+    sensors: impl Iterator<Item = (&'a ObservationModel, SilenceWindow)> + Clone,
+    measurement: Measurement<'_>,
+    particles: &[State],
+    weights: &[f64],
+) -> Mat4 {
+    let mut total = Mat4::zeros();
+    for (x, w) in particles.iter().zip(weights) {
+        for (model, window) in sensors.clone() {
+            total += window.information(model, measurement, x) * *w;
+        }
+    }
+    total
 }
 
 /// One sensor's side of NIS censoring in a network: the rule, and for
@@ -253,6 +373,7 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
+    use crate::Quantizer;
 
     #[test]
     fn the_threshold_passes_l_of_n_gaussian_innovations() {
@@ -406,6 +527,175 @@ mod tests {
         let mu = -3.13 - 3.1 + 2.0 * std::f64::consts::PI;
         let this_side = i.ln_silence(&rule, 3.1 - mu, 0.0001);
         assert!((across - this_side).abs() < 1e-9, "{across} vs {this_side}");
+    }
+
+    /// A bearing sensor whose noise grows with distance (∇R ≠ 0, so every
+    /// Fisher scalar matters), far from ±π so that wrapping plays no part
+    /// in the direct sums below.
+    fn bearing_case() -> (crate::ObservationModel, State) {
+        let model = crate::SensorLaw::Bearing {
+            sigma_theta: 0.05,
+            d0: 300.0,
+        }
+        .at([0.0, 0.0]);
+        (model, State::new(300.0, 400.0, 1.0, -1.0))
+    }
+
+    /// `Σ ∇P∇Pᵀ/P` over outcomes given by their probability at a state,
+    /// the gradients by central differences: the expected information of
+    /// a discrete law, computed directly.
+    fn direct_discrete_information(outcomes: &[&dyn Fn(&State) -> f64], x: &State) -> Mat4 {
+        let mut j = Mat4::zeros();
+        for p in outcomes {
+            let at = p(x);
+            if at > 1e-300 {
+                let grad = crate::testing::central_gradient(|y| p(y), x, 1e-3, false);
+                j += grad * grad.transpose() / at;
+            }
+        }
+        j
+    }
+
+    fn relative_gap(a: &Mat4, b: &Mat4) -> f64 {
+        (a - b).norm() / b.norm()
+    }
+
+    /// J_cens of a raw measurement against the censored law's information
+    /// evaluated directly: the score of `N(z; g(x), r(x))` by differences
+    /// in x, squared and integrated over the values outside the window,
+    /// plus the silence's `∇P_s∇P_sᵀ/P_s`.
+    #[test]
+    fn raw_censored_information_is_the_censored_laws() {
+        let (model, x) = bearing_case();
+        let (g, r) = model.mean_and_variance(&x);
+        let sd = r.sqrt();
+        for (offset, half) in [(0.0, 0.6), (0.03, 0.05), (-0.1, 0.2), (0.4, 0.01)] {
+            let window = SilenceWindow {
+                centre: g + offset,
+                half_width: half,
+                angular: true,
+            };
+            let (lo, hi) = window.edges_near(g);
+            let ln_density = |z: f64, y: &State| {
+                let (gy, ry) = model.mean_and_variance(y);
+                -0.5 * ((z - gy).powi(2) / ry + ry.ln())
+            };
+            // Midpoint rule over ±12 σ, outside the window.
+            let n = 40_000;
+            let (from, to) = (g - 12.0 * sd, g + 12.0 * sd);
+            let dz = (to - from) / n as f64;
+            let mut j = Mat4::zeros();
+            for i in 0..n {
+                let z = from + (i as f64 + 0.5) * dz;
+                if z > lo && z < hi {
+                    continue;
+                }
+                let score = crate::testing::central_gradient(|y| ln_density(z, y), &x, 1e-3, false);
+                let p = (-0.5 * (z - g).powi(2) / r).exp() / (2.0 * std::f64::consts::PI * r).sqrt();
+                j += score * score.transpose() * p * dz;
+            }
+            let silence = |y: &State| {
+                let (gy, ry) = model.mean_and_variance(y);
+                normal::interval_mass((lo - gy) / ry.sqrt(), (hi - gy) / ry.sqrt())
+            };
+            j += direct_discrete_information(&[&silence], &x);
+            let ours = window.information(&model, Measurement::Raw, &x);
+            // Relative to the direct value, or to the uncensored information
+            // where the window leaves almost none (its differences cancel).
+            let uncensored = crate::fisher::expected_information(&model, Measurement::Raw, &x);
+            assert!(
+                (ours - j).norm() < 2e-4 * j.norm() + 1e-7 * uncensored.norm(),
+                "window {offset} ± {half}: {ours} vs direct {j}"
+            );
+        }
+    }
+
+    /// The same with a quantizer: the outcomes are the silence and each
+    /// cell's part outside the window, their probabilities taken cell by
+    /// cell over the whole quantizer.
+    #[test]
+    fn quantized_censored_information_is_the_censored_laws() {
+        let (model, x) = bearing_case();
+        let (g, _) = model.mean_and_variance(&x);
+        for bits in [3u8, 5, 8] {
+            let q = Quantizer::uniform(bits, g - 1.0, g + 1.0).unwrap();
+            // A window inside one cell, across several, and at an edge.
+            for (offset, half) in [(0.01, 0.003), (0.0, 0.3), (0.05, 0.1)] {
+                let window = SilenceWindow {
+                    centre: g + offset,
+                    half_width: half,
+                    angular: true,
+                };
+                let (lo, hi) = window.edges_near(g);
+                let mass = |y: &State, a: f64, b: f64| {
+                    let (gy, ry) = model.mean_and_variance(y);
+                    if a >= b {
+                        return 0.0;
+                    }
+                    normal::interval_mass((a - gy) / ry.sqrt(), (b - gy) / ry.sqrt())
+                };
+                let cells: Vec<Box<dyn Fn(&State) -> f64>> = (0..q.cells() as u32)
+                    .map(|c| {
+                        let (a, b) = q.cell_edges(c);
+                        let mass = &mass;
+                        Box::new(move |y: &State| {
+                            mass(y, a, b.min(lo)) + mass(y, a.max(hi), b)
+                        }) as Box<dyn Fn(&State) -> f64>
+                    })
+                    .collect();
+                let silence = |y: &State| mass(y, lo, hi);
+                let mut outcomes: Vec<&dyn Fn(&State) -> f64> =
+                    cells.iter().map(|c| c.as_ref()).collect();
+                outcomes.push(&silence);
+                let direct = direct_discrete_information(&outcomes, &x);
+                let ours = window.information(&model, Measurement::Quantized(&q), &x);
+                assert!(
+                    relative_gap(&ours, &direct) < 1e-5,
+                    "{bits} bits, window {offset} ± {half}: {ours} vs direct {direct}"
+                );
+            }
+        }
+    }
+
+    /// As η → 0 the window closes and the censored information is the
+    /// uncensored one, raw and quantized; as it covers every value, the
+    /// sensor always stays silent and tells nothing.
+    #[test]
+    fn censored_information_tends_to_the_uncensored_and_to_nothing() {
+        let (model, x) = bearing_case();
+        let e = model.evaluate(&x);
+        let q = Quantizer::uniform_wrapped(6, -std::f64::consts::PI, std::f64::consts::PI).unwrap();
+        for measurement in [Measurement::Raw, Measurement::Quantized(&q)] {
+            let uncensored = crate::fisher::information_of(&e, measurement);
+            let mut previous_gap = f64::INFINITY;
+            for eta in [1e-2, 1e-4, 1e-6, 1e-8] {
+                let window = Innovation {
+                    predicted: e.g + 0.01,
+                    variance: e.r * 2.0,
+                    angular: true,
+                }
+                .silence_window(&CensoringRule { threshold: eta });
+                let gap = relative_gap(&window.information(&model, measurement, &x), &uncensored);
+                assert!(gap < previous_gap, "η = {eta}: gap {gap} did not shrink");
+                previous_gap = gap;
+            }
+            assert!(previous_gap < 1e-3, "{previous_gap}");
+            // Censoring never adds information: J_cens ≤ J_Y.
+            let window = SilenceWindow {
+                centre: e.g,
+                half_width: 2.0 * e.r.sqrt(),
+                angular: true,
+            };
+            let censored = window.information(&model, measurement, &x);
+            let eig = (uncensored - censored).symmetric_eigen().eigenvalues;
+            assert!(eig.min() > -1e-9 * uncensored.norm(), "{eig}");
+            let everywhere = SilenceWindow {
+                centre: e.g,
+                half_width: 10.0,
+                angular: true,
+            };
+            assert!(everywhere.information(&model, measurement, &x).norm() < 1e-9 * uncensored.norm());
+        }
     }
 
     #[test]

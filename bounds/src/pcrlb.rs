@@ -489,7 +489,25 @@ impl ConditionalBound {
         q_inv: &Mat4,
         observation_info: &Mat4,
     ) -> Result<InformationStep, BoundError> {
-        let step = information_update(&self.information, terms, q_inv, observation_info)?;
+        self.advance_with_late(terms, q_inv, &Mat4::zeros(), observation_info)
+    }
+
+    /// [`advance`](Self::advance) when observations of step k were weighed
+    /// only after step k closed, each on its particle's path at the time it
+    /// was taken: their information `late` is about x(k), so it joins
+    /// `L(k)` before the prediction,
+    /// `L(k+1) = B22 − B21 (L(k) + ΔL_late(k) + B11)⁻¹ B12 + ΔL(k+1)`.
+    /// `L(k)` as reported at step k stays without them: the filter did not
+    /// have them then.
+    pub fn advance_with_late(
+        &mut self,
+        terms: &DynamicsTerms,
+        q_inv: &Mat4,
+        late: &Mat4,
+        observation_info: &Mat4,
+    ) -> Result<InformationStep, BoundError> {
+        let previous = self.information + late;
+        let step = information_update(&previous, terms, q_inv, observation_info)?;
         self.information = step.updated;
         Ok(step)
     }
@@ -661,6 +679,58 @@ mod tests {
 
     fn relative_error(a: &Mat4, b: &Mat4) -> f64 {
         (a - b).abs().max() / b.abs().max()
+    }
+
+    /// Observations weighed a step late, in the linear-Gaussian limit: the
+    /// bound that adds their information to L(k) before predicting is the
+    /// Kalman filter that had them on time, one step after they arrive.
+    /// The sensors' turns: on time, late, both, late, none, ...
+    #[test]
+    fn late_information_joins_the_state_it_was_taken_at() {
+        let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
+        let models = position_sensors();
+        let info = |m: &ObservationModel| match m.law {
+            SensorLaw::Linear { h, r } => State::from(h) * State::from(h).transpose() / r,
+            _ => unreachable!(),
+        };
+        let (x_info, y_info) = (info(&models[0]), info(&models[1]));
+        // (on time, late) information of each step.
+        let schedule = [
+            (x_info, Mat4::zeros()),
+            (Mat4::zeros(), x_info + y_info),
+            (y_info, x_info),
+            (Mat4::zeros(), y_info),
+            (Mat4::zeros(), Mat4::zeros()),
+            (x_info + y_info, Mat4::zeros()),
+            (Mat4::zeros(), x_info),
+            (Mat4::zeros(), x_info + y_info),
+        ];
+        let f = dynamics.jacobian(&State::zeros());
+        let kalman_predict = |j: &Mat4| (f * j.try_inverse().unwrap() * f.transpose() + dynamics.q()).try_inverse().unwrap();
+        let one = [State::new(100.0, 200.0, 3.0, -1.0)];
+        let terms = dynamics_terms(&dynamics, &one, &[1.0]).unwrap();
+        let mut bound = ConditionalBound::from_prior(&prior_cov()).unwrap();
+        let mut kalman = prior_cov().try_inverse().unwrap();
+        let mut late_before = Mat4::zeros();
+        for (k, (on_time, late)) in schedule.iter().enumerate() {
+            bound
+                .advance_with_late(&terms, dynamics.q_inv(), &late_before, on_time)
+                .unwrap();
+            // The Kalman filter sees step k's every measurement at step k.
+            kalman = kalman_predict(&kalman) + on_time + late;
+            // The bound has all but this step's late ones.
+            assert!(
+                relative_error(&(bound.information() + late), &kalman) < 1e-9,
+                "step {k}"
+            );
+            late_before = *late;
+        }
+        // Without the late term the bound forgets them: a looser bound.
+        let mut forgetful = ConditionalBound::from_prior(&prior_cov()).unwrap();
+        for (on_time, _) in &schedule {
+            forgetful.advance(&terms, dynamics.q_inv(), on_time).unwrap();
+        }
+        assert!(forgetful.position_bound().unwrap() > 1.2 * bound.position_bound().unwrap());
     }
 
     #[test]

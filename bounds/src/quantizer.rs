@@ -2,7 +2,7 @@
 //! `h_i(x)` and their sensitivities, and the per-observation Fisher scalars.
 
 use crate::batch::CHUNK;
-use crate::cell_sums::{accumulate, scalars_from_sums, window_sums};
+use crate::cell_sums::{accumulate, accumulate_between, scalars_from_sums, window_sums, Edge};
 pub use crate::cell_sums::{FisherScalars, ScalarBatch, WINDOW_SIGMAS};
 use crate::normal::{self, interval_mass, ln_interval_mass, ln_sum_exp};
 use crate::width_axis::{self, Stencil};
@@ -791,6 +791,87 @@ impl Quantizer {
             );
         }
         scalars_from_sums(sums, variance)
+    }
+
+    /// The edges of cell `index` (of its first period, for a wrapped
+    /// quantizer).
+    pub fn cell_edges(&self, index: u32) -> (f64, f64) {
+        let i = index as usize;
+        (self.edges[i], self.edges[i + 1])
+    }
+
+    /// Fisher scalars of a censored observation: the sensor stays silent
+    /// when its raw value falls in `silent = (lo, hi)` (unrolled next to
+    /// the mean, for a wrapped quantizer) and otherwise sends its cell. The
+    /// outcomes are the silence and each cell's part outside the window (a
+    /// cell that holds the whole window is one outcome of two pieces).
+    ///
+    /// Only the cells the window touches differ from the uncensored
+    /// observation, so this takes [`fisher_scalars`](Self::fisher_scalars)
+    /// (off the table, where it serves) and replaces those cells' terms:
+    /// a few cells rather than every cell within [`WINDOW_SIGMAS`].
+    pub fn censored_fisher_scalars(
+        &self,
+        mean: f64,
+        variance: f64,
+        silent: (f64, f64),
+    ) -> FisherScalars {
+        let base = self.fisher_scalars(mean, variance);
+        let sigma = variance.sqrt();
+        let reach = if self.wrapped {
+            // One period at most: a wider window would meet a cell twice.
+            (WINDOW_SIGMAS * sigma).min(0.5 * self.period() * (1.0 - 1e-12))
+        } else {
+            WINDOW_SIGMAS * sigma
+        };
+        let (lo, hi) = (silent.0.min(silent.1), silent.0.max(silent.1));
+        let (from, to) = (lo.max(mean - reach), hi.min(mean + reach));
+        if from >= to {
+            // The window is where the value (almost) never falls.
+            return base;
+        }
+        // Each edge's Φ and φ once: the cells' edges, and the window's.
+        let edge = |z: f64| Edge::at((z - mean) / sigma);
+        let (window_lo, window_hi) = (edge(lo), edge(hi));
+        let (mut removed, mut added) = ([0.0; 3], [0.0; 3]);
+        let (first, last) = (self.unrolled_cell(from), self.unrolled_cell(to));
+        let mut lower = edge(self.unrolled_edge(first));
+        for m in first..=last {
+            let upper = edge(self.unrolled_edge(m + 1));
+            accumulate_between(&mut removed, &lower, &upper);
+            // The cell's part below the window and its part above it: one
+            // outcome, its mass and derivatives the sums of the parts'.
+            let mut outside = [0.0; 3];
+            let below = (lower.t < window_lo.t).then(|| {
+                let top = if upper.t < window_lo.t { &upper } else { &window_lo };
+                (lower, *top)
+            });
+            let above = (upper.t > window_hi.t).then(|| {
+                let bottom = if lower.t > window_hi.t { &lower } else { &window_hi };
+                (*bottom, upper)
+            });
+            for (a, b) in below.into_iter().chain(above) {
+                outside[0] += a.mass_to(&b);
+                outside[1] += a.pdf - b.pdf;
+                outside[2] += a.x_pdf - b.x_pdf;
+            }
+            accumulate(&mut added, outside[0], outside[1], outside[2]);
+            lower = upper;
+        }
+        accumulate_between(&mut added, &window_lo, &window_hi);
+        let change = scalars_from_sums(
+            [
+                added[0] - removed[0],
+                added[1] - removed[1],
+                added[2] - removed[2],
+            ],
+            variance,
+        );
+        FisherScalars {
+            gg: base.gg + change.gg,
+            gr: base.gr + change.gr,
+            rr: base.rr + change.rr,
+        }
     }
 
     /// Index of the cell containing z, counting cells of the periodic

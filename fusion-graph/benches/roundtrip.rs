@@ -40,6 +40,7 @@ fn consensus(step: u32) -> Message {
             delta_eta: [1.0; 4],
             delta_lambda: [2.0; 10],
             delta_l: [3.0; 10],
+            delta_l_late: None,
         }),
     )
 }

@@ -385,22 +385,27 @@ impl NodeActor {
                         }
                     }
                 }
-                let silent = self
-                    .censoring
-                    .as_ref()
-                    .map_or_else(Vec::new, |c| c.silences(collected.step, &collected.silent));
+                let (silent, censored) = self.censoring.as_ref().map_or_else(
+                    || (Vec::new(), Vec::new()),
+                    |c| {
+                        let step = collected.step;
+                        (c.silences(step, &collected.silent), c.active(step))
+                    },
+                );
                 let evidence = Evidence {
                     received: &collected.observations,
                     lagged: &f.lagged,
                     silent: &silent,
+                    censored: &censored,
                 };
                 let update = self
                     .local
                     .update(&self.model, &evidence, self.with_aux)
                     .and_then(|mut update| {
-                        update.contribution.delta_l = self
+                        let c = &mut update.contribution;
+                        (c.delta_l, c.delta_l_late) = self
                             .fusion
-                            .observation_information(&self.model, &collected.observations)?;
+                            .observation_information(&self.model, &evidence)?;
                         Ok(update)
                     })
                     .unwrap_or_else(|e| {

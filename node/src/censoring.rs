@@ -7,7 +7,7 @@ use fusion_graph::scenario::{CensoringPolicy, FeedbackKind, Scenario};
 use fusion_graph::wire::{BitMask, Payload};
 use fusion_graph::{ScenarioError, Topology};
 
-use crate::estimator::{SensingModel, Silence};
+use crate::estimator::{Censored, SensingModel};
 use crate::filter::Gaussian;
 use crate::fusion::information::pack_matrix;
 
@@ -93,22 +93,34 @@ impl NodeCensoring {
         }
     }
 
-    /// The step's silent sensors as measurements.
-    pub(crate) fn silences(&self, step: u32, silent: &[u16]) -> Vec<Silence> {
-        let (pending_step, innovations) = &self.pending;
-        if *pending_step != step || self.ignore_silence {
+    /// The step's silent sensors as measurements (none for CFoMD, which
+    /// ignores silence).
+    pub(crate) fn silences(&self, step: u32, silent: &[u16]) -> Vec<Censored> {
+        if self.ignore_silence {
             return Vec::new();
         }
-        let rule = self.censors.first().map(|c| c.rule);
+        let mut all = self.active(step);
+        all.retain(|c| silent.contains(&c.sensor));
+        all
+    }
+
+    /// Every sensor activated for `step`, with the window it censors by:
+    /// what the bound weighs, sent or silent. The bound is of the data, so
+    /// it counts the silences even where the filter ignores them (CFoMD).
+    pub(crate) fn active(&self, step: u32) -> Vec<Censored> {
+        let (pending_step, innovations) = &self.pending;
+        let Some(rule) = self.censors.first().map(|c| c.rule) else {
+            return Vec::new();
+        };
+        if *pending_step != step {
+            return Vec::new();
+        }
         innovations
             .iter()
-            .filter(|(s, _)| silent.contains(s))
-            .filter_map(|(sensor, innovation)| {
-                rule.map(|rule| Silence {
-                    sensor: *sensor,
-                    innovation: *innovation,
-                    rule,
-                })
+            .map(|(sensor, innovation)| Censored {
+                sensor: *sensor,
+                innovation: *innovation,
+                rule,
             })
             .collect()
     }

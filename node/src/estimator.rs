@@ -16,7 +16,7 @@ use nalgebra::{Cholesky, SymmetricEigen};
 use rand_chacha::ChaCha8Rng;
 
 use crate::filter::{Gaussian, ParticleFilter};
-pub use crate::sensing::{Evidence, Observation, ObservedValue, SensingModel, Silence};
+pub use crate::sensing::{Evidence, Observation, ObservedValue, SensingModel, Censored};
 
 /// A node's information contribution for one step (docs/equations.md, "Estimator" and
 /// "Distributed bound"): everything that goes into consensus.
@@ -25,6 +25,9 @@ pub struct Contribution {
     pub delta_eta: State,
     pub delta_lambda: Mat4,
     pub delta_l: Mat4,
+    /// The information of the step before's observations that arrived
+    /// only now, about x(k−1) ([`bounds::ConditionalBound::advance_with_late`]).
+    pub delta_l_late: Mat4,
     /// Observed information at the received values (auxiliary-FIM baseline).
     pub s_obs: Mat4,
 }
@@ -35,6 +38,7 @@ impl Contribution {
             delta_eta: State::zeros(),
             delta_lambda: Mat4::zeros(),
             delta_l: Mat4::zeros(),
+            delta_l_late: Mat4::zeros(),
             s_obs: Mat4::zeros(),
         }
     }
@@ -167,19 +171,32 @@ impl LocalFilter {
             received: observations,
             lagged,
             silent,
+            censored,
         } = *evidence;
         let (terms, predicted) =
             self.prediction
                 .take(&mut self.filter, &model.dynamics, &mut self.rng)?;
 
-        let delta_l = model.information_and_likelihood(
+        let received_information = model.information_and_likelihood(
             observations,
             self.filter.particles(),
             self.filter.uniform_weights(),
             &mut self.first_stage,
         )?;
+        let delta_l = if censored.is_empty() {
+            received_information
+        } else {
+            model.censored_information(censored, self.filter.particles(), self.filter.uniform_weights())
+        };
+        // Late observations were taken at k−1: their information is over
+        // the particles' ancestors.
+        let delta_l_late = model.observation_information(
+            lagged,
+            self.filter.previous(),
+            self.filter.uniform_weights(),
+        )?;
         self.bound
-            .advance(&terms, model.dynamics.q_inv(), &delta_l)?;
+            .advance_with_late(&terms, model.dynamics.q_inv(), &delta_l_late, &delta_l)?;
 
         if evidence.is_empty() {
             // No news: the posterior is the prediction and the contribution is zero.
@@ -259,6 +276,7 @@ impl LocalFilter {
             .map_or(
                 Contribution {
                     delta_l,
+                    delta_l_late,
                     s_obs,
                     ..Contribution::zero()
                 },
@@ -266,6 +284,7 @@ impl LocalFilter {
                     delta_eta,
                     delta_lambda,
                     delta_l,
+                    delta_l_late,
                     s_obs,
                 },
             );
@@ -430,17 +449,22 @@ impl FusionFilter {
     /// the paper's text reads, the clouds are far wider than the global posterior,
     /// and at coarse quantization, where J_Y is a comb of peaks at the cell
     /// edges, that put the distributed bound below the centralized one.)
+    ///
+    /// Returns ΔL and ΔL_late: the step's information
+    /// ([`SensingModel::step_information`]: every active sensor's censored
+    /// law under censoring) and that of the late observations about the
+    /// step before, over the particles' ancestors, the posterior at k−1.
     pub fn observation_information(
         &mut self,
         model: &SensingModel,
-        observations: &[Observation],
-    ) -> Result<Mat4, BoundError> {
+        evidence: &Evidence,
+    ) -> Result<(Mat4, Mat4), BoundError> {
         self.predict(model)?;
-        model.observation_information(
-            observations,
-            self.filter.particles(),
-            self.filter.uniform_weights(),
-        )
+        let weights = self.filter.uniform_weights();
+        Ok((
+            model.step_information(evidence, self.filter.particles(), weights)?,
+            model.observation_information(evidence.lagged, self.filter.previous(), weights)?,
+        ))
     }
 
     /// `L(k+1|k) = Q⁻¹ − D21 (L_G(k) + D11)⁻¹ D12`: the global bound's
@@ -509,7 +533,8 @@ impl FusionFilter {
             }
             None => None,
         };
-        self.bound.advance(&terms, q_inv, &sums.delta_l)?;
+        self.bound
+            .advance_with_late(&terms, q_inv, &sums.delta_l_late, &sums.delta_l)?;
         Ok(FusionUpdate {
             estimate: posterior.mean,
             posterior,
@@ -667,7 +692,11 @@ mod tests {
         let rng = |seed| ChaCha8Rng::seed_from_u64(seed);
 
         let mut fusion = FusionFilter::new(2000, &prior(0.5), false, rng(1)).unwrap();
-        let node_delta_l = fusion.observation_information(&model, &observed).unwrap();
+        let received = Evidence {
+            received: &observed,
+            ..Evidence::default()
+        };
+        let (node_delta_l, _) = fusion.observation_information(&model, &received).unwrap();
         let mut local = LocalFilter::new(2000, &prior(20.0), rng(2)).unwrap();
         let local_delta_l = local
             .update(
@@ -765,5 +794,95 @@ mod tests {
         .unwrap();
         assert!((lambda - h_r_h).abs().max() < 1e-12, "{lambda}");
         assert!((eta - h_r_h * z).abs().max() < 1e-10, "{eta}");
+    }
+
+    /// The bound's information under censoring and with late observations,
+    /// on the default scenario's quantized bearings: a silent censoring
+    /// sensor adds J_cens (before, nothing), every active one is counted
+    /// whether it sent or not, and an observation weighed a step late
+    /// tightens the bound where it used to add nothing.
+    #[test]
+    fn the_bound_credits_silence_and_late_observations() {
+        use bounds::censoring::{CensoringRule, Innovation};
+        use fusion_graph::scenario::DEFAULT_SCENARIO;
+        use rand::SeedableRng;
+
+        let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap();
+        let topology = Topology::from_scenario(&scenario, "default").unwrap();
+        let model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+        let target = State::from(scenario.target.initial_state());
+        let prior = Gaussian {
+            mean: target,
+            cov: Mat4::from_diagonal(&State::new(400.0, 400.0, 1.0, 1.0)),
+        };
+        let predicted = model.sensors[0].evaluate(&model.dynamics.transition(&target));
+        let censored = |sensor: u16| Censored {
+            sensor,
+            innovation: Innovation {
+                predicted: predicted.g,
+                variance: predicted.r * 3.0,
+                angular: true,
+            },
+            rule: CensoringRule::for_budget(1.5, 3, 1).unwrap(),
+        };
+        let rng = ChaCha8Rng::seed_from_u64(5);
+        let fusion = FusionFilter::new(1000, &prior, false, rng.clone()).unwrap();
+
+        // Sensor 0 silent, sensor 1 sent cell 40.
+        let (silent, active) = ([censored(0)], [censored(0), censored(1)]);
+        let sent = [Observation {
+            sensor: 1,
+            value: ObservedValue::Cell(40),
+        }];
+        let evidence = Evidence {
+            received: &sent,
+            silent: &silent,
+            censored: &active,
+            ..Evidence::default()
+        };
+        let mut f = fusion.clone();
+        let (delta_l, late) = f.observation_information(&model, &evidence).unwrap();
+        assert_eq!(late, Mat4::zeros());
+        let particles = f.predict(&model).unwrap().to_vec();
+        let weights = vec![1.0 / particles.len() as f64; particles.len()];
+        let expected = model.censored_information(&active, &particles, &weights);
+        assert!((delta_l - expected).abs().max() <= 1e-12 * expected.abs().max());
+        let silent_alone = model.censored_information(&silent, &particles, &weights);
+        let position = |m: &Mat4| m.fixed_view::<2, 2>(0, 0).trace();
+        assert!(position(&silent_alone) > 0.0, "silence tells something");
+        let uncensored = model.observation_information(&sent, &particles, &weights).unwrap();
+        assert!(
+            position(&delta_l) > position(&(delta_l - silent_alone)),
+            "the silent sensor is counted"
+        );
+        assert!(position(&(delta_l - silent_alone)) <= position(&uncensored) * (1.0 + 1e-9));
+
+        // The local bound: with the silence it is tighter than with the
+        // sent observation alone, as the filter weighs both.
+        let bound_after = |evidence: &Evidence| {
+            let mut local = LocalFilter::new(1000, &prior, rng.clone()).unwrap();
+            local.update(&model, evidence, false).unwrap().bound.unwrap()
+        };
+        let only_sent = Evidence {
+            received: &sent,
+            ..Evidence::default()
+        };
+        assert!(bound_after(&evidence) < bound_after(&only_sent));
+
+        // A late observation: about x(k−1), over the ancestors, and a
+        // tighter bound than the step without it.
+        let lagged = [Observation {
+            sensor: 2,
+            value: ObservedValue::Cell(100),
+        }];
+        let late_evidence = Evidence {
+            lagged: &lagged,
+            ..Evidence::default()
+        };
+        let mut f = fusion.clone();
+        let (delta_l, late) = f.observation_information(&model, &late_evidence).unwrap();
+        assert_eq!(delta_l, Mat4::zeros());
+        assert!(position(&late) > 0.0);
+        assert!(bound_after(&late_evidence) < bound_after(&Evidence::default()));
     }
 }

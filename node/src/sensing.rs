@@ -33,10 +33,11 @@ pub enum ObservedValue {
     Raw(f64),
 }
 
-/// An active sensor that stayed silent under NIS censoring, with the
-/// innovation statistics it censored by: its silence is a measurement.
+/// An active sensor under NIS censoring, with the innovation statistics
+/// it censored by: whether it sent or stayed silent, what it did is a
+/// measurement.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Silence {
+pub struct Censored {
     pub sensor: u16,
     pub innovation: Innovation,
     pub rule: CensoringRule,
@@ -51,7 +52,10 @@ pub struct Evidence<'a> {
     /// is weighed at the time it was taken, on each particle's path.
     pub lagged: &'a [Observation],
     /// Active sensors that censored themselves this step.
-    pub silent: &'a [Silence],
+    pub silent: &'a [Censored],
+    /// Under NIS censoring, every active sensor of this step, sent or
+    /// silent: the bound takes the censored law's information of each.
+    pub censored: &'a [Censored],
 }
 
 impl Evidence<'_> {
@@ -193,9 +197,42 @@ impl SensingModel {
 
     /// `ln P(silent | x)` of a censored sensor: its innovation, given x,
     /// is `N(h(x) − h(x̂), r(x))`, inside the window with this probability.
-    pub fn ln_silence(&self, silence: &Silence, x: &State) -> f64 {
+    pub fn ln_silence(&self, silence: &Censored, x: &State) -> f64 {
         let e = self.sensors[silence.sensor as usize].evaluate(x);
         silence.innovation.ln_silence(&silence.rule, e.g, e.r)
+    }
+
+    /// A step's observation information for the conditional bound over a
+    /// particle set: under NIS censoring `Σ_s J_cens,s` over every active
+    /// sensor, sent or silent (silence is a measurement too; no traffic is
+    /// needed, the node knows each window), otherwise `Σ_s J_Y,s` over the
+    /// observations received.
+    pub fn step_information(
+        &self,
+        evidence: &Evidence,
+        particles: &[State],
+        weights: &[f64],
+    ) -> Result<Mat4, BoundError> {
+        if evidence.censored.is_empty() {
+            return self.observation_information(evidence.received, particles, weights);
+        }
+        Ok(self.censored_information(evidence.censored, particles, weights))
+    }
+
+    /// `Σ_s Σ_j w_j J_cens,s(x_j)` ([`bounds::censoring::SilenceWindow`]).
+    pub fn censored_information(
+        &self,
+        censored: &[Censored],
+        particles: &[State],
+        weights: &[f64],
+    ) -> Mat4 {
+        let sensors = censored.iter().map(|c| {
+            (
+                &self.sensors[c.sensor as usize],
+                c.innovation.silence_window(&c.rule),
+            )
+        });
+        bounds::censoring::censored_information(sensors, self.measurement(), particles, weights)
     }
 
     /// `Σ_s Σ_j w_j J_Y,s(x_j)`: the expected information of the observed

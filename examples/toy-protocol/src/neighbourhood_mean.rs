@@ -81,6 +81,9 @@ impl RoundRule for NeighbourhoodMean {
             delta_eta: v.delta_eta,
             delta_lambda: v.delta_lambda,
             delta_l: v.delta_l,
+            // A toy: it does not carry ΔL_late, so its bound does not
+            // credit observations that arrive a step late.
+            delta_l_late: [0.0; 10],
             s_obs: None,
         });
         true
@@ -101,6 +104,8 @@ impl RoundRule for NeighbourhoodMean {
         for (_, v) in heard {
             next.add_scaled(w, v);
         }
+        // Its payload has no ΔL_late (see `absorb`): none of it is mixed.
+        next.delta_l_late = [0.0; 10];
         next
     }
 

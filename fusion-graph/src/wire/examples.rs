@@ -9,6 +9,7 @@ pub fn examples() -> Vec<Message> {
         delta_eta: [1.0, 2.0, 3.0, 4.0],
         delta_lambda: [0.5; 10],
         delta_l: [-0.25; 10],
+        delta_l_late: None,
     };
     let t = Telemetry {
         estimate: [1.0; 4],
@@ -75,7 +76,16 @@ pub fn examples() -> Vec<Message> {
             0,
             Payload::RawObservation { value: -1.25 },
         ),
-        Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c)),
+        Message::new(ActorId::Node(4), 7, 9, Payload::Consensus(c.clone())),
+        Message::new(
+            ActorId::Node(4),
+            7,
+            9,
+            Payload::Consensus(ConsensusValues {
+                delta_l_late: Some([0.125; 10]),
+                ..c
+            }),
+        ),
         Message::new(
             ActorId::Node(4),
             7,

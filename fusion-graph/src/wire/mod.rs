@@ -84,6 +84,12 @@ pub enum MessageKind {
     /// A node relays its own sensor's measurement to its neighbours, so
     /// that each assimilates its closed neighbourhood's: sensor, value.
     NeighbourObservation = 17,
+    /// One consensus round whose sender also carries information about the
+    /// step before, from observations that arrived after it closed: the 24
+    /// of [`Consensus`](Self::Consensus), then ΔL_late (10). Sent instead
+    /// of a `Consensus` only while that part is not zero, so it costs bytes
+    /// only on the steps that have late observations.
+    ConsensusLate = 18,
     /// A protocol's own payload, under the kind byte it registered.
     Protocol(ProtocolKind) = 128,
     /// Accounting only: bytes whose kind could not be read.
@@ -111,6 +117,7 @@ impl MessageKind {
             15 => ExchangeReply,
             16 => ExchangePosterior,
             17 => NeighbourObservation,
+            18 => ConsensusLate,
             k => Protocol(ProtocolKind::registered(k)?),
         })
     }
@@ -135,6 +142,7 @@ impl MessageKind {
             ExchangeReply => "exchange_reply",
             ExchangePosterior => "exchange_posterior",
             NeighbourObservation => "neighbour_observation",
+            ConsensusLate => "consensus_late",
             Protocol(k) => k.name(),
             Malformed => "malformed",
         }
@@ -161,6 +169,7 @@ impl MessageKind {
             ExchangeReply => 15,
             ExchangePosterior => 16,
             NeighbourObservation => 17,
+            ConsensusLate => 18,
             Protocol(k) => k.code(),
             Malformed => 255,
         }
@@ -237,6 +246,11 @@ pub struct ConsensusValues {
     pub delta_eta: [f64; 4],
     pub delta_lambda: Packed,
     pub delta_l: Packed,
+    /// ΔL_late, the information of late observations about the step
+    /// before; present, it makes the message a
+    /// [`MessageKind::ConsensusLate`].
+    #[serde(skip)]
+    pub delta_l_late: Option<Packed>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -383,6 +397,7 @@ impl Payload {
             } => MessageKind::ActivateFeedbackCovariance,
             Payload::Observation { .. } => MessageKind::Observation,
             Payload::RawObservation { .. } => MessageKind::RawObservation,
+            Payload::Consensus(v) if v.delta_l_late.is_some() => MessageKind::ConsensusLate,
             Payload::Consensus(_) => MessageKind::Consensus,
             Payload::ConsensusAux { .. } => MessageKind::ConsensusAux,
             Payload::Control(_) => MessageKind::Control,
@@ -464,7 +479,12 @@ impl Message {
                 out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes])
             }
             Payload::RawObservation { value } => put(value, out),
-            Payload::Consensus(v) => put(v, out),
+            Payload::Consensus(v) => {
+                put(v, out);
+                if let Some(late) = &v.delta_l_late {
+                    put(late, out);
+                }
+            }
             Payload::ConsensusAux { s_obs } => put(s_obs, out),
             Payload::Control(c) => put(c, out),
             Payload::Telemetry(t) => put(t, out),
@@ -551,11 +571,11 @@ impl Message {
                     value: finite([v])?[0],
                 }
             }
-            MessageKind::Consensus => {
-                let v: ConsensusValues = take(body)?;
-                finite(v.delta_eta)?;
-                finite(v.delta_lambda)?;
-                finite(v.delta_l)?;
+            MessageKind::Consensus => Payload::Consensus(consensus_values(body)?),
+            MessageKind::ConsensusLate => {
+                let split = CONSENSUS_BYTES.min(body.len());
+                let mut v = consensus_values(&body[..split])?;
+                v.delta_l_late = Some(finite(take(&body[split..])?)?);
                 Payload::Consensus(v)
             }
             MessageKind::ConsensusAux => Payload::ConsensusAux {
@@ -656,7 +676,8 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::ActivateFeedbackCovariance => format.activation_bytes + 32 + 80,
                 MessageKind::Observation => format.cell_bytes,
                 MessageKind::RawObservation => 8,
-                MessageKind::Consensus => 8 * 24,
+                MessageKind::Consensus => CONSENSUS_BYTES,
+                MessageKind::ConsensusLate => CONSENSUS_BYTES + 8 * 10,
                 MessageKind::ConsensusAux => 8 * 10,
                 MessageKind::StateTransfer => 8 * 34,
                 MessageKind::MinConsensus => 8 + 2 + 2 + 8 * 3,
@@ -696,6 +717,18 @@ pub fn seal(message: &mut [u8]) {
         let crc = checksum(message);
         message[CHECKSUM_AT].copy_from_slice(&crc.to_le_bytes());
     }
+}
+
+/// The body of a [`MessageKind::Consensus`]: δη, δΛ, ΔL.
+const CONSENSUS_BYTES: usize = 8 * 24;
+
+/// δη, δΛ and ΔL, each finite.
+fn consensus_values(body: &[u8]) -> Result<ConsensusValues, WireError> {
+    let v: ConsensusValues = take(body)?;
+    finite(v.delta_eta)?;
+    finite(v.delta_lambda)?;
+    finite(v.delta_l)?;
+    Ok(v)
 }
 
 fn put<T: Serialize>(v: &T, out: &mut Vec<u8>) {

@@ -185,6 +185,7 @@ mod tests {
             delta_eta: [k; 4],
             delta_lambda: [k; 10],
             delta_l: [k; 10],
+            delta_l_late: [0.0; 10],
             s_obs: None,
         }
     }

@@ -8,12 +8,15 @@ use fusion_graph::wire::{ConsensusValues, Packed, Payload};
 
 use crate::estimator::{Contribution, NetworkSums};
 
-/// `(δη, δΛ, ΔL)` and, with the auxiliary-FIM baseline, `S_obs`.
+/// `(δη, δΛ, ΔL, ΔL_late)` and, with the auxiliary-FIM baseline, `S_obs`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InformationVector {
     pub delta_eta: [f64; 4],
     pub delta_lambda: Packed,
     pub delta_l: Packed,
+    /// The information of observations of the step before that arrived
+    /// late (about x(k−1)); zero on most steps, and then not sent.
+    pub delta_l_late: Packed,
     /// Present only when the auxiliary-FIM baseline runs: it doubles the
     /// bound traffic.
     pub s_obs: Option<Packed>,
@@ -38,6 +41,7 @@ impl InformationVector {
             delta_eta: c.delta_eta.into(),
             delta_lambda: pack_matrix(&c.delta_lambda),
             delta_l: pack_matrix(&c.delta_l),
+            delta_l_late: pack_matrix(&c.delta_l_late),
             s_obs: with_aux.then(|| pack_matrix(&c.s_obs)),
         }
     }
@@ -48,6 +52,7 @@ impl InformationVector {
             delta_eta: State::from(self.delta_eta),
             delta_lambda: unpack_matrix(&self.delta_lambda),
             delta_l: unpack_matrix(&self.delta_l),
+            delta_l_late: unpack_matrix(&self.delta_l_late),
             s_obs: self.s_obs.as_ref().map_or(Mat4::zeros(), unpack_matrix),
         }
     }
@@ -58,6 +63,7 @@ impl InformationVector {
             delta_eta: scale(&self.delta_eta, w),
             delta_lambda: scale(&self.delta_lambda, w),
             delta_l: scale(&self.delta_l, w),
+            delta_l_late: scale(&self.delta_l_late, w),
             s_obs: self.s_obs.map(|s| scale(&s, w)),
         }
     }
@@ -67,18 +73,22 @@ impl InformationVector {
         add_scaled(&mut self.delta_eta, w, &other.delta_eta);
         add_scaled(&mut self.delta_lambda, w, &other.delta_lambda);
         add_scaled(&mut self.delta_l, w, &other.delta_l);
+        add_scaled(&mut self.delta_l_late, w, &other.delta_l_late);
         if let (Some(a), Some(b)) = (self.s_obs.as_mut(), other.s_obs.as_ref()) {
             add_scaled(a, w, b);
         }
     }
 
-    /// The payloads one round of it travels in: the consensus message, and
-    /// the auxiliary one when `S_obs` is present.
+    /// The payloads one round of it travels in: the consensus message
+    /// (with ΔL_late only when it is not zero), and the auxiliary one when
+    /// `S_obs` is present.
     pub fn payloads(&self, out: &mut Vec<Payload>) {
+        let late = self.delta_l_late.iter().any(|v| *v != 0.0);
         out.push(Payload::Consensus(ConsensusValues {
             delta_eta: self.delta_eta,
             delta_lambda: self.delta_lambda,
             delta_l: self.delta_l,
+            delta_l_late: late.then_some(self.delta_l_late),
         }));
         if let Some(s_obs) = self.s_obs {
             out.push(Payload::ConsensusAux { s_obs });
@@ -114,6 +124,7 @@ impl InformationPieces {
             delta_eta: main.delta_eta,
             delta_lambda: main.delta_lambda,
             delta_l: main.delta_l,
+            delta_l_late: main.delta_l_late.unwrap_or([0.0; 10]),
             s_obs: if with_aux { self.aux } else { None },
         })
     }
@@ -129,17 +140,25 @@ mod tests {
             delta_eta: State::new(k, 2.0 * k, 0.0, -k),
             delta_lambda: m + m.transpose(),
             delta_l: m * m.transpose(),
+            delta_l_late: Mat4::identity() * (k - 1.5),
             s_obs: Mat4::identity() * k,
         }
     }
 
     #[test]
     fn the_vector_round_trips_through_its_payloads() {
-        for with_aux in [false, true] {
-            let v = InformationVector::from_contribution(&contribution(1.5), with_aux);
+        // contribution(1.5) has no late information, contribution(2.5) has.
+        for (with_aux, k) in [(false, 1.5), (true, 1.5), (false, 2.5), (true, 2.5)] {
+            let v = InformationVector::from_contribution(&contribution(k), with_aux);
             let mut payloads = Vec::new();
             v.payloads(&mut payloads);
             assert_eq!(payloads.len(), 1 + with_aux as usize);
+            let kind = if k == 1.5 {
+                fusion_graph::wire::MessageKind::Consensus
+            } else {
+                fusion_graph::wire::MessageKind::ConsensusLate
+            };
+            assert_eq!(payloads[0].kind(), kind);
             let mut pieces = InformationPieces::default();
             assert!(pieces.assemble(with_aux).is_none());
             for p in &payloads {
@@ -160,6 +179,8 @@ mod tests {
         let (ca, cb) = (contribution(1.0), contribution(3.0));
         let expected_l = ca.delta_l * 0.25 + cb.delta_l * 0.75;
         assert!((sums.delta_l - expected_l).abs().max() < 1e-12);
+        let expected_late = ca.delta_l_late * 0.25 + cb.delta_l_late * 0.75;
+        assert!((sums.delta_l_late - expected_late).abs().max() < 1e-12);
         assert!((sums.s_obs - Mat4::identity() * 2.5).abs().max() < 1e-12);
         assert_eq!(sums.delta_eta, State::new(2.5, 5.0, 0.0, -2.5));
     }

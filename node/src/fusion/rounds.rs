@@ -531,6 +531,7 @@ mod tests {
             delta_eta: [i as f64; 4],
             delta_lambda: [1.0; 10],
             delta_l: [1.0; 10],
+            delta_l_late: [0.0; 10],
             s_obs: None,
         };
         let latency = |from: u16, _: u16, _: &Payload| {
@@ -588,6 +589,7 @@ mod tests {
             delta_eta: [0.0; 4],
             delta_lambda: [1.0; 10],
             delta_l: [1.0; 10],
+            delta_l_late: [0.0; 10],
             s_obs: None,
         };
         e.expect_step(1);
