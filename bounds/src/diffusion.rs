@@ -44,6 +44,11 @@ pub struct MonteCarloSize {
 pub struct DiffusionBounds {
     /// `J*_{n,r}` for each step n and node r.
     pub rndex: Vec<Vec<Mat4>>,
+    /// `E_paths tr_pos(J_{n,r}⁻¹)`: the bound of each path averaged, rather
+    /// than its information. By Jensen's inequality it is at least
+    /// `tr_pos(J*⁻¹)`; the gap is what averaging Fisher matrices over paths
+    /// (eq. 15) gives away.
+    pub rndex_path_traces: Vec<Vec<f64>>,
     /// The centralized filter's information, every sensor at every step.
     pub centralized: Vec<Mat4>,
 }
@@ -57,6 +62,14 @@ impl DiffusionBounds {
             total += position_bound(j)?.powi(2);
         }
         Some((total / nodes.len() as f64).sqrt())
+    }
+
+    /// `sqrt(mean_r E_paths tr_pos J_{n,r}⁻¹)`, metres: the paths' bounds
+    /// averaged (see [`DiffusionBounds::rndex_path_traces`]).
+    pub fn rndex_path_averaged_bound(&self, step: usize) -> Option<f64> {
+        let traces = &self.rndex_path_traces[step];
+        let mean = traces.iter().sum::<f64>() / traces.len() as f64;
+        mean.is_finite().then(|| mean.sqrt())
     }
 
     /// `sqrt(tr_pos J_c⁻¹)`, metres.
@@ -161,18 +174,23 @@ pub fn diffusion_bounds<R: Rng + ?Sized>(
 
     let nodes = sensors.len();
     let mut sums = vec![vec![Mat4::zeros(); nodes]; steps + 1];
+    let mut traces = vec![vec![0.0; nodes]; steps + 1];
+    let trace = |j: &Mat4| position_bound(j).map_or(f64::INFINITY, |b| b * b);
     let mut current = vec![j0; nodes];
     let mut next = vec![Mat4::zeros(); nodes];
     for _ in 0..size.paths {
         current.fill(j0);
         sums[0].iter_mut().for_each(|s| *s += j0);
-        for (e, sum) in expectations.iter().zip(sums.iter_mut().skip(1)) {
+        traces[0].iter_mut().for_each(|t| *t += trace(&j0));
+        let per_step = expectations.iter().zip(sums.iter_mut().skip(1));
+        for ((e, sum), tr) in per_step.zip(traces.iter_mut().skip(1)) {
             let partner = random_matching(neighbours, rng);
             for r in 0..nodes {
                 let from = &current[partner[r]];
                 next[r] =
                     information_update(from, &e.terms, dynamics.q_inv(), &e.closed[r])?.updated;
                 sum[r] += next[r];
+                tr[r] += trace(&next[r]);
             }
             std::mem::swap(&mut current, &mut next);
         }
@@ -182,7 +200,15 @@ pub fn diffusion_bounds<R: Rng + ?Sized>(
         .into_iter()
         .map(|step| step.into_iter().map(|j| j * scale).collect())
         .collect();
-    Ok(DiffusionBounds { rndex, centralized })
+    let rndex_path_traces = traces
+        .into_iter()
+        .map(|step| step.into_iter().map(|t| t * scale).collect())
+        .collect();
+    Ok(DiffusionBounds {
+        rndex,
+        rndex_path_traces,
+        centralized,
+    })
 }
 
 /// What every path shares at one step: the dynamics terms, the expected
@@ -260,6 +286,7 @@ mod tests {
             zeta: 3.0,
             d0: 1.0,
             sigma: 4.0,
+            near_field: None,
         };
         let mut models = Vec::new();
         let mut neighbours = Vec::new();
@@ -461,6 +488,47 @@ mod tests {
         };
         let (few, many) = (run(200), run(1000));
         assert!((few / many - 1.0).abs() < 0.01, "{few} vs {many}");
+    }
+
+    /// Averaging the paths' bounds rather than their information (the
+    /// Jensen gap): never below eq. 16's bound, node by node, and equal to
+    /// it when every path is the same (a complete graph).
+    #[test]
+    fn the_paths_averaged_bound_is_at_least_the_averaged_informations() {
+        let (models, neighbours) = lattice();
+        let complete: Vec<Vec<usize>> = (0..25)
+            .map(|r| (0..25).filter(|&l| l != r).collect())
+            .collect();
+        let (mean, cov) = prior();
+        for (graph, equal) in [(&neighbours, false), (&complete, true)] {
+            let mut rng = ChaCha8Rng::seed_from_u64(8);
+            let b = diffusion_bounds(
+                &dynamics(),
+                &raw(&models),
+                graph,
+                &mean,
+                &cov,
+                20,
+                SMALL,
+                &mut rng,
+            )
+            .unwrap();
+            let mut gap = 0.0_f64;
+            for n in 0..=20 {
+                for (j, t) in b.rndex[n].iter().zip(&b.rndex_path_traces[n]) {
+                    let of_mean = position_bound(j).unwrap().powi(2);
+                    assert!(*t >= of_mean * (1.0 - 1e-9), "step {n}: {t} < {of_mean}");
+                    gap = gap.max(t / of_mean - 1.0);
+                }
+            }
+            let averaged = b.rndex_path_averaged_bound(20).unwrap();
+            let of_mean = b.rndex_position_bound(20).unwrap();
+            if equal {
+                assert!(gap < 1e-9, "{gap}");
+            } else {
+                assert!(gap > 1e-6 && averaged > of_mean, "{gap}");
+            }
+        }
     }
 
     #[test]

@@ -228,6 +228,7 @@ mod tests {
             zeta: 3.0,
             d0: 1.0,
             sigma: 4.0,
+            near_field: None,
         }
         .at([700.0, 300.0]);
         let qr = Quantizer::uniform(4, -110.0, -40.0).unwrap();

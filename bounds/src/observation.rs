@@ -59,12 +59,20 @@ pub enum SensorLaw {
     /// `g = atan2(p_x − X_s, p_y − Y_s)` (from north, clockwise), wrapped to
     /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`.
     Bearing { sigma_theta: f64, d0: f64 },
-    /// Received signal strength in dBm: `g = P_0 − 10 ζ log10(d/d_0)`, `R = σ_r²`.
+    /// Received signal strength in dBm: `g = P_0 − 5 ζ log10((d² + h²)/d_0²)`,
+    /// `R = σ_r²`, with `h` the near field ([`SensorLaw::rss_near_field`]):
+    /// the sensor's antenna stands `h` off the plane the target moves in,
+    /// so the distance it sees is never below `h`, and a target passing
+    /// over it gives the log-distance law's largest but finite information,
+    /// `(10ζ/ln10)² / (4 h² σ²)` at `d = h`, rather than one growing as 1/d².
     Rss {
         p0: f64,
         zeta: f64,
         d0: f64,
         sigma: f64,
+        /// `h`, metres; the reference distance `d_0` when not given.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        near_field: Option<f64>,
     },
     /// Amplitude, power law: `g = sqrt(P_0 / (1 + α dⁿ))`, `R = σ²`.
     Amplitude {
@@ -80,6 +88,13 @@ pub enum SensorLaw {
 }
 
 impl SensorLaw {
+    /// The RSS law's near field `h`: as given, or the reference distance
+    /// `d_0`, inside which the log-distance law (a far-field law, fitted
+    /// from `d_0` outwards) is not the sensor's physics.
+    pub fn rss_near_field(near_field: Option<f64>, d0: f64) -> f64 {
+        near_field.unwrap_or(d0)
+    }
+
     /// This law at the sensor position `sensor`.
     pub fn at(self, sensor: [f64; 2]) -> ObservationModel {
         ObservationModel { sensor, law: self }
@@ -113,10 +128,14 @@ impl SensorLaw {
                 zeta,
                 d0,
                 sigma,
+                near_field,
             } => {
                 check("p0", p0, false)?;
                 check("zeta", zeta, true)?;
                 check("d0", d0, true)?;
+                if let Some(h) = near_field {
+                    check("near_field", h, true)?;
+                }
                 check("sigma", sigma, true)
             }
             Self::Amplitude {
@@ -194,9 +213,12 @@ impl ObservationModel {
                 zeta,
                 d0,
                 sigma,
+                near_field,
             } => {
-                let (dx, dy, d2) = offset(x, sensor);
-                // g = P0 − 5ζ log10(d²/d0²); ∂g/∂p = −10ζ/ln10 · (p − X)/d²
+                let (dx, dy, _) = offset(x, sensor);
+                let h = SensorLaw::rss_near_field(near_field, d0);
+                let d2 = dx * dx + dy * dy + h * h;
+                // g = P0 − 5ζ log10((d² + h²)/d0²); ∂g/∂p = −10ζ/ln10 · (p − X)/(d² + h²)
                 let k = -10.0 * zeta / LN_10 / d2;
                 Evaluation {
                     g: p0 - 5.0 * zeta * (d2 / (d0 * d0)).log10(),
@@ -367,6 +389,7 @@ mod tests {
                 zeta: 3.0,
                 d0: 1.0,
                 sigma: 2.0,
+                near_field: None,
             },
             SensorLaw::Amplitude {
                 p0: 100.0,
@@ -422,6 +445,48 @@ mod tests {
         }
     }
 
+    /// The RSS near field: over the sensor the information is finite, it
+    /// peaks at `d = h` at `(10ζ/ln10)²/(4h²σ²)`, and the gradient is the
+    /// law's own there too (central differences).
+    #[test]
+    fn rss_information_is_bounded_in_the_near_field() {
+        let (zeta, sigma, h) = (3.0, 4.0, 2.0);
+        let model = SensorLaw::Rss {
+            p0: -30.0,
+            zeta,
+            d0: 1.0,
+            sigma,
+            near_field: Some(h),
+        }
+        .at([50.0, 50.0]);
+        let info = |d: f64| {
+            let e = model.evaluate(&State::new(50.0 + d, 50.0, 0.0, 0.0));
+            e.grad_g.norm_squared() / e.r
+        };
+        let peak = (10.0 * zeta / LN_10).powi(2) / (4.0 * h * h * sigma * sigma);
+        assert_eq!(info(0.0), 0.0);
+        assert!((info(h) / peak - 1.0).abs() < 1e-12, "{} vs {peak}", info(h));
+        for d in [0.01, 0.5, 1.0, 1.9, 2.1, 5.0, 40.0] {
+            assert!(info(d) < peak, "d = {d}");
+        }
+        for d in [0.3, 2.0, 7.0] {
+            let x = State::new(50.0 + d, 50.0 - 0.4 * d, 1.0, 0.0);
+            let fd = crate::testing::central_gradient(|y| model.evaluate(y).g, &x, 1e-6, false);
+            let grad = model.evaluate(&x).grad_g;
+            assert!((fd - grad).norm() < 1e-6 * grad.norm(), "d = {d}: {fd} vs {grad}");
+        }
+        // Without `near_field` it is the reference distance d0.
+        let default = SensorLaw::Rss {
+            p0: -30.0,
+            zeta,
+            d0: 1.0,
+            sigma,
+            near_field: None,
+        }
+        .at([0.0, 0.0]);
+        assert_eq!(default.evaluate(&State::zeros()).g, -30.0);
+    }
+
     fn models() -> Vec<ObservationModel> {
         vec![
             SensorLaw::Bearing {
@@ -434,6 +499,7 @@ mod tests {
                 zeta: 3.0,
                 d0: 1.0,
                 sigma: 2.0,
+                near_field: None,
             }
             .at([250.0, 750.0]),
             SensorLaw::Amplitude {

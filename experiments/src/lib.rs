@@ -168,12 +168,21 @@ pub struct ArmOutcome {
 
 /// Each step's RMSE interval over the runs that reported it.
 fn rmse_bands(per_run: &[Vec<runtime::summary::StepMeans>]) -> Vec<Option<(f64, f64)>> {
+    rmse_bands_of(per_run, |m| m.rmse)
+}
+
+/// Each step's 95 % band of an RMSE over runs, from each run's per-step
+/// RMSE that `of` picks.
+pub(crate) fn rmse_bands_of(
+    per_run: &[Vec<runtime::summary::StepMeans>],
+    of: impl Fn(&runtime::summary::StepMeans) -> Option<f64>,
+) -> Vec<Option<(f64, f64)>> {
     let steps = per_run.iter().map(Vec::len).max().unwrap_or(0);
     (0..steps)
         .map(|k| {
             let at: Vec<f64> = per_run
                 .iter()
-                .filter_map(|run| run.get(k).and_then(|m| m.rmse))
+                .filter_map(|run| run.get(k).and_then(&of))
                 .collect();
             paired::rmse_interval(&at)
         })

@@ -11,7 +11,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::actor::ActorId;
-use crate::scenario::Scenario;
+use crate::scenario::{Scenario, TargetStart};
 use crate::topology::Topology;
 use crate::wire::WireFormat;
 use crate::ScenarioError;
@@ -122,19 +122,42 @@ impl Scenario {
         Ok((!q.raw).then_some(built))
     }
 
-    /// The prior every filter starts from: `N(m_0, P_0)` with `m_0` drawn
-    /// once per run from `N(x_true(0), P_0)` (docs/equations.md's default scenario).
+    /// The prior every filter starts from: `N(m_0, P_0)`. With the truth
+    /// at the target's state (`target.start = "fixed"`), `m_0` is drawn once
+    /// per run from `N(x_true(0), P_0)` (docs/equations.md's default
+    /// scenario); with the truth drawn from the prior, `m_0` is the
+    /// target's state.
     pub fn network_prior(&self, models: &Models) -> Gaussian {
+        let nominal = State::from(self.target.initial_state());
+        let mean = match self.target.start {
+            TargetStart::Fixed => nominal + self.start_offset(),
+            TargetStart::Prior => nominal,
+        };
+        Gaussian {
+            mean,
+            cov: models.prior_cov,
+        }
+    }
+
+    /// The true state at step 0 of this run: the target's state, or the
+    /// state plus this run's offset when the truth is drawn from the prior.
+    pub fn true_initial_state(&self) -> State {
+        let nominal = State::from(self.target.initial_state());
+        match self.target.start {
+            TargetStart::Fixed => nominal,
+            TargetStart::Prior => nominal + self.start_offset(),
+        }
+    }
+
+    /// This run's draw `sd ∘ n` from its prior stream (the prior's
+    /// standard deviations are per component, its covariance diagonal).
+    fn start_offset(&self) -> State {
         let sd = State::from(self.filter.prior_std);
-        let truth = State::from(self.target.initial_state());
         let mut rng = stream_rng(self.seed, ActorId::Launcher, 0, Stream::Prior);
         let noise = State::from_fn(|_, _| {
             rand::Rng::sample::<f64, _>(&mut rng, rand_distr::StandardNormal)
         });
-        Gaussian {
-            mean: truth + sd.component_mul(&noise),
-            cov: models.prior_cov,
-        }
+        sd.component_mul(&noise)
     }
 
     /// The wire sizes this scenario fixes on this topology.

@@ -104,7 +104,7 @@ impl Net {
             .collect();
         Self {
             model: SensingModel::from_scenario(&scenario, &topology).unwrap(),
-            truth: State::from(scenario.target.initial_state()),
+            truth: scenario.true_initial_state(),
             scenario,
             topology,
             nodes,

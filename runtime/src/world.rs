@@ -19,7 +19,7 @@ impl World {
     pub fn new(s: &Scenario) -> Result<Self, ScenarioError> {
         Ok(Self {
             dynamics: s.models()?.dynamics,
-            state: State::from(s.target.initial_state()),
+            state: s.true_initial_state(),
             rng: stream_rng(s.seed, ActorId::Launcher, 0, Stream::Truth),
         })
     }
