@@ -370,10 +370,10 @@ impl VectorSilence {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Quantizer;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
-    use crate::Quantizer;
 
     #[test]
     fn the_threshold_passes_l_of_n_gaussian_innovations() {
@@ -591,7 +591,8 @@ mod tests {
                     continue;
                 }
                 let score = crate::testing::central_gradient(|y| ln_density(z, y), &x, 1e-3, false);
-                let p = (-0.5 * (z - g).powi(2) / r).exp() / (2.0 * std::f64::consts::PI * r).sqrt();
+                let p =
+                    (-0.5 * (z - g).powi(2) / r).exp() / (2.0 * std::f64::consts::PI * r).sqrt();
                 j += score * score.transpose() * p * dz;
             }
             let silence = |y: &State| {
@@ -638,9 +639,8 @@ mod tests {
                     .map(|c| {
                         let (a, b) = q.cell_edges(c);
                         let mass = &mass;
-                        Box::new(move |y: &State| {
-                            mass(y, a, b.min(lo)) + mass(y, a.max(hi), b)
-                        }) as Box<dyn Fn(&State) -> f64>
+                        Box::new(move |y: &State| mass(y, a, b.min(lo)) + mass(y, a.max(hi), b))
+                            as Box<dyn Fn(&State) -> f64>
                     })
                     .collect();
                 let silence = |y: &State| mass(y, lo, hi);
@@ -694,7 +694,9 @@ mod tests {
                 half_width: 10.0,
                 angular: true,
             };
-            assert!(everywhere.information(&model, measurement, &x).norm() < 1e-9 * uncensored.norm());
+            assert!(
+                everywhere.information(&model, measurement, &x).norm() < 1e-9 * uncensored.norm()
+            );
         }
     }
 

@@ -465,7 +465,11 @@ mod tests {
         };
         let peak = (10.0 * zeta / LN_10).powi(2) / (4.0 * h * h * sigma * sigma);
         assert_eq!(info(0.0), 0.0);
-        assert!((info(h) / peak - 1.0).abs() < 1e-12, "{} vs {peak}", info(h));
+        assert!(
+            (info(h) / peak - 1.0).abs() < 1e-12,
+            "{} vs {peak}",
+            info(h)
+        );
         for d in [0.01, 0.5, 1.0, 1.9, 2.1, 5.0, 40.0] {
             assert!(info(d) < peak, "d = {d}");
         }
@@ -473,7 +477,10 @@ mod tests {
             let x = State::new(50.0 + d, 50.0 - 0.4 * d, 1.0, 0.0);
             let fd = crate::testing::central_gradient(|y| model.evaluate(y).g, &x, 1e-6, false);
             let grad = model.evaluate(&x).grad_g;
-            assert!((fd - grad).norm() < 1e-6 * grad.norm(), "d = {d}: {fd} vs {grad}");
+            assert!(
+                (fd - grad).norm() < 1e-6 * grad.norm(),
+                "d = {d}: {fd} vs {grad}"
+            );
         }
         // Without `near_field` it is the reference distance d0.
         let default = SensorLaw::Rss {

@@ -706,7 +706,11 @@ mod tests {
             (Mat4::zeros(), x_info + y_info),
         ];
         let f = dynamics.jacobian(&State::zeros());
-        let kalman_predict = |j: &Mat4| (f * j.try_inverse().unwrap() * f.transpose() + dynamics.q()).try_inverse().unwrap();
+        let kalman_predict = |j: &Mat4| {
+            (f * j.try_inverse().unwrap() * f.transpose() + dynamics.q())
+                .try_inverse()
+                .unwrap()
+        };
         let one = [State::new(100.0, 200.0, 3.0, -1.0)];
         let terms = dynamics_terms(&dynamics, &one, &[1.0]).unwrap();
         let mut bound = ConditionalBound::from_prior(&prior_cov()).unwrap();
@@ -728,7 +732,9 @@ mod tests {
         // Without the late term the bound forgets them: a looser bound.
         let mut forgetful = ConditionalBound::from_prior(&prior_cov()).unwrap();
         for (on_time, _) in &schedule {
-            forgetful.advance(&terms, dynamics.q_inv(), on_time).unwrap();
+            forgetful
+                .advance(&terms, dynamics.q_inv(), on_time)
+                .unwrap();
         }
         assert!(forgetful.position_bound().unwrap() > 1.2 * bound.position_bound().unwrap());
     }

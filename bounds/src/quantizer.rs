@@ -843,11 +843,19 @@ impl Quantizer {
             // outcome, its mass and derivatives the sums of the parts'.
             let mut outside = [0.0; 3];
             let below = (lower.t < window_lo.t).then(|| {
-                let top = if upper.t < window_lo.t { &upper } else { &window_lo };
+                let top = if upper.t < window_lo.t {
+                    &upper
+                } else {
+                    &window_lo
+                };
                 (lower, *top)
             });
             let above = (upper.t > window_hi.t).then(|| {
-                let bottom = if lower.t > window_hi.t { &lower } else { &window_hi };
+                let bottom = if lower.t > window_hi.t {
+                    &lower
+                } else {
+                    &window_hi
+                };
                 (*bottom, upper)
             });
             for (a, b) in below.into_iter().chain(above) {

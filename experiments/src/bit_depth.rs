@@ -20,7 +20,8 @@ use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Check, Computed, ComputedReport, Options, Verdict};
+use super::paired::Paired;
+use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
 use runtime::montecarlo::run_monte_carlo;
 use runtime::results::write_atomically;
 
@@ -69,6 +70,13 @@ struct Measured {
     rate: f64,
     /// (bits, RMSE from step 10, m).
     rmse: Vec<(u8, f64)>,
+    /// The mean CQ/dPCRLB from step 10 at each depth, m: over a slow link
+    /// it credits each observation at the step it was taken, however late
+    /// it arrives.
+    bound: Vec<f64>,
+    /// At each depth, the RMSE minus the bound run by run, with its 95 %
+    /// interval.
+    gap: Vec<Option<Paired>>,
 }
 
 /// One bit depth's bound under both delay models.
@@ -116,7 +124,7 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
     MEASURED_RATES
         .iter()
         .map(|&rate| {
-            let rmse = DEPTHS
+            let points = DEPTHS
                 .map(|bits| {
                     let mut overrides = vec![
                         format!("quantizer.bits={bits}"),
@@ -142,11 +150,25 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                         &|_| {},
                     )?;
                     let rmse = mc.estimates.rmse.unwrap_or(f64::NAN);
-                    eprintln!("  {rate} bit/s, {bits:>2} bits: RMSE {rmse:.3} m");
-                    Ok((bits, rmse))
+                    let bound = mc.estimates.mean_bound.unwrap_or(f64::NAN);
+                    eprintln!(
+                        "  {rate} bit/s, {bits:>2} bits: RMSE {rmse:.3} m, CQ/dPCRLB {bound:.3} m"
+                    );
+                    let of = |f: fn(&runtime::summary::Estimates) -> Option<f64>| {
+                        mc.per_run.iter().map(|r| f(&r.estimates)).collect::<Vec<_>>()
+                    };
+                    let gap = Paired::of(&of(|e| e.rmse), &of(|e| e.mean_bound));
+                    Ok(((bits, rmse), (bound, gap)))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
-            Ok(Measured { rate, rmse })
+            let (rmse, rest): (Vec<_>, Vec<_>) = points.into_iter().unzip();
+            let (bound, gap) = rest.into_iter().unzip();
+            Ok(Measured {
+                rate,
+                rmse,
+                bound,
+                gap,
+            })
         })
         .collect()
 }
@@ -171,12 +193,12 @@ fn best_measured(m: &Measured) -> (u8, f64) {
 
 fn measured_csv(measured: &[Measured]) -> String {
     let mut out = format!(
-        "# runs={MEASURED_RUNS},latency_s={},steps=100,rmse_from_step=10\nrate_bps,bits,rmse_m\n",
+        "# runs={MEASURED_RUNS},latency_s={},steps=100,rmse_from_step=10\nrate_bps,bits,rmse_m,cq_dpcrlb_m\n",
         LINK.latency
     );
     for m in measured {
-        for (bits, rmse) in &m.rmse {
-            let _ = writeln!(out, "{},{bits},{rmse:.4}", m.rate);
+        for ((bits, rmse), bound) in m.rmse.iter().zip(&m.bound) {
+            let _ = writeln!(out, "{},{bits},{rmse:.4},{bound:.4}", m.rate);
         }
     }
     out
@@ -184,10 +206,10 @@ fn measured_csv(measured: &[Measured]) -> String {
 
 fn print_measured(measured: &[Measured]) -> String {
     let mut out = format!(
-        "RMSE measured in the network (sim), steps 10-100, {MEASURED_RUNS} runs per point, m\n  bits"
+        "RMSE measured in the network (sim) / its CQ/dPCRLB, steps 10-100, {MEASURED_RUNS} runs per point, m\n  bits"
     );
     for m in measured {
-        let _ = write!(out, "  {:>14}", rate_label(m.rate));
+        let _ = write!(out, "  {:>20}", rate_label(m.rate));
     }
     out.push('\n');
     for (i, bits) in DEPTHS.enumerate() {
@@ -197,9 +219,10 @@ fn print_measured(measured: &[Measured]) -> String {
             let rmse = m.rmse[i].1;
             let _ = write!(
                 out,
-                "  {:>13.3}{}",
+                "  {:>11.3}{} / {:>5.3}",
                 rmse,
-                if best == bits { "*" } else { " " }
+                if best == bits { "*" } else { " " },
+                m.bound[i]
             );
         }
         out.push('\n');
@@ -285,9 +308,41 @@ fn check(depths: &[Depth], measured: &[Measured]) -> Check {
         })
         .collect::<Vec<_>>()
         .join(", ");
+    // The bound against the RMSE at every measured point, each link: a
+    // point where the whole interval of RMSE minus bound is below zero
+    // has the bound above what the filter reached.
+    let bound_claims: Vec<Claim> = measured
+        .iter()
+        .map(|m| {
+            let ratios = m.rmse.iter().zip(&m.bound).map(|((_, r), b)| r / b);
+            let (lo, hi) = ratios.fold((f64::INFINITY, 0.0_f64), |(lo, hi), q| {
+                (lo.min(q), hi.max(q))
+            });
+            let above: Vec<u8> = m
+                .rmse
+                .iter()
+                .zip(&m.gap)
+                .filter(|(_, g)| g.as_ref().is_some_and(|g| g.mean + g.half_width < 0.0))
+                .map(|((bits, _), _)| *bits)
+                .collect();
+            Claim::exact(
+                format!(
+                    "the CQ/dPCRLB is not above the RMSE beyond the {MEASURED_RUNS}-run interval at any depth over {} (RMSE/bound {lo:.2} to {hi:.2}{})",
+                    rate_label(m.rate),
+                    if above.is_empty() {
+                        String::new()
+                    } else {
+                        format!("; above at {above:?} bits")
+                    }
+                ),
+                above.is_empty(),
+            )
+        })
+        .collect();
+    let bounds_hold = bound_claims.iter().all(|c| c.verdict.holds());
     Check {
-        verdict: Verdict::of(interior && deeper_with_rate),
-        claims: Vec::new(),
+        verdict: Verdict::of(interior && deeper_with_rate && bounds_hold),
+        claims: bound_claims,
         statement: [
             format!(
             "packed b bits at {} bit/s: the SPEB falls from {:.2} m² at {} bit to {:.2} m² at {} bits and rises to {:.2} m² at {} bits ({}); over cqnet's whole-byte wire the best depth is {} bits ({:.2} m²): 1 to 8 bits cost the same byte; the packed optimum {} with the rate: {}",

@@ -242,8 +242,15 @@ fn by_distance(
         let text = std::fs::read_to_string(&path)
             .with_context(|| format!("reading {}", path.display()))?;
         let mut sums = [(0.0, 0usize); 2];
-        for tick in text.lines().skip(1).filter_map(runtime::results::Tick::parse) {
-            let Some(node) = tick.node.strip_prefix("node-").and_then(|i| i.parse::<usize>().ok())
+        for tick in text
+            .lines()
+            .skip(1)
+            .filter_map(runtime::results::Tick::parse)
+        {
+            let Some(node) = tick
+                .node
+                .strip_prefix("node-")
+                .and_then(|i| i.parse::<usize>().ok())
             else {
                 continue;
             };
@@ -281,7 +288,11 @@ fn fig1_csv(fig: &Fig1) -> String {
     for n in 1..fig.bounds.rndex.len() {
         let _ = write!(out, "{n}");
         for (r, band) in rmse.iter().zip(&fig.bands) {
-            let (lo, hi) = band.get(n - 1).copied().flatten().unwrap_or((f64::NAN, f64::NAN));
+            let (lo, hi) = band
+                .get(n - 1)
+                .copied()
+                .flatten()
+                .unwrap_or((f64::NAN, f64::NAN));
             let _ = write!(out, ",{:.6},{lo:.6},{hi:.6}", r[n]);
         }
         let _ = writeln!(

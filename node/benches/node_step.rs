@@ -63,7 +63,12 @@ fn bench(c: &mut Criterion) {
                     f.predict(model).unwrap();
                     f
                 },
-                |mut f| black_box(f.observation_information(model, &Workload::evidence(&w.observations)).unwrap()),
+                |mut f| {
+                    black_box(
+                        f.observation_information(model, &Workload::evidence(&w.observations))
+                            .unwrap(),
+                    )
+                },
                 BatchSize::LargeInput,
             )
         },

@@ -54,7 +54,10 @@ fn main() -> ExitCode {
             "delta-l" => {
                 let mut f = w.fusion.clone();
                 f.predict(model).unwrap();
-                black_box(f.observation_information(model, &Workload::evidence(&w.observations)).unwrap());
+                black_box(
+                    f.observation_information(model, &Workload::evidence(&w.observations))
+                        .unwrap(),
+                );
             }
             "predict" => {
                 black_box(w.fusion.clone().predict(model).unwrap().len());

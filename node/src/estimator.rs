@@ -16,7 +16,7 @@ use nalgebra::{Cholesky, SymmetricEigen};
 use rand_chacha::ChaCha8Rng;
 
 use crate::filter::{Gaussian, ParticleFilter};
-pub use crate::sensing::{Evidence, Observation, ObservedValue, SensingModel, Censored};
+pub use crate::sensing::{Censored, Evidence, Observation, ObservedValue, SensingModel};
 
 /// A node's information contribution for one step (docs/equations.md, "Estimator" and
 /// "Distributed bound"): everything that goes into consensus.
@@ -186,7 +186,11 @@ impl LocalFilter {
         let delta_l = if censored.is_empty() {
             received_information
         } else {
-            model.censored_information(censored, self.filter.particles(), self.filter.uniform_weights())
+            model.censored_information(
+                censored,
+                self.filter.particles(),
+                self.filter.uniform_weights(),
+            )
         };
         // Late observations were taken at k−1: their information is over
         // the particles' ancestors.
@@ -850,7 +854,9 @@ mod tests {
         let silent_alone = model.censored_information(&silent, &particles, &weights);
         let position = |m: &Mat4| m.fixed_view::<2, 2>(0, 0).trace();
         assert!(position(&silent_alone) > 0.0, "silence tells something");
-        let uncensored = model.observation_information(&sent, &particles, &weights).unwrap();
+        let uncensored = model
+            .observation_information(&sent, &particles, &weights)
+            .unwrap();
         assert!(
             position(&delta_l) > position(&(delta_l - silent_alone)),
             "the silent sensor is counted"
@@ -861,7 +867,11 @@ mod tests {
         // sent observation alone, as the filter weighs both.
         let bound_after = |evidence: &Evidence| {
             let mut local = LocalFilter::new(1000, &prior, rng.clone()).unwrap();
-            local.update(&model, evidence, false).unwrap().bound.unwrap()
+            local
+                .update(&model, evidence, false)
+                .unwrap()
+                .bound
+                .unwrap()
         };
         let only_sent = Evidence {
             received: &sent,
