@@ -10,6 +10,7 @@
 mod allocation;
 mod bit_depth;
 mod censoring;
+pub mod diagnostics;
 mod distributed_bound;
 pub mod faults;
 mod figure;
@@ -164,6 +165,9 @@ pub struct ArmOutcome {
     /// At steps 1, 2, …: the 95 % interval of the RMSE over runs, drawn as
     /// a band around the RMSE curve.
     pub rmse_band: Vec<Option<(f64, f64)>>,
+    /// The prediction's spread and the activated sensors' distance from
+    /// the truth, per step.
+    pub diagnostics: diagnostics::Diagnostics,
 }
 
 /// Each step's RMSE interval over the runs that reported it.
@@ -530,10 +534,11 @@ pub fn run(
     let mut arms = Vec::new();
     for (index, arm) in experiment.arms.iter().enumerate() {
         let (scenario, topology) = arm_scenario(experiment, arm, options.steps)?;
+        let runs_dir = dir.join("runs").join(slug(arm.label));
         let mc = run_monte_carlo(
             &scenario,
             &topology,
-            &dir.join("runs").join(slug(arm.label)),
+            &runs_dir,
             options.runs,
             options.threads,
             needs(
@@ -598,6 +603,7 @@ pub fn run(
                 .map(|s| s.estimates.mean_centralized_bound)
                 .collect(),
             rmse_band: rmse_bands(&mc.per_run_series),
+            diagnostics: diagnostics::Diagnostics::read(&runs_dir, options.runs, &topology)?,
         });
     }
     let outcome = Outcome {
@@ -609,6 +615,13 @@ pub fn run(
     write_atomically(
         &dir.join(format!("{}-bytes.csv", experiment.name)),
         figure::bytes_csv(&outcome).as_bytes(),
+    )?;
+    let labels: Vec<&str> = outcome.arms.iter().map(|a| a.label.as_str()).collect();
+    let diagnostics: Vec<&diagnostics::Diagnostics> =
+        outcome.arms.iter().map(|a| &a.diagnostics).collect();
+    write_atomically(
+        &dir.join(format!("{}-diagnostics.csv", experiment.name)),
+        diagnostics::csv(&labels, &diagnostics).as_bytes(),
     )?;
     let csv = dir.join(format!("{}.csv", experiment.name));
     let svg = dir.join(format!("{}.svg", experiment.name));

@@ -231,6 +231,27 @@ mod tests {
     use super::*;
     use crate::scenario::DEFAULT_SCENARIO;
 
+    /// One draw per run, on the truth's side or the prior's: fixed puts the
+    /// truth at the nominal state and the prior mean off it; prior the
+    /// other way round, by the same offset.
+    #[test]
+    fn the_start_draw_goes_to_the_truth_or_to_the_prior() {
+        let fixed = Scenario::default_scenario();
+        let mut drawn = fixed.clone();
+        drawn.target.start = TargetStart::Prior;
+        let m = fixed.models().unwrap();
+        let nominal = State::from(fixed.target.initial_state());
+        assert_eq!(fixed.true_initial_state(), nominal);
+        assert_eq!(drawn.network_prior(&m).mean, nominal);
+        let offset = fixed.network_prior(&m).mean - nominal;
+        assert!(offset.norm() > 0.0);
+        assert!((drawn.true_initial_state() - nominal - offset).norm() < 1e-9);
+        // Another seed, another draw.
+        let mut other = drawn.clone();
+        other.seed += 1;
+        assert_ne!(other.true_initial_state(), drawn.true_initial_state());
+    }
+
     #[test]
     fn the_default_scenario_builds_its_models() {
         let s = Scenario::default_scenario();

@@ -65,7 +65,8 @@ const BUILT_IN: &[(Role, &str, Shape)] = &[
     (Role::Manager, "random", Shape::Rounds),
     (Role::Manager, "closest", Shape::Rounds),
     (Role::Manager, "pcrlb", Shape::Rounds),
-    (Role::Manager, "pcrlb_nonconditional", Shape::Rounds),
+    (Role::Manager, "pcrlb_at_estimate", Shape::Rounds),
+    (Role::Manager, "pcrlb_offline", Shape::Rounds),
 ];
 
 static REGISTERED: RwLock<Vec<(Role, &'static str)>> = RwLock::new(Vec::new());

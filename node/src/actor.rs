@@ -121,6 +121,8 @@ pub struct NodeActor {
     late_reported: u64,
     /// From `BeginStep` to the activation, this step.
     selection_time: Duration,
+    /// The sensors activated this step, reported with its telemetry.
+    active: Vec<u16>,
     /// In real time, the step's period ([`bound_steps_by`](Self::bound_steps_by)).
     step_period: Option<Duration>,
     /// When this step's waiting stages are closed with what they have.
@@ -209,6 +211,7 @@ impl NodeActor {
             late_messages: 0,
             late_reported: 0,
             selection_time: Duration::ZERO,
+            active: Vec::new(),
             step_period: None,
             step_deadline: None,
         })
@@ -612,6 +615,7 @@ impl NodeActor {
         };
         out.push(wiring::activation(self.index, step, own, &picks, payload));
         self.answers.activated(&active);
+        self.active.clone_from(&active);
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.phase = Phase::Collecting(Collector::new(step, active, now + self.listen, cells));
     }
@@ -706,6 +710,8 @@ impl NodeActor {
             ],
             unanswered_sensors,
             first_unanswered,
+            spread: update.map(|u| u.spread).filter(|s| s.is_finite()),
+            active: std::mem::take(&mut self.active),
         };
         self.observations = 0;
         self.selection_time = Duration::ZERO;
@@ -832,7 +838,7 @@ impl NodeActor {
 }
 
 /// This step's selection scores: the conditional manager's over the fusion
-/// filter's predicted particles, the non-conditional one's at its estimate
+/// filter's predicted particles, the one at the estimate at the estimate
 /// (taken before the filter predicts).
 fn selection_inputs(
     selection: &PcrlbSelection,
@@ -845,7 +851,7 @@ fn selection_inputs(
             predicted: fusion.predicted_information(model)?,
             own: fusion.expected_information(model, own)?,
         }),
-        Scoring::NonConditional => {
+        Scoring::AtEstimate => {
             let estimate = fusion.posterior().mean;
             selection.nonconditional_inputs(model, &estimate)
         }
@@ -891,7 +897,7 @@ mod tests {
     /// (N_max iterations × diameter rounds, one message per node per round).
     #[test]
     fn the_pcrlb_manager_activates_n_max_within_the_caps_every_step() {
-        for manager in ["pcrlb", "pcrlb_nonconditional"] {
+        for manager in ["pcrlb", "pcrlb_at_estimate"] {
             let mut net = Net::line_with(&[
                 &format!("sensors.manager={manager}"),
                 "sensors.active_per_node=2",

@@ -703,6 +703,8 @@ impl DiffusionNode {
             ],
             unanswered_sensors,
             first_unanswered,
+            spread: None,
+            active: Vec::new(),
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

@@ -380,6 +380,8 @@ pub struct FusionFilter {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FusionUpdate {
     pub estimate: State,
+    /// `sqrt(tr_pos P(k|k−1))` of the prediction the step started from.
+    pub spread: f64,
     pub posterior: Gaussian,
     pub bound: Option<f64>,
     pub aux_bound: Option<f64>,
@@ -541,6 +543,7 @@ impl FusionFilter {
             .advance_with_late(&terms, q_inv, &sums.delta_l_late, &sums.delta_l)?;
         Ok(FusionUpdate {
             estimate: posterior.mean,
+            spread: (predicted.cov[(0, 0)] + predicted.cov[(1, 1)]).sqrt(),
             posterior,
             bound: self.bound.position_bound(),
             aux_bound,

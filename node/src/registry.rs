@@ -20,7 +20,7 @@ use fusion_graph::{Scenario, Topology};
 
 use crate::diffusion_node::Cooperation;
 use crate::fusion::{average_consensus, InformationFusion};
-use crate::sensor_manager::{self, Closest, Manager, Scoring, UniformRandom};
+use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, UniformRandom};
 
 /// What a protocol or manager is built from: the run's scenario and
 /// topology, the node it serves, and its own parameters.
@@ -154,7 +154,8 @@ impl Parts {
             ("random", random as ManagerBuilder),
             ("closest", closest),
             ("pcrlb", pcrlb),
-            ("pcrlb_nonconditional", pcrlb_nonconditional),
+            ("pcrlb_at_estimate", pcrlb_at_estimate),
+            ("pcrlb_offline", pcrlb_offline),
         ]);
         Self {
             protocols,
@@ -243,14 +244,25 @@ fn pcrlb(setup: &Setup<'_>) -> Result<Manager, ParamError> {
     ))
 }
 
-fn pcrlb_nonconditional(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+fn pcrlb_at_estimate(setup: &Setup<'_>) -> Result<Manager, ParamError> {
     setup.params.only(&[])?;
     Ok(sensor_manager::negotiated(
         setup.scenario,
         setup.topology,
         setup.node,
-        Scoring::NonConditional,
+        Scoring::AtEstimate,
     ))
+}
+
+fn pcrlb_offline(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    let manager =
+        OfflinePcrlb::for_scenario(setup.scenario, setup.topology).map_err(|e| ParamError {
+            key: "sensors.manager".into(),
+            expected: "a scenario whose offline PCRLB can be computed".into(),
+            got: e.to_string(),
+        })?;
+    Ok(Manager::Alone(Box::new(manager)))
 }
 
 fn valid_name(name: &str) -> bool {

@@ -34,7 +34,7 @@ impl TickRow {
     }
 }
 
-const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed\n";
+const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active\n";
 
 /// A row of `ticks.csv` as read back (the live view's replay and the
 /// testkit read it; [`ResultsWriter`] writes it): a node's (or the
@@ -138,7 +138,7 @@ impl ResultsWriter {
             let t = &r.telemetry;
             writeln!(
                 self.ticks,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.step,
                 r.node,
                 r.truth[0],
@@ -152,7 +152,13 @@ impl ResultsWriter {
                 t.rounds_completed,
                 t.live_neighbours,
                 t.observations,
-                t.deadline_missed as u8
+                t.deadline_missed as u8,
+                opt(t.spread),
+                t.active
+                    .iter()
+                    .map(u16::to_string)
+                    .collect::<Vec<_>>()
+                    .join(";")
             )?;
         }
         self.ticks.flush()?;
@@ -589,6 +595,8 @@ mod tests {
                 stage_micros: [10, 10, 40, 50, 0],
                 unanswered_sensors: 0,
                 first_unanswered: None,
+                spread: None,
+                active: Vec::new(),
             },
         }
     }

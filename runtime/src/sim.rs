@@ -435,6 +435,8 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         stage_micros: [0; 5],
         unanswered_sensors: 0,
         first_unanswered: None,
+        spread: None,
+        active: Vec::new(),
     }
 }
 

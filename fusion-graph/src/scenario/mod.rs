@@ -250,9 +250,13 @@ impl SensorManagerKind {
     /// Greedy selection by the conditional PCRLB, agreed over the fusion
     /// graph with one min-consensus per chosen sensor.
     pub const PCRLB: Self = Self("pcrlb");
-    /// The same greedy selection scored by the non-conditional (Tichavsky)
-    /// bound, carried along the estimate.
-    pub const PCRLB_NONCONDITIONAL: Self = Self("pcrlb_nonconditional");
+    /// The same greedy selection scored by Tichavsky's recursion run at
+    /// the fusion filter's estimates (data enter through x̂).
+    pub const PCRLB_AT_ESTIMATE: Self = Self("pcrlb_at_estimate");
+    /// The conventional PCRLB manager: greedy on the offline
+    /// (non-conditional) bound, averaged over trajectories from the prior,
+    /// a schedule every node computes alike before the run; no messages.
+    pub const PCRLB_OFFLINE: Self = Self("pcrlb_offline");
 }
 
 impl Default for SensorManagerKind {
@@ -741,6 +745,7 @@ mod tests {
             position: [0.0, 0.0],
             course_deg: 90.0,
             speed: 10.0,
+            start: TargetStart::Fixed,
         };
         let s = t.initial_state();
         assert!((s[2] - 10.0).abs() < 1e-12 && s[3].abs() < 1e-12);

@@ -26,6 +26,8 @@ pub fn examples() -> Vec<Message> {
         stage_micros: [1, 2, 3, 4, 5],
         unanswered_sensors: 1,
         first_unanswered: Some(17),
+        spread: Some(12.5),
+        active: vec![3, 17],
     };
     vec![
         Message::new(

@@ -283,7 +283,17 @@ pub struct Telemetry {
     /// answer).
     pub unanswered_sensors: u16,
     pub first_unanswered: Option<u16>,
+    /// The spread of the fusion filter's prediction for the step,
+    /// `sqrt(tr_pos P(k|k−1))`, metres: how wide a cloud the sensor
+    /// manager scored on.
+    pub spread: Option<f64>,
+    /// The sensors the node activated for the step (at most
+    /// [`MAX_REPORTED_ACTIVE`]).
+    pub active: Vec<u16>,
 }
+
+/// The most activated sensors a telemetry message may list.
+pub const MAX_REPORTED_ACTIVE: usize = 256;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Control {
@@ -585,8 +595,17 @@ impl Message {
             MessageKind::Telemetry => {
                 let t: Telemetry = take(body)?;
                 finite(t.estimate)?;
-                for v in [t.bound, t.local_bound, t.aux_bound].into_iter().flatten() {
+                for v in [t.bound, t.local_bound, t.aux_bound, t.spread]
+                    .into_iter()
+                    .flatten()
+                {
                     finite([v])?;
+                }
+                if t.active.len() > MAX_REPORTED_ACTIVE {
+                    return Err(WireError::Length {
+                        expected: MAX_REPORTED_ACTIVE,
+                        got: t.active.len(),
+                    });
                 }
                 Payload::Telemetry(t)
             }

@@ -5,16 +5,20 @@
 //! - [`UniformRandom`]: the CQ/dPCRLB paper's policy, uniformly at random within the
 //!   node's own sensors, honouring a network-wide cap;
 //! - [`Closest`]: the sensors nearest the predicted target, network-wide;
-//! - [`PcrlbSelection`]: greedy selection by the conditional or the
-//!   non-conditional PCRLB, agreed with the other nodes by min-consensus.
-//!   It exchanges messages, so it is a protocol the node drives rather than
-//!   a [`SensorManager`].
+//! - [`PcrlbSelection`]: greedy selection by the conditional PCRLB, or by
+//!   Tichavsky's recursion run at the estimate, agreed with the other nodes
+//!   by min-consensus. It exchanges messages, so it is a protocol the node
+//!   drives rather than a [`SensorManager`];
+//! - [`OfflinePcrlb`]: greedy on the offline (non-conditional) PCRLB, a
+//!   schedule every node computes alike before the run.
 
 mod closest;
+mod offline;
 mod pcrlb;
 mod random;
 
 pub use closest::Closest;
+pub use offline::{OfflineError, OfflinePcrlb, OFFLINE_TRAJECTORIES};
 pub use pcrlb::{PcrlbSelection, Scoring, Selected, SelectionInputs};
 pub use random::UniformRandom;
 

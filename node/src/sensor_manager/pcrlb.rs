@@ -41,9 +41,11 @@ pub enum Scoring {
     /// The conditional PCRLB: `J̄` over the fusion filter's predicted
     /// particles, `L(k+1|k)` from the global CQ/dPCRLB.
     Conditional,
-    /// Tichavsky's non-conditional PCRLB evaluated along the estimate:
-    /// `J̄` at the predicted estimate, `J(k+1|k)` carried by this manager.
-    NonConditional,
+    /// Tichavsky's recursion run at the estimate: `J̄` at the predicted
+    /// estimate, `J(k+1|k)` carried by this manager along the estimates.
+    /// It conditions on the data through x̂, so it is not the conventional
+    /// (offline) PCRLB; that is [`super::OfflinePcrlb`].
+    AtEstimate,
 }
 
 /// What a node brings to a step's selection.
@@ -92,7 +94,7 @@ pub struct PcrlbSelection {
     engine: MinConsensus,
     running: Option<Iterating>,
     result: Option<Selected>,
-    /// `J(k)` of the non-conditional bound along the estimate.
+    /// `J(k)` of Tichavsky's recursion along the estimates.
     tichavsky: Mat4,
 }
 
@@ -153,7 +155,7 @@ impl PcrlbSelection {
         self.scoring
     }
 
-    /// The non-conditional inputs at the fusion filter's estimate at k:
+    /// The inputs at the fusion filter's estimate at k:
     /// `J(k+1|k)` from this manager's `J(k)` with the dynamics linearised
     /// there, and each own sensor's `J_Y` at the predicted estimate.
     pub fn nonconditional_inputs(
@@ -288,7 +290,7 @@ impl PcrlbSelection {
         let Some(it) = self.running.take() else {
             return;
         };
-        if self.scoring == Scoring::NonConditional {
+        if self.scoring == Scoring::AtEstimate {
             self.tichavsky = it.inputs.predicted + it.sum;
         }
         self.result = Some(Selected {
