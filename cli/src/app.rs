@@ -114,6 +114,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     m(mc.estimates.centralized_rmse),
                     m(mc.estimates.mean_centralized_bound)
                 );
+                if let Some(line) = intervals(&mc) {
+                    println!("  {line}");
+                }
                 println!(
                     "  {:.1} steps/s per run, {:.1} s wall; results in {}",
                     mc.steps_per_second_per_run,
@@ -459,4 +462,30 @@ impl ExperimentProgress {
     fn finish(self) {
         self.progress.finish();
     }
+}
+
+/// The 95 % intervals over runs of the RMSE and the bound, and of their
+/// difference run by run: what a figure of `sim --runs` can claim.
+fn intervals(mc: &runtime::montecarlo::MonteCarloSummary) -> Option<String> {
+    use experiments::paired::{rmse_interval, Paired};
+    let rmse: Vec<f64> = mc.per_run.iter().filter_map(|r| r.estimates.rmse).collect();
+    let (lo, hi) = rmse_interval(&rmse)?;
+    let per_run = |f: fn(&runtime::summary::Estimates) -> Option<f64>| {
+        mc.per_run
+            .iter()
+            .map(|r| f(&r.estimates))
+            .collect::<Vec<_>>()
+    };
+    let bound = Paired::of_values(&per_run(|e| e.mean_bound));
+    let gap = Paired::of(&per_run(|e| e.rmse), &per_run(|e| e.mean_bound));
+    let mut line = format!("95 % over {} runs: RMSE {lo:.3} to {hi:.3} m", rmse.len());
+    if let (Some(b), Some(g)) = (bound, gap) {
+        line.push_str(&format!(
+            ", CQ/dPCRLB {:.3} ± {:.3} m, RMSE minus CQ/dPCRLB {} m (run by run)",
+            b.mean,
+            b.half_width,
+            g.text(3)
+        ));
+    }
+    Some(line)
 }

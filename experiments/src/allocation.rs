@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{Check, Computed, ComputedReport, Options, Verdict};
+use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -141,9 +141,25 @@ fn check(problem: &Problem, r20: &[Row], r12: &[Row]) -> Check {
         && listed_alike(r12, TABLE_5_2.len())
         && table_5_2_alike;
     let show = |b: Option<(u32, u32)>| b.map_or("none".into(), |(x, y)| format!("({x}, {y})"));
+    // Computed from the formulas, not estimated: each claim is exact.
+    let claims = vec![
+        Claim::exact(
+            format!("the optimum for R = 20 is (12, 8) (ours {})", show(b20)),
+            b20 == Some((12, 8)),
+        ),
+        Claim::exact(
+            format!("the optimum for R = 12 is (8, 4) (ours {})", show(b12)),
+            b12 == Some((8, 4)),
+        ),
+        Claim::exact(
+            "the feasible allocations are the dissertation's",
+            listed_alike(r20, TABLE_5_1.len()) && listed_alike(r12, TABLE_5_2.len()),
+        ),
+        Claim::exact("Table 5.2's J to its four decimals", table_5_2_alike),
+    ];
     Check {
         verdict: Verdict::of(holds),
-        claims: Vec::new(),
+        claims,
         statement: format!(
             "optimum {} for R = 20 and {} for R = 12 (dissertation: (12, 8) and (8, 4)); the same feasible allocations; Table 5.2's J {} to its four decimals; Table 5.1's J in {} of {} rows to four decimals and {} within {DEPARTS}; {} rows ({}) lie below 1/MSE3 of their allocation by more than {DEPARTS}, which no Fisher information can",
             show(b20),

@@ -336,9 +336,13 @@ fn check_traffic(o: &Outcome) -> Check {
         return missing("the auxiliary FIM's traffic");
     };
     let cq = a.bound_bytes_per_step;
+    let halves = cq > 0.0 && aux == 2.0 * cq;
     Check {
-        verdict: Verdict::of(cq > 0.0 && aux == 2.0 * cq),
-        claims: Vec::new(),
+        verdict: Verdict::of(halves),
+        claims: vec![Claim::exact(
+            "the CQ/dPCRLB's bound traffic is half the auxiliary-FIM baseline's (a count of bytes)",
+            halves,
+        )],
         statement: format!(
             "CQ/dPCRLB sends {cq:.0} B of bound information per step, the auxiliary-FIM baseline {aux:.0} B ({:.2}×)",
             aux / cq

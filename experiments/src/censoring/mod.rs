@@ -58,6 +58,7 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
                 sensors: setup.sensors.len(),
                 ours,
                 theirs: [cfwmd, cfwmd2],
+                trials: setup.trials,
             });
         }
     }
