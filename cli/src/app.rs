@@ -407,6 +407,7 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
                     "{}",
                     experiment::verdict_line(e, &report.outcome, &report.check)
                 );
+                print_claims(&report.check);
                 println!("  {} and {}", report.csv.display(), report.svg.display());
                 (e.name, report.check.verdict)
             }
@@ -414,6 +415,7 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
                 let report = experiment::run_computed(c, &options)?;
                 print!("{}", report.table);
                 println!("{}", experiment::computed_verdict_line(c, &report.check));
+                print_claims(&report.check);
                 println!("  {} and {}", report.csv.display(), report.svg.display());
                 (c.name, report.check.verdict)
             }
@@ -488,4 +490,12 @@ fn intervals(mc: &runtime::montecarlo::MonteCarloSummary) -> Option<String> {
         ));
     }
     Some(line)
+}
+
+/// Each claim of a check on its own line: what it says, its interval (or
+/// that it is exact) and its verdict.
+fn print_claims(check: &experiments::Check) {
+    for claim in &check.claims {
+        println!("  - {}", claim.said());
+    }
 }
