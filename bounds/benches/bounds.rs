@@ -28,6 +28,7 @@ fn bench(c: &mut Criterion) {
     let model = SensorLaw::Bearing {
         sigma_theta: 0.02,
         d0: 500.0,
+        near_field: None,
     }
     .at([250.0, 350.0]);
     let x = State::new(700.0, 900.0, -6.0, -7.0);
@@ -60,6 +61,7 @@ fn bench(c: &mut Criterion) {
         SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
+            near_field: None,
         }
         .at(s)
     });

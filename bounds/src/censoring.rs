@@ -468,6 +468,7 @@ mod tests {
         let model = SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
+            near_field: None,
         }
         .at([100.0, 200.0]);
         let rule = CensoringRule::for_budget(1.0, 3, 1).unwrap();
@@ -536,6 +537,7 @@ mod tests {
         let model = crate::SensorLaw::Bearing {
             sigma_theta: 0.05,
             d0: 300.0,
+            near_field: None,
         }
         .at([0.0, 0.0]);
         (model, State::new(300.0, 400.0, 1.0, -1.0))

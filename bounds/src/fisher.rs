@@ -176,6 +176,7 @@ mod tests {
         SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
+            near_field: None,
         }
         .at([700.0, 300.0])
     }

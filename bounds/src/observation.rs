@@ -49,7 +49,7 @@ impl Default for Evaluations {
 
 /// Distances below this are treated as this, so that a target passing over a
 /// sensor gives large but finite gradients instead of NaN.
-const MIN_DISTANCE: f64 = 1e-3;
+pub const MIN_DISTANCE: f64 = 1e-3;
 
 /// What a sensor measures and how noisily, wherever it stands: the part of
 /// an observation model a scenario states once for every sensor.
@@ -57,8 +57,16 @@ const MIN_DISTANCE: f64 = 1e-3;
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum SensorLaw {
     /// `g = atan2(p_x − X_s, p_y − Y_s)` (from north, clockwise), wrapped to
-    /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`.
-    Bearing { sigma_theta: f64, d0: f64 },
+    /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`, with d no nearer than the near
+    /// field ([`SensorLaw::bearing_near_field`]) in `∇g` and `R`, so that the
+    /// information `≈ 1/(σ_θ² d²)` stops growing there.
+    Bearing {
+        sigma_theta: f64,
+        d0: f64,
+        /// Metres; [`MIN_DISTANCE`] when not given.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        near_field: Option<f64>,
+    },
     /// Received signal strength in dBm: `g = P_0 − 5 ζ log10((d² + h²)/d_0²)`,
     /// `R = σ_r²`, with `h` the near field ([`SensorLaw::rss_near_field`]):
     /// the sensor's antenna stands `h` off the plane the target moves in,
@@ -95,6 +103,17 @@ impl SensorLaw {
         near_field.unwrap_or(d0)
     }
 
+    /// The bearing law's near field: as given, or [`MIN_DISTANCE`]. The
+    /// law is of a point target seen from a point sensor, for which a
+    /// bearing tells the position ever better as the target nears; a real
+    /// target has an extent within which its bearing is not a direction,
+    /// and a scenario with targets that pass over sensors should state it.
+    /// The default only keeps the arithmetic finite, so that scenarios
+    /// written without it keep their results.
+    pub fn bearing_near_field(near_field: Option<f64>) -> f64 {
+        near_field.unwrap_or(MIN_DISTANCE)
+    }
+
     /// This law at the sensor position `sensor`.
     pub fn at(self, sensor: [f64; 2]) -> ObservationModel {
         ObservationModel { sensor, law: self }
@@ -119,8 +138,15 @@ impl SensorLaw {
             }
         };
         match *self {
-            Self::Bearing { sigma_theta, d0 } => {
+            Self::Bearing {
+                sigma_theta,
+                d0,
+                near_field,
+            } => {
                 check("sigma_theta", sigma_theta, true)?;
+                if let Some(h) = near_field {
+                    check("near_field", h, true)?;
+                }
                 check("d0", d0, true)
             }
             Self::Rss {
@@ -193,8 +219,13 @@ impl ObservationModel {
     pub fn evaluate(&self, x: &State) -> Evaluation {
         let sensor = self.sensor;
         match self.law {
-            SensorLaw::Bearing { sigma_theta, d0 } => {
+            SensorLaw::Bearing {
+                sigma_theta,
+                d0,
+                near_field,
+            } => {
                 let (dx, dy, d2) = offset(x, sensor);
+                let d2 = d2.max(SensorLaw::bearing_near_field(near_field).powi(2));
                 let s2 = sigma_theta * sigma_theta;
                 Evaluation {
                     g: bearing(dx, dy),
@@ -267,12 +298,17 @@ impl ObservationModel {
         debug_assert!(self.depends_on_position_only() && states.len() <= CHUNK);
         let sensor = self.sensor;
         match self.law {
-            SensorLaw::Bearing { sigma_theta, d0 } => {
+            SensorLaw::Bearing {
+                sigma_theta,
+                d0,
+                near_field,
+            } => {
                 let (mut dx, mut dy, mut d2) = ([0.0; CHUNK], [0.0; CHUNK], [0.0; CHUNK]);
+                let h = SensorLaw::bearing_near_field(near_field);
                 for i in 0..CHUNK {
                     dx[i] = at.x[i] - sensor[0];
                     dy[i] = at.y[i] - sensor[1];
-                    d2[i] = (dx[i] * dx[i] + dy[i] * dy[i]).max(MIN_DISTANCE * MIN_DISTANCE);
+                    d2[i] = (dx[i] * dx[i] + dy[i] * dy[i]).max(h * h);
                 }
                 crate::batch::atan2(&dx, &dy, &mut out.g);
                 let s2 = sigma_theta * sigma_theta;
@@ -301,8 +337,13 @@ impl ObservationModel {
     #[inline]
     pub fn mean_and_variance(&self, x: &State) -> (f64, f64) {
         match self.law {
-            SensorLaw::Bearing { sigma_theta, d0 } => {
+            SensorLaw::Bearing {
+                sigma_theta,
+                d0,
+                near_field,
+            } => {
                 let (dx, dy, d2) = offset(x, self.sensor);
+                let d2 = d2.max(SensorLaw::bearing_near_field(near_field).powi(2));
                 (bearing(dx, dy), bearing_variance(sigma_theta, d0, d2))
             }
             _ => {
@@ -383,6 +424,7 @@ mod tests {
             SensorLaw::Bearing {
                 sigma_theta: 0.05,
                 d0: 200.0,
+                near_field: None,
             },
             SensorLaw::Rss {
                 p0: -30.0,
@@ -494,11 +536,39 @@ mod tests {
         assert_eq!(default.evaluate(&State::zeros()).g, -30.0);
     }
 
+    /// The bearing near field: inside it the information stops growing
+    /// (`|∇g|² ≤ 1/h²`), outside it the law is untouched, and left out it
+    /// is the 1 mm that only keeps the arithmetic finite.
+    #[test]
+    fn bearing_information_stops_growing_inside_the_near_field() {
+        let law = |near_field| SensorLaw::Bearing {
+            sigma_theta: 0.02,
+            d0: 500.0,
+            near_field,
+        };
+        let with = law(Some(5.0)).at([0.0, 0.0]);
+        for d in [0.1, 1.0, 3.0, 4.9] {
+            let e = with.evaluate(&State::new(d * 0.6, d * 0.8, 0.0, 0.0));
+            assert!(
+                e.grad_g.norm_squared() <= 1.0 / 25.0 * (1.0 + 1e-12),
+                "d = {d}"
+            );
+        }
+        let far = State::new(30.0, -40.0, 1.0, 0.0);
+        assert_eq!(with.evaluate(&far), law(None).at([0.0, 0.0]).evaluate(&far));
+        let near = State::new(1e-4, 2e-4, 0.0, 0.0);
+        assert_eq!(
+            law(None).at([0.0, 0.0]).evaluate(&near),
+            law(Some(MIN_DISTANCE)).at([0.0, 0.0]).evaluate(&near)
+        );
+    }
+
     fn models() -> Vec<ObservationModel> {
         vec![
             SensorLaw::Bearing {
                 sigma_theta: 0.02,
                 d0: 500.0,
+                near_field: None,
             }
             .at([250.0, 750.0]),
             SensorLaw::Rss {
@@ -595,6 +665,7 @@ mod tests {
         let m = SensorLaw::Bearing {
             sigma_theta: 0.01,
             d0: 100.0,
+            near_field: None,
         }
         .at([0.0, 0.0]);
         let at = |x, y| m.evaluate(&State::new(x, y, 0.0, 0.0)).g;

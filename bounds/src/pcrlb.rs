@@ -892,6 +892,7 @@ mod tests {
         let model = SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
+            near_field: None,
         }
         .at([250.0, 250.0]);
         let sensors = [SensorTerm {
@@ -923,11 +924,13 @@ mod tests {
             SensorLaw::Bearing {
                 sigma_theta: 0.02,
                 d0: 500.0,
+                near_field: None,
             }
             .at([250.0, 250.0]),
             SensorLaw::Bearing {
                 sigma_theta: 0.05,
                 d0: 100.0,
+                near_field: None,
             }
             .at([900.0, 1300.0]),
         ];
@@ -980,6 +983,7 @@ mod tests {
                 SensorLaw::Bearing {
                     sigma_theta: 0.02,
                     d0: 500.0,
+                    near_field: None,
                 }
                 .at(*s)
             })

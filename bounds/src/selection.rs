@@ -269,6 +269,7 @@ mod tests {
                 SensorLaw::Bearing {
                     sigma_theta: 0.02,
                     d0: 500.0,
+                    near_field: None,
                 }
                 .at(*p)
             })

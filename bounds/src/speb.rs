@@ -189,6 +189,7 @@ mod tests {
         let law = SensorLaw::Bearing {
             sigma_theta: 0.02,
             d0: 500.0,
+            near_field: None,
         };
         let models: Vec<ObservationModel> = [[0.0, 0.0], [400.0, 0.0], [200.0, 400.0]]
             .iter()

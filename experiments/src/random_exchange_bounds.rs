@@ -240,16 +240,19 @@ fn draw(path: &Path, curves: &[Curves]) -> Result<(), Box<dyn std::error::Error>
         "random-exchange-bounds: RndEx-PF and centralized PCRLB, 25 RSS nodes",
         "position bound, m",
         &lines,
+        &[],
     )
 }
 
 /// Curves over steps 1.. (step 0, the prior's 7 m, would flatten the
-/// rest), one colour each, with a legend.
+/// rest), one colour each, with a legend; `bands[i]`, where given, is line
+/// i's 95 % band at steps 1, 2, …, drawn shaded in its colour.
 pub(super) fn draw_lines(
     path: &Path,
     caption: &str,
     y_desc: &str,
     lines: &[(String, &[f64])],
+    bands: &[&[Option<(f64, f64)>]],
 ) -> Result<(), Box<dyn std::error::Error>> {
     let root = SVGBackend::new(path, (900, 560)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -271,6 +274,26 @@ pub(super) fn draw_lines(
         .x_desc("time, s")
         .y_desc(y_desc)
         .draw()?;
+    for (i, band) in bands.iter().enumerate() {
+        let steps: Vec<(usize, f64, f64)> = band
+            .iter()
+            .enumerate()
+            .filter_map(|(k, b)| b.map(|(lo, hi)| (k + 1, lo, hi.min(top * 1.05))))
+            .collect();
+        if steps.len() < 2 {
+            continue;
+        }
+        let outline: Vec<(usize, f64)> = steps
+            .iter()
+            .map(|(s, _, h)| (*s, *h))
+            .chain(steps.iter().rev().map(|(s, l, _)| (*s, *l)))
+            .collect();
+        let colour = Palette99::pick(i).to_rgba();
+        chart.draw_series(std::iter::once(Polygon::new(
+            outline,
+            colour.mix(0.15).filled(),
+        )))?;
+    }
     for (i, (name, values)) in lines.iter().enumerate() {
         let colour = Palette99::pick(i).to_rgba();
         chart

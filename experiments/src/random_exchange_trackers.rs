@@ -212,11 +212,15 @@ fn fig1_in(
         name,
         &fig1_csv(&fig),
         |svg| {
+            // The four trackers' and the centralized filter's bands, in
+            // the order of their lines.
+            let bands: Vec<&[Option<(f64, f64)>]> = fig.bands.iter().map(|b| &b[..]).collect();
             draw_lines(
                 svg,
                 &format!("{name}: RMS position error, 25 RSS nodes"),
                 "position error, m",
                 &lines,
+                &bands,
             )
         },
         fig1_check(&fig),

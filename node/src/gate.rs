@@ -151,6 +151,7 @@ mod tests {
             SensorLaw::Bearing {
                 sigma_theta: 0.02,
                 d0: 500.0,
+                near_field: None,
             },
             true,
         );
@@ -182,6 +183,7 @@ mod tests {
             SensorLaw::Bearing {
                 sigma_theta: 0.02,
                 d0: 500.0,
+                near_field: None,
             },
             false,
         );

@@ -502,7 +502,7 @@ mod tests {
         assert_eq!(d.filter.particles, 1000);
         let s =
             Scenario::from_toml(SENSOR_SELECTION_SCENARIO, "sensor-selection.toml", &[]).unwrap();
-        assert_eq!(s.dynamics.sigma_v, 1.6);
+        assert_eq!(s.dynamics.sigma_v, 0.16);
         assert_eq!(s.sensors.max_active_total, Some(18));
         // Round trip through TOML.
         assert_eq!(Scenario::from_toml(&d.to_toml(), "x", &[]).unwrap(), d);

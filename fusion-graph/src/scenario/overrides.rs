@@ -79,5 +79,7 @@ pub(super) fn is_optional_key(key: &str) -> bool {
             | "params"
             | "manager_params"
             | "gate"
+            | "start"
+            | "near_field"
     )
 }
