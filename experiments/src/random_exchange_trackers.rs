@@ -31,7 +31,7 @@ pub fn experiments() -> Vec<Computed> {
         },
         Computed {
             name: "random-exchange-trackers-on-sensor",
-            source: "the RndEx-PF PCRLB paper, Fig. 1, as first set up",
+            source: "the RndEx-PF PCRLB paper, Fig. 1, with the truth on a sensor",
             about: "the same with the truth starting exactly on node 12's sensor (target.start = fixed) and the RSS law without its near field (observation.near_field = 0.001 m): the setting in which the estimators beat the centralized PCRLB",
             run: fig1_on_sensor,
         },
@@ -77,7 +77,7 @@ const TRACKERS: [Tracker; 4] = [
     },
 ];
 
-/// The first setting of the paper's Fig. 1: the truth on a sensor, and RSS
+/// The paper's Fig. 1 with the truth on a sensor, and RSS
 /// information growing as 1/d² down to a millimetre.
 const ON_SENSOR: [&str; 2] = ["target.start=\"fixed\"", "observation.near_field=0.001"];
 
