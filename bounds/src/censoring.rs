@@ -637,7 +637,8 @@ mod tests {
                     }
                     normal::interval_mass((a - gy) / ry.sqrt(), (b - gy) / ry.sqrt())
                 };
-                let cells: Vec<Box<dyn Fn(&State) -> f64>> = (0..q.cells() as u32)
+                type Outcome<'a> = Box<dyn Fn(&State) -> f64 + 'a>;
+                let cells: Vec<Outcome> = (0..q.cells() as u32)
                     .map(|c| {
                         let (a, b) = q.cell_edges(c);
                         let mass = &mass;

@@ -231,6 +231,9 @@ fn fig1_in(
 /// Nodes within this distance of the truth are near it.
 const NEAR: f64 = 30.0;
 
+/// A figure of each run, in seed order (`None` where the run has none).
+type PerRun = Vec<Option<f64>>;
+
 /// Each run's RMSE from step [`AVERAGE_FROM_STEP`] over the node-steps
 /// whose node is within [`NEAR`] of the truth, and over the others, read
 /// back from the runs' `ticks.csv`.
@@ -238,7 +241,7 @@ fn by_distance(
     runs_dir: &Path,
     topology: &Topology,
     runs: u32,
-) -> anyhow::Result<(Vec<Option<f64>>, Vec<Option<f64>>)> {
+) -> anyhow::Result<(PerRun, PerRun)> {
     let mut near = Vec::new();
     let mut far = Vec::new();
     for run in 0..runs {
