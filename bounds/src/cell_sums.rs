@@ -120,12 +120,7 @@ pub(crate) fn window_sums(mut edges: impl Iterator<Item = f64>) -> [f64; 3] {
     let mut lower = Edge::at(first);
     for t in edges {
         let upper = Edge::at(t);
-        accumulate(
-            &mut sums,
-            lower.mass_to(&upper),
-            lower.pdf - upper.pdf,
-            lower.x_pdf - upper.x_pdf,
-        );
+        accumulate_between(&mut sums, &lower, &upper);
         lower = upper;
     }
     sums

@@ -22,12 +22,14 @@ use nalgebra::{Matrix2, Vector2};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use crate::cell_sums::{accumulate, scalars_from_sums, FisherScalars};
+use crate::batch::CHUNK;
+use crate::cell_sums::{accumulate, scalars_from_sums, FisherScalars, ScalarBatch};
 use crate::dynamics::Dynamics;
 use crate::fisher::{assemble, Measurement};
 use crate::normal;
 use crate::observation::{wrap_angle, ObservationModel};
-use crate::{Mat4, ParameterError, State};
+use crate::pcrlb::{observation_information_with, BatchScalars, SensorTerm};
+use crate::{BoundError, Mat4, ParameterError, State};
 
 /// The NIS threshold for a budget of `l` transmissions out of `n` sensors,
 /// each with `dof`-dimensional measurements.
@@ -133,9 +135,7 @@ impl Innovation {
     pub fn ln_silence(&self, rule: &CensoringRule, g: f64, r: f64) -> f64 {
         rule.ln_silence_probability(self.of(g), self.variance, r)
     }
-}
 
-impl Innovation {
     /// Where the sensor stays silent under `rule`: raw values within
     /// `√(η s)` of the prediction.
     pub fn silence_window(&self, rule: &CensoringRule) -> SilenceWindow {
@@ -235,22 +235,49 @@ fn raw_censored_scalars(g: f64, r: f64, (lo, hi): (f64, f64)) -> FisherScalars {
 }
 
 /// `Σ_s Σ_j w_j J_cens,s(x_j)`: the expected information of censoring
-/// sensors over a particle set, each with its own silence window, whether
-/// it sent or stayed silent (its silence is a measurement as much as its
-/// value is). Allocates nothing.
-pub fn censored_information<'a>(
-    sensors: impl Iterator<Item = (&'a ObservationModel, SilenceWindow)> + Clone,
-    measurement: Measurement<'_>,
+/// sensors over a particle set, sensor `s` with its silence window
+/// `windows[s]`, whether it sent or stayed silent (its silence is a
+/// measurement as much as its value is). The expected information's own
+/// batched sum ([`observation_information_with`]) with the censored
+/// scalars in place of `J_Y`'s.
+pub fn censored_information(
+    sensors: &[SensorTerm<'_>],
+    windows: &[SilenceWindow],
     particles: &[State],
     weights: &[f64],
-) -> Mat4 {
-    let mut total = Mat4::zeros();
-    for (x, w) in particles.iter().zip(weights) {
-        for (model, window) in sensors.clone() {
-            total += window.information(model, measurement, x) * *w;
+) -> Result<Mat4, BoundError> {
+    debug_assert_eq!(sensors.len(), windows.len());
+    observation_information_with(
+        sensors,
+        particles,
+        weights,
+        CensoredScalars { sensors, windows },
+    )
+}
+
+/// The censored measurement's Fisher scalars, sensor by sensor, as
+/// [`observation_information_with`] asks for them.
+struct CensoredScalars<'a> {
+    sensors: &'a [SensorTerm<'a>],
+    windows: &'a [SilenceWindow],
+}
+
+impl BatchScalars for CensoredScalars<'_> {
+    #[inline(always)]
+    fn scalars(
+        &mut self,
+        _first: usize,
+        sensor: usize,
+        g: &[f64; CHUNK],
+        r: &[f64; CHUNK],
+        n: usize,
+        out: &mut ScalarBatch,
+    ) {
+        let (window, measurement) = (&self.windows[sensor], self.sensors[sensor].measurement);
+        for i in 0..n {
+            out.set(i, window.fisher_scalars(g[i], r[i], measurement));
         }
     }
-    total
 }
 
 /// One sensor's side of NIS censoring in a network: the rule, and for
@@ -699,6 +726,49 @@ mod tests {
             };
             assert!(
                 everywhere.information(&model, measurement, &x).norm() < 1e-9 * uncensored.norm()
+            );
+        }
+    }
+
+    /// The batched sum over particles is the sum of each particle's
+    /// `J_cens`, for raw and quantized bearings, over more particles than
+    /// one batch holds.
+    #[test]
+    fn the_censored_sum_over_particles_is_each_particles() {
+        let (model, x) = bearing_case();
+        let q = Quantizer::uniform_wrapped(8, -std::f64::consts::PI, std::f64::consts::PI).unwrap();
+        let g = model.mean_and_variance(&x).0;
+        let windows = [
+            SilenceWindow {
+                centre: g + 0.01,
+                half_width: 0.08,
+                angular: true,
+            },
+            SilenceWindow {
+                centre: g - 0.2,
+                half_width: 0.05,
+                angular: true,
+            },
+        ];
+        let particles: Vec<State> = (0..150)
+            .map(|j| x + State::new(j as f64 * 0.7 - 50.0, 30.0 - j as f64 * 0.4, 0.0, 0.0))
+            .collect();
+        let weights = vec![1.0 / 150.0; 150];
+        for measurement in [Measurement::Raw, Measurement::Quantized(&q)] {
+            let sensors = [SensorTerm {
+                model: &model,
+                measurement,
+            }; 2];
+            let batched = censored_information(&sensors, &windows, &particles, &weights).unwrap();
+            let mut direct = Mat4::zeros();
+            for (p, w) in particles.iter().zip(&weights) {
+                for window in &windows {
+                    direct += window.information(&model, measurement, p) * *w;
+                }
+            }
+            assert!(
+                (batched - direct).norm() < 1e-9 * direct.norm(),
+                "{batched} vs {direct}"
             );
         }
     }

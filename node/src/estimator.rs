@@ -190,7 +190,7 @@ impl LocalFilter {
                 censored,
                 self.filter.particles(),
                 self.filter.uniform_weights(),
-            )
+            )?
         };
         // Late observations were taken at k−1: their information is over
         // the particles' ancestors.
@@ -852,9 +852,13 @@ mod tests {
         assert_eq!(late, Mat4::zeros());
         let particles = f.predict(&model).unwrap().to_vec();
         let weights = vec![1.0 / particles.len() as f64; particles.len()];
-        let expected = model.censored_information(&active, &particles, &weights);
+        let expected = model
+            .censored_information(&active, &particles, &weights)
+            .unwrap();
         assert!((delta_l - expected).abs().max() <= 1e-12 * expected.abs().max());
-        let silent_alone = model.censored_information(&silent, &particles, &weights);
+        let silent_alone = model
+            .censored_information(&silent, &particles, &weights)
+            .unwrap();
         let position = |m: &Mat4| m.fixed_view::<2, 2>(0, 0).trace();
         assert!(position(&silent_alone) > 0.0, "silence tells something");
         let uncensored = model

@@ -216,7 +216,7 @@ impl SensingModel {
         if evidence.censored.is_empty() {
             return self.observation_information(evidence.received, particles, weights);
         }
-        Ok(self.censored_information(evidence.censored, particles, weights))
+        self.censored_information(evidence.censored, particles, weights)
     }
 
     /// `Σ_s Σ_j w_j J_cens,s(x_j)` ([`bounds::censoring::SilenceWindow`]).
@@ -225,14 +225,19 @@ impl SensingModel {
         censored: &[Censored],
         particles: &[State],
         weights: &[f64],
-    ) -> Mat4 {
-        let sensors = censored.iter().map(|c| {
-            (
-                &self.sensors[c.sensor as usize],
-                c.innovation.silence_window(&c.rule),
-            )
-        });
-        bounds::censoring::censored_information(sensors, self.measurement(), particles, weights)
+    ) -> Result<Mat4, BoundError> {
+        let sensors: Vec<SensorTerm> = censored
+            .iter()
+            .map(|c| SensorTerm {
+                model: &self.sensors[c.sensor as usize],
+                measurement: self.measurement(),
+            })
+            .collect();
+        let windows: Vec<_> = censored
+            .iter()
+            .map(|c| c.innovation.silence_window(&c.rule))
+            .collect();
+        bounds::censoring::censored_information(&sensors, &windows, particles, weights)
     }
 
     /// `Σ_s Σ_j w_j J_Y,s(x_j)`: the expected information of the observed
