@@ -23,8 +23,7 @@ mod sensor_selection;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use bounds::fisher::Measurement;
-use bounds::pcrlb::{nonconditional_pcrlb_random_activation, SensorTerm};
+use bounds::pcrlb::nonconditional_pcrlb_random_activation;
 use bounds::State;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Topology;
@@ -757,19 +756,8 @@ fn nonconditional_bound(
     trajectories: usize,
 ) -> anyhow::Result<Vec<f64>> {
     let models = scenario.models()?;
-    let sensors: Vec<_> = topology
-        .sensor_positions
-        .iter()
-        .map(|p| models.law.at(*p))
-        .collect();
-    let measurement = match &models.quantizer {
-        Some(q) => Measurement::Quantized(q),
-        None => Measurement::Raw,
-    };
-    let terms: Vec<SensorTerm> = sensors
-        .iter()
-        .map(|model| SensorTerm { model, measurement })
-        .collect();
+    let sensing = node::SensingModel::new(&models, topology);
+    let terms = sensing.sensor_terms();
     let activation = topology.activation_probabilities(scenario.sensors.active_per_node);
     let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
     let information = nonconditional_pcrlb_random_activation(

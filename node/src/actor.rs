@@ -838,7 +838,7 @@ impl NodeActor {
 }
 
 /// This step's selection scores: the conditional manager's over the fusion
-/// filter's predicted particles, the one at the estimate at the estimate
+/// filter's predicted particles, the at-the-estimate one's at its estimate
 /// (taken before the filter predicts).
 fn selection_inputs(
     selection: &PcrlbSelection,

@@ -97,6 +97,17 @@ impl SensingModel {
         }
     }
 
+    /// Every sensor of the network as the bounds take it, by sensor id.
+    pub fn sensor_terms(&self) -> Vec<SensorTerm<'_>> {
+        self.sensors
+            .iter()
+            .map(|model| SensorTerm {
+                model,
+                measurement: self.measurement(),
+            })
+            .collect()
+    }
+
     /// `ln p(y | x)` of one observation.
     pub fn ln_likelihood(&self, obs: &Observation, x: &State) -> f64 {
         let (g, r) = self.sensors[obs.sensor as usize].mean_and_variance(x);

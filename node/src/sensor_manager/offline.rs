@@ -6,12 +6,13 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use bounds::selection::offline_schedule;
-use bounds::{BoundError, Measurement, SensorTerm, State};
+use bounds::{BoundError, SensorTerm, State};
 use fusion_graph::{Scenario, ScenarioError, Topology};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{SelectionContext, SensorManager};
+use crate::estimator::SensingModel;
 
 /// Trajectories the offline bound's expectations take (N_T).
 pub const OFFLINE_TRAJECTORIES: usize = 1000;
@@ -87,25 +88,12 @@ fn compute(
     max_total: usize,
 ) -> Result<Schedule, OfflineError> {
     let models = scenario.models()?;
-    let sensors: Vec<_> = topology
-        .sensor_positions
-        .iter()
-        .map(|p| models.law.at(*p))
-        .collect();
-    let measurement = models
-        .quantizer
-        .as_ref()
-        .map_or(Measurement::Raw, Measurement::Quantized);
-    let candidates: Vec<(u16, u16, SensorTerm)> = sensors
-        .iter()
+    let sensing = SensingModel::new(&models, topology);
+    let candidates: Vec<(u16, u16, SensorTerm)> = sensing
+        .sensor_terms()
+        .into_iter()
         .enumerate()
-        .map(|(s, model)| {
-            (
-                topology.sensor_owner[s],
-                s as u16,
-                SensorTerm { model, measurement },
-            )
-        })
+        .map(|(s, term)| (topology.sensor_owner[s], s as u16, term))
         .collect();
     let mut rng = ChaCha8Rng::seed_from_u64(SCHEDULE_SEED);
     Ok(offline_schedule(
