@@ -7,6 +7,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use fusion_graph::Topology;
+use runtime::results::Tick;
 
 /// Per step (from 1), means over runs and nodes.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -17,9 +18,19 @@ pub struct Diagnostics {
     pub active_distance: Vec<Option<f64>>,
 }
 
-/// Columns of `ticks.csv` after `deadline_missed`.
-const SPREAD_COLUMN: usize = 14;
-const ACTIVE_COLUMN: usize = 15;
+/// The processing nodes' rows of run `run`'s `ticks.csv` under `runs_dir`
+/// (the Monte Carlo's `run-000`, `run-001`, …).
+pub fn run_ticks(runs_dir: &Path, run: u32) -> anyhow::Result<Vec<Tick>> {
+    let path = runs_dir.join(format!("run-{run:03}")).join("ticks.csv");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(text
+        .lines()
+        .skip(1)
+        .filter_map(Tick::parse)
+        .filter(Tick::is_node)
+        .collect())
+}
 
 impl Diagnostics {
     /// From the `ticks.csv` of runs `0..runs` under `runs_dir`.
@@ -34,28 +45,17 @@ impl Diagnostics {
             v[step - 1].1 += 1;
         };
         for run in 0..runs {
-            let path = runs_dir.join(format!("run-{run:03}")).join("ticks.csv");
-            let text = std::fs::read_to_string(&path)
-                .with_context(|| format!("reading {}", path.display()))?;
-            for line in text.lines().skip(1) {
-                let f: Vec<&str> = line.split(',').collect();
-                if !f.get(1).is_some_and(|n| n.starts_with("node-")) {
-                    continue;
-                }
-                let number = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok());
-                let (Some(step), Some(x), Some(y)) = (number(0), number(2), number(3)) else {
-                    continue;
-                };
-                let step = step as usize;
+            for tick in run_ticks(runs_dir, run)? {
+                let step = tick.step as usize;
                 if step == 0 {
                     continue;
                 }
-                if let Some(s) = number(SPREAD_COLUMN).filter(|s| s.is_finite()) {
+                if let Some(s) = tick.spread.filter(|s| s.is_finite()) {
                     add(&mut spread, step, s);
                 }
-                let active = f.get(ACTIVE_COLUMN).copied().unwrap_or("");
-                for sensor in active.split(';').filter_map(|s| s.parse::<usize>().ok()) {
-                    if let Some([sx, sy]) = topology.sensor_positions.get(sensor) {
+                let [x, y] = tick.truth;
+                for sensor in &tick.active {
+                    if let Some([sx, sy]) = topology.sensor_positions.get(*sensor as usize) {
                         add(&mut distance, step, (sx - x).hypot(sy - y));
                     }
                 }

@@ -129,8 +129,8 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
                     // 95 % interval over runs. The bounds have none drawn.
                     let band = match c.series {
                         Series::Rmse => arm
-                            .rmse_band
-                            .iter()
+                            .rmse_band()
+                            .into_iter()
                             .enumerate()
                             .filter_map(|(i, b)| b.map(|(lo, hi)| (i as u32 + 1, lo, hi)))
                             .collect(),

@@ -161,20 +161,12 @@ pub struct ArmOutcome {
     pub per_run_bound: Vec<Option<f64>>,
     pub per_run_aux_bound: Vec<Option<f64>>,
     pub per_run_centralized_bound: Vec<Option<f64>>,
-    /// At steps 1, 2, …: the 95 % interval of the RMSE over runs, drawn as
-    /// a band around the RMSE curve.
-    pub rmse_band: Vec<Option<(f64, f64)>>,
     /// The prediction's spread and the activated sensors' distance from
     /// the truth, per step.
     pub diagnostics: diagnostics::Diagnostics,
-    /// Each run's per-step means, in seed order, for claims over a window
-    /// of steps compared run by run.
+    /// Each run's per-step means, in seed order: the RMSE's band, and
+    /// claims over a window of steps compared run by run.
     pub per_run_series: Vec<Vec<StepMeans>>,
-}
-
-/// Each step's RMSE interval over the runs that reported it.
-fn rmse_bands(per_run: &[Vec<runtime::summary::StepMeans>]) -> Vec<Option<(f64, f64)>> {
-    rmse_bands_of(per_run, |m| m.rmse)
 }
 
 /// Each step's 95 % band of an RMSE over runs, from each run's per-step
@@ -314,6 +306,12 @@ pub fn claims_csv(check: &Check) -> String {
 }
 
 impl ArmOutcome {
+    /// At steps 1, 2, …: the 95 % interval of the RMSE over runs, drawn as
+    /// a band around the RMSE curve.
+    pub fn rmse_band(&self) -> Vec<Option<(f64, f64)>> {
+        rmse_bands_of(&self.per_run_series, |m| m.rmse)
+    }
+
     /// Runs whose RMSE is above [`LOST_TRACK_FACTOR`] times their bound,
     /// and the runs with both figures.
     pub fn lost_tracks(&self) -> (usize, usize) {
@@ -329,9 +327,7 @@ impl ArmOutcome {
         }
         (lost, of)
     }
-}
 
-impl ArmOutcome {
     /// Step 1, 2, …: the series' values.
     pub fn series(&self, series: Series) -> Vec<Option<f64>> {
         if series == Series::Nonconditional {
@@ -604,9 +600,8 @@ pub fn run(
                 .iter()
                 .map(|s| s.estimates.mean_centralized_bound)
                 .collect(),
-            rmse_band: rmse_bands(&mc.per_run_series),
             diagnostics: diagnostics::Diagnostics::read(&runs_dir, options.runs, &topology)?,
-            per_run_series: mc.per_run_series.clone(),
+            per_run_series: mc.per_run_series,
         });
     }
     let outcome = Outcome {
@@ -691,7 +686,7 @@ fn below_the_centralized_bound(outcome: &Outcome) -> String {
         let steps: Vec<u32> = a
             .steps
             .iter()
-            .zip(&a.rmse_band)
+            .zip(a.rmse_band())
             .filter_map(|(m, band)| {
                 let bound = m.centralized_bound?;
                 checked += 1;

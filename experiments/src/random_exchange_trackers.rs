@@ -15,6 +15,7 @@ use fusion_graph::wire::MessageKind;
 use fusion_graph::{ActorId, Topology};
 use plotters::prelude::*;
 
+use super::diagnostics::run_ticks;
 use super::paired::{Order, Paired};
 use super::random_exchange_bounds::{draw_lines, Curves};
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
@@ -103,9 +104,9 @@ struct Fig1 {
     /// Each tracker's RMSE of each run from step 10 (the runs share their
     /// seeds across trackers, so they compare in pairs).
     per_run: Vec<Vec<Option<f64>>>,
-    /// The same over the nodes within [`NEAR`] of the truth, and beyond.
-    per_run_near: Vec<Vec<Option<f64>>>,
-    per_run_far: Vec<Vec<Option<f64>>>,
+    /// Each tracker's per-run RMSE over the nodes within [`NEAR`] of the
+    /// truth, and beyond.
+    by_distance: Vec<ByDistance>,
     centralized_rmse: Vec<f64>,
     bounds: Curves,
     size: MonteCarloSize,
@@ -136,7 +137,7 @@ fn fig1_in(
     let mut bands = Vec::new();
     let mut centralized_band = Vec::new();
     let mut per_run = Vec::new();
-    let (mut per_run_near, mut per_run_far) = (Vec::new(), Vec::new());
+    let mut by_distance = Vec::new();
     let mut centralized_rmse = Vec::new();
     for (i, tracker) in TRACKERS.iter().enumerate() {
         let (scenario, topology) = scenario_of(tracker, &steps)?;
@@ -157,9 +158,7 @@ fn fig1_in(
         let means = mc.series.means();
         per_run.push(mc.per_run.iter().map(|r| r.estimates.rmse).collect());
         bands.push(crate::rmse_bands_of(&mc.per_run_series, |m| m.rmse));
-        let (near, far) = by_distance(&runs_dir, &topology, options.runs)?;
-        per_run_near.push(near);
-        per_run_far.push(far);
+        by_distance.push(ByDistance::read(&runs_dir, &topology, options.runs)?);
         if centralized {
             centralized_band = crate::rmse_bands_of(&mc.per_run_series, |m| m.centralized_rmse);
         }
@@ -188,8 +187,7 @@ fn fig1_in(
         rmse,
         bands,
         per_run,
-        per_run_near,
-        per_run_far,
+        by_distance,
         centralized_rmse,
         bounds: Curves::compute(&scenario, size)?,
         size,
@@ -234,47 +232,50 @@ const NEAR: f64 = 30.0;
 /// A figure of each run, in seed order (`None` where the run has none).
 type PerRun = Vec<Option<f64>>;
 
-/// Each run's RMSE from step [`AVERAGE_FROM_STEP`] over the node-steps
-/// whose node is within [`NEAR`] of the truth, and over the others, read
-/// back from the runs' `ticks.csv`.
-fn by_distance(
-    runs_dir: &Path,
-    topology: &Topology,
-    runs: u32,
-) -> anyhow::Result<(PerRun, PerRun)> {
-    let mut near = Vec::new();
-    let mut far = Vec::new();
-    for run in 0..runs {
-        let path = runs_dir.join(format!("run-{run:03}")).join("ticks.csv");
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("reading {}", path.display()))?;
-        let mut sums = [(0.0, 0usize); 2];
-        for tick in text
-            .lines()
-            .skip(1)
-            .filter_map(runtime::results::Tick::parse)
-        {
-            let Some(node) = tick
-                .node
-                .strip_prefix("node-")
-                .and_then(|i| i.parse::<usize>().ok())
-            else {
-                continue;
-            };
-            if tick.step < AVERAGE_FROM_STEP || !tick.error.is_finite() {
-                continue;
+/// One tracker's RMSE from step [`AVERAGE_FROM_STEP`] split by the node's
+/// distance from the truth: over the node-steps within [`NEAR`] of it and
+/// over the others, run by run, read back from the runs' `ticks.csv`.
+struct ByDistance {
+    near: PerRun,
+    far: PerRun,
+    /// Node-steps near and far, over every run.
+    node_steps: [usize; 2],
+}
+
+impl ByDistance {
+    fn read(runs_dir: &Path, topology: &Topology, runs: u32) -> anyhow::Result<Self> {
+        let mut split = Self {
+            near: Vec::new(),
+            far: Vec::new(),
+            node_steps: [0; 2],
+        };
+        for run in 0..runs {
+            let mut sums = [(0.0, 0usize); 2];
+            for tick in run_ticks(runs_dir, run)? {
+                let Some(node) = tick
+                    .node
+                    .strip_prefix("node-")
+                    .and_then(|i| i.parse::<usize>().ok())
+                    .filter(|i| *i < topology.nodes())
+                else {
+                    continue;
+                };
+                if tick.step < AVERAGE_FROM_STEP || !tick.error.is_finite() {
+                    continue;
+                }
+                let [x, y] = topology.node_positions[node];
+                let far = usize::from((tick.truth[0] - x).hypot(tick.truth[1] - y) >= NEAR);
+                sums[far].0 += tick.error * tick.error;
+                sums[far].1 += 1;
             }
-            let [x, y] = topology.node_positions[node];
-            let d = (tick.truth[0] - x).hypot(tick.truth[1] - y);
-            let s = &mut sums[usize::from(d >= NEAR)];
-            s.0 += tick.error * tick.error;
-            s.1 += 1;
+            let rms = |(sq, n): (f64, usize)| (n > 0).then(|| (sq / n as f64).sqrt());
+            split.near.push(rms(sums[0]));
+            split.far.push(rms(sums[1]));
+            split.node_steps[0] += sums[0].1;
+            split.node_steps[1] += sums[1].1;
         }
-        let rms = |(sq, n): (f64, usize)| (n > 0).then(|| (sq / n as f64).sqrt());
-        near.push(rms(sums[0]));
-        far.push(rms(sums[1]));
+        Ok(split)
     }
-    Ok((near, far))
 }
 
 fn fig1_csv(fig: &Fig1) -> String {
@@ -437,16 +438,20 @@ fn fig1_check(fig: &Fig1) -> Check {
         .collect::<Vec<_>>();
     let paths = settled(&fig.bounds.rndex_paths);
     // Where RndEx-PF loses to consensus KL: near the target or far from it.
-    let split = |runs: &[Vec<Option<f64>>]| {
-        Paired::of(&runs[0], &runs[3]).map_or("-".to_string(), |p| format!("{} m", p.text(3)))
+    let [rndex_split, consensus_split] = [&fig.by_distance[0], &fig.by_distance[3]];
+    let split = |a: &PerRun, b: &PerRun| {
+        Paired::of(a, b).map_or("-".to_string(), |p| format!("{} m", p.text(3)))
     };
+    let [near_steps, far_steps] = rndex_split.node_steps;
     Check::of_claims(
         claims,
         format!(
-            "per-run RMSE from step 10, paired over {} runs; mean from step {AVERAGE_FROM_STEP}: RndEx-PF {rndex:.2} m, non-iterative KL {non_iterative:.2} m, iterative KL {iterative:.2} m, consensus KL {consensus:.2} m; RndEx-PF PCRLB {rndex_bound:.2} m (its paths' bounds averaged: {paths:.2} m, the Jensen gap of eq. 15), centralized PCRLB {central_bound:.2} m; RndEx-PF minus consensus KL at the nodes within {NEAR} m of the target {}, beyond {}; bands below the centralized PCRLB: {}",
+            "per-run RMSE from step 10, paired over {} runs; mean from step {AVERAGE_FROM_STEP}: RndEx-PF {rndex:.2} m, non-iterative KL {non_iterative:.2} m, iterative KL {iterative:.2} m, consensus KL {consensus:.2} m; RndEx-PF PCRLB {rndex_bound:.2} m (its paths' bounds averaged: {paths:.2} m, the Jensen gap of eq. 15), centralized PCRLB {central_bound:.2} m; RndEx-PF minus consensus KL at the nodes within {NEAR} m of the target {}, beyond {} ({} of {} node-steps from step {AVERAGE_FROM_STEP} beyond); bands below the centralized PCRLB: {}",
             fig.runs,
-            split(&fig.per_run_near),
-            split(&fig.per_run_far),
+            split(&rndex_split.near, &consensus_split.near),
+            split(&rndex_split.far, &consensus_split.far),
+            far_steps,
+            near_steps + far_steps,
             if listed.is_empty() { "none".to_string() } else { listed.join("; ") }
         ),
     )

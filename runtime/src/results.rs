@@ -65,6 +65,10 @@ pub struct Tick {
     pub observations: u32,
     /// The node finished after its step's deadline.
     pub deadline_missed: bool,
+    /// The spread of the node's prediction, `sqrt(tr_pos P(k|k−1))`, metres.
+    pub spread: Option<f64>,
+    /// The sensors the node activated for the step.
+    pub active: Vec<u16>,
     /// The row as written.
     pub line: String,
 }
@@ -94,6 +98,14 @@ impl Tick {
             live_neighbours: int(11)?,
             observations: int(12)?,
             deadline_missed: f.get(13) == Some(&"1"),
+            spread: num(14),
+            active: match f.get(15).filter(|v| !v.is_empty()) {
+                Some(ids) => ids
+                    .split(';')
+                    .map(|s| s.parse().ok())
+                    .collect::<Option<_>>()?,
+                None => Vec::new(),
+            },
             line: line.to_string(),
         })
     }

@@ -296,6 +296,10 @@ mod tests {
         assert_eq!(t.local_bound, None);
         assert_eq!(t.observations, 3);
         assert!(t.deadline_missed);
+        assert_eq!((t.spread, t.active.len()), (None, 0));
+        let t = Tick::parse("3,node-4,1,2,3,4,2.5,0.7,,,10,4,3,0,1.25,17;3").unwrap();
+        assert_eq!((t.spread, t.active), (Some(1.25), vec![17, 3]));
+        assert!(Tick::parse("3,node-4,1,2,3,4,2.5,0.7,,,10,4,3,0,1.25,17;x").is_none());
         assert!(Tick::parse("3,node-4,1,2").is_none());
     }
 
