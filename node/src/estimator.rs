@@ -177,15 +177,18 @@ impl LocalFilter {
             self.prediction
                 .take(&mut self.filter, &model.dynamics, &mut self.rng)?;
 
-        let received_information = model.information_and_likelihood(
-            observations,
-            self.filter.particles(),
-            self.filter.uniform_weights(),
-            &mut self.first_stage,
-        )?;
+        // The first stage's likelihoods, with ΔL from the same evaluations
+        // when it is J_Y of the received; under censoring ΔL is every active
+        // sensor's J_cens instead, and J_Y would be wasted.
         let delta_l = if censored.is_empty() {
-            received_information
+            model.information_and_likelihood(
+                observations,
+                self.filter.particles(),
+                self.filter.uniform_weights(),
+                &mut self.first_stage,
+            )?
         } else {
+            model.ln_likelihoods(observations, self.filter.particles(), &mut self.first_stage);
             model.censored_information(
                 censored,
                 self.filter.particles(),
