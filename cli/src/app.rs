@@ -21,7 +21,18 @@ use runtime::summary::print_table;
 
 /// `cqnet`'s `main`.
 pub fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    main_with(std::env::args_os())
+}
+
+/// `cqnet`'s `main` over the given arguments, the first being the
+/// program's name: what a program that carries cqnet as a library (the
+/// Python package's `cqnet` command, and its actors' processes) calls.
+pub fn main_with<I, T>(args: I) -> std::process::ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let cli = Cli::parse_from(args);
     let actor_name = match &cli.command {
         Command::Actor(a) => Some(a.actor.clone()),
         _ => None,
@@ -46,7 +57,8 @@ fn init_logging(actor: Option<&str>, quiet: bool) {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_target(false)
-        .init();
+        .try_init()
+        .ok();
     if let Some(name) = actor {
         // A span held for the whole process names the actor on every line.
         let span = tracing::error_span!("actor", name = %name);
@@ -139,6 +151,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 centralized: scenario.reference.centralized && !args.no_central,
                 view: None,
                 local_agents: args.local_agents,
+                actor_program: None,
+                stop: None,
             };
             let view = args
                 .view
@@ -220,6 +234,8 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         centralized: false,
         view: None,
         local_agents: false,
+        actor_program: None,
+        stop: None,
     };
     let result = runtime::network::run_network(&scenario, &topology, options, move |p| {
         if let RunProgress::Step { step: s, rows } = p {
@@ -394,6 +410,7 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         out: args.out.clone(),
         trajectories: args.trajectories as usize,
+        stop: Default::default(),
     };
     let mut failed = Vec::new();
     let mut open = Vec::new();

@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::paired::Paired;
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
-use runtime::montecarlo::run_monte_carlo;
+use runtime::montecarlo::run_monte_carlo_until;
 use runtime::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
@@ -140,7 +140,7 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                     let scenario =
                         Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, &source, &overrides)?;
                     let topology = Topology::from_scenario(&scenario, &source)?;
-                    let mc = run_monte_carlo(
+                    let mc = run_monte_carlo_until(
                         &scenario,
                         &topology,
                         &dir.join("runs").join(format!("rate-{rate}")).join(format!("bits-{bits}")),
@@ -148,6 +148,7 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                         options.threads,
                         false,
                         &|_| {},
+                        &options.stop,
                     )?;
                     let rmse = mc.estimates.rmse.unwrap_or(f64::NAN);
                     let bound = mc.estimates.mean_bound.unwrap_or(f64::NAN);

@@ -30,7 +30,7 @@ use fusion_graph::Topology;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use runtime::montecarlo::run_monte_carlo;
+use runtime::montecarlo::run_monte_carlo_until;
 use runtime::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
 
 /// A named, reproducible experiment.
@@ -510,6 +510,9 @@ pub struct Options {
     pub out: PathBuf,
     /// Trajectories for the non-conditional PCRLB.
     pub trajectories: usize,
+    /// Set by the caller to stop the experiment: each Monte Carlo stops
+    /// between steps and the experiment fails saying so.
+    pub stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// What `run` wrote.
@@ -533,7 +536,7 @@ pub fn run(
     for (index, arm) in experiment.arms.iter().enumerate() {
         let (scenario, topology) = arm_scenario(experiment, arm, options.steps)?;
         let runs_dir = dir.join("runs").join(slug(arm.label));
-        let mc = run_monte_carlo(
+        let mc = run_monte_carlo_until(
             &scenario,
             &topology,
             &runs_dir,
@@ -545,6 +548,7 @@ pub fn run(
                 &[Series::CentralizedBound, Series::CentralizedRmse],
             ),
             &|done| progress(index, done),
+            &options.stop,
         )
         .with_context(|| format!("arm `{}`", arm.label))?;
         let nonconditional = needs(experiment, index, &[Series::Nonconditional])

@@ -19,7 +19,7 @@ use super::diagnostics::run_ticks;
 use super::paired::{Order, Paired};
 use super::random_exchange_bounds::{draw_lines, Curves};
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
-use runtime::montecarlo::run_monte_carlo;
+use runtime::montecarlo::run_monte_carlo_until;
 use runtime::results::AVERAGE_FROM_STEP;
 
 pub fn experiments() -> Vec<Computed> {
@@ -146,7 +146,7 @@ fn fig1_in(
         let centralized = i == 0;
         eprintln!("{name}: {} ({} runs)", tracker.label, options.runs);
         let runs_dir = dir.join("runs").join(name).join(tracker.protocol);
-        let mc = run_monte_carlo(
+        let mc = run_monte_carlo_until(
             &scenario,
             &topology,
             &runs_dir,
@@ -154,6 +154,7 @@ fn fig1_in(
             options.threads,
             centralized,
             &|_| {},
+            &options.stop,
         )?;
         let means = mc.series.means();
         per_run.push(mc.per_run.iter().map(|r| r.estimates.rmse).collect());
@@ -546,6 +547,8 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
         centralized: false,
         view: None,
         local_agents: false,
+        actor_program: None,
+        stop: None,
     };
     let summary = runtime::network::run_network(scenario, topology, options, |_| {})?;
     let links = links_csv(out);

@@ -15,6 +15,7 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
         threads: 2,
         out: out.clone(),
         trajectories: 50,
+        stop: Default::default(),
     };
     let catalogue = experiment::catalogue();
     assert!(

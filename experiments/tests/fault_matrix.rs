@@ -22,6 +22,7 @@ fn run(name: &str, runs: u32) -> experiment::Report {
         threads: 2,
         out: out.clone(),
         trajectories: 0,
+        stop: Default::default(),
     };
     let report = experiment::run(&experiment::find(name).unwrap(), &options, &|_, _| {}).unwrap();
     assert!(std::fs::read_to_string(&report.svg)

@@ -49,6 +49,27 @@ pub enum ScenarioError {
     Override { assignment: String, message: String },
 }
 
+impl ScenarioError {
+    /// The key the error is about, when it is about one: `filter.particles`
+    /// for a bad value of it, a failed `--set filter.particles=…`, or a
+    /// value of the wrong type there.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            Self::Invalid { key, .. } => Some(key),
+            Self::Override { assignment, .. } => {
+                Some(assignment.split_once('=').map_or(assignment.as_str(), |(k, _)| k).trim())
+            }
+            // `from_toml` starts the message with the failing value's path.
+            Self::Parse { message, .. } => message
+                .strip_prefix('`')
+                .and_then(|m| m.split_once('`'))
+                .map(|(key, _)| key)
+                .filter(|key| !key.is_empty()),
+            Self::Read { .. } => None,
+        }
+    }
+}
+
 /// A message that could not be decoded.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum WireError {

@@ -3,7 +3,7 @@
 //! averages over runs.
 
 use std::path::Path;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::Mutex;
 
 use fusion_graph::scenario::Scenario;
@@ -11,7 +11,7 @@ use fusion_graph::Topology;
 use serde::{Deserialize, Serialize};
 
 use crate::results::{Estimates, ResultsWriter, StepSeries, AVERAGE_FROM_STEP};
-use crate::sim::run_in_process;
+use crate::sim::run_in_process_until;
 use crate::summary::{StepMeans, Summary};
 
 /// Means over runs of each run's averages.
@@ -51,6 +51,32 @@ pub fn run_monte_carlo(
     centralized: bool,
     on_run_done: &(dyn Fn(u32) + Sync),
 ) -> anyhow::Result<MonteCarloSummary> {
+    run_monte_carlo_until(
+        scenario,
+        topology,
+        out,
+        runs,
+        threads,
+        centralized,
+        on_run_done,
+        &AtomicBool::new(false),
+    )
+}
+
+/// [`run_monte_carlo`] that a caller can stop by setting `stop`: each
+/// worker stops its run between steps and starts no other, and it fails
+/// saying so.
+#[allow(clippy::too_many_arguments)]
+pub fn run_monte_carlo_until(
+    scenario: &Scenario,
+    topology: &Topology,
+    out: &Path,
+    runs: u32,
+    threads: usize,
+    centralized: bool,
+    on_run_done: &(dyn Fn(u32) + Sync),
+    stop: &AtomicBool,
+) -> anyhow::Result<MonteCarloSummary> {
     let started = std::time::Instant::now();
     let next = AtomicU32::new(0);
     let done = AtomicU32::new(0);
@@ -62,7 +88,7 @@ pub fn run_monte_carlo(
         for _ in 0..threads.max(1).min(runs as usize) {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::SeqCst);
-                if i >= runs {
+                if i >= runs || stop.load(Ordering::Relaxed) {
                     return;
                 }
                 let mut s = scenario.clone();
@@ -70,9 +96,14 @@ pub fn run_monte_carlo(
                 let mut run_series = StepSeries::default();
                 let result =
                     ResultsWriter::create(&out.join(format!("run-{i:03}"))).and_then(|mut w| {
-                        run_in_process(&s, topology, &mut w, centralized, |_, rows| {
-                            rows.iter().for_each(|r| run_series.add(r))
-                        })
+                        run_in_process_until(
+                            &s,
+                            topology,
+                            &mut w,
+                            centralized,
+                            |_, rows| rows.iter().for_each(|r| run_series.add(r)),
+                            stop,
+                        )
                     });
                 if result.is_ok() {
                     series
@@ -91,6 +122,13 @@ pub fn run_monte_carlo(
             });
         }
     });
+    if stop.load(Ordering::Relaxed) {
+        anyhow::bail!(
+            "interrupted after {} of {runs} runs; their results are in {}",
+            done.load(Ordering::SeqCst),
+            out.display()
+        );
+    }
     let per_run: Vec<Summary> = results
         .into_inner()
         .expect("workers finished")

@@ -5,6 +5,7 @@
 
 use std::cell::RefCell;
 use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -446,13 +447,42 @@ pub fn run_in_process(
     topology: &Topology,
     writer: &mut ResultsWriter,
     centralized: bool,
+    on_step: impl FnMut(u32, &[TickRow]),
+) -> anyhow::Result<Summary> {
+    run_in_process_until(
+        scenario,
+        topology,
+        writer,
+        centralized,
+        on_step,
+        &AtomicBool::new(false),
+    )
+}
+
+/// [`run_in_process`] that a caller can stop between steps by setting
+/// `stop`: the steps done so far are written, and it fails saying where
+/// it stopped.
+pub fn run_in_process_until(
+    scenario: &Scenario,
+    topology: &Topology,
+    writer: &mut ResultsWriter,
+    centralized: bool,
     mut on_step: impl FnMut(u32, &[TickRow]),
+    stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     node::registry::check(scenario, topology)?;
     let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
+    let dir = writer.dir().to_path_buf();
     let mut recorder = Recorder::new(writer, scenario, topology);
     for step in 1..=scenario.steps {
+        if stop.load(Ordering::Relaxed) {
+            anyhow::bail!(
+                "interrupted at step {}; results so far are in {}",
+                step - 1,
+                dir.display()
+            );
+        }
         let rows = net.step(step)?;
         on_step(step, &rows);
         recorder.record(rows)?;

@@ -70,10 +70,31 @@ pub enum Event {
     },
 }
 
+/// The program that runs an actor, and the arguments it takes before
+/// `actor …`: this executable by default. A program that carries cqnet as
+/// a library (the Python package) names the interpreter and how to reach
+/// cqnet's entry point through it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ActorProgram {
+    pub program: PathBuf,
+    pub leading_args: Vec<std::ffi::OsString>,
+}
+
+impl ActorProgram {
+    /// The running executable, which is `cqnet` itself.
+    pub fn this_executable() -> anyhow::Result<Self> {
+        use anyhow::Context;
+        Ok(Self {
+            program: std::env::current_exe().context("finding the cqnet executable")?,
+            leading_args: Vec::new(),
+        })
+    }
+}
+
 /// How to start a child.
 #[derive(Debug, Clone)]
 pub struct ChildSpec {
-    pub executable: PathBuf,
+    pub program: ActorProgram,
     pub run_id: String,
     pub scenario_file: PathBuf,
     pub log_dir: PathBuf,
@@ -191,8 +212,9 @@ fn spawn(
     rejoin: bool,
     events: std::sync::mpsc::Sender<Event>,
 ) -> std::io::Result<Child> {
-    let mut cmd = tokio::process::Command::new(&spec.executable);
-    cmd.arg("actor")
+    let mut cmd = tokio::process::Command::new(&spec.program.program);
+    cmd.args(&spec.program.leading_args)
+        .arg("actor")
         .arg("--run-id")
         .arg(&spec.run_id)
         .arg("--actor")

@@ -164,7 +164,7 @@ impl Agent<'_> {
             topology.clone(),
         )?;
         let spec = ChildSpec {
-            executable: std::env::current_exe().context("finding the cqnet executable")?,
+            program: crate::supervisor::ActorProgram::this_executable()?,
             run_id: domain.as_str().into(),
             scenario_file,
             log_dir: dir.join("logs"),

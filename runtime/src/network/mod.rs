@@ -88,7 +88,10 @@ pub fn run_network(
         bail!("--local-agents: the scenario has no [[hosts]] to start agents for");
     }
     let spec = ChildSpec {
-        executable: std::env::current_exe().context("finding the cqnet executable")?,
+        program: match &options.actor_program {
+            Some(p) => p.clone(),
+            None => crate::supervisor::ActorProgram::this_executable()?,
+        },
         run_id: options.run_id.as_str().to_string(),
         scenario_file,
         log_dir: options.out.join("logs"),
@@ -96,6 +99,11 @@ pub fn run_network(
     };
     let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
     let (event_tx, event_rx) = std::sync::mpsc::channel();
+    let _stop_watch = options
+        .stop
+        .clone()
+        .map(|stop| StopWatch::start(stop, event_tx.clone()))
+        .transpose()?;
     let options_local_agents = options.local_agents;
     #[cfg_attr(not(feature = "zenoh"), allow(unused_variables))]
     let out = options.out.clone();
@@ -175,6 +183,50 @@ pub fn run_network(
         remove_run_resources(domain).context("removing the run's shared memory")?;
     }
     result
+}
+
+/// Turns a caller's stop flag into the interrupt Ctrl-C would give, for
+/// as long as the run lasts.
+struct StopWatch {
+    finished: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl StopWatch {
+    fn start(
+        stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+        events: std::sync::mpsc::Sender<Event>,
+    ) -> anyhow::Result<Self> {
+        use std::sync::atomic::Ordering;
+        let finished = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let done = finished.clone();
+        let thread = std::thread::Builder::new()
+            .name("stop-watch".into())
+            .spawn(move || {
+                while !done.load(Ordering::Acquire) {
+                    if stop.load(Ordering::Acquire) {
+                        let _ = events.send(Event::Interrupted);
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            })
+            .context("starting the stop watch")?;
+        Ok(Self {
+            finished,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for StopWatch {
+    fn drop(&mut self) {
+        self.finished
+            .store(true, std::sync::atomic::Ordering::Release);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 /// The scenario as the run keeps time: `--lockstep` written into it, so

@@ -2,12 +2,14 @@
 //! the run goes on (`RunProgress`).
 
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use fusion_graph::transport::RunId;
 
 use crate::feed::Hub;
 use crate::results::TickRow;
+use crate::supervisor::ActorProgram;
 
 pub struct RunOptions {
     pub out: PathBuf,
@@ -18,6 +20,11 @@ pub struct RunOptions {
     pub view: Option<Arc<Hub>>,
     /// A scenario with `[[hosts]]`: start every host's agent here.
     pub local_agents: bool,
+    /// How to start each actor's process; this executable when `None`.
+    pub actor_program: Option<ActorProgram>,
+    /// Set by the caller to stop the run as Ctrl-C does: children stopped
+    /// and reaped, shared memory removed, the results so far written.
+    pub stop: Option<Arc<AtomicBool>>,
 }
 
 /// What the launcher tells its caller as the run goes.

@@ -1,0 +1,82 @@
+"""`sim` in process: the binary's results bit for bit, several runs, and
+Ctrl-C between steps."""
+
+import _thread
+import json
+import subprocess
+import threading
+
+import pytest
+
+import cqnet
+from conftest import small_scenario
+
+
+def binary_sim(cqnet_bin, scenario, out, *extra):
+    path = out / "scenario.toml"
+    path.write_text(scenario.to_toml())
+    subprocess.run(
+        [str(cqnet_bin), "sim", str(path), "--out", str(out / "binary"), *extra],
+        check=True,
+        capture_output=True,
+    )
+    return out / "binary"
+
+
+def test_sim_gives_the_binarys_results_bit_for_bit(cqnet_bin, tmp_out):
+    s = small_scenario(steps=25)
+    r = cqnet.sim(s, out=tmp_out / "python")
+    b = binary_sim(cqnet_bin, s, tmp_out)
+    for name in ["ticks.csv", "links.csv"]:
+        assert (r.out / name).read_bytes() == (b / name).read_bytes(), name
+    theirs = json.loads((b / "summary.json").read_text())
+    assert r.summary["estimates"] == theirs["estimates"]
+    assert r.summary["traffic"] == theirs["traffic"]
+
+
+def test_the_default_scenarios_rmse_is_the_binarys(cqnet_bin, tmp_out):
+    r = cqnet.sim(cqnet.Scenario.default(), out=tmp_out / "python")
+    path = tmp_out / "scenario.toml"
+    path.write_text(cqnet.Scenario.default().to_toml())
+    printed = subprocess.run(
+        [str(cqnet_bin), "sim", "--out", str(tmp_out / "binary")],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
+    theirs = json.loads((tmp_out / "binary" / "summary.json").read_text())
+    assert r.summary["rmse"] == theirs["estimates"]["rmse"]
+    # The table the command prints shows the same figure, rounded.
+    assert f"{r.summary['rmse']:.3}"[:4] in printed
+
+
+def test_seed_replaces_the_scenarios(tmp_out):
+    s = small_scenario(steps=5)
+    a = cqnet.sim(s, seed=7, out=tmp_out / "a")
+    b = cqnet.sim(s.copy().set("seed", 7), out=tmp_out / "b")
+    assert (a.out / "ticks.csv").read_bytes() == (b.out / "ticks.csv").read_bytes()
+    assert s.seed == 1, "sim leaves the caller's scenario as it was"
+
+
+def test_several_runs_average_their_seeds(tmp_out):
+    s = small_scenario(steps=12)
+    mc = cqnet.sim(s, runs=3, out=tmp_out, threads=2)
+    assert mc.summary["runs"] == 3
+    assert len(mc.runs) == 3
+    rmses = [run.summary["rmse"] for run in mc.runs]
+    assert mc.summary["rmse"] == pytest.approx(sum(rmses) / 3, rel=1e-12)
+    one = cqnet.sim(s, seed=s.seed + 2, out=tmp_out / "alone")
+    assert (one.out / "ticks.csv").read_bytes() == (mc.runs[2].out / "ticks.csv").read_bytes()
+
+
+def test_ctrl_c_stops_a_sim_between_steps(tmp_out):
+    s = small_scenario(steps=1_000_000)
+    timer = threading.Timer(1.0, _thread.interrupt_main)
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            cqnet.sim(s, out=tmp_out, progress=False)
+    finally:
+        timer.cancel()
+    written = (tmp_out / "ticks.csv").read_text().splitlines()
+    assert 1 < len(written) < 1_000_000 * 3
