@@ -470,6 +470,7 @@ pub enum Entry {
 /// The network experiment or computed one of that name, or an error that
 /// lists every name.
 pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
+    let name = by_figure(name);
     if let Some(c) = computed_catalogue().into_iter().find(|c| c.name == name) {
         return Ok(Entry::Computed(c));
     }
@@ -485,8 +486,21 @@ pub fn catalogue() -> Vec<Experiment> {
     all
 }
 
+/// An experiment's name from a paper's seed and figure, as the papers'
+/// readers know them ("seed001-fig2"); any other name as it is.
+pub fn by_figure(name: &str) -> &str {
+    match name {
+        "seed000-fig1b" => "bound-aux-fim",
+        "seed000-fig1c" => "bound-against-bits",
+        "seed001-fig2" => "sensor-selection",
+        "seed004-fig1" => "random-exchange-trackers",
+        other => other,
+    }
+}
+
 /// The experiment of that name, or an error that lists the names.
 pub fn find(name: &str) -> anyhow::Result<Experiment> {
+    let name = by_figure(name);
     let mut all = catalogue();
     match all.iter().position(|e| e.name == name) {
         Some(i) => Ok(all.swap_remove(i)),

@@ -56,9 +56,12 @@ impl ScenarioError {
     pub fn key(&self) -> Option<&str> {
         match self {
             Self::Invalid { key, .. } => Some(key),
-            Self::Override { assignment, .. } => {
-                Some(assignment.split_once('=').map_or(assignment.as_str(), |(k, _)| k).trim())
-            }
+            Self::Override { assignment, .. } => Some(
+                assignment
+                    .split_once('=')
+                    .map_or(assignment.as_str(), |(k, _)| k)
+                    .trim(),
+            ),
             // `from_toml` starts the message with the failing value's path.
             Self::Parse { message, .. } => message
                 .strip_prefix('`')

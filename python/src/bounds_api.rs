@@ -20,7 +20,9 @@ fn value_error(e: impl std::fmt::Display) -> PyErr {
 /// A 4×4 matrix as a NumPy array.
 pub fn mat4_to_py<'py>(py: Python<'py>, m: &Mat4) -> Bound<'py, numpy::PyArray2<f64>> {
     // nalgebra is column-major; NumPy's default order is row-major.
-    let rows: Vec<f64> = (0..4).flat_map(|i| (0..4).map(move |j| m[(i, j)])).collect();
+    let rows: Vec<f64> = (0..4)
+        .flat_map(|i| (0..4).map(move |j| m[(i, j)]))
+        .collect();
     PyArray1::from_vec(py, rows)
         .reshape([4, 4])
         .expect("16 values make a 4×4 matrix")
@@ -30,7 +32,10 @@ pub fn mat4_to_py<'py>(py: Python<'py>, m: &Mat4) -> Bound<'py, numpy::PyArray2<
 fn mat4_from(a: &PyReadonlyArrayDyn<'_, f64>, what: &str) -> PyResult<Mat4> {
     let v = a.as_array();
     if v.shape() != [4, 4] {
-        return Err(value_error(format!("{what} must be 4×4, got shape {:?}", v.shape())));
+        return Err(value_error(format!(
+            "{what} must be 4×4, got shape {:?}",
+            v.shape()
+        )));
     }
     Ok(Mat4::from_fn(|i, j| v[[i, j]]))
 }
@@ -39,7 +44,10 @@ fn mat4_from(a: &PyReadonlyArrayDyn<'_, f64>, what: &str) -> PyResult<Mat4> {
 fn states_from(a: &ArrayViewD<'_, f64>, what: &str) -> PyResult<(Vec<State>, bool)> {
     match a.shape() {
         [4] => Ok((vec![State::from_fn(|i, _| a[[i]])], true)),
-        [n, 4] => Ok(((0..*n).map(|k| State::from_fn(|i, _| a[[k, i]])).collect(), false)),
+        [n, 4] => Ok((
+            (0..*n).map(|k| State::from_fn(|i, _| a[[k, i]])).collect(),
+            false,
+        )),
         s => Err(value_error(format!(
             "{what} must have shape (4,) or (n, 4) [x, y, vx, vy], got {s:?}"
         ))),
@@ -53,7 +61,10 @@ fn weights_for(n: usize, weights: Option<PyReadonlyArray1<'_, f64>>) -> PyResult
         Some(w) => {
             let w = w.as_array().to_vec();
             if w.len() != n {
-                return Err(value_error(format!("{n} particles but {} weights", w.len())));
+                return Err(value_error(format!(
+                    "{n} particles but {} weights",
+                    w.len()
+                )));
             }
             if w.iter().any(|x| !x.is_finite() || *x < 0.0) {
                 return Err(value_error("weights must be finite and non-negative"));
@@ -64,12 +75,20 @@ fn weights_for(n: usize, weights: Option<PyReadonlyArray1<'_, f64>>) -> PyResult
 }
 
 /// Matrices as a (4, 4) array, or an (n, 4, 4) one.
-fn mats_to_py<'py>(py: Python<'py>, ms: &[Mat4], one: bool) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+fn mats_to_py<'py>(
+    py: Python<'py>,
+    ms: &[Mat4],
+    one: bool,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     let flat: Vec<f64> = ms
         .iter()
         .flat_map(|m| (0..4).flat_map(move |i| (0..4).map(move |j| m[(i, j)])))
         .collect();
-    let shape: Vec<usize> = if one { vec![4, 4] } else { vec![ms.len(), 4, 4] };
+    let shape: Vec<usize> = if one {
+        vec![4, 4]
+    } else {
+        vec![ms.len(), 4, 4]
+    };
     PyArray1::from_vec(py, flat).reshape(shape)
 }
 
@@ -118,9 +137,17 @@ impl PyQuantizer {
     }
 
     /// The cell index of each value.
-    fn encode<'py>(&self, py: Python<'py>, z: PyReadonlyArrayDyn<'py, f64>) -> Bound<'py, PyArrayDyn<u32>> {
+    fn encode<'py>(
+        &self,
+        py: Python<'py>,
+        z: PyReadonlyArrayDyn<'py, f64>,
+    ) -> Bound<'py, PyArrayDyn<u32>> {
         let shape = z.as_array().shape().to_vec();
-        let cells: Vec<u32> = z.as_array().iter().map(|v| self.quantizer.encode(*v)).collect();
+        let cells: Vec<u32> = z
+            .as_array()
+            .iter()
+            .map(|v| self.quantizer.encode(*v))
+            .collect();
         PyArray1::from_vec(py, cells)
             .reshape(shape)
             .expect("as many cells as values")
@@ -137,19 +164,29 @@ impl PyQuantizer {
         sigma: f64,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         if !(sigma.is_finite() && sigma > 0.0) {
-            return Err(value_error(format!("sigma must be finite and > 0, got {sigma}")));
+            return Err(value_error(format!(
+                "sigma must be finite and > 0, got {sigma}"
+            )));
         }
         let shape = mean.as_array().shape().to_vec();
         let values: Vec<f64> = mean
             .as_array()
             .iter()
-            .map(|m| self.quantizer.fisher_scalars_all_cells(*m, sigma * sigma).gg)
+            .map(|m| {
+                self.quantizer
+                    .fisher_scalars_all_cells(*m, sigma * sigma)
+                    .gg
+            })
             .collect();
         PyArray1::from_vec(py, values).reshape(shape)
     }
 
     fn __repr__(&self) -> String {
-        format!("Quantizer(bits={}, cells={})", self.quantizer.bits(), self.quantizer.cells())
+        format!(
+            "Quantizer(bits={}, cells={})",
+            self.quantizer.bits(),
+            self.quantizer.cells()
+        )
     }
 }
 
@@ -194,9 +231,15 @@ impl PySensor {
             .try_into()
             .map_err(|e: toml::de::Error| value_error(format!("law: {}", e.message())))?;
         law.validate().map_err(|e| {
-            value_error(format!("law: `{}` must be {}, got {}", e.parameter, e.expected, e.value))
+            value_error(format!(
+                "law: `{}` must be {}, got {}",
+                e.parameter, e.expected, e.value
+            ))
         })?;
-        Ok(Self::new(law.at([position.0, position.1]), quantizer.map(|q| q.quantizer.clone())))
+        Ok(Self::new(
+            law.at([position.0, position.1]),
+            quantizer.map(|q| q.quantizer.clone()),
+        ))
     }
 
     #[getter]
@@ -212,7 +255,9 @@ impl PySensor {
 
     #[getter]
     fn quantizer(&self) -> Option<PyQuantizer> {
-        self.quantizer.clone().map(|quantizer| PyQuantizer { quantizer })
+        self.quantizer
+            .clone()
+            .map(|quantizer| PyQuantizer { quantizer })
     }
 
     /// The expected Fisher information of one observation about the state
@@ -243,12 +288,20 @@ impl PySensor {
         states: PyReadonlyArrayDyn<'py, f64>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let (states, one) = states_from(&states.as_array(), "states")?;
-        let (g, r): (Vec<f64>, Vec<f64>) =
-            states.iter().map(|x| self.model.mean_and_variance(x)).unzip();
+        let (g, r): (Vec<f64>, Vec<f64>) = states
+            .iter()
+            .map(|x| self.model.mean_and_variance(x))
+            .unzip();
         if one {
-            Ok((g[0].into_pyobject(py)?.into_any(), r[0].into_pyobject(py)?.into_any()))
+            Ok((
+                g[0].into_pyobject(py)?.into_any(),
+                r[0].into_pyobject(py)?.into_any(),
+            ))
         } else {
-            Ok((PyArray1::from_vec(py, g).into_any(), PyArray1::from_vec(py, r).into_any()))
+            Ok((
+                PyArray1::from_vec(py, g).into_any(),
+                PyArray1::from_vec(py, r).into_any(),
+            ))
         }
     }
 
@@ -258,7 +311,9 @@ impl PySensor {
             self.model.law,
             self.model.sensor[0],
             self.model.sensor[1],
-            self.quantizer.as_ref().map_or("None".to_string(), |q| format!("{} bits", q.bits()))
+            self.quantizer
+                .as_ref()
+                .map_or("None".to_string(), |q| format!("{} bits", q.bits()))
         )
     }
 }
@@ -300,7 +355,12 @@ impl PyDynamics {
             sigma_v,
             process_noise,
         })
-        .map_err(|e| value_error(format!("`{}` must be {}, got {}", e.parameter, e.expected, e.value)))?;
+        .map_err(|e| {
+            value_error(format!(
+                "`{}` must be {}, got {}",
+                e.parameter, e.expected, e.value
+            ))
+        })?;
         Ok(Self { dynamics })
     }
 
@@ -326,7 +386,13 @@ impl PyDynamics {
         let (states, _) = states_from(&states.as_array(), "states")?;
         let flat: Vec<f64> = states
             .iter()
-            .flat_map(|x| self.dynamics.transition(x).iter().copied().collect::<Vec<_>>())
+            .flat_map(|x| {
+                self.dynamics
+                    .transition(x)
+                    .iter()
+                    .copied()
+                    .collect::<Vec<_>>()
+            })
             .collect();
         PyArray1::from_vec(py, flat).reshape(shape)
     }
@@ -383,7 +449,10 @@ fn dynamics_terms<'py>(
     dynamics: &PyDynamics,
     particles: PyReadonlyArrayDyn<'py, f64>,
     weights: Option<PyReadonlyArray1<'py, f64>>,
-) -> PyResult<(Bound<'py, numpy::PyArray2<f64>>, Bound<'py, numpy::PyArray2<f64>>)> {
+) -> PyResult<(
+    Bound<'py, numpy::PyArray2<f64>>,
+    Bound<'py, numpy::PyArray2<f64>>,
+)> {
     let (particles, _) = states_from(&particles.as_array(), "particles")?;
     let weights = weights_for(particles.len(), weights)?;
     let t = terms_over(&dynamics.dynamics, &particles, &weights).map_err(value_error)?;
@@ -406,23 +475,35 @@ fn conditional_bound_step<'py>(
     observation_information: PyReadonlyArrayDyn<'py, f64>,
     weights: Option<PyReadonlyArray1<'py, f64>>,
     late: Option<PyReadonlyArrayDyn<'py, f64>>,
-) -> PyResult<(Bound<'py, numpy::PyArray2<f64>>, Bound<'py, numpy::PyArray2<f64>>)> {
+) -> PyResult<(
+    Bound<'py, numpy::PyArray2<f64>>,
+    Bound<'py, numpy::PyArray2<f64>>,
+)> {
     let l = mat4_from(&information, "information")?;
     let obs = mat4_from(&observation_information, "observation_information")?;
-    let late = late.map(|m| mat4_from(&m, "late")).transpose()?.unwrap_or_else(Mat4::zeros);
+    let late = late
+        .map(|m| mat4_from(&m, "late"))
+        .transpose()?
+        .unwrap_or_else(Mat4::zeros);
     let (particles, _) = states_from(&particles.as_array(), "particles")?;
     let weights = weights_for(particles.len(), weights)?;
     let d = &dynamics.dynamics;
     let terms = terms_over(d, &particles, &weights).map_err(value_error)?;
     let step = information_update(&(l + late), &terms, d.q_inv(), &obs).map_err(value_error)?;
-    Ok((mat4_to_py(py, &step.predicted), mat4_to_py(py, &step.updated)))
+    Ok((
+        mat4_to_py(py, &step.predicted),
+        mat4_to_py(py, &step.updated),
+    ))
 }
 
 /// The position bound in metres, sqrt(tr[L⁻¹]_pos): directly comparable
 /// with an RMSE. None if L is not positive definite.
 #[pyfunction]
 fn position_bound(information: PyReadonlyArrayDyn<'_, f64>) -> PyResult<Option<f64>> {
-    Ok(bounds::position_bound(&mat4_from(&information, "information")?))
+    Ok(bounds::position_bound(&mat4_from(
+        &information,
+        "information",
+    )?))
 }
 
 /// The selection cost of adding `candidate` to the chosen sensors:
@@ -463,7 +544,12 @@ fn greedy_selection(
             })
         })
         .collect::<PyResult<Vec<_>>>()?;
-    Ok(greedy(&mat4_from(&predicted, "predicted")?, &candidates, per_node_cap, n_max))
+    Ok(greedy(
+        &mat4_from(&predicted, "predicted")?,
+        &candidates,
+        per_node_cap,
+        n_max,
+    ))
 }
 
 /// The Fisher information of one quantized observation of a scalar

@@ -13,9 +13,9 @@ pub fn to_toml(value: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
         return Ok(toml::Value::Boolean(value.extract()?));
     }
     if value.is_instance_of::<PyInt>() {
-        let i: i64 = value.extract().map_err(|_| {
-            PyTypeError::new_err(format!("{value} does not fit a 64-bit integer"))
-        })?;
+        let i: i64 = value
+            .extract()
+            .map_err(|_| PyTypeError::new_err(format!("{value} does not fit a 64-bit integer")))?;
         return Ok(toml::Value::Integer(i));
     }
     if value.is_instance_of::<PyFloat>() {
@@ -42,7 +42,10 @@ pub fn to_toml(value: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
         return Ok(toml::Value::Table(table));
     }
     // NumPy scalars and other numbers: as a float if they say they are one.
-    if let Ok(x) = value.call_method0("__float__").and_then(|f| f.extract::<f64>()) {
+    if let Ok(x) = value
+        .call_method0("__float__")
+        .and_then(|f| f.extract::<f64>())
+    {
         return Ok(toml::Value::Float(x));
     }
     Err(PyTypeError::new_err(format!(

@@ -73,7 +73,9 @@ fn start_experiment(
     trajectories: usize,
 ) -> PyResult<Job> {
     if runs == 0 {
-        return Err(pyo3::exceptions::PyValueError::new_err("runs must be at least 1"));
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "runs must be at least 1",
+        ));
     }
     let entry = experiment::find_entry(name).map_err(|e| to_py_err(&e))?;
     let threads = threads
@@ -94,7 +96,11 @@ fn start_experiment(
 }
 
 /// Runs the experiment, telling `shared` how far it has come; its outcome as JSON text.
-fn run_entry(entry: Entry, options: &experiment::Options, shared: &Shared) -> anyhow::Result<String> {
+fn run_entry(
+    entry: Entry,
+    options: &experiment::Options,
+    shared: &Shared,
+) -> anyhow::Result<String> {
     let runs = options.runs;
     match entry {
         Entry::Network(e) => {

@@ -76,17 +76,16 @@ impl Job {
         let thread = std::thread::Builder::new()
             .name(name.into())
             .spawn(move || {
-                let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    work(&theirs)
-                }))
-                .unwrap_or_else(|panic| {
-                    let what = panic
-                        .downcast_ref::<String>()
-                        .cloned()
-                        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                        .unwrap_or_default();
-                    Err(anyhow::anyhow!("cqnet panicked: {what}"))
-                });
+                let outcome =
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| work(&theirs)))
+                        .unwrap_or_else(|panic| {
+                            let what = panic
+                                .downcast_ref::<String>()
+                                .cloned()
+                                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                                .unwrap_or_default();
+                            Err(anyhow::anyhow!("cqnet panicked: {what}"))
+                        });
                 theirs.finish(outcome);
             })
             .map_err(|e| PyRuntimeError::new_err(format!("could not start a thread: {e}")))?;
@@ -161,7 +160,9 @@ fn start_sim(
     centralized: Option<bool>,
 ) -> PyResult<Job> {
     if runs == 0 {
-        return Err(pyo3::exceptions::PyValueError::new_err("runs must be at least 1"));
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "runs must be at least 1",
+        ));
     }
     let topology = scenario.topology()?;
     let s = scenario.scenario.clone();
@@ -241,16 +242,15 @@ fn start_run(
         };
         let steps = s.steps as u64;
         let reporter = shared.clone();
-        let summary =
-            runtime::network::run_network(&s, &topology, options, move |p| match p {
-                RunProgress::Starting { ready, of } => {
-                    reporter.set(ready as u64, of as u64, "processes ready", String::new())
-                }
-                RunProgress::Running => reporter.set(0, steps, "steps", String::new()),
-                RunProgress::Step { step, rows } => {
-                    reporter.set(step as u64, steps, "steps", step_message(rows))
-                }
-            })?;
+        let summary = runtime::network::run_network(&s, &topology, options, move |p| match p {
+            RunProgress::Starting { ready, of } => {
+                reporter.set(ready as u64, of as u64, "processes ready", String::new())
+            }
+            RunProgress::Running => reporter.set(0, steps, "steps", String::new()),
+            RunProgress::Step { step, rows } => {
+                reporter.set(step as u64, steps, "steps", step_message(rows))
+            }
+        })?;
         Ok(serde_json::to_string(&summary)?)
     })
 }

@@ -33,8 +33,8 @@ fn kind_of(column: &str) -> Option<Kind> {
     })
 }
 
-/// Reads a CSV file of cqnet's (no quoting: its text fields hold no
-/// commas) into a dict of column name to array or list, in file order.
+/// Reads a CSV file of cqnet's into a dict of column name to array or
+/// list, in file order.
 #[pyfunction]
 fn read_columns<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Bound<'py, PyDict>> {
     let text = std::fs::read_to_string(&path)
@@ -59,21 +59,20 @@ enum Column {
 
 fn parse(text: &str, path: &Path) -> PyResult<Vec<(String, Column)>> {
     let mut lines = text.lines();
-    let header: Vec<&str> = lines
+    let first = lines
         .next()
-        .ok_or_else(|| CqnetError::new_err(format!("{}: empty file", path.display())))?
-        .split(',')
-        .collect();
-    let rows: Vec<Vec<&str>> = lines
-        .filter(|l| !l.is_empty())
-        .map(|l| l.split(',').collect())
-        .collect();
+        .ok_or_else(|| CqnetError::new_err(format!("{}: empty file", path.display())))?;
+    let header = fields(first);
+    let rows: Vec<Vec<String>> = lines.filter(|l| !l.is_empty()).map(fields).collect();
     let bad = |row: usize, what: String| {
         CqnetError::new_err(format!("{}: line {}: {what}", path.display(), row + 2))
     };
     for (i, r) in rows.iter().enumerate() {
         if r.len() != header.len() {
-            return Err(bad(i, format!("{} fields, the header has {}", r.len(), header.len())));
+            return Err(bad(
+                i,
+                format!("{} fields, the header has {}", r.len(), header.len()),
+            ));
         }
     }
     header
@@ -81,17 +80,25 @@ fn parse(text: &str, path: &Path) -> PyResult<Vec<(String, Column)>> {
         .enumerate()
         .map(|(c, name)| {
             let kind = kind_of(name).unwrap_or_else(|| {
-                let numeric = rows.iter().all(|r| r[c].is_empty() || r[c].parse::<f64>().is_ok());
-                if numeric { Kind::Float } else { Kind::Text }
+                let numeric = rows
+                    .iter()
+                    .all(|r| r[c].is_empty() || r[c].parse::<f64>().is_ok());
+                if numeric {
+                    Kind::Float
+                } else {
+                    Kind::Text
+                }
             });
             let column = match kind {
-                Kind::Text => Column::Text(rows.iter().map(|r| r[c].to_string()).collect()),
+                Kind::Text => Column::Text(rows.iter().map(|r| r[c].clone()).collect()),
                 Kind::Float => Column::Float(
                     rows.iter()
                         .enumerate()
-                        .map(|(i, r)| match r[c] {
+                        .map(|(i, r)| match r[c].as_str() {
                             "" => Ok(f64::NAN),
-                            v => v.parse().map_err(|_| bad(i, format!("`{name}` = {v:?} is not a number"))),
+                            v => v
+                                .parse()
+                                .map_err(|_| bad(i, format!("`{name}` = {v:?} is not a number"))),
                         })
                         .collect::<PyResult<_>>()?,
                 ),
@@ -109,6 +116,29 @@ fn parse(text: &str, path: &Path) -> PyResult<Vec<(String, Column)>> {
             Ok((name.to_string(), column))
         })
         .collect()
+}
+
+/// A line's fields: split at commas outside double quotes, a quoted
+/// field's `""` read as one quote (what the experiments' column names
+/// need; ticks and links have no quotes).
+fn fields(line: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut field = String::new();
+    let mut quoted = false;
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                field.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => out.push(std::mem::take(&mut field)),
+            (c, _) => field.push(c),
+        }
+    }
+    out.push(field);
+    out
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

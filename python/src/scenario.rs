@@ -18,8 +18,16 @@ use crate::scenario_error;
 /// The scenarios cqnet carries, by the names `Scenario.builtin` takes.
 const BUILTIN: [(&str, &str, &str); 3] = [
     ("default", "<built-in default>", DEFAULT_SCENARIO),
-    ("seed001", "<built-in sensor-selection>", SENSOR_SELECTION_SCENARIO),
-    ("seed004", "<built-in random-exchange>", RANDOM_EXCHANGE_SCENARIO),
+    (
+        "seed001",
+        "<built-in sensor-selection>",
+        SENSOR_SELECTION_SCENARIO,
+    ),
+    (
+        "seed004",
+        "<built-in random-exchange>",
+        RANDOM_EXCHANGE_SCENARIO,
+    ),
 ];
 
 /// Other names of the built-in scenarios: the file each comes from.
