@@ -101,6 +101,38 @@ pub struct PyQuantizer {
     pub quantizer: Quantizer,
 }
 
+impl PyQuantizer {
+    /// The indices as cells, each checked to be one of this quantizer's.
+    fn cell_indices(&self, index: &PyReadonlyArrayDyn<'_, u32>) -> PyResult<Vec<u32>> {
+        let cells: Vec<u32> = index.as_array().iter().copied().collect();
+        match cells.iter().find(|i| **i as usize >= self.quantizer.cells()) {
+            Some(bad) => Err(value_error(format!(
+                "cell {bad} of a quantizer of {} cells",
+                self.quantizer.cells()
+            ))),
+            None => Ok(cells),
+        }
+    }
+}
+
+/// The shape that arrays of these shapes broadcast to, as NumPy's rule says.
+fn broadcast_shape(shapes: &[&[usize]]) -> PyResult<Vec<usize>> {
+    let n = shapes.iter().map(|s| s.len()).max().unwrap_or(0);
+    (0..n)
+        .map(|k| {
+            let dims = shapes
+                .iter()
+                .map(|s| if k + s.len() >= n { s[k + s.len() - n] } else { 1 });
+            dims.clone().try_fold(1usize, |acc, d| match (acc, d) {
+                (a, 1) => Ok(a),
+                (1, d) => Ok(d),
+                (a, d) if a == d => Ok(a),
+                _ => Err(value_error(format!("shapes {shapes:?} do not broadcast"))),
+            })
+        })
+        .collect()
+}
+
 #[pymethods]
 impl PyQuantizer {
     #[staticmethod]
@@ -151,6 +183,50 @@ impl PyQuantizer {
         PyArray1::from_vec(py, cells)
             .reshape(shape)
             .expect("as many cells as values")
+    }
+
+    /// A value inside each cell: its midpoint, or the finite edge of an
+    /// unbounded outer cell.
+    fn representative<'py>(
+        &self,
+        py: Python<'py>,
+        index: PyReadonlyArrayDyn<'py, u32>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let cells = self.cell_indices(&index)?;
+        let values: Vec<f64> = cells.iter().map(|i| self.quantizer.representative(*i)).collect();
+        PyArray1::from_vec(py, values).reshape(index.as_array().shape().to_vec())
+    }
+
+    /// ln h_i = ln P(Y = i) for Z ~ N(mean, variance), elementwise over
+    /// arrays that broadcast as NumPy's do: the log-likelihood of a
+    /// quantized observation the particle filters weigh with (a wrapped
+    /// quantizer sums the cell's copies a period apart). Finite far into
+    /// the tails.
+    fn ln_probability<'py>(
+        &self,
+        py: Python<'py>,
+        index: PyReadonlyArrayDyn<'py, u32>,
+        mean: PyReadonlyArrayDyn<'py, f64>,
+        variance: PyReadonlyArrayDyn<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        self.cell_indices(&index)?;
+        let (i, m, v) = (index.as_array(), mean.as_array(), variance.as_array());
+        let shape = broadcast_shape(&[i.shape(), m.shape(), v.shape()])?;
+        let (i, m, v) = (
+            i.broadcast(shape.clone()).expect("checked"),
+            m.broadcast(shape.clone()).expect("checked"),
+            v.broadcast(shape.clone()).expect("checked"),
+        );
+        if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+            return Err(value_error("variance must be finite and > 0"));
+        }
+        let values: Vec<f64> = i
+            .iter()
+            .zip(m.iter())
+            .zip(v.iter())
+            .map(|((i, m), v)| self.quantizer.ln_probability(*i, *m, *v))
+            .collect();
+        PyArray1::from_vec(py, values).reshape(shape)
     }
 
     /// The Fisher information of one quantized observation of a scalar
