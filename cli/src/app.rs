@@ -57,6 +57,7 @@ fn init_logging(actor: Option<&str>, quiet: bool) {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_target(false)
+        // A program that carries cqnet as a library may have set its own.
         .try_init()
         .ok();
     if let Some(name) = actor {

@@ -1,5 +1,5 @@
-"""The ``cqnet`` command as the package installs it, and the entry point
-of each actor process a ``cqnet.run`` starts."""
+"""The ``cqnet`` command as the package installs it (``python -m cqnet``
+too). The actors of a run start through ``_api._actor_command``."""
 
 import signal
 import sys
@@ -7,12 +7,13 @@ import sys
 
 def main() -> int:
     """``cqnet …`` on the command line: the same program as the Rust binary."""
+    from ._api import _actor_command
     from ._cqnet import cli_main
 
     # Ctrl-C is the program's to handle, as in the binary: a `run` stops
-    # its network and reaps it, and an actor dies of it.
+    # its network and reaps it.
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-    return cli_main(["cqnet", *sys.argv[1:]])
+    return cli_main(["cqnet", *sys.argv[1:]], _actor_command())
 
 
 if __name__ == "__main__":

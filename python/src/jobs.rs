@@ -49,6 +49,11 @@ impl Shared {
         };
     }
 
+    /// Experiments report runs done of runs in all.
+    pub(crate) fn set_runs(&self, done: u64, total: u64, message: String) {
+        self.set(done, total, "runs", message);
+    }
+
     fn finish(&self, outcome: anyhow::Result<String>) {
         *self.outcome.lock().expect("outcome lock") = Some(outcome);
         self.finished.notify_all();
@@ -260,13 +265,6 @@ pub(crate) fn start_experiment_job(
     work: impl FnOnce(&Arc<Shared>) -> anyhow::Result<String> + Send + 'static,
 ) -> PyResult<Job> {
     Job::start("cqnet-experiment", out, work)
-}
-
-impl Shared {
-    /// Experiments report runs done of runs in all.
-    pub(crate) fn set_runs(&self, done: u64, total: u64, message: String) {
-        self.set(done, total, "runs", message);
-    }
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -75,8 +75,23 @@ fn leftover_shared_memory(run_id: &str) -> PyResult<Vec<std::path::PathBuf>> {
 /// Runs the `cqnet` command with these arguments (the first is the
 /// program's name) and returns its exit status: the package's `cqnet`
 /// command, and how each actor of a `run` started from Python runs.
+/// `actor_program` (the program and the arguments before `actor …`) is how
+/// a `cqnet run` from here starts its actors, this process's executable
+/// being Python's, not cqnet's.
 #[pyfunction]
-fn cli_main(py: Python<'_>, args: Vec<String>) -> i32 {
+#[pyo3(signature = (args, actor_program = None))]
+fn cli_main(
+    py: Python<'_>,
+    args: Vec<String>,
+    actor_program: Option<(std::path::PathBuf, Vec<String>)>,
+) -> i32 {
+    if let Some((program, leading)) = actor_program {
+        runtime::supervisor::ActorProgram {
+            program,
+            leading_args: leading.into_iter().map(Into::into).collect(),
+        }
+        .set_for_this_process();
+    }
     let code = py.detach(|| cqnet::app::main_with(args));
     if code == std::process::ExitCode::SUCCESS {
         0

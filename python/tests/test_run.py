@@ -104,3 +104,21 @@ def test_ctrl_c_during_a_run_leaves_no_process_and_no_shared_memory(tmp_out, run
     assert cqnet._cqnet.leftover_shared_memory(run_id) == []
     # What ran before the interrupt is written.
     assert len((tmp_out / "ticks.csv").read_text().splitlines()) > 4
+
+
+def test_the_packages_cqnet_command_runs_a_network(tmp_out, run_id):
+    """`cqnet run` from the command pip installs: its actors are Python's
+    processes too, and its lockstep run is sim's."""
+    command = os.path.join(os.path.dirname(sys.executable), "cqnet")
+    s = small_scenario(steps=6)
+    path = tmp_out / "s.toml"
+    path.write_text(s.to_toml())
+    done = subprocess.run(
+        [command, "run", str(path), "--lockstep", "--out", str(tmp_out / "run"), "--run-id", run_id],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    sim = cqnet.sim(s, out=tmp_out / "sim")
+    assert sorted_rows(tmp_out / "run" / "ticks.csv") == sorted_rows(sim.out / "ticks.csv")
+    assert processes_of(run_id) == []

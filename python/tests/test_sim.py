@@ -81,3 +81,31 @@ def test_ctrl_c_stops_a_sim_between_steps(tmp_out):
         timer.cancel()
     written = (tmp_out / "ticks.csv").read_text().splitlines()
     assert 1 < len(written) < 1_000_000 * 3
+
+
+def test_the_gil_is_free_while_a_sim_works(tmp_out):
+    """Another Python thread runs while the sim does: the sim holds the
+    GIL only between its waits. Held for the whole call, the counter
+    would stand still after the interpreter's first switch interval."""
+    import time
+
+    box = [0]
+    stop = threading.Event()
+
+    def count():
+        while not stop.is_set():
+            box[0] += 1
+
+    other = threading.Thread(target=count)
+    other.start()
+    try:
+        before, started = box[0], time.monotonic()
+        cqnet.sim(small_scenario(steps=300), out=tmp_out, progress=False)
+        counted, elapsed = box[0] - before, time.monotonic() - started
+    finally:
+        stop.set()
+        other.join()
+    assert elapsed > 0.05
+    # About 4·10⁶ a second here while the sim works; a C call holding the
+    # GIL lets it reach 10⁵.
+    assert counted / elapsed > 500_000, (counted, elapsed)

@@ -80,14 +80,30 @@ pub struct ActorProgram {
     pub leading_args: Vec<std::ffi::OsString>,
 }
 
+/// What [`ActorProgram::this_executable`] gives in a process whose
+/// executable is not cqnet (a Python interpreter running the package's
+/// `cqnet` command).
+static HOST_PROGRAM: std::sync::OnceLock<ActorProgram> = std::sync::OnceLock::new();
+
 impl ActorProgram {
-    /// The running executable, which is `cqnet` itself.
+    /// How this process starts an actor: the running executable, which is
+    /// `cqnet` itself, unless a host program said otherwise
+    /// ([`ActorProgram::set_for_this_process`]).
     pub fn this_executable() -> anyhow::Result<Self> {
         use anyhow::Context;
+        if let Some(p) = HOST_PROGRAM.get() {
+            return Ok(p.clone());
+        }
         Ok(Self {
             program: std::env::current_exe().context("finding the cqnet executable")?,
             leading_args: Vec::new(),
         })
+    }
+
+    /// A program that carries cqnet as a library says, once, how its
+    /// actors start; false if it had already said.
+    pub fn set_for_this_process(self) -> bool {
+        HOST_PROGRAM.set(self).is_ok()
     }
 }
 
