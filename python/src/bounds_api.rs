@@ -13,6 +13,12 @@ use pyo3::prelude::*;
 
 use crate::convert::{to_python, to_toml};
 
+/// Two 4×4 matrices, as (B11, B12) or (L(k+1|k), L(k+1)).
+type MatrixPair<'py> = (
+    Bound<'py, numpy::PyArray2<f64>>,
+    Bound<'py, numpy::PyArray2<f64>>,
+);
+
 fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
@@ -105,7 +111,10 @@ impl PyQuantizer {
     /// The indices as cells, each checked to be one of this quantizer's.
     fn cell_indices(&self, index: &PyReadonlyArrayDyn<'_, u32>) -> PyResult<Vec<u32>> {
         let cells: Vec<u32> = index.as_array().iter().copied().collect();
-        match cells.iter().find(|i| **i as usize >= self.quantizer.cells()) {
+        match cells
+            .iter()
+            .find(|i| **i as usize >= self.quantizer.cells())
+        {
             Some(bad) => Err(value_error(format!(
                 "cell {bad} of a quantizer of {} cells",
                 self.quantizer.cells()
@@ -120,9 +129,13 @@ fn broadcast_shape(shapes: &[&[usize]]) -> PyResult<Vec<usize>> {
     let n = shapes.iter().map(|s| s.len()).max().unwrap_or(0);
     (0..n)
         .map(|k| {
-            let dims = shapes
-                .iter()
-                .map(|s| if k + s.len() >= n { s[k + s.len() - n] } else { 1 });
+            let dims = shapes.iter().map(|s| {
+                if k + s.len() >= n {
+                    s[k + s.len() - n]
+                } else {
+                    1
+                }
+            });
             dims.clone().try_fold(1usize, |acc, d| match (acc, d) {
                 (a, 1) => Ok(a),
                 (1, d) => Ok(d),
@@ -193,7 +206,10 @@ impl PyQuantizer {
         index: PyReadonlyArrayDyn<'py, u32>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let cells = self.cell_indices(&index)?;
-        let values: Vec<f64> = cells.iter().map(|i| self.quantizer.representative(*i)).collect();
+        let values: Vec<f64> = cells
+            .iter()
+            .map(|i| self.quantizer.representative(*i))
+            .collect();
         PyArray1::from_vec(py, values).reshape(index.as_array().shape().to_vec())
     }
 
@@ -525,10 +541,7 @@ fn dynamics_terms<'py>(
     dynamics: &PyDynamics,
     particles: PyReadonlyArrayDyn<'py, f64>,
     weights: Option<PyReadonlyArray1<'py, f64>>,
-) -> PyResult<(
-    Bound<'py, numpy::PyArray2<f64>>,
-    Bound<'py, numpy::PyArray2<f64>>,
-)> {
+) -> PyResult<MatrixPair<'py>> {
     let (particles, _) = states_from(&particles.as_array(), "particles")?;
     let weights = weights_for(particles.len(), weights)?;
     let t = terms_over(&dynamics.dynamics, &particles, &weights).map_err(value_error)?;
@@ -551,10 +564,7 @@ fn conditional_bound_step<'py>(
     observation_information: PyReadonlyArrayDyn<'py, f64>,
     weights: Option<PyReadonlyArray1<'py, f64>>,
     late: Option<PyReadonlyArrayDyn<'py, f64>>,
-) -> PyResult<(
-    Bound<'py, numpy::PyArray2<f64>>,
-    Bound<'py, numpy::PyArray2<f64>>,
-)> {
+) -> PyResult<MatrixPair<'py>> {
     let l = mat4_from(&information, "information")?;
     let obs = mat4_from(&observation_information, "observation_information")?;
     let late = late
