@@ -176,8 +176,10 @@ def truth_and_sensors(run):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=60)
+    parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--steps", type=int, default=100)
+    # With 1,000 the cloud can collapse onto a few points, whose covariance
+    # Stone Soup's MCMC regulariser cannot take (a LinAlgError).
     parser.add_argument("--particles", type=int, default=5000)
     parser.add_argument("--out", default="stonesoup_compare.png")
     args = parser.parse_args()

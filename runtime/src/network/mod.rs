@@ -10,7 +10,9 @@ mod options;
 mod steps;
 mod world_state;
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
@@ -188,17 +190,16 @@ pub fn run_network(
 /// Turns a caller's stop flag into the interrupt Ctrl-C would give, for
 /// as long as the run lasts.
 struct StopWatch {
-    finished: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    finished: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl StopWatch {
     fn start(
-        stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+        stop: Arc<AtomicBool>,
         events: std::sync::mpsc::Sender<Event>,
     ) -> anyhow::Result<Self> {
-        use std::sync::atomic::Ordering;
-        let finished = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let finished = Arc::new(AtomicBool::new(false));
         let done = finished.clone();
         let thread = std::thread::Builder::new()
             .name("stop-watch".into())
@@ -221,8 +222,7 @@ impl StopWatch {
 
 impl Drop for StopWatch {
     fn drop(&mut self) {
-        self.finished
-            .store(true, std::sync::atomic::Ordering::Release);
+        self.finished.store(true, Ordering::Release);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
