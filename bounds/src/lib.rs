@@ -17,7 +17,10 @@
 //! - [`bit_allocation`]: quantized data fused with injected noise, and the
 //!   allocation of a budget of bits over sensors (dissertation ch. 5);
 //! - [`speb`]: the bit-depth paper's squared position error bound, information
-//!   against the delay of a rate-limited link.
+//!   against the delay of a rate-limited link;
+//! - [`location`]: a static target's position from quantized amplitudes,
+//!   its exact and closed-form CRLB and the thresholds that serve them
+//!   (dissertation ch. 6).
 
 pub mod batch;
 pub mod bit_allocation;
@@ -28,6 +31,7 @@ pub mod diffusion;
 pub mod dynamics;
 pub mod fisher;
 pub mod fisher_table;
+pub mod location;
 pub mod mass_table;
 pub mod normal;
 pub mod observation;
