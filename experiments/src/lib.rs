@@ -14,6 +14,7 @@ pub mod diagnostics;
 mod distributed_bound;
 pub mod faults;
 mod figure;
+mod location;
 pub mod paired;
 pub use paired::{Order, Paired, Verdict};
 mod random_exchange_bounds;
@@ -429,6 +430,7 @@ pub fn computed_catalogue() -> Vec<Computed> {
     all.extend(bit_depth::experiments());
     all.extend(random_exchange_bounds::experiments());
     all.extend(random_exchange_trackers::experiments());
+    all.extend(location::experiments());
     all
 }
 
