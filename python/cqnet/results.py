@@ -130,6 +130,7 @@ class Results:
             ax.text(fault["step"], 1.0, fault["fault"], transform=ax.get_xaxis_transform(),
                     fontsize=7, va="top", color="tab:red", clip_on=True)
         ax.set_yscale("log")
+        ax.xaxis.get_major_locator().set_params(integer=True)
         ax.set_xlabel("step")
         ax.set_ylabel("position error, bound (m)")
         ax.set_title("error (solid) and CQ/dPCRLB (dashed) per node")
