@@ -20,7 +20,10 @@
 //!   against the delay of a rate-limited link;
 //! - [`location`]: a static target's position from quantized amplitudes,
 //!   its exact and closed-form CRLB and the thresholds that serve them
-//!   (dissertation ch. 6).
+//!   (dissertation ch. 6);
+//! - [`ungm`]: the offline, conditional and A-conditional PCRLB of a scalar
+//!   state on the univariate non-stationary growth model (dissertation
+//!   ch. 7).
 
 pub mod batch;
 pub mod bit_allocation;
@@ -41,6 +44,7 @@ pub mod selection;
 pub mod shared_rows;
 pub mod speb;
 pub mod table_memory;
+pub mod ungm;
 pub mod width_axis;
 mod ziggurat_tables;
 

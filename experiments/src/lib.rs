@@ -20,6 +20,7 @@ pub use paired::{Order, Paired, Verdict};
 mod random_exchange_bounds;
 mod random_exchange_trackers;
 mod sensor_selection;
+mod ungm;
 
 use std::path::PathBuf;
 
@@ -431,6 +432,7 @@ pub fn computed_catalogue() -> Vec<Computed> {
     all.extend(random_exchange_bounds::experiments());
     all.extend(random_exchange_trackers::experiments());
     all.extend(location::experiments());
+    all.extend(ungm::experiments());
     all
 }
 

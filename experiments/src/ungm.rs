@@ -1,0 +1,371 @@
+//! The dissertation's ch. 7 (Figs. 7.1, 7.2): the conditional bounds on the
+//! univariate non-stationary growth model against the conditional MSE,
+//! in its highly and weakly nonlinear cases.
+//!
+//! Each run tracks one true trajectory with a bootstrap particle filter
+//! (1000 particles, resampled every step). At every step k it computes,
+//! from the filter's particles:
+//!
+//! - the A-CPCRLB (eq. 7.13), cqnet's recursion: `L(k+1) = B22 −
+//!   B21(B11 + L(k))⁻¹B12`, B over the posterior at k and the prediction;
+//! - Zuo et al.'s CPCRLB (eqs. 7.3, 7.9), through the auxiliary FIM
+//!   `L_A(k) = S22 − S21(S11 + L_A(k−1))⁻¹S12`, with S11 and S12 over x(k−1)
+//!   as the posterior at k has it (its particles' ancestors: the smoothed
+//!   form the dissertation takes) and, beside it, over the posterior at
+//!   k−1 (the filtered form cqnet's auxiliary-FIM baseline takes);
+//! - the conditional MSE of x(k+1) given z(1:k): 1000 draws of x(k+1) from
+//!   the prediction and of z(k+1) from it, each weighed by the filter's
+//!   predicted particles, as section 7.5 describes;
+//!
+//! and, once per case, the offline PCRLB over 10⁴ trajectories. The
+//! D-CPCRLB of the chapter's reference [103] is not computed: the chapter
+//! does not define it. The chapter does not give the prior either: here
+//! x(0) ~ N(0, 1).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use bounds::ungm::{offline_pcrlb, step_terms, Ungm};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::paired::{Order, Paired};
+use super::random_exchange_bounds::draw_lines;
+use super::{Check, Claim, Computed, ComputedReport, Options};
+
+pub fn experiments() -> Vec<Computed> {
+    vec![Computed {
+        name: "ungm-bounds",
+        source: "dissertation ch. 7, Figs. 7.1 and 7.2",
+        about: "the A-CPCRLB, the CPCRLB with its auxiliary FIM (smoothed and filtered) and the offline PCRLB against the conditional MSE on the univariate non-stationary growth model, highly and weakly nonlinear",
+        run,
+    }]
+}
+
+const STEPS: u32 = 50;
+const PARTICLES: usize = 1000;
+const DRAWS: usize = 1000;
+const RUNS: usize = 20;
+const TRAJECTORIES: usize = 10_000;
+const PRIOR_VARIANCE: f64 = 1.0;
+const SEED: u64 = 7;
+
+const CASES: [(&str, Ungm); 2] = [
+    ("highly nonlinear", Ungm::HIGHLY_NONLINEAR),
+    ("weakly nonlinear", Ungm::WEAKLY_NONLINEAR),
+];
+
+/// One run's series at steps 1..=STEPS, as variances (the bounds' 1/L).
+#[derive(Default)]
+struct RunSeries {
+    conditional_mse: Vec<f64>,
+    a_cpcrlb: Vec<f64>,
+    cpcrlb_smoothed: Vec<f64>,
+    cpcrlb_filtered: Vec<f64>,
+    squared_error: Vec<f64>,
+}
+
+/// Systematic resampling: the indices of the particles drawn.
+fn resample(weights: &[f64], rng: &mut ChaCha8Rng) -> Vec<usize> {
+    let n = weights.len();
+    let total: f64 = weights.iter().sum();
+    let u0: f64 = rng.random::<f64>() / n as f64;
+    let mut out = Vec::with_capacity(n);
+    let (mut cumulative, mut i) = (weights[0] / total, 0);
+    for m in 0..n {
+        let u = u0 + m as f64 / n as f64;
+        while u > cumulative && i + 1 < n {
+            i += 1;
+            cumulative += weights[i] / total;
+        }
+        out.push(i);
+    }
+    out
+}
+
+/// Normalized weights from log-likelihoods.
+fn normalized(ln: &[f64]) -> Vec<f64> {
+    let top = ln.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let w: Vec<f64> = ln.iter().map(|l| (l - top).exp()).collect();
+    let total: f64 = w.iter().sum();
+    w.iter().map(|x| x / total).collect()
+}
+
+fn one_run(model: &Ungm, rng: &mut ChaCha8Rng) -> RunSeries {
+    let n = PARTICLES;
+    let uniform = vec![1.0 / n as f64; n];
+    let sd0 = PRIOR_VARIANCE.sqrt();
+    let mut truth = sd0 * rng.sample::<f64, _>(rand_distr::StandardNormal);
+    let mut x: Vec<f64> = (0..n)
+        .map(|_| sd0 * rng.sample::<f64, _>(rand_distr::StandardNormal))
+        .collect();
+    let mut w = uniform.clone();
+    // The posterior at k−1, and each particle's ancestor at k−1.
+    let (mut previous, mut previous_w, mut ancestors): (Option<Vec<f64>>, Vec<f64>, Vec<f64>) =
+        (None, uniform.clone(), x.clone());
+    let prior_information = 1.0 / PRIOR_VARIANCE;
+    let (mut l_a, mut aux_smoothed, mut aux_filtered) =
+        (prior_information, prior_information, prior_information);
+    let mut out = RunSeries::default();
+    for k in 0..STEPS {
+        // The auxiliary FIM at k, from the pair (x(k−1), x(k)).
+        if let Some(prev) = &previous {
+            let smoothed = step_terms(model, &ancestors, &w, &x, &w);
+            let filtered = step_terms(model, prev, &previous_w, &x, &w);
+            aux_smoothed = smoothed.advance(aux_smoothed);
+            aux_filtered = filtered.advance(aux_filtered);
+        }
+        // The prediction: resample, then move each particle.
+        let picks = resample(&w, rng);
+        let parents: Vec<f64> = picks.iter().map(|&i| x[i]).collect();
+        let predicted: Vec<f64> = parents
+            .iter()
+            .map(|p| model.propagate(*p, k, rng))
+            .collect();
+        let terms = step_terms(model, &x, &w, &predicted, &uniform);
+        l_a = terms.advance(l_a);
+        out.a_cpcrlb.push(1.0 / l_a);
+        out.cpcrlb_smoothed.push(1.0 / terms.advance(aux_smoothed));
+        out.cpcrlb_filtered.push(1.0 / terms.advance(aux_filtered));
+        // The conditional MSE of x(k+1) given z(1:k).
+        let mut ln = vec![0.0; n];
+        let mse = (0..DRAWS)
+            .map(|_| {
+                let from = parents[rng.random_range(0..n)];
+                let state = model.propagate(from, k, rng);
+                let z = model.measure(state, rng);
+                for (l, p) in ln.iter_mut().zip(&predicted) {
+                    *l = model.ln_likelihood(z, *p);
+                }
+                let weights = normalized(&ln);
+                let estimate: f64 = weights.iter().zip(&predicted).map(|(w, p)| w * p).sum();
+                (state - estimate).powi(2)
+            })
+            .sum::<f64>()
+            / DRAWS as f64;
+        out.conditional_mse.push(mse);
+        // The truth moves and is measured; the filter updates.
+        truth = model.propagate(truth, k, rng);
+        let z = model.measure(truth, rng);
+        let ln: Vec<f64> = predicted
+            .iter()
+            .map(|p| model.ln_likelihood(z, *p))
+            .collect();
+        previous = Some(std::mem::replace(&mut x, predicted));
+        previous_w = std::mem::replace(&mut w, normalized(&ln));
+        ancestors = parents;
+        let estimate: f64 = w.iter().zip(&x).map(|(w, p)| w * p).sum();
+        out.squared_error.push((estimate - truth).powi(2));
+    }
+    out
+}
+
+struct Case {
+    name: &'static str,
+    runs: Vec<RunSeries>,
+    offline: Vec<f64>,
+}
+
+fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+    let cases: Vec<Case> = CASES
+        .iter()
+        .map(|(name, model)| {
+            eprintln!("ungm-bounds: {name}, {RUNS} runs");
+            let offline = offline_pcrlb(model, 0.0, PRIOR_VARIANCE, STEPS, TRAJECTORIES, &mut rng)
+                .iter()
+                .skip(1)
+                .map(|j| 1.0 / j)
+                .collect();
+            Case {
+                name,
+                runs: (0..RUNS).map(|_| one_run(model, &mut rng)).collect(),
+                offline,
+            }
+        })
+        .collect();
+    let weak = dir.join("ungm-bounds-weakly-nonlinear.svg");
+    draw(&weak, &cases[1]).map_err(|e| anyhow::anyhow!("{e}"))?;
+    ComputedReport::write(
+        dir,
+        "ungm-bounds",
+        &csv(&cases),
+        |svg| draw(svg, &cases[0]),
+        check(&cases),
+        table(&cases),
+    )
+}
+
+fn mean_over_runs(case: &Case, of: fn(&RunSeries) -> &Vec<f64>) -> Vec<f64> {
+    (0..STEPS as usize)
+        .map(|k| case.runs.iter().map(|r| of(r)[k]).sum::<f64>() / case.runs.len() as f64)
+        .collect()
+}
+
+/// A run's mean over steps of |ln(a/b)|: how far one curve strays from
+/// another, as a ratio.
+fn log_distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a / b).ln().abs())
+        .sum::<f64>()
+        / a.len() as f64
+}
+
+fn check(cases: &[Case]) -> Check {
+    let mut claims = Vec::new();
+    let mut figures = Vec::new();
+    for case in cases {
+        let per_run = |f: &dyn Fn(&RunSeries) -> f64| -> Vec<Option<f64>> {
+            case.runs.iter().map(|r| Some(f(r))).collect()
+        };
+        let a = per_run(&|r| log_distance(&r.a_cpcrlb, &r.conditional_mse));
+        let off = per_run(&|r| log_distance(&case.offline, &r.conditional_mse));
+        claims.push(Claim::judged(
+            format!("{}: the A-CPCRLB follows the conditional MSE more faithfully than the offline PCRLB (mean |ln(bound/MSE)| over steps)", case.name),
+            Paired::of(&a, &off),
+            |p| p.verdict(Order::Lower),
+            |p| format!("{} over {} runs", p.text(3), p.runs),
+        ));
+        let overlap = per_run(&|r| log_distance(&r.a_cpcrlb, &r.cpcrlb_smoothed));
+        claims.push(Claim::judged(
+            format!("{}: the CPCRLB and the A-CPCRLB almost overlap (within 10 %: mean |ln ratio| < ln 1.1)", case.name),
+            Paired::of_values(&overlap),
+            |p| p.verdict_within(-(1.1f64.ln()), 1.1f64.ln()),
+            |p| format!("{} over {} runs", p.text(4), p.runs),
+        ));
+        let forms = per_run(&|r| log_distance(&r.cpcrlb_filtered, &r.cpcrlb_smoothed));
+        claims.push(Claim::judged(
+            format!("{}: S11, S12 over the filtered posterior at k−1 give the smoothed form's CPCRLB within 5 %", case.name),
+            Paired::of_values(&forms),
+            |p| p.verdict_within(-(1.05f64.ln()), 1.05f64.ln()),
+            |p| format!("{:.2e} ± {:.2e} over {} runs", p.mean, p.half_width, p.runs),
+        ));
+        let mse = mean_over_runs(case, |r| &r.conditional_mse);
+        figures.push(format!(
+            "{}: over steps, conditional MSE {:.3}, A-CPCRLB {:.3}, CPCRLB {:.3} (filtered {:.3}), offline PCRLB {:.3} (means)",
+            case.name,
+            mean(&mse),
+            mean(&mean_over_runs(case, |r| &r.a_cpcrlb)),
+            mean(&mean_over_runs(case, |r| &r.cpcrlb_smoothed)),
+            mean(&mean_over_runs(case, |r| &r.cpcrlb_filtered)),
+            mean(&case.offline)
+        ));
+    }
+    Check::of_claims(claims, figures.join("; "))
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+fn csv(cases: &[Case]) -> String {
+    let mut s = String::from(
+        "case,step,conditional_mse,a_cpcrlb,cpcrlb_smoothed,cpcrlb_filtered,offline_pcrlb,pf_mse\n",
+    );
+    for case in cases {
+        let series = [
+            mean_over_runs(case, |r| &r.conditional_mse),
+            mean_over_runs(case, |r| &r.a_cpcrlb),
+            mean_over_runs(case, |r| &r.cpcrlb_smoothed),
+            mean_over_runs(case, |r| &r.cpcrlb_filtered),
+            case.offline.clone(),
+            mean_over_runs(case, |r| &r.squared_error),
+        ];
+        for k in 0..STEPS as usize {
+            let _ = write!(s, "{},{}", case.name, k + 1);
+            for v in &series {
+                let _ = write!(s, ",{}", v[k]);
+            }
+            s.push('\n');
+        }
+    }
+    s
+}
+
+fn table(cases: &[Case]) -> String {
+    let mut s = String::new();
+    for case in cases {
+        let _ = writeln!(s, "{} (means over {RUNS} runs): step, conditional MSE, A-CPCRLB, CPCRLB smoothed, filtered, offline PCRLB", case.name);
+        let cols = [
+            mean_over_runs(case, |r| &r.conditional_mse),
+            mean_over_runs(case, |r| &r.a_cpcrlb),
+            mean_over_runs(case, |r| &r.cpcrlb_smoothed),
+            mean_over_runs(case, |r| &r.cpcrlb_filtered),
+            case.offline.clone(),
+        ];
+        for k in [0usize, 4, 9, 19, 29, 39, 49] {
+            let _ = writeln!(
+                s,
+                "  {:>3} {:>9.4} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
+                k + 1,
+                cols[0][k],
+                cols[1][k],
+                cols[2][k],
+                cols[3][k],
+                cols[4][k]
+            );
+        }
+    }
+    s
+}
+
+fn draw(path: &Path, case: &Case) -> Result<(), Box<dyn std::error::Error>> {
+    // draw_lines plots from index 1: a leading value stands for step 0.
+    let with_step0 = |v: Vec<f64>| std::iter::once(f64::NAN).chain(v).collect::<Vec<f64>>();
+    let lines = [
+        (
+            "conditional MSE (mean of runs)",
+            with_step0(mean_over_runs(case, |r| &r.conditional_mse)),
+        ),
+        (
+            "A-CPCRLB",
+            with_step0(mean_over_runs(case, |r| &r.a_cpcrlb)),
+        ),
+        (
+            "CPCRLB, smoothed S",
+            with_step0(mean_over_runs(case, |r| &r.cpcrlb_smoothed)),
+        ),
+        (
+            "CPCRLB, filtered S",
+            with_step0(mean_over_runs(case, |r| &r.cpcrlb_filtered)),
+        ),
+        ("offline PCRLB", with_step0(case.offline.clone())),
+    ];
+    let refs: Vec<(String, &[f64])> = lines.iter().map(|(n, v)| (n.to_string(), &v[..])).collect();
+    draw_lines(
+        path,
+        &format!("ungm-bounds: {}, bounds and conditional MSE", case.name),
+        "variance of x(k)",
+        &refs,
+        &[],
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn systematic_resampling_draws_each_particle_in_proportion_to_its_weight() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let weights = [0.5, 0.0, 0.25, 0.125, 0.125];
+        let picks = resample(&[0.5, 0.0, 0.25, 0.125, 0.125].repeat(200), &mut rng);
+        let mut counts = [0usize; 5];
+        for i in picks {
+            counts[i % 5] += 1;
+        }
+        for (c, w) in counts.iter().zip(weights) {
+            // Systematic resampling is within one draw of n·w per particle.
+            assert!((*c as f64 - 1000.0 * w).abs() <= 200.0, "{counts:?}");
+        }
+        assert_eq!(counts[1], 0);
+    }
+
+    #[test]
+    fn normalized_weights_sum_to_one_far_into_the_tails() {
+        let w = normalized(&[-1e6, -1e6 - 1.0, -1e6 - 2.0]);
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(w[0] > w[1] && w[1] > w[2]);
+    }
+}
