@@ -1,7 +1,6 @@
 """`run` as real processes: byte counts equal to the binary's, lockstep
 equal to sim, and Ctrl-C leaving nothing behind."""
 
-import json
 import os
 import signal
 import subprocess
