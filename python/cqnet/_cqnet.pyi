@@ -2,7 +2,7 @@
 
 import os
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +20,7 @@ class ScenarioError(CqnetError):
 _Path = Union[str, "os.PathLike[str]"]
 _Floats = npt.ArrayLike
 
+@final
 class Scenario:
     """A scenario, validated as ``cqnet`` validates a file."""
 
@@ -40,6 +41,8 @@ class Scenario:
     def with_faults(self, faults: Sequence[Dict[str, Any]]) -> "Scenario": ...
     def to_toml(self) -> str: ...
     def copy(self) -> "Scenario": ...
+    def __copy__(self) -> "Scenario": ...
+    def __deepcopy__(self, memo: Any) -> "Scenario": ...
     @property
     def name(self) -> str: ...
     @property
@@ -57,6 +60,7 @@ class Scenario:
     def prior_covariance(self) -> npt.NDArray[np.float64]: ...
     def initial_state(self) -> npt.NDArray[np.float64]: ...
 
+@final
 class Job:
     """A sim, run or experiment going on in the background."""
 
@@ -98,6 +102,7 @@ def cli_main(
     args: List[str], actor_program: Optional[Tuple[_Path, List[str]]] = None
 ) -> int: ...
 
+@final
 class Quantizer:
     @staticmethod
     def uniform(bits: int, lo: float, hi: float) -> "Quantizer": ...
@@ -116,13 +121,14 @@ class Quantizer:
     ) -> npt.NDArray[np.float64]: ...
     def fisher_information(self, mean: _Floats, sigma: float) -> npt.NDArray[np.float64]: ...
 
+@final
 class Sensor:
-    def __init__(
-        self,
+    def __new__(
+        cls,
         law: Dict[str, Any],
-        position: Tuple[float, float] = (0.0, 0.0),
+        position: Tuple[float, float] = ...,  # (0.0, 0.0)
         quantizer: Optional[Quantizer] = None,
-    ) -> None: ...
+    ) -> "Sensor": ...
     @property
     def position(self) -> Tuple[float, float]: ...
     @property
@@ -132,15 +138,16 @@ class Sensor:
     def information(self, states: _Floats) -> npt.NDArray[np.float64]: ...
     def mean_and_variance(self, states: _Floats) -> Tuple[Any, Any]: ...
 
+@final
 class Dynamics:
-    def __init__(
-        self,
+    def __new__(
+        cls,
         period: float,
         sigma_v: float,
         maneuver_accel: float = 0.0,
         min_speed: float = 1.0,
         process_noise: str = "continuous",
-    ) -> None: ...
+    ) -> "Dynamics": ...
     @property
     def q(self) -> npt.NDArray[np.float64]: ...
     @property

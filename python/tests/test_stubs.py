@@ -44,3 +44,22 @@ def test_every_public_function_and_class_has_a_docstring():
         thing = getattr(_cqnet, name)
         if callable(thing):
             assert inspect.getdoc(thing), name
+
+
+def test_mypy_stubtest_finds_the_stub_true_to_the_module():
+    """mypy's stubtest compares every signature, default and class of the
+    stub with the module as built."""
+    import subprocess
+    import sys
+
+    import pytest
+
+    pytest.importorskip("mypy")
+    allowlist = Path(__file__).with_name("stubtest-allowlist.txt")
+    done = subprocess.run(
+        [sys.executable, "-m", "mypy.stubtest", "cqnet._cqnet", "--allowlist", str(allowlist)],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).parent,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
