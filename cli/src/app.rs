@@ -152,7 +152,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 centralized: scenario.reference.centralized && !args.no_central,
                 view: None,
                 local_agents: args.local_agents,
-                actor_program: None,
                 stop: None,
             };
             let view = args
@@ -235,7 +234,6 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         centralized: false,
         view: None,
         local_agents: false,
-        actor_program: None,
         stop: None,
     };
     let result = runtime::network::run_network(&scenario, &topology, options, move |p| {

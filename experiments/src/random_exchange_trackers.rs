@@ -547,7 +547,6 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
         centralized: false,
         view: None,
         local_agents: false,
-        actor_program: None,
         stop: None,
     };
     let summary = runtime::network::run_network(scenario, topology, options, |_| {})?;

@@ -8,12 +8,13 @@ import sys
 def main() -> int:
     """``cqnet …`` on the command line: the same program as the Rust binary."""
     from ._api import _actor_command
-    from ._cqnet import cli_main
+    from ._cqnet import cli_main, set_actor_program
 
     # Ctrl-C is the program's to handle, as in the binary: a `run` stops
     # its network and reaps it.
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-    return cli_main(["cqnet", *sys.argv[1:]], _actor_command())
+    set_actor_program(*_actor_command())
+    return cli_main(["cqnet", *sys.argv[1:]])
 
 
 if __name__ == "__main__":

@@ -121,8 +121,8 @@ def run(
     """
     s = _prepared(scenario, seed, faults)
     folder = _out(out, "run")
-    program, leading = _actor_command()
-    job = _cqnet.start_run(s, str(folder), program, leading, lockstep, centralized, run_id)
+    _cqnet.set_actor_program(*_actor_command())
+    job = _cqnet.start_run(s, str(folder), lockstep, centralized, run_id)
     summary = json.loads(follow(job, progress, "run"))
     return Results(folder, summary)
 

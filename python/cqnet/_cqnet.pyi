@@ -81,8 +81,6 @@ def start_sim(
 def start_run(
     scenario: Scenario,
     out: _Path,
-    program: _Path,
-    leading_args: List[str],
     lockstep: bool = False,
     centralized: Optional[bool] = None,
     run_id: Optional[str] = None,
@@ -98,9 +96,8 @@ def start_experiment(
 def list_experiments() -> List[Tuple[str, str, str]]: ...
 def read_columns(path: _Path) -> Dict[str, Union[npt.NDArray[Any], List[str]]]: ...
 def leftover_shared_memory(run_id: str) -> List[Path]: ...
-def cli_main(
-    args: List[str], actor_program: Optional[Tuple[_Path, List[str]]] = None
-) -> int: ...
+def cli_main(args: List[str]) -> int: ...
+def set_actor_program(program: _Path, leading_args: List[str]) -> None: ...
 
 @final
 class Quantizer:

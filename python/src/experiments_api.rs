@@ -24,13 +24,11 @@ fn list_experiments() -> Vec<(&'static str, &'static str, &'static str)> {
         .collect()
 }
 
-fn verdict_json(v: &Verdict) -> serde_json::Value {
+/// The runs that would resolve a claim not resolved, when known.
+fn runs_to_resolve(v: &Verdict) -> Option<usize> {
     match v {
-        Verdict::Holds => json!({"verdict": "holds", "runs_to_resolve": null}),
-        Verdict::DoesNotHold => json!({"verdict": "does not hold", "runs_to_resolve": null}),
-        Verdict::NotResolved { needed, .. } => {
-            json!({"verdict": "not resolved", "runs_to_resolve": needed})
-        }
+        Verdict::NotResolved { needed, .. } => *needed,
+        _ => None,
     }
 }
 
@@ -39,11 +37,10 @@ fn check_json(check: &Check) -> serde_json::Value {
         .claims
         .iter()
         .map(|c| {
-            let v = verdict_json(&c.verdict);
             json!({
                 "claim": c.claim,
-                "verdict": v["verdict"],
-                "runs_to_resolve": v["runs_to_resolve"],
+                "verdict": c.verdict.label(),
+                "runs_to_resolve": runs_to_resolve(&c.verdict),
                 "mean_difference": c.paired.map(|p| p.mean),
                 "half_width_95": c.paired.map(|p| p.half_width),
                 "runs": c.paired.map(|p| p.runs),
@@ -53,7 +50,7 @@ fn check_json(check: &Check) -> serde_json::Value {
         })
         .collect();
     json!({
-        "verdict": verdict_json(&check.verdict)["verdict"],
+        "verdict": check.verdict.label(),
         "verdict_words": check.verdict.words(),
         "statement": check.statement,
         "claims": claims,

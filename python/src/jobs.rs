@@ -15,7 +15,6 @@ use pyo3::prelude::*;
 use runtime::network::RunProgress;
 use runtime::progress::step_message;
 use runtime::results::{write_atomically, ResultsWriter};
-use runtime::supervisor::ActorProgram;
 
 use crate::scenario::PyScenario;
 use crate::to_py_err;
@@ -210,14 +209,13 @@ fn start_sim(
 }
 
 /// Starts `cqnet run`: the network as real processes, each actor started
-/// as `program leading_args… actor …`. The outcome is the summary.
+/// as [`set_actor_program`](crate::set_actor_program) said. The outcome is
+/// the summary.
 #[pyfunction]
-#[pyo3(signature = (scenario, out, program, leading_args, lockstep = false, centralized = None, run_id = None))]
+#[pyo3(signature = (scenario, out, lockstep = false, centralized = None, run_id = None))]
 fn start_run(
     scenario: &PyScenario,
     out: PathBuf,
-    program: PathBuf,
-    leading_args: Vec<String>,
     lockstep: bool,
     centralized: Option<bool>,
     run_id: Option<String>,
@@ -230,10 +228,6 @@ fn start_run(
     };
     let centralized = centralized.unwrap_or(s.reference.centralized);
     let dir = out.clone();
-    let actor_program = ActorProgram {
-        program,
-        leading_args: leading_args.into_iter().map(Into::into).collect(),
-    };
     Job::start("cqnet-run", out, move |shared| {
         let options = runtime::network::RunOptions {
             out: dir,
@@ -242,7 +236,6 @@ fn start_run(
             centralized,
             view: None,
             local_agents: false,
-            actor_program: Some(actor_program),
             stop: Some(shared.stop.clone()),
         };
         let steps = s.steps as u64;

@@ -60,6 +60,7 @@ fn _cqnet(m: &Bound<'_, PyModule>) -> PyResult<()> {
     bounds_api::register(m)?;
     experiments_api::register(m)?;
     m.add_function(wrap_pyfunction!(cli_main, m)?)?;
+    m.add_function(wrap_pyfunction!(set_actor_program, m)?)?;
     m.add_function(wrap_pyfunction!(leftover_shared_memory, m)?)?;
     Ok(())
 }
@@ -75,27 +76,25 @@ fn leftover_shared_memory(run_id: &str) -> PyResult<Vec<std::path::PathBuf>> {
 /// Runs the `cqnet` command with these arguments (the first is the
 /// program's name) and returns its exit status: the package's `cqnet`
 /// command, and how each actor of a `run` started from Python runs.
-/// `actor_program` (the program and the arguments before `actor …`) is how
-/// a `cqnet run` from here starts its actors, this process's executable
-/// being Python's, not cqnet's.
 #[pyfunction]
-#[pyo3(signature = (args, actor_program = None))]
-fn cli_main(
-    py: Python<'_>,
-    args: Vec<String>,
-    actor_program: Option<(std::path::PathBuf, Vec<String>)>,
-) -> i32 {
-    if let Some((program, leading)) = actor_program {
-        runtime::supervisor::ActorProgram {
-            program,
-            leading_args: leading.into_iter().map(Into::into).collect(),
-        }
-        .set_for_this_process();
-    }
+fn cli_main(py: Python<'_>, args: Vec<String>) -> i32 {
     let code = py.detach(|| cqnet::app::main_with(args));
     if code == std::process::ExitCode::SUCCESS {
         0
     } else {
         1
     }
+}
+
+/// Says how this process starts a run's actors: `program` with
+/// `leading_args` before `actor …`. This process's executable is Python's,
+/// not cqnet's, so the package says it before its first run; the first
+/// call holds for the process.
+#[pyfunction]
+fn set_actor_program(program: std::path::PathBuf, leading_args: Vec<String>) {
+    runtime::supervisor::ActorProgram {
+        program,
+        leading_args: leading_args.into_iter().map(Into::into).collect(),
+    }
+    .set_for_this_process();
 }

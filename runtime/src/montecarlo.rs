@@ -124,8 +124,7 @@ pub fn run_monte_carlo_until(
     });
     if stop.load(Ordering::Relaxed) {
         anyhow::bail!(
-            "interrupted after {} of {runs} runs; their results are in {}",
-            done.load(Ordering::SeqCst),
+            "interrupted; the runs' results so far are in {}",
             out.display()
         );
     }

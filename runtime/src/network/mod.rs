@@ -90,10 +90,7 @@ pub fn run_network(
         bail!("--local-agents: the scenario has no [[hosts]] to start agents for");
     }
     let spec = ChildSpec {
-        program: match &options.actor_program {
-            Some(p) => p.clone(),
-            None => crate::supervisor::ActorProgram::this_executable()?,
-        },
+        program: crate::supervisor::ActorProgram::this_executable()?,
         run_id: options.run_id.as_str().to_string(),
         scenario_file,
         log_dir: options.out.join("logs"),

@@ -9,7 +9,6 @@ use fusion_graph::transport::RunId;
 
 use crate::feed::Hub;
 use crate::results::TickRow;
-use crate::supervisor::ActorProgram;
 
 pub struct RunOptions {
     pub out: PathBuf,
@@ -20,8 +19,6 @@ pub struct RunOptions {
     pub view: Option<Arc<Hub>>,
     /// A scenario with `[[hosts]]`: start every host's agent here.
     pub local_agents: bool,
-    /// How to start each actor's process; this executable when `None`.
-    pub actor_program: Option<ActorProgram>,
     /// Set by the caller to stop the run as Ctrl-C does: children stopped
     /// and reaped, shared memory removed, the results so far written.
     pub stop: Option<Arc<AtomicBool>>,
