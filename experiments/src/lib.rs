@@ -263,11 +263,7 @@ impl Claim {
             ),
             None => Default::default(),
         };
-        let verdict = match self.verdict {
-            Verdict::Holds => "holds",
-            Verdict::DoesNotHold => "does not hold",
-            Verdict::NotResolved { .. } => "not resolved",
-        };
+        let verdict = self.verdict.label();
         format!(
             "\"{}\",{mean},{half},{runs},{needed},{verdict}\n",
             self.claim.replace('"', "'")

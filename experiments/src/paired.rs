@@ -64,6 +64,16 @@ impl Verdict {
         out
     }
 
+    /// "holds", "does not hold" or "not resolved": the verdict as a table
+    /// or a program reads it (`claims.csv`, the Python package).
+    pub fn label(&self) -> &'static str {
+        match self {
+            Verdict::Holds => "holds",
+            Verdict::DoesNotHold => "does not hold",
+            Verdict::NotResolved { .. } => "not resolved",
+        }
+    }
+
     pub fn holds(&self) -> bool {
         *self == Verdict::Holds
     }

@@ -91,6 +91,20 @@ fn normalized(ln: &[f64]) -> Vec<f64> {
     w.iter().map(|x| x / total).collect()
 }
 
+/// The weighted mean of `states` under weights `exp(ln)`, normalized, in
+/// two passes over `ln` and no allocation: the estimate each of the
+/// conditional MSE's draws asks for.
+fn weighted_estimate(ln: &[f64], states: &[f64]) -> f64 {
+    let top = ln.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let (mut total, mut sum) = (0.0, 0.0);
+    for (l, x) in ln.iter().zip(states) {
+        let w = (l - top).exp();
+        total += w;
+        sum += w * x;
+    }
+    sum / total
+}
+
 fn one_run(model: &Ungm, rng: &mut ChaCha8Rng) -> RunSeries {
     let n = PARTICLES;
     let uniform = vec![1.0 / n as f64; n];
@@ -137,9 +151,7 @@ fn one_run(model: &Ungm, rng: &mut ChaCha8Rng) -> RunSeries {
                 for (l, p) in ln.iter_mut().zip(&predicted) {
                     *l = model.ln_likelihood(z, *p);
                 }
-                let weights = normalized(&ln);
-                let estimate: f64 = weights.iter().zip(&predicted).map(|(w, p)| w * p).sum();
-                (state - estimate).powi(2)
+                (state - weighted_estimate(&ln, &predicted)).powi(2)
             })
             .sum::<f64>()
             / DRAWS as f64;
@@ -241,15 +253,15 @@ fn check(cases: &[Case]) -> Check {
             |p| p.verdict_within(-(1.05f64.ln()), 1.05f64.ln()),
             |p| format!("{:.2e} ± {:.2e} over {} runs", p.mean, p.half_width, p.runs),
         ));
-        let mse = mean_over_runs(case, |r| &r.conditional_mse);
+        let [mse, a, smoothed, filtered, offline, _] = columns(case);
         figures.push(format!(
             "{}: over steps, conditional MSE {:.3}, A-CPCRLB {:.3}, CPCRLB {:.3} (filtered {:.3}), offline PCRLB {:.3} (means)",
             case.name,
             mean(&mse),
-            mean(&mean_over_runs(case, |r| &r.a_cpcrlb)),
-            mean(&mean_over_runs(case, |r| &r.cpcrlb_smoothed)),
-            mean(&mean_over_runs(case, |r| &r.cpcrlb_filtered)),
-            mean(&case.offline)
+            mean(&a),
+            mean(&smoothed),
+            mean(&filtered),
+            mean(&offline)
         ));
     }
     Check::of_claims(claims, figures.join("; "))
@@ -259,19 +271,26 @@ fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
 
+/// A case's curves at steps 1..=STEPS, in the CSV's order: the
+/// conditional MSE, the A-CPCRLB, the CPCRLB smoothed and filtered (means
+/// over runs), the offline PCRLB, and the filter's MSE.
+fn columns(case: &Case) -> [Vec<f64>; 6] {
+    [
+        mean_over_runs(case, |r| &r.conditional_mse),
+        mean_over_runs(case, |r| &r.a_cpcrlb),
+        mean_over_runs(case, |r| &r.cpcrlb_smoothed),
+        mean_over_runs(case, |r| &r.cpcrlb_filtered),
+        case.offline.clone(),
+        mean_over_runs(case, |r| &r.squared_error),
+    ]
+}
+
 fn csv(cases: &[Case]) -> String {
     let mut s = String::from(
         "case,step,conditional_mse,a_cpcrlb,cpcrlb_smoothed,cpcrlb_filtered,offline_pcrlb,pf_mse\n",
     );
     for case in cases {
-        let series = [
-            mean_over_runs(case, |r| &r.conditional_mse),
-            mean_over_runs(case, |r| &r.a_cpcrlb),
-            mean_over_runs(case, |r| &r.cpcrlb_smoothed),
-            mean_over_runs(case, |r| &r.cpcrlb_filtered),
-            case.offline.clone(),
-            mean_over_runs(case, |r| &r.squared_error),
-        ];
+        let series = columns(case);
         for k in 0..STEPS as usize {
             let _ = write!(s, "{},{}", case.name, k + 1);
             for v in &series {
@@ -287,13 +306,7 @@ fn table(cases: &[Case]) -> String {
     let mut s = String::new();
     for case in cases {
         let _ = writeln!(s, "{} (means over {RUNS} runs): step, conditional MSE, A-CPCRLB, CPCRLB smoothed, filtered, offline PCRLB", case.name);
-        let cols = [
-            mean_over_runs(case, |r| &r.conditional_mse),
-            mean_over_runs(case, |r| &r.a_cpcrlb),
-            mean_over_runs(case, |r| &r.cpcrlb_smoothed),
-            mean_over_runs(case, |r| &r.cpcrlb_filtered),
-            case.offline.clone(),
-        ];
+        let cols = columns(case);
         for k in [0usize, 4, 9, 19, 29, 39, 49] {
             let _ = writeln!(
                 s,
@@ -311,28 +324,24 @@ fn table(cases: &[Case]) -> String {
 }
 
 fn draw(path: &Path, case: &Case) -> Result<(), Box<dyn std::error::Error>> {
-    // draw_lines plots from index 1: a leading value stands for step 0.
-    let with_step0 = |v: Vec<f64>| std::iter::once(f64::NAN).chain(v).collect::<Vec<f64>>();
-    let lines = [
-        (
-            "conditional MSE (mean of runs)",
-            with_step0(mean_over_runs(case, |r| &r.conditional_mse)),
-        ),
-        (
-            "A-CPCRLB",
-            with_step0(mean_over_runs(case, |r| &r.a_cpcrlb)),
-        ),
-        (
-            "CPCRLB, smoothed S",
-            with_step0(mean_over_runs(case, |r| &r.cpcrlb_smoothed)),
-        ),
-        (
-            "CPCRLB, filtered S",
-            with_step0(mean_over_runs(case, |r| &r.cpcrlb_filtered)),
-        ),
-        ("offline PCRLB", with_step0(case.offline.clone())),
+    let names = [
+        "conditional MSE (mean of runs)",
+        "A-CPCRLB",
+        "CPCRLB, smoothed S",
+        "CPCRLB, filtered S",
+        "offline PCRLB",
     ];
-    let refs: Vec<(String, &[f64])> = lines.iter().map(|(n, v)| (n.to_string(), &v[..])).collect();
+    // draw_lines plots from index 1: a leading NaN stands for step 0.
+    let lines: Vec<Vec<f64>> = columns(case)
+        .into_iter()
+        .take(names.len())
+        .map(|v| std::iter::once(f64::NAN).chain(v).collect())
+        .collect();
+    let refs: Vec<(String, &[f64])> = names
+        .iter()
+        .zip(&lines)
+        .map(|(n, v)| (n.to_string(), &v[..]))
+        .collect();
     draw_lines(
         path,
         &format!("ungm-bounds: {}, bounds and conditional MSE", case.name),
@@ -360,6 +369,18 @@ mod tests {
             assert!((*c as f64 - 1000.0 * w).abs() <= 200.0, "{counts:?}");
         }
         assert_eq!(counts[1], 0);
+    }
+
+    #[test]
+    fn the_weighted_estimate_is_the_normalized_weights_mean() {
+        let ln = [-1e6, -1e6 - 1.0, -1e6 - 2.0, -1e6 - 0.5];
+        let states = [1.0, -2.0, 3.5, 0.25];
+        let by_weights: f64 = normalized(&ln)
+            .iter()
+            .zip(&states)
+            .map(|(w, x)| w * x)
+            .sum();
+        assert!((weighted_estimate(&ln, &states) - by_weights).abs() < 1e-14);
     }
 
     #[test]
