@@ -80,7 +80,7 @@ pub struct ActorProgram {
     pub leading_args: Vec<std::ffi::OsString>,
 }
 
-/// What [`ActorProgram::this_executable`] gives in a process whose
+/// What [`ActorProgram::for_this_process`] gives in a process whose
 /// executable is not cqnet (a Python interpreter running the package's
 /// `cqnet` command).
 static HOST_PROGRAM: std::sync::OnceLock<ActorProgram> = std::sync::OnceLock::new();
@@ -89,7 +89,7 @@ impl ActorProgram {
     /// How this process starts an actor: the running executable, which is
     /// `cqnet` itself, unless a host program said otherwise
     /// ([`ActorProgram::set_for_this_process`]).
-    pub fn this_executable() -> anyhow::Result<Self> {
+    pub fn for_this_process() -> anyhow::Result<Self> {
         use anyhow::Context;
         if let Some(p) = HOST_PROGRAM.get() {
             return Ok(p.clone());

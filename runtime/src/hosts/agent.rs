@@ -164,7 +164,7 @@ impl Agent<'_> {
             topology.clone(),
         )?;
         let spec = ChildSpec {
-            program: crate::supervisor::ActorProgram::this_executable()?,
+            program: crate::supervisor::ActorProgram::for_this_process()?,
             run_id: domain.as_str().into(),
             scenario_file,
             log_dir: dir.join("logs"),

@@ -90,7 +90,7 @@ pub fn run_network(
         bail!("--local-agents: the scenario has no [[hosts]] to start agents for");
     }
     let spec = ChildSpec {
-        program: crate::supervisor::ActorProgram::this_executable()?,
+        program: crate::supervisor::ActorProgram::for_this_process()?,
         run_id: options.run_id.as_str().to_string(),
         scenario_file,
         log_dir: options.out.join("logs"),
