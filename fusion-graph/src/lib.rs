@@ -96,6 +96,8 @@ pub enum WireError {
     NonFinite,
     #[error("a flag byte {got}, expected 0 or 1")]
     Flag { got: u8 },
+    #[error("thresholds not strictly increasing")]
+    Unordered,
 }
 
 /// What a transport's backend (iceoryx2, or another) reported.

@@ -35,6 +35,10 @@ pub enum Shape {
     /// as a Gaussian, rather than the CF/DPF. `pairs`: it swaps posteriors
     /// with one neighbour at a time, over channels per pair of nodes.
     Tracker { pairs: bool },
+    /// A locator node of its own, for a static target: each node's
+    /// log-likelihood over a grid shared by all and its sensors' Fisher
+    /// information, summed over the network by average consensus.
+    Locator,
 }
 
 /// The parts cqnet ships: fusion protocols with their shapes, then sensor
@@ -62,6 +66,7 @@ const BUILT_IN: &[(Role, &str, Shape)] = &[
         "kl_iterative",
         Shape::Tracker { pairs: false },
     ),
+    (Role::Protocol, "ml_location", Shape::Locator),
     (Role::Manager, "random", Shape::Rounds),
     (Role::Manager, "closest", Shape::Rounds),
     (Role::Manager, "pcrlb", Shape::Rounds),

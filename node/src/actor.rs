@@ -142,7 +142,7 @@ impl NodeActor {
         let protocol = scenario.consensus.protocol;
         match protocol.shape() {
             Shape::ExactSums => return Err(NodeError::NoExactSums),
-            Shape::Tracker { .. } => return Err(NodeError::NotCfDpf(protocol)),
+            Shape::Tracker { .. } | Shape::Locator => return Err(NodeError::NotCfDpf(protocol)),
             Shape::Rounds => {}
         }
         let protocol = crate::registry::information_fusion(scenario, topology, index)?

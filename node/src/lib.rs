@@ -19,7 +19,9 @@
 //!   exchange or fuse;
 //! - [`registry`]: the fusion protocols and sensor managers a scenario can
 //!   name, the built-in ones and those a program registers;
-//! - [`processing`]: either node behind one face, as the scenario says;
+//! - [`location`] and [`locator`]: a static target's locator, its
+//!   evidence over shared grids and its node;
+//! - [`processing`]: any node behind one face, as the scenario says;
 //!   `wiring` holds what both nodes read, publish and send alike.
 
 pub mod actor;
@@ -33,6 +35,8 @@ pub mod estimator;
 pub mod filter;
 pub mod fusion;
 pub mod gate;
+pub mod location;
+pub mod locator;
 pub mod processing;
 pub mod registry;
 pub mod sensing;
@@ -46,6 +50,7 @@ mod harness;
 pub use actor::NodeActor;
 pub use centralized::CentralizedReference;
 pub use diffusion_node::DiffusionNode;
+pub use locator::LocatorNode;
 pub use error::NodeError;
 pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,

@@ -1,6 +1,7 @@
-//! A processing node of either kind, behind one face for the drivers: the
-//! CF/DPF node ([`NodeActor`]) or one of the random-exchange paper's trackers
-//! ([`DiffusionNode`]), as the scenario's `consensus.protocol` says.
+//! A processing node of any kind, behind one face for the drivers: the
+//! CF/DPF node ([`NodeActor`]), one of the random-exchange paper's trackers
+//! ([`DiffusionNode`]) or a static target's locator ([`LocatorNode`]), as
+//! the scenario's `consensus.protocol` says.
 
 use std::time::Duration;
 
@@ -9,11 +10,19 @@ use fusion_graph::wire::Message;
 use fusion_graph::{ActorId, Scenario, Topology};
 
 use crate::diffusion_node::DiffusionNode;
-use crate::{NodeActor, NodeError, Outgoing, Work};
+use crate::{LocatorNode, NodeActor, NodeError, Outgoing, Work};
+use fusion_graph::registered::Shape;
 
 pub enum ProcessingNode {
     CfDpf(Box<NodeActor>),
     Diffusion(Box<DiffusionNode>),
+    Locator(Box<LocatorNode>),
+}
+
+impl From<LocatorNode> for ProcessingNode {
+    fn from(n: LocatorNode) -> Self {
+        Self::Locator(Box::new(n))
+    }
 }
 
 impl From<NodeActor> for ProcessingNode {
@@ -34,6 +43,7 @@ macro_rules! either {
         match $self {
             ProcessingNode::CfDpf($n) => $call,
             ProcessingNode::Diffusion($n) => $call,
+            ProcessingNode::Locator($n) => $call,
         }
     };
 }
@@ -45,6 +55,9 @@ impl ProcessingNode {
         topology: &Topology,
         index: u16,
     ) -> Result<Self, NodeError> {
+        if scenario.consensus.protocol.shape() == Shape::Locator {
+            return LocatorNode::new(scenario, topology, index).map(Self::from);
+        }
         if let Some(cooperation) = crate::registry::cooperation(scenario, topology, index)? {
             DiffusionNode::new(scenario, topology, index, cooperation).map(Self::from)
         } else {

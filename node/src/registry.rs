@@ -92,6 +92,15 @@ impl<'a> Params<'a> {
         }
     }
 
+    /// A string parameter, or `default` when absent.
+    pub fn text(&self, name: &str, default: &'a str) -> Result<&'a str, ParamError> {
+        match self.table.get(name) {
+            None => Ok(default),
+            Some(toml::Value::String(v)) => Ok(v.as_str()),
+            Some(v) => Err(self.error(name, "a string", v)),
+        }
+    }
+
     /// A finite number in `range`, or `default` when absent.
     pub fn number(
         &self,
@@ -356,6 +365,7 @@ pub fn information_fusion(
             build(&setup(scenario, topology, node, params)).map(Some)
         }
         Shape::ExactSums | Shape::Tracker { .. } => params.only(&[]).map(|()| None),
+        Shape::Locator => crate::location::LocationConfig::from_params(&params, scenario).map(|_| None),
     }
 }
 

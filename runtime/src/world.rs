@@ -2,7 +2,7 @@
 //! sensors see.
 
 use bounds::{Dynamics, State};
-use fusion_graph::scenario::Scenario;
+use fusion_graph::scenario::{Motion, Scenario};
 use fusion_graph::transport::iceoryx::QUEUE_DEPTH;
 use fusion_graph::transport::{Channel, Transport};
 use fusion_graph::wire::{BitMask, Control, Message, Payload};
@@ -10,23 +10,35 @@ use fusion_graph::{stream_rng, ActorId, ScenarioError, SendError, Stream};
 use rand_chacha::ChaCha8Rng;
 
 pub struct World {
-    dynamics: Dynamics,
+    /// `None`: the target stays where it starts.
+    dynamics: Option<Dynamics>,
     state: State,
     rng: ChaCha8Rng,
 }
 
 impl World {
     pub fn new(s: &Scenario) -> Result<Self, ScenarioError> {
+        let mut state = s.true_initial_state();
+        let dynamics = match s.target.motion {
+            Motion::Moving => Some(s.models()?.dynamics),
+            Motion::Static => {
+                state[2] = 0.0;
+                state[3] = 0.0;
+                None
+            }
+        };
         Ok(Self {
-            dynamics: s.models()?.dynamics,
-            state: s.true_initial_state(),
+            dynamics,
+            state,
             rng: stream_rng(s.seed, ActorId::Launcher, 0, Stream::Truth),
         })
     }
 
     /// `x(k) = f(x(k−1)) + ξ(k)`: the truth of the next step.
     pub fn advance(&mut self) -> State {
-        self.state = self.dynamics.propagate(&self.state, &mut self.rng);
+        if let Some(d) = &self.dynamics {
+            self.state = d.propagate(&self.state, &mut self.rng);
+        }
         self.state
     }
 

@@ -41,6 +41,9 @@ pub struct SensorActor {
     censor: Censor,
     /// The node's feedback with the latest activation, for NIS censoring.
     feedback: Option<(u32, Feedback)>,
+    /// The quantizer the node sent with the latest activation, for its
+    /// step (a locator designs its sensors' thresholds).
+    sent_quantizer: Option<(u32, Quantizer)>,
 }
 
 /// Whether this sensor stays silent when activated.
@@ -82,6 +85,7 @@ impl SensorActor {
             last_honest: None,
             censor: censor(scenario)?,
             feedback: None,
+            sent_quantizer: None,
         })
     }
 
@@ -137,6 +141,26 @@ impl SensorActor {
                     ));
                 }
             }
+            (Payload::ActivateThresholds { mask, thresholds }, ActorId::Node(n))
+                if n == self.owner =>
+            {
+                if mask.contains(self.slot) {
+                    // Thresholds for another quantizer than the scenario's
+                    // (a count that does not match its bits) would send
+                    // cells the node cannot read: the activation is refused.
+                    let cells = self.quantizer.as_ref().map_or(0, Quantizer::cells);
+                    match Quantizer::from_thresholds(thresholds) {
+                        Ok(q) if q.cells() == cells => {
+                            self.activated = Some(step);
+                            self.sent_quantizer = Some((step, q));
+                        }
+                        _ => {
+                            tracing::warn!(sensor = self.index, step, "thresholds for another quantizer; activation ignored");
+                            return None;
+                        }
+                    }
+                }
+            }
             _ => return None,
         }
         let (step, truth) = self.truth?;
@@ -150,7 +174,7 @@ impl SensorActor {
                 if !self.sends(step, z) {
                     return None;
                 }
-                let honest = self.encode(z);
+                let honest = self.encode(step, z);
                 self.last_honest = Some(honest.clone());
                 honest
             }
@@ -175,7 +199,7 @@ impl SensorActor {
 
     /// A measurement of `truth`, plus `bias`, with step `step`'s noise.
     fn measure(&self, step: u32, truth: &State, bias: f64) -> Payload {
-        self.encode(self.measure_raw(step, truth, bias))
+        self.encode(step, self.measure_raw(step, truth, bias))
     }
 
     fn measure_raw(&self, step: u32, truth: &State, bias: f64) -> f64 {
@@ -188,8 +212,15 @@ impl SensorActor {
         }
     }
 
-    fn encode(&self, z: f64) -> Payload {
-        match &self.quantizer {
+    /// The report of `z`: its cell under the quantizer the node sent for
+    /// this step, else the scenario's; `z` itself when raw.
+    fn encode(&self, step: u32, z: f64) -> Payload {
+        let sent = self
+            .sent_quantizer
+            .as_ref()
+            .filter(|(s, _)| *s == step)
+            .map(|(_, q)| q);
+        match sent.or(self.quantizer.as_ref()) {
             Some(q) => Payload::Observation { cell: q.encode(z) },
             None => Payload::RawObservation { value: z },
         }

@@ -79,6 +79,8 @@ pub const DEFAULT_SCENARIO: &str = include_str!("../../scenarios/default.toml");
 pub const SENSOR_SELECTION_SCENARIO: &str = include_str!("../../scenarios/sensor-selection.toml");
 /// The random-exchange paper's network: 25 nodes, each with one co-located RSS sensor.
 pub const RANDOM_EXCHANGE_SCENARIO: &str = include_str!("../../scenarios/random-exchange.toml");
+/// A static target located from quantized amplitudes (ML over a shared grid).
+pub const LOCATION_SCENARIO: &str = include_str!("../../scenarios/location.toml");
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -283,6 +285,23 @@ pub struct TargetConfig {
     /// Where the truth starts: at the state above, or drawn from the prior.
     #[serde(default)]
     pub start: TargetStart,
+    /// Whether the target moves by the dynamics or stays where it starts.
+    #[serde(default)]
+    pub motion: Motion,
+}
+
+/// How the true target moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Motion {
+    /// By the scenario's dynamics, from its course and speed: a tracking
+    /// problem.
+    #[default]
+    Moving,
+    /// At its position for the whole run, its velocity zero: a location
+    /// problem, which only the `ml_location` protocol's nodes solve (a
+    /// tracker's prediction needs process noise it could invert).
+    Static,
 }
 
 /// Where the true trajectory starts. Each run draws one offset
@@ -392,6 +411,9 @@ impl ConsensusProtocol {
     pub fn is_diffusion(self) -> bool {
         matches!(self.shape(), Shape::Tracker { .. })
     }
+
+    /// ML location of a static target over a shared grid, with its CRLB.
+    pub const ML_LOCATION: Self = Self("ml_location");
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -659,6 +681,7 @@ mod tests {
             DEFAULT_SCENARIO,
             SENSOR_SELECTION_SCENARIO,
             RANDOM_EXCHANGE_SCENARIO,
+            LOCATION_SCENARIO,
         ] {
             keys_left_out_can_be_set(text);
         }
@@ -746,6 +769,7 @@ mod tests {
             course_deg: 90.0,
             speed: 10.0,
             start: TargetStart::Fixed,
+            motion: Motion::Moving,
         };
         let s = t.initial_state();
         assert!((s[2] - 10.0).abs() < 1e-12 && s[3].abs() < 1e-12);

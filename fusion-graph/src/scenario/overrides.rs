@@ -72,6 +72,7 @@ pub(super) fn is_optional_key(key: &str) -> bool {
             | "raw"
             | "min_speed"
             | "centralized"
+            | "motion"
             | "grid"
             | "positions"
             | "per_cell"

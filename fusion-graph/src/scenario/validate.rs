@@ -46,6 +46,83 @@ impl Scenario {
         Ok(())
     }
 
+    /// A static target is located, not tracked: by the `ml_location`
+    /// protocol's nodes and no other, which have no sensor selection,
+    /// censoring, gate or centralized filter (their reference is the
+    /// network's summed information itself).
+    fn validate_location(&self, file: &str) -> Result<(), ScenarioError> {
+        let protocol = self.consensus.protocol;
+        let locating = protocol == ConsensusProtocol::ML_LOCATION;
+        let static_target = self.target.motion == Motion::Static;
+        let invalid = |key: &str, expected: String, got: String| {
+            Err(ScenarioError::Invalid {
+                file: file.into(),
+                key: key.into(),
+                expected,
+                got,
+            })
+        };
+        if locating != static_target {
+            return if locating {
+                invalid(
+                    "target.motion",
+                    "\"static\" with consensus.protocol = \"ml_location\"".into(),
+                    "\"moving\"".into(),
+                )
+            } else {
+                invalid(
+                    "consensus.protocol",
+                    "\"ml_location\" for a static target (target.motion = \"static\")".into(),
+                    format!("\"{}\"", protocol.name()),
+                )
+            };
+        }
+        if !locating {
+            return Ok(());
+        }
+        let refuse = |key: &str, got: String| {
+            invalid(
+                key,
+                "its default with consensus.protocol = \"ml_location\" (the locator has no such part)"
+                    .into(),
+                got,
+            )
+        };
+        if self.sensors.manager != SensorManagerKind::RANDOM {
+            return refuse(
+                "sensors.manager",
+                format!("\"{}\"", self.sensors.manager.name()),
+            );
+        }
+        if let Some(m) = self.sensors.max_active_total {
+            return refuse("sensors.max_active_total", m.to_string());
+        }
+        if self.censoring.policy != CensoringPolicy::Off {
+            return refuse("censoring.policy", format!("{:?}", self.censoring.policy));
+        }
+        if self.consensus.auxiliary_fim {
+            return refuse("consensus.auxiliary_fim", "true".into());
+        }
+        if self.filter.gate > 0.0 {
+            return refuse("filter.gate", self.filter.gate.to_string());
+        }
+        if self.reference.centralized {
+            return refuse("reference.centralized", "true".into());
+        }
+        let cells = 1usize << self.quantizer.bits.min(16);
+        if !self.quantizer.raw && cells - 1 > crate::wire::MAX_THRESHOLDS {
+            return invalid(
+                "quantizer.bits",
+                format!(
+                    "at most 4 with consensus.protocol = \"ml_location\" (its {} thresholds travel with each activation)",
+                    crate::wire::MAX_THRESHOLDS
+                ),
+                self.quantizer.bits.to_string(),
+            );
+        }
+        Ok(())
+    }
+
     /// Checks every value's range; the error names the file and the key.
     pub fn validate(&self, file: &str) -> Result<(), ScenarioError> {
         let check = Check::root(file);
@@ -166,6 +243,7 @@ impl Scenario {
             self.consensus.round_timeout_ms,
         )?;
         self.validate_diffusion(file)?;
+        self.validate_location(file)?;
         check.non_negative("filter.gate", self.filter.gate)?;
         check.positive("clock.step_period_ms", self.clock.step_period_ms)?;
         check.positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;

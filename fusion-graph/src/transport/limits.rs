@@ -83,9 +83,9 @@ pub(crate) fn max_message_len(channel: Channel) -> usize {
     HEADER_BYTES
         + match channel {
             Channel::Tick | Channel::Observation(_) => 48,
-            // The mask, and the censoring feedback: an estimate and its
-            // packed covariance.
-            Channel::Activation(_) => 48 + 32 + 80,
+            // The mask, and either the censoring feedback (an estimate and
+            // its packed covariance) or a quantizer's thresholds.
+            Channel::Activation(_) => 48 + (32 + 80).max(1 + 8 * crate::wire::MAX_THRESHOLDS),
             Channel::Consensus(_) => 300.max(protocols),
             // A posterior swapped in a random exchange: mean and covariance.
             Channel::Pair { .. } => 120.max(protocols),

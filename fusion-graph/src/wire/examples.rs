@@ -160,5 +160,23 @@ pub fn examples() -> Vec<Message> {
                 value: -64.5,
             },
         ),
+        Message::new(
+            ActorId::Node(1),
+            7,
+            0,
+            Payload::ActivateThresholds {
+                mask: BitMask::from_bytes(vec![0b1111, 0, 0, 0]),
+                thresholds: vec![1.5, 12.25, 40.0],
+            },
+        ),
+        Message::new(
+            ActorId::Node(3),
+            7,
+            4,
+            Payload::LocationConsensus {
+                chunk: 2,
+                values: std::array::from_fn(|i| -1000.0 + i as f64),
+            },
+        ),
     ]
 }

@@ -90,6 +90,13 @@ pub enum MessageKind {
     /// of a `Consensus` only while that part is not zero, so it costs bytes
     /// only on the steps that have late observations.
     ConsensusLate = 18,
+    /// An activation that carries the quantizer the node designed for its
+    /// sensors (a static target's locator): the mask, the count of
+    /// thresholds (one byte), then the thresholds, increasing.
+    ActivateThresholds = 19,
+    /// One piece of a locator's consensus value, which is longer than one
+    /// message: the piece's index (u16), then [`LOCATION_CHUNK`] f64.
+    LocationConsensus = 20,
     /// A protocol's own payload, under the kind byte it registered.
     Protocol(ProtocolKind) = 128,
     /// Accounting only: bytes whose kind could not be read.
@@ -118,6 +125,8 @@ impl MessageKind {
             16 => ExchangePosterior,
             17 => NeighbourObservation,
             18 => ConsensusLate,
+            19 => ActivateThresholds,
+            20 => LocationConsensus,
             k => Protocol(ProtocolKind::registered(k)?),
         })
     }
@@ -143,6 +152,8 @@ impl MessageKind {
             ExchangePosterior => "exchange_posterior",
             NeighbourObservation => "neighbour_observation",
             ConsensusLate => "consensus_late",
+            ActivateThresholds => "activate_thresholds",
+            LocationConsensus => "location_consensus",
             Protocol(k) => k.name(),
             Malformed => "malformed",
         }
@@ -170,6 +181,8 @@ impl MessageKind {
             ExchangePosterior => 16,
             NeighbourObservation => 17,
             ConsensusLate => 18,
+            ActivateThresholds => 19,
+            LocationConsensus => 20,
             Protocol(k) => k.code(),
             Malformed => 255,
         }
@@ -367,9 +380,26 @@ pub enum Payload {
         sensor: u16,
         value: f64,
     },
+    /// An activation with the quantizer's thresholds, increasing (at most
+    /// [`MAX_THRESHOLDS`]).
+    ActivateThresholds {
+        mask: BitMask,
+        thresholds: Vec<f64>,
+    },
+    /// Piece `chunk` of a locator's consensus value.
+    LocationConsensus {
+        chunk: u16,
+        values: [f64; LOCATION_CHUNK],
+    },
     /// A protocol's own payload ([`crate::payloads`]).
     Protocol(ProtocolBody),
 }
+
+/// The most thresholds an activation carries: a 4-bit quantizer's.
+pub const MAX_THRESHOLDS: usize = 15;
+
+/// The numbers in one piece of a locator's consensus value.
+pub const LOCATION_CHUNK: usize = 32;
 
 /// A proposal in min-consensus: the smallest `cost` wins, ties going to the
 /// smaller node, then the smaller sensor. In sensor selection it carries the
@@ -419,6 +449,8 @@ impl Payload {
             Payload::ExchangeReply { .. } => MessageKind::ExchangeReply,
             Payload::ExchangePosterior(_) => MessageKind::ExchangePosterior,
             Payload::NeighbourObservation { .. } => MessageKind::NeighbourObservation,
+            Payload::ActivateThresholds { .. } => MessageKind::ActivateThresholds,
+            Payload::LocationConsensus { .. } => MessageKind::LocationConsensus,
             Payload::Protocol(body) => MessageKind::Protocol(body.kind),
         }
     }
@@ -507,6 +539,19 @@ impl Message {
             Payload::NeighbourObservation { sensor, value } => {
                 put(sensor, out);
                 put(value, out);
+            }
+            Payload::ActivateThresholds { mask, thresholds } => {
+                put_mask(mask, format, out);
+                out.push(thresholds.len() as u8);
+                for t in thresholds {
+                    put(t, out);
+                }
+            }
+            Payload::LocationConsensus { chunk, values } => {
+                put(chunk, out);
+                for v in values {
+                    put(v, out);
+                }
             }
             Payload::Protocol(body) => out.extend_from_slice(&body.bytes),
         }
@@ -656,6 +701,43 @@ impl Message {
                     value: finite([value])?[0],
                 }
             }
+            MessageKind::ActivateThresholds => {
+                let mask_len = format.activation_bytes;
+                let count = *body.get(mask_len).ok_or(WireError::Truncated)? as usize;
+                if count == 0 || count > MAX_THRESHOLDS {
+                    return Err(WireError::Length {
+                        expected: MAX_THRESHOLDS,
+                        got: count,
+                    });
+                }
+                exact_len(body, mask_len + 1 + 8 * count)?;
+                let thresholds: Vec<f64> = body[mask_len + 1..]
+                    .chunks_exact(8)
+                    .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+                    .collect();
+                for t in &thresholds {
+                    finite([*t])?;
+                }
+                if thresholds.windows(2).any(|w| w[0] >= w[1]) {
+                    return Err(WireError::Unordered);
+                }
+                Payload::ActivateThresholds {
+                    mask: BitMask::from_bytes(body[..mask_len].to_vec()),
+                    thresholds,
+                }
+            }
+            MessageKind::LocationConsensus => {
+                exact_len(body, 2 + 8 * LOCATION_CHUNK)?;
+                let chunk = u16::from_le_bytes([body[0], body[1]]);
+                let mut values = [0.0; LOCATION_CHUNK];
+                for (v, b) in values.iter_mut().zip(body[2..].chunks_exact(8)) {
+                    *v = f64::from_le_bytes(b.try_into().expect("8 bytes"));
+                }
+                Payload::LocationConsensus {
+                    chunk,
+                    values: finite(values)?,
+                }
+            }
             MessageKind::Protocol(k) => {
                 protocol_kinds::check_body(k, body)?;
                 Payload::Protocol(ProtocolBody {
@@ -705,6 +787,7 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::ExchangeReply => 1,
                 MessageKind::ExchangePosterior => 8 * 14,
                 MessageKind::NeighbourObservation => 2 + 8,
+                MessageKind::LocationConsensus => 2 + 8 * LOCATION_CHUNK,
                 MessageKind::Protocol(k) => k.body_len(),
                 _ => return None,
             },

@@ -16,6 +16,8 @@
 //!   with one random neighbour by request and acknowledgement.
 //! - [`KlFusion`]: the random-exchange paper's KL fusion, K_max rounds of consensus on the
 //!   natural parameters of the nodes' Gaussian posteriors.
+//! - [`VectorSum`]: average consensus on a vector of any length, in pieces,
+//!   for its network sum (a static target's locator).
 //!
 //! The round-based ones are a [`RoundEngine`], which keeps the round
 //! numbering, early and late messages, timeouts and lost neighbours, and
@@ -30,6 +32,7 @@ pub(crate) mod information;
 mod kl;
 mod min;
 mod rounds;
+mod vector_sum;
 #[cfg(test)]
 pub(crate) mod testing;
 
@@ -40,6 +43,7 @@ pub use information::InformationVector;
 pub use kl::{kl_fusion, KlFused, KlFusion, KlRule, NaturalGaussian};
 pub use min::{min_consensus, proposal_order, MinConsensus};
 pub use rounds::{RoundEngine, RoundRule, RoundsDone};
+pub use vector_sum::{vector_sum, Summed, VectorSum, VectorSumRule};
 
 use std::time::Duration;
 

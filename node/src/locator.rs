@@ -1,0 +1,447 @@
+//! A static target's locator node (`consensus.protocol = "ml_location"`)
+//! as an I/O-free state machine, driven as every processing node is.
+//!
+//! A step: the launcher's `BeginStep` → the node activates its sensors,
+//! sending them the quantizer's thresholds → its sensors' reports, until
+//! all arrived or the listening deadline → [`Work::Weigh`]: its
+//! log-likelihood over the region's grid, with every report so far →
+//! consensus phases of `consensus.rounds` rounds each, every one a network
+//! sum ([`VectorSum`]):
+//!
+//! 1. the log-likelihoods over the region's grid: its best point;
+//! 2. for each refinement, the log-likelihoods over a grid ten times finer
+//!    (at the default 21 points) around the estimate so far: a better one;
+//! 3. the sensors' Fisher information at the last estimate: the CRLB;
+//!
+//! → telemetry with the estimate and `sqrt(tr J⁻¹)`.
+//!
+//! Each finer grid is laid out around the node's own estimate so far, so a
+//! phase sums like with like only when the one before has agreed on it, as
+//! enough rounds make it; a node whose consensus is cut short (a lost
+//! neighbour, a partition) adds a neighbour's grid to its own slightly
+//! shifted one, and its estimate is off by the difference.
+
+use std::time::Duration;
+
+use bounds::Quantizer;
+use fusion_graph::scenario::Scenario;
+use fusion_graph::transport::Channel;
+use fusion_graph::wire::{Control, Message, Payload, Telemetry};
+use fusion_graph::{ActorId, Topology};
+
+use crate::collector::{Collector, Offer, SensorAnswers};
+use crate::estimator::ObservedValue;
+use crate::fusion::{vector_sum, FusionProtocol, Handled, RoundStats, Summed, VectorSum};
+use crate::location::{position_bound, sensor_quantizer, Grid, LocalEvidence, LocationConfig};
+use crate::registry::Params;
+use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
+use crate::{wiring, NodeError, Outgoing, Work};
+
+/// One step, from `BeginStep` to its telemetry.
+struct Stepping {
+    step: u32,
+    /// The node's sensors, while it still listens to them.
+    collector: Option<Collector>,
+    observations: u16,
+    /// [`Work::Weigh`] has run: `coarse` holds the node's log-likelihood.
+    weighed: bool,
+    coarse: Vec<f64>,
+    /// The consensus phase running: grid phases `0..=refinements`, then
+    /// the information's.
+    phase: Option<usize>,
+    /// The grid of the phase running (while it is a grid's).
+    grid: Grid,
+    /// The estimate so far, from the last grid phase done.
+    estimate: Option<[f64; 2]>,
+    stats: RoundStats,
+    weigh_time: Duration,
+}
+
+pub struct LocatorNode {
+    index: u16,
+    topology: Topology,
+    coarse: Grid,
+    /// The thresholds sent with each activation; `None`: raw reports.
+    quantizer: Option<Quantizer>,
+    evidence: LocalEvidence,
+    manager: UniformRandom,
+    /// One engine per phase, each on its own rounds of the step: the
+    /// grids' and, last, the information's.
+    phases: Vec<VectorSum>,
+    rounds: u16,
+    region_centre: [f64; 2],
+    view: Vec<bool>,
+    listen: Duration,
+    steps: u32,
+    last_step: Option<u32>,
+    stepping: Option<Box<Stepping>>,
+    late_messages: u64,
+    late_reported: u64,
+    deadline_missed: bool,
+    answers: SensorAnswers,
+}
+
+impl LocatorNode {
+    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
+        let config = LocationConfig::from_params(
+            &Params::new("consensus.params", &scenario.consensus.params),
+            scenario,
+        )?;
+        let coarse = Grid::over_region(scenario, config.grid);
+        let quantizer = sensor_quantizer(scenario, config.thresholds);
+        // Every phase's rounds have their own numbers on the wire.
+        let rounds = scenario.consensus.rounds.min(u32::from(u16::MAX) / 8) as u16;
+        let timeout = Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3);
+        let grids = config.refinements + 1;
+        let phase = |p: usize| {
+            let len = if p < grids { coarse.len() } else { 3 };
+            vector_sum(index, topology, len, rounds, timeout)
+                .with_last_round((p as u16 + 1) * rounds)
+                .presume_gone_after(2)
+        };
+        Ok(Self {
+            index,
+            topology: topology.clone(),
+            evidence: LocalEvidence::new(scenario, topology, index, quantizer.clone()),
+            phases: (0..=grids).map(phase).collect(),
+            coarse,
+            quantizer,
+            manager: UniformRandom::for_scenario(scenario),
+            rounds,
+            region_centre: [scenario.region.width / 2.0, scenario.region.height / 2.0],
+            view: topology.all_alive(),
+            listen: timeout,
+            steps: scenario.steps,
+            last_step: None,
+            stepping: None,
+            late_messages: 0,
+            late_reported: 0,
+            deadline_missed: false,
+            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
+        })
+    }
+
+    pub fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    pub fn subscriptions(&self) -> Vec<Channel> {
+        wiring::subscriptions(&self.topology, self.index)
+    }
+
+    pub fn publications(&self) -> Vec<Channel> {
+        wiring::publications(self.index)
+    }
+
+    pub fn peers(&self) -> Vec<ActorId> {
+        wiring::peers(&self.topology, self.index)
+    }
+
+    pub fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
+
+    pub fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let s = self.stepping.as_ref()?;
+        let listening = s.collector.as_ref().map(Collector::deadline);
+        let consensus = s.phase.and_then(|p| self.phases[p].poll_timeout());
+        [listening, consensus].into_iter().flatten().min()
+    }
+
+    pub fn poll_work(&self) -> Option<Work> {
+        let s = self.stepping.as_ref()?;
+        (s.collector.is_none() && !s.weighed).then_some(Work::Weigh)
+    }
+
+    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                self.begin_step(step, now, out)
+            }
+            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
+                self.view = alive.to_bools(self.topology.nodes());
+                self.view[self.index as usize] = true;
+            }
+            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Cell(*cell), out)
+            }
+            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Raw(*value), out)
+            }
+            (Payload::LocationConsensus { .. }, ActorId::Node(_)) => {
+                // Round k of phase p is round p·N_c + k on the wire.
+                let phase = (message.header.round.max(1) - 1) / self.rounds.max(1);
+                let handled = match self.phases.get_mut(phase as usize) {
+                    Some(engine) => engine.handle(message, now, out),
+                    None => Handled::Late,
+                };
+                match handled {
+                    Handled::Taken => self.poll_phases(now, out),
+                    Handled::Late | Handled::NotMine => self.late_messages += 1,
+                }
+            }
+            (p, from) => {
+                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a locator node")
+            }
+        }
+    }
+
+    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if s.collector.as_ref().is_some_and(|c| now >= c.deadline()) {
+            self.close_own();
+        }
+        if let Some(p) = self.stepping.as_ref().and_then(|s| s.phase) {
+            self.phases[p].handle_timeout(now, out);
+        }
+        self.poll_phases(now, out);
+    }
+
+    /// [`Work::Weigh`]: the node's log-likelihood over the coarse grid.
+    pub fn run_work(&mut self, work: Work) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if work == Work::Weigh && !s.weighed {
+            self.evidence.log_likelihood(&self.coarse, &mut s.coarse);
+            s.weighed = true;
+        }
+    }
+
+    pub fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if work != Work::Weigh || s.phase.is_some() {
+            return;
+        }
+        s.weigh_time = elapsed;
+        s.phase = Some(0);
+        let value = std::mem::take(&mut s.coarse);
+        self.phases[0].start_at(s.step, 0, value, &self.view, now, out);
+        self.poll_phases(now, out);
+    }
+
+    fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
+        if !wiring::is_next_step(step, self.steps, self.last_step) {
+            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+            return;
+        }
+        if self.stepping.is_some() {
+            self.deadline_missed = true;
+            self.force_finish(now, out);
+        }
+        self.last_step = Some(step);
+        for engine in &mut self.phases {
+            engine.expect_step(step);
+        }
+        let own = self.topology.node_sensors[self.index as usize].clone();
+        let picks = self.manager.choose(&SelectionContext {
+            step,
+            node: self.index,
+            own_sensors: &own,
+            view: &self.view,
+            predicted: None,
+            sensor_positions: &self.topology.sensor_positions,
+            node_sensors: &self.topology.node_sensors,
+        });
+        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
+        let mask = wiring::mask(&picks);
+        let payload = match &self.quantizer {
+            Some(q) => Payload::ActivateThresholds {
+                mask,
+                thresholds: (1..q.cells() as u32).map(|c| q.cell_edges(c).0).collect(),
+            },
+            None => Payload::Activate { mask },
+        };
+        out.push(wiring::activation(self.index, step, &own, &picks, payload));
+        self.answers.activated(&active);
+        let cells = self.quantizer.as_ref().map(Quantizer::cells);
+        let empty = active.is_empty();
+        self.stepping = Some(Box::new(Stepping {
+            step,
+            collector: Some(Collector::new(step, active, now + self.listen, cells)),
+            observations: 0,
+            weighed: false,
+            coarse: Vec::new(),
+            phase: None,
+            grid: self.coarse,
+            estimate: None,
+            stats: RoundStats::default(),
+            weigh_time: Duration::ZERO,
+        }));
+        if empty {
+            self.close_own();
+        }
+    }
+
+    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, _: &mut Vec<Outgoing>) {
+        self.answers.answered(sensor);
+        let offer = match self.stepping.as_mut().and_then(|s| s.collector.as_mut()) {
+            Some(c) => c.offer(step, sensor, value),
+            None => Offer::Late,
+        };
+        match offer {
+            Offer::Taken => {
+                let complete = self
+                    .stepping
+                    .as_ref()
+                    .and_then(|s| s.collector.as_ref())
+                    .is_some_and(Collector::is_complete);
+                if complete {
+                    self.close_own();
+                }
+            }
+            Offer::Late => self.late_messages += 1,
+            Offer::Invalid => tracing::warn!(
+                node = self.index,
+                sensor,
+                "observation outside the quantizer's cells dropped"
+            ),
+        }
+    }
+
+    /// The node's sensors are done: their reports join the evidence.
+    fn close_own(&mut self) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        let Some(collector) = s.collector.take() else {
+            return;
+        };
+        let collected = collector.close();
+        s.observations = collected.observations.len() as u16;
+        self.evidence.add(&collected.observations);
+    }
+
+    /// Moves the step on through the phases whose results are in.
+    fn poll_phases(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        while let Some(phase) = self.stepping.as_ref().and_then(|s| s.phase) {
+            let Some(summed) = self.phases[phase].poll_result() else {
+                return;
+            };
+            self.next_phase(phase, summed, now, out);
+        }
+    }
+
+    /// Takes phase `phase`'s network sums and starts the next phase, or
+    /// reports the step after the last.
+    fn next_phase(&mut self, phase: usize, summed: Summed, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        s.stats.rounds_completed += summed.stats.rounds_completed;
+        s.stats.neighbours_heard = summed.stats.neighbours_heard;
+        s.stats.total += summed.stats.total;
+        s.stats.later_rounds += summed.stats.later_rounds;
+        let information_phase = self.phases.len() - 1;
+        if phase == information_phase {
+            s.phase = None;
+            let information = [summed.sums[0], summed.sums[1], summed.sums[2]];
+            return self.report(Some(information), out);
+        }
+        let best = best_point(&s.grid, &summed.sums, self.region_centre);
+        s.estimate = Some(best);
+        let next = phase + 1;
+        let value = if next == information_phase {
+            self.evidence.information(best).to_vec()
+        } else {
+            s.grid = s.grid.around(best);
+            let mut value = Vec::with_capacity(s.grid.len());
+            self.evidence.log_likelihood(&s.grid, &mut value);
+            value
+        };
+        s.phase = Some(next);
+        let offset = next as u16 * self.rounds;
+        self.phases[next].start_at(s.step, offset, value, &self.view, now, out);
+    }
+
+    /// The step's telemetry; `information` is the network's, when the last
+    /// phase finished.
+    fn report(&mut self, information: Option<[f64; 3]>, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.take() else {
+            return;
+        };
+        let estimate = s.estimate.unwrap_or(self.region_centre);
+        let (unanswered_sensors, first_unanswered) = self.answers.unanswered();
+        let telemetry = Telemetry {
+            estimate: wiring::reported_estimate(&bounds::State::new(
+                estimate[0],
+                estimate[1],
+                0.0,
+                0.0,
+            )),
+            bound: information.and_then(position_bound),
+            local_bound: position_bound(self.evidence.information(estimate)),
+            aux_bound: None,
+            rounds_completed: s.stats.rounds_completed,
+            live_neighbours: s.stats.neighbours_heard,
+            observations: s.observations,
+            gated: 0,
+            lagged: 0,
+            deadline_missed: self.deadline_missed,
+            late_messages: (self.late_messages - self.late_reported) as u32,
+            stage_micros: [
+                wiring::micros(s.weigh_time),
+                0,
+                wiring::micros(s.stats.later_rounds),
+                wiring::micros(s.stats.total),
+                0,
+            ],
+            unanswered_sensors,
+            first_unanswered,
+            spread: None,
+            active: Vec::new(),
+        };
+        self.deadline_missed = false;
+        self.late_reported = self.late_messages;
+        out.push(wiring::telemetry(self.index, s.step, telemetry));
+    }
+
+    /// Ends an overrun step at once with what it has: no more waiting for
+    /// sensors or neighbours; its stages are not timed.
+    fn force_finish(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        self.close_own();
+        while let Some(s) = self.stepping.as_ref() {
+            if let Some(work) = self.poll_work() {
+                self.run_work(work);
+                self.work_done(work, Duration::ZERO, now, out);
+                continue;
+            }
+            match s.phase {
+                Some(phase) => match self.phases[phase].finish_now(now, out) {
+                    Some(summed) => self.next_phase(phase, summed, now, out),
+                    None => self.report(None, out),
+                },
+                None => self.report(None, out),
+            }
+        }
+    }
+}
+
+/// The grid's best point by the summed log-likelihood; `fallback` when
+/// the sums are flat (no report anywhere yet).
+fn best_point(grid: &Grid, sums: &[f64], fallback: [f64; 2]) -> [f64; 2] {
+    let (lo, hi) = sums
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(*v), hi.max(*v))
+        });
+    if sums.len() != grid.len() || lo >= hi {
+        return fallback;
+    }
+    grid.best(sums)
+}
