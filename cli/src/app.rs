@@ -72,8 +72,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Scenario {
             sensor_selection,
             random_exchange,
+            location,
         } => {
-            print!("{}", builtin_scenario(sensor_selection, random_exchange));
+            print!(
+                "{}",
+                builtin_scenario(sensor_selection, random_exchange, location)
+            );
             Ok::<(), anyhow::Error>(())
         }
         Command::Sim(args) => {

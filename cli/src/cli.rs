@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 use fusion_graph::scenario::{
-    Scenario, DEFAULT_SCENARIO, RANDOM_EXCHANGE_SCENARIO, SENSOR_SELECTION_SCENARIO,
+    Scenario, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
+    SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::Topology;
 
@@ -43,11 +44,15 @@ pub enum Command {
     Scenario {
         /// The sensor-selection scenario (25 bearing sensors a cell, at most
         /// 4 active per node and 18 in all) instead of the default.
-        #[arg(long, alias = "seed001", conflicts_with = "random_exchange")]
+        #[arg(long, alias = "seed001", conflicts_with_all = ["random_exchange", "location"])]
         sensor_selection: bool,
         /// The random-exchange network of 25 RSS nodes instead of the default.
-        #[arg(long, alias = "seed004")]
+        #[arg(long, alias = "seed004", conflicts_with = "location")]
         random_exchange: bool,
+        /// A static target located by 4 nodes from 64 amplitude sensors'
+        /// quantized reports instead of the default.
+        #[arg(long)]
+        location: bool,
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
@@ -210,10 +215,15 @@ pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)
     Ok((scenario, topology))
 }
 
-pub fn builtin_scenario(sensor_selection: bool, random_exchange: bool) -> &'static str {
-    match (sensor_selection, random_exchange) {
-        (true, _) => SENSOR_SELECTION_SCENARIO,
-        (_, true) => RANDOM_EXCHANGE_SCENARIO,
+pub fn builtin_scenario(
+    sensor_selection: bool,
+    random_exchange: bool,
+    location: bool,
+) -> &'static str {
+    match (sensor_selection, random_exchange, location) {
+        (true, _, _) => SENSOR_SELECTION_SCENARIO,
+        (_, true, _) => RANDOM_EXCHANGE_SCENARIO,
+        (_, _, true) => LOCATION_SCENARIO,
         _ => DEFAULT_SCENARIO,
     }
 }

@@ -27,7 +27,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use fusion_graph::scenario::{
-    Scenario, DEFAULT_SCENARIO, RANDOM_EXCHANGE_SCENARIO, SENSOR_SELECTION_SCENARIO,
+    Scenario, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
+    SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::wire::{examples, seal, Message, WireFormat};
 use fusion_graph::Topology;
@@ -500,6 +501,10 @@ impl Actors {
             let lattice = Topology::from_scenario(&seed004, "seed004").expect("its topology");
             nodes.push(ProcessingNode::for_scenario(&seed004, &lattice, 12).expect("node-12"));
         }
+        let location = Scenario::from_toml(LOCATION_SCENARIO, "location", &[])
+            .expect("the built-in location scenario");
+        let ring = Topology::from_scenario(&location, "location").expect("its topology");
+        nodes.push(ProcessingNode::for_scenario(&location, &ring, 1).expect("node-1"));
         Self {
             nodes,
             sensor: SensorActor::new(&scenario, &topology, 0).expect("sensor-0"),
@@ -550,6 +555,7 @@ fn builtin_seeds(target: Target) -> Vec<Vec<u8>> {
             DEFAULT_SCENARIO.as_bytes().to_vec(),
             SENSOR_SELECTION_SCENARIO.as_bytes().to_vec(),
             RANDOM_EXCHANGE_SCENARIO.as_bytes().to_vec(),
+            LOCATION_SCENARIO.as_bytes().to_vec(),
         ],
         Target::Set => vec![b"quantizer.bits=4".to_vec()],
     }

@@ -50,11 +50,11 @@ mod harness;
 pub use actor::NodeActor;
 pub use centralized::CentralizedReference;
 pub use diffusion_node::DiffusionNode;
-pub use locator::LocatorNode;
 pub use error::NodeError;
 pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
+pub use locator::LocatorNode;
 pub use processing::ProcessingNode;
 pub use work::Work;
 

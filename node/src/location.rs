@@ -111,8 +111,13 @@ impl Grid {
         }
     }
 
+    /// Its points: never none, as a grid has at least 5 a side.
     pub fn len(&self) -> usize {
         self.n[0] * self.n[1]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
     }
 
     pub fn point(&self, k: usize) -> [f64; 2] {
@@ -426,8 +431,14 @@ mod tests {
             theta,
         ) * 2.0;
         let got = evidence.information(theta);
-        for (g, e) in got.iter().zip([expected[(0, 0)], expected[(0, 1)], expected[(1, 1)]]) {
-            assert!((g - e).abs() <= 1e-9 * e.abs().max(1e-12), "{got:?} vs {expected}");
+        for (g, e) in got
+            .iter()
+            .zip([expected[(0, 0)], expected[(0, 1)], expected[(1, 1)]])
+        {
+            assert!(
+                (g - e).abs() <= 1e-9 * e.abs().max(1e-12),
+                "{got:?} vs {expected}"
+            );
         }
     }
 
@@ -440,7 +451,9 @@ mod tests {
         let q = sensor_quantizer(&s, ThresholdDesign::Designed).unwrap();
         let mut evidence = LocalEvidence::new(&s, &t, 1, Some(q.clone()));
         let own = &t.node_sensors[1];
-        let cells: Vec<u32> = (0..own.len() as u32).map(|i| i % q.cells() as u32).collect();
+        let cells: Vec<u32> = (0..own.len() as u32)
+            .map(|i| i % q.cells() as u32)
+            .collect();
         let step: Vec<Observation> = own
             .iter()
             .zip(&cells)
@@ -466,7 +479,7 @@ mod tests {
         let grid = Grid::over_region(&s, [7, 7]);
         let mut ll = Vec::new();
         evidence.log_likelihood(&grid, &mut ll);
-        for k in 0..grid.len() {
+        for (k, got) in ll.iter().enumerate() {
             let expected = bounds::location::log_likelihood(
                 DecayLaw::PowerLaw { p0, exponent },
                 &q,
@@ -475,7 +488,7 @@ mod tests {
                 &cells,
                 grid.point(k),
             );
-            assert!((ll[k] - expected).abs() <= 1e-9 * expected.abs().max(1.0));
+            assert!((got - expected).abs() <= 1e-9 * expected.abs().max(1.0));
         }
     }
 
@@ -483,12 +496,12 @@ mod tests {
     fn unknown_or_misplaced_parameters_are_named() {
         let s = scenario(&[]);
         let table: toml::Table = toml::from_str("thresholds = \"optimal\"").unwrap();
-        let e = LocationConfig::from_params(&Params::new("consensus.params", &table), &s)
-            .unwrap_err();
+        let e =
+            LocationConfig::from_params(&Params::new("consensus.params", &table), &s).unwrap_err();
         assert_eq!(e.key, "consensus.params.thresholds");
         let table: toml::Table = toml::from_str("grid_x = 2").unwrap();
-        let e = LocationConfig::from_params(&Params::new("consensus.params", &table), &s)
-            .unwrap_err();
+        let e =
+            LocationConfig::from_params(&Params::new("consensus.params", &table), &s).unwrap_err();
         assert_eq!(e.key, "consensus.params.grid_x");
     }
 }

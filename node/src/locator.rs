@@ -70,6 +70,11 @@ pub struct LocatorNode {
     phases: Vec<VectorSum>,
     rounds: u16,
     region_centre: [f64; 2],
+    /// A bound wider than the region says the sensors cannot place the
+    /// target in it at all: a node far from the target, whose own sensors
+    /// all read noise, has a nearly singular J and a bound of 10⁷⁰ m,
+    /// reported as none.
+    region_diagonal: f64,
     view: Vec<bool>,
     listen: Duration,
     steps: u32,
@@ -112,6 +117,7 @@ impl LocatorNode {
             manager: UniformRandom::for_scenario(scenario),
             rounds,
             region_centre: [scenario.region.width / 2.0, scenario.region.height / 2.0],
+            region_diagonal: scenario.region.width.hypot(scenario.region.height),
             view: topology.all_alive(),
             listen: timeout,
             steps: scenario.steps,
@@ -388,7 +394,8 @@ impl LocatorNode {
                 0.0,
             )),
             bound: information.and_then(position_bound),
-            local_bound: position_bound(self.evidence.information(estimate)),
+            local_bound: position_bound(self.evidence.information(estimate))
+                .filter(|b| *b <= self.region_diagonal),
             aux_bound: None,
             rounds_completed: s.stats.rounds_completed,
             live_neighbours: s.stats.neighbours_heard,

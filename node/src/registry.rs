@@ -365,7 +365,9 @@ pub fn information_fusion(
             build(&setup(scenario, topology, node, params)).map(Some)
         }
         Shape::ExactSums | Shape::Tracker { .. } => params.only(&[]).map(|()| None),
-        Shape::Locator => crate::location::LocationConfig::from_params(&params, scenario).map(|_| None),
+        Shape::Locator => {
+            crate::location::LocationConfig::from_params(&params, scenario).map(|_| None)
+        }
     }
 }
 

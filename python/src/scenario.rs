@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 
 use fusion_graph::scenario::{
-    Scenario, DEFAULT_SCENARIO, RANDOM_EXCHANGE_SCENARIO, SENSOR_SELECTION_SCENARIO,
+    Scenario, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
+    SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::Topology;
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
@@ -16,7 +17,7 @@ use crate::convert::{to_python, to_toml};
 use crate::scenario_error;
 
 /// The scenarios cqnet carries, by the names `Scenario.builtin` takes.
-const BUILTIN: [(&str, &str, &str); 3] = [
+const BUILTIN: [(&str, &str, &str); 4] = [
     ("default", "<built-in default>", DEFAULT_SCENARIO),
     (
         "seed001",
@@ -28,6 +29,7 @@ const BUILTIN: [(&str, &str, &str); 3] = [
         "<built-in random-exchange>",
         RANDOM_EXCHANGE_SCENARIO,
     ),
+    ("location", "<built-in location>", LOCATION_SCENARIO),
 ];
 
 /// Other names of the built-in scenarios: the file each comes from.
@@ -107,8 +109,9 @@ impl PyScenario {
     }
 
     /// A scenario cqnet carries: "default", "seed001" (the sensor-selection
-    /// paper's, also "sensor-selection") or "seed004" (the random-exchange
-    /// paper's RSS network, also "random-exchange").
+    /// paper's, also "sensor-selection"), "seed004" (the random-exchange
+    /// paper's RSS network, also "random-exchange") or "location" (a static
+    /// target located from quantized amplitudes).
     #[staticmethod]
     fn builtin(name: &str) -> PyResult<Self> {
         let wanted = builtin_alias(name);

@@ -155,7 +155,11 @@ impl SensorActor {
                             self.sent_quantizer = Some((step, q));
                         }
                         _ => {
-                            tracing::warn!(sensor = self.index, step, "thresholds for another quantizer; activation ignored");
+                            tracing::warn!(
+                                sensor = self.index,
+                                step,
+                                "thresholds for another quantizer; activation ignored"
+                            );
                             return None;
                         }
                     }

@@ -69,7 +69,9 @@ fn every_report(s: &Scenario, t: &Topology, steps: u32) -> Vec<([f64; 2], u32)> 
                 },
             );
             assert!(sensor.handle(&tick).is_none());
-            let report = sensor.handle(&activation).expect("an active sensor reports");
+            let report = sensor
+                .handle(&activation)
+                .expect("an active sensor reports");
             let Payload::Observation { cell } = report.payload else {
                 panic!("a quantized report: {report:?}")
             };
@@ -106,8 +108,7 @@ fn consensus_gives_every_node_the_centralized_ml_estimate_and_crlb() {
     for step in 1..=STEPS {
         let reports = every_report(&s, &t, step);
         let (positions, cells): (Vec<[f64; 2]>, Vec<u32>) = reports.into_iter().unzip();
-        let central =
-            |theta: [f64; 2]| log_likelihood(law, &q, sigma, &positions, &cells, theta);
+        let central = |theta: [f64; 2]| log_likelihood(law, &q, sigma, &positions, &cells, theta);
         // The node's search, over the network's reports at once: the
         // region's 21 × 21 grid, then two grids, each ten times finer.
         let mut grid = Grid::over_region(&s, [21, 21]);
@@ -185,6 +186,11 @@ fn as_processes_the_locator_reports_sims_ticks_and_sends_the_predicted_bytes() {
     // The bound falls as reports add up: by 1/sqrt(k) at a fixed point,
     // and the estimate barely moves.
     let bound = |step| r.mean_bound("node-0", step..=step).unwrap();
-    assert!(bound(STEPS) < bound(1) / 1.5, "{} then {}", bound(1), bound(STEPS));
+    assert!(
+        bound(STEPS) < bound(1) / 1.5,
+        "{} then {}",
+        bound(1),
+        bound(STEPS)
+    );
     r.assert_clean();
 }

@@ -32,9 +32,9 @@ pub(crate) mod information;
 mod kl;
 mod min;
 mod rounds;
-mod vector_sum;
 #[cfg(test)]
 pub(crate) mod testing;
+mod vector_sum;
 
 pub use average::{average_consensus, AverageConsensus};
 pub use exact::{ExactSumOracle, ExactSums};
