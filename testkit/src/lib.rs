@@ -61,6 +61,7 @@
 mod cleanup;
 mod network;
 mod results;
+mod separate_hosts;
 
 use std::sync::{Mutex, MutexGuard};
 
@@ -75,6 +76,7 @@ pub use fusion_graph::ActorId;
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
 pub use results::{Run, Tick};
 pub use runtime::summary::{AppliedFault, FaultCost, Summary};
+pub use separate_hosts::{SeparateHosts, AGENT_PORT};
 
 /// The `cqnet` program's `main`, for a binary of your own crate (see the
 /// crate's documentation).
@@ -159,6 +161,9 @@ pub enum Error {
     /// The run id built from the tag is not one `cqnet` accepts.
     #[error("the run id {0:?}: {1}")]
     RunId(String, String),
+    /// Setting up or changing separate hosts' namespaces failed.
+    #[error("separate hosts: {0}")]
+    Host(String),
 }
 
 #[cfg(test)]

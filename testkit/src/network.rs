@@ -15,6 +15,7 @@ use fusion_graph::ActorId;
 
 use crate::cleanup::{kill_and_clean, processes_matching};
 use crate::results::{read_ticks, Run};
+use crate::separate_hosts::SeparateHosts;
 use crate::Error;
 
 /// The longest a network may run before it is killed and its test fails,
@@ -44,6 +45,8 @@ pub struct Network {
     env: Vec<(String, String)>,
     tag: String,
     time_limit: Duration,
+    /// Each host in a namespace of its own ([`Network::on_separate_hosts`]).
+    separate: Option<Arc<SeparateHosts>>,
 }
 
 impl Network {
@@ -70,7 +73,18 @@ impl Network {
             env: Vec::new(),
             tag: "run".into(),
             time_limit: DEFAULT_TIME_LIMIT,
+            separate: None,
         }
+    }
+
+    /// Runs each host of the scenario (`[[hosts]]`, `--features zenoh`) in
+    /// its own network and mount namespace of `hosts`: the launcher and
+    /// the first host's agent in the first, each other host's agent in its
+    /// own. The scenario's endpoints must be the namespaces' addresses
+    /// ([`SeparateHosts::place`]).
+    pub fn on_separate_hosts(mut self, hosts: &Arc<SeparateHosts>) -> Self {
+        self.separate = Some(hosts.clone());
+        self
     }
 
     /// The `cqnet` program to run (see the crate's documentation for the
@@ -155,7 +169,14 @@ impl Network {
             command.arg("--lockstep");
         }
         command.args(&self.extra_args);
-        self.spawn(command, executable, run_id, out)
+        let Some(hosts) = &self.separate else {
+            return self.spawn(command, executable, run_id, out);
+        };
+        let (command, agents) = on_separate_hosts(hosts, command, &out)?;
+        let mut running = self.spawn(command, executable, run_id, out)?;
+        running.agents = agents;
+        running.hosts = Some(hosts.clone());
+        Ok(running)
     }
 
     /// Runs the same scenario in one process with `cqnet sim` (in-memory
@@ -247,6 +268,8 @@ impl Network {
             started: Instant::now(),
             time_limit: self.time_limit,
             handed_over: false,
+            agents: Vec::new(),
+            hosts: None,
         })
     }
 
@@ -296,6 +319,67 @@ fn built_cqnet() -> Option<PathBuf> {
         .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
         .max()
         .map(|(_, p)| p)
+}
+
+/// The launcher's command moved into the first host's namespace, with that
+/// host's agent started beside it (in the same mount namespace, so that
+/// they share its `/dev/shm`), and the other hosts' agents started in
+/// theirs, each serving one run and logging to `out/logs/agent-<host>.log`.
+fn on_separate_hosts(
+    hosts: &SeparateHosts,
+    launcher: Command,
+    out: &Path,
+) -> Result<(Command, Vec<Child>), Error> {
+    let logs = out.join("logs");
+    let spawn_err = |source| Error::Spawn {
+        executable: "ip netns exec".into(),
+        source,
+    };
+    std::fs::create_dir_all(&logs).map_err(spawn_err)?;
+    let exe = launcher.get_program().to_owned();
+    let args: Vec<std::ffi::OsString> = launcher.get_args().map(|a| a.to_owned()).collect();
+    // `run <scenario file> …`: the agents read their endpoints from it.
+    let scenario = args.get(1).cloned().unwrap_or_default();
+    let names: Vec<String> = hosts.hosts().map(str::to_string).collect();
+    let agent_args = |name: &str| -> Vec<std::ffi::OsString> {
+        vec![
+            "agent".into(),
+            scenario.clone(),
+            "--host".into(),
+            name.into(),
+            "--dir".into(),
+            out.join("hosts").join(name).into_os_string(),
+            "--once".into(),
+        ]
+    };
+    let log = |name: &str| -> Result<(Stdio, Stdio), Error> {
+        let f = std::fs::File::create(logs.join(format!("agent-{name}.log"))).map_err(spawn_err)?;
+        Ok((f.try_clone().map_err(spawn_err)?.into(), f.into()))
+    };
+    let mut agents = Vec::new();
+    for name in names.iter().skip(1) {
+        let (stdout, stderr) = log(name)?;
+        let agent = hosts
+            .command(name, &exe)
+            .args(agent_args(name))
+            .stdin(Stdio::null())
+            .stdout(stdout)
+            .stderr(stderr)
+            .spawn()
+            .map_err(spawn_err)?;
+        agents.push(agent);
+    }
+    let first = &names[0];
+    let agent_log = logs.join(format!("agent-{first}.log"));
+    let mut command = hosts.command_with_companion(first, &exe, &agent_args(first), &agent_log);
+    command.args(&args);
+    for (k, v) in launcher.get_envs() {
+        match v {
+            Some(v) => command.env(k, v),
+            None => command.env_remove(k),
+        };
+    }
+    Ok((command, agents))
 }
 
 /// A run id unique to this process and call: `t<pid>-<tag>-<n>`.
@@ -374,6 +458,10 @@ pub struct RunningNetwork {
     time_limit: Duration,
     /// `wait` made a `Run`, which cleans up when it is dropped.
     handed_over: bool,
+    /// The agents of hosts in namespaces of their own, but the launcher's.
+    agents: Vec<Child>,
+    /// The namespaces, kept until the run is over.
+    hosts: Option<Arc<SeparateHosts>>,
 }
 
 impl RunningNetwork {
@@ -522,6 +610,7 @@ impl RunningNetwork {
             }
             std::thread::sleep(Duration::from_millis(20));
         };
+        self.reap_agents();
         let stdout = std::mem::replace(&mut self.stdout, Captured::drain(None)).finish();
         let stderr = std::mem::replace(&mut self.stderr, Captured::drain(None)).finish();
         let ticks = read_ticks(&self.out.join("ticks.csv"));
@@ -540,11 +629,31 @@ impl RunningNetwork {
     }
 }
 
+impl RunningNetwork {
+    /// Waits for the agents a separate-hosts run started (each serves one
+    /// run and exits after it), killing those still there after 10 s.
+    fn reap_agents(&mut self) {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        for agent in &mut self.agents {
+            while Instant::now() < deadline && matches!(agent.try_wait(), Ok(None)) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = agent.kill();
+            let _ = agent.wait();
+        }
+        self.agents.clear();
+    }
+}
+
 impl Drop for RunningNetwork {
     fn drop(&mut self) {
         if let Some(mut c) = self.child.take() {
             let _ = c.kill();
             let _ = c.wait();
+        }
+        for agent in &mut self.agents {
+            let _ = agent.kill();
+            let _ = agent.wait();
         }
         if !self.handed_over {
             kill_and_clean(&self.run_id);

@@ -1,13 +1,18 @@
 //! Several hosts (`--features zenoh`): the default network's nodes spread
-//! over three simulated hosts on this machine. Each host has its own
-//! iceoryx2 domain and its own `cqnet agent` process (`--local-agents`),
-//! with Zenoh between them over 127.0.0.1, each test on ports of its own.
+//! over three hosts on this machine. Each host has its own iceoryx2 domain
+//! and its own `cqnet agent` process, with Zenoh between them: either
+//! over 127.0.0.1 (`--local-agents`), each test on ports of its own, or,
+//! where the tests run as root, each host in a network and mount
+//! namespace of its own ([`SeparateHosts`]), joined only by veth pairs to
+//! a bridge, whose links the kernel can cut and shape.
 #![cfg(feature = "zenoh")]
 
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use cqnet_testkit::{default_scenario, exclusive, ActorId, Network, Run, Target};
+use std::sync::Arc;
+
+use cqnet_testkit::{default_scenario, exclusive, ActorId, Network, Run, SeparateHosts, Target};
 use fusion_graph::hosts::{HostConfig, Placement};
 use fusion_graph::{Scenario, Topology};
 
@@ -90,13 +95,37 @@ fn reported_crossing(run: &Run) -> BTreeMap<(String, String), [u64; 4]> {
 fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts() {
     let _guard = exclusive();
     let scenario = three_hosts(6);
-    let patient = |n: Network| {
-        n.executable(CQNET)
-            .set("consensus.round_timeout_ms", 20000)
-            .set("clock.step_timeout_ms", 60000)
-            .lockstep()
-    };
     let n = patient(Network::new(scenario.clone()).tag("hosts-same")).arg("--local-agents");
+    assert_sims_ticks_and_one_hosts_bytes(n, &scenario);
+}
+
+/// The same, with each host in a network namespace of its own joined to
+/// the others by veth pairs to a bridge, and a `/dev/shm` of its own:
+/// nothing but the network between them, as between machines.
+#[test]
+fn three_separate_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts() {
+    if let Some(why) = SeparateHosts::unavailable() {
+        eprintln!("skipped: {why}");
+        return;
+    }
+    let _guard = exclusive();
+    let hosts = Arc::new(SeparateHosts::create(&["a", "b", "c"]).unwrap());
+    let mut scenario = three_hosts(6);
+    hosts.place(&mut scenario);
+    let n = patient(Network::new(scenario.clone()).tag("hosts-apart")).on_separate_hosts(&hosts);
+    assert_sims_ticks_and_one_hosts_bytes(n, &scenario);
+}
+
+/// Timeouts no round or step of a loaded machine reaches: in lockstep, a
+/// run that never times out is `sim`'s.
+fn patient(n: Network) -> Network {
+    n.executable(CQNET)
+        .set("consensus.round_timeout_ms", 20000)
+        .set("clock.step_timeout_ms", 60000)
+        .lockstep()
+}
+
+fn assert_sims_ticks_and_one_hosts_bytes(n: Network, scenario: &Scenario) {
     let r = n.clone().run().unwrap();
     r.assert_success();
     let s = n.sim().unwrap();
@@ -133,7 +162,7 @@ fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts()
     };
     assert_eq!(counts(&r), counts(&single), "link by link, kind by kind");
 
-    let (p, _) = placement(&scenario);
+    let (p, _) = placement(scenario);
     let name = |a: ActorId| p.hosts()[p.host_of(a)].name.clone();
     let mut expected: BTreeMap<(String, String), [u64; 4]> = BTreeMap::new();
     for ((from, to, _), c) in single.accounting().iter() {
@@ -204,6 +233,69 @@ fn an_agent_killed_and_restarted_leaves_and_rejoins_the_run() {
         let seen = steps_of(node);
         assert!(seen.contains(&4), "{node} before the loss");
         assert!(seen.contains(&steps), "{node} after the return: {seen:?}");
+        assert!(seen.len() < steps as usize, "{node} never missed a step");
+    }
+    r.assert_clean();
+}
+
+/// Host b's link to the bridge cut mid-run, by the kernel, as a cable
+/// pulled: the others carry on and report every step, host b's nodes are
+/// reported lost, and when the link returns they report again (its agent,
+/// which outlived the cut, stops the actors the launcher counted gone, and
+/// their successors rejoin).
+#[test]
+fn a_separate_host_cut_off_is_lost_and_rejoins_when_its_link_returns() {
+    if let Some(why) = SeparateHosts::unavailable() {
+        eprintln!("skipped: {why}");
+        return;
+    }
+    let _guard = exclusive();
+    let hosts = Arc::new(SeparateHosts::create(&["a", "b", "c"]).unwrap());
+    let steps = 100;
+    let mut scenario = three_hosts(steps);
+    hosts.place(&mut scenario);
+    let mut running = Network::new(scenario)
+        .executable(CQNET)
+        .tag("hosts-cut")
+        .set("clock.step_period_ms", 250)
+        .on_separate_hosts(&hosts)
+        .start()
+        .unwrap();
+    assert!(
+        running.wait_for_step(5, Duration::from_secs(60)),
+        "the run did not reach step 5"
+    );
+    hosts.cut("b").unwrap();
+    // Longer than Zenoh's lease (10 s): a shorter cut only delays what
+    // crosses it, which TCP delivers when the link returns.
+    assert!(running.wait_for_step(60, Duration::from_secs(60)));
+    hosts.restore("b").unwrap();
+    let r = running.wait().unwrap();
+    r.assert_success();
+    let faults: Vec<String> = r.faults().iter().map(|f| f.fault.clone()).collect();
+    for node in 3..6 {
+        assert!(
+            faults
+                .iter()
+                .any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
+            "{faults:?}"
+        );
+    }
+    let steps_of = |node: &str| {
+        r.ticks_of(node)
+            .map(|t| t.step)
+            .collect::<std::collections::BTreeSet<u32>>()
+    };
+    for node in ["node-0", "node-8"] {
+        assert_eq!(steps_of(node).len(), steps as usize, "{node}");
+    }
+    for node in ["node-3", "node-4", "node-5"] {
+        let seen = steps_of(node);
+        assert!(seen.contains(&4), "{node} before the cut");
+        assert!(
+            seen.contains(&steps),
+            "{node} after the link returned: {seen:?}"
+        );
         assert!(seen.len() < steps as usize, "{node} never missed a step");
     }
     r.assert_clean();

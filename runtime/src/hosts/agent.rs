@@ -4,9 +4,10 @@
 //! and reaps its host's actors (the one-host supervisor, unchanged), and
 //! reports their readiness, exits and byte counts.
 
+use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use fusion_graph::accounting::read_ledger;
@@ -14,7 +15,7 @@ use fusion_graph::accounting::Accounting;
 use fusion_graph::hosts::Placement;
 use fusion_graph::transport::iceoryx::remove_run_resources;
 use fusion_graph::transport::RunId;
-use fusion_graph::{Scenario, Topology};
+use fusion_graph::{ActorId, Scenario, Topology};
 use zenoh::Wait;
 
 use super::bridge::Bridge;
@@ -43,6 +44,9 @@ pub struct AgentArgs {
 /// How often the agent looks at both its command subscription and its
 /// supervisor's events.
 const POLL: Duration = Duration::from_millis(5);
+/// How long the actors of a host the launcher lost get to exit after
+/// SIGKILL before the agent answers regardless.
+const CLEARING_TIMEOUT: Duration = Duration::from_secs(5);
 
 pub fn run_agent(args: &AgentArgs) -> anyhow::Result<()> {
     let scenario = Scenario::load(&args.scenario, &[])?;
@@ -84,6 +88,7 @@ pub fn run_agent(args: &AgentArgs) -> anyhow::Result<()> {
                         run,
                         scenario,
                         centralized,
+                        ..
                     }) => break (run, scenario, centralized),
                     Some(other) => tracing::debug!(?other, "no run set up; ignored"),
                     None => tracing::warn!("a command that did not decode; dropped"),
@@ -184,19 +189,35 @@ impl Agent<'_> {
             })?;
         self.tell(&FromAgent::SetUp { run: run.into() });
         let mut interrupted = false;
+        // The actors started and not yet exited.
+        let mut running: HashSet<ActorId> = HashSet::new();
+        // Set up again after the launcher lost this host: the actors are
+        // being stopped, and the answer waits until they are gone.
+        let mut clearing: Option<Instant> = None;
         'run: loop {
             while let Ok(e) = events.try_recv() {
                 match e {
-                    Event::Ready(a) => self.tell(&FromAgent::Ready(a)),
+                    Event::Ready(a) => {
+                        running.insert(a);
+                        self.tell(&FromAgent::Ready(a))
+                    }
+                    // The launcher counts a host's actors gone when it
+                    // loses the host: their exits are not news to it.
+                    Event::Exited { actor, .. } if clearing.is_some() => {
+                        running.remove(&actor);
+                    }
                     Event::Exited {
                         actor,
                         status,
                         stderr_tail,
-                    } => self.tell(&FromAgent::Exited {
-                        actor,
-                        status,
-                        stderr_tail,
-                    }),
+                    } => {
+                        running.remove(&actor);
+                        self.tell(&FromAgent::Exited {
+                            actor,
+                            status,
+                            stderr_tail,
+                        })
+                    }
                     Event::Interrupted => {
                         interrupted = true;
                         let _ = command_tx.send(Command::Shutdown);
@@ -204,6 +225,18 @@ impl Agent<'_> {
                     Event::AllReaped => break 'run,
                     // Only the launcher's supervisor of several hosts says these.
                     Event::HostBack(_) | Event::Counts { .. } => {}
+                }
+            }
+            if let Some(since) = clearing {
+                if running.is_empty() || since.elapsed() > CLEARING_TIMEOUT {
+                    if !running.is_empty() {
+                        tracing::warn!(
+                            left = running.len(),
+                            "actors still running after the host was lost; answering anyway"
+                        );
+                    }
+                    clearing = None;
+                    self.tell(&FromAgent::SetUp { run: run.into() });
                 }
             }
             let sample = match commands.recv_timeout(POLL) {
@@ -216,6 +249,29 @@ impl Agent<'_> {
                 continue;
             };
             let to_supervisor = match command {
+                ToAgent::Setup {
+                    run: again,
+                    after_loss: true,
+                    ..
+                } if again == run => {
+                    // Cut off longer than the lease, the launcher counts
+                    // this host's actors gone and will start their
+                    // successors: the ones still running here go first.
+                    if clearing.is_none() {
+                        tracing::warn!(
+                            actors = running.len(),
+                            "the launcher lost this host; stopping its actors for their successors"
+                        );
+                        clearing = Some(Instant::now());
+                        for actor in &running {
+                            let _ = command_tx.send(Command::Signal {
+                                actor: *actor,
+                                signal: fusion_graph::scenario::Signal::Kill,
+                            });
+                        }
+                    }
+                    None
+                }
                 ToAgent::Setup { run: again, .. } if again == run => {
                     self.tell(&FromAgent::SetUp { run: run.into() });
                     None

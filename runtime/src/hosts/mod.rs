@@ -46,6 +46,11 @@ pub enum ToAgent {
         run: String,
         scenario: String,
         centralized: bool,
+        /// The launcher lost this host (its link was cut longer than the
+        /// lease) and counts its actors gone: an agent still serving the
+        /// run stops them before it answers, for their successors to
+        /// rejoin.
+        after_loss: bool,
     },
     Spawn {
         actor: ActorId,

@@ -126,17 +126,18 @@ pub fn supervise_hosts(
             tracing::warn!(host = %hosts[h].name, error = %e, "could not reach the agent");
         }
     };
-    let setup_message = ToAgent::Setup {
+    let setup_message = |after_loss: bool| ToAgent::Setup {
         run: setup.run.clone(),
         scenario: setup.scenario.clone(),
         centralized: setup.centralized,
+        after_loss,
     };
     let actors_on = |h: usize| setup.placement.actors_on(h, &setup.topology);
     loop {
         let incoming = rx.recv_timeout(Duration::from_millis(100));
         for (h, s) in state.iter_mut().enumerate() {
             if s.up && !s.set_up && s.last_setup.is_none_or(|t| t.elapsed() >= SETUP_RETRY) {
-                send(h, &setup_message);
+                send(h, &setup_message(s.lost));
                 s.last_setup = Some(Instant::now());
             }
         }
