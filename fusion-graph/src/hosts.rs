@@ -153,10 +153,27 @@ impl Placement {
     }
 
     /// Host `h`'s iceoryx2 domain: the run id its actors (and its bridge)
-    /// use, so each host's shared memory is its own.
+    /// use, so each host's shared memory is its own. The launcher checks
+    /// first that every host's is a run id ([`check_domains`](Self::check_domains)).
     pub fn domain(&self, run: &RunId, h: usize) -> RunId {
         let id = format!("{}-{}", run.as_str(), self.hosts[h].name);
         RunId::new(&id).expect("a run id and a host name make a run id")
+    }
+
+    /// Whether run id `run` leaves room for every host's name in its
+    /// domain: a run id is at most 32 characters, and a domain is the run
+    /// id, `-` and the host's name.
+    pub fn check_domains(&self, run: &RunId) -> Result<(), String> {
+        let longest = self.hosts.iter().map(|h| h.name.len()).max().unwrap_or(0);
+        let room = 32usize.saturating_sub(longest + 1);
+        if run.as_str().len() > room {
+            return Err(format!(
+                "run id `{}` is {} characters; with several hosts it may have at most {room} (32 with `-` and the longest host name)",
+                run.as_str(),
+                run.as_str().len()
+            ));
+        }
+        Ok(())
     }
 
     /// Every channel of the network, with the actors that read it.

@@ -190,25 +190,55 @@ impl SeparateHosts {
     }
 
     /// Shapes both directions of host `name`'s link with `tc netem`
-    /// (`["delay", "5ms"]`, `["loss", "1%"]`, …); an empty `netem` removes
-    /// the shaping.
+    /// (`["delay", "5ms"]`, `["loss", "1%"]`, …). A kernel built without
+    /// netem (`sch_netem`) refuses it: [`netem_unavailable`](Self::netem_unavailable)
+    /// says so beforehand.
     pub fn shape(&self, name: &str, netem: &[&str]) -> Result<(), Error> {
+        let mut qdisc = vec!["netem"];
+        qdisc.extend(netem);
+        self.qdisc(name, &qdisc)
+    }
+
+    /// Limits both directions of host `name`'s link to `rate` (`"10mbit"`)
+    /// with a token bucket (`tc tbf`), which kernels without netem have.
+    pub fn limit_rate(&self, name: &str, rate: &str) -> Result<(), Error> {
+        self.qdisc(
+            name,
+            &["tbf", "rate", rate, "burst", "64kb", "latency", "400ms"],
+        )
+    }
+
+    /// Removes the shaping of host `name`'s link.
+    pub fn unshape(&self, name: &str) {
+        let h = self.host(name);
+        let _ = run("tc", &["qdisc", "del", "dev", &h.outside, "root"]);
+        let _ = run(
+            "tc",
+            &["-n", &h.namespace, "qdisc", "del", "dev", &h.inside, "root"],
+        );
+    }
+
+    fn qdisc(&self, name: &str, qdisc: &[&str]) -> Result<(), Error> {
         let h = self.host(name);
         for (ns, dev) in [(None, &h.outside), (Some(&h.namespace), &h.inside)] {
             let mut args: Vec<&str> = Vec::new();
             if let Some(ns) = ns {
                 args.extend(["-n", ns]);
             }
-            if netem.is_empty() {
-                args.extend(["qdisc", "del", "dev", dev, "root"]);
-                let _ = run("tc", &args);
-            } else {
-                args.extend(["qdisc", "replace", "dev", dev, "root", "netem"]);
-                args.extend(netem);
-                run("tc", &args)?;
-            }
+            args.extend(["qdisc", "replace", "dev", dev, "root"]);
+            args.extend(qdisc);
+            run("tc", &args)?;
         }
         Ok(())
+    }
+
+    /// Why this kernel cannot delay or drop packets with `tc netem`, if it
+    /// cannot (found by trying it on a host's link).
+    pub fn netem_unavailable(&self) -> Option<String> {
+        let h = self.hosts.first()?;
+        let tried = self.shape(&h.name, &["delay", "1ms"]);
+        self.unshape(&h.name);
+        tried.err().map(|e| e.to_string())
     }
 }
 

@@ -86,6 +86,10 @@ pub fn run_network(
             "this scenario has [[hosts]]: several hosts need cqnet built with `--features zenoh`"
         );
     }
+    if let Some(p) = &placement {
+        p.check_domains(&options.run_id)
+            .map_err(|e| anyhow::anyhow!("--run-id: {e}"))?;
+    }
     if placement.is_none() && options.local_agents {
         bail!("--local-agents: the scenario has no [[hosts]] to start agents for");
     }
