@@ -391,6 +391,15 @@ pub fn own_cpu_seconds() -> Option<f64> {
     Some(seconds(u.user_time()) + seconds(u.system_time()))
 }
 
+/// CPU time the children this process has reaped used, user and system,
+/// in seconds.
+pub fn children_cpu_seconds() -> Option<f64> {
+    use nix::sys::resource::{getrusage, UsageWho};
+    let u = getrusage(UsageWho::RUSAGE_CHILDREN).ok()?;
+    let seconds = |t: nix::sys::time::TimeVal| t.tv_sec() as f64 + t.tv_usec() as f64 / 1e6;
+    Some(seconds(u.user_time()) + seconds(u.system_time()))
+}
+
 /// What a run knows about itself beyond its rows, for the summary.
 pub struct RunFacts {
     pub command: String,

@@ -67,7 +67,38 @@ pub enum Event {
     Counts {
         accounting_csv: String,
         bridges: Vec<(String, fusion_graph::hosts::BridgeCounts)>,
+        /// What each host that answered sent home, by host name.
+        homes: Vec<(String, HostFiles)>,
     },
+}
+
+/// What a host sends home at the end of a run: its actors' logs and
+/// memory and CPU files, by their path in a run's results folder
+/// (`logs/<actor>.log`, `accounting/<actor>.memory`, …), and the CPU its
+/// agent and the actors it reaped used.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct HostFiles {
+    pub files: Vec<(String, Vec<u8>)>,
+    pub cpu_seconds: Option<f64>,
+}
+
+impl HostFiles {
+    /// Whether `path` is one a host may send: `logs/` or `accounting/`
+    /// and a plain file name (what comes over the network is not trusted
+    /// to stay inside the results folder).
+    pub fn is_allowed(path: &str) -> bool {
+        let Some((folder, name)) = path.split_once('/') else {
+            return false;
+        };
+        matches!(folder, "logs" | "accounting")
+            && !name.is_empty()
+            && name.len() <= 64
+            && name != "."
+            && name != ".."
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.'))
+    }
 }
 
 /// The program that runs an actor, and the arguments it takes before

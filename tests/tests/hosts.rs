@@ -96,7 +96,8 @@ fn three_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_between_hosts()
     let _guard = exclusive();
     let scenario = three_hosts(6);
     let n = patient(Network::new(scenario.clone()).tag("hosts-same")).arg("--local-agents");
-    assert_sims_ticks_and_one_hosts_bytes(n, &scenario);
+    let r = assert_sims_ticks_and_one_hosts_bytes(n, &scenario);
+    assert_results_came_home(&r);
 }
 
 /// The same, with each host in a network namespace of its own joined to
@@ -113,7 +114,44 @@ fn three_separate_hosts_in_lockstep_are_sims_bit_for_bit_with_exact_bytes_betwee
     let mut scenario = three_hosts(6);
     hosts.place(&mut scenario);
     let n = patient(Network::new(scenario.clone()).tag("hosts-apart")).on_separate_hosts(&hosts);
-    assert_sims_ticks_and_one_hosts_bytes(n, &scenario);
+    let r = assert_sims_ticks_and_one_hosts_bytes(n, &scenario);
+    assert_results_came_home(&r);
+}
+
+/// What each host kept is in the launcher's results folder, where a run on
+/// one host leaves it: every actor's memory file, and every log an agent
+/// kept (an actor writes one only when it has something to say), byte for
+/// byte; the summary's memory covers all 90 actors, and `hosts.json` gives
+/// each host's CPU.
+fn assert_results_came_home(r: &Run) {
+    let home = r.out_dir();
+    for i in 0..9 {
+        for actor in [format!("node-{i}"), format!("sensor-{}", 9 * i + 4)] {
+            let memory = home.join("accounting").join(format!("{actor}.memory"));
+            assert!(memory.is_file(), "{} is not home", memory.display());
+        }
+    }
+    for host in ["a", "b", "c"] {
+        let kept = home.join("hosts").join(host).join(r.run_id()).join("logs");
+        for log in std::fs::read_dir(&kept).into_iter().flatten().flatten() {
+            let brought = home.join("logs").join(log.file_name());
+            assert_eq!(
+                std::fs::read(log.path()).unwrap(),
+                std::fs::read(&brought).unwrap_or_default(),
+                "{} is not home",
+                log.path().display()
+            );
+        }
+    }
+    let memory = r.summary().children_memory_kb.as_ref().expect("memory");
+    // Each actor's proportional set is at least a hundred kB.
+    assert!(memory.total_pss > 90 * 100, "{memory:?}");
+    let text = std::fs::read_to_string(home.join("hosts.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for host in json["hosts"].as_array().unwrap() {
+        let cpu = host["cpu_seconds"].as_f64();
+        assert!(cpu.is_some_and(|c| c > 0.0), "{host}");
+    }
 }
 
 /// Timeouts no round or step of a loaded machine reaches: in lockstep, a
@@ -125,7 +163,7 @@ fn patient(n: Network) -> Network {
         .lockstep()
 }
 
-fn assert_sims_ticks_and_one_hosts_bytes(n: Network, scenario: &Scenario) {
+fn assert_sims_ticks_and_one_hosts_bytes(n: Network, scenario: &Scenario) -> Run {
     let r = n.clone().run().unwrap();
     r.assert_success();
     let s = n.sim().unwrap();
@@ -181,6 +219,7 @@ fn assert_sims_ticks_and_one_hosts_bytes(n: Network, scenario: &Scenario) {
         .values()
         .all(|[sm, sb, rm, rb]| sm == rm && sb == rb && *sb > 0));
     r.assert_clean();
+    r
 }
 
 /// An agent killed with SIGKILL takes its host's actors with it: their

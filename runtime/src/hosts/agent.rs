@@ -22,8 +22,8 @@ use super::bridge::Bridge;
 use super::{
     command_key, decode, encode, event_key, liveliness_key, open_session, put, FromAgent, ToAgent,
 };
-use crate::actor_process::ledger_path;
-use crate::supervisor::{supervise, ChildSpec, Command, Event};
+use crate::actor_process::{cpu_path, ledger_path, memory_path};
+use crate::supervisor::{supervise, ChildSpec, Command, Event, HostFiles};
 
 #[derive(Debug, clap::Args)]
 pub struct AgentArgs {
@@ -287,6 +287,7 @@ impl Agent<'_> {
                     self.tell(&FromAgent::Counts {
                         accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
                         bridge: bridge.counts(),
+                        home: host_files(&dir, &placement, host, &topology),
                     });
                     None
                 }
@@ -310,6 +311,45 @@ impl Agent<'_> {
             Served::Finished
         })
     }
+}
+
+/// The most of an actor's log that comes home: its end, where a failure
+/// is told.
+const LOG_TAIL_BYTES: u64 = 256 << 10;
+
+/// What of this host's run goes home: each actor's log (its last
+/// [`LOG_TAIL_BYTES`]) and its memory and CPU files, by their paths in a
+/// run's results folder, and the CPU the agent and its reaped actors used.
+fn host_files(dir: &Path, placement: &Placement, host: usize, topology: &Topology) -> HostFiles {
+    let mut files = Vec::new();
+    for actor in placement.actors_on(host, topology) {
+        let log = dir.join("logs").join(format!("{actor}.log"));
+        if let Some(tail) = file_tail(&log, LOG_TAIL_BYTES) {
+            files.push((format!("logs/{actor}.log"), tail));
+        }
+        for path in [memory_path(dir, actor), cpu_path(dir, actor)] {
+            if let (Ok(bytes), Some(name)) = (std::fs::read(&path), path.file_name()) {
+                files.push((format!("accounting/{}", name.to_string_lossy()), bytes));
+            }
+        }
+    }
+    HostFiles {
+        files,
+        cpu_seconds: crate::results::own_cpu_seconds()
+            .zip(crate::results::children_cpu_seconds())
+            .map(|(own, children)| own + children),
+    }
+}
+
+/// The last `max` bytes of the file at `path`.
+fn file_tail(path: &Path, max: u64) -> Option<Vec<u8>> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).ok()?;
+    let len = f.metadata().ok()?.len();
+    f.seek(SeekFrom::Start(len.saturating_sub(max))).ok()?;
+    let mut bytes = Vec::new();
+    f.read_to_end(&mut bytes).ok()?;
+    Some(bytes)
 }
 
 /// The byte counts of every actor of this host, from their ledgers.

@@ -81,11 +81,13 @@ pub enum FromAgent {
         status: String,
         stderr_tail: String,
     },
-    /// The host's actors' ledgers, merged (`Accounting::to_csv`), and the
-    /// bridge's own counts.
+    /// The host's actors' ledgers, merged (`Accounting::to_csv`), the
+    /// bridge's own counts, and what else of the run comes home: the
+    /// actors' logs, memory and CPU.
     Counts {
         accounting_csv: String,
         bridge: BridgeCounts,
+        home: crate::supervisor::HostFiles,
     },
     /// Could not set the run up: why.
     Failed {

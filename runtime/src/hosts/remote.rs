@@ -68,7 +68,7 @@ struct HostState {
     last_setup: Option<Instant>,
     /// Commands for it while it was not set up yet.
     pending: Vec<ToAgent>,
-    counts: Option<(String, BridgeCounts)>,
+    counts: Option<(String, BridgeCounts, crate::supervisor::HostFiles)>,
     finished: bool,
 }
 
@@ -227,7 +227,8 @@ pub fn supervise_hosts(
                 FromAgent::Counts {
                     accounting_csv,
                     bridge,
-                } => state[host].counts = Some((accounting_csv, bridge)),
+                    home,
+                } => state[host].counts = Some((accounting_csv, bridge, home)),
                 FromAgent::Finished => state[host].finished = true,
             },
             Ok(Incoming::Command(Some(command))) => match command {
@@ -298,14 +299,16 @@ pub fn supervise_hosts(
 fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState]) -> Event {
     let mut accounting = Accounting::default();
     let mut bridges = Vec::new();
+    let mut homes = Vec::new();
     for (host, s) in hosts.iter().zip(state) {
         match &s.counts {
-            Some((csv, bridge)) => {
+            Some((csv, bridge, home)) => {
                 match Accounting::from_csv(csv) {
                     Some(a) => accounting.merge(&a),
                     None => tracing::warn!(host = %host.name, "its byte counts did not parse"),
                 }
                 bridges.push((host.name.clone(), *bridge));
+                homes.push((host.name.clone(), home.clone()));
             }
             None => tracing::warn!(host = %host.name, "no byte counts from this host"),
         }
@@ -313,6 +316,7 @@ fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState])
     Event::Counts {
         accounting_csv: accounting.to_csv(),
         bridges,
+        homes,
     }
 }
 

@@ -16,6 +16,7 @@ use crate::actor_process::{ledger_path, memory_path};
 use crate::feed::{link_bytes_per_step, Hub, ViewEvent};
 use crate::results::write_atomically;
 use crate::summary::ChildrenMemory;
+use crate::supervisor::HostFiles;
 
 /// `hosts.json`: the bytes of cqnet's messages between hosts, by pair of
 /// hosts (from the actors' own counts), and what each bridge moved and its
@@ -25,6 +26,7 @@ pub(super) fn write_hosts_report(
     placement: &Placement,
     accounting: &Accounting,
     bridges: &[(String, fusion_graph::hosts::BridgeCounts)],
+    homes: &[(String, HostFiles)],
 ) -> anyhow::Result<()> {
     let mut pairs = Vec::new();
     let name = |a: ActorId| placement.hosts()[placement.host_of(a)].name.clone();
@@ -45,9 +47,16 @@ pub(super) fn write_hosts_report(
             "received_messages": rm, "received_bytes": rb,
         }));
     }
+    let cpu = |name: &str| {
+        homes
+            .iter()
+            .find(|(h, _)| h == name)
+            .and_then(|(_, f)| f.cpu_seconds)
+    };
     let report = serde_json::json!({
         "hosts": placement.hosts().iter().map(|h| serde_json::json!({
             "name": h.name, "endpoint": h.endpoint, "nodes": h.nodes,
+            "cpu_seconds": cpu(&h.name),
         })).collect::<Vec<_>>(),
         "between_hosts": pairs,
         "bridges": bridges.iter().map(|(h, c)| serde_json::json!({ "host": h, "counts": c })).collect::<Vec<_>>(),
@@ -57,6 +66,33 @@ pub(super) fn write_hosts_report(
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
     Ok(())
+}
+
+/// Writes what each host sent home into the results folder, where a run
+/// on one host leaves the same files (`logs/`, `accounting/`), so that the
+/// summary's memory covers every host and every actor's log is here. A
+/// path outside those two folders is refused and said.
+pub(super) fn bring_home(out: &Path, homes: &[(String, HostFiles)]) {
+    for (host, home) in homes {
+        for (path, bytes) in &home.files {
+            if !HostFiles::is_allowed(path) {
+                tracing::warn!(
+                    host,
+                    path,
+                    "a file from a host outside logs/ and accounting/; dropped"
+                );
+                continue;
+            }
+            let to = out.join(path);
+            let written = to
+                .parent()
+                .map_or(Ok(()), std::fs::create_dir_all)
+                .and_then(|()| std::fs::write(&to, bytes));
+            if let Err(e) = written {
+                tracing::warn!(host, path, error = %e, "could not bring a host's file home");
+            }
+        }
+    }
 }
 
 /// The children's memory, as each last wrote it.
@@ -113,4 +149,49 @@ pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate:
             });
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A host's files land where a one-host run leaves them; a path that
+    /// would leave `logs/` or `accounting/` is dropped, whatever the host
+    /// says.
+    #[test]
+    fn files_from_hosts_stay_inside_the_results_folder() {
+        let out = std::env::temp_dir().join(format!("cqnet-bring-home-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let files = [
+            "logs/node-3.log",
+            "accounting/node-3.memory",
+            "../escaped",
+            "logs/../../escaped",
+            "logs/",
+            "summary.json",
+            "accounting/..",
+            "/etc/passwd",
+        ];
+        let home = HostFiles {
+            files: files
+                .iter()
+                .map(|p| (p.to_string(), p.as_bytes().to_vec()))
+                .collect(),
+            cpu_seconds: Some(1.0),
+        };
+        bring_home(&out, &[("b".into(), home)]);
+        assert_eq!(
+            std::fs::read(out.join("logs/node-3.log")).unwrap(),
+            b"logs/node-3.log"
+        );
+        assert!(out.join("accounting/node-3.memory").is_file());
+        assert!(!out.join("summary.json").exists());
+        assert!(!out.parent().unwrap().join("escaped").exists());
+        let mut written = 0;
+        for dir in ["logs", "accounting"] {
+            written += std::fs::read_dir(out.join(dir)).unwrap().count();
+        }
+        assert_eq!(written, 2);
+        let _ = std::fs::remove_dir_all(&out);
+    }
 }

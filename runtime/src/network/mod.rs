@@ -30,7 +30,7 @@ use crate::summary::Summary;
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
 
 pub use gather::traffic_poller;
-use gather::{children_memory, merge_accounting, write_hosts_report};
+use gather::{bring_home, children_memory, merge_accounting, write_hosts_report};
 pub use options::{RunOptions, RunProgress};
 use steps::run_steps;
 use world_state::{crash_fault, WorldState};
@@ -296,8 +296,9 @@ fn world_thread(
     w.stop_everyone(topology, steps_done, started);
     let mut accounting = merge_accounting(&options.out, topology, w.transport.accounting());
     if let Some(p) = placement {
-        let bridges = w.collect_host_counts(&mut accounting);
-        write_hosts_report(&options.out, p, &accounting, &bridges)?;
+        let hosts = w.collect_host_counts(&mut accounting);
+        bring_home(&options.out, &hosts.homes);
+        write_hosts_report(&options.out, p, &accounting, &hosts.bridges, &hosts.homes)?;
     }
     let summary = recorder.finish(
         &accounting,

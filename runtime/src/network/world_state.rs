@@ -267,14 +267,11 @@ impl<'a> WorldState<'a> {
         true
     }
 
-    /// Several hosts: every host's actors' counts, merged into `total`, and
-    /// each bridge's own counts.
-    pub(super) fn collect_host_counts(
-        &mut self,
-        total: &mut Accounting,
-    ) -> Vec<(String, fusion_graph::hosts::BridgeCounts)> {
+    /// Several hosts: every host's actors' counts, merged into `total`,
+    /// each bridge's own counts, and what each host sent home.
+    pub(super) fn collect_host_counts(&mut self, total: &mut Accounting) -> HostsCollected {
         if self.commands.send(Command::Collect).is_err() {
-            return Vec::new();
+            return HostsCollected::default();
         }
         let deadline = Instant::now() + Duration::from_secs(15);
         while Instant::now() < deadline {
@@ -282,12 +279,13 @@ impl<'a> WorldState<'a> {
                 Ok(Event::Counts {
                     accounting_csv,
                     bridges,
+                    homes,
                 }) => {
                     match Accounting::from_csv(&accounting_csv) {
                         Some(a) => total.merge(&a),
                         None => tracing::warn!("the hosts' byte counts did not parse"),
                     }
-                    return bridges;
+                    return HostsCollected { bridges, homes };
                 }
                 Ok(e) => self.handle_event(e),
                 Err(RecvTimeoutError::Timeout) => {}
@@ -295,7 +293,7 @@ impl<'a> WorldState<'a> {
             }
         }
         tracing::warn!("no byte counts from the hosts");
-        Vec::new()
+        HostsCollected::default()
     }
 
     /// Kills and restarts the actors the schedule says at `step`; true if
@@ -362,6 +360,13 @@ impl<'a> WorldState<'a> {
             ActorId::Launcher => {}
         }
     }
+}
+
+/// What the hosts answered at the end of a run.
+#[derive(Debug, Default)]
+pub(super) struct HostsCollected {
+    pub bridges: Vec<(String, fusion_graph::hosts::BridgeCounts)>,
+    pub homes: Vec<(String, crate::supervisor::HostFiles)>,
 }
 
 pub(super) fn crash_fault(actor: ActorId, step: u32, status: &str) -> AppliedFault {
