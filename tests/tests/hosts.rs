@@ -339,3 +339,58 @@ fn a_separate_host_cut_off_is_lost_and_rejoins_when_its_link_returns() {
     }
     r.assert_clean();
 }
+
+/// The live view of a run over three hosts shows traffic on every link,
+/// those between hosts too: the actors' ledgers are on their hosts, and
+/// the agents send their counts once a second while a view is open.
+#[test]
+fn the_live_view_shows_traffic_on_every_link_across_hosts() {
+    use std::io::{BufRead, BufReader, Write};
+    let _guard = exclusive();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let mut running = Network::new(three_hosts(60))
+        .executable(CQNET)
+        .tag("hosts-view")
+        .set("clock.step_period_ms", 200)
+        .arg("--local-agents")
+        .arg("--view")
+        .arg("--view-port")
+        .arg(port.to_string())
+        .start()
+        .unwrap();
+    assert!(
+        running.wait_for_step(5, Duration::from_secs(60)),
+        "the run did not reach step 5"
+    );
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    write!(stream, "GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let mut every_link = false;
+    for line in BufReader::new(stream).lines() {
+        let Ok(line) = line else { break };
+        if let Some(json) = line.strip_prefix("data:") {
+            let event: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
+            if event["type"] == "traffic" {
+                let bytes = event["bytes_per_step"].as_array().unwrap();
+                // The 3 × 3 grid's 12 links, 6 of them between hosts.
+                assert_eq!(bytes.len(), 12);
+                if bytes.iter().all(|b| b.as_f64().unwrap() > 0.0) {
+                    every_link = true;
+                    break;
+                }
+            }
+        }
+        if std::time::Instant::now() > deadline {
+            break;
+        }
+    }
+    assert!(every_link, "no traffic event with every link");
+    running.wait().unwrap().assert_success();
+}

@@ -291,6 +291,12 @@ impl Agent<'_> {
                     });
                     None
                 }
+                ToAgent::Traffic => {
+                    self.tell(&FromAgent::Traffic {
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
+                    });
+                    None
+                }
                 ToAgent::Shutdown => Some(Command::Shutdown),
             };
             if let Some(c) = to_supervisor {

@@ -65,6 +65,9 @@ pub enum ToAgent {
     },
     /// Send the byte counts of this host's actors and of its bridge.
     Collect,
+    /// Send the byte counts of this host's actors as they stand, for the
+    /// live view's traffic (once a second while it is open).
+    Traffic,
     /// Every actor should be exiting: reap them, close the bridge.
     Shutdown,
 }
@@ -88,6 +91,10 @@ pub enum FromAgent {
         accounting_csv: String,
         bridge: BridgeCounts,
         home: crate::supervisor::HostFiles,
+    },
+    /// The host's actors' ledgers as they stand (`Accounting::to_csv`).
+    Traffic {
+        accounting_csv: String,
     },
     /// Could not set the run up: why.
     Failed {

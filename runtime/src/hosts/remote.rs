@@ -37,7 +37,13 @@ pub struct HostsRun {
     /// The effective scenario, sent to every agent.
     pub scenario: String,
     pub centralized: bool,
+    /// Where to keep every host's byte counts as they stand, once a
+    /// second, for the live view's traffic; `None` without a view.
+    pub traffic: Option<PathBuf>,
 }
+
+/// How often the hosts' byte counts are asked for while a view is open.
+const TRAFFIC_PERIOD: Duration = Duration::from_secs(1);
 
 /// What happened to the hosts, for the run's report.
 #[derive(Debug, Default, Clone)]
@@ -121,6 +127,8 @@ pub fn supervise_hosts(
     let mut report = HostEvents::default();
     let mut collecting: Option<Instant> = None;
     let mut shutting: Option<Instant> = None;
+    let mut traffic_asked: Option<Instant> = None;
+    let mut traffic: Vec<Option<Accounting>> = hosts.iter().map(|_| None).collect();
     let send = |h: usize, c: &ToAgent| {
         if let Err(e) = put(&session, &command_key(&hosts[h].name), encode(c)) {
             tracing::warn!(host = %hosts[h].name, error = %e, "could not reach the agent");
@@ -140,6 +148,17 @@ pub fn supervise_hosts(
                 send(h, &setup_message(s.lost));
                 s.last_setup = Some(Instant::now());
             }
+        }
+        if setup.traffic.is_some()
+            && shutting.is_none()
+            && traffic_asked.is_none_or(|t| t.elapsed() >= TRAFFIC_PERIOD)
+        {
+            for (h, s) in state.iter().enumerate() {
+                if s.set_up {
+                    send(h, &ToAgent::Traffic);
+                }
+            }
+            traffic_asked = Some(Instant::now());
         }
         match incoming {
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -229,6 +248,12 @@ pub fn supervise_hosts(
                     bridge,
                     home,
                 } => state[host].counts = Some((accounting_csv, bridge, home)),
+                FromAgent::Traffic { accounting_csv } => {
+                    traffic[host] = Accounting::from_csv(&accounting_csv);
+                    if let Some(path) = &setup.traffic {
+                        write_traffic(path, &traffic);
+                    }
+                }
                 FromAgent::Finished => state[host].finished = true,
             },
             Ok(Incoming::Command(Some(command))) => match command {
@@ -294,6 +319,18 @@ pub fn supervise_hosts(
     }
     let _ = events.send(Event::AllReaped);
     Ok(report)
+}
+
+/// Every host's latest byte counts, merged, where the live view reads
+/// them.
+fn write_traffic(path: &Path, traffic: &[Option<Accounting>]) {
+    let mut all = Accounting::default();
+    for a in traffic.iter().flatten() {
+        all.merge(a);
+    }
+    if let Err(e) = crate::results::write_atomically(path, all.to_csv().as_bytes()) {
+        tracing::warn!(error = %e, "could not write the hosts' traffic for the view");
+    }
 }
 
 fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState]) -> Event {

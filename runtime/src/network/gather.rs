@@ -130,8 +130,15 @@ pub(super) fn merge_accounting(
     total
 }
 
+/// Where a run over several hosts keeps every host's byte counts as they
+/// stand, for the live view: the ledgers are on the hosts.
+pub(super) fn hosts_traffic_path(out: &Path) -> PathBuf {
+    out.join("accounting").join("hosts-traffic.csv")
+}
+
 /// The live view's once-a-second look at the link traffic: each node's
-/// ledger as it stands, over the steps run so far.
+/// ledger as it stands (on several hosts, what the hosts last sent), over
+/// the steps run so far.
 pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate::feed::Poll {
     Box::new(move || {
         let mut accounting = Accounting::default();
@@ -139,6 +146,10 @@ pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate:
             if let Ok(acc) = read_ledger(&ledger_path(&out, ActorId::Node(n))) {
                 accounting.merge(&acc);
             }
+        }
+        let from_hosts = std::fs::read_to_string(hosts_traffic_path(&out)).ok();
+        if let Some(acc) = from_hosts.as_deref().and_then(Accounting::from_csv) {
+            accounting.merge(&acc);
         }
         let steps = hub.latest_step().max(1) as f64;
         let bytes_per_step = link_bytes_per_step(&topology, &accounting, |_| steps);

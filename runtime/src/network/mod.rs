@@ -30,7 +30,9 @@ use crate::summary::Summary;
 use crate::supervisor::{supervise, ChildSpec, Command, Event};
 
 pub use gather::traffic_poller;
-use gather::{bring_home, children_memory, merge_accounting, write_hosts_report};
+use gather::{
+    bring_home, children_memory, hosts_traffic_path, merge_accounting, write_hosts_report,
+};
 pub use options::{RunOptions, RunProgress};
 use steps::run_steps;
 use world_state::{crash_fault, WorldState};
@@ -109,6 +111,11 @@ pub fn run_network(
         .transpose()?;
     let options_local_agents = options.local_agents;
     #[cfg_attr(not(feature = "zenoh"), allow(unused_variables))]
+    let hosts_traffic = options
+        .view
+        .is_some()
+        .then(|| hosts_traffic_path(&options.out));
+    #[cfg_attr(not(feature = "zenoh"), allow(unused_variables))]
     let out = options.out.clone();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -150,6 +157,7 @@ pub fn run_network(
                 run: run_id.as_str().into(),
                 scenario: scenario.to_toml(),
                 centralized: spec.centralized,
+                traffic: hosts_traffic,
             };
             let agents = options_local_agents
                 .then(|| {
