@@ -133,10 +133,20 @@ fn cut_cost() {
             .collect();
         let rmse = (rows.iter().map(|t| t.error * t.error).sum::<f64>() / rows.len() as f64).sqrt();
         let bounds: Vec<f64> = rows.iter().filter_map(|t| t.bound).collect();
-        (rmse, bounds.iter().sum::<f64>() / bounds.len() as f64, rows.len())
+        (
+            rmse,
+            bounds.iter().sum::<f64>() / bounds.len() as f64,
+            rows.len(),
+        )
     };
-    let (first, last) = (away.first().copied().unwrap_or(0), away.last().copied().unwrap_or(0));
-    println!("host b's nodes away for {} steps ({first} to {last})", away.len());
+    let (first, last) = (
+        away.first().copied().unwrap_or(0),
+        away.last().copied().unwrap_or(0),
+    );
+    println!(
+        "host b's nodes away for {} steps ({first} to {last})",
+        away.len()
+    );
     println!("| nodes 0–2 and 6–8, over those steps | RMSE, m | mean bound, m | rows |");
     println!("|---|---|---|---|");
     for (name, r) in [("without the cut", &whole), ("host b cut off", &cut)] {

@@ -274,6 +274,33 @@ fn an_agent_killed_and_restarted_leaves_and_rejoins_the_run() {
         assert!(seen.contains(&steps), "{node} after the return: {seen:?}");
         assert!(seen.len() < steps as usize, "{node} never missed a step");
     }
+    // Host b's bridge counted what it forwarded before the kill too (its
+    // counts outlive the agent, as the actors' ledgers do): each message of
+    // b's actors that crosses goes to one far host per link (the 3 × 3
+    // grid's middle row), so the bridge forwarded what the actors sent to
+    // other hosts, less what was still queued when the agent died (at most
+    // two steps' worth; the five steps before the kill are far more).
+    let text = std::fs::read_to_string(r.out_dir().join("hosts.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let actors_sent: u64 = json["between_hosts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["from"] == "b")
+        .map(|p| p["sent_messages"].as_u64().unwrap())
+        .sum();
+    let bridge_sent = json["bridges"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["host"] == "b")
+        .map(|b| b["counts"]["messages_sent"].as_u64().unwrap())
+        .unwrap();
+    let per_step = actors_sent / u64::from(steps);
+    assert!(
+        bridge_sent <= actors_sent && bridge_sent + 2 * per_step >= actors_sent,
+        "bridge b forwarded {bridge_sent} of the {actors_sent} messages its actors sent across"
+    );
     r.assert_clean();
 }
 

@@ -167,6 +167,7 @@ impl Agent<'_> {
             placement.clone(),
             host,
             topology.clone(),
+            &dir.join("accounting").join("bridge.counts"),
         )?;
         let spec = ChildSpec {
             program: crate::supervisor::ActorProgram::for_this_process()?,

@@ -13,6 +13,7 @@
 //! sample on a channel this host does not take in, is counted and dropped.
 
 use std::collections::HashMap;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
@@ -45,7 +46,78 @@ enum Frame {
 pub struct Bridge {
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
-    counts: Arc<Mutex<BridgeCounts>>,
+    counts: Arc<Mutex<CountsLedger>>,
+}
+
+/// The bridge's counts, mirrored in a file that outlives its agent, as
+/// the actors' ledgers outlive them: an agent killed with SIGKILL and
+/// started again for the same run goes on counting from where the file
+/// says. Two slots and a sequence number: a slot is written whole before
+/// the number names it, so a kill mid-write leaves the slot before.
+pub struct CountsLedger {
+    map: memmap2::MmapMut,
+    counts: BridgeCounts,
+}
+
+/// Bytes of one slot: a `BridgeCounts` in bincode's fixed-width form.
+const SLOT_BYTES: usize = 256;
+
+impl CountsLedger {
+    /// The ledger at `path`, with the counts it holds (none if new).
+    pub fn open(path: &Path) -> anyhow::Result<Self> {
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        let len = (8 + 2 * SLOT_BYTES) as u64;
+        if file.metadata()?.len() < len {
+            file.set_len(len)?;
+        }
+        // SAFETY: the file is this agent's own, under its run's folder; no
+        // other process maps it while the agent lives.
+        let map = unsafe { memmap2::MmapMut::map_mut(&file) }?;
+        let counts = Self::read(&map).unwrap_or_default();
+        Ok(Self { map, counts })
+    }
+
+    fn read(map: &[u8]) -> Option<BridgeCounts> {
+        let seq = u64::from_le_bytes(map[..8].try_into().ok()?);
+        if seq == 0 {
+            return None;
+        }
+        let at = 8 + (seq % 2) as usize * SLOT_BYTES;
+        bincode::serde::decode_from_slice(&map[at..at + SLOT_BYTES], fixed())
+            .ok()
+            .map(|(c, _)| c)
+    }
+
+    /// Adds `c` and writes the total down.
+    pub fn add(&mut self, c: &BridgeCounts) {
+        self.counts.add(c);
+        let seq = u64::from_le_bytes(self.map[..8].try_into().expect("8 bytes")) + 1;
+        let at = 8 + (seq % 2) as usize * SLOT_BYTES;
+        if bincode::serde::encode_into_slice(
+            self.counts,
+            &mut self.map[at..at + SLOT_BYTES],
+            fixed(),
+        )
+        .is_ok()
+        {
+            self.map[..8].copy_from_slice(&seq.to_le_bytes());
+        }
+    }
+
+    pub fn counts(&self) -> BridgeCounts {
+        self.counts
+    }
+}
+
+fn fixed() -> bincode::config::Configuration<bincode::config::LittleEndian, bincode::config::Fixint>
+{
+    bincode::config::standard().with_fixed_int_encoding()
 }
 
 /// What both directions need to know.
@@ -68,6 +140,7 @@ impl Bridge {
         placement: Placement,
         host: usize,
         topology: Topology,
+        ledger: &Path,
     ) -> anyhow::Result<Self> {
         let setting = Setting {
             run: run.into(),
@@ -77,7 +150,7 @@ impl Bridge {
             topology,
         };
         let stop = Arc::new(AtomicBool::new(false));
-        let counts = Arc::new(Mutex::new(BridgeCounts::default()));
+        let counts = Arc::new(Mutex::new(CountsLedger::open(ledger)?));
         let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<()>>();
         let mut threads = Vec::new();
         for direction in ["out", "in"] {
@@ -119,7 +192,7 @@ impl Bridge {
 
     /// The counts so far, with the agent's TCP sockets read now.
     pub fn counts(&self) -> BridgeCounts {
-        let mut c = *self.counts.lock().expect("bridge counts");
+        let mut c = self.counts.lock().expect("bridge counts").counts();
         let tcp = tcp_totals();
         c.tcp_bytes_acked = tcp.0;
         c.tcp_bytes_received = tcp.1;
@@ -145,7 +218,7 @@ fn run_out(
     s: &Setting,
     session: &zenoh::Session,
     stop: &AtomicBool,
-    counts: &Mutex<BridgeCounts>,
+    counts: &Mutex<CountsLedger>,
     ready: &mpsc::Sender<anyhow::Result<()>>,
 ) -> anyhow::Result<()> {
     let outlet = BridgeOutlet::open(&s.domain, &s.placement, s.host, &s.topology)?;
@@ -216,7 +289,7 @@ fn run_in(
     s: &Setting,
     session: &zenoh::Session,
     stop: &AtomicBool,
-    counts: &Mutex<BridgeCounts>,
+    counts: &Mutex<CountsLedger>,
     ready: &mpsc::Sender<anyhow::Result<()>>,
 ) -> anyhow::Result<()> {
     let inlet = BridgeInlet::open(&s.domain, &s.placement, s.host, &s.topology)?;
