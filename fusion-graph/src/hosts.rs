@@ -22,7 +22,7 @@ use crate::scenario::Scenario;
 use crate::topology::Topology;
 use crate::ScenarioError;
 
-pub use crate::scenario::HostConfig;
+pub use crate::scenario::{HostConfig, HostLink};
 
 const MAX_HOST_NAME: usize = 8;
 
@@ -36,6 +36,38 @@ pub struct Placement {
     pairs: bool,
     /// Whether the launcher reads every observation (the centralized reference).
     centralized: bool,
+}
+
+/// A host link's values in range: `(key, expected, got)` for the first
+/// that is not.
+fn check_link(l: &HostLink, steps: u32) -> Result<(), (&'static str, &'static str, String)> {
+    let non_negative = |key, v: f64| {
+        if v.is_finite() && v >= 0.0 {
+            Ok(())
+        } else {
+            Err((key, "a finite number >= 0", v.to_string()))
+        }
+    };
+    non_negative("delay_ms", l.delay_ms)?;
+    non_negative("jitter_ms", l.jitter_ms)?;
+    non_negative("rate_mbit", l.rate_mbit)?;
+    if !(0.0..=1.0).contains(&l.loss) {
+        return Err(("loss", "a share from 0 to 1", l.loss.to_string()));
+    }
+    match l.cut_at_step {
+        Some(at) if at == 0 || at > steps => {
+            Err(("cut_at_step", "a step of the run", at.to_string()))
+        }
+        Some(_) if l.cut_steps == 0 => {
+            Err(("cut_steps", "at least 1 with cut_at_step", "0".into()))
+        }
+        None if l.cut_steps > 0 => Err((
+            "cut_at_step",
+            "the step the cut starts at, with cut_steps",
+            "none".into(),
+        )),
+        _ => Ok(()),
+    }
 }
 
 impl Placement {
@@ -86,6 +118,11 @@ impl Placement {
                     "a Zenoh endpoint (`tcp/<address>:<port>`) no other host has",
                     format!("{:?}", host.endpoint),
                 ));
+            }
+            if let Some(link) = &host.link {
+                check_link(link, s.steps).map_err(|(key, expected, got)| {
+                    bad(format!("hosts[{h}].link.{key}"), expected, got)
+                })?;
             }
             for &n in &host.nodes {
                 let slot = node_host.get_mut(n as usize).ok_or_else(|| {
@@ -326,6 +363,7 @@ mod tests {
         let n = t.nodes() as u16;
         s.hosts = (0..3)
             .map(|h| HostConfig {
+                link: None,
                 name: format!("h{h}"),
                 nodes: (0..n).filter(|i| i % 3 == h).collect(),
                 endpoint: format!("tcp/127.0.0.1:{}", 17000 + h),
@@ -401,6 +439,64 @@ mod tests {
                 s.hosts[2].nodes.pop();
             },
             "`hosts`",
+        );
+        let link = |l: HostLink| {
+            move |s: &mut Scenario| {
+                s.hosts[1].link = Some(l.clone());
+            }
+        };
+        check(
+            &link(HostLink {
+                loss: 1.5,
+                ..Default::default()
+            }),
+            "hosts[1].link.loss",
+        );
+        check(
+            &link(HostLink {
+                delay_ms: -1.0,
+                ..Default::default()
+            }),
+            "hosts[1].link.delay_ms",
+        );
+        check(
+            &link(HostLink {
+                cut_steps: 5,
+                ..Default::default()
+            }),
+            "hosts[1].link.cut_at_step",
+        );
+        check(
+            &link(HostLink {
+                cut_at_step: Some(s.steps + 1),
+                cut_steps: 1,
+                ..Default::default()
+            }),
+            "hosts[1].link.cut_at_step",
+        );
+        check(
+            &link(HostLink {
+                cut_at_step: Some(3),
+                ..Default::default()
+            }),
+            "hosts[1].link.cut_steps",
+        );
+        let mut fine = s.clone();
+        fine.hosts[1].link = Some(HostLink {
+            delay_ms: 5.0,
+            rate_mbit: 10.0,
+            cut_at_step: Some(3),
+            cut_steps: 4,
+            ..Default::default()
+        });
+        assert!(Placement::from_scenario(&fine, &t, "x", false).is_ok());
+        // And through a file, its keys named in full.
+        let text = fine.to_toml().replace("loss = 0.0", "loss = 2.0");
+        let err = Scenario::from_toml(&text, "f.toml", &[])
+            .map(|s| Placement::from_scenario(&s, &t, "f.toml", false).map(|_| ()));
+        assert!(
+            matches!(&err, Ok(Err(e)) if e.to_string().contains("hosts[1].link.loss")),
+            "{err:?}"
         );
     }
 

@@ -92,6 +92,7 @@ fn three_hosts(hosts: &SeparateHosts, steps: u32) -> cqnet_testkit::Scenario {
             name: name.to_string(),
             nodes: (3 * h as u16..3 * h as u16 + 3).collect(),
             endpoint: String::new(),
+            link: None,
         })
         .collect();
     hosts.place(&mut scenario);

@@ -172,10 +172,15 @@ impl Network {
         let Some(hosts) = &self.separate else {
             return self.spawn(command, executable, run_id, out);
         };
-        let (command, agents) = on_separate_hosts(hosts, command, &out)?;
+        let scenario = self.effective_scenario()?;
+        hosts.apply_links(&scenario)?;
+        let (mut command, agents) = on_separate_hosts(hosts, command, &out)?;
+        command.env(runtime::network::HOST_LINKS_APPLIED, "1");
+        let cuts = schedule_cuts(hosts, &scenario, &out, self.time_limit);
         let mut running = self.spawn(command, executable, run_id, out)?;
         running.agents = agents;
         running.hosts = Some(hosts.clone());
+        running.cuts = cuts;
         Ok(running)
     }
 
@@ -205,6 +210,21 @@ impl Network {
         self.scenario_args(&mut command, &out, run_id.as_str())?;
         command.arg("--out").arg(&out);
         Ok((executable, run_id, out, command))
+    }
+
+    /// The scenario as the run reads it: the file or value, the added
+    /// faults and the overrides.
+    fn effective_scenario(&self) -> Result<Scenario, Error> {
+        let mut scenario = match &self.source {
+            Source::Value(s) => (**s).clone(),
+            Source::File(path) => Scenario::load(path, &[])?,
+        };
+        scenario.faults.extend(self.faults.iter().cloned());
+        Ok(Scenario::from_toml(
+            &scenario.to_toml(),
+            "<the run's scenario>",
+            &self.overrides,
+        )?)
     }
 
     /// The scenario (file or value, with the added faults), overrides and
@@ -270,6 +290,7 @@ impl Network {
             handed_over: false,
             agents: Vec::new(),
             hosts: None,
+            cuts: None,
         })
     }
 
@@ -382,6 +403,88 @@ fn on_separate_hosts(
     Ok((command, agents))
 }
 
+/// The cuts a scenario's host links ask for, done on a thread of their
+/// own as the run reaches their steps (read from `ticks.csv`): the link
+/// goes down at `cut_at_step` and up again `cut_steps` steps later, or
+/// when the run ends.
+struct CutSchedule {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    thread: JoinHandle<()>,
+}
+
+impl CutSchedule {
+    fn stop(self) {
+        self.stop.store(true, Ordering::Relaxed);
+        let _ = self.thread.join();
+    }
+}
+
+fn schedule_cuts(
+    hosts: &Arc<SeparateHosts>,
+    scenario: &Scenario,
+    out: &Path,
+    limit: Duration,
+) -> Option<CutSchedule> {
+    // (step, host, down): in step order.
+    let mut events: Vec<(u32, String, bool)> = Vec::new();
+    for h in &scenario.hosts {
+        if let Some(at) = h.link.as_ref().and_then(|l| l.cut_at_step) {
+            let steps = h.link.as_ref().map_or(0, |l| l.cut_steps);
+            events.push((at, h.name.clone(), true));
+            events.push((at + steps, h.name.clone(), false));
+        }
+    }
+    if events.is_empty() {
+        return None;
+    }
+    events.sort();
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (hosts, ticks, stopping) = (hosts.clone(), out.join("ticks.csv"), stop.clone());
+    let thread = std::thread::spawn(move || {
+        let deadline = Instant::now() + limit;
+        let mut down: Vec<String> = Vec::new();
+        for (step, host, cut) in events {
+            while !stopping.load(Ordering::Relaxed)
+                && Instant::now() < deadline
+                && latest_step(&ticks) < step.saturating_sub(1)
+            {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            if stopping.load(Ordering::Relaxed) || Instant::now() >= deadline {
+                break;
+            }
+            let done = if cut {
+                down.push(host.clone());
+                hosts.cut(&host)
+            } else {
+                down.retain(|h| *h != host);
+                hosts.restore(&host)
+            };
+            if let Err(e) = done {
+                eprintln!("cqnet-testkit: {e}");
+            }
+        }
+        // A cut the run did not live to end is ended for the agents to leave.
+        for host in down {
+            let _ = hosts.restore(&host);
+        }
+    });
+    Some(CutSchedule { stop, thread })
+}
+
+/// The latest step in `ticks.csv` so far (0 before any).
+fn latest_step(ticks: &Path) -> u32 {
+    std::fs::read_to_string(ticks)
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .skip(1)
+                .filter_map(|l| l.split(',').next()?.parse::<u32>().ok())
+                .max()
+        })
+        .unwrap_or(0)
+}
+
 /// A run id unique to this process and call: `t<pid>-<tag>-<n>`.
 fn new_run_id(tag: &str) -> Result<RunId, Error> {
     static NEXT: AtomicU32 = AtomicU32::new(0);
@@ -462,6 +565,8 @@ pub struct RunningNetwork {
     agents: Vec<Child>,
     /// The namespaces, kept until the run is over.
     hosts: Option<Arc<SeparateHosts>>,
+    /// The thread that cuts and restores host links at their steps.
+    cuts: Option<CutSchedule>,
 }
 
 impl RunningNetwork {
@@ -633,6 +738,9 @@ impl RunningNetwork {
     /// Waits for the agents a separate-hosts run started (each serves one
     /// run and exits after it), killing those still there after 10 s.
     fn reap_agents(&mut self) {
+        if let Some(cuts) = self.cuts.take() {
+            cuts.stop();
+        }
         let deadline = Instant::now() + Duration::from_secs(10);
         for agent in &mut self.agents {
             while Instant::now() < deadline && matches!(agent.try_wait(), Ok(None)) {
@@ -647,6 +755,9 @@ impl RunningNetwork {
 
 impl Drop for RunningNetwork {
     fn drop(&mut self) {
+        if let Some(cuts) = self.cuts.take() {
+            cuts.stop();
+        }
         if let Some(mut c) = self.child.take() {
             let _ = c.kill();
             let _ = c.wait();

@@ -232,6 +232,32 @@ impl SeparateHosts {
         Ok(())
     }
 
+    /// Applies what the scenario's hosts' `link` settings ask of their
+    /// links from the start: netem's delay, jitter, loss (and rate, with
+    /// them), or a token bucket's rate alone. Cuts come later, at their
+    /// steps ([`Network::on_separate_hosts`](crate::Network::on_separate_hosts) applies them).
+    pub fn apply_links(&self, scenario: &Scenario) -> Result<(), Error> {
+        for h in &scenario.hosts {
+            let Some(link) = &h.link else { continue };
+            let (delay, jitter, loss, rate) = (
+                format!("{}us", (link.delay_ms * 1e3).round()),
+                format!("{}us", (link.jitter_ms * 1e3).round()),
+                format!("{}%", link.loss * 100.0),
+                format!("{}kbit", (link.rate_mbit * 1e3).round()),
+            );
+            if link.needs_netem() {
+                let mut netem = vec!["delay", &delay, &jitter, "loss", &loss];
+                if link.rate_mbit > 0.0 {
+                    netem.extend(["rate", &rate]);
+                }
+                self.shape(&h.name, &netem)?;
+            } else if link.rate_mbit > 0.0 {
+                self.limit_rate(&h.name, &rate)?;
+            }
+        }
+        Ok(())
+    }
+
     /// Why this kernel cannot delay or drop packets with `tc netem`, if it
     /// cannot (found by trying it on a host's link).
     pub fn netem_unavailable(&self) -> Option<String> {

@@ -207,7 +207,7 @@ pub struct NodeLayout {
 
 /// One host of the scenario: its name, the nodes it runs (and so their
 /// sensors), and where its agent listens for Zenoh.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HostConfig {
     /// Lowercase letters, digits and `-`, at most 8 characters: it becomes
@@ -216,6 +216,44 @@ pub struct HostConfig {
     pub nodes: Vec<u16>,
     /// A Zenoh endpoint, such as `tcp/127.0.0.1:17447`.
     pub endpoint: String,
+    /// What the network does to this host's link to the others.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub link: Option<HostLink>,
+}
+
+/// What the network does to a host's link, both ways, done by the kernel
+/// (`tc` on the link) where each host has a network namespace of its own
+/// (cqnet-testkit's `SeparateHosts`); cqnet's own link faults act on
+/// messages within a host. A run whose hosts share one network stack, or
+/// runs on real machines, cannot apply it, and the launcher says so.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostLink {
+    /// Added to every packet each way (netem `delay`), milliseconds.
+    #[serde(default)]
+    pub delay_ms: f64,
+    /// Spread of the delay (netem's jitter), milliseconds.
+    #[serde(default)]
+    pub jitter_ms: f64,
+    /// Share of packets dropped each way (netem `loss`), 0 to 1.
+    #[serde(default)]
+    pub loss: f64,
+    /// The link's rate each way, Mbit/s; 0: no limit.
+    #[serde(default)]
+    pub rate_mbit: f64,
+    /// The link is cut (down) from this step …
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut_at_step: Option<u32>,
+    /// … for this many steps of the run (which goes on without the host).
+    #[serde(default)]
+    pub cut_steps: u32,
+}
+
+impl HostLink {
+    /// Whether it asks for anything `tc netem` alone can do.
+    pub fn needs_netem(&self) -> bool {
+        self.delay_ms > 0.0 || self.jitter_ms > 0.0 || self.loss > 0.0
+    }
 }
 
 /// Either a grid inside each node's cell, or explicit positions (each sensor

@@ -73,6 +73,7 @@ pub(super) fn is_optional_key(key: &str) -> bool {
             | "min_speed"
             | "centralized"
             | "motion"
+            | "link"
             | "grid"
             | "positions"
             | "per_cell"

@@ -196,6 +196,10 @@ pub fn run_network(
     result
 }
 
+/// Set (to anything) by a harness that applies the hosts' `link` settings
+/// itself, so that the launcher does not warn they are not.
+pub const HOST_LINKS_APPLIED: &str = "CQNET_HOST_LINKS_APPLIED";
+
 /// Turns a caller's stop flag into the interrupt Ctrl-C would give, for
 /// as long as the run lasts.
 struct StopWatch {
