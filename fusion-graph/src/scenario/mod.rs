@@ -786,6 +786,31 @@ mod tests {
         }
     }
 
+    /// A static target goes with the locator and only with it, and the
+    /// locator refuses the CF/DPF's parts and a centralized reference by key.
+    #[test]
+    fn the_locator_and_a_static_target_go_together() {
+        for (set, key) in [
+            ("sensors.manager=\"pcrlb\"", "sensors.manager"),
+            ("censoring.policy=\"nis\"", "censoring.policy"),
+            ("reference.centralized=true", "reference.centralized"),
+            ("quantizer.bits=5", "quantizer.bits"),
+            ("target.motion=\"moving\"", "target.motion"),
+            ("consensus.protocol=\"average\"", "consensus.protocol"),
+        ] {
+            let err = Scenario::from_toml(LOCATION_SCENARIO, "l.toml", &[set.to_string()])
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains(key) && err.contains("ml_location"),
+                "{set}: {err}"
+            );
+        }
+        let s = Scenario::from_toml(LOCATION_SCENARIO, "l.toml", &[]).unwrap();
+        assert_eq!(s.target.motion, Motion::Static);
+        assert_eq!(s.consensus.protocol, ConsensusProtocol::ML_LOCATION);
+    }
+
     #[test]
     fn broken_faults_name_the_key() {
         let text = format!("{DEFAULT_SCENARIO}\n[[faults]]\nkind = \"loss\"\nlinks = [{{ from = \"*\", to = \"*\" }}]\nat_step = 5\nprobability = 1.5\n");

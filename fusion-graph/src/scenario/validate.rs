@@ -14,14 +14,25 @@ impl Scenario {
         if !protocol.is_diffusion() {
             return Ok(());
         }
+        self.refuse_cf_dpf_parts(
+            file,
+            &format!(
+                "its default with consensus.protocol = \"{}\" (the random-exchange and KL trackers have no such part)",
+                protocol.name()
+            ),
+        )
+    }
+
+    /// The CF/DPF's parts a node of another kind does not have, refused by
+    /// key if the scenario asks for one: a sensor manager other than
+    /// random, a network-wide cap on active sensors, censoring, the
+    /// auxiliary FIM and the innovation gate.
+    fn refuse_cf_dpf_parts(&self, file: &str, expected: &str) -> Result<(), ScenarioError> {
         let refuse = |key: &str, got: String| {
             Err(ScenarioError::Invalid {
                 file: file.into(),
                 key: key.into(),
-                expected: format!(
-                    "its default with consensus.protocol = \"{}\" (the random-exchange and KL trackers have no such part)",
-                    protocol.name()
-                ),
+                expected: expected.into(),
                 got,
             })
         };
@@ -80,34 +91,11 @@ impl Scenario {
         if !locating {
             return Ok(());
         }
-        let refuse = |key: &str, got: String| {
-            invalid(
-                key,
-                "its default with consensus.protocol = \"ml_location\" (the locator has no such part)"
-                    .into(),
-                got,
-            )
-        };
-        if self.sensors.manager != SensorManagerKind::RANDOM {
-            return refuse(
-                "sensors.manager",
-                format!("\"{}\"", self.sensors.manager.name()),
-            );
-        }
-        if let Some(m) = self.sensors.max_active_total {
-            return refuse("sensors.max_active_total", m.to_string());
-        }
-        if self.censoring.policy != CensoringPolicy::Off {
-            return refuse("censoring.policy", format!("{:?}", self.censoring.policy));
-        }
-        if self.consensus.auxiliary_fim {
-            return refuse("consensus.auxiliary_fim", "true".into());
-        }
-        if self.filter.gate > 0.0 {
-            return refuse("filter.gate", self.filter.gate.to_string());
-        }
+        let theirs =
+            "its default with consensus.protocol = \"ml_location\" (the locator has no such part)";
+        self.refuse_cf_dpf_parts(file, theirs)?;
         if self.reference.centralized {
-            return refuse("reference.centralized", "true".into());
+            return invalid("reference.centralized", theirs.into(), "true".into());
         }
         let cells = 1usize << self.quantizer.bits.min(16);
         if !self.quantizer.raw && cells - 1 > crate::wire::MAX_THRESHOLDS {
