@@ -21,7 +21,6 @@ use fusion_graph::scenario::Scenario;
 use fusion_graph::Topology;
 
 use crate::estimator::{Observation, ObservedValue};
-use crate::registry::{ParamError, Params};
 
 /// The thresholds a locator sends its sensors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -33,7 +32,8 @@ pub enum ThresholdDesign {
     Uniform,
 }
 
-/// `consensus.params` of `ml_location`.
+/// `consensus.params` of `ml_location`, as the registry reads them
+/// ([`crate::registry::location_config`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LocationConfig {
     /// Points of each grid along x and y.
@@ -42,41 +42,6 @@ pub struct LocationConfig {
     /// of the one before, one spacing of it either side.
     pub refinements: usize,
     pub thresholds: ThresholdDesign,
-}
-
-impl LocationConfig {
-    /// `grid_x`, `grid_y` (5 to 61 points, default 21), `refinements` (0
-    /// to 4, default 2) and `thresholds` (`"designed"`, the default for
-    /// amplitude sensors, or `"uniform"`).
-    pub fn from_params(params: &Params<'_>, scenario: &Scenario) -> Result<Self, ParamError> {
-        params.only(&["grid_x", "grid_y", "refinements", "thresholds"])?;
-        let axis = |name| params.integer(name, 5..=61, 21).map(|v| v as usize);
-        let amplitude = matches!(scenario.observation, SensorLaw::Amplitude { .. });
-        let default = if amplitude { "designed" } else { "uniform" };
-        let thresholds = match params.text("thresholds", default)? {
-            "designed" if amplitude || scenario.quantizer.raw => ThresholdDesign::Designed,
-            "designed" => {
-                return Err(params.error(
-                    "thresholds",
-                    "\"uniform\": the designed thresholds are for amplitude sensors",
-                    "\"designed\"",
-                ))
-            }
-            "uniform" => ThresholdDesign::Uniform,
-            other => {
-                return Err(params.error(
-                    "thresholds",
-                    "\"designed\" or \"uniform\"",
-                    format!("\"{other}\""),
-                ))
-            }
-        };
-        Ok(Self {
-            grid: [axis("grid_x")?, axis("grid_y")?],
-            refinements: params.integer("refinements", 0..=4, 2)? as usize,
-            thresholds,
-        })
-    }
 }
 
 /// A grid of `n[0] × n[1]` points from `origin`, `spacing` apart; point
@@ -490,18 +455,5 @@ mod tests {
             );
             assert!((got - expected).abs() <= 1e-9 * expected.abs().max(1.0));
         }
-    }
-
-    #[test]
-    fn unknown_or_misplaced_parameters_are_named() {
-        let s = scenario(&[]);
-        let table: toml::Table = toml::from_str("thresholds = \"optimal\"").unwrap();
-        let e =
-            LocationConfig::from_params(&Params::new("consensus.params", &table), &s).unwrap_err();
-        assert_eq!(e.key, "consensus.params.thresholds");
-        let table: toml::Table = toml::from_str("grid_x = 2").unwrap();
-        let e =
-            LocationConfig::from_params(&Params::new("consensus.params", &table), &s).unwrap_err();
-        assert_eq!(e.key, "consensus.params.grid_x");
     }
 }

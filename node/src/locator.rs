@@ -33,7 +33,6 @@ use crate::collector::{Collector, Offer, SensorAnswers};
 use crate::estimator::ObservedValue;
 use crate::fusion::{vector_sum, FusionProtocol, Handled, RoundStats, Summed, VectorSum};
 use crate::location::{position_bound, sensor_quantizer, Grid, LocalEvidence, LocationConfig};
-use crate::registry::Params;
 use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
 use crate::{wiring, NodeError, Outgoing, Work};
 
@@ -87,11 +86,14 @@ pub struct LocatorNode {
 }
 
 impl LocatorNode {
-    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
-        let config = LocationConfig::from_params(
-            &Params::new("consensus.params", &scenario.consensus.params),
-            scenario,
-        )?;
+    /// Node `index` of a locator network, with the protocol's parameters
+    /// (read and checked by the registry, [`crate::registry::location_config`]).
+    pub fn new(
+        scenario: &Scenario,
+        topology: &Topology,
+        index: u16,
+        config: LocationConfig,
+    ) -> Result<Self, NodeError> {
         let coarse = Grid::over_region(scenario, config.grid);
         let quantizer = sensor_quantizer(scenario, config.thresholds);
         // Every phase's rounds have their own numbers on the wire.

@@ -56,7 +56,8 @@ impl ProcessingNode {
         index: u16,
     ) -> Result<Self, NodeError> {
         if scenario.consensus.protocol.shape() == Shape::Locator {
-            return LocatorNode::new(scenario, topology, index).map(Self::from);
+            let config = crate::registry::location_config(scenario)?;
+            return LocatorNode::new(scenario, topology, index, config).map(Self::from);
         }
         if let Some(cooperation) = crate::registry::cooperation(scenario, topology, index)? {
             DiffusionNode::new(scenario, topology, index, cooperation).map(Self::from)

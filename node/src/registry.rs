@@ -20,6 +20,7 @@ use fusion_graph::{Scenario, Topology};
 
 use crate::diffusion_node::Cooperation;
 use crate::fusion::{average_consensus, InformationFusion};
+use crate::location::{LocationConfig, ThresholdDesign};
 use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, UniformRandom};
 
 /// What a protocol or manager is built from: the run's scenario and
@@ -365,10 +366,42 @@ pub fn information_fusion(
             build(&setup(scenario, topology, node, params)).map(Some)
         }
         Shape::ExactSums | Shape::Tracker { .. } => params.only(&[]).map(|()| None),
-        Shape::Locator => {
-            crate::location::LocationConfig::from_params(&params, scenario).map(|_| None)
-        }
+        Shape::Locator => location_config(scenario).map(|_| None),
     }
+}
+
+/// `consensus.params` of `ml_location`: `grid_x`, `grid_y` (5 to 61
+/// points, default 21), `refinements` (0 to 4, default 2) and `thresholds`
+/// (`"designed"`, the default for amplitude sensors, or `"uniform"`).
+pub fn location_config(scenario: &Scenario) -> Result<LocationConfig, ParamError> {
+    let params = protocol_params(scenario);
+    params.only(&["grid_x", "grid_y", "refinements", "thresholds"])?;
+    let axis = |name| params.integer(name, 5..=61, 21).map(|v| v as usize);
+    let amplitude = matches!(scenario.observation, bounds::SensorLaw::Amplitude { .. });
+    let default = if amplitude { "designed" } else { "uniform" };
+    let thresholds = match params.text("thresholds", default)? {
+        "designed" if amplitude || scenario.quantizer.raw => ThresholdDesign::Designed,
+        "designed" => {
+            return Err(params.error(
+                "thresholds",
+                "\"uniform\": the designed thresholds are for amplitude sensors",
+                "\"designed\"",
+            ))
+        }
+        "uniform" => ThresholdDesign::Uniform,
+        other => {
+            return Err(params.error(
+                "thresholds",
+                "\"designed\" or \"uniform\"",
+                format!("\"{other}\""),
+            ))
+        }
+    };
+    Ok(LocationConfig {
+        grid: [axis("grid_x")?, axis("grid_y")?],
+        refinements: params.integer("refinements", 0..=4, 2)? as usize,
+        thresholds,
+    })
 }
 
 /// How tracker node `node` cooperates, if the scenario names one of the
@@ -433,6 +466,36 @@ mod tests {
             Duration::from_millis(50),
             false,
         )))
+    }
+
+    #[test]
+    fn the_locators_parameters_are_named_by_key() {
+        let location = |set: &str| {
+            Scenario::from_toml(
+                fusion_graph::scenario::LOCATION_SCENARIO,
+                "l",
+                &[set.to_string()],
+            )
+            .map_err(|e| e.to_string())
+        };
+        for (set, key) in [
+            (
+                "consensus.params.thresholds=\"optimal\"",
+                "consensus.params.thresholds",
+            ),
+            ("consensus.params.grid_x=2", "consensus.params.grid_x"),
+            (
+                "consensus.params.refinements=9",
+                "consensus.params.refinements",
+            ),
+            ("consensus.params.zoom=2", "consensus.params.zoom"),
+        ] {
+            let s = location(set).unwrap();
+            let e = location_config(&s).unwrap_err();
+            assert_eq!(e.key, key, "{set}");
+        }
+        let s = location("consensus.params.refinements=1").unwrap();
+        assert_eq!(location_config(&s).unwrap().refinements, 1);
     }
 
     #[test]
