@@ -83,6 +83,30 @@ pub struct HostFiles {
 }
 
 impl HostFiles {
+    /// Writes the files into the results folder `out`, where a run on one
+    /// host leaves the same files (`logs/`, `accounting/`). A path outside
+    /// those two folders is refused and said.
+    pub fn write_home(&self, host: &str, out: &std::path::Path) {
+        for (path, bytes) in &self.files {
+            if !Self::is_allowed(path) {
+                tracing::warn!(
+                    host,
+                    path,
+                    "a file from a host outside logs/ and accounting/; dropped"
+                );
+                continue;
+            }
+            let to = out.join(path);
+            let written = to
+                .parent()
+                .map_or(Ok(()), std::fs::create_dir_all)
+                .and_then(|()| std::fs::write(&to, bytes));
+            if let Err(e) = written {
+                tracing::warn!(host, path, error = %e, "could not bring a host's file home");
+            }
+        }
+    }
+
     /// Whether `path` is one a host may send: `logs/` or `accounting/`
     /// and a plain file name (what comes over the network is not trusted
     /// to stay inside the results folder).

@@ -420,3 +420,40 @@ fn the_live_view_shows_traffic_on_every_link_across_hosts() {
     assert!(every_link, "no traffic event with every link");
     running.wait().unwrap().assert_success();
 }
+
+/// A host lost for good leaves what it had sent so far: its agent reports
+/// its actors' byte counts every few seconds, so after agent c is killed at
+/// step 25 (never to return) the run's counts still hold what c's nodes
+/// sent before, not only what the others received from them.
+#[test]
+fn a_host_lost_for_good_leaves_its_counts_so_far() {
+    let _guard = exclusive();
+    let steps = 40;
+    let mut running = Network::new(three_hosts(steps))
+        .executable(CQNET)
+        .tag("hosts-gone")
+        .set("clock.step_period_ms", 250)
+        .arg("--local-agents")
+        .start()
+        .unwrap();
+    assert!(
+        running.wait_for_step(25, Duration::from_secs(60)),
+        "the run did not reach step 25"
+    );
+    assert_eq!(running.signal(Target::Agent("c"), "KILL"), 1);
+    let r = running.wait().unwrap();
+    r.assert_success();
+    let c = r.accounting().get(
+        ActorId::Node(6),
+        ActorId::Node(3),
+        cqnet_testkit::MessageKind::Consensus,
+    );
+    assert!(c.received_messages > 0, "node-3 heard node-6: {c:?}");
+    // What node-6 sent up to c's last report: at least all but the last
+    // five seconds (20 steps) of what node-3 received from it.
+    assert!(
+        c.sent_messages > 0 && c.sent_messages + 20 * 10 >= c.received_messages,
+        "{c:?}"
+    );
+    r.assert_clean();
+}

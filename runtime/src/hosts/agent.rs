@@ -192,6 +192,8 @@ impl Agent<'_> {
         let mut interrupted = false;
         // The actors started and not yet exited.
         let mut running: HashSet<ActorId> = HashSet::new();
+        // Each file's length when it last went home in a progress report.
+        let mut sent_lengths: std::collections::HashMap<String, usize> = Default::default();
         // Set up again after the launcher lost this host: the actors are
         // being stopped, and the answer waits until they are gone.
         let mut clearing: Option<Instant> = None;
@@ -289,6 +291,19 @@ impl Agent<'_> {
                         accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
                         bridge: bridge.counts(),
                         home: host_files(&dir, &placement, host, &topology),
+                    });
+                    None
+                }
+                ToAgent::Progress => {
+                    let mut home = host_files(&dir, &placement, host, &topology);
+                    // Only what grew since the last report.
+                    home.files.retain(|(path, bytes)| {
+                        sent_lengths.insert(path.clone(), bytes.len()) != Some(bytes.len())
+                    });
+                    self.tell(&FromAgent::Progress {
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
+                        bridge: bridge.counts(),
+                        home,
                     });
                     None
                 }

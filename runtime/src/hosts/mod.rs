@@ -68,6 +68,9 @@ pub enum ToAgent {
     /// Send the byte counts of this host's actors as they stand, for the
     /// live view's traffic (once a second while it is open).
     Traffic,
+    /// Send what the run has so far (every few seconds): the counts and
+    /// the logs that grew, so that a host lost for good leaves them.
+    Progress,
     /// Every actor should be exiting: reap them, close the bridge.
     Shutdown,
 }
@@ -95,6 +98,13 @@ pub enum FromAgent {
     /// The host's actors' ledgers as they stand (`Accounting::to_csv`).
     Traffic {
         accounting_csv: String,
+    },
+    /// What the run has so far: as [`FromAgent::Counts`], with only the
+    /// logs that grew since the last.
+    Progress {
+        accounting_csv: String,
+        bridge: BridgeCounts,
+        home: crate::supervisor::HostFiles,
     },
     /// Could not set the run up: why.
     Failed {

@@ -40,7 +40,12 @@ pub struct HostsRun {
     /// Where to keep every host's byte counts as they stand, once a
     /// second, for the live view's traffic; `None` without a view.
     pub traffic: Option<PathBuf>,
+    /// The run's results folder, where the hosts' files come home.
+    pub out: PathBuf,
 }
+
+/// How often the hosts send what the run has so far.
+const PROGRESS_PERIOD: Duration = Duration::from_secs(5);
 
 /// How often the hosts' byte counts are asked for while a view is open.
 const TRAFFIC_PERIOD: Duration = Duration::from_secs(1);
@@ -75,6 +80,9 @@ struct HostState {
     /// Commands for it while it was not set up yet.
     pending: Vec<ToAgent>,
     counts: Option<(String, BridgeCounts, crate::supervisor::HostFiles)>,
+    /// The counts of its last progress report: what a host lost for good
+    /// leaves.
+    progress: Option<(String, BridgeCounts)>,
     finished: bool,
 }
 
@@ -128,6 +136,7 @@ pub fn supervise_hosts(
     let mut collecting: Option<Instant> = None;
     let mut shutting: Option<Instant> = None;
     let mut traffic_asked: Option<Instant> = None;
+    let mut progress_asked = Instant::now();
     let mut traffic: Vec<Option<Accounting>> = hosts.iter().map(|_| None).collect();
     let send = |h: usize, c: &ToAgent| {
         if let Err(e) = put(&session, &command_key(&hosts[h].name), encode(c)) {
@@ -159,6 +168,15 @@ pub fn supervise_hosts(
                 }
             }
             traffic_asked = Some(Instant::now());
+        }
+        if shutting.is_none() && collecting.is_none() && progress_asked.elapsed() >= PROGRESS_PERIOD
+        {
+            for (h, s) in state.iter().enumerate() {
+                if s.set_up {
+                    send(h, &ToAgent::Progress);
+                }
+            }
+            progress_asked = Instant::now();
         }
         match incoming {
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -248,6 +266,14 @@ pub fn supervise_hosts(
                     bridge,
                     home,
                 } => state[host].counts = Some((accounting_csv, bridge, home)),
+                FromAgent::Progress {
+                    accounting_csv,
+                    bridge,
+                    home,
+                } => {
+                    home.write_home(&hosts[host].name, &setup.out);
+                    state[host].progress = Some((accounting_csv, bridge));
+                }
                 FromAgent::Traffic { accounting_csv } => {
                     traffic[host] = Accounting::from_csv(&accounting_csv);
                     if let Some(path) = &setup.traffic {
@@ -347,7 +373,17 @@ fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState])
                 bridges.push((host.name.clone(), *bridge));
                 homes.push((host.name.clone(), home.clone()));
             }
-            None => tracing::warn!(host = %host.name, "no byte counts from this host"),
+            None => match &s.progress {
+                // Lost for good: what it last reported.
+                Some((csv, bridge)) => {
+                    tracing::warn!(host = %host.name, "the host's byte counts as of its last progress report");
+                    if let Some(a) = Accounting::from_csv(csv) {
+                        accounting.merge(&a);
+                    }
+                    bridges.push((host.name.clone(), *bridge));
+                }
+                None => tracing::warn!(host = %host.name, "no byte counts from this host"),
+            },
         }
     }
     Event::Counts {

@@ -74,24 +74,7 @@ pub(super) fn write_hosts_report(
 /// path outside those two folders is refused and said.
 pub(super) fn bring_home(out: &Path, homes: &[(String, HostFiles)]) {
     for (host, home) in homes {
-        for (path, bytes) in &home.files {
-            if !HostFiles::is_allowed(path) {
-                tracing::warn!(
-                    host,
-                    path,
-                    "a file from a host outside logs/ and accounting/; dropped"
-                );
-                continue;
-            }
-            let to = out.join(path);
-            let written = to
-                .parent()
-                .map_or(Ok(()), std::fs::create_dir_all)
-                .and_then(|()| std::fs::write(&to, bytes));
-            if let Err(e) = written {
-                tracing::warn!(host, path, error = %e, "could not bring a host's file home");
-            }
-        }
+        home.write_home(host, out);
     }
 }
 

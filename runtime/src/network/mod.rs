@@ -158,6 +158,7 @@ pub fn run_network(
                 scenario: scenario.to_toml(),
                 centralized: spec.centralized,
                 traffic: hosts_traffic,
+                out: out.clone(),
             };
             let agents = options_local_agents
                 .then(|| {
