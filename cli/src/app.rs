@@ -120,8 +120,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     mc.runs, scenario.name, mc.estimates.from_step, scenario.steps
                 );
                 println!(
-                    "  RMSE {} m, CQ/dPCRLB {} m, local {} m, aux-FIM {} m",
+                    "  RMSE {} m, {} {} m, local {} m, aux-FIM {} m",
                     m(mc.estimates.rmse),
+                    runtime::summary::bound_name(&scenario),
                     m(mc.estimates.mean_bound),
                     m(mc.estimates.mean_local_bound),
                     m(mc.estimates.mean_aux_bound)
@@ -131,7 +132,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     m(mc.estimates.centralized_rmse),
                     m(mc.estimates.mean_centralized_bound)
                 );
-                if let Some(line) = intervals(&mc) {
+                if let Some(line) = intervals(&mc, runtime::summary::bound_name(&scenario)) {
                     println!("  {line}");
                 }
                 println!(
@@ -488,7 +489,7 @@ impl ExperimentProgress {
 
 /// The 95 % intervals over runs of the RMSE and the bound, and of their
 /// difference run by run: what a figure of `sim --runs` can claim.
-fn intervals(mc: &runtime::montecarlo::MonteCarloSummary) -> Option<String> {
+fn intervals(mc: &runtime::montecarlo::MonteCarloSummary, bound_name: &str) -> Option<String> {
     use experiments::paired::{rmse_interval, Paired};
     let rmse: Vec<f64> = mc.per_run.iter().filter_map(|r| r.estimates.rmse).collect();
     let (lo, hi) = rmse_interval(&rmse)?;
@@ -503,7 +504,7 @@ fn intervals(mc: &runtime::montecarlo::MonteCarloSummary) -> Option<String> {
     let mut line = format!("95 % over {} runs: RMSE {lo:.3} to {hi:.3} m", rmse.len());
     if let (Some(b), Some(g)) = (bound, gap) {
         line.push_str(&format!(
-            ", CQ/dPCRLB {:.3} ± {:.3} m, RMSE minus CQ/dPCRLB {} m (run by run)",
+            ", {bound_name} {:.3} ± {:.3} m, RMSE minus {bound_name} {} m (run by run)",
             b.mean,
             b.half_width,
             g.text(3)

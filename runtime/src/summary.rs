@@ -272,6 +272,16 @@ impl StageSums {
     }
 }
 
+/// What the nodes' bound is called: the CQ/dPCRLB of a tracking network,
+/// the CRLB of a static target's locator.
+pub fn bound_name(scenario: &fusion_graph::Scenario) -> &'static str {
+    if scenario.consensus.protocol == fusion_graph::scenario::ConsensusProtocol::ML_LOCATION {
+        "CRLB"
+    } else {
+        "CQ/dPCRLB"
+    }
+}
+
 /// A one-screen table of the summary for the terminal.
 pub fn print_table(s: &Summary) {
     let m = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
@@ -282,7 +292,8 @@ pub fn print_table(s: &Summary) {
     );
     println!("  averages over steps {}..{}", e.from_step, s.steps);
     println!("  {:<34} {:>12}", "position RMSE (fused), m", m(e.rmse));
-    println!("  {:<34} {:>12}", "CQ/dPCRLB bound, m", m(e.mean_bound));
+    let bound = format!("{} bound, m", bound_name(&s.scenario));
+    println!("  {:<34} {:>12}", bound, m(e.mean_bound));
     println!("  {:<34} {:>12}", "local bound, m", m(e.mean_local_bound));
     println!(
         "  {:<34} {:>12}",
