@@ -332,6 +332,30 @@ mod tests {
         Scenario::from_toml(LOCATION_SCENARIO, "location.toml", &o).unwrap()
     }
 
+    /// The scenario's amplitude law as `bounds::location`'s power law (its
+    /// α is 1), its σ, and the positions of sensors `own`.
+    fn power_law_and_positions(
+        s: &Scenario,
+        t: &Topology,
+        own: &[u16],
+    ) -> (DecayLaw, f64, Vec<[f64; 2]>) {
+        let SensorLaw::Amplitude {
+            p0,
+            alpha,
+            exponent,
+            sigma,
+        } = s.observation
+        else {
+            panic!("amplitude sensors")
+        };
+        assert_eq!(alpha, 1.0);
+        let positions = own
+            .iter()
+            .map(|i| t.sensor_positions[*i as usize])
+            .collect();
+        (DecayLaw::PowerLaw { p0, exponent }, sigma, positions)
+    }
+
     /// The parabola's vertex: exact for a quadratic, wherever its peak
     /// lies within half a step of the best point.
     #[test]
@@ -374,27 +398,10 @@ mod tests {
         evidence.add(&step);
         evidence.add(&step);
         assert_eq!(evidence.report_count(), 2 * own.len() as u32);
-        let SensorLaw::Amplitude {
-            p0,
-            exponent,
-            sigma,
-            ..
-        } = s.observation
-        else {
-            panic!("amplitude sensors")
-        };
-        let positions: Vec<[f64; 2]> = own
-            .iter()
-            .map(|s| t.sensor_positions[*s as usize])
-            .collect();
+        let (law, sigma, positions) = power_law_and_positions(&s, &t, own);
         let theta = [5.3, 2.9];
-        let expected = exact_information(
-            DecayLaw::PowerLaw { p0, exponent },
-            Measurement::Quantized(&q),
-            sigma,
-            &positions,
-            theta,
-        ) * 2.0;
+        let expected =
+            exact_information(law, Measurement::Quantized(&q), sigma, &positions, theta) * 2.0;
         let got = evidence.information(theta);
         for (g, e) in got
             .iter()
@@ -428,31 +435,13 @@ mod tests {
             })
             .collect();
         evidence.add(&step);
-        let SensorLaw::Amplitude {
-            p0,
-            exponent,
-            sigma,
-            ..
-        } = s.observation
-        else {
-            panic!("amplitude sensors")
-        };
-        let positions: Vec<[f64; 2]> = own
-            .iter()
-            .map(|s| t.sensor_positions[*s as usize])
-            .collect();
+        let (law, sigma, positions) = power_law_and_positions(&s, &t, own);
         let grid = Grid::over_region(&s, [7, 7]);
         let mut ll = Vec::new();
         evidence.log_likelihood(&grid, &mut ll);
         for (k, got) in ll.iter().enumerate() {
-            let expected = bounds::location::log_likelihood(
-                DecayLaw::PowerLaw { p0, exponent },
-                &q,
-                sigma,
-                &positions,
-                &cells,
-                grid.point(k),
-            );
+            let expected =
+                bounds::location::log_likelihood(law, &q, sigma, &positions, &cells, grid.point(k));
             assert!((got - expected).abs() <= 1e-9 * expected.abs().max(1.0));
         }
     }

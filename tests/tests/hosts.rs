@@ -250,31 +250,7 @@ fn an_agent_killed_and_restarted_leaves_and_rejoins_the_run() {
     let status = again.wait().unwrap();
     r.assert_success();
     assert!(status.success(), "the restarted agent: {status}");
-    let faults: Vec<String> = r.faults().iter().map(|f| f.fault.clone()).collect();
-    for node in 3..6 {
-        assert!(
-            faults
-                .iter()
-                .any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
-            "{faults:?}"
-        );
-    }
-    // Host b's nodes were away for a while and back before the end; the
-    // others reported every step.
-    let steps_of = |node: &str| {
-        r.ticks_of(node)
-            .map(|t| t.step)
-            .collect::<std::collections::BTreeSet<u32>>()
-    };
-    for node in ["node-0", "node-8"] {
-        assert_eq!(steps_of(node).len(), steps as usize, "{node}");
-    }
-    for node in ["node-3", "node-4", "node-5"] {
-        let seen = steps_of(node);
-        assert!(seen.contains(&4), "{node} before the loss");
-        assert!(seen.contains(&steps), "{node} after the return: {seen:?}");
-        assert!(seen.len() < steps as usize, "{node} never missed a step");
-    }
+    assert_host_b_away_and_back(&r, steps);
     // Host b's bridge counted what it forwarded before the kill too (its
     // counts outlive the agent, as the actors' ledgers do): each message of
     // b's actors that crosses goes to one far host per link (the 3 × 3
@@ -337,32 +313,7 @@ fn a_separate_host_cut_off_is_lost_and_rejoins_when_its_link_returns() {
         .run()
         .unwrap();
     r.assert_success();
-    let faults: Vec<String> = r.faults().iter().map(|f| f.fault.clone()).collect();
-    for node in 3..6 {
-        assert!(
-            faults
-                .iter()
-                .any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
-            "{faults:?}"
-        );
-    }
-    let steps_of = |node: &str| {
-        r.ticks_of(node)
-            .map(|t| t.step)
-            .collect::<std::collections::BTreeSet<u32>>()
-    };
-    for node in ["node-0", "node-8"] {
-        assert_eq!(steps_of(node).len(), steps as usize, "{node}");
-    }
-    for node in ["node-3", "node-4", "node-5"] {
-        let seen = steps_of(node);
-        assert!(seen.contains(&4), "{node} before the cut");
-        assert!(
-            seen.contains(&steps),
-            "{node} after the link returned: {seen:?}"
-        );
-        assert!(seen.len() < steps as usize, "{node} never missed a step");
-    }
+    assert_host_b_away_and_back(&r, steps);
     r.assert_clean();
 }
 
@@ -456,4 +407,33 @@ fn a_host_lost_for_good_leaves_its_counts_so_far() {
         "{c:?}"
     );
     r.assert_clean();
+}
+
+/// Host b's nodes were reported lost, were away for a while and back
+/// before the end of a run of `steps` steps; the others reported every
+/// step.
+fn assert_host_b_away_and_back(r: &Run, steps: u32) {
+    let faults: Vec<String> = r.faults().iter().map(|f| f.fault.clone()).collect();
+    for node in 3..6 {
+        assert!(
+            faults
+                .iter()
+                .any(|f| f.contains(&format!("node-{node}")) && f.contains("lost with host b")),
+            "{faults:?}"
+        );
+    }
+    let steps_of = |node: &str| {
+        r.ticks_of(node)
+            .map(|t| t.step)
+            .collect::<std::collections::BTreeSet<u32>>()
+    };
+    for node in ["node-0", "node-8"] {
+        assert_eq!(steps_of(node).len(), steps as usize, "{node}");
+    }
+    for node in ["node-3", "node-4", "node-5"] {
+        let seen = steps_of(node);
+        assert!(seen.contains(&4), "{node} before the loss");
+        assert!(seen.contains(&steps), "{node} after the return: {seen:?}");
+        assert!(seen.len() < steps as usize, "{node} never missed a step");
+    }
 }
