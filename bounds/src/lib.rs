@@ -12,6 +12,10 @@
 //!   plus the non-conditional PCRLB by Monte Carlo;
 //! - [`selection`]: the PCRLB cost of a set of active sensors and the
 //!   greedy choice of the selection paper;
+//! - [`compressive`]: sensor management by compressive sensing over a
+//!   multiple-access channel: the sensing matrix, the likelihood of what
+//!   the channel delivers, the transmission probabilities that maximize
+//!   `det J` (dissertation ch. 4);
 //! - [`censoring`]: the NIS censoring rule at a sensor and the likelihood
 //!   of its silence (dissertation ch. 3);
 //! - [`bit_allocation`]: quantized data fused with injected noise, and the
@@ -30,6 +34,7 @@ pub mod bit_allocation;
 pub mod cell_sums;
 pub mod censoring;
 pub mod chacha;
+pub mod compressive;
 pub mod diffusion;
 pub mod dynamics;
 pub mod fisher;

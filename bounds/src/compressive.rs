@@ -1,0 +1,668 @@
+//! Sensor management by compressive sensing over a multiple-access channel
+//! (dissertation ch. 4; docs/equations.md, "Compressive sensor
+//! management"), as pure functions.
+//!
+//! Sensor j measures `s_j = a_j(x) + v_j`, `v_j ~ N(0, r)`. In each of M
+//! slots of a shared channel, every sensor transmits `φ_ij s_j` at once
+//! and the receiver hears the sum plus its own noise:
+//!
+//! ```text
+//! z = Φ s + e,   e ~ N(0, ε I_M),   so   z | x ~ N(Φ a(x), r ΦΦᵀ + ε I_M)   (eq. 4.13)
+//! ```
+//!
+//! `φ_ij` is ±1 with probability `p_j / 2` each and 0 otherwise (eq. 4.7):
+//! the transmission probabilities `p` are the design. The fusion centre
+//! chooses them to maximize `det J(p)` under the energy budget
+//! `M Σ p_j ≤ E` (eqs. 4.25–4.26), with `J(p)` the recursion of eq. 4.8
+//! whose observation term takes `E_Φ[Φᵀ R⁻¹ Φ] ≈ M/(rΣp + ε) diag(p)`
+//! (eq. 4.19):
+//!
+//! ```text
+//! J(p) = A + M/(r Σp + ε) Σ_j p_j G_j,   G_j = E_x[∇a_j ∇a_jᵀ],
+//! A = Q⁻¹ − Q⁻¹F (J_prev + FᵀQ⁻¹F)⁻¹ FᵀQ⁻¹.
+//! ```
+//!
+//! Only the position block depends on p, so `log det J(p)` is, up to a
+//! constant, `log det(K + B(p))` over 2 × 2 matrices with
+//! `K = ((A⁻¹)_pos)⁻¹`. For a fixed total `s = Σp` it is concave in p;
+//! [`optimal_probabilities`] climbs it by projected gradient over the
+//! capped simplex and searches s by golden section.
+
+use nalgebra::{Cholesky, Matrix2};
+use rand::Rng;
+
+use crate::{Mat4, State};
+
+/// The most slots a design may have: a sensor's column travels as a
+/// 32-bit mask.
+pub const MAX_SLOTS: usize = 32;
+
+/// A sensing matrix Φ, M × N, with entries in {−1, 0, 1}.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SensingMatrix {
+    slots: usize,
+    sensors: usize,
+    /// Row-major: entry (i, j) at `i · sensors + j`.
+    entries: Vec<i8>,
+}
+
+impl SensingMatrix {
+    /// All zeros.
+    pub fn zeros(slots: usize, sensors: usize) -> Self {
+        assert!(slots <= MAX_SLOTS, "at most {MAX_SLOTS} slots");
+        Self {
+            slots,
+            sensors,
+            entries: vec![0; slots * sensors],
+        }
+    }
+
+    /// Eq. 4.7: each entry of column j is +1 or −1 with probability
+    /// `p_j / 2` each, else 0; drawn column by column, slot by slot.
+    pub fn draw<R: Rng + ?Sized>(p: &[f64], slots: usize, rng: &mut R) -> Self {
+        let mut phi = Self::zeros(slots, p.len());
+        for (j, &pj) in p.iter().enumerate() {
+            for i in 0..slots {
+                let u: f64 = rng.random();
+                if u < pj / 2.0 {
+                    phi.set(i, j, 1);
+                } else if u < pj {
+                    phi.set(i, j, -1);
+                }
+            }
+        }
+        phi
+    }
+
+    /// Every sensor in a slot of its own: the all-send case over parallel
+    /// channels.
+    pub fn identity(sensors: usize) -> Self {
+        let mut phi = Self::zeros(sensors, sensors);
+        for j in 0..sensors {
+            phi.set(j, j, 1);
+        }
+        phi
+    }
+
+    /// `chosen[i]` alone in slot i: a selection of sensors, each on a
+    /// channel of its own.
+    pub fn selection(chosen: &[usize], sensors: usize) -> Self {
+        let mut phi = Self::zeros(chosen.len(), sensors);
+        for (i, &j) in chosen.iter().enumerate() {
+            phi.set(i, j, 1);
+        }
+        phi
+    }
+
+    /// A matrix from its columns as (slots with a non-zero entry, slots
+    /// whose entry is −1) bit masks, as activations carry them.
+    pub fn from_columns(slots: usize, columns: &[(u32, u32)]) -> Self {
+        let mut phi = Self::zeros(slots, columns.len());
+        for (j, &(nonzero, negative)) in columns.iter().enumerate() {
+            for i in 0..slots {
+                if nonzero & (1 << i) != 0 {
+                    phi.set(i, j, if negative & (1 << i) != 0 { -1 } else { 1 });
+                }
+            }
+        }
+        phi
+    }
+
+    pub fn slots(&self) -> usize {
+        self.slots
+    }
+
+    pub fn sensors(&self) -> usize {
+        self.sensors
+    }
+
+    pub fn get(&self, i: usize, j: usize) -> i8 {
+        self.entries[i * self.sensors + j]
+    }
+
+    fn set(&mut self, i: usize, j: usize, v: i8) {
+        self.entries[i * self.sensors + j] = v;
+    }
+
+    /// Column j as (slots with a non-zero entry, slots whose entry is −1).
+    pub fn column(&self, j: usize) -> (u32, u32) {
+        let (mut nonzero, mut negative) = (0u32, 0u32);
+        for i in 0..self.slots {
+            match self.get(i, j) {
+                0 => {}
+                v => {
+                    nonzero |= 1 << i;
+                    if v < 0 {
+                        negative |= 1 << i;
+                    }
+                }
+            }
+        }
+        (nonzero, negative)
+    }
+
+    /// The non-zero entries: the transmissions, one unit of energy each.
+    pub fn transmissions(&self) -> usize {
+        self.entries.iter().filter(|v| **v != 0).count()
+    }
+
+    /// The sensors with a non-zero column, in increasing order.
+    pub fn transmitters(&self) -> Vec<usize> {
+        (0..self.sensors)
+            .filter(|&j| self.column(j).0 != 0)
+            .collect()
+    }
+}
+
+/// The likelihood of a received z given the sensors' noiseless signals
+/// (eq. 4.13): `N(Φa, rΦΦᵀ + εI)`. Built once per step, evaluated per
+/// particle without allocating.
+#[derive(Debug, Clone)]
+pub struct MacLikelihood {
+    phi: SensingMatrix,
+    /// The transmitters (sensors with a non-zero column).
+    transmitters: Vec<usize>,
+    /// The lower Cholesky factor of `rΦΦᵀ + εI`, row-major M × M.
+    chol: Vec<f64>,
+    /// `−½ log det(2π R)`: the density's normalizer.
+    normalizer: f64,
+}
+
+impl MacLikelihood {
+    /// `None` if `rΦΦᵀ + εI` is not positive definite (ε ≤ 0 with an
+    /// empty slot).
+    pub fn new(phi: SensingMatrix, r: f64, epsilon: f64) -> Option<Self> {
+        let m = phi.slots();
+        let mut cov = nalgebra::DMatrix::<f64>::zeros(m, m);
+        for a in 0..m {
+            for b in 0..m {
+                let dot: i32 = (0..phi.sensors())
+                    .map(|j| i32::from(phi.get(a, j)) * i32::from(phi.get(b, j)))
+                    .sum();
+                cov[(a, b)] = r * f64::from(dot) + if a == b { epsilon } else { 0.0 };
+            }
+        }
+        let l = Cholesky::new(cov)?.l();
+        let log_det: f64 = (0..m).map(|i| 2.0 * l[(i, i)].ln()).sum();
+        let normalizer = -0.5 * (log_det + m as f64 * (2.0 * std::f64::consts::PI).ln());
+        let chol = (0..m)
+            .flat_map(|i| (0..m).map(move |k| (i, k)))
+            .map(|(i, k)| l[(i, k)])
+            .collect();
+        Some(Self {
+            transmitters: phi.transmitters(),
+            phi,
+            chol,
+            normalizer,
+        })
+    }
+
+    pub fn sensing_matrix(&self) -> &SensingMatrix {
+        &self.phi
+    }
+
+    /// The sensors whose signals enter the likelihood.
+    pub fn transmitters(&self) -> &[usize] {
+        &self.transmitters
+    }
+
+    /// `ln N(z; Φa, R)`, with `signal(j)` the noiseless signal `a_j(x)` of
+    /// sensor j (asked only for the transmitters).
+    #[inline]
+    pub fn ln_likelihood(&self, z: &[f64], mut signal: impl FnMut(usize) -> f64) -> f64 {
+        let m = self.phi.slots();
+        let mut residual = [0.0; MAX_SLOTS];
+        residual[..m].copy_from_slice(&z[..m]);
+        for &j in &self.transmitters {
+            let a = signal(j);
+            for (i, r) in residual.iter_mut().enumerate().take(m) {
+                *r -= f64::from(self.phi.get(i, j)) * a;
+            }
+        }
+        // Solve L w = residual; the quadratic form is |w|².
+        let mut quadratic = 0.0;
+        for i in 0..m {
+            let row = &self.chol[i * m..i * m + i];
+            let w = (residual[i] - row.iter().zip(&residual[..i]).map(|(l, w)| l * w).sum::<f64>())
+                / self.chol[i * m + i];
+            residual[i] = w;
+            quadratic += w * w;
+        }
+        self.normalizer - 0.5 * quadratic
+    }
+}
+
+/// A position block `[xx, xy, yy]`.
+pub type PositionBlock = [f64; 3];
+
+/// `G_j = E_x[∇a_j ∇a_jᵀ]` over weighted states, position block; `gradient`
+/// gives `∇a_j` at a state (its velocity entries are zero).
+pub fn expected_outer_product(
+    states: &[State],
+    weights: &[f64],
+    mut gradient: impl FnMut(&State) -> State,
+) -> PositionBlock {
+    let mut g = [0.0; 3];
+    for (x, w) in states.iter().zip(weights) {
+        let d = gradient(x);
+        g[0] += w * d[0] * d[0];
+        g[1] += w * d[0] * d[1];
+        g[2] += w * d[1] * d[1];
+    }
+    g
+}
+
+/// The information before this step's observations, eq. 4.8 without
+/// `D22,b`: `Q⁻¹ − Q⁻¹F (J_prev + FᵀQ⁻¹F)⁻¹ FᵀQ⁻¹` for a linear
+/// transition F. `None` if `J_prev + FᵀQ⁻¹F` is singular.
+pub fn predicted_information(previous: &Mat4, f: &Mat4, q_inv: &Mat4) -> Option<Mat4> {
+    let d11 = f.transpose() * q_inv * f;
+    let d12 = -(f.transpose() * q_inv);
+    let inner = symmetric(previous + d11);
+    let inv = Cholesky::new(inner)?.inverse();
+    Some(symmetric(q_inv - d12.transpose() * inv * d12))
+}
+
+/// `J = A + (the position block of) Σ_j w_j G_j`.
+pub fn with_observations(predicted: &Mat4, blocks: &[PositionBlock], weights: &[f64]) -> Mat4 {
+    let mut j = *predicted;
+    for (g, w) in blocks.iter().zip(weights) {
+        j[(0, 0)] += w * g[0];
+        j[(0, 1)] += w * g[1];
+        j[(1, 0)] += w * g[1];
+        j[(1, 1)] += w * g[2];
+    }
+    j
+}
+
+/// Eq. 4.19's weights: `M p_j / (r Σp + ε)`, the diagonal of
+/// `E_Φ[Φᵀ R⁻¹ Φ]`.
+pub fn gamma_weights(p: &[f64], slots: usize, r: f64, epsilon: f64) -> Vec<f64> {
+    let scale = slots as f64 / (r * p.iter().sum::<f64>() + epsilon);
+    p.iter().map(|pj| scale * pj).collect()
+}
+
+/// The design problem at one step: maximize `log det J(p)` subject to
+/// `M Σp ≤ E`, `0 ≤ p_j ≤ 1`.
+#[derive(Debug, Clone)]
+pub struct DesignProblem<'a> {
+    /// `J` before the step's observations (eq. 4.8 without `D22,b`).
+    pub predicted: Mat4,
+    /// Each sensor's `G_j`.
+    pub blocks: &'a [PositionBlock],
+    pub slots: usize,
+    pub energy: f64,
+    pub r: f64,
+    pub epsilon: f64,
+}
+
+impl DesignProblem<'_> {
+    /// `log det J(p)` up to a constant that does not depend on p: `log
+    /// det(K + B(p))`, `K = ((A⁻¹)_pos)⁻¹`. `None` if A is not positive
+    /// definite.
+    pub fn objective(&self, p: &[f64]) -> Option<f64> {
+        let k = self.schur()?;
+        Some(log_det2(&(k + self.gain(p))))
+    }
+
+    /// `log det J(p)` itself, for checks.
+    pub fn log_det(&self, p: &[f64]) -> Option<f64> {
+        let j = with_observations(
+            &self.predicted,
+            self.blocks,
+            &gamma_weights(p, self.slots, self.r, self.epsilon),
+        );
+        Cholesky::new(symmetric(j)).map(|c| c.determinant().ln())
+    }
+
+    fn schur(&self) -> Option<Matrix2<f64>> {
+        let cov = Cholesky::new(symmetric(self.predicted))?.inverse();
+        Matrix2::new(cov[(0, 0)], cov[(0, 1)], cov[(1, 0)], cov[(1, 1)]).try_inverse()
+    }
+
+    /// `B(p) = M/(rΣp + ε) Σ p_j G_j`.
+    fn gain(&self, p: &[f64]) -> Matrix2<f64> {
+        let w = gamma_weights(p, self.slots, self.r, self.epsilon);
+        let mut b = Matrix2::zeros();
+        for (g, w) in self.blocks.iter().zip(&w) {
+            b += Matrix2::new(g[0], g[1], g[1], g[2]) * *w;
+        }
+        b
+    }
+
+    /// The largest total `Σp` the budget and the caps allow.
+    pub fn largest_total(&self) -> f64 {
+        (self.energy / self.slots as f64).min(self.blocks.len() as f64)
+    }
+}
+
+/// The transmission probabilities that maximize `det J(p)` (eqs.
+/// 4.25–4.26). For each total `s = Σp` the objective is concave in p:
+/// projected gradient ascent over `{0 ≤ p ≤ 1, Σp = s}` finds its maximum;
+/// the total is searched by golden section over `(0, E/M]`, and the
+/// budget's end is always tried. `None` if the predicted information is
+/// not positive definite.
+pub fn optimal_probabilities(problem: &DesignProblem) -> Option<Vec<f64>> {
+    let k = problem.schur()?;
+    let n = problem.blocks.len();
+    if n == 0 {
+        return Some(Vec::new());
+    }
+    let top = problem.largest_total();
+    let solve = |s: f64| {
+        let p = best_for_total(problem, &k, s);
+        let value = log_det2(&(k + problem.gain(&p)));
+        (value, p)
+    };
+    let mut best = solve(top);
+    // Golden section on the total: with a single slot the sum of many
+    // weak sensors can lose to a few strong ones, so the budget's end is
+    // not always best.
+    let ratio = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut lo, mut hi) = (top * 1e-3, top);
+    let mut a = hi - ratio * (hi - lo);
+    let mut b = lo + ratio * (hi - lo);
+    let (mut fa, mut fb) = (solve(a), solve(b));
+    for _ in 0..40 {
+        if fa.0 > fb.0 {
+            hi = b;
+            b = a;
+            fb = fa;
+            a = hi - ratio * (hi - lo);
+            fa = solve(a);
+        } else {
+            lo = a;
+            a = b;
+            fa = fb;
+            b = lo + ratio * (hi - lo);
+            fb = solve(b);
+        }
+    }
+    for candidate in [fa, fb] {
+        if candidate.0 > best.0 {
+            best = candidate;
+        }
+    }
+    Some(best.1)
+}
+
+/// Projected gradient ascent of `log det(K + B(p))` over `{0 ≤ p ≤ 1,
+/// Σp = s}`, with a backtracking step.
+fn best_for_total(problem: &DesignProblem, k: &Matrix2<f64>, s: f64) -> Vec<f64> {
+    let n = problem.blocks.len();
+    let scale = problem.slots as f64 / (problem.r * s + problem.epsilon);
+    let value = |p: &[f64]| {
+        let mut b = *k;
+        for (g, pj) in problem.blocks.iter().zip(p) {
+            b += Matrix2::new(g[0], g[1], g[1], g[2]) * (scale * pj);
+        }
+        b
+    };
+    let mut p = project_capped_simplex(&vec![s / n as f64; n], s);
+    let mut current = log_det2(&value(&p));
+    let mut step = 1.0;
+    let mut gradient = vec![0.0; n];
+    for _ in 0..2000 {
+        let Some(inv) = value(&p).try_inverse() else {
+            break;
+        };
+        for (d, g) in gradient.iter_mut().zip(problem.blocks) {
+            // ∂/∂p_j log det(K + B) = scale · tr((K + B)⁻¹ G_j)
+            *d = scale * (inv[(0, 0)] * g[0] + 2.0 * inv[(0, 1)] * g[1] + inv[(1, 1)] * g[2]);
+        }
+        // Scale-free steps: the gradient's size varies by orders of
+        // magnitude with the target's distance from the sensors.
+        let norm = gradient.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+        if norm == 0.0 || !norm.is_finite() {
+            break;
+        }
+        let mut moved = false;
+        while step > 1e-14 {
+            let trial: Vec<f64> = p
+                .iter()
+                .zip(&gradient)
+                .map(|(pj, d)| pj + step * d / norm)
+                .collect();
+            let trial = project_capped_simplex(&trial, s);
+            let v = log_det2(&value(&trial));
+            if v > current {
+                let change = trial
+                    .iter()
+                    .zip(&p)
+                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                p = trial;
+                current = v;
+                moved = change > 1e-12;
+                step *= 2.0;
+                break;
+            }
+            step /= 2.0;
+        }
+        if !moved {
+            break;
+        }
+    }
+    p
+}
+
+/// The Euclidean projection of y onto `{0 ≤ p ≤ 1, Σp = s}`: `p_j =
+/// clamp(y_j − τ, 0, 1)` with τ found by bisection.
+pub fn project_capped_simplex(y: &[f64], s: f64) -> Vec<f64> {
+    let total = |tau: f64| y.iter().map(|v| (v - tau).clamp(0.0, 1.0)).sum::<f64>();
+    let (mut lo, mut hi) = (
+        y.iter().fold(f64::INFINITY, |m, v| m.min(*v)) - 1.0,
+        y.iter().fold(f64::NEG_INFINITY, |m, v| m.max(*v)),
+    );
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if total(mid) > s {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let tau = 0.5 * (lo + hi);
+    y.iter().map(|v| (v - tau).clamp(0.0, 1.0)).collect()
+}
+
+fn log_det2(m: &Matrix2<f64>) -> f64 {
+    let det = m[(0, 0)] * m[(1, 1)] - m[(0, 1)] * m[(1, 0)];
+    if det > 0.0 {
+        det.ln()
+    } else {
+        f64::NEG_INFINITY
+    }
+}
+
+fn symmetric(m: Mat4) -> Mat4 {
+    (m + m.transpose()) * 0.5
+}
+
+/// K distinct sensors of N uniformly at random, in the order drawn (a
+/// partial Fisher–Yates shuffle).
+pub fn random_selection<R: Rng + ?Sized>(count: usize, sensors: usize, rng: &mut R) -> Vec<usize> {
+    let mut all: Vec<usize> = (0..sensors).collect();
+    let count = count.min(sensors);
+    for i in 0..count {
+        let j = rng.random_range(i..sensors);
+        all.swap(i, j);
+    }
+    all.truncate(count);
+    all
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    /// Eq. 4.13 against the density written out with a dense inverse and
+    /// determinant.
+    #[test]
+    fn the_likelihood_is_the_gaussian_of_eq_4_13() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for slots in [1, 3, 6] {
+            let phi = SensingMatrix::draw(&[0.9, 0.1, 0.5, 0.0, 0.7], slots, &mut rng);
+            let (r, eps) = (1.3, 0.2);
+            let like = MacLikelihood::new(phi.clone(), r, eps).unwrap();
+            let a = [3.0, -1.0, 0.5, 8.0, 2.0];
+            let z: Vec<f64> = (0..slots).map(|i| 0.7 * i as f64 - 1.0).collect();
+            let m = slots;
+            let phi_d = nalgebra::DMatrix::from_fn(m, 5, |i, j| f64::from(phi.get(i, j)));
+            let cov = &phi_d * phi_d.transpose() * r + nalgebra::DMatrix::identity(m, m) * eps;
+            let mean = &phi_d * nalgebra::DVector::from_row_slice(&a);
+            let resid = nalgebra::DVector::from_row_slice(&z) - mean;
+            let inv = cov.clone().try_inverse().unwrap();
+            let direct = -0.5 * (resid.transpose() * inv * &resid)[(0, 0)]
+                - 0.5 * (cov.determinant() * (2.0 * std::f64::consts::PI).powi(m as i32)).ln();
+            let got = like.ln_likelihood(&z, |j| a[j]);
+            assert!((got - direct).abs() < 1e-10, "{slots} slots: {got} vs {direct}");
+        }
+    }
+
+    #[test]
+    fn the_drawn_matrix_has_eq_4_7s_frequencies() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let p = [0.0, 0.3, 1.0];
+        let (mut plus, mut minus, mut total) = ([0usize; 3], [0usize; 3], 0usize);
+        for _ in 0..4000 {
+            let phi = SensingMatrix::draw(&p, 5, &mut rng);
+            for j in 0..3 {
+                for i in 0..5 {
+                    match phi.get(i, j) {
+                        1 => plus[j] += 1,
+                        -1 => minus[j] += 1,
+                        _ => {}
+                    }
+                }
+            }
+            total += 5;
+        }
+        for j in 0..3 {
+            let n = total as f64;
+            let half = p[j] / 2.0;
+            let sd = (half * (1.0 - half) / n).sqrt();
+            for count in [plus[j], minus[j]] {
+                assert!(
+                    (count as f64 / n - half).abs() <= 5.0 * sd + 1e-12,
+                    "sensor {j}: {count} of {n}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn columns_round_trip_through_their_masks() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let phi = SensingMatrix::draw(&[0.5; 7], 6, &mut rng);
+        let columns: Vec<(u32, u32)> = (0..7).map(|j| phi.column(j)).collect();
+        assert_eq!(SensingMatrix::from_columns(6, &columns), phi);
+        let ones: u32 = columns.iter().map(|c| c.0.count_ones()).sum();
+        assert_eq!(ones as usize, phi.transmissions());
+    }
+
+    fn small_problem(blocks: &[PositionBlock], slots: usize, energy: f64) -> DesignProblem<'_> {
+        let predicted = Mat4::from_diagonal(&State::new(0.3, 0.2, 1.0, 1.0));
+        DesignProblem {
+            predicted,
+            blocks,
+            slots,
+            energy,
+            r: 1.0,
+            epsilon: 0.1,
+        }
+    }
+
+    /// On three sensors, against every p on a grid of 0.01 under the
+    /// budget: the optimizer is never worse than the grid's best, and its
+    /// objective is `log det J` up to one constant.
+    #[test]
+    fn the_optimizer_beats_a_brute_force_grid() {
+        let blocks = [[4.0, 0.0, 0.1], [0.1, 0.0, 3.0], [2.0, 1.9, 2.0]];
+        for (slots, energy) in [(1, 6.0), (3, 6.0), (6, 6.0), (2, 1.0)] {
+            let problem = small_problem(&blocks, slots, energy);
+            let p = optimal_probabilities(&problem).unwrap();
+            let budget = energy / slots as f64;
+            assert!(p.iter().all(|v| (-1e-12..=1.0 + 1e-12).contains(v)));
+            assert!(p.iter().sum::<f64>() <= budget + 1e-9, "{p:?}");
+            let got = problem.objective(&p).unwrap();
+            let mut best = f64::NEG_INFINITY;
+            for a in 0..=100 {
+                for b in 0..=100 {
+                    for c in 0..=100 {
+                        let q = [a as f64 / 100.0, b as f64 / 100.0, c as f64 / 100.0];
+                        if q.iter().sum::<f64>() > budget + 1e-12 || q.iter().sum::<f64>() == 0.0 {
+                            continue;
+                        }
+                        best = best.max(problem.objective(&q).unwrap());
+                    }
+                }
+            }
+            assert!(got >= best - 1e-9, "M = {slots}: {got} < grid {best} at {p:?}");
+            assert!(got - best < 1e-2, "M = {slots}: {got} far above grid {best}");
+            let offset = problem.log_det(&p).unwrap() - got;
+            let other = problem.log_det(&[0.2, 0.1, 0.05]).unwrap()
+                - problem.objective(&[0.2, 0.1, 0.05]).unwrap();
+            assert!((offset - other).abs() < 1e-9, "objective is log det J up to a constant");
+        }
+    }
+
+    /// Two sensors seeing the target from perpendicular directions share
+    /// the probability; a third that adds nothing gets none.
+    #[test]
+    fn the_design_spreads_over_complementary_sensors() {
+        let blocks = [[5.0, 0.0, 0.0], [0.0, 0.0, 5.0], [0.0, 0.0, 0.0]];
+        let problem = small_problem(&blocks, 6, 6.0);
+        let p = optimal_probabilities(&problem).unwrap();
+        assert!(p[2] < 1e-6, "{p:?}");
+        assert!(p[0] > 0.2 && p[1] > 0.2, "{p:?}");
+        assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-6, "{p:?}");
+    }
+
+    #[test]
+    fn the_projection_meets_the_total_and_the_caps() {
+        let p = project_capped_simplex(&[3.0, 0.2, -1.0, 0.5], 1.5);
+        assert!((p.iter().sum::<f64>() - 1.5).abs() < 1e-9);
+        assert!(p.iter().all(|v| (0.0..=1.0).contains(v)));
+        assert!((p[0] - 1.0).abs() < 1e-9 && p[2] == 0.0);
+    }
+
+    /// The linear-Gaussian limit: with every sensor always sending on a
+    /// channel of its own (Γ = I/(r + ε)), one step of eq. 4.8 is the
+    /// Kalman filter's information update `P⁻¹ + Hᵀ(r + ε)⁻¹H` after its
+    /// prediction `(F P Fᵀ + Q)⁻¹`.
+    #[test]
+    fn one_step_is_the_kalman_information_update() {
+        let f = Mat4::new(
+            1.0, 0.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+        );
+        let q = Mat4::from_diagonal(&State::new(0.1, 0.1, 0.2, 0.2));
+        let p0 = Mat4::from_diagonal(&State::new(4.0, 4.0, 1.0, 1.0));
+        let prior = predicted_information(
+            &p0.try_inverse().unwrap(),
+            &f,
+            &q.try_inverse().unwrap(),
+        )
+        .unwrap();
+        let kalman_prior = (f * p0 * f.transpose() + q).try_inverse().unwrap();
+        assert!((prior - kalman_prior).abs().max() < 1e-9);
+        let h = [State::new(1.0, 0.5, 0.0, 0.0), State::new(-0.3, 2.0, 0.0, 0.0)];
+        let blocks: Vec<PositionBlock> = h
+            .iter()
+            .map(|g| expected_outer_product(&[State::zeros()], &[1.0], |_| *g))
+            .collect();
+        let (r, eps) = (1.0, 0.25);
+        let j = with_observations(&prior, &blocks, &gamma_weights(&[1.0, 1.0], 2, r, eps));
+        let mut kalman = kalman_prior;
+        for g in &h {
+            kalman += g * g.transpose() / (r + eps);
+        }
+        // Γ with both sensors always sending: 2/(2r + ε) each, not 1/(r + ε):
+        // eq. 4.19 is the average over slots shared by both.
+        let shared = with_observations(&prior, &blocks, &[2.0 / (2.0 * r + eps); 2]);
+        assert!((j - shared).abs().max() < 1e-12);
+        let parallel = with_observations(&prior, &blocks, &[1.0 / (r + eps); 2]);
+        assert!((parallel - kalman).abs().max() < 1e-9);
+    }
+}
