@@ -5,12 +5,16 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-/// An actor of the network. Names are `launcher`, `node-<i>`, `sensor-<i>`.
+/// An actor of the network. Names are `launcher`, `node-<i>`, `sensor-<i>`
+/// and `mac-<i>`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 pub enum ActorId {
     Launcher,
     Node(u16),
     Sensor(u16),
+    /// The multiple-access channel between node i's sensors and node i
+    /// (a scenario with a `[channel]`).
+    Mac(u16),
 }
 
 impl ActorId {
@@ -20,6 +24,7 @@ impl ActorId {
             ActorId::Launcher => (0, 0),
             ActorId::Node(i) => (1, i),
             ActorId::Sensor(i) => (2, i),
+            ActorId::Mac(i) => (3, i),
         }
     }
 
@@ -28,6 +33,7 @@ impl ActorId {
             0 if index == 0 => Some(ActorId::Launcher),
             1 => Some(ActorId::Node(index)),
             2 => Some(ActorId::Sensor(index)),
+            3 => Some(ActorId::Mac(index)),
             _ => None,
         }
     }
@@ -39,6 +45,7 @@ impl fmt::Display for ActorId {
             ActorId::Launcher => write!(f, "launcher"),
             ActorId::Node(i) => write!(f, "node-{i}"),
             ActorId::Sensor(i) => write!(f, "sensor-{i}"),
+            ActorId::Mac(i) => write!(f, "mac-{i}"),
         }
     }
 }
@@ -52,15 +59,17 @@ impl FromStr for ActorId {
         }
         let parse = |rest: &str| {
             rest.parse::<u16>()
-                .map_err(|_| format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>)"))
+                .map_err(|_| format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>, mac-<i>)"))
         };
         if let Some(rest) = s.strip_prefix("node-") {
             Ok(ActorId::Node(parse(rest)?))
         } else if let Some(rest) = s.strip_prefix("sensor-") {
             Ok(ActorId::Sensor(parse(rest)?))
+        } else if let Some(rest) = s.strip_prefix("mac-") {
+            Ok(ActorId::Mac(parse(rest)?))
         } else {
             Err(format!(
-                "`{s}` is not an actor name (launcher, node-<i>, sensor-<i>)"
+                "`{s}` is not an actor name (launcher, node-<i>, sensor-<i>, mac-<i>)"
             ))
         }
     }
@@ -72,7 +81,12 @@ mod tests {
 
     #[test]
     fn names_round_trip() {
-        for a in [ActorId::Launcher, ActorId::Node(3), ActorId::Sensor(224)] {
+        for a in [
+            ActorId::Launcher,
+            ActorId::Node(3),
+            ActorId::Sensor(224),
+            ActorId::Mac(0),
+        ] {
             assert_eq!(a.to_string().parse::<ActorId>().unwrap(), a);
             let (k, i) = a.to_wire();
             assert_eq!(ActorId::from_wire(k, i), Some(a));

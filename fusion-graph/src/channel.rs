@@ -26,6 +26,8 @@ pub enum Channel {
     Control(ActorId),
     /// Node → launcher.
     Telemetry(u16),
+    /// Node i's multiple-access channel → node i: what each slot received.
+    MacOutput(u16),
 }
 
 impl Channel {
@@ -38,6 +40,7 @@ impl Channel {
             }
             Channel::Pair { from, .. } => ActorId::Node(from),
             Channel::Observation(s) => ActorId::Sensor(s),
+            Channel::MacOutput(n) => ActorId::Mac(n),
         }
     }
 
@@ -63,6 +66,7 @@ impl Channel {
             Channel::Pair { from, to } => format!("pair/node-{from}/node-{to}"),
             Channel::Control(a) => format!("ctl/{a}"),
             Channel::Telemetry(n) => format!("telemetry/node-{n}"),
+            Channel::MacOutput(n) => format!("mac/node-{n}"),
         }
     }
 }

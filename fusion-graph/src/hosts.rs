@@ -178,6 +178,8 @@ impl Placement {
             ActorId::Launcher => 0,
             ActorId::Node(n) => self.node_host[n as usize],
             ActorId::Sensor(s) => self.sensor_host[s as usize],
+            // A channel stands beside its node.
+            ActorId::Mac(n) => self.node_host[n as usize],
         }
     }
 
@@ -231,7 +233,13 @@ impl Placement {
                     .iter()
                     .map(|m| ActorId::Node(*m))
             };
-            all.push((Channel::Activation(n), sensors.collect()));
+            let mut activated: Vec<ActorId> = sensors.collect();
+            if topology.macs {
+                // The channel reads the schedule of its slots.
+                activated.push(ActorId::Mac(n));
+                all.push((Channel::MacOutput(n), vec![ActorId::Node(n)]));
+            }
+            all.push((Channel::Activation(n), activated));
             all.push((Channel::Consensus(n), neighbours().collect()));
             all.push((Channel::Control(ActorId::Node(n)), vec![ActorId::Node(n)]));
             all.push((Channel::Telemetry(n), vec![ActorId::Launcher]));
@@ -242,12 +250,12 @@ impl Placement {
                 }
             }
         }
-        for (s, owner) in topology.sensor_owner.iter().enumerate() {
-            let mut readers = vec![ActorId::Node(*owner)];
+        for s in 0..topology.sensors() as u16 {
+            let mut readers = vec![topology.reports_to(s)];
             if self.centralized {
                 readers.push(ActorId::Launcher);
             }
-            all.push((Channel::Observation(s as u16), readers));
+            all.push((Channel::Observation(s), readers));
         }
         all
     }
@@ -289,12 +297,13 @@ impl Placement {
 }
 
 /// An actor's event id on its host bridge's wake-up service: the launcher
-/// 0, then the nodes, then the sensors.
+/// 0, then the nodes, then the sensors, then the channels.
 pub fn wake_id(actor: ActorId, topology: &Topology) -> usize {
     match actor {
         ActorId::Launcher => 0,
         ActorId::Node(n) => 1 + n as usize,
         ActorId::Sensor(s) => 1 + topology.nodes() + s as usize,
+        ActorId::Mac(n) => 1 + topology.nodes() + topology.sensors() + n as usize,
     }
 }
 

@@ -35,6 +35,7 @@ impl Topology {
             sensor_owner,
             node_sensors,
             neighbours,
+            macs: s.channel.is_some(),
         };
         if !s.fusion_graph.allow_disconnected
             && topology.components(&topology.all_alive()).len() > 1
@@ -69,6 +70,7 @@ impl Topology {
                 let ok = name.parse::<ActorId>().ok().is_some_and(|a| {
                     topology.contains(a)
                         && a != ActorId::Launcher
+                        && !matches!(a, ActorId::Mac(_))
                         && (!targets.sensors_only || matches!(a, ActorId::Sensor(_)))
                 });
                 if !ok {

@@ -96,7 +96,7 @@ pub enum WireError {
     NonFinite,
     #[error("a flag byte {got}, expected 0 or 1")]
     Flag { got: u8 },
-    #[error("thresholds not strictly increasing")]
+    #[error("thresholds or slot columns out of order, or a column outside its slots")]
     Unordered,
 }
 

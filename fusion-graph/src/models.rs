@@ -192,6 +192,11 @@ pub enum Stream {
     Censoring = 8,
     /// A node's coins and partner choices in random exchange (the random-exchange paper).
     Exchange = 9,
+    /// A fusion centre's sensing matrix, or its random choice of sensors,
+    /// for a multiple-access channel.
+    SensingMatrix = 10,
+    /// A multiple-access channel's receiver noise.
+    ReceiverNoise = 11,
 }
 
 /// The seed of `stream` for `actor` at `step`: splitmix64 over the four.
@@ -223,6 +228,7 @@ pub fn link_fault_seed(scenario_seed: u64, actor: ActorId) -> u64 {
         ActorId::Launcher => scenario_seed,
         ActorId::Node(i) => scenario_seed ^ (0x1000 + i as u64),
         ActorId::Sensor(i) => scenario_seed ^ (0x5000 + i as u64),
+        ActorId::Mac(i) => scenario_seed ^ (0x9000 + i as u64),
     }
 }
 

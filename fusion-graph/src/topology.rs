@@ -19,6 +19,9 @@ pub struct Topology {
     pub node_sensors: Vec<Vec<u16>>,
     /// Fusion-graph neighbours of each node, in increasing order.
     pub neighbours: Vec<Vec<u16>>,
+    /// Whether each node hears its sensors through a multiple-access
+    /// channel, an actor of its own (`mac-<i>` for node i).
+    pub macs: bool,
 }
 
 /// Consensus weights of one node over its live closed neighbourhood.
@@ -36,10 +39,14 @@ impl Topology {
     pub fn peers(&self, actor: ActorId) -> usize {
         match actor {
             ActorId::Node(n) => {
-                self.node_sensors[n as usize].len() + self.neighbours[n as usize].len() + 1
+                self.node_sensors[n as usize].len()
+                    + self.neighbours[n as usize].len()
+                    + 1
+                    + usize::from(self.macs)
             }
             ActorId::Sensor(_) => 2,
-            ActorId::Launcher => self.nodes() + self.sensors(),
+            ActorId::Mac(n) => self.node_sensors[n as usize].len() + 2,
+            ActorId::Launcher => self.nodes() + self.sensors() + self.mac_count(),
         }
     }
 
@@ -47,11 +54,14 @@ impl Topology {
     /// centralized reference reads every observation).
     pub fn subscribers(&self, channel: Channel) -> usize {
         match channel {
-            Channel::Tick => self.nodes() + self.sensors(),
-            Channel::Activation(n) => self.node_sensors[n as usize].len(),
+            Channel::Tick => self.nodes() + self.sensors() + self.mac_count(),
+            Channel::Activation(n) => self.node_sensors[n as usize].len() + usize::from(self.macs),
             Channel::Observation(_) => 2,
             Channel::Consensus(n) => self.neighbours[n as usize].len(),
-            Channel::Control(_) | Channel::Telemetry(_) | Channel::Pair { .. } => 1,
+            Channel::Control(_)
+            | Channel::Telemetry(_)
+            | Channel::Pair { .. }
+            | Channel::MacOutput(_) => 1,
         }
     }
 
@@ -61,6 +71,26 @@ impl Topology {
 
     pub fn sensors(&self) -> usize {
         self.sensor_positions.len()
+    }
+
+    /// The multiple-access channels: one per node, or none.
+    pub fn mac_count(&self) -> usize {
+        if self.macs {
+            self.nodes()
+        } else {
+            0
+        }
+    }
+
+    /// Where sensor `s` sends what it measures: its node, or the channel
+    /// in front of its node.
+    pub fn reports_to(&self, s: u16) -> ActorId {
+        let owner = self.sensor_owner[s as usize];
+        if self.macs {
+            ActorId::Mac(owner)
+        } else {
+            ActorId::Node(owner)
+        }
     }
 
     /// Each sensor's chance of being active in a step when its node picks
@@ -86,14 +116,16 @@ impl Topology {
             ActorId::Launcher => true,
             ActorId::Node(i) => (i as usize) < self.nodes(),
             ActorId::Sensor(i) => (i as usize) < self.sensors(),
+            ActorId::Mac(i) => (i as usize) < self.mac_count(),
         }
     }
 
-    /// Every actor: the nodes, then the sensors.
+    /// Every actor: the nodes, then the sensors, then the channels.
     pub fn actors(&self) -> impl Iterator<Item = ActorId> + '_ {
         (0..self.nodes() as u16)
             .map(ActorId::Node)
             .chain((0..self.sensors() as u16).map(ActorId::Sensor))
+            .chain((0..self.mac_count() as u16).map(ActorId::Mac))
     }
 
     /// Undirected fusion-graph edges.

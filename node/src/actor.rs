@@ -712,6 +712,7 @@ impl NodeActor {
             first_unanswered,
             spread: update.map(|u| u.spread).filter(|s| s.is_finite()),
             active: std::mem::take(&mut self.active),
+            design: Vec::new(),
         };
         self.observations = 0;
         self.selection_time = Duration::ZERO;

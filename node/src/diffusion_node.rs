@@ -705,6 +705,7 @@ impl DiffusionNode {
             first_unanswered,
             spread: None,
             active: Vec::new(),
+            design: Vec::new(),
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

@@ -21,6 +21,8 @@
 //!   name, the built-in ones and those a program registers;
 //! - [`location`] and [`locator`]: a static target's locator, its
 //!   evidence over shared grids and its node;
+//! - [`mac_centre`]: a fusion centre that hears its sensors through a
+//!   multiple-access channel and designs who transmits in which slot;
 //! - [`processing`]: any node behind one face, as the scenario says;
 //!   `wiring` holds what both nodes read, publish and send alike.
 
@@ -37,6 +39,7 @@ pub mod fusion;
 pub mod gate;
 pub mod location;
 pub mod locator;
+pub mod mac_centre;
 pub mod processing;
 pub mod registry;
 pub mod sensing;
@@ -55,6 +58,7 @@ pub use estimator::{
     Contribution, FusionFilter, LocalFilter, Observation, ObservedValue, SensingModel,
 };
 pub use locator::LocatorNode;
+pub use mac_centre::MacCentre;
 pub use processing::ProcessingNode;
 pub use work::Work;
 

@@ -417,6 +417,7 @@ impl LocatorNode {
             first_unanswered,
             spread: None,
             active: Vec::new(),
+            design: Vec::new(),
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

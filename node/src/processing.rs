@@ -1,7 +1,8 @@
 //! A processing node of any kind, behind one face for the drivers: the
 //! CF/DPF node ([`NodeActor`]), one of the random-exchange paper's trackers
-//! ([`DiffusionNode`]) or a static target's locator ([`LocatorNode`]), as
-//! the scenario's `consensus.protocol` says.
+//! ([`DiffusionNode`]), a static target's locator ([`LocatorNode`]), as
+//! the scenario's `consensus.protocol` says, or a fusion centre behind a
+//! multiple-access channel ([`MacCentre`]), when the scenario has one.
 
 use std::time::Duration;
 
@@ -10,13 +11,20 @@ use fusion_graph::wire::Message;
 use fusion_graph::{ActorId, Scenario, Topology};
 
 use crate::diffusion_node::DiffusionNode;
-use crate::{LocatorNode, NodeActor, NodeError, Outgoing, Work};
+use crate::{LocatorNode, MacCentre, NodeActor, NodeError, Outgoing, Work};
 use fusion_graph::registered::Shape;
 
 pub enum ProcessingNode {
     CfDpf(Box<NodeActor>),
     Diffusion(Box<DiffusionNode>),
     Locator(Box<LocatorNode>),
+    MacCentre(Box<MacCentre>),
+}
+
+impl From<MacCentre> for ProcessingNode {
+    fn from(n: MacCentre) -> Self {
+        Self::MacCentre(Box::new(n))
+    }
 }
 
 impl From<LocatorNode> for ProcessingNode {
@@ -44,6 +52,7 @@ macro_rules! either {
             ProcessingNode::CfDpf($n) => $call,
             ProcessingNode::Diffusion($n) => $call,
             ProcessingNode::Locator($n) => $call,
+            ProcessingNode::MacCentre($n) => $call,
         }
     };
 }
@@ -55,6 +64,9 @@ impl ProcessingNode {
         topology: &Topology,
         index: u16,
     ) -> Result<Self, NodeError> {
+        if scenario.channel.is_some() {
+            return MacCentre::new(scenario, topology, index).map(Self::from);
+        }
         if scenario.consensus.protocol.shape() == Shape::Locator {
             let config = crate::registry::location_config(scenario)?;
             return LocatorNode::new(scenario, topology, index, config).map(Self::from);

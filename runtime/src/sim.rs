@@ -438,6 +438,7 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         first_unanswered: None,
         spread: None,
         active: Vec::new(),
+        design: Vec::new(),
     }
 }
 

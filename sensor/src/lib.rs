@@ -11,6 +11,12 @@
 //! A `sensor` fault in the scenario makes it misbehave for a while: stuck at
 //! its last honest value, biased, silent, or Byzantine (measuring a phantom
 //! target). Every sensor evaluates the schedule itself, as links do.
+//!
+//! Behind a multiple-access channel ([`mac`]), a sensor's activation is its
+//! column of the sensing matrix: it transmits its raw measurement, signed
+//! as the column says, in each of its slots, to the channel.
+
+pub mod mac;
 
 use bounds::censoring::{CensoringRule, Feedback, NisCensor};
 use bounds::{Dynamics, ObservationModel, Quantizer, State};
@@ -44,6 +50,14 @@ pub struct SensorActor {
     /// The quantizer the node sent with the latest activation, for its
     /// step (a locator designs its sensors' thresholds).
     sent_quantizer: Option<(u32, Quantizer)>,
+    /// The latest step's column of a sensing matrix: (step, slots, slots
+    /// negated), when this sensor transmits on a multiple-access channel.
+    column: Option<(u32, u32, u32)>,
+    /// The last honest raw measurement, which a stuck sensor repeats on a
+    /// channel.
+    last_honest_value: Option<f64>,
+    /// Its node, or the channel in front of it.
+    reports_to: ActorId,
 }
 
 /// Whether this sensor stays silent when activated.
@@ -86,6 +100,9 @@ impl SensorActor {
             censor: censor(scenario)?,
             feedback: None,
             sent_quantizer: None,
+            column: None,
+            last_honest_value: None,
+            reports_to: topology.reports_to(index),
         })
     }
 
@@ -93,9 +110,15 @@ impl SensorActor {
         ActorId::Sensor(self.index)
     }
 
-    /// The node this sensor reports to.
+    /// The node this sensor belongs to.
     pub fn owner(&self) -> ActorId {
         ActorId::Node(self.owner)
+    }
+
+    /// Whom its observations go to: its node, or the multiple-access
+    /// channel in front of it.
+    pub fn reports_to(&self) -> ActorId {
+        self.reports_to
     }
 
     /// The channels this sensor reads: the launcher's tick and its node's activations.
@@ -165,6 +188,13 @@ impl SensorActor {
                     }
                 }
             }
+            (Payload::ActivateSlots { columns, .. }, ActorId::Node(n)) if n == self.owner => {
+                let mine = columns.iter().find(|c| c.sensor as usize == self.slot);
+                if let Some(c) = mine {
+                    self.activated = Some(step);
+                    self.column = Some((step, c.slots, c.negative));
+                }
+            }
             _ => return None,
         }
         let (step, truth) = self.truth?;
@@ -172,6 +202,9 @@ impl SensorActor {
             return None;
         }
         self.last_sent = Some(step);
+        if let Some((_, slots, negative)) = self.column.filter(|c| c.0 == step) {
+            return self.transmit(step, &truth, slots, negative);
+        }
         let payload = match self.faults.sensor_fault(step, self.index) {
             None => {
                 let z = self.measure_raw(step, &truth, 0.0);
@@ -199,6 +232,43 @@ impl SensorActor {
             }
         };
         Some(Message::new(self.id(), step, 0, payload))
+    }
+
+    /// Its transmissions on a multiple-access channel: the raw measurement
+    /// (as its faults make it) in each of its slots, negated where the
+    /// column says.
+    fn transmit(&mut self, step: u32, truth: &State, slots: u32, negative: u32) -> Option<Message> {
+        let value = match self.faults.sensor_fault(step, self.index) {
+            None => {
+                let z = self.measure_raw(step, truth, 0.0);
+                self.last_honest_value = Some(z);
+                z
+            }
+            Some(SensorFault::Dropout) => return None,
+            Some(SensorFault::Stuck) => match self.last_honest_value {
+                Some(z) => z,
+                None => *self
+                    .last_honest_value
+                    .insert(self.measure_raw(step, truth, 0.0)),
+            },
+            Some(SensorFault::Bias(bias)) => self.measure_raw(step, truth, bias),
+            Some(SensorFault::Byzantine([dx, dy])) => {
+                let mut phantom = *truth;
+                phantom[0] += dx;
+                phantom[1] += dy;
+                self.measure_raw(step, &phantom, 0.0)
+            }
+        };
+        let values = (0..32)
+            .filter(|i| slots & (1 << i) != 0)
+            .map(|i| if negative & (1 << i) != 0 { -value } else { value })
+            .collect();
+        Some(Message::new(
+            self.id(),
+            step,
+            0,
+            Payload::SlotValues { slots, values },
+        ))
     }
 
     /// A measurement of `truth`, plus `bias`, with step `step`'s noise.

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::registered::{Role, Shape};
 use crate::ScenarioError;
 
+mod mac;
 mod overrides;
 mod validate;
 
@@ -15,6 +16,7 @@ pub use crate::faults::{
     is_wildcard, BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector,
     Loss, Partition, Reorder, SensorMode, Signal,
 };
+pub use mac::{MacConfig, MacDesign, MAX_SLOTS as MAX_MAC_SLOTS};
 pub use overrides::apply_override;
 
 /// A part a scenario names (a fusion protocol, a sensor manager): a name
@@ -113,6 +115,10 @@ pub struct Scenario {
     /// sensors, each runs. Empty: one host.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub hosts: Vec<HostConfig>,
+    /// A multiple-access channel between the fusion centre's sensors and
+    /// the centre (compressive sensor management); none by default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel: Option<MacConfig>,
 }
 
 /// Censoring at the sensor: of the `active_per_node` sensors a node

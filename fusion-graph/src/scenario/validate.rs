@@ -27,7 +27,7 @@ impl Scenario {
     /// key if the scenario asks for one: a sensor manager other than
     /// random, a network-wide cap on active sensors, censoring, the
     /// auxiliary FIM and the innovation gate.
-    fn refuse_cf_dpf_parts(&self, file: &str, expected: &str) -> Result<(), ScenarioError> {
+    pub(super) fn refuse_cf_dpf_parts(&self, file: &str, expected: &str) -> Result<(), ScenarioError> {
         let refuse = |key: &str, got: String| {
             Err(ScenarioError::Invalid {
                 file: file.into(),
@@ -232,6 +232,7 @@ impl Scenario {
         )?;
         self.validate_diffusion(file)?;
         self.validate_location(file)?;
+        self.validate_mac(file)?;
         check.non_negative("filter.gate", self.filter.gate)?;
         check.positive("clock.step_period_ms", self.clock.step_period_ms)?;
         check.positive("clock.step_timeout_ms", self.clock.step_timeout_ms)?;

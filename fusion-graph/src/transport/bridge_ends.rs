@@ -135,7 +135,7 @@ impl BridgeInlet {
         for channel in placement.incoming(host, topology) {
             let publisher = open_channel(&node, run, topology, channel)?
                 .publisher_builder()
-                .initial_max_slice_len(max_message_len(channel))
+                .initial_max_slice_len(max_message_len(channel, topology))
                 .create()
                 .map_err(|e| setup("publisher", e))?;
             incoming.insert(channel, publisher);

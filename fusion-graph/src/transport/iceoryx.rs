@@ -166,7 +166,7 @@ impl IceoryxTransport {
         let service = self.open_channel(channel)?;
         let publisher = service
             .publisher_builder()
-            .initial_max_slice_len(max_message_len(channel))
+            .initial_max_slice_len(max_message_len(channel, &self.topology))
             .create()
             .map_err(|e| setup("publisher", e))?;
         self.publishers.insert(channel, publisher);
@@ -182,7 +182,7 @@ impl IceoryxTransport {
                 .and_then(|service| {
                     service
                         .publisher_builder()
-                        .initial_max_slice_len(max_message_len(channel))
+                        .initial_max_slice_len(max_message_len(channel, &self.topology))
                         .create()
                         .map_err(|e| setup("publisher", e))
                 })

@@ -53,7 +53,7 @@ impl ChannelLimits {
             subscribers,
             nodes: subscribers + 3,
             queue: QUEUE_DEPTH,
-            message_bytes: max_message_len(channel),
+            message_bytes: max_message_len(channel, topology),
         }
     }
 
@@ -78,11 +78,15 @@ impl ChannelLimits {
 /// program registered for its own protocol: every process of a run is the
 /// same program, so all open the services alike. A message longer than
 /// its channel's room could not be sent at all.
-pub(crate) fn max_message_len(channel: Channel) -> usize {
+pub(crate) fn max_message_len(channel: Channel, topology: &Topology) -> usize {
     let protocols = crate::protocol_kinds::longest_body();
     HEADER_BYTES
         + match channel {
-            Channel::Tick | Channel::Observation(_) => 48,
+            Channel::Tick => 48,
+            // A sensor's transmissions on a multiple-access channel: its
+            // slots, a value each.
+            Channel::Observation(_) if topology.macs => 4 + 8 * crate::scenario::MAX_MAC_SLOTS as usize,
+            Channel::Observation(_) => 48,
             // The mask, and either the censoring feedback (an estimate and
             // its packed covariance) or a quantizer's thresholds.
             Channel::Activation(_) => 48 + (32 + 80).max(1 + 8 * crate::wire::MAX_THRESHOLDS),
@@ -90,6 +94,8 @@ pub(crate) fn max_message_len(channel: Channel) -> usize {
             // A posterior swapped in a random exchange: mean and covariance.
             Channel::Pair { .. } => 120.max(protocols),
             Channel::Control(_) | Channel::Telemetry(_) => 240,
+            // Every slot's sum.
+            Channel::MacOutput(_) => 1 + 8 * crate::scenario::MAX_MAC_SLOTS as usize,
         }
 }
 
@@ -130,7 +136,10 @@ impl WakeLimits {
     pub fn of_bridge(placement: &Placement, host: usize, topology: &Topology) -> Self {
         // The host's actors, and the launcher's on the first host.
         let wakers = placement.actors_on(host, topology).len() + 1 + WAKE_SLACK;
-        let ids = wake_id(ActorId::Launcher, topology) + topology.nodes() + topology.sensors();
+        let ids = wake_id(ActorId::Launcher, topology)
+            + topology.nodes()
+            + topology.sensors()
+            + topology.mac_count();
         Self::with_wakers(wakers, ids)
     }
 }
@@ -141,7 +150,7 @@ impl WakeLimits {
 /// reads (a node's own, every sensor for the launcher).
 fn max_wake_id(topology: &Topology, actor: ActorId) -> usize {
     1 + match actor {
-        ActorId::Node(n) => topology.node_sensors[n as usize].len(),
+        ActorId::Node(n) | ActorId::Mac(n) => topology.node_sensors[n as usize].len(),
         ActorId::Launcher => topology.sensors(),
         ActorId::Sensor(_) => 0,
     }
@@ -157,6 +166,9 @@ pub fn channels(topology: &Topology, pairs: bool) -> Vec<Channel> {
         v.push(Channel::Consensus(n));
         v.push(Channel::Control(ActorId::Node(n)));
         v.push(Channel::Telemetry(n));
+        if topology.macs {
+            v.push(Channel::MacOutput(n));
+        }
         if pairs {
             for &m in &topology.neighbours[n as usize] {
                 v.push(Channel::Pair { from: n, to: m });

@@ -41,7 +41,9 @@ impl WakeIds {
     pub(crate) fn of(receiver: ActorId, topology: &Topology) -> Self {
         Self {
             sensors: match receiver {
-                ActorId::Node(n) => topology.node_sensors[n as usize].clone(),
+                // A channel reads its node's sensors, as the node does
+                // without one.
+                ActorId::Node(n) | ActorId::Mac(n) => topology.node_sensors[n as usize].clone(),
                 ActorId::Launcher => (0..topology.sensors() as u16).collect(),
                 ActorId::Sensor(_) => Vec::new(),
             },

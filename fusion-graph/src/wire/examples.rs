@@ -28,6 +28,7 @@ pub fn examples() -> Vec<Message> {
         first_unanswered: Some(17),
         spread: Some(12.5),
         active: vec![3, 17],
+        design: vec![6840, 3160, 0],
     };
     vec![
         Message::new(
@@ -176,6 +177,43 @@ pub fn examples() -> Vec<Message> {
             Payload::LocationConsensus {
                 chunk: 2,
                 values: std::array::from_fn(|i| -1000.0 + i as f64),
+            },
+        ),
+        Message::new(
+            ActorId::Node(0),
+            4,
+            0,
+            Payload::ActivateSlots {
+                slots: 6,
+                columns: vec![
+                    SlotColumn {
+                        sensor: 3,
+                        slots: 0b10_0101,
+                        negative: 0b00_0100,
+                    },
+                    SlotColumn {
+                        sensor: 12,
+                        slots: 0b01_0000,
+                        negative: 0,
+                    },
+                ],
+            },
+        ),
+        Message::new(
+            ActorId::Sensor(3),
+            4,
+            0,
+            Payload::SlotValues {
+                slots: 0b10_0101,
+                values: vec![31.5, -31.5, 31.5],
+            },
+        ),
+        Message::new(
+            ActorId::Mac(0),
+            4,
+            0,
+            Payload::MacOutput {
+                values: vec![31.9, 2.0, -30.1, 0.2, 5.5, 30.8],
             },
         ),
     ]

@@ -97,6 +97,18 @@ pub enum MessageKind {
     /// One piece of a locator's consensus value, which is longer than one
     /// message: the piece's index (u16), then [`LOCATION_CHUNK`] f64.
     LocationConsensus = 20,
+    /// A fusion centre's schedule of its multiple-access channel: the
+    /// slots of the step (one byte), the count of transmitting sensors
+    /// (u16), then for each its place in the node's list (u16) and its
+    /// column of Φ as two u32 masks, the slots it transmits in and those
+    /// where it transmits its value negated.
+    ActivateSlots = 21,
+    /// A sensor's transmissions on a multiple-access channel: the mask of
+    /// its slots (u32), then the value it sent in each, f64.
+    SlotValues = 22,
+    /// What a multiple-access channel received in each slot: the count
+    /// (one byte), then the sums with the receiver's noise, f64.
+    MacOutput = 23,
     /// A protocol's own payload, under the kind byte it registered.
     Protocol(ProtocolKind) = 128,
     /// Accounting only: bytes whose kind could not be read.
@@ -127,6 +139,9 @@ impl MessageKind {
             18 => ConsensusLate,
             19 => ActivateThresholds,
             20 => LocationConsensus,
+            21 => ActivateSlots,
+            22 => SlotValues,
+            23 => MacOutput,
             k => Protocol(ProtocolKind::registered(k)?),
         })
     }
@@ -154,6 +169,9 @@ impl MessageKind {
             ConsensusLate => "consensus_late",
             ActivateThresholds => "activate_thresholds",
             LocationConsensus => "location_consensus",
+            ActivateSlots => "activate_slots",
+            SlotValues => "slot_values",
+            MacOutput => "mac_output",
             Protocol(k) => k.name(),
             Malformed => "malformed",
         }
@@ -183,6 +201,9 @@ impl MessageKind {
             ConsensusLate => 18,
             ActivateThresholds => 19,
             LocationConsensus => 20,
+            ActivateSlots => 21,
+            SlotValues => 22,
+            MacOutput => 23,
             Protocol(k) => k.code(),
             Malformed => 255,
         }
@@ -303,6 +324,10 @@ pub struct Telemetry {
     /// The sensors the node activated for the step (at most
     /// [`MAX_REPORTED_ACTIVE`]).
     pub active: Vec<u16>,
+    /// A fusion centre that designs its channel's transmissions: each of
+    /// its sensors' transmission probability for the step, in
+    /// ten-thousandths. Empty for every other node.
+    pub design: Vec<u16>,
 }
 
 /// The most activated sensors a telemetry message may list.
@@ -391,9 +416,38 @@ pub enum Payload {
         chunk: u16,
         values: [f64; LOCATION_CHUNK],
     },
+    /// A fusion centre's schedule of its channel's slots: every
+    /// transmitting sensor's column of the sensing matrix.
+    ActivateSlots {
+        slots: u8,
+        columns: Vec<SlotColumn>,
+    },
+    /// What a sensor transmits in its slots: one value per bit of `slots`,
+    /// in increasing slot order.
+    SlotValues {
+        slots: u32,
+        values: Vec<f64>,
+    },
+    /// What the channel received in each slot.
+    MacOutput {
+        values: Vec<f64>,
+    },
     /// A protocol's own payload ([`crate::payloads`]).
     Protocol(ProtocolBody),
 }
+
+/// One sensor's column of a sensing matrix: it transmits in the slots of
+/// `slots`, its value negated in those of `negative`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlotColumn {
+    /// The sensor's place in its node's list.
+    pub sensor: u16,
+    pub slots: u32,
+    pub negative: u32,
+}
+
+/// The bytes of one [`SlotColumn`] on the wire.
+pub const SLOT_COLUMN_BYTES: usize = 10;
 
 /// The most thresholds an activation carries: a 4-bit quantizer's.
 pub const MAX_THRESHOLDS: usize = 15;
@@ -451,6 +505,9 @@ impl Payload {
             Payload::NeighbourObservation { .. } => MessageKind::NeighbourObservation,
             Payload::ActivateThresholds { .. } => MessageKind::ActivateThresholds,
             Payload::LocationConsensus { .. } => MessageKind::LocationConsensus,
+            Payload::ActivateSlots { .. } => MessageKind::ActivateSlots,
+            Payload::SlotValues { .. } => MessageKind::SlotValues,
+            Payload::MacOutput { .. } => MessageKind::MacOutput,
             Payload::Protocol(body) => MessageKind::Protocol(body.kind),
         }
     }
@@ -553,6 +610,27 @@ impl Message {
                     put(v, out);
                 }
             }
+            Payload::ActivateSlots { slots, columns } => {
+                out.push(*slots);
+                put(&(columns.len() as u16), out);
+                for c in columns {
+                    put(&c.sensor, out);
+                    put(&c.slots, out);
+                    put(&c.negative, out);
+                }
+            }
+            Payload::SlotValues { slots, values } => {
+                put(slots, out);
+                for v in values {
+                    put(v, out);
+                }
+            }
+            Payload::MacOutput { values } => {
+                out.push(values.len() as u8);
+                for v in values {
+                    put(v, out);
+                }
+            }
             Payload::Protocol(body) => out.extend_from_slice(&body.bytes),
         }
     }
@@ -646,10 +724,18 @@ impl Message {
                 {
                     finite([v])?;
                 }
-                if t.active.len() > MAX_REPORTED_ACTIVE {
+                for len in [t.active.len(), t.design.len()] {
+                    if len > MAX_REPORTED_ACTIVE {
+                        return Err(WireError::Length {
+                            expected: MAX_REPORTED_ACTIVE,
+                            got: len,
+                        });
+                    }
+                }
+                if t.design.iter().any(|p| *p > 10_000) {
                     return Err(WireError::Length {
-                        expected: MAX_REPORTED_ACTIVE,
-                        got: t.active.len(),
+                        expected: 10_000,
+                        got: t.design.iter().copied().max().unwrap_or(0) as usize,
                     });
                 }
                 Payload::Telemetry(t)
@@ -738,6 +824,33 @@ impl Message {
                     values: finite(values)?,
                 }
             }
+            MessageKind::ActivateSlots => activate_slots(body)?,
+            MessageKind::SlotValues => {
+                let slots = u32::from_le_bytes(
+                    body.get(..4).ok_or(WireError::Truncated)?.try_into().expect("4 bytes"),
+                );
+                if slots == 0 {
+                    return Err(WireError::Length { expected: 1, got: 0 });
+                }
+                exact_len(body, 4 + 8 * slots.count_ones() as usize)?;
+                Payload::SlotValues {
+                    slots,
+                    values: finite_values(&body[4..])?,
+                }
+            }
+            MessageKind::MacOutput => {
+                let count = *body.first().ok_or(WireError::Truncated)? as usize;
+                if count == 0 || count > MAX_SLOTS {
+                    return Err(WireError::Length {
+                        expected: MAX_SLOTS,
+                        got: count,
+                    });
+                }
+                exact_len(body, 1 + 8 * count)?;
+                Payload::MacOutput {
+                    values: finite_values(&body[1..])?,
+                }
+            }
             MessageKind::Protocol(k) => {
                 protocol_kinds::check_body(k, body)?;
                 Payload::Protocol(ProtocolBody {
@@ -757,6 +870,58 @@ impl Message {
             payload,
         })
     }
+}
+
+/// The most slots of a multiple-access channel: a column is a 32-bit mask.
+pub const MAX_SLOTS: usize = 32;
+
+/// An [`ActivateSlots`](Payload::ActivateSlots) body: slots between 1 and
+/// [`MAX_SLOTS`], columns of sensors in increasing order, each in some
+/// slot and no other than the step's.
+fn activate_slots(body: &[u8]) -> Result<Payload, WireError> {
+    let slots = *body.first().ok_or(WireError::Truncated)?;
+    if slots == 0 || slots as usize > MAX_SLOTS {
+        return Err(WireError::Length {
+            expected: MAX_SLOTS,
+            got: slots as usize,
+        });
+    }
+    let count = u16::from_le_bytes([
+        *body.get(1).ok_or(WireError::Truncated)?,
+        *body.get(2).ok_or(WireError::Truncated)?,
+    ]) as usize;
+    exact_len(body, 3 + SLOT_COLUMN_BYTES * count)?;
+    let allowed = if slots as usize == MAX_SLOTS {
+        u32::MAX
+    } else {
+        (1u32 << slots) - 1
+    };
+    let mut columns: Vec<SlotColumn> = Vec::with_capacity(count);
+    for b in body[3..].chunks_exact(SLOT_COLUMN_BYTES) {
+        let c = SlotColumn {
+            sensor: u16::from_le_bytes([b[0], b[1]]),
+            slots: u32::from_le_bytes(b[2..6].try_into().expect("4 bytes")),
+            negative: u32::from_le_bytes(b[6..10].try_into().expect("4 bytes")),
+        };
+        let in_order = columns.last().is_none_or(|l| l.sensor < c.sensor);
+        if c.slots == 0 || c.slots & !allowed != 0 || c.negative & !c.slots != 0 || !in_order {
+            return Err(WireError::Unordered);
+        }
+        columns.push(c);
+    }
+    Ok(Payload::ActivateSlots { slots, columns })
+}
+
+/// Little-endian f64s, every one finite.
+fn finite_values(body: &[u8]) -> Result<Vec<f64>, WireError> {
+    let values: Vec<f64> = body
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+        .collect();
+    for v in &values {
+        finite([*v])?;
+    }
+    Ok(values)
 }
 
 fn put_mask(mask: &BitMask, format: &WireFormat, out: &mut Vec<u8>) {

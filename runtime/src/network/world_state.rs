@@ -154,7 +154,8 @@ impl<'a> WorldState<'a> {
         match a {
             ActorId::Node(i) => self.alive[i as usize],
             ActorId::Sensor(i) => self.sensors.alive[i as usize],
-            ActorId::Launcher => true,
+            // No fault stops a channel.
+            ActorId::Launcher | ActorId::Mac(_) => true,
         }
     }
 
@@ -357,7 +358,7 @@ impl<'a> WorldState<'a> {
         match actor {
             ActorId::Node(i) => self.alive[i as usize] = alive,
             ActorId::Sensor(i) => self.sensors.set(i, alive, stopped),
-            ActorId::Launcher => {}
+            ActorId::Launcher | ActorId::Mac(_) => {}
         }
     }
 }

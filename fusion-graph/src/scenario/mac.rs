@@ -1,0 +1,145 @@
+//! The scenario's `[channel]` table: a multiple-access channel between a
+//! fusion centre's sensors and the centre (dissertation ch. 4). Its
+//! sensors transmit at once in M slots; a channel actor hears each slot's
+//! sum, adds the receiver's noise and delivers the M values to the centre.
+
+use serde::{Deserialize, Serialize};
+
+use super::{CensoringPolicy, Motion, Scenario};
+use crate::check::Check;
+use crate::ScenarioError;
+
+/// How the centre decides who transmits in which slot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MacDesign {
+    /// Transmission probabilities that maximize `det J` under the energy
+    /// budget, and a sensing matrix drawn from them (eqs. 4.7, 4.25).
+    Compressive,
+    /// `energy` sensors drawn uniformly, each in a slot of its own.
+    Random,
+    /// Every sensor in a slot of its own: parallel channels.
+    All,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MacConfig {
+    pub design: MacDesign,
+    /// M, the slots of a step (`compressive`; the other designs use one
+    /// slot per transmitting sensor).
+    #[serde(default = "one_slot")]
+    pub slots: u32,
+    /// E, the transmissions a step may spend on average (`M Σp ≤ E`); with
+    /// `random`, the number of sensors drawn.
+    pub energy: f64,
+    /// ε, the variance of the receiver's noise in each slot.
+    pub receiver_noise: f64,
+    /// How long the channel waits for a slot's transmissions after the
+    /// centre's activation before it delivers what it heard.
+    #[serde(default = "default_slot_timeout_ms")]
+    pub slot_timeout_ms: f64,
+}
+
+fn one_slot() -> u32 {
+    1
+}
+
+fn default_slot_timeout_ms() -> f64 {
+    50.0
+}
+
+/// The most slots a step may have: a sensor's column travels as a 32-bit
+/// mask.
+pub const MAX_SLOTS: u32 = 32;
+
+impl MacConfig {
+    /// The slots every step of this design has, given the centre's sensors.
+    pub fn slots_for(&self, sensors: usize) -> usize {
+        match self.design {
+            MacDesign::Compressive => self.slots as usize,
+            MacDesign::Random => self.energy as usize,
+            MacDesign::All => sensors,
+        }
+    }
+}
+
+impl Scenario {
+    /// A channel serves one fusion centre that tracks a moving target with
+    /// unquantized amplitudes or RSS; it has none of the CF/DPF's parts.
+    pub(super) fn validate_mac(&self, file: &str) -> Result<(), ScenarioError> {
+        let Some(mac) = &self.channel else {
+            return Ok(());
+        };
+        let check = Check::root(file);
+        let with = "with a [channel]";
+        match mac.design {
+            MacDesign::Compressive if !(1..=MAX_SLOTS).contains(&mac.slots) => {
+                return Err(check.fail(
+                    "channel.slots",
+                    format!("1 to {MAX_SLOTS} slots"),
+                    mac.slots,
+                ))
+            }
+            MacDesign::Random if !(1.0..=MAX_SLOTS as f64).contains(&mac.energy) => {
+                return Err(check.fail(
+                    "channel.energy",
+                    format!("1 to {MAX_SLOTS} sensors with design = \"random\""),
+                    mac.energy,
+                ))
+            }
+            _ => {}
+        }
+        check.positive("channel.energy", mac.energy)?;
+        check.positive("channel.receiver_noise", mac.receiver_noise)?;
+        check.positive("channel.slot_timeout_ms", mac.slot_timeout_ms)?;
+        let nodes = match (&self.nodes.grid, &self.nodes.positions) {
+            (Some(g), _) => g[0] as usize * g[1] as usize,
+            (_, Some(p)) => p.len(),
+            _ => 0,
+        };
+        if nodes != 1 {
+            return Err(check.fail(
+                "nodes",
+                format!("one fusion centre {with} (several centres with a channel each are not built)"),
+                format!("{nodes} nodes"),
+            ));
+        }
+        if !self.quantizer.raw {
+            return Err(check.fail(
+                "quantizer.raw",
+                format!("true {with}: the channel adds analog values"),
+                "false",
+            ));
+        }
+        if !matches!(
+            self.observation,
+            bounds::SensorLaw::Amplitude { .. } | bounds::SensorLaw::Rss { .. }
+        ) {
+            return Err(check.fail(
+                "observation.kind",
+                format!("\"amplitude\" or \"rss\" {with}: a sum of bearings means nothing"),
+                format!("{:?}", self.observation).split_whitespace().next().unwrap_or(""),
+            ));
+        }
+        if self.consensus.protocol != super::ConsensusProtocol::AVERAGE {
+            return Err(check.fail(
+                "consensus.protocol",
+                format!("\"average\" {with} (one centre has no neighbours to fuse with)"),
+                format!("\"{}\"", self.consensus.protocol.name()),
+            ));
+        }
+        if self.target.motion != Motion::Moving {
+            return Err(check.fail("target.motion", format!("\"moving\" {with}"), "\"static\""));
+        }
+        let theirs = "its default with a [channel] (the fusion centre has no such part)";
+        self.refuse_cf_dpf_parts(file, theirs)?;
+        if self.reference.centralized {
+            return Err(check.fail("reference.centralized", theirs, "true"));
+        }
+        if self.censoring.policy != CensoringPolicy::Off {
+            return Err(check.fail("censoring.policy", theirs, format!("{:?}", self.censoring.policy)));
+        }
+        Ok(())
+    }
+}

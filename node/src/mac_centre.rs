@@ -1,0 +1,466 @@
+//! A fusion centre that hears its sensors through a multiple-access
+//! channel (a scenario with a `[channel]`; dissertation ch. 4), as an
+//! I/O-free state machine driven as every processing node is.
+//!
+//! A step: the launcher's `BeginStep` → [`Work::SelectionScores`]: the
+//! particle filter's prediction, each sensor's `G_j = E[∇a_j ∇a_jᵀ]` over
+//! the predicted particles, and the design of the step's slots (the
+//! transmission probabilities that maximize `det J`, and a sensing matrix
+//! drawn from them; or random sensors; or all) → the schedule
+//! (`activate_slots`) to the sensors and the channel → the channel's
+//! delivery `z`, until it arrives or the listening deadline →
+//! [`Work::Weigh`]: the particles weighed by `N(z; Φa(x), rΦΦᵀ + εI)`
+//! (eq. 4.13) → telemetry with the estimate, the bound `J(p)` of eq. 4.8
+//! and the design.
+//!
+//! The centre does not know who was heard. A sensor that misses its slot
+//! is absent from a sum the centre weighs as if it were there; a delivery
+//! that never comes is a lost step: the centre reports its prediction,
+//! and its information is the prediction's alone.
+
+use std::time::Duration;
+
+use bounds::compressive::{
+    expected_outer_product, gamma_weights, optimal_probabilities, predicted_information,
+    random_selection, with_observations, DesignProblem, MacLikelihood, PositionBlock,
+    SensingMatrix,
+};
+use bounds::{Mat4, ObservationModel, State};
+use fusion_graph::scenario::{MacConfig, MacDesign, Scenario};
+use fusion_graph::transport::Channel;
+use fusion_graph::wire::{Control, Message, Payload, SlotColumn, Telemetry};
+use fusion_graph::{stream_rng, ActorId, Stream, Topology};
+use nalgebra::Cholesky;
+use rand_chacha::ChaCha8Rng;
+
+use crate::filter::ParticleFilter;
+use crate::{wiring, NodeError, Outgoing, Work};
+
+/// One step, from `BeginStep` to its telemetry.
+struct Stepping {
+    step: u32,
+    /// The design, once [`Work::SelectionScores`] ran.
+    design: Option<Design>,
+    /// The listening deadline, from the schedule's sending.
+    deadline: Option<Duration>,
+    /// The channel's delivery.
+    received: Option<Vec<f64>>,
+    weighed: bool,
+    estimate: State,
+    select_time: Duration,
+    weigh_time: Duration,
+}
+
+/// A step's design: who transmits where, and what it is worth.
+struct Design {
+    likelihood: MacLikelihood,
+    /// Each sensor's transmission probability.
+    probabilities: Vec<f64>,
+    /// `J` before the step's observations, and with them.
+    predicted: Mat4,
+    information: Mat4,
+}
+
+pub struct MacCentre {
+    index: u16,
+    seed: u64,
+    own: Vec<u16>,
+    models: Vec<ObservationModel>,
+    mac: MacConfig,
+    /// The sensors' measurement noise variance r (eq. 4.2).
+    r: f64,
+    filter: ParticleFilter,
+    rng: ChaCha8Rng,
+    dynamics: bounds::Dynamics,
+    /// `J` of the last step (eq. 4.8), from `P_0⁻¹`.
+    information: Mat4,
+    blocks: Vec<PositionBlock>,
+    listen: Duration,
+    steps: u32,
+    last_step: Option<u32>,
+    stepping: Option<Box<Stepping>>,
+    late_messages: u64,
+    late_reported: u64,
+    deadline_missed: bool,
+}
+
+impl MacCentre {
+    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
+        let models = scenario.models()?;
+        let mac = scenario
+            .channel
+            .clone()
+            .expect("a fusion centre is built for a scenario with a channel");
+        let own = topology.node_sensors[index as usize].clone();
+        let sensor_models: Vec<ObservationModel> = own
+            .iter()
+            .map(|s| models.law.at(topology.sensor_positions[*s as usize]))
+            .collect();
+        let r = sensor_models
+            .first()
+            .map_or(1.0, |m| m.evaluate(&State::zeros()).r);
+        let prior = scenario.network_prior(&models);
+        let id = ActorId::Node(index);
+        let mut rng = stream_rng(scenario.seed, id, 0, Stream::FusionFilter);
+        let filter_error = |source| NodeError::Filter {
+            node: index,
+            source,
+        };
+        let filter = ParticleFilter::from_gaussian(scenario.filter.particles as usize, &prior, &mut rng)
+            .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite("the prior covariance")))?;
+        let information = Cholesky::new(prior.cov)
+            .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite("the prior covariance")))?
+            .inverse();
+        // Twice the channel's own wait: the centre hears the channel only
+        // after the channel stops hearing its sensors.
+        let listen = Duration::from_secs_f64(2.0 * mac.slot_timeout_ms / 1e3);
+        Ok(Self {
+            index,
+            seed: scenario.seed,
+            blocks: vec![[0.0; 3]; own.len()],
+            own,
+            models: sensor_models,
+            mac,
+            r,
+            filter,
+            rng,
+            dynamics: models.dynamics,
+            information,
+            listen,
+            steps: scenario.steps,
+            last_step: None,
+            stepping: None,
+            late_messages: 0,
+            late_reported: 0,
+            deadline_missed: false,
+        })
+    }
+
+    pub fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    /// Its control and its channel's deliveries.
+    pub fn subscriptions(&self) -> Vec<Channel> {
+        vec![
+            Channel::Control(self.id()),
+            Channel::MacOutput(self.index),
+        ]
+    }
+
+    pub fn publications(&self) -> Vec<Channel> {
+        vec![Channel::Activation(self.index), Channel::Telemetry(self.index)]
+    }
+
+    /// Its sensors and its channel (the schedule wakes them), and the
+    /// launcher.
+    pub fn peers(&self) -> Vec<ActorId> {
+        let mut v: Vec<ActorId> = self.own.iter().map(|s| ActorId::Sensor(*s)).collect();
+        v.push(ActorId::Mac(self.index));
+        v.push(ActorId::Launcher);
+        v
+    }
+
+    pub fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
+
+    pub fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let s = self.stepping.as_ref()?;
+        s.received.is_none().then_some(s.deadline).flatten()
+    }
+
+    pub fn poll_work(&self) -> Option<Work> {
+        let s = self.stepping.as_ref()?;
+        match (&s.design, &s.received) {
+            (None, _) => Some(Work::SelectionScores),
+            (Some(_), Some(_)) if !s.weighed => Some(Work::Weigh),
+            _ => None,
+        }
+    }
+
+    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => self.begin_step(step, out),
+            (Payload::Control(Control::Membership { .. }), ActorId::Launcher) => {}
+            (Payload::MacOutput { values }, ActorId::Mac(m)) if m == self.index => {
+                let slots = self
+                    .stepping
+                    .as_ref()
+                    .and_then(|s| s.design.as_ref())
+                    .map(|d| d.likelihood.sensing_matrix().slots());
+                match self.stepping.as_mut() {
+                    Some(s) if s.step == step && s.received.is_none() && slots == Some(values.len()) => {
+                        s.received = Some(values.clone())
+                    }
+                    _ => self.late_messages += 1,
+                }
+            }
+            (p, from) => {
+                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a fusion centre")
+            }
+        }
+        let _ = now;
+    }
+
+    /// A delivery that did not come by the deadline: a lost step.
+    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let lost = self.stepping.as_ref().is_some_and(|s| {
+            s.received.is_none() && s.deadline.is_some_and(|d| now >= d)
+        });
+        if lost {
+            self.report(out);
+        }
+    }
+
+    pub fn run_work(&mut self, work: Work) {
+        match work {
+            Work::SelectionScores => self.design(),
+            Work::Weigh => self.weigh(),
+            _ => {}
+        }
+    }
+
+    pub fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match work {
+            Work::SelectionScores if s.deadline.is_none() => {
+                s.select_time = elapsed;
+                s.deadline = Some(now + self.listen);
+                let step = s.step;
+                if let Some(schedule) = s.design.as_ref().map(|d| schedule(self.index, &self.own, step, d)) {
+                    out.push(schedule);
+                }
+            }
+            Work::Weigh => {
+                s.weigh_time = elapsed;
+                self.report(out);
+            }
+            _ => {}
+        }
+    }
+
+    fn begin_step(&mut self, step: u32, out: &mut Vec<Outgoing>) {
+        if !wiring::is_next_step(step, self.steps, self.last_step) {
+            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+            return;
+        }
+        if self.stepping.is_some() {
+            self.deadline_missed = true;
+            self.report(out);
+        }
+        self.last_step = Some(step);
+        self.stepping = Some(Box::new(Stepping {
+            step,
+            design: None,
+            deadline: None,
+            received: None,
+            weighed: false,
+            estimate: State::zeros(),
+            select_time: Duration::ZERO,
+            weigh_time: Duration::ZERO,
+        }));
+    }
+
+    /// [`Work::SelectionScores`]: the prediction, the sensors' `G_j` over
+    /// it, and the step's design.
+    fn design(&mut self) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if s.design.is_some() {
+            return;
+        }
+        self.filter.predict(&self.dynamics, &mut self.rng);
+        let particles = self.filter.particles();
+        let weights = self.filter.uniform_weights();
+        for (block, model) in self.blocks.iter_mut().zip(&self.models) {
+            *block = expected_outer_product(particles, weights, |x| model.evaluate(x).grad_g);
+        }
+        // The transition is linear (constant velocity): its Jacobian is F.
+        let f = self.dynamics.jacobian(&State::zeros());
+        let predicted = predicted_information(&self.information, &f, self.dynamics.q_inv())
+            .unwrap_or(self.information);
+        let n = self.own.len();
+        let epsilon = self.mac.receiver_noise;
+        let mut rng = stream_rng(self.seed, ActorId::Node(self.index), s.step, Stream::SensingMatrix);
+        let parallel = 1.0 / (self.r + epsilon);
+        let (phi, probabilities, gains) = match self.mac.design {
+            MacDesign::Compressive => {
+                let problem = DesignProblem {
+                    predicted,
+                    blocks: &self.blocks,
+                    slots: self.mac.slots as usize,
+                    energy: self.mac.energy,
+                    r: self.r,
+                    epsilon,
+                };
+                let p = optimal_probabilities(&problem).unwrap_or_else(|| vec![0.0; n]);
+                let phi = SensingMatrix::draw(&p, self.mac.slots as usize, &mut rng);
+                let gains = gamma_weights(&p, self.mac.slots as usize, self.r, epsilon);
+                (phi, p, gains)
+            }
+            MacDesign::Random => {
+                let chosen = random_selection(self.mac.energy as usize, n, &mut rng);
+                let mut p = vec![0.0; n];
+                for j in &chosen {
+                    p[*j] = 1.0;
+                }
+                let gains = p.iter().map(|pj| pj * parallel).collect();
+                (SensingMatrix::selection(&chosen, n), p, gains)
+            }
+            MacDesign::All => (SensingMatrix::identity(n), vec![1.0; n], vec![parallel; n]),
+        };
+        let information = with_observations(&predicted, &self.blocks, &gains);
+        let likelihood = MacLikelihood::new(phi, self.r, epsilon)
+            .expect("validated: the receiver's noise is positive");
+        s.design = Some(Design {
+            likelihood,
+            probabilities,
+            predicted,
+            information,
+        });
+    }
+
+}
+
+/// The schedule of node `index`'s step: each transmitting sensor's column,
+/// to every own sensor and the channel; it wakes the transmitters and the
+/// channel.
+fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Outgoing {
+    let phi = design.likelihood.sensing_matrix();
+    let columns: Vec<SlotColumn> = design
+        .likelihood
+        .transmitters()
+        .iter()
+        .map(|&j| {
+            let (slots, negative) = phi.column(j);
+            SlotColumn {
+                sensor: j as u16,
+                slots,
+                negative,
+            }
+        })
+        .collect();
+    let mut receivers: Vec<ActorId> = own.iter().map(|s| ActorId::Sensor(*s)).collect();
+    receivers.push(ActorId::Mac(index));
+    let mut wake: Vec<ActorId> = design
+        .likelihood
+        .transmitters()
+        .iter()
+        .map(|&j| ActorId::Sensor(own[j]))
+        .collect();
+    wake.push(ActorId::Mac(index));
+    Outgoing {
+        channel: Channel::Activation(index),
+        message: Message::new(
+            ActorId::Node(index),
+            step,
+            0,
+            Payload::ActivateSlots {
+                slots: phi.slots() as u8,
+                columns,
+            },
+        ),
+        receivers,
+        wake: Some(wake),
+    }
+}
+
+impl MacCentre {
+    /// [`Work::Weigh`]: the particles weighed by eq. 4.13; the estimate is
+    /// the weighted mean, then they are resampled.
+    fn weigh(&mut self) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        let (Some(design), Some(z)) = (&s.design, &s.received) else {
+            return;
+        };
+        if s.weighed {
+            return;
+        }
+        let (likelihood, models) = (&design.likelihood, &self.models);
+        self.filter.update_batched(&mut self.rng, |particles, out| {
+            for (l, x) in out.iter_mut().zip(particles) {
+                *l = likelihood.ln_likelihood(z, |j| models[j].evaluate(x).g);
+            }
+        });
+        s.estimate = self.filter.summary().mean;
+        self.filter.resample(&mut self.rng);
+        s.weighed = true;
+    }
+
+    /// The step's telemetry. A step without the channel's delivery reports
+    /// its prediction, and carries the prediction's information alone.
+    fn report(&mut self, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.take() else {
+            return;
+        };
+        let heard = s.weighed;
+        let estimate = if heard {
+            s.estimate
+        } else {
+            // Uniform weights after the prediction: the prediction's mean.
+            self.filter.summary().mean
+        };
+        let (bound, active, design, slots) = match &s.design {
+            Some(d) => {
+                self.information = if heard { d.information } else { d.predicted };
+                let active = d
+                    .likelihood
+                    .transmitters()
+                    .iter()
+                    .map(|&j| self.own[j])
+                    .collect();
+                let design = d
+                    .probabilities
+                    .iter()
+                    .map(|p| (p.clamp(0.0, 1.0) * 1e4).round() as u16)
+                    .collect();
+                (
+                    bounds::position_bound(&self.information),
+                    active,
+                    design,
+                    d.likelihood.sensing_matrix().slots(),
+                )
+            }
+            None => (None, Vec::new(), Vec::new(), 0),
+        };
+        let telemetry = Telemetry {
+            estimate: wiring::reported_estimate(&estimate),
+            bound,
+            local_bound: None,
+            aux_bound: None,
+            rounds_completed: 0,
+            live_neighbours: 0,
+            observations: if heard { slots as u16 } else { 0 },
+            gated: 0,
+            lagged: 0,
+            deadline_missed: self.deadline_missed,
+            late_messages: (self.late_messages - self.late_reported) as u32,
+            stage_micros: [
+                0,
+                wiring::micros(s.weigh_time),
+                0,
+                0,
+                wiring::micros(s.select_time),
+            ],
+            unanswered_sensors: 0,
+            first_unanswered: None,
+            spread: None,
+            active,
+            design,
+        };
+        self.deadline_missed = false;
+        self.late_reported = self.late_messages;
+        out.push(wiring::telemetry(self.index, s.step, telemetry));
+    }
+}
