@@ -104,6 +104,7 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
             share_table_rows(&run);
             node_loop(&scenario, &topology, transport, i, &out, args.rejoin)
         }
+        ActorId::Mac(i) => mac_loop(&scenario, &topology, transport, i, &out),
         ActorId::Launcher => unreachable!("checked above"),
     }
 }
@@ -253,12 +254,12 @@ fn sensor_loop<T: Transport>(
     for c in actor.subscriptions() {
         t.subscribe(c)?;
     }
-    t.notify(actor.owner())?;
+    t.notify(actor.reports_to())?;
     let receivers: Vec<ActorId> = if centralized {
         t.notify(ActorId::Launcher)?;
-        vec![actor.owner(), ActorId::Launcher]
+        vec![actor.reports_to(), ActorId::Launcher]
     } else {
-        vec![actor.owner()]
+        vec![actor.reports_to()]
     };
     let schedule = FaultSchedule::new(&scenario.faults);
     announce_ready();
@@ -282,6 +283,59 @@ fn sensor_loop<T: Transport>(
             if let Some(obs) = actor.handle(&m) {
                 t.send(actor.publication(), &obs, &receivers)?;
             }
+        }
+        if launcher_gone() {
+            return Ok(());
+        }
+    }
+}
+
+/// A multiple-access channel: woken by its centre's schedule and its
+/// sensors' transmissions, it delivers each step's slots to the centre
+/// when they end.
+fn mac_loop<T: Transport>(
+    scenario: &Scenario,
+    topology: &Topology,
+    mut t: T,
+    index: u16,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let mut actor = sensor::mac::MacActor::new(scenario, topology, index)?
+        .context("a channel actor in a scenario without a [channel]")?;
+    t.publish_on(actor.publication())?;
+    for c in actor.subscriptions() {
+        t.subscribe(c)?;
+    }
+    t.notify(actor.centre())?;
+    let schedule = FaultSchedule::new(&scenario.faults);
+    announce_ready();
+    let mut inbox = Vec::new();
+    let mut step = 0;
+    loop {
+        let now = t.now();
+        match actor.poll_timeout() {
+            Some(due) => t.wait(due.saturating_sub(now).min(IDLE_WAIT))?,
+            None => t.wait(IDLE_WAIT)?,
+        }
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox)?;
+        for m in inbox.drain(..) {
+            match m.payload {
+                Payload::Control(Control::Stop) => return write_memory(t.me(), out),
+                Payload::ActivateSlots { .. } if m.header.step != step => {
+                    step = m.header.step;
+                    schedule.apply_link_faults(step, &mut t, topology);
+                    t.update_connections();
+                }
+                _ => {}
+            }
+            if let Some(z) = actor.handle(&m, t.now()) {
+                t.send(actor.publication(), &z, &[actor.centre()])?;
+            }
+        }
+        if let Some(z) = actor.handle_timeout(t.now()) {
+            t.send(actor.publication(), &z, &[actor.centre()])?;
         }
         if launcher_gone() {
             return Ok(());

@@ -34,7 +34,7 @@ impl TickRow {
     }
 }
 
-const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active\n";
+const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active,design\n";
 
 /// A row of `ticks.csv` as read back (the live view's replay and the
 /// testkit read it; [`ResultsWriter`] writes it): a node's (or the
@@ -69,6 +69,9 @@ pub struct Tick {
     pub spread: Option<f64>,
     /// The sensors the node activated for the step.
     pub active: Vec<u16>,
+    /// A fusion centre's transmission probability for each of its sensors
+    /// (empty for other nodes).
+    pub design: Vec<f64>,
     /// The row as written.
     pub line: String,
 }
@@ -103,6 +106,13 @@ impl Tick {
                 Some(ids) => ids
                     .split(';')
                     .map(|s| s.parse().ok())
+                    .collect::<Option<_>>()?,
+                None => Vec::new(),
+            },
+            design: match f.get(16).filter(|v| !v.is_empty()) {
+                Some(ps) => ps
+                    .split(';')
+                    .map(|p| p.parse().ok())
                     .collect::<Option<_>>()?,
                 None => Vec::new(),
             },
@@ -150,7 +160,7 @@ impl ResultsWriter {
             let t = &r.telemetry;
             writeln!(
                 self.ticks,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.step,
                 r.node,
                 r.truth[0],
@@ -169,6 +179,11 @@ impl ResultsWriter {
                 t.active
                     .iter()
                     .map(u16::to_string)
+                    .collect::<Vec<_>>()
+                    .join(";"),
+                t.design
+                    .iter()
+                    .map(|p| format!("{}", f64::from(*p) / 1e4))
                     .collect::<Vec<_>>()
                     .join(";")
             )?;
@@ -354,6 +369,21 @@ pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraff
         auxiliary_fim_bytes: aux.map(|a| consensus * 80 + a * 80),
     };
     (rows, bound)
+}
+
+/// The transmissions the `slot_values` messages sent carry: each is a
+/// header, the slots' mask (4 bytes) and a value (8 bytes) per slot.
+pub fn energy(accounting: &Accounting, steps: u32) -> crate::summary::Energy {
+    let transmissions = accounting
+        .by_kind()
+        .get(&MessageKind::SlotValues)
+        .map_or(0, |c| {
+            (c.sent_bytes - c.sent_messages * (fusion_graph::wire::HEADER_BYTES as u64 + 4)) / 8
+        });
+    crate::summary::Energy {
+        transmissions,
+        per_step: transmissions as f64 / f64::from(steps.max(1)),
+    }
 }
 
 /// Proportional set size of this process now, kilobytes (Linux
@@ -560,6 +590,11 @@ impl<'w> Recorder<'w> {
             estimates: self.averages.estimates(),
             traffic,
             bound_traffic,
+            energy: self
+                .scenario
+                .channel
+                .is_some()
+                .then(|| energy(accounting, facts.steps_done.max(1))),
             deadline_misses: self.averages.deadline_misses,
             faults: self
                 .scenario
@@ -618,6 +653,7 @@ mod tests {
                 first_unanswered: None,
                 spread: None,
                 active: Vec::new(),
+                design: Vec::new(),
             },
         }
     }

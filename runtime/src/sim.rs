@@ -19,6 +19,7 @@ use fusion_graph::wire::{Message, Payload, Telemetry};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
 use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
+use sensor::mac::MacActor;
 use sensor::SensorActor;
 
 use crate::drive::{run_pending_work, send_all};
@@ -34,6 +35,12 @@ struct SensorSlot {
     stopped: bool,
 }
 
+/// A multiple-access channel; no fault stops one.
+struct MacSlot {
+    actor: MacActor,
+    transport: MemoryTransport,
+}
+
 struct NodeSlot {
     actor: ProcessingNode,
     transport: MemoryTransport,
@@ -47,6 +54,7 @@ pub struct InProcessNetwork {
     launcher: MemoryTransport,
     sensors: Vec<SensorSlot>,
     nodes: Vec<NodeSlot>,
+    macs: Vec<MacSlot>,
     central: Option<CentralizedReference>,
     world: World,
     schedule: FaultSchedule,
@@ -111,6 +119,17 @@ impl InProcessNetwork {
                 i,
             )?);
         }
+        let mut macs = Vec::new();
+        for i in 0..topology.mac_count() as u16 {
+            let Some(actor) = MacActor::new(scenario, topology, i)? else {
+                break;
+            };
+            let mut transport = transport(ActorId::Mac(i));
+            for c in actor.subscriptions() {
+                transport.subscribe(c)?;
+            }
+            macs.push(MacSlot { actor, transport });
+        }
         let central = centralized
             .then(|| CentralizedReference::new(scenario, topology))
             .transpose()
@@ -122,6 +141,7 @@ impl InProcessNetwork {
             launcher,
             sensors,
             nodes,
+            macs,
             central,
             world: World::new(scenario)?,
             schedule: FaultSchedule::new(&scenario.faults),
@@ -183,6 +203,9 @@ impl InProcessNetwork {
         }
         for n in &self.nodes {
             a.merge(n.transport.accounting());
+        }
+        for m in &self.macs {
+            a.merge(m.transport.accounting());
         }
         a
     }
@@ -264,6 +287,10 @@ impl InProcessNetwork {
             self.schedule
                 .apply_link_faults(step, &mut s.transport, &self.topology);
         }
+        for m in &mut self.macs {
+            self.schedule
+                .apply_link_faults(step, &mut m.transport, &self.topology);
+        }
     }
 
     /// Runs one step on the virtual clock; returns the telemetry rows.
@@ -279,11 +306,13 @@ impl InProcessNetwork {
             alive: self.sensors.iter().map(|s| s.alive).collect(),
             stopped: self.sensors.iter().map(|s| s.stopped).collect(),
         };
+        let macs: Vec<ActorId> = self.macs.iter().map(|m| m.actor.id()).collect();
         crate::world::begin_step(
             &mut self.launcher,
             step,
             truth,
             &sensors,
+            &macs,
             &views,
             &self.views,
             process_faults,
@@ -312,6 +341,12 @@ impl InProcessNetwork {
                         n.actor.handle_timeout(now, &mut self.outgoing);
                         run_pending_work(&mut n.actor, || now, &mut self.outgoing);
                         send_all(&mut n.transport, &mut self.outgoing)?;
+                    }
+                    for m in &mut self.macs {
+                        if let Some(z) = m.actor.handle_timeout(now) {
+                            m.transport
+                                .send(m.actor.publication(), &z, &[m.actor.centre()])?;
+                        }
                     }
                 }
                 _ => break,
@@ -354,6 +389,10 @@ impl InProcessNetwork {
         for s in self.sensors.iter_mut().filter(|s| s.alive) {
             consider(s.transport.shaper().next_due());
         }
+        for m in &mut self.macs {
+            consider(m.actor.poll_timeout());
+            consider(m.transport.shaper().next_due());
+        }
         next
     }
 
@@ -377,11 +416,22 @@ impl InProcessNetwork {
                 progressed = true;
                 if let Some(obs) = s.actor.handle(&m) {
                     let receivers: &[ActorId] = if self.central.is_some() {
-                        &[s.actor.owner(), ActorId::Launcher]
+                        &[s.actor.reports_to(), ActorId::Launcher]
                     } else {
-                        &[s.actor.owner()]
+                        &[s.actor.reports_to()]
                     };
                     s.transport.send(s.actor.publication(), &obs, receivers)?;
+                }
+            }
+        }
+        for mac in &mut self.macs {
+            self.inbox.clear();
+            mac.transport.receive(now, &mut self.inbox)?;
+            for m in self.inbox.drain(..) {
+                progressed = true;
+                if let Some(z) = mac.actor.handle(&m, now) {
+                    mac.transport
+                        .send(mac.actor.publication(), &z, &[mac.actor.centre()])?;
                 }
             }
         }

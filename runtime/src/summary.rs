@@ -102,6 +102,10 @@ pub struct Summary {
     pub estimates: Estimates,
     pub traffic: Vec<Traffic>,
     pub bound_traffic: BoundTraffic,
+    /// On a multiple-access channel: the sensors' transmissions, one unit
+    /// of energy each. None without a channel.
+    #[serde(default)]
+    pub energy: Option<Energy>,
     pub deadline_misses: u64,
     pub faults: Vec<AppliedFault>,
     pub fault_cost: FaultCost,
@@ -314,6 +318,12 @@ pub fn print_table(s: &Summary) {
     for t in &s.traffic {
         println!("    {:<28} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
     }
+    if let Some(e) = &s.energy {
+        println!(
+            "  {:<34} {:>12.2}",
+            "energy, transmissions per step", e.per_step
+        );
+    }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
     let metres = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1} m"));
     for f in &s.faults {
@@ -470,6 +480,15 @@ pub struct Traffic {
 pub struct BoundTraffic {
     pub cq_dpcrlb_bytes: u64,
     pub auxiliary_fim_bytes: Option<u64>,
+}
+
+/// The energy sensors spent transmitting on a multiple-access channel: a
+/// unit for each slot a sensor transmitted in (a non-zero entry of Φ it
+/// acted on), counted from the `slot_values` messages sent.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+pub struct Energy {
+    pub transmissions: u64,
+    pub per_step: f64,
 }
 
 #[cfg(test)]

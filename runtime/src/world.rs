@@ -100,12 +100,16 @@ pub fn drain_wakes(step: u32, sensors_alive: &[bool]) -> Vec<ActorId> {
 ///
 /// A stopped sensor (SIGSTOP) is not live but keeps its queue: the tick
 /// reaches it there, to be read when it continues, so it is counted as
-/// sent to it too (it is not woken). A dead sensor's queue is gone.
+/// sent to it too (it is not woken). A dead sensor's queue is gone. The
+/// multiple-access channels (`macs`) read the tick as well, for the
+/// launcher's stop on it; it does not wake them.
+#[allow(clippy::too_many_arguments)]
 pub fn begin_step<T: Transport + ?Sized>(
     launcher: &mut T,
     step: u32,
     truth: State,
     sensors: &SensorStates,
+    macs: &[ActorId],
     views: &[Vec<bool>],
     told: &[Vec<bool>],
     process_faults: bool,
@@ -114,6 +118,7 @@ pub fn begin_step<T: Transport + ?Sized>(
     let queued: Vec<ActorId> = (0..sensors_alive.len() as u16)
         .filter(|s| sensors_alive[*s as usize] || sensors.stopped[*s as usize])
         .map(ActorId::Sensor)
+        .chain(macs.iter().copied())
         .collect();
     let tick = Message::new(
         ActorId::Launcher,

@@ -83,6 +83,10 @@ pub const SENSOR_SELECTION_SCENARIO: &str = include_str!("../../scenarios/sensor
 pub const RANDOM_EXCHANGE_SCENARIO: &str = include_str!("../../scenarios/random-exchange.toml");
 /// A static target located from quantized amplitudes (ML over a shared grid).
 pub const LOCATION_SCENARIO: &str = include_str!("../../scenarios/location.toml");
+/// A fusion centre that hears 25 amplitude sensors through a
+/// multiple-access channel and designs who transmits (compressive sensor
+/// management).
+pub const COMPRESSIVE_SCENARIO: &str = include_str!("../../scenarios/compressive.toml");
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

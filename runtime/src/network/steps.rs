@@ -56,6 +56,7 @@ pub(super) fn run_steps(
     let mut steps_done = 0;
     let mut crashes_shown = 0;
 
+    let macs: Vec<ActorId> = (0..topology.mac_count() as u16).map(ActorId::Mac).collect();
     for step in 1..=scenario.steps {
         w.step = step;
         w.poll_events();
@@ -71,6 +72,7 @@ pub(super) fn run_steps(
             step,
             truth,
             &w.sensors,
+            &macs,
             &views,
             &w.views,
             process_faults,

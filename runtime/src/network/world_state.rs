@@ -126,6 +126,7 @@ impl<'a> WorldState<'a> {
         }
         let sensors: Vec<ActorId> = (0..topology.sensors() as u16)
             .map(ActorId::Sensor)
+            .chain((0..topology.mac_count() as u16).map(ActorId::Mac))
             .collect();
         let _ = self
             .transport
