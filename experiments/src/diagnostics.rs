@@ -1,6 +1,7 @@
 //! What the nodes reported beside their estimates, read back from each
 //! run's `ticks.csv`: the spread of the prediction the sensor manager
-//! scored on, and how far the sensors it activated stood from the truth.
+//! scored on, how far the sensors it activated stood from the truth, and a
+//! fusion centre's transmission probabilities.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -16,6 +17,19 @@ pub struct Diagnostics {
     pub spread: Vec<Option<f64>>,
     /// Distance from the truth of the sensors activated, metres.
     pub active_distance: Vec<Option<f64>>,
+    /// Every step a fusion centre designed its channel's transmissions.
+    pub designs: Vec<DesignRecord>,
+}
+
+/// A fusion centre's transmission probabilities at one step of one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DesignRecord {
+    pub run: u32,
+    pub step: u32,
+    /// The target's true position, metres.
+    pub truth: [f64; 2],
+    /// Each of the centre's sensors' probability.
+    pub probabilities: Vec<f64>,
 }
 
 /// The processing nodes' rows of run `run`'s `ticks.csv` under `runs_dir`
@@ -37,6 +51,7 @@ impl Diagnostics {
     pub fn read(runs_dir: &Path, runs: u32, topology: &Topology) -> anyhow::Result<Self> {
         let mut spread: Vec<(f64, u32)> = Vec::new();
         let mut distance: Vec<(f64, u32)> = Vec::new();
+        let mut designs = Vec::new();
         let add = |v: &mut Vec<(f64, u32)>, step: usize, x: f64| {
             if v.len() < step {
                 v.resize(step, (0.0, 0));
@@ -52,6 +67,14 @@ impl Diagnostics {
                 }
                 if let Some(s) = tick.spread.filter(|s| s.is_finite()) {
                     add(&mut spread, step, s);
+                }
+                if !tick.design.is_empty() {
+                    designs.push(DesignRecord {
+                        run,
+                        step: tick.step,
+                        truth: tick.truth,
+                        probabilities: tick.design.clone(),
+                    });
                 }
                 let [x, y] = tick.truth;
                 for sensor in &tick.active {
@@ -69,6 +92,7 @@ impl Diagnostics {
         Ok(Self {
             spread: mean(spread),
             active_distance: mean(distance),
+            designs,
         })
     }
 

@@ -13,7 +13,7 @@ const SIZE: (u32, u32) = (900, 560);
 pub fn csv(experiment: &Experiment, outcome: &Outcome) -> String {
     let mut out = String::new();
     match &experiment.figure {
-        Figure::OverTime { curves, .. } => {
+        Figure::OverTime { curves, .. } | Figure::OverTimeAndDesign { curves, .. } => {
             out.push_str("step");
             for c in *curves {
                 out.push_str(&format!(",{}", quoted(c.label)));
@@ -114,7 +114,10 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
     };
     let root = SVGBackend::new(path, size).into_drawing_area();
     let drawn = match &experiment.figure {
-        Figure::OverTime { y_label, curves } => {
+        Figure::OverTime { y_label, curves }
+        | Figure::OverTimeAndDesign {
+            y_label, curves, ..
+        } => {
             let lines: Vec<Line> = curves
                 .iter()
                 .map(|c| {
@@ -165,6 +168,82 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
 }
 
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
+
+/// `<name>-design.csv` (every run's probabilities at `steps`) and
+/// `<name>-design.svg` (the first run's, one panel a step): each sensor a
+/// circle whose area is its transmission probability, the truth a cross.
+pub fn design(
+    dir: &Path,
+    name: &str,
+    arm: &ArmOutcome,
+    steps: &[u32],
+    sensors: &[[f64; 2]],
+) -> anyhow::Result<()> {
+    let records: Vec<_> = arm
+        .diagnostics
+        .designs
+        .iter()
+        .filter(|d| steps.contains(&d.step))
+        .collect();
+    let mut csv = String::from("run,step,truth_x,truth_y,sensor,x,y,probability\n");
+    for d in &records {
+        for (j, p) in d.probabilities.iter().enumerate() {
+            let [x, y] = sensors.get(j).copied().unwrap_or([f64::NAN; 2]);
+            csv.push_str(&format!(
+                "{},{},{},{},{j},{x},{y},{p}\n",
+                d.run, d.step, d.truth[0], d.truth[1]
+            ));
+        }
+    }
+    crate::write_atomically(&dir.join(format!("{name}-design.csv")), csv.as_bytes())?;
+    let path = dir.join(format!("{name}-design.svg"));
+    let first: Vec<_> = records.iter().filter(|d| d.run == 0).collect();
+    let root = SVGBackend::new(&path, (440 * steps.len().max(1) as u32, 480)).into_drawing_area();
+    let drawn = (|| -> DrawResult {
+        root.fill(&WHITE)?;
+        let (xs, ys): (Vec<f64>, Vec<f64>) = sensors.iter().map(|p| (p[0], p[1])).unzip();
+        let span = |v: &[f64]| {
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (lo - 4.0)..(hi + 4.0)
+        };
+        let (x_range, y_range) = (span(&xs), span(&ys));
+        for (area, step) in root.split_evenly((1, steps.len().max(1))).iter().zip(steps) {
+            let mut chart = ChartBuilder::on(area)
+                .caption(format!("{name}: probabilities at step {step}, run 0"), ("sans-serif", 16))
+                .margin(12)
+                .x_label_area_size(30)
+                .y_label_area_size(36)
+                .build_cartesian_2d(x_range.clone(), y_range.clone())?;
+            chart.configure_mesh().x_desc("x, m").y_desc("y, m").draw()?;
+            let Some(d) = first.iter().find(|d| d.step == *step) else {
+                continue;
+            };
+            chart.draw_series(sensors.iter().zip(&d.probabilities).map(|(s, p)| {
+                Circle::new((s[0], s[1]), 2.0 + 22.0 * p.sqrt(), BLUE.mix(0.6).filled())
+            }))?;
+            chart.draw_series(
+                sensors
+                    .iter()
+                    .zip(&d.probabilities)
+                    .filter(|(_, p)| **p >= 0.01)
+                    .map(|(s, p)| {
+                        Text::new(format!("{p:.3}"), (s[0] + 0.8, s[1] + 0.8), ("sans-serif", 13))
+                    }),
+            )?;
+            chart.draw_series(std::iter::once(Cross::new(
+                (d.truth[0], d.truth[1]),
+                7,
+                RED.stroke_width(2),
+            )))?;
+        }
+        Ok(())
+    })();
+    drawn.map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present()
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| format!("writing {}", path.display()))
+}
 
 const PANEL: (u32, u32) = (300, 230);
 const PANEL_COLUMNS: u32 = 4;

@@ -10,6 +10,7 @@
 mod allocation;
 mod bit_depth;
 mod censoring;
+mod compressive;
 pub mod diagnostics;
 mod distributed_bound;
 pub mod faults;
@@ -64,6 +65,15 @@ pub enum Figure {
     OverTime {
         y_label: &'static str,
         curves: &'static [Curve],
+    },
+    /// Curves over time as [`Figure::OverTime`], and a second figure,
+    /// `<name>-design.svg` with its CSV: a fusion centre's transmission
+    /// probabilities over the field at `steps`, in arm `arm`'s first run.
+    OverTimeAndDesign {
+        y_label: &'static str,
+        curves: &'static [Curve],
+        arm: usize,
+        steps: &'static [u32],
     },
     /// One bar per (arm, metric).
     Bars {
@@ -152,6 +162,9 @@ pub struct ArmOutcome {
     /// Observations (quantized or raw) from sensors to their nodes.
     pub observation_bytes_per_step: f64,
     pub observations_per_step: f64,
+    /// On a multiple-access channel: the sensors' transmissions per step
+    /// (a unit of energy each), mean over runs; 0 without a channel.
+    pub transmissions_per_step: f64,
     /// Messages sent but neither received, dropped nor malformed: the
     /// magnitudes summed over kinds and runs.
     pub unaccounted_messages: u64,
@@ -481,6 +494,7 @@ pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
 pub fn catalogue() -> Vec<Experiment> {
     let mut all = distributed_bound::experiments();
     all.extend(sensor_selection::experiments());
+    all.extend(compressive::experiments());
     all.extend(censoring::network_experiments());
     all.extend(faults::experiments());
     all
@@ -600,6 +614,12 @@ pub fn run(
             observation_bytes_per_step: kinds_per_step(&OBSERVATIONS, &|t| t.bytes_per_step),
             observations_per_step: kinds_per_step(&OBSERVATIONS, &|t| t.messages as f64)
                 / scenario.steps as f64,
+            transmissions_per_step: mc
+                .per_run
+                .iter()
+                .map(|s| s.energy.map_or(0.0, |e| e.per_step))
+                .sum::<f64>()
+                / mc.per_run.len().max(1) as f64,
             unaccounted_messages: mc
                 .per_run
                 .iter()
@@ -643,6 +663,16 @@ pub fn run(
     let svg = dir.join(format!("{}.svg", experiment.name));
     write_atomically(&csv, figure::csv(experiment, &outcome).as_bytes())?;
     figure::svg(experiment, &outcome, &svg)?;
+    if let Figure::OverTimeAndDesign { arm, steps, .. } = experiment.figure {
+        let (_, topology) = arm_scenario(experiment, &experiment.arms[arm], options.steps)?;
+        figure::design(
+            &dir,
+            experiment.name,
+            &outcome.arms[arm],
+            steps,
+            &topology.sensor_positions,
+        )?;
+    }
     if matches!(experiment.figure, Figure::Panels { .. }) {
         write_atomically(
             &dir.join(format!("{}-cells.csv", experiment.name)),
@@ -752,7 +782,7 @@ fn arm_scenario(
 /// Whether the figure draws any of `series` for arm `index`.
 fn needs(experiment: &Experiment, index: usize, series: &[Series]) -> bool {
     match &experiment.figure {
-        Figure::OverTime { curves, .. } => curves
+        Figure::OverTime { curves, .. } | Figure::OverTimeAndDesign { curves, .. } => curves
             .iter()
             .any(|c| c.arm == index && series.contains(&c.series)),
         Figure::Bars { .. } | Figure::Panels { .. } => false,

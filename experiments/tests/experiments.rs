@@ -35,7 +35,7 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
         let csv = std::fs::read_to_string(&report.csv).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         match &e.figure {
-            Figure::OverTime { curves, .. } => {
+            Figure::OverTime { curves, .. } | Figure::OverTimeAndDesign { curves, .. } => {
                 assert_eq!(
                     lines.len(),
                     1 + 12,
@@ -55,6 +55,21 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
             }
             Figure::Bars { bars, .. } => assert_eq!(lines.len(), 1 + bars.len(), "{}", e.name),
             Figure::Panels { .. } => unreachable!("left out above"),
+        }
+        if let Figure::OverTimeAndDesign { steps, .. } = &e.figure {
+            // Both runs' probabilities at each of the figure's steps, a row
+            // per sensor, and the first run's drawn.
+            let dir = out.join(e.name);
+            let design = std::fs::read_to_string(dir.join(format!("{}-design.csv", e.name))).unwrap();
+            let rows: Vec<&str> = design.lines().skip(1).collect();
+            assert!(!rows.is_empty(), "{}: no design rows", e.name);
+            assert_eq!(rows.len() % (2 * steps.len()), 0, "{}: {} rows", e.name, rows.len());
+            for row in &rows {
+                let p: f64 = row.rsplit(',').next().unwrap().parse().unwrap();
+                assert!((0.0..=1.0).contains(&p), "{}: {row}", e.name);
+            }
+            let svg = std::fs::read_to_string(dir.join(format!("{}-design.svg", e.name))).unwrap();
+            assert!(svg.contains("<circle"), "{}: no sensors drawn", e.name);
         }
         let svg = std::fs::read_to_string(&report.svg).unwrap();
         assert!(
