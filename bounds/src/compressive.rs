@@ -230,6 +230,44 @@ impl MacLikelihood {
         }
         self.normalizer - 0.5 * quadratic
     }
+
+    /// The observation information this Φ gives, over weighted states: the
+    /// position block of `E_x[∇(Φa)ᵀ R⁻¹ ∇(Φa)]` (eq. 4.14 for the drawn
+    /// Φ rather than averaged over Φ), with `gradient(j, x)` sensor j's
+    /// `∇a_j` at x. Unlike eq. 4.19 it counts a sensor heard in several
+    /// slots once: its noise `v_j` is the same in each.
+    pub fn information(
+        &self,
+        states: &[State],
+        weights: &[f64],
+        mut gradient: impl FnMut(usize, &State) -> State,
+    ) -> PositionBlock {
+        let m = self.phi.slots();
+        let mut block = [0.0; 3];
+        for (x, w) in states.iter().zip(weights) {
+            // h = ∇(Φa): a row per slot, its x and y columns.
+            let (mut hx, mut hy) = ([0.0; MAX_SLOTS], [0.0; MAX_SLOTS]);
+            for &j in &self.transmitters {
+                let g = gradient(j, x);
+                for i in 0..m {
+                    let phi = f64::from(self.phi.get(i, j));
+                    hx[i] += phi * g[0];
+                    hy[i] += phi * g[1];
+                }
+            }
+            // hᵀR⁻¹h = |L⁻¹h|², column by column.
+            for i in 0..m {
+                let row = &self.chol[i * m..i * m + i];
+                let d = self.chol[i * m + i];
+                hx[i] = (hx[i] - row.iter().zip(&hx[..i]).map(|(l, v)| l * v).sum::<f64>()) / d;
+                hy[i] = (hy[i] - row.iter().zip(&hy[..i]).map(|(l, v)| l * v).sum::<f64>()) / d;
+                block[0] += w * hx[i] * hx[i];
+                block[1] += w * hx[i] * hy[i];
+                block[2] += w * hy[i] * hy[i];
+            }
+        }
+        block
+    }
 }
 
 /// A position block `[xx, xy, yy]`.
@@ -519,6 +557,55 @@ mod tests {
             let got = like.ln_likelihood(&z, |j| a[j]);
             assert!((got - direct).abs() < 1e-10, "{slots} slots: {got} vs {direct}");
         }
+    }
+
+    /// The information of a drawn Φ against `∇(Φa)ᵀ R⁻¹ ∇(Φa)` written
+    /// out densely; with every sensor on a channel of its own it is
+    /// `Σ G_j / (r + ε)`.
+    #[test]
+    fn the_information_of_a_drawn_matrix_is_eq_4_14() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let grads = [
+            State::new(1.0, 0.5, 0.0, 0.0),
+            State::new(-0.3, 2.0, 0.0, 0.0),
+            State::new(0.7, -0.7, 0.0, 0.0),
+        ];
+        let (r, eps) = (1.0, 0.1);
+        let x = [State::zeros()];
+        for slots in [1, 2, 4] {
+            let phi = SensingMatrix::draw(&[0.8, 0.6, 0.9], slots, &mut rng);
+            let like = MacLikelihood::new(phi.clone(), r, eps).unwrap();
+            let got = like.information(&x, &[1.0], |j, _| grads[j]);
+            let phi_d = nalgebra::DMatrix::from_fn(slots, 3, |i, j| f64::from(phi.get(i, j)));
+            let h = nalgebra::DMatrix::from_fn(3, 2, |j, c| grads[j][c]);
+            let cov = &phi_d * phi_d.transpose() * r + nalgebra::DMatrix::identity(slots, slots) * eps;
+            let dense = (&phi_d * &h).transpose() * cov.try_inverse().unwrap() * (&phi_d * &h);
+            for (g, d) in got.iter().zip([dense[(0, 0)], dense[(0, 1)], dense[(1, 1)]]) {
+                assert!((g - d).abs() < 1e-10, "{slots} slots: {got:?} against {dense}");
+            }
+        }
+        let parallel = MacLikelihood::new(SensingMatrix::identity(3), r, eps).unwrap();
+        let got = parallel.information(&x, &[1.0], |j, _| grads[j]);
+        let sum: f64 = grads.iter().map(|g| g[0] * g[0]).sum::<f64>() / (r + eps);
+        assert!((got[0] - sum).abs() < 1e-12);
+    }
+
+    /// Where eq. 4.19 goes wrong: one sensor sure to transmit in all M
+    /// slots gives M copies of the same measurement, worth `G/(r + ε/M)`,
+    /// not the `M G/(r + ε)` the approximation (a law of large numbers
+    /// over many transmitting sensors) promises.
+    #[test]
+    fn eq_4_19_counts_one_sensor_in_m_slots_m_times() {
+        let g = State::new(1.0, 0.0, 0.0, 0.0);
+        let (r, eps, m) = (1.0, 0.1, 6);
+        let phi = SensingMatrix::draw(&[1.0], m, &mut ChaCha8Rng::seed_from_u64(1));
+        let exact = MacLikelihood::new(phi, r, eps)
+            .unwrap()
+            .information(&[State::zeros()], &[1.0], |_, _| g)[0];
+        assert!((exact - 1.0 / (r + eps / m as f64)).abs() < 1e-12, "{exact}");
+        let promised = gamma_weights(&[1.0], m, r, eps)[0];
+        assert!((promised - m as f64 / (r + eps)).abs() < 1e-12);
+        assert!(promised > 5.0 * exact);
     }
 
     #[test]

@@ -155,7 +155,30 @@ fn check_chapter_4(o: &Outcome) -> Check {
         })
         .collect::<Vec<_>>()
         .join(", ");
-    Check::of_claims(claims, format!("RMSE over the 15 steps: {means}"))
+    // Why the designs disappoint: the bound each drawn Φ gives against
+    // the one eq. 4.19 promised it, over the steps.
+    let promises = ARMS[2..]
+        .iter()
+        .map(|a| {
+            let arm = o.arm(a.label);
+            let over_steps = |s: Series| {
+                let v: Vec<f64> = arm.series(s).into_iter().flatten().collect();
+                (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+            };
+            let metres = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.3} m"));
+            format!(
+                "{} {} given the drawn Φ against {} promised",
+                a.label,
+                metres(over_steps(Series::Bound)),
+                metres(over_steps(Series::AuxBound))
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(", ");
+    Check::of_claims(
+        claims,
+        format!("RMSE over the 15 steps: {means}; PCRLB over the steps: {promises}"),
+    )
 }
 
 /// Fig. 4.2's reading at step 4 of the M = 6 arm: the probability sits on
@@ -170,12 +193,21 @@ fn design_claims(designs: &[DesignRecord]) -> Vec<Claim> {
             .map(|d| Some(if pick(carrying(d)) { 1.0 } else { 0.0 }))
             .collect()
     };
+    // The share of runs, against one half run by run.
     let most = |claim: &str, values: Vec<Option<f64>>| {
+        let half = vec![Some(0.5); values.len()];
         Claim::judged(
             claim,
-            Paired::of_values(&values),
-            |p| p.verdict_within(0.5, 1.0 + 1e-9),
-            |p| format!("{:.0} % ± {:.0} % of {} runs", 100.0 * p.mean, 100.0 * p.half_width, p.runs),
+            Paired::of(&values, &half),
+            |p| p.verdict(Order::Higher),
+            |p| {
+                format!(
+                    "{:.0} % ± {:.0} % of {} runs",
+                    100.0 * (p.mean + 0.5),
+                    100.0 * p.half_width,
+                    p.runs
+                )
+            },
         )
     };
     let mut claims = vec![

@@ -10,8 +10,10 @@
 //! (`activate_slots`) to the sensors and the channel → the channel's
 //! delivery `z`, until it arrives or the listening deadline →
 //! [`Work::Weigh`]: the particles weighed by `N(z; Φa(x), rΦΦᵀ + εI)`
-//! (eq. 4.13) → telemetry with the estimate, the bound `J(p)` of eq. 4.8
-//! and the design.
+//! (eq. 4.13) → telemetry with the estimate, the design, and two bounds
+//! from the recursion of eq. 4.8: the PCRLB given the drawn Φ (eq. 4.14,
+//! carried to the next step) and, as the auxiliary bound, the one eq.
+//! 4.19's approximation promised the design.
 //!
 //! The centre does not know who was heard. A sensor that misses its slot
 //! is absent from a sum the centre weighs as if it were there; a delivery
@@ -56,9 +58,11 @@ struct Design {
     likelihood: MacLikelihood,
     /// Each sensor's transmission probability.
     probabilities: Vec<f64>,
-    /// `J` before the step's observations, and with them.
+    /// `J` before the step's observations; with those of the drawn Φ
+    /// (eq. 4.14 given Φ); and with those eq. 4.19 promised the design.
     predicted: Mat4,
     information: Mat4,
+    promised: Mat4,
 }
 
 pub struct MacCentre {
@@ -318,14 +322,18 @@ impl MacCentre {
             }
             MacDesign::All => (SensingMatrix::identity(n), vec![1.0; n], vec![parallel; n]),
         };
-        let information = with_observations(&predicted, &self.blocks, &gains);
+        let promised = with_observations(&predicted, &self.blocks, &gains);
         let likelihood = MacLikelihood::new(phi, self.r, epsilon)
             .expect("validated: the receiver's noise is positive");
+        let models = &self.models;
+        let drawn = likelihood.information(particles, weights, |j, x| models[j].evaluate(x).grad_g);
+        let information = with_observations(&predicted, &[drawn], &[1.0]);
         s.design = Some(Design {
             likelihood,
             probabilities,
             predicted,
             information,
+            promised,
         });
     }
 
@@ -411,7 +419,7 @@ impl MacCentre {
             // Uniform weights after the prediction: the prediction's mean.
             self.filter.summary().mean
         };
-        let (bound, active, design, slots) = match &s.design {
+        let (bound, promised, active, design, slots) = match &s.design {
             Some(d) => {
                 self.information = if heard { d.information } else { d.predicted };
                 let active = d
@@ -427,18 +435,21 @@ impl MacCentre {
                     .collect();
                 (
                     bounds::position_bound(&self.information),
+                    bounds::position_bound(&d.promised),
                     active,
                     design,
                     d.likelihood.sensing_matrix().slots(),
                 )
             }
-            None => (None, Vec::new(), Vec::new(), 0),
+            None => (None, None, Vec::new(), Vec::new(), 0),
         };
         let telemetry = Telemetry {
             estimate: wiring::reported_estimate(&estimate),
             bound,
             local_bound: None,
-            aux_bound: None,
+            // What eq. 4.19 promised the design: beside the bound of the
+            // drawn Φ, it shows how far the approximation is off.
+            aux_bound: promised,
             rounds_completed: 0,
             live_neighbours: 0,
             observations: if heard { slots as u16 } else { 0 },
