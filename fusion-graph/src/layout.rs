@@ -70,7 +70,9 @@ impl Topology {
                 let ok = name.parse::<ActorId>().ok().is_some_and(|a| {
                     topology.contains(a)
                         && a != ActorId::Launcher
-                        && !matches!(a, ActorId::Mac(_))
+                        // A channel's links may be faulted; no fault stops
+                        // the channel itself.
+                        && (targets.key == "links" || !matches!(a, ActorId::Mac(_)))
                         && (!targets.sensors_only || matches!(a, ActorId::Sensor(_)))
                 });
                 if !ok {
