@@ -27,7 +27,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use fusion_graph::scenario::{
-    Scenario, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
+    Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::wire::{examples, seal, Message, WireFormat};
@@ -474,12 +474,14 @@ fn shape(message: &str) -> String {
     out
 }
 
-/// A node and a sensor of a small default network, and an interior node of
-/// the random-exchange paper's lattice for each kind of its cooperation, handed every input
-/// that decodes as one message.
+/// A node and a sensor of a small default network, an interior node of
+/// the random-exchange paper's lattice for each kind of its cooperation, a
+/// locator node, and a fusion centre with its multiple-access channel,
+/// handed every input that decodes as one message.
 struct Actors {
     nodes: Vec<ProcessingNode>,
     sensor: SensorActor,
+    mac: sensor::mac::MacActor,
     now: Duration,
 }
 
@@ -505,9 +507,16 @@ impl Actors {
             .expect("the built-in location scenario");
         let ring = Topology::from_scenario(&location, "location").expect("its topology");
         nodes.push(ProcessingNode::for_scenario(&location, &ring, 1).expect("node-1"));
+        let compressive = Scenario::from_toml(COMPRESSIVE_SCENARIO, "compressive", &overrides[..1])
+            .expect("the built-in compressive scenario");
+        let field = Topology::from_scenario(&compressive, "compressive").expect("its topology");
+        nodes.push(ProcessingNode::for_scenario(&compressive, &field, 0).expect("node-0"));
         Self {
             nodes,
             sensor: SensorActor::new(&scenario, &topology, 0).expect("sensor-0"),
+            mac: sensor::mac::MacActor::new(&compressive, &field, 0)
+                .expect("mac-0")
+                .expect("the scenario has a channel"),
             now: Duration::ZERO,
         }
     }
@@ -537,6 +546,9 @@ impl Actors {
             }
         }
         let observed = self.sensor.handle(&message).is_some();
+        let delivered = self.mac.handle(&message, self.now).is_some()
+            | self.mac.handle_timeout(self.now).is_some();
+        let observed = observed || delivered;
         format!(
             "{:?} sent {} observed {observed}",
             message.header.kind,
@@ -556,6 +568,7 @@ fn builtin_seeds(target: Target) -> Vec<Vec<u8>> {
             SENSOR_SELECTION_SCENARIO.as_bytes().to_vec(),
             RANDOM_EXCHANGE_SCENARIO.as_bytes().to_vec(),
             LOCATION_SCENARIO.as_bytes().to_vec(),
+            COMPRESSIVE_SCENARIO.as_bytes().to_vec(),
         ],
         Target::Set => vec![b"quantizer.bits=4".to_vec()],
     }
