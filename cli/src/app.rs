@@ -73,10 +73,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             sensor_selection,
             random_exchange,
             location,
+            compressive,
         } => {
             print!(
                 "{}",
-                builtin_scenario(sensor_selection, random_exchange, location)
+                builtin_scenario(sensor_selection, random_exchange, location, compressive)
             );
             Ok::<(), anyhow::Error>(())
         }

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 use fusion_graph::scenario::{
-    Scenario, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
+    Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::Topology;
@@ -44,15 +44,20 @@ pub enum Command {
     Scenario {
         /// The sensor-selection scenario (25 bearing sensors a cell, at most
         /// 4 active per node and 18 in all) instead of the default.
-        #[arg(long, alias = "seed001", conflicts_with_all = ["random_exchange", "location"])]
+        #[arg(long, alias = "seed001", conflicts_with_all = ["random_exchange", "location", "compressive"])]
         sensor_selection: bool,
         /// The random-exchange network of 25 RSS nodes instead of the default.
-        #[arg(long, alias = "seed004", conflicts_with = "location")]
+        #[arg(long, alias = "seed004", conflicts_with_all = ["location", "compressive"])]
         random_exchange: bool,
         /// A static target located by 4 nodes from 64 amplitude sensors'
         /// quantized reports instead of the default.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "compressive")]
         location: bool,
+        /// One fusion centre hearing 25 amplitude sensors through a
+        /// multiple-access channel, designing who transmits, instead of the
+        /// default.
+        #[arg(long)]
+        compressive: bool,
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
@@ -219,11 +224,13 @@ pub fn builtin_scenario(
     sensor_selection: bool,
     random_exchange: bool,
     location: bool,
+    compressive: bool,
 ) -> &'static str {
-    match (sensor_selection, random_exchange, location) {
-        (true, _, _) => SENSOR_SELECTION_SCENARIO,
-        (_, true, _) => RANDOM_EXCHANGE_SCENARIO,
-        (_, _, true) => LOCATION_SCENARIO,
+    match (sensor_selection, random_exchange, location, compressive) {
+        (true, ..) => SENSOR_SELECTION_SCENARIO,
+        (_, true, ..) => RANDOM_EXCHANGE_SCENARIO,
+        (_, _, true, _) => LOCATION_SCENARIO,
+        (.., true) => COMPRESSIVE_SCENARIO,
         _ => DEFAULT_SCENARIO,
     }
 }

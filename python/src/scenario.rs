@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use fusion_graph::scenario::{
-    Scenario, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
+    Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::Topology;
@@ -17,7 +17,7 @@ use crate::convert::{to_python, to_toml};
 use crate::scenario_error;
 
 /// The scenarios cqnet carries, by the names `Scenario.builtin` takes.
-const BUILTIN: [(&str, &str, &str); 4] = [
+const BUILTIN: [(&str, &str, &str); 5] = [
     ("default", "<built-in default>", DEFAULT_SCENARIO),
     (
         "seed001",
@@ -30,6 +30,7 @@ const BUILTIN: [(&str, &str, &str); 4] = [
         RANDOM_EXCHANGE_SCENARIO,
     ),
     ("location", "<built-in location>", LOCATION_SCENARIO),
+    ("compressive", "<built-in compressive>", COMPRESSIVE_SCENARIO),
 ];
 
 /// Other names of the built-in scenarios: the file each comes from.
@@ -110,8 +111,9 @@ impl PyScenario {
 
     /// A scenario cqnet carries: "default", "seed001" (the sensor-selection
     /// paper's, also "sensor-selection"), "seed004" (the random-exchange
-    /// paper's RSS network, also "random-exchange") or "location" (a static
-    /// target located from quantized amplitudes).
+    /// paper's RSS network, also "random-exchange"), "location" (a static
+    /// target located from quantized amplitudes) or "compressive" (a fusion
+    /// centre hearing its sensors through a multiple-access channel).
     #[staticmethod]
     fn builtin(name: &str) -> PyResult<Self> {
         let wanted = builtin_alias(name);

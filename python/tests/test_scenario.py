@@ -6,7 +6,7 @@ import cqnet
 
 
 def test_builtins_load_and_round_trip_through_toml():
-    for name in ["default", "seed001", "sensor-selection", "seed004", "random-exchange", "location"]:
+    for name in ["default", "seed001", "sensor-selection", "seed004", "random-exchange", "location", "compressive"]:
         s = cqnet.Scenario.builtin(name)
         assert cqnet.Scenario.from_toml(s.to_toml()) == s
     assert cqnet.Scenario.default().get("quantizer.bits") == 8
