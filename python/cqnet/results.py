@@ -31,7 +31,9 @@ class Results:
       centralized reference): truth, estimate, ``error``, ``bound`` (the
       CQ/dPCRLB position bound, metres), ``local_bound``, ``aux_bound``,
       consensus ``rounds``, ``live_neighbours``, ``observations``,
-      ``deadline_missed``, ``spread`` and the ``active`` sensors.
+      ``deadline_missed``, ``spread``, the ``active`` sensors and, for a
+      fusion centre behind a multiple-access channel, the ``design``: each
+      sensor's transmission probability, ``;``-separated.
     - ``links``: per directed link (``from``, ``to``) and message ``kind``,
       messages and bytes sent, received, dropped, malformed and duplicated.
     - ``summary``: ``summary.json`` as a dict, with its ``estimates``

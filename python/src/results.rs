@@ -24,7 +24,7 @@ enum Kind {
 
 fn kind_of(column: &str) -> Option<Kind> {
     Some(match column {
-        "node" | "active" | "from" | "to" | "kind" => Kind::Text,
+        "node" | "active" | "design" | "from" | "to" | "kind" => Kind::Text,
         "step" | "rounds" | "live_neighbours" | "observations" | "deadline_missed" => Kind::Count,
         c if c.ends_with("_messages") || c.ends_with("_bytes") => Kind::Count,
         "true_x" | "true_y" | "est_x" | "est_y" | "error" | "bound" | "local_bound"
