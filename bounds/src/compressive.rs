@@ -223,7 +223,12 @@ impl MacLikelihood {
         let mut quadratic = 0.0;
         for i in 0..m {
             let row = &self.chol[i * m..i * m + i];
-            let w = (residual[i] - row.iter().zip(&residual[..i]).map(|(l, w)| l * w).sum::<f64>())
+            let w = (residual[i]
+                - row
+                    .iter()
+                    .zip(&residual[..i])
+                    .map(|(l, w)| l * w)
+                    .sum::<f64>())
                 / self.chol[i * m + i];
             residual[i] = w;
             quadratic += w * w;
@@ -555,7 +560,10 @@ mod tests {
             let direct = -0.5 * (resid.transpose() * inv * &resid)[(0, 0)]
                 - 0.5 * (cov.determinant() * (2.0 * std::f64::consts::PI).powi(m as i32)).ln();
             let got = like.ln_likelihood(&z, |j| a[j]);
-            assert!((got - direct).abs() < 1e-10, "{slots} slots: {got} vs {direct}");
+            assert!(
+                (got - direct).abs() < 1e-10,
+                "{slots} slots: {got} vs {direct}"
+            );
         }
     }
 
@@ -578,10 +586,17 @@ mod tests {
             let got = like.information(&x, &[1.0], |j, _| grads[j]);
             let phi_d = nalgebra::DMatrix::from_fn(slots, 3, |i, j| f64::from(phi.get(i, j)));
             let h = nalgebra::DMatrix::from_fn(3, 2, |j, c| grads[j][c]);
-            let cov = &phi_d * phi_d.transpose() * r + nalgebra::DMatrix::identity(slots, slots) * eps;
+            let cov =
+                &phi_d * phi_d.transpose() * r + nalgebra::DMatrix::identity(slots, slots) * eps;
             let dense = (&phi_d * &h).transpose() * cov.try_inverse().unwrap() * (&phi_d * &h);
-            for (g, d) in got.iter().zip([dense[(0, 0)], dense[(0, 1)], dense[(1, 1)]]) {
-                assert!((g - d).abs() < 1e-10, "{slots} slots: {got:?} against {dense}");
+            for (g, d) in got
+                .iter()
+                .zip([dense[(0, 0)], dense[(0, 1)], dense[(1, 1)]])
+            {
+                assert!(
+                    (g - d).abs() < 1e-10,
+                    "{slots} slots: {got:?} against {dense}"
+                );
             }
         }
         let parallel = MacLikelihood::new(SensingMatrix::identity(3), r, eps).unwrap();
@@ -599,10 +614,15 @@ mod tests {
         let g = State::new(1.0, 0.0, 0.0, 0.0);
         let (r, eps, m) = (1.0, 0.1, 6);
         let phi = SensingMatrix::draw(&[1.0], m, &mut ChaCha8Rng::seed_from_u64(1));
-        let exact = MacLikelihood::new(phi, r, eps)
-            .unwrap()
-            .information(&[State::zeros()], &[1.0], |_, _| g)[0];
-        assert!((exact - 1.0 / (r + eps / m as f64)).abs() < 1e-12, "{exact}");
+        let exact = MacLikelihood::new(phi, r, eps).unwrap().information(
+            &[State::zeros()],
+            &[1.0],
+            |_, _| g,
+        )[0];
+        assert!(
+            (exact - 1.0 / (r + eps / m as f64)).abs() < 1e-12,
+            "{exact}"
+        );
         let promised = gamma_weights(&[1.0], m, r, eps)[0];
         assert!((promised - m as f64 / (r + eps)).abs() < 1e-12);
         assert!(promised > 5.0 * exact);
@@ -686,12 +706,21 @@ mod tests {
                     }
                 }
             }
-            assert!(got >= best - 1e-9, "M = {slots}: {got} < grid {best} at {p:?}");
-            assert!(got - best < 1e-2, "M = {slots}: {got} far above grid {best}");
+            assert!(
+                got >= best - 1e-9,
+                "M = {slots}: {got} < grid {best} at {p:?}"
+            );
+            assert!(
+                got - best < 1e-2,
+                "M = {slots}: {got} far above grid {best}"
+            );
             let offset = problem.log_det(&p).unwrap() - got;
             let other = problem.log_det(&[0.2, 0.1, 0.05]).unwrap()
                 - problem.objective(&[0.2, 0.1, 0.05]).unwrap();
-            assert!((offset - other).abs() < 1e-9, "objective is log det J up to a constant");
+            assert!(
+                (offset - other).abs() < 1e-9,
+                "objective is log det J up to a constant"
+            );
         }
     }
 
@@ -726,15 +755,15 @@ mod tests {
         );
         let q = Mat4::from_diagonal(&State::new(0.1, 0.1, 0.2, 0.2));
         let p0 = Mat4::from_diagonal(&State::new(4.0, 4.0, 1.0, 1.0));
-        let prior = predicted_information(
-            &p0.try_inverse().unwrap(),
-            &f,
-            &q.try_inverse().unwrap(),
-        )
-        .unwrap();
+        let prior =
+            predicted_information(&p0.try_inverse().unwrap(), &f, &q.try_inverse().unwrap())
+                .unwrap();
         let kalman_prior = (f * p0 * f.transpose() + q).try_inverse().unwrap();
         assert!((prior - kalman_prior).abs().max() < 1e-9);
-        let h = [State::new(1.0, 0.5, 0.0, 0.0), State::new(-0.3, 2.0, 0.0, 0.0)];
+        let h = [
+            State::new(1.0, 0.5, 0.0, 0.0),
+            State::new(-0.3, 2.0, 0.0, 0.0),
+        ];
         let blocks: Vec<PositionBlock> = h
             .iter()
             .map(|g| expected_outer_product(&[State::zeros()], &[1.0], |_| *g))

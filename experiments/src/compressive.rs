@@ -93,7 +93,8 @@ fn whole_run_rmse(arm: &ArmOutcome) -> Vec<Option<f64>> {
         .iter()
         .map(|steps| {
             let squares: Vec<f64> = steps.iter().filter_map(|m| m.rmse.map(|r| r * r)).collect();
-            (!squares.is_empty()).then(|| (squares.iter().sum::<f64>() / squares.len() as f64).sqrt())
+            (!squares.is_empty())
+                .then(|| (squares.iter().sum::<f64>() / squares.len() as f64).sqrt())
         })
         .collect()
 }
@@ -128,7 +129,11 @@ fn check_chapter_4(o: &Outcome) -> Check {
         .collect();
     let zeros = vec![Some(0.0); closer.len()];
     let mut claims = vec![
-        lower("M = 6 tracks better than random selection of E = 6 sensors", &m6, &random),
+        lower(
+            "M = 6 tracks better than random selection of E = 6 sensors",
+            &m6,
+            &random,
+        ),
         lower(
             "M = 6 is closer to all-send than to random selection",
             &closer,
@@ -221,7 +226,9 @@ fn design_claims(designs: &[DesignRecord]) -> Vec<Claim> {
         ),
     ];
     if at_4.is_empty() {
-        claims.iter_mut().for_each(|c| c.verdict = Verdict::DoesNotHold);
+        claims
+            .iter_mut()
+            .for_each(|c| c.verdict = Verdict::DoesNotHold);
     }
     claims
 }

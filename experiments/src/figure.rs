@@ -210,12 +210,19 @@ pub fn design(
         let (x_range, y_range) = (span(&xs), span(&ys));
         for (area, step) in root.split_evenly((1, steps.len().max(1))).iter().zip(steps) {
             let mut chart = ChartBuilder::on(area)
-                .caption(format!("{name}: probabilities at step {step}, run 0"), ("sans-serif", 16))
+                .caption(
+                    format!("{name}: probabilities at step {step}, run 0"),
+                    ("sans-serif", 16),
+                )
                 .margin(12)
                 .x_label_area_size(30)
                 .y_label_area_size(36)
                 .build_cartesian_2d(x_range.clone(), y_range.clone())?;
-            chart.configure_mesh().x_desc("x, m").y_desc("y, m").draw()?;
+            chart
+                .configure_mesh()
+                .x_desc("x, m")
+                .y_desc("y, m")
+                .draw()?;
             let Some(d) = first.iter().find(|d| d.step == *step) else {
                 continue;
             };
@@ -228,7 +235,11 @@ pub fn design(
                     .zip(&d.probabilities)
                     .filter(|(_, p)| **p >= 0.01)
                     .map(|(s, p)| {
-                        Text::new(format!("{p:.3}"), (s[0] + 0.8, s[1] + 0.8), ("sans-serif", 13))
+                        Text::new(
+                            format!("{p:.3}"),
+                            (s[0] + 0.8, s[1] + 0.8),
+                            ("sans-serif", 13),
+                        )
                     }),
             )?;
             chart.draw_series(std::iter::once(Cross::new(

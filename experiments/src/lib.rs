@@ -597,12 +597,15 @@ pub fn run(
                 / mc.per_run.len().max(1) as f64
         };
         let kind_per_step = |kind: &str| kinds_per_step(&[kind], &|t| t.bytes_per_step);
-        const ACTIVATIONS: [&str; 3] = [
+        const ACTIVATIONS: [&str; 4] = [
             "activate",
             "activate_feedback",
             "activate_feedback_covariance",
+            "activate_slots",
         ];
-        const OBSERVATIONS: [&str; 2] = ["observation", "raw_observation"];
+        // A sensor's transmissions on a multiple-access channel are its
+        // observations there.
+        const OBSERVATIONS: [&str; 3] = ["observation", "raw_observation", "slot_values"];
         arms.push(ArmOutcome {
             label: arm.label.to_string(),
             steps: mc.series.means(),

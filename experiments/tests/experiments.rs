@@ -60,10 +60,17 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
             // Both runs' probabilities at each of the figure's steps, a row
             // per sensor, and the first run's drawn.
             let dir = out.join(e.name);
-            let design = std::fs::read_to_string(dir.join(format!("{}-design.csv", e.name))).unwrap();
+            let design =
+                std::fs::read_to_string(dir.join(format!("{}-design.csv", e.name))).unwrap();
             let rows: Vec<&str> = design.lines().skip(1).collect();
             assert!(!rows.is_empty(), "{}: no design rows", e.name);
-            assert_eq!(rows.len() % (2 * steps.len()), 0, "{}: {} rows", e.name, rows.len());
+            assert_eq!(
+                rows.len() % (2 * steps.len()),
+                0,
+                "{}: {} rows",
+                e.name,
+                rows.len()
+            );
             for row in &rows {
                 let p: f64 = row.rsplit(',').next().unwrap().parse().unwrap();
                 assert!((0.0..=1.0).contains(&p), "{}: {row}", e.name);

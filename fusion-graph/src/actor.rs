@@ -58,8 +58,9 @@ impl FromStr for ActorId {
             return Ok(ActorId::Launcher);
         }
         let parse = |rest: &str| {
-            rest.parse::<u16>()
-                .map_err(|_| format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>, mac-<i>)"))
+            rest.parse::<u16>().map_err(|_| {
+                format!("`{s}` is not an actor name (launcher, node-<i>, sensor-<i>, mac-<i>)")
+            })
         };
         if let Some(rest) = s.strip_prefix("node-") {
             Ok(ActorId::Node(parse(rest)?))

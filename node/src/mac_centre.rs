@@ -110,10 +110,15 @@ impl MacCentre {
             node: index,
             source,
         };
-        let filter = ParticleFilter::from_gaussian(scenario.filter.particles as usize, &prior, &mut rng)
-            .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite("the prior covariance")))?;
+        let filter =
+            ParticleFilter::from_gaussian(scenario.filter.particles as usize, &prior, &mut rng)
+                .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite(
+                    "the prior covariance",
+                )))?;
         let information = Cholesky::new(prior.cov)
-            .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite("the prior covariance")))?
+            .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite(
+                "the prior covariance",
+            )))?
             .inverse();
         // Twice the channel's own wait: the centre hears the channel only
         // after the channel stops hearing its sensors.
@@ -146,14 +151,14 @@ impl MacCentre {
 
     /// Its control and its channel's deliveries.
     pub fn subscriptions(&self) -> Vec<Channel> {
-        vec![
-            Channel::Control(self.id()),
-            Channel::MacOutput(self.index),
-        ]
+        vec![Channel::Control(self.id()), Channel::MacOutput(self.index)]
     }
 
     pub fn publications(&self) -> Vec<Channel> {
-        vec![Channel::Activation(self.index), Channel::Telemetry(self.index)]
+        vec![
+            Channel::Activation(self.index),
+            Channel::Telemetry(self.index),
+        ]
     }
 
     /// Its sensors and its channel (the schedule wakes them), and the
@@ -187,7 +192,10 @@ impl MacCentre {
         }
     }
 
-    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+    /// The launcher's `BeginStep` and the channel's delivery; a delivery
+    /// for another step, or with another count of slots than the step's,
+    /// is counted late and dropped.
+    pub fn handle(&mut self, message: &Message, _now: Duration, out: &mut Vec<Outgoing>) {
         let step = message.header.step;
         match (&message.payload, message.header.sender) {
             (Payload::Control(Control::BeginStep), ActorId::Launcher) => self.begin_step(step, out),
@@ -199,7 +207,11 @@ impl MacCentre {
                     .and_then(|s| s.design.as_ref())
                     .map(|d| d.likelihood.sensing_matrix().slots());
                 match self.stepping.as_mut() {
-                    Some(s) if s.step == step && s.received.is_none() && slots == Some(values.len()) => {
+                    Some(s)
+                        if s.step == step
+                            && s.received.is_none()
+                            && slots == Some(values.len()) =>
+                    {
                         s.received = Some(values.clone())
                     }
                     _ => self.late_messages += 1,
@@ -209,14 +221,14 @@ impl MacCentre {
                 tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a fusion centre")
             }
         }
-        let _ = now;
     }
 
     /// A delivery that did not come by the deadline: a lost step.
     pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        let lost = self.stepping.as_ref().is_some_and(|s| {
-            s.received.is_none() && s.deadline.is_some_and(|d| now >= d)
-        });
+        let lost = self
+            .stepping
+            .as_ref()
+            .is_some_and(|s| s.received.is_none() && s.deadline.is_some_and(|d| now >= d));
         if lost {
             self.report(out);
         }
@@ -230,7 +242,13 @@ impl MacCentre {
         }
     }
 
-    pub fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
+    pub fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
@@ -239,7 +257,11 @@ impl MacCentre {
                 s.select_time = elapsed;
                 s.deadline = Some(now + self.listen);
                 let step = s.step;
-                if let Some(schedule) = s.design.as_ref().map(|d| schedule(self.index, &self.own, step, d)) {
+                if let Some(schedule) = s
+                    .design
+                    .as_ref()
+                    .map(|d| schedule(self.index, &self.own, step, d))
+                {
                     out.push(schedule);
                 }
             }
@@ -294,7 +316,12 @@ impl MacCentre {
             .unwrap_or(self.information);
         let n = self.own.len();
         let epsilon = self.mac.receiver_noise;
-        let mut rng = stream_rng(self.seed, ActorId::Node(self.index), s.step, Stream::SensingMatrix);
+        let mut rng = stream_rng(
+            self.seed,
+            ActorId::Node(self.index),
+            s.step,
+            Stream::SensingMatrix,
+        );
         let parallel = 1.0 / (self.r + epsilon);
         let (phi, probabilities, gains) = match self.mac.design {
             MacDesign::Compressive => {
@@ -336,7 +363,6 @@ impl MacCentre {
             promised,
         });
     }
-
 }
 
 /// The schedule of node `index`'s step: each transmitting sensor's column,

@@ -30,7 +30,11 @@ const BUILTIN: [(&str, &str, &str); 5] = [
         RANDOM_EXCHANGE_SCENARIO,
     ),
     ("location", "<built-in location>", LOCATION_SCENARIO),
-    ("compressive", "<built-in compressive>", COMPRESSIVE_SCENARIO),
+    (
+        "compressive",
+        "<built-in compressive>",
+        COMPRESSIVE_SCENARIO,
+    ),
 ];
 
 /// Other names of the built-in scenarios: the file each comes from.

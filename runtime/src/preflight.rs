@@ -29,7 +29,7 @@ const FDS_BASE: u64 = 256;
 
 /// The descriptors the launcher will hold at once.
 pub fn descriptors_needed(topology: &Topology, centralized: bool) -> u64 {
-    let children = (topology.nodes() + topology.sensors()) as u64;
+    let children = topology.actors().count() as u64;
     let observed = if centralized {
         topology.sensors() as u64
     } else {
@@ -42,7 +42,7 @@ pub fn descriptors_needed(topology: &Topology, centralized: bool) -> u64 {
 /// particle filters (two per node, one more in the launcher for the
 /// centralized reference).
 pub fn estimated_memory(scenario: &Scenario, topology: &Topology, centralized: bool) -> u64 {
-    let processes = (topology.nodes() + topology.sensors() + 1) as u64;
+    let processes = (topology.actors().count() + 1) as u64;
     let filters = 2 * topology.nodes() as u64 + u64::from(centralized);
     processes * BYTES_PER_PROCESS + filters * scenario.filter.particles as u64 * BYTES_PER_PARTICLE
 }
@@ -52,7 +52,7 @@ pub fn estimated_memory(scenario: &Scenario, topology: &Topology, centralized: b
 /// descriptors exceed this user's limits (the descriptor limit is raised
 /// first, as far as the process may: see `raise_descriptor_limit`).
 pub fn check(scenario: &Scenario, topology: &Topology, centralized: bool) -> anyhow::Result<()> {
-    let children = (topology.nodes() + topology.sensors()) as u64;
+    let children = topology.actors().count() as u64;
     let needed = estimated_memory(scenario, topology, centralized);
     if let Some(available) = available_memory() {
         if needed > available {

@@ -261,7 +261,13 @@ impl SensorActor {
         };
         let values = (0..32)
             .filter(|i| slots & (1 << i) != 0)
-            .map(|i| if negative & (1 << i) != 0 { -value } else { value })
+            .map(|i| {
+                if negative & (1 << i) != 0 {
+                    -value
+                } else {
+                    value
+                }
+            })
             .collect();
         Some(Message::new(
             self.id(),

@@ -64,7 +64,10 @@ fn assert_predicted_bytes(r: &Run, slots: u64) {
     let values = r.counters(MessageKind::SlotValues);
     assert_eq!(values.sent_messages, transmitters);
     assert_eq!(values.received_messages, transmitters);
-    let energy = r.summary().energy.expect("a channel's run reports its energy");
+    let energy = r
+        .summary()
+        .energy
+        .expect("a channel's run reports its energy");
     assert_eq!(
         values.sent_bytes,
         transmitters * (HEADER + 4) + 8 * energy.transmissions,
@@ -92,10 +95,13 @@ fn as_processes_the_compressive_design_is_sims_and_spends_the_predicted_bytes_an
     // The energy against the design's budget: each transmitter's slots are
     // Binomial(M, p_j), so their sum over the run is M Σ p within five of
     // its standard deviations (p as reported, to 10⁻⁴).
-    let (mean, var) = r.ticks().iter().flat_map(|t| t.design.iter()).fold(
-        (0.0, 0.0),
-        |(m, v), p| (m + 6.0 * p, v + 6.0 * p * (1.0 - p)),
-    );
+    let (mean, var) = r
+        .ticks()
+        .iter()
+        .flat_map(|t| t.design.iter())
+        .fold((0.0, 0.0), |(m, v), p| {
+            (m + 6.0 * p, v + 6.0 * p * (1.0 - p))
+        });
     let energy = r.summary().energy.unwrap().transmissions as f64;
     assert!(
         (energy - mean).abs() <= 5.0 * var.sqrt() + 0.01 * f64::from(STEPS),
@@ -109,20 +115,33 @@ fn as_processes_the_compressive_design_is_sims_and_spends_the_predicted_bytes_an
 }
 
 #[test]
-fn as_processes_random_sensors_spend_exactly_e_transmissions_a_step() {
+fn as_processes_random_and_all_sensors_spend_exactly_their_transmissions() {
     let _guard = exclusive();
-    let r = network("cs-random", scenario(""))
-        .set("channel.design", "\"random\"")
-        .run()
-        .unwrap();
-    r.assert_success();
-    assert_predicted_bytes(&r, 6);
-    for t in r.ticks() {
-        assert_eq!(t.active.len(), 6, "step {}: {:?}", t.step, t.active);
+    // (design, slots, transmitters a step): each sensor alone in a slot.
+    for (design, slots, each_step) in [("random", 6, 6), ("all", 25, 25)] {
+        let r = network(&format!("cs-{design}"), scenario(""))
+            .set("channel.design", format!("\"{design}\""))
+            .run()
+            .unwrap();
+        r.assert_success();
+        assert_predicted_bytes(&r, slots);
+        for t in r.ticks() {
+            assert_eq!(
+                t.active.len(),
+                each_step,
+                "{design}, step {}: {:?}",
+                t.step,
+                t.active
+            );
+        }
+        let energy = r.summary().energy.unwrap();
+        assert_eq!(
+            energy.transmissions,
+            each_step as u64 * u64::from(STEPS),
+            "{design}"
+        );
+        r.assert_clean();
     }
-    let energy = r.summary().energy.unwrap();
-    assert_eq!(energy.transmissions, 6 * u64::from(STEPS));
-    r.assert_clean();
 }
 
 /// The sensor the centre schedules at step 5 (read from a run without the
@@ -159,7 +178,11 @@ fn a_sensor_that_misses_its_slot_is_absent_from_the_sum_and_the_centre_goes_on()
     }
     assert_eq!(at_5(&r), chosen, "scheduled at step 5 as without the fault");
     for t in r.ticks() {
-        assert_eq!(t.observations, 6, "step {}: the centre hears every slot", t.step);
+        assert_eq!(
+            t.observations, 6,
+            "step {}: the centre hears every slot",
+            t.step
+        );
     }
     assert_eq!(
         r.counters(MessageKind::MacOutput).sent_messages,
@@ -171,9 +194,13 @@ fn a_sensor_that_misses_its_slot_is_absent_from_the_sum_and_the_centre_goes_on()
             .iter()
             .filter(|t| t.step < 5 && t.active.contains(&s))
             .count() as u64;
-        let sent = |run: &Run| run.messages(ActorId::Sensor(s), ActorId::Mac(0), MessageKind::SlotValues);
+        let sent =
+            |run: &Run| run.messages(ActorId::Sensor(s), ActorId::Mac(0), MessageKind::SlotValues);
         assert_eq!(sent(&r), before, "sensor-{s} is silent from step 5");
-        assert!(sent(&clean) > before, "without the fault sensor-{s} transmits at step 5");
+        assert!(
+            sent(&clean) > before,
+            "without the fault sensor-{s} transmits at step 5"
+        );
     }
 }
 
@@ -191,11 +218,22 @@ fn a_lost_delivery_is_a_lost_step() {
     assert_eq!(r.ticks().len(), STEPS as usize);
     for t in r.ticks() {
         let lost = (4..=6).contains(&t.step);
-        assert_eq!(t.observations == 0, lost, "step {}: {}", t.step, t.observations);
+        assert_eq!(
+            t.observations == 0,
+            lost,
+            "step {}: {}",
+            t.step,
+            t.observations
+        );
     }
     let bound = |step: u32| r.mean_bound("node-0", step..=step).unwrap();
     assert!(bound(4) > bound(3), "{} then {}", bound(3), bound(4));
     assert!(bound(6) > bound(5), "{} then {}", bound(5), bound(6));
-    assert!(bound(7) < bound(6), "heard again: {} then {}", bound(6), bound(7));
+    assert!(
+        bound(7) < bound(6),
+        "heard again: {} then {}",
+        bound(6),
+        bound(7)
+    );
     assert_eq!(r.dropped(MessageKind::MacOutput), 3);
 }

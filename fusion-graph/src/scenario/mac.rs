@@ -101,7 +101,9 @@ impl Scenario {
         if nodes != 1 {
             return Err(check.fail(
                 "nodes",
-                format!("one fusion centre {with} (several centres with a channel each are not built)"),
+                format!(
+                    "one fusion centre {with} (several centres with a channel each are not built)"
+                ),
                 format!("{nodes} nodes"),
             ));
         }
@@ -119,7 +121,10 @@ impl Scenario {
             return Err(check.fail(
                 "observation.kind",
                 format!("\"amplitude\" or \"rss\" {with}: a sum of bearings means nothing"),
-                format!("{:?}", self.observation).split_whitespace().next().unwrap_or(""),
+                format!("{:?}", self.observation)
+                    .split_whitespace()
+                    .next()
+                    .unwrap_or(""),
             ));
         }
         if self.consensus.protocol != super::ConsensusProtocol::AVERAGE {
@@ -138,7 +143,11 @@ impl Scenario {
             return Err(check.fail("reference.centralized", theirs, "true"));
         }
         if self.censoring.policy != CensoringPolicy::Off {
-            return Err(check.fail("censoring.policy", theirs, format!("{:?}", self.censoring.policy)));
+            return Err(check.fail(
+                "censoring.policy",
+                theirs,
+                format!("{:?}", self.censoring.policy),
+            ));
         }
         Ok(())
     }

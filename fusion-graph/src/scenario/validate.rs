@@ -27,7 +27,11 @@ impl Scenario {
     /// key if the scenario asks for one: a sensor manager other than
     /// random, a network-wide cap on active sensors, censoring, the
     /// auxiliary FIM and the innovation gate.
-    pub(super) fn refuse_cf_dpf_parts(&self, file: &str, expected: &str) -> Result<(), ScenarioError> {
+    pub(super) fn refuse_cf_dpf_parts(
+        &self,
+        file: &str,
+        expected: &str,
+    ) -> Result<(), ScenarioError> {
         let refuse = |key: &str, got: String| {
             Err(ScenarioError::Invalid {
                 file: file.into(),

@@ -85,7 +85,9 @@ pub(crate) fn max_message_len(channel: Channel, topology: &Topology) -> usize {
             Channel::Tick => 48,
             // A sensor's transmissions on a multiple-access channel: its
             // slots, a value each.
-            Channel::Observation(_) if topology.macs => 4 + 8 * crate::scenario::MAX_MAC_SLOTS as usize,
+            Channel::Observation(_) if topology.macs => {
+                4 + 8 * crate::scenario::MAX_MAC_SLOTS as usize
+            }
             Channel::Observation(_) => 48,
             // The mask, and either the censoring feedback (an estimate and
             // its packed covariance) or a quantizer's thresholds.
@@ -227,7 +229,7 @@ impl Footprint {
     /// pairs, `centralized` when the launcher reads every observation, and
     /// `table_bytes` of table rows the nodes share.
     pub fn of(topology: &Topology, pairs: bool, centralized: bool, table_bytes: u64) -> Self {
-        let children = (topology.nodes() + topology.sensors()) as u64;
+        let children = topology.actors().count() as u64;
         let processes = children + 1;
         let channels = channels(topology, pairs);
         let mut segments = 0u64;

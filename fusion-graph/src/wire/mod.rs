@@ -827,10 +827,16 @@ impl Message {
             MessageKind::ActivateSlots => activate_slots(body)?,
             MessageKind::SlotValues => {
                 let slots = u32::from_le_bytes(
-                    body.get(..4).ok_or(WireError::Truncated)?.try_into().expect("4 bytes"),
+                    body.get(..4)
+                        .ok_or(WireError::Truncated)?
+                        .try_into()
+                        .expect("4 bytes"),
                 );
                 if slots == 0 {
-                    return Err(WireError::Length { expected: 1, got: 0 });
+                    return Err(WireError::Length {
+                        expected: 1,
+                        got: 0,
+                    });
                 }
                 exact_len(body, 4 + 8 * slots.count_ones() as usize)?;
                 Payload::SlotValues {

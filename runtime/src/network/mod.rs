@@ -325,7 +325,7 @@ fn world_thread(
             steps_done,
             wall_seconds: started.elapsed().as_secs_f64(),
             steps_per_second: steps_done as f64 / wall_steps,
-            processes: topology.nodes() + topology.sensors() + 1,
+            processes: topology.actors().count() + 1,
             startup_seconds: Some(startup_seconds),
             children_memory_kb: children_memory(&options.out, topology),
             real_time_rounds: true,
