@@ -107,6 +107,29 @@ impl Scenario {
                 format!("{nodes} nodes"),
             ));
         }
+        let sensors = match (&self.sensors.per_cell, &self.sensors.positions) {
+            (Some(g), _) => g[0] as usize * g[1] as usize,
+            (_, Some(p)) => p.len(),
+            _ => 0,
+        };
+        // The schedule carries a column for each transmitter in one
+        // message; with every sensor sending, each needs a slot.
+        let most = (crate::wire::MAX_MESSAGE_BYTES - crate::wire::HEADER_BYTES - 3)
+            / crate::wire::SLOT_COLUMN_BYTES;
+        if sensors > most {
+            return Err(check.fail(
+                "sensors",
+                format!("at most {most} sensors {with} (one schedule message holds their columns)"),
+                format!("{sensors} sensors"),
+            ));
+        }
+        if mac.design == MacDesign::All && sensors > MAX_SLOTS as usize {
+            return Err(check.fail(
+                "channel.design",
+                format!("\"all\" with at most {MAX_SLOTS} sensors (one slot each)"),
+                format!("\"all\" with {sensors} sensors"),
+            ));
+        }
         if !self.quantizer.raw {
             return Err(check.fail(
                 "quantizer.raw",
@@ -150,5 +173,51 @@ impl Scenario {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::scenario::{Scenario, COMPRESSIVE_SCENARIO};
+    use crate::ScenarioError;
+
+    fn refused_key(overrides: &[&str]) -> String {
+        let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+        match Scenario::from_toml(COMPRESSIVE_SCENARIO, "c", &overrides) {
+            Err(ScenarioError::Invalid { key, .. }) => key,
+            other => panic!("{overrides:?}: {other:?}"),
+        }
+    }
+
+    /// Each value out of range, and each part a fusion centre does not
+    /// have, is refused by its key.
+    #[test]
+    fn a_bad_channel_is_refused_by_its_key() {
+        assert!(Scenario::from_toml(COMPRESSIVE_SCENARIO, "c", &[]).is_ok());
+        for (overrides, key) in [
+            (&["channel.slots=0"][..], "channel.slots"),
+            (&["channel.slots=33"], "channel.slots"),
+            (&["channel.energy=0"], "channel.energy"),
+            (
+                &["channel.design=\"random\"", "channel.energy=40"],
+                "channel.energy",
+            ),
+            (&["channel.receiver_noise=0"], "channel.receiver_noise"),
+            (&["channel.slot_timeout_ms=-1"], "channel.slot_timeout_ms"),
+            (&["nodes.grid=[2,1]"], "nodes"),
+            (&["quantizer.raw=false"], "quantizer.raw"),
+            (
+                &["consensus.protocol=\"kl_consensus\""],
+                "consensus.protocol",
+            ),
+            (&["reference.centralized=true"], "reference.centralized"),
+            (
+                &["sensors.per_cell=[6,6]", "channel.design=\"all\""],
+                "channel.design",
+            ),
+            (&["sensors.per_cell=[11,10]"], "sensors"),
+        ] {
+            assert_eq!(refused_key(overrides), key, "{overrides:?}");
+        }
     }
 }

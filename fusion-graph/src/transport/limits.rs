@@ -91,6 +91,10 @@ pub(crate) fn max_message_len(channel: Channel, topology: &Topology) -> usize {
             Channel::Observation(_) => 48,
             // The mask, and either the censoring feedback (an estimate and
             // its packed covariance) or a quantizer's thresholds.
+            // A channel's schedule: a column for each sensor that transmits.
+            Channel::Activation(_) if topology.macs => {
+                3 + crate::wire::SLOT_COLUMN_BYTES * topology.most_sensors_per_node()
+            }
             Channel::Activation(_) => 48 + (32 + 80).max(1 + 8 * crate::wire::MAX_THRESHOLDS),
             Channel::Consensus(_) => 300.max(protocols),
             // A posterior swapped in a random exchange: mean and covariance.
