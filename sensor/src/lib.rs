@@ -471,6 +471,51 @@ mod tests {
         );
     }
 
+    /// Behind a channel a sensor transmits its raw measurement in each of
+    /// its slots, negated where its column says, to the channel; a sensor
+    /// whose column is not in the schedule stays silent.
+    #[test]
+    fn a_sensor_transmits_its_measurement_signed_in_each_of_its_slots() {
+        let s =
+            Scenario::from_toml(fusion_graph::scenario::COMPRESSIVE_SCENARIO, "c", &[]).unwrap();
+        let t = Topology::from_scenario(&s, "c").unwrap();
+        let truth = State::new(7.0, 9.0, 2.0, 2.0);
+        let schedule = |sensor: u16| {
+            Message::new(
+                ActorId::Node(0),
+                3,
+                0,
+                Payload::ActivateSlots {
+                    slots: 4,
+                    columns: vec![fusion_graph::wire::SlotColumn {
+                        sensor,
+                        slots: 0b1011,
+                        negative: 0b0010,
+                    }],
+                },
+            )
+        };
+        let mut a = SensorActor::new(&s, &t, 6).unwrap();
+        assert_eq!(a.reports_to(), ActorId::Mac(0));
+        a.handle(&tick(3, truth));
+        let Some(Message {
+            payload: Payload::SlotValues { slots, values },
+            ..
+        }) = a.handle(&schedule(6))
+        else {
+            panic!("no transmission")
+        };
+        let z = a.measure_raw(3, &truth, 0.0);
+        assert_eq!(slots, 0b1011);
+        assert_eq!(values, vec![z, -z, z]);
+        let mut other = SensorActor::new(&s, &t, 7).unwrap();
+        other.handle(&tick(3, truth));
+        assert!(
+            other.handle(&schedule(6)).is_none(),
+            "not scheduled: silent"
+        );
+    }
+
     #[test]
     fn measures_once_per_step_when_both_inputs_arrived_in_either_order() {
         let truth = State::new(1000.0, 900.0, -6.0, -7.0);

@@ -186,3 +186,114 @@ impl MacActor {
         ))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_graph::scenario::COMPRESSIVE_SCENARIO;
+    use fusion_graph::wire::SlotColumn;
+
+    fn field() -> (Scenario, Topology) {
+        let s = Scenario::from_toml(COMPRESSIVE_SCENARIO, "c", &[]).unwrap();
+        let t = Topology::from_scenario(&s, "c").unwrap();
+        (s, t)
+    }
+
+    fn schedule(step: u32, columns: Vec<SlotColumn>) -> Message {
+        Message::new(
+            ActorId::Node(0),
+            step,
+            0,
+            Payload::ActivateSlots { slots: 3, columns },
+        )
+    }
+
+    fn column(sensor: u16, slots: u32, negative: u32) -> SlotColumn {
+        SlotColumn {
+            sensor,
+            slots,
+            negative,
+        }
+    }
+
+    fn sent(sensor: u16, step: u32, slots: u32, values: Vec<f64>) -> Message {
+        Message::new(
+            ActorId::Sensor(sensor),
+            step,
+            0,
+            Payload::SlotValues { slots, values },
+        )
+    }
+
+    /// The noise the channel adds at `step`, slot by slot.
+    fn noise(s: &Scenario, step: u32) -> Vec<f64> {
+        let mut rng = stream_rng(s.seed, ActorId::Mac(0), step, Stream::ReceiverNoise);
+        let std = s.channel.as_ref().unwrap().receiver_noise.sqrt();
+        (0..3)
+            .map(|_| {
+                let e: f64 = StandardNormal.sample(&mut rng);
+                std * e
+            })
+            .collect()
+    }
+
+    /// Each slot's sum of what its sensors sent, plus the step's noise,
+    /// delivered when the last scheduled sensor is heard, whatever the
+    /// order of arrival.
+    #[test]
+    fn the_channel_delivers_each_slots_sum_when_every_sensor_is_heard() {
+        let (s, t) = field();
+        let e = noise(&s, 2);
+        for order in [[0, 1, 2], [1, 2, 0], [2, 0, 1]] {
+            let mut mac = MacActor::new(&s, &t, 0).unwrap().unwrap();
+            let messages = [
+                schedule(2, vec![column(3, 0b011, 0b010), column(7, 0b110, 0)]),
+                sent(3, 2, 0b011, vec![4.0, -4.0]),
+                sent(7, 2, 0b110, vec![1.5, 1.5]),
+            ];
+            let mut delivered = None;
+            for (k, i) in order.iter().enumerate() {
+                let out = mac.handle(&messages[*i], Duration::ZERO);
+                if k < 2 {
+                    assert!(out.is_none(), "order {order:?}: delivered early");
+                }
+                delivered = delivered.or(out);
+            }
+            let m = delivered.expect("delivered once all are heard");
+            assert_eq!(m.header.sender, ActorId::Mac(0));
+            let Payload::MacOutput { values } = m.payload else {
+                panic!("{m:?}")
+            };
+            assert_eq!(values, vec![4.0 + e[0], -4.0 + 1.5 + e[1], 1.5 + e[2]]);
+        }
+    }
+
+    /// A scheduled sensor that is not heard is left out of the sums at
+    /// the slots' end; what arrives after is late.
+    #[test]
+    fn a_silent_sensor_is_absent_from_the_sums_at_the_slots_end() {
+        let (s, t) = field();
+        let e = noise(&s, 5);
+        let mut mac = MacActor::new(&s, &t, 0).unwrap().unwrap();
+        let start = Duration::from_secs(1);
+        assert!(mac
+            .handle(
+                &schedule(5, vec![column(3, 0b001, 0), column(7, 0b001, 0)]),
+                start
+            )
+            .is_none());
+        assert!(mac.handle(&sent(3, 5, 0b001, vec![2.0]), start).is_none());
+        let due = mac.poll_timeout().expect("the slots end");
+        assert!(mac.handle_timeout(due - Duration::from_millis(1)).is_none());
+        let Some(Message {
+            payload: Payload::MacOutput { values },
+            ..
+        }) = mac.handle_timeout(due)
+        else {
+            panic!("nothing delivered at the slots' end")
+        };
+        assert_eq!(values, vec![2.0 + e[0], e[1], e[2]]);
+        assert!(mac.handle(&sent(7, 5, 0b001, vec![9.0]), due).is_none());
+        assert_eq!(mac.late_messages(), 1);
+    }
+}
