@@ -102,7 +102,9 @@ impl MacActor {
     }
 
     /// Takes one message; returns the delivery to the centre when it ends
-    /// the slots.
+    /// the slots. A message of a later step ends the slots of an earlier
+    /// one still open (their timeout not yet handled): that delivery is
+    /// returned, and the later step's slots end at their own time.
     pub fn handle(&mut self, message: &Message, now: Duration) -> Option<Message> {
         let step = message.header.step;
         if self.delivered.is_some_and(|d| step <= d) {
@@ -111,6 +113,21 @@ impl MacActor {
             }
             return None;
         }
+        let overtaken = self
+            .frame
+            .as_ref()
+            .is_some_and(|f| f.step < step && f.schedule.is_some());
+        let earlier = if overtaken { self.deliver() } else { None };
+        if !self.file(message, step, now) {
+            return earlier;
+        }
+        // One delivery per call: slots this message completed after
+        // ending earlier ones end at their own timeout.
+        earlier.or_else(|| self.deliver_if_complete())
+    }
+
+    /// Files a schedule or a transmission; false for anything else.
+    fn file(&mut self, message: &Message, step: u32, now: Duration) -> bool {
         match (&message.payload, message.header.sender) {
             (Payload::ActivateSlots { slots, columns }, ActorId::Node(n)) if n == self.index => {
                 let expected = columns
@@ -127,8 +144,13 @@ impl MacActor {
                     .heard
                     .insert(s, (*slots, values.clone()));
             }
-            _ => return None,
+            _ => return false,
         }
+        true
+    }
+
+    /// The delivery, once every scheduled sensor has been heard.
+    fn deliver_if_complete(&mut self) -> Option<Message> {
         let frame = self.frame.as_ref()?;
         let (_, expected, _) = frame.schedule.as_ref()?;
         if expected.iter().all(|s| frame.heard.contains_key(s)) {
@@ -146,7 +168,8 @@ impl MacActor {
     }
 
     /// The frame of `step`, opening it; a frame of an earlier step still
-    /// open is dropped (its schedule never came, so it has no slots).
+    /// open here has no schedule (one with a schedule was delivered), so
+    /// it has no slots to deliver and is dropped.
     fn frame_for(&mut self, step: u32) -> &mut Frame {
         if self.frame.as_ref().is_none_or(|f| f.step != step) {
             self.frame = Some(Frame {
@@ -266,6 +289,35 @@ mod tests {
             };
             assert_eq!(values, vec![4.0 + e[0], -4.0 + 1.5 + e[1], 1.5 + e[2]]);
         }
+    }
+
+    /// The next step's schedule, arriving before the slots' timeout was
+    /// handled, ends the earlier slots with what they heard; the later
+    /// ones end in their turn.
+    #[test]
+    fn a_later_schedule_ends_the_slots_still_open() {
+        let (s, t) = field();
+        let mut mac = MacActor::new(&s, &t, 0).unwrap().unwrap();
+        let at = Duration::from_secs(1);
+        mac.handle(
+            &schedule(3, vec![column(3, 0b001, 0), column(7, 0b010, 0)]),
+            at,
+        );
+        mac.handle(&sent(3, 3, 0b001, vec![2.0]), at);
+        let ended = mac
+            .handle(&schedule(4, vec![column(7, 0b100, 0)]), at)
+            .expect("step 3's slots end");
+        assert_eq!(ended.header.step, 3);
+        let e = noise(&s, 4);
+        let Some(Message {
+            payload: Payload::MacOutput { values },
+            header,
+        }) = mac.handle(&sent(7, 4, 0b100, vec![1.0]), at)
+        else {
+            panic!("step 4's slots did not end")
+        };
+        assert_eq!(header.step, 4);
+        assert_eq!(values, vec![e[0], e[1], 1.0 + e[2]]);
     }
 
     /// A scheduled sensor that is not heard is left out of the sums at
