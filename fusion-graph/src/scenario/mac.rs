@@ -157,6 +157,13 @@ impl Scenario {
                 format!("\"{}\"", self.consensus.protocol.name()),
             ));
         }
+        if self.dynamics.maneuver_accel != 0.0 {
+            return Err(check.fail(
+                "dynamics.maneuver_accel",
+                format!("0 {with}: the centre's recursion (eq. 4.8) takes a linear, constant-velocity transition"),
+                self.dynamics.maneuver_accel,
+            ));
+        }
         if self.target.motion != Motion::Moving {
             return Err(check.fail("target.motion", format!("\"moving\" {with}"), "\"static\""));
         }
@@ -216,6 +223,7 @@ mod tests {
                 "channel.design",
             ),
             (&["sensors.per_cell=[11,10]"], "sensors"),
+            (&["dynamics.maneuver_accel=0.5"], "dynamics.maneuver_accel"),
         ] {
             assert_eq!(refused_key(overrides), key, "{overrides:?}");
         }
