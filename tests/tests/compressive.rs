@@ -183,6 +183,7 @@ fn a_sensor_that_misses_its_slot_is_absent_from_the_sum_and_the_centre_goes_on()
             "step {}: the centre hears every slot",
             t.step
         );
+        assert!(!t.deadline_missed, "step {}: delivered in time", t.step);
     }
     assert_eq!(
         r.counters(MessageKind::MacOutput).sent_messages,
@@ -226,6 +227,9 @@ fn a_lost_delivery_is_a_lost_step() {
             t.observations
         );
     }
+    // The centre ends a lost step by its own deadline, not the next
+    // step's BeginStep overrunning it.
+    assert!(r.ticks().iter().all(|t| !t.deadline_missed));
     let bound = |step: u32| r.mean_bound("node-0", step..=step).unwrap();
     assert!(bound(4) > bound(3), "{} then {}", bound(3), bound(4));
     assert!(bound(6) > bound(5), "{} then {}", bound(5), bound(6));
