@@ -271,14 +271,8 @@ fn sensor_loop<T: Transport>(
         let now = t.now();
         t.receive(now, &mut inbox)?;
         for m in inbox.drain(..) {
-            match m.payload {
-                Payload::Control(Control::Stop) => return write_memory(t.me(), out),
-                Payload::Tick { .. } if m.header.step != step => {
-                    step = m.header.step;
-                    schedule.apply_link_faults(step, &mut t, topology);
-                    t.update_connections();
-                }
-                _ => {}
+            if follow_the_launcher(&m, &mut step, &schedule, &mut t, topology) {
+                return write_memory(t.me(), out);
             }
             if let Some(obs) = actor.handle(&m) {
                 t.send(actor.publication(), &obs, &receivers)?;
@@ -287,6 +281,28 @@ fn sensor_loop<T: Transport>(
         if launcher_gone() {
             return Ok(());
         }
+    }
+}
+
+/// What a sensor or a channel takes from the launcher's tick channel:
+/// a tick of a new step puts that step's link faults in place; true on
+/// the stop.
+fn follow_the_launcher<T: Transport>(
+    m: &Message,
+    step: &mut u32,
+    schedule: &FaultSchedule,
+    t: &mut T,
+    topology: &Topology,
+) -> bool {
+    match m.payload {
+        Payload::Control(Control::Stop) => true,
+        Payload::Tick { .. } if m.header.step != *step => {
+            *step = m.header.step;
+            schedule.apply_link_faults(*step, t, topology);
+            t.update_connections();
+            false
+        }
+        _ => false,
     }
 }
 
@@ -321,14 +337,8 @@ fn mac_loop<T: Transport>(
         let now = t.now();
         t.receive(now, &mut inbox)?;
         for m in inbox.drain(..) {
-            match m.payload {
-                Payload::Control(Control::Stop) => return write_memory(t.me(), out),
-                Payload::ActivateSlots { .. } if m.header.step != step => {
-                    step = m.header.step;
-                    schedule.apply_link_faults(step, &mut t, topology);
-                    t.update_connections();
-                }
-                _ => {}
+            if follow_the_launcher(&m, &mut step, &schedule, &mut t, topology) {
+                return write_memory(t.me(), out);
             }
             if let Some(z) = actor.handle(&m, t.now()) {
                 t.send(actor.publication(), &z, &[actor.centre()])?;
