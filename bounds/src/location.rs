@@ -33,6 +33,42 @@ pub enum DecayLaw {
     PowerLaw { p0: f64, exponent: f64 },
 }
 
+/// A scenario's amplitude law `√(P₀/(1 + α dⁿ))` as this module's unit
+/// power law, with α and the noise σ; `None` for another law.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AmplitudeLaw {
+    pub law: DecayLaw,
+    pub alpha: f64,
+    pub sigma: f64,
+}
+
+impl AmplitudeLaw {
+    pub fn of(law: &crate::SensorLaw) -> Option<Self> {
+        match *law {
+            crate::SensorLaw::Amplitude {
+                p0,
+                alpha,
+                exponent,
+                sigma,
+            } => Some(Self {
+                law: DecayLaw::PowerLaw { p0, exponent },
+                alpha,
+                sigma,
+            }),
+            _ => None,
+        }
+    }
+
+    /// `α^{1/n}`: the law at distance d is the unit power law at
+    /// `α^{1/n} d`.
+    pub fn distance_scale(&self) -> f64 {
+        match self.law {
+            DecayLaw::PowerLaw { exponent, .. } => self.alpha.powf(1.0 / exponent),
+            DecayLaw::Gaussian { .. } => 1.0,
+        }
+    }
+}
+
 impl DecayLaw {
     pub fn p0(&self) -> f64 {
         match *self {

@@ -15,8 +15,8 @@
 use std::sync::Mutex;
 
 use bounds::cell_sums::FisherScalars;
-use bounds::location::{closed_form_information, optimize_thresholds, DecayLaw};
-use bounds::{Measurement, ObservationModel, Quantizer, SensorLaw, State};
+use bounds::location::{closed_form_information, optimize_thresholds, AmplitudeLaw, DecayLaw};
+use bounds::{Measurement, ObservationModel, Quantizer, State};
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Topology;
 
@@ -136,25 +136,17 @@ pub fn sensor_quantizer(scenario: &Scenario, design: ThresholdDesign) -> Option<
         .models()
         .expect("a loaded scenario's models build")
         .quantizer;
-    match (design, scenario.observation) {
-        (
-            ThresholdDesign::Designed,
-            SensorLaw::Amplitude {
-                p0,
-                alpha,
-                exponent,
-                sigma,
-            },
-        ) => {
+    match (design, AmplitudeLaw::of(&scenario.observation)) {
+        (ThresholdDesign::Designed, Some(amplitude)) => {
             // g = √(P₀/(1 + α dⁿ)) is the unit power law at distance
             // α^{1/n} d, and the closed form over radius R of the first is
             // that of the second over α^{1/n} R (substitute u = α^{1/n} r).
             let radius = scenario.region.width.hypot(scenario.region.height) / 2.0;
             Some(designed_thresholds(
-                DecayLaw::PowerLaw { p0, exponent },
-                sigma,
+                amplitude.law,
+                amplitude.sigma,
                 scenario.quantizer.bits,
-                radius * alpha.powf(1.0 / exponent),
+                radius * amplitude.distance_scale(),
             ))
         }
         _ => uniform,
@@ -339,21 +331,13 @@ mod tests {
         t: &Topology,
         own: &[u16],
     ) -> (DecayLaw, f64, Vec<[f64; 2]>) {
-        let SensorLaw::Amplitude {
-            p0,
-            alpha,
-            exponent,
-            sigma,
-        } = s.observation
-        else {
-            panic!("amplitude sensors")
-        };
-        assert_eq!(alpha, 1.0);
+        let a = AmplitudeLaw::of(&s.observation).expect("amplitude sensors");
+        assert_eq!(a.alpha, 1.0);
         let positions = own
             .iter()
             .map(|i| t.sensor_positions[*i as usize])
             .collect();
-        (DecayLaw::PowerLaw { p0, exponent }, sigma, positions)
+        (a.law, a.sigma, positions)
     }
 
     /// The parabola's vertex: exact for a quadratic, wherever its peak

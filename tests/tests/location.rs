@@ -11,8 +11,8 @@
 
 use std::time::Duration;
 
-use bounds::location::{exact_information, log_likelihood, DecayLaw};
-use bounds::{Measurement, SensorLaw};
+use bounds::location::{exact_information, log_likelihood, AmplitudeLaw, DecayLaw};
+use bounds::Measurement;
 use cqnet_testkit::{exclusive, MessageKind, Network, Run, Scenario};
 use fusion_graph::wire::{BitMask, Message, Payload};
 use fusion_graph::{ActorId, Topology};
@@ -83,17 +83,9 @@ fn every_report(s: &Scenario, t: &Topology, steps: u32) -> Vec<([f64; 2], u32)> 
 
 /// The power law of the scenario's amplitude sensors (α = 1).
 fn law(s: &Scenario) -> (DecayLaw, f64) {
-    let SensorLaw::Amplitude {
-        p0,
-        alpha,
-        exponent,
-        sigma,
-    } = s.observation
-    else {
-        panic!("amplitude sensors")
-    };
-    assert_eq!(alpha, 1.0);
-    (DecayLaw::PowerLaw { p0, exponent }, sigma)
+    let a = AmplitudeLaw::of(&s.observation).expect("amplitude sensors");
+    assert_eq!(a.alpha, 1.0);
+    (a.law, a.sigma)
 }
 
 #[test]
