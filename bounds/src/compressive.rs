@@ -365,12 +365,8 @@ impl DesignProblem<'_> {
 
     /// `B(p) = M/(rΣp + ε) Σ p_j G_j`.
     fn gain(&self, p: &[f64]) -> Matrix2<f64> {
-        let w = gamma_weights(p, self.slots, self.r, self.epsilon);
-        let mut b = Matrix2::zeros();
-        for (g, w) in self.blocks.iter().zip(&w) {
-            b += Matrix2::new(g[0], g[1], g[1], g[2]) * *w;
-        }
-        b
+        let scale = self.slots as f64 / (self.r * p.iter().sum::<f64>() + self.epsilon);
+        weighted_sum(Matrix2::zeros(), self.blocks, p, scale)
     }
 
     /// The largest total `Σp` the budget and the caps allow.
@@ -429,22 +425,32 @@ pub fn optimal_probabilities(problem: &DesignProblem) -> Option<Vec<f64>> {
     Some(best.1)
 }
 
+/// `base + Σ_j scale·p_j G_j`.
+fn weighted_sum(
+    mut base: Matrix2<f64>,
+    blocks: &[PositionBlock],
+    p: &[f64],
+    scale: f64,
+) -> Matrix2<f64> {
+    for (g, pj) in blocks.iter().zip(p) {
+        base += Matrix2::new(g[0], g[1], g[1], g[2]) * (scale * pj);
+    }
+    base
+}
+
 /// Projected gradient ascent of `log det(K + B(p))` over `{0 ≤ p ≤ 1,
-/// Σp = s}`, with a backtracking step.
+/// Σp = s}`, with a backtracking step. Its buffers are made once: the
+/// search takes thousands of steps a design.
 fn best_for_total(problem: &DesignProblem, k: &Matrix2<f64>, s: f64) -> Vec<f64> {
     let n = problem.blocks.len();
+    // On this total the weights' scale M/(rs + ε) is fixed.
     let scale = problem.slots as f64 / (problem.r * s + problem.epsilon);
-    let value = |p: &[f64]| {
-        let mut b = *k;
-        for (g, pj) in problem.blocks.iter().zip(p) {
-            b += Matrix2::new(g[0], g[1], g[1], g[2]) * (scale * pj);
-        }
-        b
-    };
+    let value = |p: &[f64]| weighted_sum(*k, problem.blocks, p, scale);
     let mut p = project_capped_simplex(&vec![s / n as f64; n], s);
     let mut current = log_det2(&value(&p));
     let mut step = 1.0;
     let mut gradient = vec![0.0; n];
+    let (mut ascent, mut trial) = (vec![0.0; n], vec![0.0; n]);
     for _ in 0..2000 {
         let Some(inv) = value(&p).try_inverse() else {
             break;
@@ -461,19 +467,17 @@ fn best_for_total(problem: &DesignProblem, k: &Matrix2<f64>, s: f64) -> Vec<f64>
         }
         let mut moved = false;
         while step > 1e-14 {
-            let trial: Vec<f64> = p
-                .iter()
-                .zip(&gradient)
-                .map(|(pj, d)| pj + step * d / norm)
-                .collect();
-            let trial = project_capped_simplex(&trial, s);
+            for ((a, pj), d) in ascent.iter_mut().zip(&p).zip(&gradient) {
+                *a = pj + step * d / norm;
+            }
+            project_into(&ascent, s, &mut trial);
             let v = log_det2(&value(&trial));
             if v > current {
                 let change = trial
                     .iter()
                     .zip(&p)
                     .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-                p = trial;
+                std::mem::swap(&mut p, &mut trial);
                 current = v;
                 moved = change > 1e-12;
                 step *= 2.0;
@@ -491,6 +495,13 @@ fn best_for_total(problem: &DesignProblem, k: &Matrix2<f64>, s: f64) -> Vec<f64>
 /// The Euclidean projection of y onto `{0 ≤ p ≤ 1, Σp = s}`: `p_j =
 /// clamp(y_j − τ, 0, 1)` with τ found by bisection.
 pub fn project_capped_simplex(y: &[f64], s: f64) -> Vec<f64> {
+    let mut out = vec![0.0; y.len()];
+    project_into(y, s, &mut out);
+    out
+}
+
+/// [`project_capped_simplex`] into `out`.
+fn project_into(y: &[f64], s: f64, out: &mut [f64]) {
     let total = |tau: f64| y.iter().map(|v| (v - tau).clamp(0.0, 1.0)).sum::<f64>();
     let (mut lo, mut hi) = (
         y.iter().fold(f64::INFINITY, |m, v| m.min(*v)) - 1.0,
@@ -505,7 +516,9 @@ pub fn project_capped_simplex(y: &[f64], s: f64) -> Vec<f64> {
         }
     }
     let tau = 0.5 * (lo + hi);
-    y.iter().map(|v| (v - tau).clamp(0.0, 1.0)).collect()
+    for (o, v) in out.iter_mut().zip(y) {
+        *o = (v - tau).clamp(0.0, 1.0);
+    }
 }
 
 fn log_det2(m: &Matrix2<f64>) -> f64 {
