@@ -169,7 +169,8 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
 
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
 
-/// `<name>-design.csv` (every run's probabilities at `steps`) and
+/// `<name>-design.csv` (every run's probabilities at `steps`, a row per
+/// run and step) and
 /// `<name>-design.svg` (the first run's, one panel a step): each sensor a
 /// circle whose area is its transmission probability, the truth a cross.
 pub fn design(
@@ -185,15 +186,23 @@ pub fn design(
         .iter()
         .filter(|d| steps.contains(&d.step))
         .collect();
-    let mut csv = String::from("run,step,truth_x,truth_y,sensor,x,y,probability\n");
+    // A row per run and step, a column per sensor (named by where it
+    // stands): most probabilities are 0, and a row per sensor was 25
+    // times the lines.
+    let mut csv = String::from("run,step,truth_x,truth_y");
+    for [x, y] in sensors {
+        csv.push_str(&format!(",p at ({x} {y})"));
+    }
+    csv.push('\n');
     for d in &records {
-        for (j, p) in d.probabilities.iter().enumerate() {
-            let [x, y] = sensors.get(j).copied().unwrap_or([f64::NAN; 2]);
-            csv.push_str(&format!(
-                "{},{},{},{},{j},{x},{y},{p}\n",
-                d.run, d.step, d.truth[0], d.truth[1]
-            ));
+        csv.push_str(&format!(
+            "{},{},{},{}",
+            d.run, d.step, d.truth[0], d.truth[1]
+        ));
+        for p in &d.probabilities {
+            csv.push_str(&format!(",{p}"));
         }
+        csv.push('\n');
     }
     crate::write_atomically(&dir.join(format!("{name}-design.csv")), csv.as_bytes())?;
     let path = dir.join(format!("{name}-design.svg"));

@@ -58,22 +58,28 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
         }
         if let Figure::OverTimeAndDesign { steps, .. } = &e.figure {
             // Both runs' probabilities at each of the figure's steps, a row
-            // per sensor, and the first run's drawn.
+            // each with a column per sensor, and the first run's drawn.
             let dir = out.join(e.name);
             let design =
                 std::fs::read_to_string(dir.join(format!("{}-design.csv", e.name))).unwrap();
-            let rows: Vec<&str> = design.lines().skip(1).collect();
-            assert!(!rows.is_empty(), "{}: no design rows", e.name);
+            let mut lines = design.lines();
+            let columns = lines.next().unwrap().split(',').count();
+            let rows: Vec<&str> = lines.collect();
             assert_eq!(
-                rows.len() % (2 * steps.len()),
-                0,
+                rows.len(),
+                2 * steps.len(),
                 "{}: {} rows",
                 e.name,
                 rows.len()
             );
             for row in &rows {
-                let p: f64 = row.rsplit(',').next().unwrap().parse().unwrap();
-                assert!((0.0..=1.0).contains(&p), "{}: {row}", e.name);
+                let cells: Vec<&str> = row.split(',').collect();
+                assert_eq!(cells.len(), columns, "{}: {row}", e.name);
+                assert!(columns > 4, "{}: no sensor columns", e.name);
+                for cell in &cells[4..] {
+                    let p: f64 = cell.parse().unwrap();
+                    assert!((0.0..=1.0).contains(&p), "{}: {row}", e.name);
+                }
             }
             let svg = std::fs::read_to_string(dir.join(format!("{}-design.svg", e.name))).unwrap();
             assert!(svg.contains("<circle"), "{}: no sensors drawn", e.name);
