@@ -596,7 +596,6 @@ pub fn run(
                 .fold(0.0, |a, b| a + b)
                 / mc.per_run.len().max(1) as f64
         };
-        let kind_per_step = |kind: &str| kinds_per_step(&[kind], &|t| t.bytes_per_step);
         const ACTIVATIONS: [&str; 4] = [
             "activate",
             "activate_feedback",
@@ -612,7 +611,10 @@ pub fn run(
             nonconditional,
             bound_bytes_per_step: per_step(mc.bound_bytes_cq_dpcrlb),
             aux_bound_bytes_per_step: mc.bound_bytes_auxiliary_fim.map(per_step),
-            selection_bytes_per_step: kind_per_step("min_consensus"),
+            selection_bytes_per_step: kinds_per_step(
+                &["selection_report", "selection_choice"],
+                &|t| t.bytes_per_step,
+            ),
             activation_bytes_per_step: kinds_per_step(&ACTIVATIONS, &|t| t.bytes_per_step),
             observation_bytes_per_step: kinds_per_step(&OBSERVATIONS, &|t| t.bytes_per_step),
             observations_per_step: kinds_per_step(&OBSERVATIONS, &|t| t.messages as f64)

@@ -278,7 +278,7 @@ mod tests {
         a.record_sent(
             ActorId::Node(1),
             ActorId::Node(2),
-            MessageKind::MinConsensus,
+            MessageKind::SelectionReport,
             47,
         );
         let mut b = Accounting::default();

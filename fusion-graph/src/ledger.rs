@@ -354,7 +354,7 @@ mod tests {
     fn keys_survive_encoding() {
         for kind in [
             MessageKind::Tick,
-            MessageKind::MinConsensus,
+            MessageKind::SelectionReport,
             MessageKind::Malformed,
         ] {
             let k = (ActorId::Launcher, ActorId::Node(u16::MAX), kind);

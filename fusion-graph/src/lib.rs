@@ -25,7 +25,7 @@ pub use accounting::{Accounting, Counters};
 pub use actor::ActorId;
 pub use scenario::Scenario;
 pub use shaper::{LinkRule, LinkShaper};
-pub use topology::{MetropolisWeights, Topology};
+pub use topology::{MetropolisWeights, SpanningTree, Topology};
 pub use transport::{Channel, Transport};
 
 pub use models::{link_fault_seed, stream_rng, stream_seed, Models, Stream};
@@ -96,8 +96,12 @@ pub enum WireError {
     NonFinite,
     #[error("a flag byte {got}, expected 0 or 1")]
     Flag { got: u8 },
-    #[error("thresholds or slot columns out of order, or a column outside its slots")]
+    #[error(
+        "thresholds, slot columns, sensors or pieces out of order, or a column outside its slots"
+    )]
     Unordered,
+    #[error("a Fisher information with a negative diagonal")]
+    NegativeInformation,
 }
 
 /// What a transport's backend (iceoryx2, or another) reported.

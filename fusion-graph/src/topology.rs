@@ -24,6 +24,33 @@ pub struct Topology {
     pub macs: bool,
 }
 
+/// A breadth-first spanning tree of one live component of the fusion
+/// graph, rooted at its centre: what sensor selection gathers its
+/// candidates along and sends its choice down. Every node that holds the
+/// same membership view builds the same tree.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SpanningTree {
+    pub root: u16,
+    /// Each node's parent; `None` at the root and outside the component.
+    pub parent: Vec<Option<u16>>,
+    /// Hops from the root; `None` outside the component.
+    pub depth: Vec<Option<u16>>,
+    /// The levels below each node in the tree: 0 at a leaf.
+    pub below: Vec<u16>,
+}
+
+impl SpanningTree {
+    /// `node`'s children, increasing.
+    pub fn children(&self, node: u16) -> impl Iterator<Item = u16> + '_ {
+        (0..self.parent.len() as u16).filter(move |m| self.parent[*m as usize] == Some(node))
+    }
+
+    /// The tree's height: the levels below its root.
+    pub fn height(&self) -> u16 {
+        self.below[self.root as usize]
+    }
+}
+
 /// Consensus weights of one node over its live closed neighbourhood.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MetropolisWeights {
@@ -185,6 +212,69 @@ impl Topology {
         longest
     }
 
+    /// Hops from `start` to every node through live nodes; `None` where
+    /// it cannot reach.
+    fn hops_from(&self, start: u16, alive: &[bool]) -> Vec<Option<u16>> {
+        let mut hops = vec![None; self.nodes()];
+        hops[start as usize] = Some(0);
+        let mut queue = VecDeque::from([start]);
+        while let Some(a) = queue.pop_front() {
+            let next = hops[a as usize].map(|h| h + 1);
+            for &b in &self.neighbours[a as usize] {
+                if alive[b as usize] && hops[b as usize].is_none() {
+                    hops[b as usize] = next;
+                    queue.push_back(b);
+                }
+            }
+        }
+        hops
+    }
+
+    /// The spanning tree of `node`'s live component (`node` counted live):
+    /// rooted at the node of least eccentricity, the smallest such on a
+    /// tie, so that the tree is as shallow as the component allows; each
+    /// other node's parent is its smallest neighbour one hop nearer the root.
+    pub fn spanning_tree(&self, node: u16, alive: &[bool]) -> SpanningTree {
+        let mut alive = alive.to_vec();
+        alive[node as usize] = true;
+        let component: Vec<u16> = self
+            .hops_from(node, &alive)
+            .iter()
+            .enumerate()
+            .filter_map(|(m, h)| h.map(|_| m as u16))
+            .collect();
+        let eccentricity = |m: u16| self.hops_from(m, &alive).into_iter().flatten().max();
+        let root = component
+            .iter()
+            .copied()
+            .min_by_key(|m| (eccentricity(*m), *m))
+            .unwrap_or(node);
+        let depth = self.hops_from(root, &alive);
+        let parent: Vec<Option<u16>> = (0..self.nodes())
+            .map(|m| {
+                let d = depth[m].filter(|d| *d > 0)?;
+                self.neighbours[m]
+                    .iter()
+                    .copied()
+                    .find(|p| depth[*p as usize] == Some(d - 1))
+            })
+            .collect();
+        let mut below = vec![0u16; self.nodes()];
+        let mut by_depth: Vec<u16> = component.clone();
+        by_depth.sort_by_key(|m| std::cmp::Reverse(depth[*m as usize]));
+        for m in by_depth {
+            if let Some(p) = parent[m as usize] {
+                below[p as usize] = below[p as usize].max(below[m as usize] + 1);
+            }
+        }
+        SpanningTree {
+            root,
+            parent,
+            depth,
+            below,
+        }
+    }
+
     /// Size of the live connected component containing `node`: the N_f that
     /// turns an average into a network sum after failures.
     pub fn component_size(&self, node: u16, alive: &[bool]) -> usize {
@@ -275,6 +365,48 @@ mod tests {
         assert_eq!(t.neighbours[4], vec![1, 3, 5, 7]);
         // A 3×3 grid with its four-neighbour links: corner to corner is 4 hops.
         assert_eq!(t.diameter(), 4);
+    }
+
+    /// On the 3×3 grid the centre roots a tree of height 2; each corner
+    /// hangs from its smaller side neighbour.
+    #[test]
+    fn the_spanning_tree_is_rooted_at_the_centre() {
+        let t = default_topology();
+        for node in 0..9 {
+            let tree = t.spanning_tree(node, &t.all_alive());
+            assert_eq!((tree.root, tree.height()), (4, 2));
+            assert_eq!(
+                tree.parent,
+                [1, 4, 1, 4, 9, 4, 3, 4, 5].map(|p| (p != 9).then_some(p))
+            );
+            assert_eq!(tree.children(1).collect::<Vec<_>>(), [0, 2]);
+            assert_eq!(tree.children(7).count(), 0);
+            assert_eq!(tree.below, [0, 1, 0, 1, 2, 1, 0, 0, 0]);
+            assert_eq!(tree.depth[8], Some(2));
+        }
+    }
+
+    /// Without the centre the tree roots elsewhere, over the live nodes
+    /// only; across a partition each side has its own tree.
+    #[test]
+    fn the_spanning_tree_spans_the_live_component_only() {
+        let t = default_topology();
+        let mut alive = t.all_alive();
+        alive[4] = false;
+        let tree = t.spanning_tree(0, &alive);
+        // The ring of 8: every node has eccentricity 4; the smallest roots.
+        assert_eq!((tree.root, tree.height()), (0, 4));
+        assert_eq!(tree.depth[4], None);
+        assert!((0..9).filter(|m| *m != 4).all(|m| tree.depth[m].is_some()));
+        // Columns {0, 3, 6} and the rest, apart.
+        let left = [true, false, false, true, false, false, true, false, false];
+        let tree = t.spanning_tree(6, &left);
+        assert_eq!((tree.root, tree.height()), (3, 1));
+        assert_eq!(tree.parent[0], Some(3));
+        assert_eq!(tree.depth[1], None);
+        // A node that sees no one is a tree of its own.
+        let alone = t.spanning_tree(2, &[false; 9]);
+        assert_eq!((alone.root, alone.height()), (2, 0));
     }
 
     fn weight_matrix(t: &Topology, alive: &[bool]) -> Vec<Vec<f64>> {

@@ -316,7 +316,7 @@ impl NodeActor {
                 self.observe(step, s, ObservedValue::Raw(*value))
             }
             (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
-            (Payload::MinConsensus(_), ActorId::Node(_)) => {
+            (Payload::SelectionReport(_) | Payload::SelectionChoice(_), ActorId::Node(_)) => {
                 let handled = match &mut self.manager {
                     Manager::Negotiated(selection) => selection.handle(message, now, out),
                     Manager::Alone(_) => Handled::NotMine,
@@ -894,8 +894,8 @@ mod tests {
     }
 
     /// The PCRLB manager on the line: every step, exactly N_max sensors
-    /// network-wide, within each node's cap, each agreed by min-consensus
-    /// (N_max iterations × diameter rounds, one message per node per round).
+    /// network-wide, within each node's cap, gathered at the centre and told
+    /// back: each end node's 3 candidates in one report, one choice.
     #[test]
     fn the_pcrlb_manager_activates_n_max_within_the_caps_every_step() {
         for manager in ["pcrlb", "pcrlb_at_estimate"] {
@@ -921,15 +921,20 @@ mod tests {
                     assert_eq!(t.rounds_completed, 6);
                 }
             }
-            let min_messages = net
+            let selection_messages = net
                 .sent
                 .iter()
-                .filter(|o| matches!(o.message.payload, Payload::MinConsensus(_)))
+                .filter(|o| {
+                    matches!(
+                        o.message.payload,
+                        Payload::SelectionReport(_) | Payload::SelectionChoice(_)
+                    )
+                })
                 .count();
             assert_eq!(
-                min_messages,
-                3 * 4 * 2 * 3,
-                "{manager}: steps × iterations × rounds × nodes"
+                selection_messages,
+                3 * (2 + 1),
+                "{manager}: steps × (two reports and a choice)"
             );
             assert_eq!(net.now, Duration::ZERO, "{manager}: no one waited");
         }

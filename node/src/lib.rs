@@ -13,7 +13,7 @@
 //!   filter per node summarized as a Gaussian;
 //! - [`gate`]: the innovation gate that leaves out implausible observations;
 //! - [`fusion`]: the fusion protocols (average consensus, exact sums,
-//!   min-consensus, random exchange, KL fusion) over a shared round engine;
+//!   random exchange, KL fusion) over a shared round engine;
 //! - [`actor`]: the CF/DPF node's state machine, tying them together;
 //! - [`diffusion_node`]: the random-exchange paper's node, one filter and a Gaussian to
 //!   exchange or fuse;

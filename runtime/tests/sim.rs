@@ -229,10 +229,14 @@ fn the_closest_manager_activates_the_capped_set_every_step() {
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
 }
 
-/// The selection paper with the conditional PCRLB manager: 18 sensors every step, at
-/// most 4 per node, and the selection's traffic exactly what the protocol
-/// and the message size predict: 18 iterations × 4 rounds (the 3×3 grid's
-/// diameter) × 24 directed links of one proposal each, per step.
+/// The selection paper with the conditional PCRLB manager: 18 sensors every
+/// step, at most 4 per node, and the selection's traffic exactly what the
+/// spanning tree predicts. The 3×3 grid's tree is the centre, its four
+/// sides, and the corners under sides 1, 1, 3 and 5. Each node's 25
+/// candidates go up in three pieces (12, 12, 1 candidates: 312 + 312 + 48
+/// bytes) once over each hop to the centre, counted on every link out of
+/// the sender (2 for a corner, 3 for a side); the choice of 18 (80 bytes)
+/// goes down from the four nodes with children (4 + 3 × 3 links).
 #[test]
 fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     let o = vec!["steps=4".to_string()];
@@ -250,15 +254,19 @@ fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
     let links =
         Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
-    let selection = links.by_kind()[&MessageKind::MinConsensus];
-    let size = encoded_len(MessageKind::MinConsensus, &s.wire_format(&t)).unwrap() as u64;
-    assert_eq!(
-        size, 49,
-        "13-byte header, cost, node, sensor and J̄'s 3 numbers"
-    );
-    assert_eq!(selection.sent_messages, 4 * 18 * 4 * 24);
-    assert_eq!(selection.sent_bytes, selection.sent_messages * size);
-    assert_eq!(selection.received_bytes, selection.sent_bytes);
+    let reports = links.by_kind()[&MessageKind::SelectionReport];
+    let block = 312 + 312 + 48;
+    // Corners: their own block over 2 links; sides: their own and their
+    // corners' (3 + 2 + 2 + 1 blocks) over 3.
+    let per_step_bytes = 4 * block * 2 + (3 + 2 + 2 + 1) * block * 3;
+    assert_eq!(reports.sent_bytes, 4 * per_step_bytes);
+    assert_eq!(reports.sent_messages, 4 * (4 * 3 * 2 + 8 * 3 * 3));
+    let choices = links.by_kind()[&MessageKind::SelectionChoice];
+    assert_eq!(choices.sent_messages, 4 * (4 + 3 * 3));
+    assert_eq!(choices.sent_bytes, choices.sent_messages * 80);
+    for kind in [reports, choices] {
+        assert_eq!(kind.received_bytes, kind.sent_bytes);
+    }
     assert!(summary.stage_micros.selection > 0.0);
 }
 

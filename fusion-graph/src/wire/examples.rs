@@ -120,11 +120,25 @@ pub fn examples() -> Vec<Message> {
             ActorId::Node(3),
             7,
             2,
-            Payload::MinConsensus(Proposal {
-                cost: 2.5,
-                node: 3,
-                sensor: 77,
-                information: [1e-4, -2e-5, 3e-4],
+            Payload::SelectionReport(CandidateReport {
+                to: 4,
+                part: 2,
+                parts: 3,
+                node: 0,
+                first: 24,
+                information: vec![[1e-4, -2e-5, 3e-4]],
+            }),
+        ),
+        Message::new(
+            ActorId::Node(4),
+            7,
+            2,
+            Payload::SelectionChoice(ChosenSensors {
+                part: 0,
+                parts: 1,
+                total: 3,
+                sum: [3e-4, 1e-5, 2e-4],
+                sensors: vec![7, 77, 201],
             }),
         ),
         Message::new(

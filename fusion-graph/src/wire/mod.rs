@@ -63,8 +63,6 @@ pub enum MessageKind {
     Telemetry = 8,
     /// A node's fused posterior, sent to a neighbour that rejoins.
     StateTransfer = 9,
-    /// One round of min-consensus on a proposal `(cost, node, sensor)`.
-    MinConsensus = 10,
     /// An activation with the node's fused estimate fed back to censoring
     /// sensors (CFwMD): the mask, then 4 f64.
     ActivateFeedback = 11,
@@ -109,6 +107,19 @@ pub enum MessageKind {
     /// What a multiple-access channel received in each slot: the count
     /// (one byte), then the sums with the receiver's noise, f64.
     MacOutput = 23,
+    /// Sensor selection's gather: one piece of what a node sends its parent
+    /// in the spanning tree, its own candidates' and its subtree's. The
+    /// parent it is for (u16), the piece's place in the sender's report
+    /// (u16), the report's count of pieces on its last piece and 0 before
+    /// (u16), whose candidates (u16), the first one's place in that node's
+    /// list (u16), the count (one byte), then each candidate's `J̄`
+    /// position block, xx, xy, yy (3 f64).
+    SelectionReport = 24,
+    /// Sensor selection's choice, sent down the spanning tree: the piece
+    /// and count of pieces (u16 each), the sensors chosen network-wide
+    /// (u16), their `Σ J̄` position block (3 f64), the count in this piece
+    /// (one byte), then the chosen sensors, increasing (u16 each).
+    SelectionChoice = 25,
     /// A protocol's own payload, under the kind byte it registered.
     Protocol(ProtocolKind) = 128,
     /// Accounting only: bytes whose kind could not be read.
@@ -128,7 +139,6 @@ impl MessageKind {
             7 => Control,
             8 => Telemetry,
             9 => StateTransfer,
-            10 => MinConsensus,
             11 => ActivateFeedback,
             12 => ActivateFeedbackCovariance,
             13 => KlConsensus,
@@ -142,6 +152,8 @@ impl MessageKind {
             21 => ActivateSlots,
             22 => SlotValues,
             23 => MacOutput,
+            24 => SelectionReport,
+            25 => SelectionChoice,
             k => Protocol(ProtocolKind::registered(k)?),
         })
     }
@@ -158,7 +170,6 @@ impl MessageKind {
             Control => "control",
             Telemetry => "telemetry",
             StateTransfer => "state_transfer",
-            MinConsensus => "min_consensus",
             ActivateFeedback => "activate_feedback",
             ActivateFeedbackCovariance => "activate_feedback_covariance",
             KlConsensus => "kl_consensus",
@@ -172,6 +183,8 @@ impl MessageKind {
             ActivateSlots => "activate_slots",
             SlotValues => "slot_values",
             MacOutput => "mac_output",
+            SelectionReport => "selection_report",
+            SelectionChoice => "selection_choice",
             Protocol(k) => k.name(),
             Malformed => "malformed",
         }
@@ -190,7 +203,6 @@ impl MessageKind {
             Control => 7,
             Telemetry => 8,
             StateTransfer => 9,
-            MinConsensus => 10,
             ActivateFeedback => 11,
             ActivateFeedbackCovariance => 12,
             KlConsensus => 13,
@@ -204,6 +216,8 @@ impl MessageKind {
             ActivateSlots => 21,
             SlotValues => 22,
             MacOutput => 23,
+            SelectionReport => 24,
+            SelectionChoice => 25,
             Protocol(k) => k.code(),
             Malformed => 255,
         }
@@ -394,7 +408,6 @@ pub enum Payload {
     Control(Control),
     Telemetry(Telemetry),
     StateTransfer(StateTransfer),
-    MinConsensus(Proposal),
     KlConsensus(GaussianInformation),
     ExchangeRequest,
     ExchangeReply {
@@ -432,6 +445,10 @@ pub enum Payload {
     MacOutput {
         values: Vec<f64>,
     },
+    /// A piece of a node's report up sensor selection's spanning tree.
+    SelectionReport(CandidateReport),
+    /// A piece of sensor selection's choice, down the spanning tree.
+    SelectionChoice(ChosenSensors),
     /// A protocol's own payload ([`crate::payloads`]).
     Protocol(ProtocolBody),
 }
@@ -455,27 +472,41 @@ pub const MAX_THRESHOLDS: usize = 15;
 /// The numbers in one piece of a locator's consensus value.
 pub const LOCATION_CHUNK: usize = 32;
 
-/// A proposal in min-consensus: the smallest `cost` wins, ties going to the
-/// smaller node, then the smaller sensor. In sensor selection it carries the
-/// proposed sensor's expected information (its position block: xx, xy, yy),
-/// so that every node learns the winner's with the winner. A node with
-/// nothing to propose sends [`Proposal::NOTHING`]'s cost.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Proposal {
-    pub cost: f64,
+/// One piece of a node's report to its parent in sensor selection's
+/// spanning tree: candidates of node `node` from place `first` in its
+/// sensor list, each as its `J̄` position block `[xx, xy, yy]`. A report is
+/// pieces `0, 1, …` in order; its last says how many there are, the others
+/// carry `parts = 0`, so that a parent knows when a child's subtree is in
+/// while the pieces stream up as they arrive.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CandidateReport {
+    /// The parent the report is for: the channel's other readers pass it by.
+    pub to: u16,
+    pub part: u16,
+    /// The count of pieces, on the last; 0 on the others.
+    pub parts: u16,
     pub node: u16,
-    pub sensor: u16,
-    pub information: [f64; 3],
+    pub first: u16,
+    pub information: Vec<[f64; 3]>,
 }
 
-impl Proposal {
-    /// The cost of "no candidate": finite, so it travels, and above any real one.
-    pub const NOTHING: f64 = f64::MAX;
+/// The most candidates in one [`CandidateReport`]: 12 fill the consensus
+/// channel's room of 300 bytes.
+pub const MAX_REPORTED_CANDIDATES: usize = 12;
 
-    pub fn is_nothing(&self) -> bool {
-        self.cost >= Self::NOTHING
-    }
+/// One piece of sensor selection's choice: `sensors` chosen, increasing,
+/// of `total` chosen network-wide, and the chosen's `Σ J̄` position block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChosenSensors {
+    pub part: u16,
+    pub parts: u16,
+    pub total: u16,
+    pub sum: [f64; 3],
+    pub sensors: Vec<u16>,
 }
+
+/// The most sensors in one [`ChosenSensors`] piece.
+pub const MAX_CHOSEN_PER_PIECE: usize = 128;
 
 impl Payload {
     pub fn kind(&self) -> MessageKind {
@@ -497,7 +528,8 @@ impl Payload {
             Payload::Control(_) => MessageKind::Control,
             Payload::Telemetry(_) => MessageKind::Telemetry,
             Payload::StateTransfer(_) => MessageKind::StateTransfer,
-            Payload::MinConsensus(_) => MessageKind::MinConsensus,
+            Payload::SelectionReport(_) => MessageKind::SelectionReport,
+            Payload::SelectionChoice(_) => MessageKind::SelectionChoice,
             Payload::KlConsensus(_) => MessageKind::KlConsensus,
             Payload::ExchangeRequest => MessageKind::ExchangeRequest,
             Payload::ExchangeReply { .. } => MessageKind::ExchangeReply,
@@ -588,7 +620,6 @@ impl Message {
             Payload::Control(c) => put(c, out),
             Payload::Telemetry(t) => put(t, out),
             Payload::StateTransfer(s) => put(s, out),
-            Payload::MinConsensus(p) => put(p, out),
             Payload::KlConsensus(g) => put(g, out),
             Payload::ExchangeRequest => {}
             Payload::ExchangeReply { accepted } => out.push(u8::from(*accepted)),
@@ -628,6 +659,25 @@ impl Message {
             Payload::MacOutput { values } => {
                 out.push(values.len() as u8);
                 for v in values {
+                    put(v, out);
+                }
+            }
+            Payload::SelectionReport(r) => {
+                for v in [r.to, r.part, r.parts, r.node, r.first] {
+                    put(&v, out);
+                }
+                out.push(r.information.len() as u8);
+                for v in r.information.iter().flatten() {
+                    put(v, out);
+                }
+            }
+            Payload::SelectionChoice(c) => {
+                for v in [c.part, c.parts, c.total] {
+                    put(&v, out);
+                }
+                put(&c.sum, out);
+                out.push(c.sensors.len() as u8);
+                for v in &c.sensors {
                     put(v, out);
                 }
             }
@@ -748,12 +798,6 @@ impl Message {
                 finite(s.aux_information)?;
                 Payload::StateTransfer(s)
             }
-            MessageKind::MinConsensus => {
-                let p: Proposal = take(body)?;
-                finite([p.cost])?;
-                finite(p.information)?;
-                Payload::MinConsensus(p)
-            }
             MessageKind::KlConsensus => {
                 let g: GaussianInformation = take(body)?;
                 finite(g.eta)?;
@@ -825,6 +869,8 @@ impl Message {
                 }
             }
             MessageKind::ActivateSlots => activate_slots(body)?,
+            MessageKind::SelectionReport => selection_report(body)?,
+            MessageKind::SelectionChoice => selection_choice(body)?,
             MessageKind::SlotValues => {
                 let slots = u32::from_le_bytes(
                     body.get(..4)
@@ -918,6 +964,84 @@ fn activate_slots(body: &[u8]) -> Result<Payload, WireError> {
     Ok(Payload::ActivateSlots { slots, columns })
 }
 
+fn u16_at(body: &[u8], at: usize) -> Result<u16, WireError> {
+    let b = body.get(at..at + 2).ok_or(WireError::Truncated)?;
+    Ok(u16::from_le_bytes([b[0], b[1]]))
+}
+
+/// A piece's place within its count: the last says the count, earlier
+/// pieces say 0.
+fn piece_in_order(part: u16, parts: u16) -> Result<(), WireError> {
+    if parts != 0 && part >= parts {
+        return Err(WireError::Unordered);
+    }
+    Ok(())
+}
+
+/// A [`SelectionReport`](Payload::SelectionReport) body: at most
+/// [`MAX_REPORTED_CANDIDATES`] finite blocks, each with non-negative
+/// diagonal (a Fisher information is positive semi-definite).
+fn selection_report(body: &[u8]) -> Result<Payload, WireError> {
+    let [to, part, parts, node, first] = [0, 2, 4, 6, 8].map(|at| u16_at(body, at));
+    let (to, part, parts, node, first) = (to?, part?, parts?, node?, first?);
+    piece_in_order(part, parts)?;
+    let count = *body.get(10).ok_or(WireError::Truncated)? as usize;
+    if count > MAX_REPORTED_CANDIDATES {
+        return Err(WireError::Length {
+            expected: MAX_REPORTED_CANDIDATES,
+            got: count,
+        });
+    }
+    exact_len(body, 11 + 24 * count)?;
+    let values = finite_values(&body[11..])?;
+    let information: Vec<[f64; 3]> = values.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect();
+    if information.iter().any(|[xx, _, yy]| *xx < 0.0 || *yy < 0.0) {
+        return Err(WireError::NegativeInformation);
+    }
+    Ok(Payload::SelectionReport(CandidateReport {
+        to,
+        part,
+        parts,
+        node,
+        first,
+        information,
+    }))
+}
+
+/// A [`SelectionChoice`](Payload::SelectionChoice) body: every piece
+/// with its count of pieces, at most
+/// [`MAX_CHOSEN_PER_PIECE`] sensors, increasing, no more than the total.
+fn selection_choice(body: &[u8]) -> Result<Payload, WireError> {
+    let (part, parts, total) = (u16_at(body, 0)?, u16_at(body, 2)?, u16_at(body, 4)?);
+    // Every piece of a choice says the count: it is known before any is sent.
+    if part >= parts {
+        return Err(WireError::Unordered);
+    }
+    let sum: [f64; 3] = finite(take(body.get(6..30).ok_or(WireError::Truncated)?)?)?;
+    let count = *body.get(30).ok_or(WireError::Truncated)? as usize;
+    if count > MAX_CHOSEN_PER_PIECE || count > total as usize {
+        return Err(WireError::Length {
+            expected: MAX_CHOSEN_PER_PIECE.min(total as usize),
+            got: count,
+        });
+    }
+    exact_len(body, 31 + 2 * count)?;
+    let sensors: Vec<u16> = body[31..]
+        .chunks_exact(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    if sensors.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(WireError::Unordered);
+    }
+    Ok(Payload::SelectionChoice(ChosenSensors {
+        part,
+        parts,
+        total,
+        sum,
+        sensors,
+    }))
+}
+
 /// Little-endian f64s, every one finite.
 fn finite_values(body: &[u8]) -> Result<Vec<f64>, WireError> {
     let values: Vec<f64> = body
@@ -952,7 +1076,6 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::ConsensusLate => CONSENSUS_BYTES + 8 * 10,
                 MessageKind::ConsensusAux => 8 * 10,
                 MessageKind::StateTransfer => 8 * 34,
-                MessageKind::MinConsensus => 8 + 2 + 2 + 8 * 3,
                 MessageKind::KlConsensus => 8 * 14,
                 MessageKind::ExchangeRequest => 0,
                 MessageKind::ExchangeReply => 1,
@@ -1182,6 +1305,107 @@ mod tests {
                 expected: 1,
                 got: 2
             })
+        ));
+    }
+
+    /// The selection's pieces: counts within their limits, pieces within
+    /// their count, sensors increasing, information with a non-negative
+    /// diagonal; and the largest report fits the consensus channel.
+    #[test]
+    fn selection_pieces_are_checked() {
+        let decode = |payload: Payload| {
+            Message::decode(
+                &Message::new(ActorId::Node(1), 2, 1, payload).to_bytes(&FORMAT),
+                &FORMAT,
+            )
+        };
+        let report = CandidateReport {
+            to: 0,
+            part: 0,
+            parts: 0,
+            node: 1,
+            first: 12,
+            information: vec![[1.0, -0.5, 2.0]; MAX_REPORTED_CANDIDATES],
+        };
+        let full = Message::new(
+            ActorId::Node(1),
+            2,
+            1,
+            Payload::SelectionReport(report.clone()),
+        );
+        assert_eq!(full.to_bytes(&FORMAT).len(), HEADER_BYTES + 11 + 24 * 12);
+        assert!(full.to_bytes(&FORMAT).len() <= HEADER_BYTES + 300);
+        assert!(decode(Payload::SelectionReport(report.clone())).is_ok());
+        let mut too_many = report.clone();
+        too_many.information.push([1.0, 0.0, 1.0]);
+        assert!(matches!(
+            decode(Payload::SelectionReport(too_many)),
+            Err(WireError::Length {
+                expected: 12,
+                got: 13
+            })
+        ));
+        let past_count = CandidateReport {
+            part: 3,
+            parts: 3,
+            ..report.clone()
+        };
+        assert_eq!(
+            decode(Payload::SelectionReport(past_count)),
+            Err(WireError::Unordered)
+        );
+        let negative = CandidateReport {
+            information: vec![[-1.0, 0.0, 1.0]],
+            ..report.clone()
+        };
+        assert_eq!(
+            decode(Payload::SelectionReport(negative)),
+            Err(WireError::NegativeInformation)
+        );
+        let nan = CandidateReport {
+            information: vec![[1.0, f64::NAN, 1.0]],
+            ..report
+        };
+        assert_eq!(
+            decode(Payload::SelectionReport(nan)),
+            Err(WireError::NonFinite)
+        );
+
+        let choice = ChosenSensors {
+            part: 0,
+            parts: 1,
+            total: 3,
+            sum: [1.0, 0.0, 1.0],
+            sensors: vec![2, 9, 40],
+        };
+        assert!(decode(Payload::SelectionChoice(choice.clone())).is_ok());
+        for bad in [
+            ChosenSensors {
+                sensors: vec![9, 2, 40],
+                ..choice.clone()
+            },
+            ChosenSensors {
+                sensors: vec![2, 2, 40],
+                ..choice.clone()
+            },
+            ChosenSensors {
+                part: 1,
+                ..choice.clone()
+            },
+            ChosenSensors {
+                parts: 0,
+                ..choice.clone()
+            },
+        ] {
+            assert_eq!(
+                decode(Payload::SelectionChoice(bad)),
+                Err(WireError::Unordered)
+            );
+        }
+        let more_than_total = ChosenSensors { total: 2, ..choice };
+        assert!(matches!(
+            decode(Payload::SelectionChoice(more_than_total)),
+            Err(WireError::Length { .. })
         ));
     }
 

@@ -10,8 +10,6 @@
 //!   times the average (docs/equations.md, "Average and min consensus").
 //! - [`ExactSums`]: the exact network sums from an oracle the in-process
 //!   driver shares between its nodes; a checking mode of `sim`.
-//! - [`MinConsensus`]: the network's smallest proposal in as many rounds as
-//!   the fusion graph's diameter, for sensor selection.
 //! - [`RandomExchange`]: the random-exchange paper's RndEx-PF exchange, a posterior swapped
 //!   with one random neighbour by request and acknowledgement.
 //! - [`KlFusion`]: the random-exchange paper's KL fusion, K_max rounds of consensus on the
@@ -30,7 +28,6 @@ mod exact;
 mod exchange;
 pub(crate) mod information;
 mod kl;
-mod min;
 mod rounds;
 #[cfg(test)]
 pub(crate) mod testing;
@@ -41,7 +38,6 @@ pub use exact::{ExactSumOracle, ExactSums};
 pub use exchange::{Exchanged, RandomExchange};
 pub use information::InformationVector;
 pub use kl::{kl_fusion, KlFused, KlFusion, KlRule, NaturalGaussian};
-pub use min::{min_consensus, proposal_order, MinConsensus};
 pub use rounds::{RoundEngine, RoundRule, RoundsDone};
 pub use vector_sum::{vector_sum, Summed, VectorSum, VectorSumRule};
 

@@ -4,8 +4,8 @@
 //! [`RoundRule::combine`] gives round k+1's value. Values for rounds still to
 //! come are kept (a neighbour may be ahead); values for rounds past are late.
 //!
-//! A protocol that runs the engine several times within one step (sensor
-//! selection: one min-consensus per greedy iteration) starts each run at a
+//! A protocol that runs the engine several times within one step (a
+//! locator: one consensus per phase of its search) starts each run at a
 //! round offset, so that every run's rounds have their own numbers on the
 //! wire and a neighbour one run ahead is kept, not mistaken for late.
 

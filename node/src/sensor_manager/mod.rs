@@ -6,8 +6,8 @@
 //!   node's own sensors, honouring a network-wide cap;
 //! - [`Closest`]: the sensors nearest the predicted target, network-wide;
 //! - [`PcrlbSelection`]: greedy selection by the conditional PCRLB, or by
-//!   Tichavsky's recursion run at the estimate, agreed with the other nodes
-//!   by min-consensus. It exchanges messages, so it is a protocol the node
+//!   Tichavsky's recursion run at the estimate, made once at the centre of
+//!   the fusion graph on every node's candidates. It exchanges messages, so it is a protocol the node
 //!   drives rather than a [`SensorManager`];
 //! - [`OfflinePcrlb`]: greedy on the offline (non-conditional) PCRLB, a
 //!   schedule every node computes alike before the run.
@@ -66,7 +66,7 @@ impl<M: SensorManager + 'static> From<Box<M>> for Manager {
 }
 
 /// The PCRLB selection scored by `scoring`, for node `node`: greedy, agreed
-/// with the other nodes by min-consensus.
+/// with the other nodes along a spanning tree.
 pub fn negotiated(
     scenario: &Scenario,
     topology: &Topology,
