@@ -153,7 +153,11 @@ pub fn observed_information(
     let mut hess = Mat4::zeros();
     // A law of the position alone has a score that no velocity moves: those
     // columns are exactly zero, and differencing them would cost half the time.
-    let moved = if model.depends_on_position_only() { 2 } else { 4 };
+    let moved = if model.depends_on_position_only() {
+        2
+    } else {
+        4
+    };
     for k in 0..moved {
         let step = 1e-5 * x[k].abs().max(1.0);
         let mut up = *x;

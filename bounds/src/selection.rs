@@ -11,8 +11,8 @@
 //! with `L(k+1|k) = Q⁻¹ − D21 (L_G(k) + D11)⁻¹ D12` the predicted global
 //! information and `J̄_s` sensor s's expected information over the
 //! predicted particles (the conditional manager) or at the predicted
-//! estimate (the non-conditional one). [`greedy`] is the reference the
-//! distributed selection, one min-consensus per iteration, must agree with.
+//! estimate (the non-conditional one). [`greedy`] is what the distributed
+//! selection runs, once, at the root of its spanning tree.
 
 use std::cmp::Ordering;
 
@@ -39,8 +39,8 @@ pub struct Candidate {
 }
 
 /// The order of (cost, node, sensor) proposals: lower cost first, then the
-/// smaller node, then the smaller sensor (docs/equations.md's tie-break, so that every
-/// node agrees). Min-consensus on the wire uses the same order.
+/// smaller node, then the smaller sensor (docs/equations.md's tie-break), so
+/// that the choice does not depend on the order the candidates came in.
 pub fn proposal_order(a: (f64, u16, u16), b: (f64, u16, u16)) -> Ordering {
     a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2)))
 }

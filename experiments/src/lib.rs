@@ -155,7 +155,8 @@ pub struct ArmOutcome {
     pub bound_bytes_per_step: f64,
     pub aux_bound_bytes_per_step: Option<f64>,
     /// Whole-network bytes per step of the sensor selection's messages
-    /// (min-consensus) and of the activations, from the accounting.
+    /// (the candidates' reports and the choice) and of the activations,
+    /// from the accounting.
     pub selection_bytes_per_step: f64,
     /// Activations, with the censoring feedback they carry.
     pub activation_bytes_per_step: f64,

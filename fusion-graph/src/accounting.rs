@@ -189,8 +189,7 @@ impl Accounting {
             if f.len() != 11 && f.len() != 13 {
                 return None;
             }
-            // Every kind byte, so that a kind added later is read back too
-            // (min-consensus, kind 10, once was not).
+            // Every kind byte, so that a kind added later is read back too.
             let kind = (0..=u8::MAX)
                 .filter_map(MessageKind::from_u8_or_malformed)
                 .find(|k| k.name() == f[2])?;

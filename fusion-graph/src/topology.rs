@@ -191,7 +191,7 @@ impl Topology {
     }
 
     /// The largest number of hops between two connected nodes of the whole
-    /// graph: the rounds min-consensus needs to reach every node.
+    /// graph: the rounds a value needs to reach every node.
     pub fn diameter(&self) -> usize {
         let n = self.nodes();
         let mut longest = 0;

@@ -138,7 +138,7 @@ pub struct StageTimes {
     pub fusion_filter: f64,
     pub consensus: f64,
     /// From `BeginStep` to the activation: the PCRLB selection's scoring and
-    /// its min-consensus rounds (zero for managers that choose alone).
+    /// its gather and choice (zero for managers that choose alone).
     #[serde(default)]
     pub selection: f64,
 }

@@ -297,8 +297,8 @@ impl SensorManagerKind {
     /// most `active_per_node` per node (the closest-sensor baseline of
     /// sensor selection).
     pub const CLOSEST: Self = Self("closest");
-    /// Greedy selection by the conditional PCRLB, agreed over the fusion
-    /// graph with one min-consensus per chosen sensor.
+    /// Greedy selection by the conditional PCRLB, made once at the fusion
+    /// graph's centre on every node's candidates.
     pub const PCRLB: Self = Self("pcrlb");
     /// The same greedy selection scored by Tichavsky's recursion run at
     /// the fusion filter's estimates (data enter through x̂).

@@ -1,4 +1,4 @@
-//! Average consensus with Metropolis weights (docs/equations.md, "Average and min consensus"):
+//! Average consensus with Metropolis weights (docs/equations.md, "Average consensus"):
 //! `v ← W_ll v + Σ_m W_lm v_m` for N_c rounds; the network sum is N_f times
 //! the average, N_f the size of the node's live component.
 

@@ -7,7 +7,7 @@
 //!
 //! - [`AverageConsensus`]: N_c rounds of Metropolis average consensus on the
 //!   information vector (δη, δΛ, ΔL [, S_obs]); the network sums are N_f
-//!   times the average (docs/equations.md, "Average and min consensus").
+//!   times the average (docs/equations.md, "Average consensus").
 //! - [`ExactSums`]: the exact network sums from an oracle the in-process
 //!   driver shares between its nodes; a checking mode of `sim`.
 //! - [`RandomExchange`]: the random-exchange paper's RndEx-PF exchange, a posterior swapped

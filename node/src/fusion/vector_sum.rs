@@ -1,7 +1,7 @@
 //! Average consensus on a vector of any length, for the network's sum of
 //! it: each round `v ← W_ll v_l + Σ W_lm v_m` with Metropolis weights, and
-//! the sum taken as N_f times the result (docs/equations.md, "Average and
-//! min consensus"). A static target's locator sums its nodes'
+//! the sum taken as N_f times the result (docs/equations.md, "Average
+//! consensus"). A static target's locator sums its nodes'
 //! log-likelihoods over a shared grid with it, and their Fisher
 //! information.
 //!

@@ -17,9 +17,9 @@
 //! 3. **Tell** (a broadcast). The chosen sensors and their `Σ J̄` go down
 //!    the tree; each node activates its own among them.
 //!
-//! That is `2 × height` hops a step (4 on the 3×3 grid) where a
-//! min-consensus per greedy iteration took `N_max × diameter` rounds (72),
-//! and each candidate crosses each link of its path to the root once.
+//! That is `2 × height` hops a step (4 on the 3×3 grid), where agreeing
+//! on each greedy iteration by min-consensus would take `N_max × diameter`
+//! rounds (72), and each candidate crosses each hop to the root once.
 //!
 //! Unlike the other managers this one is a protocol, a sans-IO state
 //! machine: the node starts it once its scores are in, feeds it messages
