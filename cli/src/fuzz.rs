@@ -535,7 +535,10 @@ impl Actors {
             node.handle(&message, self.now, &mut out);
             let mut guard = 0;
             loop {
-                runtime::drive::run_pending_work(node, || self.now, &mut out);
+                while let Some(work) = node.poll_work() {
+                    node.run_work(work);
+                    node.work_done(work, Duration::ZERO, self.now, &mut out);
+                }
                 node.handle_timeout(self.now, &mut out);
                 sent += out.len();
                 out.clear();

@@ -700,6 +700,7 @@ impl DiffusionNode {
                 wiring::micros(s.stats.later_rounds),
                 wiring::micros(s.stats.total),
                 0,
+                0,
             ],
             unanswered_sensors,
             first_unanswered,

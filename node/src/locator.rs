@@ -412,6 +412,7 @@ impl LocatorNode {
                 wiring::micros(s.stats.later_rounds),
                 wiring::micros(s.stats.total),
                 0,
+                0,
             ],
             unanswered_sensors,
             first_unanswered,

@@ -489,6 +489,8 @@ impl MacCentre {
                 0,
                 0,
                 wiring::micros(s.select_time),
+                // The design is its scoring, and runs in the step.
+                wiring::micros(s.select_time),
             ],
             unanswered_sensors: 0,
             first_unanswered: None,

@@ -16,7 +16,7 @@ use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::ProcessingNode;
 use sensor::SensorActor;
 
-use crate::drive::{run_pending_work, send_all};
+use crate::drive::run_pending_work;
 use crate::results::write_atomically;
 
 /// Longest sleep between checks that the launcher is still there. A
@@ -410,12 +410,10 @@ fn node_loop<T: Transport>(
             // The time each message is handled at, not the batch's: a local
             // filter run for an earlier message of the batch takes milliseconds.
             actor.handle(&m, t.now(), &mut outgoing);
-            run_pending_work(&mut actor, || t.now(), &mut outgoing);
-            send_all(&mut t, &mut outgoing)?;
+            run_pending_work(&mut actor, &mut t, &mut outgoing)?;
         }
         actor.handle_timeout(t.now(), &mut outgoing);
-        run_pending_work(&mut actor, || t.now(), &mut outgoing);
-        send_all(&mut t, &mut outgoing)?;
+        run_pending_work(&mut actor, &mut t, &mut outgoing)?;
         if launcher_gone() {
             return Ok(());
         }

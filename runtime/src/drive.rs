@@ -2,23 +2,28 @@
 //! and time them (the node never reads a clock), and send what an actor
 //! emitted.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use fusion_graph::{SendError, Transport};
 use node::{Outgoing, ProcessingNode};
 
 /// Runs the node's pending stages, each timed by the wall clock and
-/// reported at the time `now` says it finished.
-pub fn run_pending_work(
+/// reported at the transport's time when it finished, and sends what each
+/// stage emitted before the next begins: the telemetry of a step goes out
+/// before the node scores its sensors for the next.
+pub fn run_pending_work<T: Transport + ?Sized>(
     node: &mut ProcessingNode,
-    mut now: impl FnMut() -> Duration,
+    transport: &mut T,
     out: &mut Vec<Outgoing>,
-) {
+) -> Result<(), SendError> {
+    send_all(transport, out)?;
     while let Some(work) = node.poll_work() {
         let started = Instant::now();
         node.run_work(work);
-        node.work_done(work, started.elapsed(), now(), out);
+        node.work_done(work, started.elapsed(), transport.now(), out);
+        send_all(transport, out)?;
     }
+    Ok(())
 }
 
 /// Publishes every outgoing message, waking whom each asks.

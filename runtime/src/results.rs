@@ -648,7 +648,7 @@ mod tests {
                 lagged: 0,
                 deadline_missed: false,
                 late_messages: 0,
-                stage_micros: [10, 10, 40, 50, 0],
+                stage_micros: [10, 10, 40, 50, 0, 0],
                 unanswered_sensors: 0,
                 first_unanswered: None,
                 spread: None,

@@ -22,7 +22,7 @@ use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
 use sensor::mac::MacActor;
 use sensor::SensorActor;
 
-use crate::drive::{run_pending_work, send_all};
+use crate::drive::run_pending_work;
 use crate::results::{Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::summary::Summary;
 use crate::world::{SensorStates, World};
@@ -339,8 +339,7 @@ impl InProcessNetwork {
                     for n in self.nodes.iter_mut().filter(|n| n.alive) {
                         self.outgoing.clear();
                         n.actor.handle_timeout(now, &mut self.outgoing);
-                        run_pending_work(&mut n.actor, || now, &mut self.outgoing);
-                        send_all(&mut n.transport, &mut self.outgoing)?;
+                        run_pending_work(&mut n.actor, &mut n.transport, &mut self.outgoing)?;
                     }
                     for m in &mut self.macs {
                         if let Some(z) = m.actor.handle_timeout(now) {
@@ -445,8 +444,7 @@ impl InProcessNetwork {
                 progressed = true;
                 self.outgoing.clear();
                 n.actor.handle(&m, now, &mut self.outgoing);
-                run_pending_work(&mut n.actor, || now, &mut self.outgoing);
-                send_all(&mut n.transport, &mut self.outgoing)?;
+                run_pending_work(&mut n.actor, &mut n.transport, &mut self.outgoing)?;
             }
         }
         self.inbox.clear();
@@ -483,7 +481,7 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         lagged: 0,
         deadline_missed: false,
         late_messages: 0,
-        stage_micros: [0; 5],
+        stage_micros: [0; 6],
         unanswered_sensors: 0,
         first_unanswered: None,
         spread: None,

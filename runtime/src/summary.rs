@@ -137,10 +137,17 @@ pub struct StageTimes {
     pub local_filter: f64,
     pub fusion_filter: f64,
     pub consensus: f64,
-    /// From `BeginStep` to the activation: the PCRLB selection's scoring and
-    /// its gather and choice (zero for managers that choose alone).
+    /// From `BeginStep` to the activation: the PCRLB selection's gather and
+    /// choice, and its scoring when it ran in the step (zero for managers
+    /// that choose alone).
     #[serde(default)]
     pub selection: f64,
+    /// The selection's scoring, wherever it ran: a node scores the next
+    /// step's candidates once it has reported a step, and only scores in
+    /// the step when it could not (the step before overran, or it missed
+    /// steps).
+    #[serde(default)]
+    pub scoring: f64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -253,12 +260,12 @@ impl LatencyHistogram {
 /// Sums of stage times over node-steps, for [`StageTimes`].
 #[derive(Debug, Clone, Default)]
 pub struct StageSums {
-    sums: [f64; 5],
+    sums: [f64; 6],
     n: u64,
 }
 
 impl StageSums {
-    pub fn add(&mut self, micros: [u32; 5]) {
+    pub fn add(&mut self, micros: [u32; 6]) {
         for (s, m) in self.sums.iter_mut().zip(micros) {
             *s += m as f64;
         }
@@ -272,6 +279,7 @@ impl StageSums {
             fusion_filter: self.sums[1] / n,
             consensus: self.sums[3] / n,
             selection: self.sums[4] / n,
+            scoring: self.sums[5] / n,
         }
     }
 }
@@ -362,10 +370,11 @@ pub fn print_table(s: &Summary) {
             st.local_filter, st.fusion_filter, st.consensus
         )
     );
-    if st.selection > 0.0 {
+    if st.selection > 0.0 || st.scoring > 0.0 {
         println!(
-            "  {:<34} {:>12.0}",
-            "µs per node-step: sensor selection", st.selection
+            "  {:<34} {:>12}",
+            "µs per node-step: selection/scoring",
+            format!("{:.0}/{:.0}", st.selection, st.scoring)
         );
     }
     if let Some(p) = &s.round_latency_micros {

@@ -23,7 +23,7 @@ pub fn examples() -> Vec<Message> {
         lagged: 2,
         deadline_missed: false,
         late_messages: 2,
-        stage_micros: [1, 2, 3, 4, 5],
+        stage_micros: [1, 2, 3, 4, 5, 6],
         unanswered_sensors: 1,
         first_unanswered: Some(17),
         spread: Some(12.5),

@@ -323,9 +323,10 @@ pub struct Telemetry {
     /// filter (with the global bounds), consensus rounds 2..N_c (when every
     /// neighbour is already exchanging: the rounds' own latency), and the
     /// whole consensus (round 1 also waits for the slowest neighbour's
-    /// filter), and the sensor selection (from `BeginStep` to the activation;
-    /// zero for a manager that chooses alone).
-    pub stage_micros: [u32; 5],
+    /// filter), the sensor selection (from `BeginStep` to the activation;
+    /// zero for a manager that chooses alone), and the selection's scoring
+    /// (wherever it ran: in the step, or before it began).
+    pub stage_micros: [u32; 6],
     /// Own sensors activated several times that never answered, and the
     /// first of them (0 and `None` with censoring, where silence is an
     /// answer).
