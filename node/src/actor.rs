@@ -1028,6 +1028,70 @@ mod tests {
         }
     }
 
+    fn begin(step: u32) -> Message {
+        Message::new(
+            ActorId::Launcher,
+            step,
+            0,
+            Payload::Control(Control::BeginStep),
+        )
+    }
+
+    fn sends_a_report(out: &[Outgoing]) -> bool {
+        out.iter()
+            .any(|o| matches!(o.message.payload, Payload::SelectionReport(_)))
+    }
+
+    /// A negotiating node scores the next step's candidates once it has
+    /// reported a step: that step begins with its report sent at once. A
+    /// step begun after a missed one drops those scores (the filter coasts
+    /// through the missed step) and scores anew.
+    #[test]
+    fn the_next_steps_candidates_are_scored_before_it_begins() {
+        let mut net = Net::line_with(&[
+            "sensors.manager=pcrlb",
+            "sensors.active_per_node=2",
+            "sensors.max_active_total=4",
+        ]);
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        let now = net.now;
+        // Node 0, a leaf under node 1, reports as the step begins.
+        let leaf = net.nodes[0].as_mut().unwrap();
+        assert!(leaf.is_idle() && leaf.poll_work().is_none());
+        let mut out = Vec::new();
+        leaf.handle(&begin(2), now, &mut out);
+        assert!(leaf.poll_work().is_none(), "scored before the step");
+        assert!(sends_a_report(&out));
+        // Node 2 misses step 2: its scores were for it.
+        let other = net.nodes[2].as_mut().unwrap();
+        let mut out = Vec::new();
+        other.handle(&begin(3), now, &mut out);
+        assert_eq!(other.poll_work(), Some(Work::SelectionScores));
+        assert!(!sends_a_report(&out));
+    }
+
+    /// In real time the next step's scoring waits for the step's deadline
+    /// (90 % of the period), when every node's waits have closed.
+    #[test]
+    fn in_real_time_the_scoring_waits_for_the_steps_deadline() {
+        let mut net = Net::line_with(&["sensors.manager=pcrlb"]);
+        for n in net.nodes.iter_mut().flatten() {
+            n.bound_steps_by(Duration::from_millis(100));
+        }
+        net.begin_step(1, &ALL);
+        net.run(Duration::from_millis(89));
+        assert_eq!(net.telemetry.len(), 3, "every node reported");
+        let now = net.now;
+        let node = net.nodes[0].as_mut().unwrap();
+        assert!(node.poll_work().is_none(), "not before the deadline");
+        assert_eq!(node.poll_timeout(), Some(Duration::from_millis(90)));
+        let mut out = Vec::new();
+        node.handle_timeout(Duration::from_millis(90), &mut out);
+        assert_eq!(node.poll_work(), Some(Work::SelectionScores));
+        assert!(now < Duration::from_millis(90));
+    }
+
     /// The conditional manager picks, on its first iteration, the sensor
     /// with by far the most information: the one beside the target.
     #[test]
