@@ -818,14 +818,16 @@ fn too_few_file_descriptors_are_refused_before_anything_starts() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// The selection paper's network with the conditional PCRLB manager, node-4 SIGKILLed
-/// from outside. The helper polls `ticks.csv` every 2 ms, so the kill lands
-/// within milliseconds of step 10's last report: inside step 11's
-/// selection, which takes about 25 ms of a lockstep step. The step does not
-/// stall: the others presume node-4 gone after two missed rounds and finish
-/// without it (with that rule disabled, this test fails: "step 11 overran
-/// its step timeout"); from the next step the membership view leaves it
-/// out, and the eight survivors still agree on 18 sensors every step.
+/// The selection paper's network with the conditional PCRLB manager, node-4
+/// SIGKILLed from outside. Node 4, the grid's centre, is the root of the
+/// selection's spanning tree. The helper polls `ticks.csv` every 2 ms, so
+/// the kill lands within milliseconds of step 10's last report, about when
+/// step 11's selection runs. The step does not stall: a node that does not
+/// hear the choice gives up after the tree's height, its depth and one
+/// more round timeouts and activates nothing, and the consensus leaves
+/// node 4 out; from the next step the membership view leaves it out, the
+/// tree is rooted elsewhere on the ring of eight, and the survivors still
+/// agree on 18 sensors every step.
 #[test]
 fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     let _guard = exclusive();
