@@ -151,6 +151,8 @@ pub struct NodeActor {
     selection_time: Duration,
     /// The selection's scoring this step, wherever it ran.
     scoring_time: Duration,
+    /// The negotiated selection's choice did not reach this node this step.
+    without_choice: bool,
     /// The next step's selection scores, once the last step reported.
     ahead: Option<ScoredAhead>,
     /// The sensors activated this step, reported with its telemetry.
@@ -244,6 +246,7 @@ impl NodeActor {
             late_reported: 0,
             selection_time: Duration::ZERO,
             scoring_time: Duration::ZERO,
+            without_choice: false,
             ahead: None,
             active: Vec::new(),
             step_period: None,
@@ -673,6 +676,7 @@ impl NodeActor {
             // the gather and the choice by the clock.
             self.selection_time = s.scoring_time + now.saturating_sub(s.rounds_started);
             let step = s.step;
+            self.without_choice = !selected.heard;
             self.activate(step, selected.own, now, out);
         }
     }
@@ -788,10 +792,12 @@ impl NodeActor {
             spread: update.map(|u| u.spread).filter(|s| s.is_finite()),
             active: std::mem::take(&mut self.active),
             design: Vec::new(),
+            without_choice: self.without_choice,
         };
         self.observations = 0;
         self.selection_time = Duration::ZERO;
         self.scoring_time = Duration::ZERO;
+        self.without_choice = false;
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
         out.push(wiring::telemetry(self.index, f.step, telemetry));
@@ -817,6 +823,7 @@ impl NodeActor {
                 let step = s.step;
                 if let Manager::Negotiated(selection) = &mut self.manager {
                     let _ = selection.finish_now(now, out);
+                    self.without_choice = true;
                 }
                 let cells = self.model.quantizer.as_ref().map(|q| q.cells());
                 self.phase = Phase::Collecting(Collector::new(step, Vec::new(), now, cells));
@@ -840,6 +847,7 @@ impl NodeActor {
             // no observations of this node's.
             if let Manager::Negotiated(selection) = &mut self.manager {
                 let _ = selection.finish_now(now, out);
+                self.without_choice = true;
             }
             let cells = self.model.quantizer.as_ref().map(|q| q.cells());
             self.phase = Phase::Collecting(Collector::new(step, Vec::new(), now, cells));
@@ -1069,6 +1077,25 @@ mod tests {
         other.handle(&begin(3), now, &mut out);
         assert_eq!(other.poll_work(), Some(Work::SelectionScores));
         assert!(!sends_a_report(&out));
+    }
+
+    /// Without the root's choice (node 1's choices lost), the two other
+    /// nodes activate nothing and say so in their telemetry; the root,
+    /// which made the choice, activates its own.
+    #[test]
+    fn a_node_the_choice_does_not_reach_reports_it() {
+        let mut net = Net::line_with(&["sensors.manager=pcrlb"]);
+        net.set_rule(|m, _| match (&m.payload, m.header.sender) {
+            (Payload::SelectionChoice(_), ActorId::Node(1)) => Fate::Drop,
+            _ => Fate::Deliver,
+        });
+        net.begin_step(1, &ALL);
+        net.run(LONG);
+        for (n, without) in [(0, true), (1, false), (2, true)] {
+            let t = net.report(n, 1).expect("a report");
+            assert_eq!(t.without_choice, without, "node {n}");
+            assert_eq!(t.active.is_empty(), without, "node {n}: {t:?}");
+        }
     }
 
     /// In real time the next step's scoring waits for the step's deadline

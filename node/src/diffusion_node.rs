@@ -707,6 +707,7 @@ impl DiffusionNode {
             spread: None,
             active: Vec::new(),
             design: Vec::new(),
+            without_choice: false,
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

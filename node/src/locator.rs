@@ -419,6 +419,7 @@ impl LocatorNode {
             spread: None,
             active: Vec::new(),
             design: Vec::new(),
+            without_choice: false,
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

@@ -497,6 +497,7 @@ impl MacCentre {
             spread: None,
             active,
             design,
+            without_choice: false,
         };
         self.deadline_missed = false;
         self.late_reported = self.late_messages;

@@ -538,6 +538,7 @@ impl<'w> Recorder<'w> {
                 self.cost.late_messages += t.late_messages as u64;
                 self.cost.gated_observations += t.gated as u64;
                 self.cost.lagged_observations += t.lagged as u64;
+                self.cost.node_steps_without_choice += u64::from(t.without_choice);
                 if t.rounds_completed > 1 {
                     // Rounds 2..N_c: every neighbour is exchanging by then.
                     self.round_latency
@@ -654,6 +655,7 @@ mod tests {
                 spread: None,
                 active: Vec::new(),
                 design: Vec::new(),
+                without_choice: false,
             },
         }
     }

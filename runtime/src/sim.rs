@@ -487,6 +487,7 @@ pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
         spread: None,
         active: Vec::new(),
         design: Vec::new(),
+        without_choice: false,
     }
 }
 

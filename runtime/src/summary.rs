@@ -91,6 +91,11 @@ pub struct FaultCost {
     /// weighed a step late, at the time they were taken (slow links).
     #[serde(default)]
     pub lagged_observations: u64,
+    /// Node-steps a negotiated sensor selection's choice did not reach, so
+    /// that the node activated none of its sensors (its root lost, or the
+    /// step's deadline first).
+    #[serde(default)]
+    pub node_steps_without_choice: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -359,6 +364,12 @@ pub fn print_table(s: &Summary) {
     if !s.faults.is_empty() {
         let c = &s.fault_cost;
         println!("  fault cost: {} dropped, {} duplicated, {} corrupted, {} late, {} gated, {} observations weighed a step late, {} node-steps with fewer neighbours, {} node-steps missing", c.dropped_messages, c.duplicated_messages, c.corrupted_messages, c.late_messages, c.gated_observations, c.lagged_observations, c.rounds_with_fewer_neighbours, c.missing_node_steps);
+    }
+    if s.fault_cost.node_steps_without_choice > 0 {
+        println!(
+            "  node-steps without the selection's choice (none of their sensors activated): {}",
+            s.fault_cost.node_steps_without_choice
+        );
     }
     println!("  {:<34} {:>12.1}", "steps per second", s.steps_per_second);
     let st = &s.stage_micros;

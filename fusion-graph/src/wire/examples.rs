@@ -29,6 +29,7 @@ pub fn examples() -> Vec<Message> {
         spread: Some(12.5),
         active: vec![3, 17],
         design: vec![6840, 3160, 0],
+        without_choice: true,
     };
     vec![
         Message::new(

@@ -343,6 +343,10 @@ pub struct Telemetry {
     /// its sensors' transmission probability for the step, in
     /// ten-thousandths. Empty for every other node.
     pub design: Vec<u16>,
+    /// A negotiated sensor selection's choice never reached the node this
+    /// step (its root was lost, or the step's deadline came first), so it
+    /// activated none of its sensors.
+    pub without_choice: bool,
 }
 
 /// The most activated sensors a telemetry message may list.
