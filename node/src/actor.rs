@@ -695,7 +695,14 @@ impl NodeActor {
         self.answers.activated(&active);
         self.active.clone_from(&active);
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
+        let nothing_to_hear = active.is_empty();
         self.phase = Phase::Collecting(Collector::new(step, active, now + self.listen, cells));
+        // A node that activated no sensor has nothing to wait for. Waiting
+        // out the listening window made it start its rounds a round timeout
+        // late, just when its neighbours' first round timed out without it.
+        if nothing_to_hear {
+            self.close_collection();
+        }
     }
 
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
