@@ -228,7 +228,10 @@ fn the_closest_manager_activates_the_capped_set_every_step() {
     run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
     let per_step = observations_per_step(&dir, 4);
     assert_eq!(per_step.len(), 8);
-    assert!(per_step.values().all(|n| n.abs_diff(18) <= 1), "{per_step:?}");
+    assert!(
+        per_step.values().all(|n| n.abs_diff(18) <= 1),
+        "{per_step:?}"
+    );
     let exact = per_step.values().filter(|n| **n == 18).count();
     assert!(exact > per_step.len() / 2, "{per_step:?}");
 }

@@ -538,7 +538,12 @@ impl PcrlbSelection {
         if consistent && !r.choice.iter().any(|c| c.part == piece.part) {
             r.choice.push(piece.clone());
         }
-        if r.choice.len() == piece.parts as usize {
+        // Complete by the count of the pieces kept, not of this one, which
+        // may be of another choice (a neighbour whose view roots elsewhere).
+        if r.choice
+            .first()
+            .is_some_and(|c| r.choice.len() == c.parts as usize)
+        {
             let choice = std::mem::take(&mut r.choice);
             self.tell(choice, now, out);
         }
