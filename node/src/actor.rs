@@ -72,12 +72,13 @@ struct ScoredAhead {
     inputs: Option<SelectionInputs>,
     scoring_time: Duration,
     /// Set once `due` has passed.
-    ready: bool,
+    released: bool,
 }
 
 impl ScoredAhead {
-    fn ready(&self) -> bool {
-        self.ready && self.inputs.is_none()
+    /// Released and not yet scored.
+    fn wants_scoring(&self) -> bool {
+        self.released && self.inputs.is_none()
     }
 }
 
@@ -333,7 +334,7 @@ impl NodeActor {
 
     /// When the next step's scoring may run, while it waits.
     fn ahead_due(&self) -> Option<Duration> {
-        let a = self.ahead.as_ref().filter(|a| !a.ready)?;
+        let a = self.ahead.as_ref().filter(|a| !a.released)?;
         matches!(self.phase, Phase::Idle).then_some(a.due)
     }
 
@@ -341,7 +342,7 @@ impl NodeActor {
     pub fn poll_work(&self) -> Option<Work> {
         match &self.phase {
             Phase::Selecting(s) if !s.scored => Some(Work::SelectionScores),
-            Phase::Idle if self.ahead.as_ref().is_some_and(|a| a.ready()) => {
+            Phase::Idle if self.ahead.as_ref().is_some_and(ScoredAhead::wants_scoring) => {
                 Some(Work::SelectionScores)
             }
             Phase::Fusing(f) => f.pending_work(),
@@ -390,7 +391,7 @@ impl NodeActor {
     pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         if self.ahead_due().is_some_and(|due| now >= due) {
             if let Some(a) = self.ahead.as_mut() {
-                a.ready = true;
+                a.released = true;
             }
         }
         if self.step_deadline.is_some_and(|d| now >= d) && self.stage_timeout().is_some() {
@@ -571,17 +572,21 @@ impl NodeActor {
                 self.activate(step, picks, now, out);
             }
             Manager::Negotiated(_) => {
-                let ahead = self.ahead.take().filter(|a| a.step == step);
-                let scored = ahead.as_ref().is_some_and(|a| a.inputs.is_some());
+                // Scores made for this step, taken by value.
+                let (inputs, scoring_time) = match self.ahead.take() {
+                    Some(a) if a.step == step => (a.inputs, a.scoring_time),
+                    _ => (None, Duration::ZERO),
+                };
+                let scored = inputs.is_some();
                 self.phase = Phase::Selecting(Selecting {
                     step,
-                    inputs: ahead.as_ref().and_then(|a| a.inputs.clone()),
+                    inputs,
                     scored,
                     scoring_time: Duration::ZERO,
                     rounds_started: now,
                 });
-                if let Some(a) = ahead.filter(|_| scored) {
-                    self.start_selection(a.scoring_time, true, now, out);
+                if scored {
+                    self.start_selection(scoring_time, true, now, out);
                 }
             }
         }
@@ -815,7 +820,7 @@ impl NodeActor {
                 due,
                 inputs: None,
                 scoring_time: Duration::ZERO,
-                ready: self.step_deadline.is_none(),
+                released: self.step_deadline.is_none(),
             });
         }
     }

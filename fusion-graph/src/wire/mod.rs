@@ -974,22 +974,16 @@ fn u16_at(body: &[u8], at: usize) -> Result<u16, WireError> {
     Ok(u16::from_le_bytes([b[0], b[1]]))
 }
 
-/// A piece's place within its count: the last says the count, earlier
-/// pieces say 0.
-fn piece_in_order(part: u16, parts: u16) -> Result<(), WireError> {
-    if parts != 0 && part >= parts {
-        return Err(WireError::Unordered);
-    }
-    Ok(())
-}
-
 /// A [`SelectionReport`](Payload::SelectionReport) body: at most
 /// [`MAX_REPORTED_CANDIDATES`] finite blocks, each with non-negative
 /// diagonal (a Fisher information is positive semi-definite).
 fn selection_report(body: &[u8]) -> Result<Payload, WireError> {
-    let [to, part, parts, node, first] = [0, 2, 4, 6, 8].map(|at| u16_at(body, at));
-    let (to, part, parts, node, first) = (to?, part?, parts?, node?, first?);
-    piece_in_order(part, parts)?;
+    let (to, part, parts) = (u16_at(body, 0)?, u16_at(body, 2)?, u16_at(body, 4)?);
+    let (node, first) = (u16_at(body, 6)?, u16_at(body, 8)?);
+    // The last piece says the count; earlier pieces say 0.
+    if parts != 0 && part >= parts {
+        return Err(WireError::Unordered);
+    }
     let count = *body.get(10).ok_or(WireError::Truncated)? as usize;
     if count > MAX_REPORTED_CANDIDATES {
         return Err(WireError::Length {
