@@ -31,6 +31,7 @@ use fusion_graph::scenario::{
     SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::wire::{examples, seal, Message, WireFormat};
+use fusion_graph::world_memory::{TruthReader, TruthRing};
 use fusion_graph::Topology;
 use node::ProcessingNode;
 use rand::{Rng, SeedableRng};
@@ -481,6 +482,9 @@ fn shape(message: &str) -> String {
 struct Actors {
     nodes: Vec<ProcessingNode>,
     sensor: SensorActor,
+    /// The sensor's world: the truth of steps 1 to 16 only, so that a
+    /// forged step exercises the refusal of a step it does not hold.
+    world: TruthReader,
     mac: sensor::mac::MacActor,
     now: Duration,
 }
@@ -511,9 +515,15 @@ impl Actors {
             .expect("the built-in compressive scenario");
         let field = Topology::from_scenario(&compressive, "compressive").expect("its topology");
         nodes.push(ProcessingNode::for_scenario(&compressive, &field, 0).expect("node-0"));
+        let truths = TruthRing::on_heap(16);
+        let mut world = runtime::world::World::new(&scenario).expect("the default world");
+        for step in 1..=16 {
+            truths.write(step, &world.advance());
+        }
         Self {
             nodes,
             sensor: SensorActor::new(&scenario, &topology, 0).expect("sensor-0"),
+            world: truths.reader(),
             mac: sensor::mac::MacActor::new(&compressive, &field, 0)
                 .expect("mac-0")
                 .expect("the scenario has a channel"),
@@ -548,7 +558,10 @@ impl Actors {
                 }
             }
         }
-        let observed = self.sensor.handle(&message).is_some();
+        let observed = match self.sensor.handle(&message, &self.world) {
+            Ok(observation) => observation.is_some(),
+            Err(_) => false,
+        };
         let delivered = self.mac.handle(&message, self.now).is_some()
             | self.mac.handle_timeout(self.now).is_some();
         let observed = observed || delivered;

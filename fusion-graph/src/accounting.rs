@@ -13,6 +13,9 @@ use crate::wire::MessageKind;
 #[derive(Debug, Default)]
 pub struct Accounting {
     links: BTreeMap<LinkKey, Counters>,
+    /// Reads of the world's truth that failed: a sensor that found the
+    /// step it was activated for not yet written, or no longer held.
+    world_misses: u64,
     ledger: Option<Ledger>,
 }
 
@@ -21,6 +24,7 @@ impl Clone for Accounting {
     fn clone(&self) -> Self {
         Self {
             links: self.links.clone(),
+            world_misses: self.world_misses,
             ledger: None,
         }
     }
@@ -28,7 +32,7 @@ impl Clone for Accounting {
 
 impl PartialEq for Accounting {
     fn eq(&self, other: &Self) -> bool {
-        self.links == other.links
+        self.links == other.links && self.world_misses == other.world_misses
     }
 }
 
@@ -36,10 +40,30 @@ impl Accounting {
     /// Counts that continue those already in `ledger` (an earlier
     /// incarnation's) and are mirrored into it from now on.
     pub fn backed_by(ledger: Ledger) -> Self {
+        let counts = ledger.counts();
         Self {
-            links: ledger.counts().0,
+            links: counts.links.0,
+            world_misses: counts.world_misses,
             ledger: Some(ledger),
         }
+    }
+
+    /// Counts a read of the world's truth that failed.
+    pub fn record_world_miss(&mut self) {
+        self.world_misses += 1;
+        if let Some(ledger) = &self.ledger {
+            ledger.count_world_miss();
+        }
+    }
+
+    /// Reads of the world's truth that failed.
+    pub fn world_misses(&self) -> u64 {
+        self.world_misses
+    }
+
+    /// Adds reads of the world that failed elsewhere (another host's).
+    pub fn add_world_misses(&mut self, misses: u64) {
+        self.world_misses += misses;
     }
 
     fn mirror(&mut self, key: LinkKey, pair: Pair, messages: i64, bytes: usize) {
@@ -132,6 +156,7 @@ impl Accounting {
         for (k, c) in &other.links {
             self.add_counters(*k, c);
         }
+        self.world_misses += other.world_misses;
     }
 
     pub(crate) fn add_counters(&mut self, key: LinkKey, c: &Counters) {
@@ -180,10 +205,26 @@ impl Accounting {
         s
     }
 
-    /// Reads back what [`to_csv`](Self::to_csv) wrote; `None` on any bad row.
+    /// [`to_csv`](Self::to_csv) and, on a last line, the failed reads of
+    /// the world: how an agent sends its host's counts home.
+    pub fn to_csv_with_world_misses(&self) -> String {
+        format!(
+            "{}{WORLD_MISSES_LINE}{}\n",
+            self.to_csv(),
+            self.world_misses
+        )
+    }
+
+    /// Reads back what [`to_csv`](Self::to_csv) or
+    /// [`to_csv_with_world_misses`](Self::to_csv_with_world_misses) wrote;
+    /// `None` on any bad row.
     pub fn from_csv(text: &str) -> Option<Self> {
         let mut a = Accounting::default();
         for line in text.lines().skip(1).filter(|l| !l.is_empty()) {
+            if let Some(misses) = line.strip_prefix(WORLD_MISSES_LINE) {
+                a.world_misses += misses.parse::<u64>().ok()?;
+                continue;
+            }
             let f: Vec<&str> = line.split(',').collect();
             // 11 columns before duplicates were counted.
             if f.len() != 11 && f.len() != 13 {
@@ -218,6 +259,9 @@ impl Accounting {
     }
 }
 
+/// The start of the line that carries the failed reads of the world.
+const WORLD_MISSES_LINE: &str = "# world_misses,";
+
 impl MessageKind {
     fn from_u8_or_malformed(v: u8) -> Option<Self> {
         if v == 255 {
@@ -232,6 +276,7 @@ impl From<Links> for Accounting {
     fn from(links: Links) -> Self {
         Self {
             links: links.0,
+            world_misses: 0,
             ledger: None,
         }
     }
@@ -240,7 +285,11 @@ impl From<Links> for Accounting {
 /// The counts an actor left in its ledger at `path` (see
 /// [`crate::ledger::read_ledger`]).
 pub fn read_ledger(path: &std::path::Path) -> Result<Accounting, LedgerError> {
-    crate::ledger::read_ledger(path).map(Accounting::from)
+    crate::ledger::read_ledger(path).map(|c| {
+        let mut a = Accounting::from(c.links);
+        a.world_misses = c.world_misses;
+        a
+    })
 }
 
 #[cfg(test)]
@@ -295,5 +344,15 @@ mod tests {
         );
         assert_eq!(b.by_kind()[&MessageKind::Malformed].malformed_messages, 1);
         assert_eq!(Accounting::from_csv(&b.to_csv()).unwrap(), b);
+        // The failed reads of the world travel only on the agents' form.
+        b.record_world_miss();
+        b.merge(&b.clone());
+        assert_eq!(b.world_misses(), 2);
+        assert_eq!(Accounting::from_csv(&b.to_csv()).unwrap().world_misses(), 0);
+        assert_eq!(
+            Accounting::from_csv(&b.to_csv_with_world_misses()).unwrap(),
+            b
+        );
+        assert!(Accounting::from_csv(&(b.to_csv() + "# world_misses,x\n")).is_none());
     }
 }

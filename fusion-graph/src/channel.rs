@@ -11,10 +11,13 @@ use crate::SetupError;
     Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
 )]
 pub enum Channel {
-    /// Launcher → every actor: the step and the true state.
-    Tick,
-    /// Node → its sensors: which are active this step.
-    Activation(u16),
+    /// Launcher → every sensor and multiple-access channel: the stop. (The
+    /// target's truth is not a message: see `world_memory`.)
+    Lifecycle,
+    /// Node → one of its sensors, or its multiple-access channel: the step's
+    /// activation. One channel each, so that a sensor its node does not
+    /// activate receives nothing and is never woken.
+    Activation { node: u16, to: ActorId },
     /// Sensor → its node (and the centralized reference).
     Observation(u16),
     /// Node → its fusion-graph neighbours.
@@ -34,8 +37,8 @@ impl Channel {
     /// The one actor that publishes on this channel.
     pub fn publisher(self) -> ActorId {
         match self {
-            Channel::Tick | Channel::Control(_) => ActorId::Launcher,
-            Channel::Activation(n) | Channel::Consensus(n) | Channel::Telemetry(n) => {
+            Channel::Lifecycle | Channel::Control(_) => ActorId::Launcher,
+            Channel::Activation { node: n, .. } | Channel::Consensus(n) | Channel::Telemetry(n) => {
                 ActorId::Node(n)
             }
             Channel::Pair { from, .. } => ActorId::Node(from),
@@ -59,8 +62,8 @@ impl Channel {
     /// The part of the service name after `cqnet/<run>/`.
     pub fn service_suffix(self) -> String {
         match self {
-            Channel::Tick => "tick".into(),
-            Channel::Activation(n) => format!("act/node-{n}"),
+            Channel::Lifecycle => "lifecycle".into(),
+            Channel::Activation { node, to } => format!("act/node-{node}/{to}"),
             Channel::Observation(s) => format!("obs/sensor-{s}"),
             Channel::Consensus(n) => format!("cons/node-{n}"),
             Channel::Pair { from, to } => format!("pair/node-{from}/node-{to}"),

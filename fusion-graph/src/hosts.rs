@@ -218,28 +218,29 @@ impl Placement {
     /// Every channel of the network, with the actors that read it.
     pub fn channels(&self, topology: &Topology) -> Vec<(Channel, Vec<ActorId>)> {
         let mut all = vec![(
-            Channel::Tick,
+            Channel::Lifecycle,
             topology
                 .actors()
-                .filter(|a| *a != ActorId::Launcher)
+                .filter(|a| matches!(a, ActorId::Sensor(_) | ActorId::Mac(_)))
                 .collect(),
         )];
         for n in 0..topology.nodes() as u16 {
-            let sensors = topology.node_sensors[n as usize]
-                .iter()
-                .map(|s| ActorId::Sensor(*s));
             let neighbours = || {
                 topology.neighbours[n as usize]
                     .iter()
                     .map(|m| ActorId::Node(*m))
             };
-            let mut activated: Vec<ActorId> = sensors.collect();
+            // Each sensor, and the multiple-access channel (which reads the
+            // schedule of its slots), has its own.
+            all.extend(topology.activation_channels(n).map(|c| {
+                let Channel::Activation { to, .. } = c else {
+                    unreachable!("an activation channel")
+                };
+                (c, vec![to])
+            }));
             if topology.macs {
-                // The channel reads the schedule of its slots.
-                activated.push(ActorId::Mac(n));
                 all.push((Channel::MacOutput(n), vec![ActorId::Node(n)]));
             }
-            all.push((Channel::Activation(n), activated));
             all.push((Channel::Consensus(n), neighbours().collect()));
             all.push((Channel::Control(ActorId::Node(n)), vec![ActorId::Node(n)]));
             all.push((Channel::Telemetry(n), vec![ActorId::Launcher]));
@@ -420,7 +421,7 @@ mod tests {
         // Observations never cross except to the launcher; activations never.
         assert!(taken
             .iter()
-            .all(|(c, g)| !matches!(c, Channel::Activation(_))
+            .all(|(c, g)| !matches!(c, Channel::Activation { .. })
                 && (!matches!(c, Channel::Observation(_)) || *g == 0)));
     }
 

@@ -19,7 +19,7 @@
 //! | 3 | journal: slot + 1 of the update in progress, 0 when none |
 //! | 4 | journal: which counter pair (0 sent, 1 received, 2 dropped, 3 malformed, 4 duplicated) |
 //! | 5, 6 | journal: that pair's messages and bytes before the update |
-//! | 7 | reserved |
+//! | 7 | reads of the world's truth that failed (a sensor's; see `world_memory`) |
 //! | 8 + 11·i | slot i: its key, then the ten [`Counters`] fields |
 //!
 //! Slots are handed out densely in first-use order, so a file touches only
@@ -46,6 +46,7 @@ const JOURNAL_SLOT: usize = 3;
 const JOURNAL_PAIR: usize = 4;
 const JOURNAL_MESSAGES: usize = 5;
 const JOURNAL_BYTES: usize = 6;
+const WORLD_MISSES: usize = 7;
 
 /// What went wrong opening or reading a ledger.
 #[derive(Debug, thiserror::Error)]
@@ -189,10 +190,16 @@ impl Ledger {
         Ok(())
     }
 
+    /// Counts one read of the world's truth that failed. One word, one
+    /// writer: a kill cannot leave it half done.
+    pub fn count_world_miss(&self) {
+        self.store(WORLD_MISSES, self.load(WORLD_MISSES) + 1);
+    }
+
     /// The counts as they stand.
-    pub fn counts(&self) -> Links {
+    pub fn counts(&self) -> LedgerCounts {
         decode(&snapshot(self.words()), &self.path)
-            .map(|d| d.links)
+            .map(|d| d.counts)
             .unwrap_or_default()
     }
 }
@@ -200,7 +207,7 @@ impl Ledger {
 /// Reads the ledger an actor left at `path`, undoing the update a kill
 /// interrupted. Safe to call while the actor still runs (the launcher's live
 /// view does): the figures are then a moment's, not a final count.
-pub fn read_ledger(path: &Path) -> Result<Links, LedgerError> {
+pub fn read_ledger(path: &Path) -> Result<LedgerCounts, LedgerError> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| LedgerError::Io {
         path: name.clone(),
@@ -210,7 +217,15 @@ pub fn read_ledger(path: &Path) -> Result<Links, LedgerError> {
         .chunks_exact(8)
         .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
         .collect();
-    Ok(decode(&words, &name)?.links)
+    Ok(decode(&words, &name)?.counts)
+}
+
+/// What a ledger holds: the counts of each link, and the actor's failed
+/// reads of the world.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LedgerCounts {
+    pub links: Links,
+    pub world_misses: u64,
 }
 
 fn snapshot(words: &[AtomicU64]) -> Vec<u64> {
@@ -222,7 +237,7 @@ fn slot_base(i: usize) -> usize {
 }
 
 struct Decoded {
-    links: Links,
+    counts: LedgerCounts,
     keys: Vec<LinkKey>,
 }
 
@@ -276,7 +291,13 @@ fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
             },
         );
     }
-    Ok(Decoded { links, keys })
+    Ok(Decoded {
+        counts: LedgerCounts {
+            links,
+            world_misses: words[WORLD_MISSES],
+        },
+        keys,
+    })
 }
 
 fn encode_actor(a: ActorId) -> u64 {
@@ -353,7 +374,7 @@ mod tests {
     #[test]
     fn keys_survive_encoding() {
         for kind in [
-            MessageKind::Tick,
+            MessageKind::Activate,
             MessageKind::SelectionReport,
             MessageKind::Malformed,
         ] {
@@ -378,7 +399,13 @@ mod tests {
         let mut l = Ledger::open_or_create(&path, 8).unwrap();
         l.add(key(MessageKind::Activate), Pair::Sent, 1, 16)
             .unwrap();
-        let a = read_ledger(&path).unwrap();
+        l.count_world_miss();
+        let read = read_ledger(&path).unwrap();
+        assert_eq!(read.world_misses, 1);
+        assert_eq!(l.counts(), read);
+        l.count_world_miss();
+        assert_eq!(read_ledger(&path).unwrap().world_misses, 2);
+        let a = read.links;
         let c = a.get(
             ActorId::Node(3),
             ActorId::Sensor(700),
@@ -391,7 +418,6 @@ mod tests {
             MessageKind::Observation,
         );
         assert_eq!((c.dropped_messages, c.dropped_bytes), (1, 12));
-        assert_eq!(l.counts(), a);
     }
 
     /// A kill between any two stores of an update: the reader sees the
@@ -410,7 +436,7 @@ mod tests {
         l.store(JOURNAL_SLOT, 1);
         l.store(base, 2);
         l.map.flush().unwrap();
-        let c = read_ledger(&path).unwrap().get(
+        let c = read_ledger(&path).unwrap().links.get(
             ActorId::Node(3),
             ActorId::Sensor(700),
             MessageKind::Consensus,
@@ -421,7 +447,7 @@ mod tests {
         let mut l = Ledger::open_or_create(&path, 4).unwrap();
         l.add(key(MessageKind::Consensus), Pair::Received, 1, 203)
             .unwrap();
-        let c = read_ledger(&path).unwrap().get(
+        let c = read_ledger(&path).unwrap().links.get(
             ActorId::Node(3),
             ActorId::Sensor(700),
             MessageKind::Consensus,
@@ -433,7 +459,7 @@ mod tests {
     fn a_full_ledger_and_a_damaged_file_are_errors() {
         let path = temp("full");
         let mut l = Ledger::open_or_create(&path, 1).unwrap();
-        l.add(key(MessageKind::Tick), Pair::Sent, 1, 1).unwrap();
+        l.add(key(MessageKind::Activate), Pair::Sent, 1, 1).unwrap();
         assert!(matches!(
             l.add(key(MessageKind::Control), Pair::Sent, 1, 1),
             Err(LedgerError::Full { capacity: 1, .. })

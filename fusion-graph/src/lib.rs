@@ -20,6 +20,7 @@ pub mod shaper;
 pub mod topology;
 pub mod transport;
 pub mod wire;
+pub mod world_memory;
 
 pub use accounting::{Accounting, Counters};
 pub use actor::ActorId;

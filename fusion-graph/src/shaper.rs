@@ -113,6 +113,23 @@ pub struct LinkShaper {
     in_burst: HashMap<ActorId, bool>,
     /// When each rate-limited link has finished serializing what it holds.
     busy_until: HashMap<ActorId, Duration>,
+    /// Rules taken from each message's own step, for a receiver that is
+    /// not told when steps begin (see [`LinkShaper::follow_steps`]).
+    follow: Option<StepRules>,
+}
+
+/// The rules of a step, and the step they are in place for.
+struct StepRules {
+    step: Option<u32>,
+    rules_at: Box<dyn FnMut(u32) -> Vec<(ActorId, LinkRule)> + Send>,
+}
+
+impl std::fmt::Debug for StepRules {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StepRules")
+            .field("step", &self.step)
+            .finish()
+    }
 }
 
 impl LinkShaper {
@@ -124,6 +141,40 @@ impl LinkShaper {
             sequence: 0,
             in_burst: HashMap::new(),
             busy_until: HashMap::new(),
+            follow: None,
+        }
+    }
+
+    /// From now on, each message arriving is judged by the rules of its
+    /// own step, `rules_at(step)`, read from its header. A sensor or a
+    /// channel is not told when a step begins: a message is all it learns
+    /// of the step, so the message's step is the one whose faults apply.
+    pub fn follow_steps(
+        &mut self,
+        rules_at: impl FnMut(u32) -> Vec<(ActorId, LinkRule)> + Send + 'static,
+    ) {
+        self.follow = Some(StepRules {
+            step: None,
+            rules_at: Box::new(rules_at),
+        });
+    }
+
+    /// Puts in place the rules of the step of `bytes`, when they follow steps.
+    fn rules_for_message(&mut self, bytes: &[u8]) {
+        let Some(step) = crate::wire::peek_step(bytes) else {
+            return;
+        };
+        let Some(follow) = self.follow.as_mut() else {
+            return;
+        };
+        if follow.step == Some(step) {
+            return;
+        }
+        follow.step = Some(step);
+        let rules = (follow.rules_at)(step);
+        self.clear_rules();
+        for (from, rule) in rules {
+            self.set_rule(from, rule);
         }
     }
 
@@ -174,6 +225,7 @@ impl LinkShaper {
     /// Decides the fate of a message from `from` arriving at `now`. A held
     /// message is copied in, once per copy that will arrive.
     pub fn admit(&mut self, from: ActorId, bytes: &[u8], now: Duration) -> Admission {
+        self.rules_for_message(bytes);
         let Some(rule) = self.rules.get(&from).copied() else {
             return Admission::Deliver;
         };

@@ -81,15 +81,31 @@ impl Topology {
     /// centralized reference reads every observation).
     pub fn subscribers(&self, channel: Channel) -> usize {
         match channel {
-            Channel::Tick => self.nodes() + self.sensors() + self.mac_count(),
-            Channel::Activation(n) => self.node_sensors[n as usize].len() + usize::from(self.macs),
+            Channel::Lifecycle => self.sensors() + self.mac_count(),
             Channel::Observation(_) => 2,
             Channel::Consensus(n) => self.neighbours[n as usize].len(),
-            Channel::Control(_)
+            Channel::Activation { .. }
+            | Channel::Control(_)
             | Channel::Telemetry(_)
             | Channel::Pair { .. }
             | Channel::MacOutput(_) => 1,
         }
+    }
+
+    /// The activation channels of node `n`: one to each of its sensors,
+    /// and one to its multiple-access channel if it has one.
+    pub fn activation_channels(&self, n: u16) -> impl Iterator<Item = Channel> + '_ {
+        let sensors = self.node_sensors[n as usize]
+            .iter()
+            .map(move |s| Channel::Activation {
+                node: n,
+                to: ActorId::Sensor(*s),
+            });
+        let mac = self.macs.then_some(Channel::Activation {
+            node: n,
+            to: ActorId::Mac(n),
+        });
+        sensors.chain(mac)
     }
 
     pub fn nodes(&self) -> usize {

@@ -283,7 +283,7 @@ impl NodeActor {
 
     /// The channels this node publishes on.
     pub fn publications(&self) -> Vec<Channel> {
-        wiring::publications(self.index)
+        wiring::publications(&self.topology, self.index)
     }
 
     /// Actors this node sends to (to wake them).
@@ -696,7 +696,7 @@ impl NodeActor {
             None => Payload::Activate { mask },
             Some(c) => c.activate(step, &picks, own, &self.model, mask),
         };
-        out.push(wiring::activation(self.index, step, own, &picks, payload));
+        wiring::activate(out, self.index, step, own, &picks, payload);
         self.answers.activated(&active);
         self.active.clone_from(&active);
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
@@ -1017,7 +1017,8 @@ mod tests {
                 net.run(LONG);
                 let this_step: Vec<&(u16, u32, Vec<u16>)> =
                     net.activations.iter().filter(|a| a.1 == step).collect();
-                assert_eq!(this_step.len(), 3, "{manager}: one activation per node");
+                // A node that activates none sends nothing.
+                assert!(this_step.len() <= 3, "{manager}: one activation per node");
                 assert!(
                     this_step.iter().all(|a| a.2.len() <= 2),
                     "{manager}: {this_step:?}"

@@ -239,7 +239,7 @@ impl DiffusionNode {
     /// The channels this node publishes on: a CF/DPF node's, and for random
     /// exchange its channel to each neighbour.
     pub fn publications(&self) -> Vec<Channel> {
-        let mut v = wiring::publications(self.index);
+        let mut v = wiring::publications(&self.topology, self.index);
         if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
             v.extend(self.neighbours().iter().map(|m| Channel::Pair {
                 from: self.index,
@@ -448,13 +448,14 @@ impl DiffusionNode {
         });
         let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
         let mask = wiring::mask(&picks);
-        out.push(wiring::activation(
+        wiring::activate(
+            out,
             self.index,
             step,
             &own,
             &picks,
             Payload::Activate { mask },
-        ));
+        );
         self.answers.activated(&active);
         let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.stepping = Some(Box::new(Stepping {

@@ -211,7 +211,17 @@ impl Net {
                 }
                 // The harness's sensors always send: censoring is tested
                 // with the real sensor actors, in `sim`.
+                // The same activation goes to each active sensor on its
+                // own channel: the step's first copy stands for them all.
                 Payload::Activate { mask } | Payload::ActivateWithFeedback { mask, .. } => {
+                    let step = o.message.header.step;
+                    if self
+                        .activations
+                        .iter()
+                        .any(|a| a.0 == i as u16 && a.1 == step)
+                    {
+                        continue;
+                    }
                     let own = &self.topology.node_sensors[i];
                     let active = (0..own.len())
                         .filter(|k| mask.contains(*k))

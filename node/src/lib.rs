@@ -72,7 +72,7 @@ pub struct Outgoing {
     pub channel: Channel,
     pub message: Message,
     pub receivers: Vec<ActorId>,
-    /// Whom to wake, when not every receiver: the activation reaches all of
-    /// a node's sensors but wakes only the active ones.
+    /// Whom to wake, when not every receiver: a consensus round wakes only
+    /// the neighbours it still waits for.
     pub wake: Option<Vec<ActorId>>,
 }

@@ -141,7 +141,7 @@ impl LocatorNode {
     }
 
     pub fn publications(&self) -> Vec<Channel> {
-        wiring::publications(self.index)
+        wiring::publications(&self.topology, self.index)
     }
 
     pub fn peers(&self) -> Vec<ActorId> {
@@ -278,7 +278,7 @@ impl LocatorNode {
             },
             None => Payload::Activate { mask },
         };
-        out.push(wiring::activation(self.index, step, &own, &picks, payload));
+        wiring::activate(out, self.index, step, &own, &picks, payload);
         self.answers.activated(&active);
         let cells = self.quantizer.as_ref().map(Quantizer::cells);
         let empty = active.is_empty();

@@ -154,11 +154,17 @@ impl MacCentre {
         vec![Channel::Control(self.id()), Channel::MacOutput(self.index)]
     }
 
+    /// An activation channel to each of its sensors and to its channel,
+    /// and its telemetry.
     pub fn publications(&self) -> Vec<Channel> {
-        vec![
-            Channel::Activation(self.index),
-            Channel::Telemetry(self.index),
-        ]
+        let node = self.index;
+        self.own
+            .iter()
+            .map(|s| ActorId::Sensor(*s))
+            .chain([ActorId::Mac(node)])
+            .map(|to| Channel::Activation { node, to })
+            .chain([Channel::Telemetry(node)])
+            .collect()
     }
 
     /// Its sensors and its channel (the schedule wakes them), and the
@@ -257,12 +263,8 @@ impl MacCentre {
                 s.select_time = elapsed;
                 s.deadline = Some(now + self.listen);
                 let step = s.step;
-                if let Some(schedule) = s
-                    .design
-                    .as_ref()
-                    .map(|d| schedule(self.index, &self.own, step, d))
-                {
-                    out.push(schedule);
+                if let Some(d) = s.design.as_ref() {
+                    out.extend(schedule(self.index, &self.own, step, d));
                 }
             }
             Work::Weigh => {
@@ -365,14 +367,13 @@ impl MacCentre {
     }
 }
 
-/// The schedule of node `index`'s step: each transmitting sensor's column,
-/// to every own sensor and the channel; it wakes the transmitters and the
-/// channel.
-fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Outgoing {
+/// The schedule of node `index`'s step, each transmitting sensor's column:
+/// to each transmitter and to the channel, each on its own activation
+/// channel (a sensor that does not transmit hears nothing and sleeps).
+fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Vec<Outgoing> {
     let phi = design.likelihood.sensing_matrix();
-    let columns: Vec<SlotColumn> = design
-        .likelihood
-        .transmitters()
+    let transmitters = design.likelihood.transmitters();
+    let columns: Vec<SlotColumn> = transmitters
         .iter()
         .map(|&j| {
             let (slots, negative) = phi.column(j);
@@ -383,29 +384,26 @@ fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Outgoing {
             }
         })
         .collect();
-    let mut receivers: Vec<ActorId> = own.iter().map(|s| ActorId::Sensor(*s)).collect();
-    receivers.push(ActorId::Mac(index));
-    let mut wake: Vec<ActorId> = design
-        .likelihood
-        .transmitters()
+    let message = Message::new(
+        ActorId::Node(index),
+        step,
+        0,
+        Payload::ActivateSlots {
+            slots: phi.slots() as u8,
+            columns,
+        },
+    );
+    transmitters
         .iter()
         .map(|&j| ActorId::Sensor(own[j]))
-        .collect();
-    wake.push(ActorId::Mac(index));
-    Outgoing {
-        channel: Channel::Activation(index),
-        message: Message::new(
-            ActorId::Node(index),
-            step,
-            0,
-            Payload::ActivateSlots {
-                slots: phi.slots() as u8,
-                columns,
-            },
-        ),
-        receivers,
-        wake: Some(wake),
-    }
+        .chain([ActorId::Mac(index)])
+        .map(|to| Outgoing {
+            channel: Channel::Activation { node: index, to },
+            message: message.clone(),
+            receivers: vec![to],
+            wake: None,
+        })
+        .collect()
 }
 
 impl MacCentre {

@@ -29,13 +29,13 @@ pub(crate) fn subscriptions(topology: &Topology, index: u16) -> Vec<Channel> {
     v
 }
 
-/// The channels node `index` publishes on.
-pub(crate) fn publications(index: u16) -> Vec<Channel> {
-    vec![
-        Channel::Activation(index),
-        Channel::Consensus(index),
-        Channel::Telemetry(index),
-    ]
+/// The channels node `index` publishes on: an activation channel to each
+/// of its sensors, its consensus channel and its telemetry.
+pub(crate) fn publications(topology: &Topology, index: u16) -> Vec<Channel> {
+    let mut v: Vec<Channel> = topology.activation_channels(index).collect();
+    v.push(Channel::Consensus(index));
+    v.push(Channel::Telemetry(index));
+    v
 }
 
 /// The actors node `index` sends to (to wake them): its sensors, its
@@ -62,21 +62,27 @@ pub(crate) fn is_next_step(step: u32, steps: u32, last: Option<u32>) -> bool {
     step != 0 && step <= steps && last.is_none_or(|l| step > l)
 }
 
-/// The activation of `picks` (positions in `own`, the node's sensors): it
-/// reaches every own sensor's queue and wakes the active ones.
-pub(crate) fn activation(
+/// The activation of `picks` (positions in `own`, the node's sensors): the
+/// same message to each active sensor on its own channel, so that a sensor
+/// not active receives nothing and sleeps.
+pub(crate) fn activate(
+    out: &mut Vec<Outgoing>,
     node: u16,
     step: u32,
     own: &[u16],
     picks: &[usize],
     payload: Payload,
-) -> Outgoing {
-    Outgoing {
-        channel: Channel::Activation(node),
-        message: Message::new(ActorId::Node(node), step, 0, payload),
-        receivers: own.iter().map(|s| ActorId::Sensor(*s)).collect(),
-        wake: Some(picks.iter().map(|&i| ActorId::Sensor(own[i])).collect()),
-    }
+) {
+    let message = Message::new(ActorId::Node(node), step, 0, payload);
+    out.extend(picks.iter().map(|&i| {
+        let to = ActorId::Sensor(own[i]);
+        Outgoing {
+            channel: Channel::Activation { node, to },
+            message: message.clone(),
+            receivers: vec![to],
+            wake: None,
+        }
+    }));
 }
 
 /// The mask of `picks` for an activation's payload.

@@ -12,18 +12,21 @@ use fusion_graph::scenario::ClockMode;
 use fusion_graph::transport::iceoryx::map_run_memory;
 use fusion_graph::transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use fusion_graph::wire::{Control, Message, Payload};
+use fusion_graph::world_memory::TruthReader;
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::ProcessingNode;
 use sensor::SensorActor;
 
-use crate::drive::run_pending_work;
+use crate::drive::{run_pending_work, sensor_handles};
 use crate::results::write_atomically;
 
-/// Longest sleep between checks that the launcher is still there. A
-/// sensor is woken by its activation, and by the tick only once in
-/// `world::DRAIN_PERIOD` steps (to drain its queues), so a slow run's idle
-/// sensor also drains them this often.
+/// Longest sleep between checks that the launcher is still there.
 const IDLE_WAIT: Duration = Duration::from_millis(100);
+
+/// A sensor's: it is woken by its activation alone, and a sensor its node
+/// never activates should cost nothing. The check is a backstop: the
+/// kernel kills an actor whose parent dies (`PR_SET_PDEATHSIG`).
+const SENSOR_IDLE_WAIT: Duration = Duration::from_secs(1);
 
 /// How long a node polls for a wake-up before it sleeps, while it waits for
 /// a message due within the step (a neighbour's round, its sensors'
@@ -98,7 +101,15 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
     }
     match actor {
         ActorId::Sensor(i) => {
-            sensor_loop(&scenario, &topology, transport, i, &out, args.centralized)
+            let world = TruthReader::open(&run).with_context(|| {
+                format!("{actor} cannot see the world (the run's truth in shared memory)")
+            })?;
+            let i = SensorRun {
+                index: i,
+                centralized: args.centralized,
+                world,
+            };
+            sensor_loop(&scenario, &topology, transport, i, &out)
         }
         ActorId::Node(i) => {
             share_table_rows(&run);
@@ -241,42 +252,47 @@ pub fn read_cpu_per_step(out: &Path, actor: ActorId) -> Option<f64> {
     (steps > 0).then(|| micros as f64 / 1e6 / steps as f64)
 }
 
+/// Which sensor a process runs, and what it needs beside the scenario.
+struct SensorRun {
+    index: u16,
+    /// Its observations also go to the launcher's centralized reference.
+    centralized: bool,
+    /// Where it looks at the target.
+    world: TruthReader,
+}
+
 fn sensor_loop<T: Transport>(
     scenario: &Scenario,
     topology: &Topology,
     mut t: T,
-    index: u16,
+    run: SensorRun,
     out: &Path,
-    centralized: bool,
 ) -> anyhow::Result<()> {
-    let mut actor = SensorActor::new(scenario, topology, index)?;
+    let mut actor = SensorActor::new(scenario, topology, run.index)?;
     t.publish_on(actor.publication())?;
     for c in actor.subscriptions() {
         t.subscribe(c)?;
     }
     t.notify(actor.reports_to())?;
-    let receivers: Vec<ActorId> = if centralized {
+    let receivers: Vec<ActorId> = if run.centralized {
         t.notify(ActorId::Launcher)?;
         vec![actor.reports_to(), ActorId::Launcher]
     } else {
         vec![actor.reports_to()]
     };
-    let schedule = FaultSchedule::new(&scenario.faults);
+    FaultSchedule::new(&scenario.faults).follow_link_faults(&mut t, topology);
     announce_ready();
     let mut inbox = Vec::new();
-    let mut step = 0;
     loop {
-        t.wait(IDLE_WAIT)?;
+        t.wait(SENSOR_IDLE_WAIT)?;
         inbox.clear();
         let now = t.now();
         t.receive(now, &mut inbox)?;
         for m in inbox.drain(..) {
-            if follow_the_launcher(&m, &mut step, &schedule, &mut t, topology) {
+            if is_stop(&m) {
                 return write_memory(t.me(), out);
             }
-            if let Some(obs) = actor.handle(&m) {
-                t.send(actor.publication(), &obs, &receivers)?;
-            }
+            sensor_handles(&mut actor, &mut t, &m, &run.world, &receivers)?;
         }
         if launcher_gone() {
             return Ok(());
@@ -284,26 +300,12 @@ fn sensor_loop<T: Transport>(
     }
 }
 
-/// What a sensor or a channel takes from the launcher's tick channel:
-/// a tick of a new step puts that step's link faults in place; true on
-/// the stop.
-fn follow_the_launcher<T: Transport>(
-    m: &Message,
-    step: &mut u32,
-    schedule: &FaultSchedule,
-    t: &mut T,
-    topology: &Topology,
-) -> bool {
-    match m.payload {
-        Payload::Control(Control::Stop) => true,
-        Payload::Tick { .. } if m.header.step != *step => {
-            *step = m.header.step;
-            schedule.apply_link_faults(*step, t, topology);
-            t.update_connections();
-            false
-        }
-        _ => false,
-    }
+/// The launcher's stop, on its lifecycle channel.
+fn is_stop(m: &Message) -> bool {
+    matches!(
+        (&m.payload, m.header.sender),
+        (Payload::Control(Control::Stop), ActorId::Launcher)
+    )
 }
 
 /// A multiple-access channel: woken by its centre's schedule and its
@@ -323,10 +325,9 @@ fn mac_loop<T: Transport>(
         t.subscribe(c)?;
     }
     t.notify(actor.centre())?;
-    let schedule = FaultSchedule::new(&scenario.faults);
+    FaultSchedule::new(&scenario.faults).follow_link_faults(&mut t, topology);
     announce_ready();
     let mut inbox = Vec::new();
-    let mut step = 0;
     loop {
         let now = t.now();
         match actor.poll_timeout() {
@@ -337,7 +338,7 @@ fn mac_loop<T: Transport>(
         let now = t.now();
         t.receive(now, &mut inbox)?;
         for m in inbox.drain(..) {
-            if follow_the_launcher(&m, &mut step, &schedule, &mut t, topology) {
+            if is_stop(&m) {
                 return write_memory(t.me(), out);
             }
             if let Some(z) = actor.handle(&m, t.now()) {
@@ -438,7 +439,8 @@ fn wait_spinning<T: Transport>(
     t.wait(timeout.saturating_sub(started.elapsed()))
 }
 
-/// The message that tells every sensor to stop (sent on the tick channel).
+/// The message that tells every sensor and channel to stop (sent on the
+/// lifecycle channel).
 pub fn stop_message(step: u32) -> Message {
     Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Stop))
 }

@@ -597,6 +597,7 @@ impl<'w> Recorder<'w> {
                 .is_some()
                 .then(|| energy(accounting, facts.steps_done.max(1))),
             deadline_misses: self.averages.deadline_misses,
+            world_misses: accounting.world_misses(),
             faults: self
                 .scenario
                 .faults

@@ -16,16 +16,17 @@ use fusion_graph::registered::Shape;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport, Transport};
 use fusion_graph::wire::{Message, Payload, Telemetry};
+use fusion_graph::world_memory::{TruthReader, TruthRing, WORLD_STEPS};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
 use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
 use sensor::mac::MacActor;
 use sensor::SensorActor;
 
-use crate::drive::run_pending_work;
+use crate::drive::{run_pending_work, sensor_handles};
 use crate::results::{Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::summary::Summary;
-use crate::world::{SensorStates, World};
+use crate::world::World;
 
 struct SensorSlot {
     actor: SensorActor,
@@ -57,6 +58,10 @@ pub struct InProcessNetwork {
     macs: Vec<MacSlot>,
     central: Option<CentralizedReference>,
     world: World,
+    /// The world's memory, which the launcher writes and the sensors read,
+    /// here on the heap.
+    truths: TruthRing,
+    sensors_see: TruthReader,
     schedule: FaultSchedule,
     /// Accounting of actors that died, kept so their bytes still count.
     retired: Accounting,
@@ -93,6 +98,7 @@ impl InProcessNetwork {
                 launcher.subscribe(Channel::Observation(s))?;
             }
         }
+        let schedule = FaultSchedule::new(&scenario.faults);
         let mut sensors = Vec::new();
         for i in 0..topology.sensors() as u16 {
             let actor = SensorActor::new(scenario, topology, i)?;
@@ -100,6 +106,7 @@ impl InProcessNetwork {
             for c in actor.subscriptions() {
                 transport.subscribe(c)?;
             }
+            schedule.follow_link_faults(&mut transport, topology);
             sensors.push(SensorSlot {
                 actor,
                 transport,
@@ -128,8 +135,10 @@ impl InProcessNetwork {
             for c in actor.subscriptions() {
                 transport.subscribe(c)?;
             }
+            schedule.follow_link_faults(&mut transport, topology);
             macs.push(MacSlot { actor, transport });
         }
+        let truths = TruthRing::on_heap(WORLD_STEPS);
         let central = centralized
             .then(|| CentralizedReference::new(scenario, topology))
             .transpose()
@@ -144,7 +153,9 @@ impl InProcessNetwork {
             macs,
             central,
             world: World::new(scenario)?,
-            schedule: FaultSchedule::new(&scenario.faults),
+            sensors_see: truths.reader(),
+            truths,
+            schedule,
             retired: Accounting::default(),
             outgoing: Vec::new(),
             inbox: Vec::new(),
@@ -278,18 +289,13 @@ impl InProcessNetwork {
         Ok(changed)
     }
 
+    /// The nodes' link faults of `step`, as `BeginStep` puts them in place
+    /// in `run`. Sensors and channels take each message under its own
+    /// step's (`FaultSchedule::follow_link_faults`), as they do there.
     fn apply_link_faults(&mut self, step: u32) {
         for n in &mut self.nodes {
             self.schedule
                 .apply_link_faults(step, &mut n.transport, &self.topology);
-        }
-        for s in &mut self.sensors {
-            self.schedule
-                .apply_link_faults(step, &mut s.transport, &self.topology);
-        }
-        for m in &mut self.macs {
-            self.schedule
-                .apply_link_faults(step, &mut m.transport, &self.topology);
         }
     }
 
@@ -302,17 +308,11 @@ impl InProcessNetwork {
         self.apply_link_faults(step);
         let views = self.membership_views(step);
         let truth = self.world.advance();
-        let sensors = SensorStates {
-            alive: self.sensors.iter().map(|s| s.alive).collect(),
-            stopped: self.sensors.iter().map(|s| s.stopped).collect(),
-        };
-        let macs: Vec<ActorId> = self.macs.iter().map(|m| m.actor.id()).collect();
         crate::world::begin_step(
             &mut self.launcher,
+            &self.truths,
             step,
-            truth,
-            &sensors,
-            &macs,
+            &truth,
             &views,
             &self.views,
             process_faults,
@@ -411,16 +411,20 @@ impl InProcessNetwork {
             }
             self.inbox.clear();
             s.transport.receive(now, &mut self.inbox)?;
+            let receivers: &[ActorId] = if self.central.is_some() {
+                &[s.actor.reports_to(), ActorId::Launcher]
+            } else {
+                &[s.actor.reports_to()]
+            };
             for m in self.inbox.drain(..) {
                 progressed = true;
-                if let Some(obs) = s.actor.handle(&m) {
-                    let receivers: &[ActorId] = if self.central.is_some() {
-                        &[s.actor.reports_to(), ActorId::Launcher]
-                    } else {
-                        &[s.actor.reports_to()]
-                    };
-                    s.transport.send(s.actor.publication(), &obs, receivers)?;
-                }
+                sensor_handles(
+                    &mut s.actor,
+                    &mut s.transport,
+                    &m,
+                    &self.sensors_see,
+                    receivers,
+                )?;
             }
         }
         for mac in &mut self.macs {

@@ -112,6 +112,11 @@ pub struct Summary {
     #[serde(default)]
     pub energy: Option<Energy>,
     pub deadline_misses: u64,
+    /// Activations a sensor could not answer because the world's memory
+    /// did not hold their step (not written yet, or no longer held): each
+    /// is an observation missing, never a stale one.
+    #[serde(default)]
+    pub world_misses: u64,
     pub faults: Vec<AppliedFault>,
     pub fault_cost: FaultCost,
     pub wall_seconds: f64,
@@ -330,7 +335,9 @@ pub fn print_table(s: &Summary) {
         "centralized bound, m",
         m(e.mean_centralized_bound)
     );
-    println!("  bytes per step by kind:");
+    // What the network sent: sensors see the target in the world's
+    // memory, which is not traffic.
+    println!("  bytes per step by kind (the truth sensors see is not a message):");
     for t in &s.traffic {
         println!("    {:<28} {:>12.1} B/step {:>10} msgs {:>8} dropped {:>6} malformed {:>6} unaccounted", t.kind, t.bytes_per_step, t.messages, t.dropped_messages, t.malformed_messages, t.unaccounted_messages);
     }
@@ -341,6 +348,12 @@ pub fn print_table(s: &Summary) {
         );
     }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
+    if s.world_misses > 0 {
+        println!(
+            "  activations whose step the world did not hold (no observation): {}",
+            s.world_misses
+        );
+    }
     let metres = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1} m"));
     for f in &s.faults {
         println!(

@@ -1,11 +1,12 @@
 //! The world: the true target trajectory, which only the launcher and the
-//! sensors see.
+//! sensors see (the launcher writes it, step by step, into memory the
+//! sensors read: `fusion_graph::world_memory`).
 
 use bounds::{Dynamics, State};
 use fusion_graph::scenario::{Motion, Scenario};
-use fusion_graph::transport::iceoryx::QUEUE_DEPTH;
 use fusion_graph::transport::{Channel, Transport};
 use fusion_graph::wire::{BitMask, Control, Message, Payload};
+use fusion_graph::world_memory::TruthRing;
 use fusion_graph::{stream_rng, ActorId, ScenarioError, SendError, Stream};
 use rand_chacha::ChaCha8Rng;
 
@@ -47,16 +48,6 @@ impl World {
     }
 }
 
-/// A live sensor is woken by the tick once in this many steps, a few
-/// sensors a step, so that one its node does not activate drains its
-/// queues before they fill: they hold `QUEUE_DEPTH` ticks and as many
-/// activations, and the oldest are overwritten. Left to its idle timeout
-/// (100 ms), such a sensor lost ticks and activations whenever a run went
-/// faster than 640 steps/s (18 of each in 2,000 steps at 640 steps/s, with
-/// `filter.particles = 300`).
-pub const DRAIN_PERIOD: u32 = 32;
-const _: () = assert!(DRAIN_PERIOD as usize <= QUEUE_DEPTH / 2);
-
 /// Where each sensor's process stands, as the launcher knows it.
 #[derive(Debug, Clone)]
 pub struct SensorStates {
@@ -81,59 +72,22 @@ impl SensorStates {
     }
 }
 
-/// The live sensors the tick of `step` wakes: those whose turn it is to
-/// drain (each once in [`DRAIN_PERIOD`] steps).
-pub fn drain_wakes(step: u32, sensors_alive: &[bool]) -> Vec<ActorId> {
-    (0..sensors_alive.len() as u16)
-        .filter(|&s| sensors_alive[s as usize])
-        .filter(|&s| (step.wrapping_add(u32::from(s))) % DRAIN_PERIOD == 0)
-        .map(ActorId::Sensor)
-        .collect()
-}
-
-/// The launcher's start of a step, the same in `sim` and `run`: the tick
-/// with the truth to every live sensor (waking only those whose turn it is
-/// to drain, [`drain_wakes`]: an active sensor is woken by its activation
-/// and finds the tick queued), then, to every live node, its membership
-/// view when it differs from the one it was last told (or after any kill
-/// or restart), and `BeginStep`.
-///
-/// A stopped sensor (SIGSTOP) is not live but keeps its queue: the tick
-/// reaches it there, to be read when it continues, so it is counted as
-/// sent to it too (it is not woken). A dead sensor's queue is gone. The
-/// multiple-access channels (`macs`) read the tick as well, for the
-/// launcher's stop on it; it does not wake them.
-#[allow(clippy::too_many_arguments)]
+/// The launcher's start of a step, the same in `sim` and `run`: the truth
+/// of `step` into the world's memory, where a sensor activated for it will
+/// look, then, to every live node, its membership view when it differs
+/// from the one it was last told (or after any kill or restart), and
+/// `BeginStep`. The truth is written first: no node can activate a sensor
+/// for a step before it is there.
 pub fn begin_step<T: Transport + ?Sized>(
     launcher: &mut T,
+    world: &TruthRing,
     step: u32,
-    truth: State,
-    sensors: &SensorStates,
-    macs: &[ActorId],
+    truth: &State,
     views: &[Vec<bool>],
     told: &[Vec<bool>],
     process_faults: bool,
 ) -> Result<(), SendError> {
-    let sensors_alive = &sensors.alive;
-    let queued: Vec<ActorId> = (0..sensors_alive.len() as u16)
-        .filter(|s| sensors_alive[*s as usize] || sensors.stopped[*s as usize])
-        .map(ActorId::Sensor)
-        .chain(macs.iter().copied())
-        .collect();
-    let tick = Message::new(
-        ActorId::Launcher,
-        step,
-        0,
-        Payload::Tick {
-            truth: truth.into(),
-        },
-    );
-    launcher.send_waking(
-        Channel::Tick,
-        &tick,
-        &queued,
-        &drain_wakes(step, sensors_alive),
-    )?;
+    world.write(step, truth);
     for (n, view) in views.iter().enumerate() {
         // A node is alive when its own view holds it.
         if !view.get(n).copied().unwrap_or(false) {
@@ -165,32 +119,4 @@ pub fn begin_step<T: Transport + ?Sized>(
         )?;
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Over any `DRAIN_PERIOD` steps in a row every live sensor is woken
-    /// exactly once, a dead one never, and no step wakes more than its share.
-    #[test]
-    fn every_live_sensor_is_woken_once_a_drain_period() {
-        let alive: Vec<bool> = (0..225).map(|s| s % 17 != 3).collect();
-        for first in [1u32, 5, 1000, u32::MAX - 40] {
-            let mut woken = vec![0; alive.len()];
-            for k in 0..DRAIN_PERIOD {
-                let wakes = drain_wakes(first.wrapping_add(k), &alive);
-                assert!(wakes.len() <= alive.len().div_ceil(DRAIN_PERIOD as usize));
-                for w in wakes {
-                    let ActorId::Sensor(s) = w else {
-                        panic!("{w} is not a sensor")
-                    };
-                    woken[s as usize] += 1;
-                }
-            }
-            for (s, n) in woken.iter().enumerate() {
-                assert_eq!(*n, usize::from(alive[s]), "sensor-{s} from step {first}");
-            }
-        }
-    }
 }

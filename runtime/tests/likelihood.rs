@@ -3,6 +3,7 @@
 
 use bounds::State;
 use fusion_graph::wire::{BitMask, Message, Payload};
+use fusion_graph::world_memory::StillTarget;
 use fusion_graph::{ActorId, Scenario, Topology};
 use node::{Observation, ObservedValue, SensingModel};
 use sensor::SensorActor;
@@ -16,20 +17,15 @@ fn summed_log_likelihood_peaks_at_the_truth() {
     let mut observations = Vec::new();
     for i in 0..t.sensors() as u16 {
         let mut a = SensorActor::new(&s, &t, i).unwrap();
-        let tick = Payload::Tick {
-            truth: truth.into(),
-        };
-        a.handle(&Message::new(ActorId::Launcher, 5, 0, tick));
         // Activate every sensor of the owner: this one's bit is among them.
         let owner = t.sensor_owner[i as usize];
         let mask = BitMask::from_indices(0..t.node_sensors[owner as usize].len());
         let m = a
-            .handle(&Message::new(
-                ActorId::Node(owner),
-                5,
-                0,
-                Payload::Activate { mask },
-            ))
+            .handle(
+                &Message::new(ActorId::Node(owner), 5, 0, Payload::Activate { mask }),
+                &StillTarget(truth),
+            )
+            .unwrap()
             .unwrap();
         let Payload::Observation { cell } = m.payload else {
             panic!()

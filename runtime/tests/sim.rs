@@ -318,31 +318,36 @@ fn a_partition_leaves_every_link_balanced() {
     }
 }
 
-/// A sensor stopped (SIGSTOP) keeps its queue: the ticks published while
-/// it is stopped wait there, are counted as sent to it, and are received
-/// when it continues. A sensor killed (SIGKILL) loses its queue: its
-/// successor starts empty, and the launcher sends it nothing while it is
-/// dead. Either way the tick link balances; the stopped sensor's once
-/// read 30 sent against 40 received.
+/// A sensor stopped (SIGSTOP) keeps its queue: the activations its node
+/// sends while it is stopped wait there and are received when it
+/// continues, so its activation link balances. A sensor killed (SIGKILL)
+/// loses its queue: what its node sent it while it was dead (the node does
+/// not know) is lost, one activation a step, and shows as exactly that
+/// many unaccounted.
 #[test]
-fn a_stopped_or_killed_sensor_leaves_its_tick_link_balanced() {
-    for (signal, name, ticks) in [("SIGSTOP", "stop", 20), ("SIGKILL", "kill", 15)] {
+fn a_stopped_sensor_reads_its_activations_later_and_a_killed_one_loses_them() {
+    for (signal, name, received) in [("SIGSTOP", "stop", 20), ("SIGKILL", "kill", 15)] {
         let fault = format!(
             "faults=[{{kind=\"kill\",actor=\"sensor-3\",at_step=5,signal=\"{signal}\",restart_after=5}}]"
         );
-        let (s, t) = scenario(&["steps=20", &fault]);
+        // Every sensor active every step.
+        let (s, t) = scenario(&["steps=20", "sensors.active_per_node=25", &fault]);
         let dir = out_dir(&format!("sensor-{name}-balance"));
         let mut w = ResultsWriter::create(&dir).unwrap();
         run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
         let links =
             Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
-        let tick = links.get(
-            fusion_graph::ActorId::Launcher,
+        let owner = fusion_graph::ActorId::Node(t.sensor_owner[3]);
+        let activation = links.get(
+            owner,
             fusion_graph::ActorId::Sensor(3),
-            MessageKind::Tick,
+            MessageKind::Activate,
         );
-        assert_eq!(tick.sent_messages, ticks, "{signal}: {tick:?}");
-        assert_eq!(tick.received_messages, ticks, "{signal}: {tick:?}");
+        assert_eq!(activation.sent_messages, 20, "{signal}: {activation:?}");
+        assert_eq!(
+            activation.received_messages, received,
+            "{signal}: {activation:?}"
+        );
         for ((from, to, kind), c) in links.iter() {
             assert!(
                 c.sent_messages >= c.received_messages + c.dropped_messages,
@@ -421,8 +426,10 @@ fn nis_censoring_holds_its_budget_and_its_feedback_costs_what_its_size_says() {
         Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap()).unwrap();
     let kinds = links.by_kind();
     let feedback = kinds[&MessageKind::ActivateFeedbackCovariance];
-    // Every node, every step, to each of its 25 sensors.
-    assert_eq!(feedback.sent_messages, 60 * 9 * 25);
+    // Every node, every step, to each sensor it activates (the feedback is
+    // what a censoring sensor decides by).
+    let active = scenario.sensors.active_per_node as u64;
+    assert_eq!(feedback.sent_messages, 60 * 9 * active);
     let size = encoded_len(MessageKind::ActivateFeedbackCovariance, &format).unwrap() as u64;
     assert_eq!(size, 13 + 4 + 32 + 80);
     assert_eq!(feedback.sent_bytes, feedback.sent_messages * size);

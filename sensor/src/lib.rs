@@ -1,9 +1,10 @@
 //! The sensor actor as an I/O-free state machine.
 //!
-//! A sensor learns the true state of step k from the launcher's tick and
-//! whether it is active from its node's activation message: decoded
-//! messages, in either order. When it has both, it measures through its observation model,
-//! quantizes (or not) and emits one observation message. The noise of step k
+//! A sensor wakes when its node activates it for step k. It then looks at
+//! the target: it reads the true state of step k from the world
+//! ([`WorldView`], the launcher's ring in shared memory), measures through
+//! its observation model, quantizes (or not) and emits one observation
+//! message. The truth is never a message. The noise of step k
 //! is drawn from a generator seeded by (scenario seed, sensor, k), so the
 //! observation does not depend on message timing: the in-process driver and
 //! the multi-process runtime see the same values.
@@ -24,6 +25,7 @@ use fusion_graph::faults::{FaultSchedule, SensorFault};
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::transport::Channel;
 use fusion_graph::wire::{unpack_mat4, Message, Payload};
+use fusion_graph::world_memory::{TruthMissing, WorldView};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand::Rng;
 
@@ -36,8 +38,6 @@ pub struct SensorActor {
     model: ObservationModel,
     quantizer: Option<Quantizer>,
     seed: u64,
-    /// The latest tick not yet measured.
-    truth: Option<(u32, State)>,
     /// The latest step this sensor was activated for.
     activated: Option<u32>,
     last_sent: Option<u32>,
@@ -92,7 +92,6 @@ impl SensorActor {
             model: models.law.at(topology.sensor_positions[index as usize]),
             quantizer: models.quantizer,
             seed: scenario.seed,
-            truth: None,
             activated: None,
             last_sent: None,
             faults: FaultSchedule::new(&scenario.faults),
@@ -121,9 +120,16 @@ impl SensorActor {
         self.reports_to
     }
 
-    /// The channels this sensor reads: the launcher's tick and its node's activations.
+    /// The channels this sensor reads: the launcher's lifecycle (the stop)
+    /// and its own activation.
     pub fn subscriptions(&self) -> [Channel; 2] {
-        [Channel::Tick, Channel::Activation(self.owner)]
+        [
+            Channel::Lifecycle,
+            Channel::Activation {
+                node: self.owner,
+                to: self.id(),
+            },
+        ]
     }
 
     /// The channel its observations go out on.
@@ -131,15 +137,17 @@ impl SensorActor {
         Channel::Observation(self.index)
     }
 
-    /// Handles one message: the launcher's tick (the step and the true
-    /// state) or its node's activation. Returns the observation to send, if
-    /// this completes one; anything else is ignored.
-    pub fn handle(&mut self, message: &Message) -> Option<Message> {
+    /// Handles one message: its node's activation, which it answers with
+    /// the observation of the activation's step, looking at the target in
+    /// `world`; anything else is ignored. A step the world does not hold
+    /// is an error, never a stale observation.
+    pub fn handle(
+        &mut self,
+        message: &Message,
+        world: &dyn WorldView,
+    ) -> Result<Option<Message>, TruthMissing> {
         let step = message.header.step;
         match (&message.payload, message.header.sender) {
-            (Payload::Tick { truth }, ActorId::Launcher) => {
-                self.truth = Some((step, State::from(*truth)))
-            }
             (Payload::Activate { mask }, ActorId::Node(n)) if n == self.owner => {
                 if mask.contains(self.slot) {
                     self.activated = Some(step);
@@ -183,7 +191,7 @@ impl SensorActor {
                                 step,
                                 "thresholds for another quantizer; activation ignored"
                             );
-                            return None;
+                            return Ok(None);
                         }
                     }
                 }
@@ -195,13 +203,23 @@ impl SensorActor {
                     self.column = Some((step, c.slots, c.negative));
                 }
             }
-            _ => return None,
+            _ => return Ok(None),
         }
-        let (step, truth) = self.truth?;
         if self.activated != Some(step) || self.last_sent == Some(step) {
-            return None;
+            return Ok(None);
         }
+        // Once a step, whether or not the world holds it: a duplicated
+        // activation is not a second look.
         self.last_sent = Some(step);
+        let truth = world.truth(step)?;
+        Ok(self.observe(step, &truth))
+    }
+
+    /// The message that answers step `step`'s activation, the target being
+    /// at `truth`: an observation as this sensor's faults make it, or its
+    /// transmissions on a multiple-access channel; none when it is silent.
+    fn observe(&mut self, step: u32, truth: &State) -> Option<Message> {
+        let truth = *truth;
         if let Some((_, slots, negative)) = self.column.filter(|c| c.0 == step) {
             return self.transmit(step, &truth, slots, negative);
         }
@@ -370,15 +388,13 @@ mod tests {
         SensorActor::new(&s, &t, 12).unwrap()
     }
 
-    fn tick(step: u32, truth: State) -> Message {
-        Message::new(
-            ActorId::Launcher,
-            step,
-            0,
-            Payload::Tick {
-                truth: truth.into(),
-            },
-        )
+    /// A target that stands still: the world holds it at every step.
+    struct Still(State);
+
+    impl WorldView for Still {
+        fn truth(&self, _step: u32) -> Result<State, TruthMissing> {
+            Ok(self.0)
+        }
     }
 
     /// Sensor 12 is the 13th of node 0's sensors.
@@ -425,8 +441,10 @@ mod tests {
         let (mut silent, mut sent) = (0, 0);
         for step in 1..=40 {
             let mut a = censoring_actor(&censoring);
-            a.handle(&tick(step, truth));
-            match a.handle(&activation_with_feedback(step, before, 1.0)) {
+            match a
+                .handle(&activation_with_feedback(step, before, 1.0), &Still(truth))
+                .unwrap()
+            {
                 Some(_) => sent += 1,
                 None => silent += 1,
             }
@@ -436,17 +454,18 @@ mod tests {
         let far = State::new(1200.0, 700.0, -6.0, -7.0);
         for step in 1..=10 {
             let mut a = censoring_actor(&censoring);
-            a.handle(&tick(step, truth));
             assert!(
-                a.handle(&activation_with_feedback(step, far, 1.0))
+                a.handle(&activation_with_feedback(step, far, 1.0), &Still(truth))
+                    .unwrap()
                     .is_some(),
                 "a prediction 280 m off must not silence the sensor"
             );
         }
         let mut a = censoring_actor(&censoring);
-        a.handle(&tick(3, truth));
         assert!(
-            a.handle(&activation(3, true)).is_some(),
+            a.handle(&activation(3, true), &Still(truth))
+                .unwrap()
+                .is_some(),
             "no feedback: send"
         );
     }
@@ -458,8 +477,9 @@ mod tests {
         let steps = 3000;
         let sent = (1..=steps)
             .filter(|&step| {
-                a.handle(&tick(step, truth));
-                a.handle(&activation(step, true)).is_some()
+                a.handle(&activation(step, true), &Still(truth))
+                    .unwrap()
+                    .is_some()
             })
             .count() as f64;
         // p = 0.6 / 3 = 0.2; five standard errors.
@@ -497,11 +517,10 @@ mod tests {
         };
         let mut a = SensorActor::new(&s, &t, 6).unwrap();
         assert_eq!(a.reports_to(), ActorId::Mac(0));
-        a.handle(&tick(3, truth));
         let Some(Message {
             payload: Payload::SlotValues { slots, values },
             ..
-        }) = a.handle(&schedule(6))
+        }) = a.handle(&schedule(6), &Still(truth)).unwrap()
         else {
             panic!("no transmission")
         };
@@ -509,33 +528,50 @@ mod tests {
         assert_eq!(slots, 0b1011);
         assert_eq!(values, vec![z, -z, z]);
         let mut other = SensorActor::new(&s, &t, 7).unwrap();
-        other.handle(&tick(3, truth));
         assert!(
-            other.handle(&schedule(6)).is_none(),
+            other.handle(&schedule(6), &Still(truth)).unwrap().is_none(),
             "not scheduled: silent"
         );
     }
 
+    /// A world that holds only step 1.
+    struct OnlyStepOne(State);
+
+    impl WorldView for OnlyStepOne {
+        fn truth(&self, step: u32) -> Result<State, TruthMissing> {
+            match step {
+                1 => Ok(self.0),
+                0 => Err(TruthMissing::Overwritten {
+                    step,
+                    latest: 1,
+                    held: 1,
+                }),
+                _ => Err(TruthMissing::NotYetWritten { step, latest: 1 }),
+            }
+        }
+    }
+
     #[test]
-    fn measures_once_per_step_when_both_inputs_arrived_in_either_order() {
+    fn measures_once_per_step_and_never_a_step_the_world_does_not_hold() {
         let truth = State::new(1000.0, 900.0, -6.0, -7.0);
+        let world = OnlyStepOne(truth);
         let mut a = actor();
-        assert!(a.handle(&tick(1, truth)).is_none());
-        let first = a.handle(&activation(1, true)).unwrap();
-        assert!(
-            a.handle(&activation(1, true)).is_none(),
+        let first = a.handle(&activation(1, true), &world).unwrap().unwrap();
+        assert_eq!(
+            a.handle(&activation(1, true), &world),
+            Ok(None),
             "one observation per step"
         );
-        let mut b = actor();
-        b.handle(&activation(1, true));
-        let second = b.handle(&tick(1, truth)).unwrap();
+        let second = actor().handle(&activation(1, true), &Still(truth)).unwrap();
+        assert_eq!(Some(first), second, "the same look at the same target");
+        // Not activated: silent, and the world is not read.
+        assert_eq!(a.handle(&activation(2, false), &world), Ok(None));
+        // Activated for a step the world has not written: an error, once.
         assert_eq!(
-            first, second,
-            "arrival order must not change the observation"
+            a.handle(&activation(2, true), &world),
+            Err(TruthMissing::NotYetWritten { step: 2, latest: 1 })
         );
-        // Not activated: silent.
-        assert!(a.handle(&tick(2, truth)).is_none());
-        assert!(a.handle(&activation(2, false)).is_none());
+        assert_eq!(a.handle(&activation(2, true), &world), Ok(None));
     }
 
     #[test]
@@ -550,11 +586,10 @@ mod tests {
         let e = a.model.evaluate(&truth);
         let mut misses = 0;
         for step in 1..=200 {
-            a.handle(&tick(step, truth));
             let Some(Message {
                 payload: Payload::Observation { cell },
                 ..
-            }) = a.handle(&activation(step, true))
+            }) = a.handle(&activation(step, true), &Still(truth)).unwrap()
             else {
                 panic!("no observation")
             };
@@ -580,8 +615,9 @@ mod tests {
     fn six_steps(a: &mut SensorActor, truth: State) -> Vec<Option<Payload>> {
         (1..=6)
             .map(|k| {
-                a.handle(&tick(k, truth));
-                a.handle(&activation(k, true)).map(|m| m.payload)
+                a.handle(&activation(k, true), &Still(truth))
+                    .unwrap()
+                    .map(|m| m.payload)
             })
             .collect()
     }

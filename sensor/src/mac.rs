@@ -74,10 +74,16 @@ impl MacActor {
         ActorId::Mac(self.index)
     }
 
-    /// The launcher's tick (for the step and the stop), the centre's
-    /// schedule, and its sensors' transmissions.
+    /// The launcher's lifecycle (the stop), the centre's schedule, and its
+    /// sensors' transmissions.
     pub fn subscriptions(&self) -> Vec<Channel> {
-        let mut v = vec![Channel::Tick, Channel::Activation(self.index)];
+        let mut v = vec![
+            Channel::Lifecycle,
+            Channel::Activation {
+                node: self.index,
+                to: self.id(),
+            },
+        ];
         v.extend(self.sensors.iter().map(|s| Channel::Observation(*s)));
         v
     }

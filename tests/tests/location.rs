@@ -15,6 +15,7 @@ use bounds::location::{exact_information, log_likelihood, AmplitudeLaw, DecayLaw
 use bounds::Measurement;
 use cqnet_testkit::{exclusive, MessageKind, Network, Run, Scenario};
 use fusion_graph::wire::{BitMask, Message, Payload};
+use fusion_graph::world_memory::StillTarget;
 use fusion_graph::{ActorId, Topology};
 use node::location::{sensor_quantizer, Grid, ThresholdDesign};
 use sensor::SensorActor;
@@ -51,14 +52,13 @@ fn network(tag: &str) -> Network {
 fn every_report(s: &Scenario, t: &Topology, steps: u32) -> Vec<([f64; 2], u32)> {
     let q = sensor_quantizer(s, ThresholdDesign::Designed).expect("quantized");
     let thresholds: Vec<f64> = (1..q.cells() as u32).map(|c| q.cell_edges(c).0).collect();
-    let truth = [s.target.position[0], s.target.position[1], 0.0, 0.0];
+    let truth = bounds::State::new(s.target.position[0], s.target.position[1], 0.0, 0.0);
     let mut reports = Vec::new();
     for step in 1..=steps {
         for i in 0..t.sensors() as u16 {
             let mut sensor = SensorActor::new(s, t, i).unwrap();
             let owner = t.sensor_owner[i as usize];
             let own = &t.node_sensors[owner as usize];
-            let tick = Message::new(ActorId::Launcher, step, 0, Payload::Tick { truth });
             let activation = Message::new(
                 ActorId::Node(owner),
                 step,
@@ -68,9 +68,9 @@ fn every_report(s: &Scenario, t: &Topology, steps: u32) -> Vec<([f64; 2], u32)> 
                     thresholds: thresholds.clone(),
                 },
             );
-            assert!(sensor.handle(&tick).is_none());
             let report = sensor
-                .handle(&activation)
+                .handle(&activation, &StillTarget(truth))
+                .expect("the world holds every step")
                 .expect("an active sensor reports");
             let Payload::Observation { cell } = report.payload else {
                 panic!("a quantized report: {report:?}")

@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use cqnet_testkit::{
-    default_scenario, exclusive, sensor_selection_scenario, ActorId, Delay, Fault, Kill,
+    default_scenario, exclusive, sensor_selection_scenario, ActorId, Counters, Delay, Fault, Kill,
     LinkSelector, Loss, MessageKind, Network, Partition, Run, Signal, Target,
 };
 
@@ -122,14 +122,13 @@ fn bytes_per_link_are_what_the_topology_and_message_sizes_predict() {
     // 24 directed fusion-graph links × 10 rounds: δη, δΛ, ΔL (13 + 192 bytes) and S_obs (13 + 80).
     assert_eq!(sent(MessageKind::Consensus), steps * 24 * 10 * 205);
     assert_eq!(sent(MessageKind::ConsensusAux), steps * 24 * 10 * 93);
-    // The launcher's tick (13 + 32) and the nodes' activation (13 + 4) reach all 225 sensors.
-    assert_eq!(sent(MessageKind::Tick), steps * 225 * 45);
-    assert_eq!(sent(MessageKind::Activate), steps * 225 * 17);
+    // The nodes' activation (13 + 4) reaches the 27 active sensors, each
+    // on its own channel; the truth is no message.
+    assert_eq!(sent(MessageKind::Activate), steps * 27 * 17);
     for k in [
         MessageKind::Observation,
         MessageKind::Consensus,
         MessageKind::ConsensusAux,
-        MessageKind::Tick,
         MessageKind::Activate,
     ] {
         assert_eq!(received(k), sent(k), "{k:?}: every byte sent was received");
@@ -480,11 +479,10 @@ fn cqnet_clean_removes_what_a_sigkilled_launcher_left() {
     r.assert_clean();
 }
 
-/// A stopped sensor keeps its queues: the ticks the launcher publishes while
+/// A stopped sensor keeps its queue: the activations its node sends while
 /// it is stopped wait there and are read when it continues, so they are
-/// counted as sent to it, and every link balances with nothing
-/// unaccounted. They were once left out of the sent count, and the tick
-/// link read 10 sent fewer than received.
+/// counted as sent to it and received, and every link balances with
+/// nothing unaccounted.
 #[test]
 fn a_stopped_sensor_leaves_every_link_balanced() {
     let _guard = exclusive();
@@ -495,13 +493,18 @@ fn a_stopped_sensor_leaves_every_link_balanced() {
         .run()
         .unwrap();
     r.assert_success();
-    let tick = r
+    let activation = r
         .accounting()
-        .get(ActorId::Launcher, ActorId::Sensor(3), MessageKind::Tick);
+        .iter()
+        .filter(|((_, to, kind), _)| *to == ActorId::Sensor(3) && *kind == MessageKind::Activate)
+        .fold(Counters::default(), |mut sum, (_, c)| {
+            sum.add(c);
+            sum
+        });
     assert_eq!(
-        (tick.sent_messages, tick.received_messages),
+        (activation.sent_messages, activation.received_messages),
         (20, 20),
-        "{tick:?}"
+        "{activation:?}"
     );
     for (kind, _) in r.accounting().by_kind() {
         assert_eq!(r.unaccounted(kind), 0, "{kind:?}");

@@ -89,6 +89,23 @@ impl FaultSchedule {
         }
     }
 
+    /// Makes `transport` judge each message it receives by the link rules
+    /// of the message's own step: for a sensor or a multiple-access
+    /// channel, which no `BeginStep` tells when a step begins.
+    pub fn follow_link_faults<T: Transport + ?Sized>(
+        &self,
+        transport: &mut T,
+        topology: &Topology,
+    ) {
+        if !self.has_link_faults() {
+            return;
+        }
+        let (schedule, topology, me) = (self.clone(), topology.clone(), transport.me());
+        transport
+            .shaper()
+            .follow_steps(move |step| schedule.incoming_rules(step, me, &topology));
+    }
+
     /// What the membership service tells each node at `step`: the live nodes
     /// it can reach over fusion-graph links not cut by a partition. Its size
     /// is the node's N_f; its members are the neighbours it mixes with.

@@ -32,8 +32,8 @@ use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 pub(crate) use super::resources::RunResources;
 pub use super::resources::{
-    map_run_memory, remove_run_resources, remove_stale_node_directories, run_resources,
-    sweep_abandoned_runs, DeadNodeSweep, RunLease,
+    map_run_memory, remove_run_resources, remove_stale_node_directories, run_memory_path,
+    run_resources, sweep_abandoned_runs, DeadNodeSweep, RunLease,
 };
 use super::resources::{retry, setup};
 use super::wake::{open_bridge_wake, open_wake, Heard, WakeIds};
@@ -426,6 +426,10 @@ impl Transport for IceoryxTransport {
 
     fn accounting(&self) -> &Accounting {
         &self.accounting
+    }
+
+    fn accounting_mut(&mut self) -> &mut Accounting {
+        &mut self.accounting
     }
 
     fn shaper(&mut self) -> &mut LinkShaper {

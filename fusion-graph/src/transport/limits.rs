@@ -22,6 +22,10 @@ use super::Channel;
 /// lost the whole burst rather than only the oldest samples.
 pub const QUEUE_DEPTH: usize = 64;
 
+/// The queue of the launcher's lifecycle channel, which carries one
+/// message in a run: the stop.
+const LIFECYCLE_QUEUE: usize = 2;
+
 /// Wake-up notifiers beyond an actor's peers: tools and tests.
 const WAKE_SLACK: usize = 4;
 
@@ -52,7 +56,11 @@ impl ChannelLimits {
             publishers: 2,
             subscribers,
             nodes: subscribers + 3,
-            queue: QUEUE_DEPTH,
+            queue: if channel == Channel::Lifecycle {
+                LIFECYCLE_QUEUE
+            } else {
+                QUEUE_DEPTH
+            },
             message_bytes: max_message_len(channel, topology),
         }
     }
@@ -82,7 +90,7 @@ pub(crate) fn max_message_len(channel: Channel, topology: &Topology) -> usize {
     let protocols = crate::protocol_kinds::longest_body();
     HEADER_BYTES
         + match channel {
-            Channel::Tick => 48,
+            Channel::Lifecycle => 16,
             // A sensor's transmissions on a multiple-access channel: its
             // slots, a value each.
             Channel::Observation(_) if topology.macs => {
@@ -92,10 +100,10 @@ pub(crate) fn max_message_len(channel: Channel, topology: &Topology) -> usize {
             // The mask, and either the censoring feedback (an estimate and
             // its packed covariance) or a quantizer's thresholds.
             // A channel's schedule: a column for each sensor that transmits.
-            Channel::Activation(_) if topology.macs => {
+            Channel::Activation { .. } if topology.macs => {
                 3 + crate::wire::SLOT_COLUMN_BYTES * topology.most_sensors_per_node()
             }
-            Channel::Activation(_) => 48 + (32 + 80).max(1 + 8 * crate::wire::MAX_THRESHOLDS),
+            Channel::Activation { .. } => 48 + (32 + 80).max(1 + 8 * crate::wire::MAX_THRESHOLDS),
             Channel::Consensus(_) => 300.max(protocols),
             // A posterior swapped in a random exchange: mean and covariance.
             Channel::Pair { .. } => 120.max(protocols),
@@ -166,9 +174,9 @@ fn max_wake_id(topology: &Topology, actor: ActorId) -> usize {
 /// protocol exchanges in pairs, the control channels of the nodes.
 pub fn channels(topology: &Topology, pairs: bool) -> Vec<Channel> {
     let nodes = topology.nodes() as u16;
-    let mut v = vec![Channel::Tick];
+    let mut v = vec![Channel::Lifecycle];
     for n in 0..nodes {
-        v.push(Channel::Activation(n));
+        v.extend(topology.activation_channels(n));
         v.push(Channel::Consensus(n));
         v.push(Channel::Control(ActorId::Node(n)));
         v.push(Channel::Telemetry(n));
@@ -339,12 +347,29 @@ mod tests {
     #[test]
     fn a_publishers_segment_holds_every_subscribers_queue() {
         let t = topology(&[]);
-        let tick = ChannelLimits::of(&t, Channel::Tick);
-        assert_eq!(tick.subscribers, 235);
-        assert_eq!(tick.samples(), 235 * 66 + 2);
-        // Measured: the tick's data segment in the default run was
-        // 1,799,542 bytes, the samples and a segment header.
-        assert!(tick.segment_bytes().abs_diff(1_799_542) < 1024);
+        // The stop, to 225 sensors (and a bridge): a short queue each.
+        let lifecycle = ChannelLimits::of(&t, Channel::Lifecycle);
+        assert_eq!(lifecycle.subscribers, 226);
+        assert_eq!(lifecycle.samples(), 226 * 4 + 2);
+        // An activation: one sensor (and a bridge), a full queue.
+        let activation = ChannelLimits::of(
+            &t,
+            Channel::Activation {
+                node: 4,
+                to: ActorId::Sensor(100),
+            },
+        );
+        assert_eq!(activation.subscribers, 2);
+        assert_eq!(activation.samples(), 2 * 66 + 2);
+        // Measured: the old broadcast tick's data segment, 235 subscribers
+        // of 61-byte messages, was 1,799,542 bytes in the default run: the
+        // samples and a segment header.
+        let tick_like = ChannelLimits {
+            subscribers: 235,
+            message_bytes: 61,
+            ..activation
+        };
+        assert!(tick_like.segment_bytes().abs_diff(1_799_542) < 1024);
     }
 
     #[test]

@@ -165,6 +165,10 @@ impl Transport for MemoryTransport {
         &self.accounting
     }
 
+    fn accounting_mut(&mut self) -> &mut Accounting {
+        &mut self.accounting
+    }
+
     fn shaper(&mut self) -> &mut LinkShaper {
         &mut self.shaper
     }

@@ -57,8 +57,8 @@ pub trait Transport {
 
     /// Publishes `message` for `receivers` but wakes only `wake`; the others
     /// find it in their queue when something else wakes them. A wake-up is a
-    /// process switch: the node's activation reaches all its sensors but
-    /// wakes only the active ones.
+    /// process switch: a consensus round reaches every neighbour but wakes
+    /// only those it still waits for.
     fn send_waking(
         &mut self,
         channel: Channel,
@@ -86,6 +86,10 @@ pub trait Transport {
     fn now(&self) -> Duration;
 
     fn accounting(&self) -> &Accounting;
+
+    /// For what the actor counts beside its messages: a sensor's failed
+    /// reads of the world.
+    fn accounting_mut(&mut self) -> &mut Accounting;
 
     fn shaper(&mut self) -> &mut LinkShaper;
 }

@@ -71,7 +71,7 @@ pub fn remove_run_resources(run: &RunId) -> std::io::Result<usize> {
 /// with the rest. Made `len` bytes long, zeroed, by whichever process opens
 /// it first; the others map what it made.
 pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<memmap2::MmapMut> {
-    let path = std::path::Path::new(SHARED_MEMORY).join(format!("{}{name}", run.prefix()));
+    let path = run_memory_path(run, name);
     let file = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
@@ -86,6 +86,12 @@ pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<me
     // SAFETY: the file belongs to this run and only its processes map it;
     // none shrinks it (all grow it to the same length, at most).
     unsafe { memmap2::MmapOptions::new().len(len).map_mut(&file) }
+}
+
+/// The file of run `run`'s shared memory called `name`; it goes with the
+/// run's other resources.
+pub fn run_memory_path(run: &RunId, name: &str) -> std::path::PathBuf {
+    std::path::Path::new(SHARED_MEMORY).join(format!("{}{name}", run.prefix()))
 }
 
 /// Where launchers register their runs: one file per run id, holding the

@@ -33,14 +33,6 @@ pub fn examples() -> Vec<Message> {
     };
     vec![
         Message::new(
-            ActorId::Launcher,
-            7,
-            0,
-            Payload::Tick {
-                truth: [1400.0, 1400.0, -6.4, -7.6],
-            },
-        ),
-        Message::new(
             ActorId::Node(2),
             7,
             0,

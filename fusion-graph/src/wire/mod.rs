@@ -30,6 +30,9 @@ pub const WIRE_VERSION: u8 = 2;
 pub const HEADER_BYTES: usize = 13;
 /// Where the checksum sits in the header.
 const CHECKSUM_AT: std::ops::Range<usize> = 11..13;
+/// Where the step sits in the header: after the version, the kind and the
+/// sender's kind and index.
+const STEP_AT: std::ops::Range<usize> = 5..9;
 /// No message is larger than this; it bounds every allocation in decoding.
 pub const MAX_MESSAGE_BYTES: usize = 1024;
 
@@ -47,8 +50,6 @@ fn config() -> Config {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[repr(u8)]
 pub enum MessageKind {
-    /// The launcher's step tick with the true state (only sensors use the truth).
-    Tick = 1,
     /// A node tells its sensors which of them are active this step.
     Activate = 2,
     /// A quantized observation: the cell index in `ceil(N_L/8)` bytes.
@@ -130,7 +131,6 @@ impl MessageKind {
     pub fn from_u8(v: u8) -> Option<Self> {
         use MessageKind::*;
         Some(match v {
-            1 => Tick,
             2 => Activate,
             3 => Observation,
             4 => RawObservation,
@@ -161,7 +161,6 @@ impl MessageKind {
     pub fn name(self) -> &'static str {
         use MessageKind::*;
         match self {
-            Tick => "tick",
             Activate => "activate",
             Observation => "observation",
             RawObservation => "raw_observation",
@@ -194,7 +193,6 @@ impl MessageKind {
     pub fn code(self) -> u8 {
         use MessageKind::*;
         match self {
-            Tick => 1,
             Activate => 2,
             Observation => 3,
             RawObservation => 4,
@@ -386,9 +384,6 @@ pub struct GaussianMoments {
 
 #[derive(Debug, Clone, PartialEq)]
 pub enum Payload {
-    Tick {
-        truth: [f64; 4],
-    },
     /// Bit i: the node's i-th sensor is active.
     Activate {
         mask: BitMask,
@@ -516,7 +511,6 @@ pub const MAX_CHOSEN_PER_PIECE: usize = 128;
 impl Payload {
     pub fn kind(&self) -> MessageKind {
         match self {
-            Payload::Tick { .. } => MessageKind::Tick,
             Payload::Activate { .. } => MessageKind::Activate,
             Payload::ActivateWithFeedback {
                 covariance: None, ..
@@ -598,7 +592,6 @@ impl Message {
         };
         put(&h, out);
         match &self.payload {
-            Payload::Tick { truth } => put(truth, out),
             Payload::Activate { mask } => put_mask(mask, format, out),
             Payload::ActivateWithFeedback {
                 mask,
@@ -720,9 +713,6 @@ impl Message {
             })?;
         let body = &bytes[used..];
         let payload = match kind {
-            MessageKind::Tick => Payload::Tick {
-                truth: finite(take(body)?)?,
-            },
             MessageKind::Activate => {
                 exact_len(body, format.activation_bytes)?;
                 Payload::Activate {
@@ -1065,7 +1055,6 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
     Some(
         HEADER_BYTES
             + match kind {
-                MessageKind::Tick => 32,
                 MessageKind::Activate => format.activation_bytes,
                 MessageKind::ActivateFeedback => format.activation_bytes + 32,
                 MessageKind::ActivateFeedbackCovariance => format.activation_bytes + 32 + 80,
@@ -1096,6 +1085,13 @@ fn checksum(message: &[u8]) -> u16 {
     let crc = crc16(0xFFFF, &message[..CHECKSUM_AT.start]);
     let crc = crc16(crc, &[0, 0]);
     crc16(crc, &message[CHECKSUM_AT.end..])
+}
+
+/// The step in an encoded message's header, read without decoding it, so
+/// that a link's faults can be those of the message's step.
+pub fn peek_step(message: &[u8]) -> Option<u32> {
+    let bytes = message.get(STEP_AT)?;
+    Some(u32::from_le_bytes(bytes.try_into().ok()?))
 }
 
 /// The kind byte of an encoded message, read without decoding it (the byte
@@ -1255,16 +1251,36 @@ mod tests {
     }
 
     #[test]
+    fn the_step_is_read_from_the_header_alone() {
+        for m in examples() {
+            assert_eq!(peek_step(&m.to_bytes(&FORMAT)), Some(m.header.step));
+        }
+        let m = Message::new(
+            ActorId::Node(1),
+            0x0102_0304,
+            9,
+            Payload::Control(Control::BeginStep),
+        );
+        assert_eq!(peek_step(&m.to_bytes(&FORMAT)), Some(0x0102_0304));
+        assert_eq!(peek_step(&[2, 7, 1, 0]), None);
+    }
+
+    #[test]
     fn decoding_rejects_bad_versions_lengths_and_numbers() {
-        let tick = Message::new(ActorId::Launcher, 1, 0, Payload::Tick { truth: [0.0; 4] });
-        let mut b = tick.to_bytes(&FORMAT);
+        let raw = Message::new(
+            ActorId::Sensor(1),
+            1,
+            0,
+            Payload::RawObservation { value: 0.0 },
+        );
+        let mut b = raw.to_bytes(&FORMAT);
         b[0] = 9;
         assert_eq!(
             Message::decode(&b, &FORMAT),
             Err(WireError::Version { got: 9 })
         );
         // Past the checksum (resealed), what is wrong is named.
-        let b = tick.to_bytes(&FORMAT);
+        let b = raw.to_bytes(&FORMAT);
         let mut short = b[..b.len() - 1].to_vec();
         seal(&mut short);
         assert_eq!(Message::decode(&short, &FORMAT), Err(WireError::Truncated));
@@ -1276,12 +1292,10 @@ mod tests {
             Err(WireError::TrailingBytes { .. })
         ));
         let nan = Message::new(
-            ActorId::Launcher,
+            ActorId::Sensor(1),
             1,
             0,
-            Payload::Tick {
-                truth: [f64::NAN, 0.0, 0.0, 0.0],
-            },
+            Payload::RawObservation { value: f64::NAN },
         );
         assert_eq!(
             Message::decode(&nan.to_bytes(&FORMAT), &FORMAT),

@@ -18,7 +18,7 @@ use fusion_graph::transport::RunId;
 use fusion_graph::{ActorId, Scenario, Topology};
 use zenoh::Wait;
 
-use super::bridge::Bridge;
+use super::bridge::{Bridge, HostWorld};
 use super::{
     command_key, decode, encode, event_key, liveliness_key, open_session, put, FromAgent, ToAgent,
 };
@@ -160,6 +160,10 @@ impl Agent<'_> {
         std::fs::create_dir_all(dir.join("accounting"))?;
         let scenario_file = dir.join("scenario.toml");
         crate::results::write_atomically(&scenario_file, scenario_text.as_bytes())?;
+        // The launcher's host has the launcher's world; another host its own.
+        let world = (host != placement.host_of(ActorId::Launcher))
+            .then(|| HostWorld::create(&domain, &scenario))
+            .transpose()?;
         let bridge = Bridge::start(
             self.session,
             run,
@@ -168,6 +172,7 @@ impl Agent<'_> {
             host,
             topology.clone(),
             &dir.join("accounting").join("bridge.counts"),
+            world,
         )?;
         let spec = ChildSpec {
             program: crate::supervisor::ActorProgram::for_this_process()?,
@@ -288,7 +293,8 @@ impl Agent<'_> {
                 ToAgent::Continue { actor } => Some(Command::Continue { actor }),
                 ToAgent::Collect => {
                     self.tell(&FromAgent::Counts {
-                        accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology)
+                            .to_csv_with_world_misses(),
                         bridge: bridge.counts(),
                         home: host_files(&dir, &placement, host, &topology),
                     });
@@ -301,7 +307,8 @@ impl Agent<'_> {
                         sent_lengths.insert(path.clone(), bytes.len()) != Some(bytes.len())
                     });
                     self.tell(&FromAgent::Progress {
-                        accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology)
+                            .to_csv_with_world_misses(),
                         bridge: bridge.counts(),
                         home,
                     });
@@ -309,7 +316,8 @@ impl Agent<'_> {
                 }
                 ToAgent::Traffic => {
                     self.tell(&FromAgent::Traffic {
-                        accounting_csv: host_accounting(&dir, &placement, host, &topology).to_csv(),
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology)
+                            .to_csv_with_world_misses(),
                     });
                     None
                 }

@@ -22,6 +22,7 @@ use std::time::Duration;
 use anyhow::Context;
 use fusion_graph::hosts::{BridgeCounts, Placement};
 use fusion_graph::transport::{BridgeInlet, BridgeOutlet, Channel, RunId};
+use fusion_graph::world_memory::TruthRing;
 use fusion_graph::{ActorId, Topology};
 use serde::{Deserialize, Serialize};
 use zenoh::Wait;
@@ -120,6 +121,41 @@ fn fixed() -> bincode::config::Configuration<bincode::config::LittleEndian, binc
     bincode::config::standard().with_fixed_int_encoding()
 }
 
+/// The world on a host other than the launcher's: its sensors cannot map
+/// the launcher's memory, so the agent computes the truth itself, from the
+/// scenario's seed as the launcher does, and writes it into its host's
+/// ring. It writes a step before it delivers the first of the launcher's
+/// messages of that step (a node's `BeginStep`): no node on this host can
+/// activate a sensor for a step the ring does not hold yet.
+pub struct HostWorld {
+    ring: TruthRing,
+    world: crate::world::World,
+    written: u32,
+    /// The scenario's last step: a message naming a later one (forged or
+    /// damaged) moves the world no further.
+    last: u32,
+}
+
+impl HostWorld {
+    pub fn create(domain: &RunId, scenario: &fusion_graph::Scenario) -> anyhow::Result<Self> {
+        Ok(Self {
+            ring: TruthRing::create(domain).context("making this host's world memory")?,
+            world: crate::world::World::new(scenario)?,
+            written: 0,
+            last: scenario.steps,
+        })
+    }
+
+    /// Writes every step up to `step` not written yet.
+    fn advance_to(&mut self, step: u32) {
+        while self.written < step.min(self.last) {
+            self.written += 1;
+            let truth = self.world.advance();
+            self.ring.write(self.written, &truth);
+        }
+    }
+}
+
 /// What both directions need to know.
 #[derive(Clone)]
 struct Setting {
@@ -141,6 +177,7 @@ impl Bridge {
         host: usize,
         topology: Topology,
         ledger: &Path,
+        world: Option<HostWorld>,
     ) -> anyhow::Result<Self> {
         let setting = Setting {
             run: run.into(),
@@ -153,6 +190,7 @@ impl Bridge {
         let counts = Arc::new(Mutex::new(CountsLedger::open(ledger)?));
         let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<()>>();
         let mut threads = Vec::new();
+        let mut world = Some(world);
         for direction in ["out", "in"] {
             let (setting, session, stop, counts, ready) = (
                 setting.clone(),
@@ -161,13 +199,18 @@ impl Bridge {
                 counts.clone(),
                 ready_tx.clone(),
             );
+            let world = if direction == "in" {
+                world.take().flatten()
+            } else {
+                None
+            };
             let thread = std::thread::Builder::new()
                 .name(format!("bridge-{direction}"))
                 .spawn(move || {
                     let result = if direction == "out" {
                         run_out(&setting, &session, &stop, &counts, &ready)
                     } else {
-                        run_in(&setting, &session, &stop, &counts, &ready)
+                        run_in(&setting, &session, &stop, &counts, &ready, world)
                     };
                     if let Err(e) = result {
                         tracing::error!(error = %format!("{e:#}"), "bridge {direction} stopped");
@@ -291,6 +334,7 @@ fn run_in(
     stop: &AtomicBool,
     counts: &Mutex<CountsLedger>,
     ready: &mpsc::Sender<anyhow::Result<()>>,
+    mut world: Option<HostWorld>,
 ) -> anyhow::Result<()> {
     let inlet = BridgeInlet::open(&s.domain, &s.placement, s.host, &s.topology)?;
     let me = &s.placement.hosts()[s.host].name;
@@ -306,14 +350,15 @@ fn run_in(
             Err(e) => anyhow::bail!("the bridge's subscription ended: {e}"),
         };
         let bytes = sample.payload().to_bytes();
-        let got = deliver(&inlet, &bytes);
+        let got = deliver(&inlet, &bytes, world.as_mut());
         counts.lock().expect("bridge counts").add(&got);
     }
     Ok(())
 }
 
-/// Publishes one batch on this host and wakes whom it names.
-fn deliver(inlet: &BridgeInlet, bytes: &[u8]) -> BridgeCounts {
+/// Publishes one batch on this host and wakes whom it names; a message of
+/// the launcher's first moves this host's world on to its step.
+fn deliver(inlet: &BridgeInlet, bytes: &[u8], mut world: Option<&mut HostWorld>) -> BridgeCounts {
     let mut c = BridgeCounts {
         batches_received: 1,
         batch_bytes_received: bytes.len() as u64,
@@ -330,6 +375,11 @@ fn deliver(inlet: &BridgeInlet, bytes: &[u8]) -> BridgeCounts {
     for frame in frames {
         let taken = match frame {
             Frame::Sample { channel, bytes } => {
+                if let (Some(w), ActorId::Launcher) = (world.as_deref_mut(), channel.publisher()) {
+                    if let Some(step) = fusion_graph::wire::peek_step(&bytes) {
+                        w.advance_to(step);
+                    }
+                }
                 let ok = inlet.takes(channel) && inlet.publish(channel, &bytes).is_ok();
                 if ok {
                     c.messages_received += 1;

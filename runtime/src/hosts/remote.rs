@@ -387,7 +387,7 @@ fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState])
         }
     }
     Event::Counts {
-        accounting_csv: accounting.to_csv(),
+        accounting_csv: accounting.to_csv_with_world_misses(),
         bridges,
         homes,
     }

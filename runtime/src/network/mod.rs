@@ -21,6 +21,7 @@ use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{ClockMode, Scenario};
 use fusion_graph::transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
 use fusion_graph::transport::{Channel, IceoryxTransport, RunId, Transport};
+use fusion_graph::world_memory::TruthRing;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use tokio::sync::mpsc::UnboundedSender;
 
@@ -284,7 +285,10 @@ fn world_thread(
     let mut writer = ResultsWriter::create(&options.out)?;
     let mut recorder = Recorder::new(&mut writer, scenario, topology);
     let transport = launcher_transport(scenario, topology, placement, options)?;
-    let mut w = WorldState::new(transport, topology, commands, events);
+    // Before any sensor starts: a sensor maps it as it starts.
+    let truths = TruthRing::create(&launcher_domain(placement, options))
+        .context("making the world's memory, where sensors read the truth")?;
+    let mut w = WorldState::new(transport, truths, topology, commands, events);
     let view = options.view.as_deref();
     if let Some(hub) = view {
         hub.publish(&setup_event(scenario, topology, "live"));
@@ -355,6 +359,14 @@ fn world_thread(
     Ok(summary)
 }
 
+/// Where the launcher's resources are: its host's domain on several hosts.
+fn launcher_domain(placement: Option<&Placement>, options: &RunOptions) -> RunId {
+    match placement {
+        Some(p) => p.domain(&options.run_id, p.host_of(ActorId::Launcher)),
+        None => options.run_id.clone(),
+    }
+}
+
 /// The launcher's own ports: it creates the services everyone shares
 /// before anyone else opens them. On several hosts they are in its host's
 /// domain, and it wakes the actors of the others through that host's bridge.
@@ -364,10 +376,7 @@ fn launcher_transport(
     placement: Option<&Placement>,
     options: &RunOptions,
 ) -> anyhow::Result<IceoryxTransport> {
-    let domain = match placement {
-        Some(p) => p.domain(&options.run_id, p.host_of(ActorId::Launcher)),
-        None => options.run_id.clone(),
-    };
+    let domain = launcher_domain(placement, options);
     let mut t = IceoryxTransport::new(
         &domain,
         ActorId::Launcher,
@@ -378,7 +387,7 @@ fn launcher_transport(
     if let Some(p) = placement {
         t.place_on(p, p.host_of(ActorId::Launcher));
     }
-    t.publish_on(Channel::Tick)?;
+    t.publish_on(Channel::Lifecycle)?;
     for n in 0..topology.nodes() as u16 {
         t.publish_on(Channel::Control(ActorId::Node(n)))?;
         t.subscribe(Channel::Telemetry(n))?;

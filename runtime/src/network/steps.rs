@@ -1,4 +1,4 @@
-//! The run's steps: the world ticked, the reports of every node gathered
+//! The run's steps: the world advanced, the reports of every node gathered
 //! until the step is complete or its time is up, and the results written.
 
 use std::collections::BTreeMap;
@@ -56,7 +56,6 @@ pub(super) fn run_steps(
     let mut steps_done = 0;
     let mut crashes_shown = 0;
 
-    let macs: Vec<ActorId> = (0..topology.mac_count() as u16).map(ActorId::Mac).collect();
     for step in 1..=scenario.steps {
         w.step = step;
         w.poll_events();
@@ -69,10 +68,9 @@ pub(super) fn run_steps(
         recorder.begin_step(step);
         crate::world::begin_step(
             &mut w.transport,
+            &w.truths,
             step,
-            truth,
-            &w.sensors,
-            &macs,
+            &truth,
             &views,
             &w.views,
             process_faults,

@@ -19,6 +19,7 @@ use crate::feed::{Hub, ViewEvent};
 use crate::summary::AppliedFault;
 use crate::supervisor::{Command, Event};
 use crate::world::SensorStates;
+use fusion_graph::world_memory::TruthRing;
 
 use super::options::RunProgress;
 
@@ -27,6 +28,8 @@ const START_TIMEOUT: Duration = Duration::from_secs(120);
 
 pub(super) struct WorldState<'a> {
     pub(super) transport: IceoryxTransport,
+    /// The truth of recent steps, which this host's sensors read.
+    pub(super) truths: TruthRing,
     pub(super) commands: &'a UnboundedSender<Command>,
     pub(super) events: &'a Receiver<Event>,
     pub(super) alive: Vec<bool>,
@@ -56,12 +59,14 @@ pub(super) struct WorldState<'a> {
 impl<'a> WorldState<'a> {
     pub(super) fn new(
         transport: IceoryxTransport,
+        truths: TruthRing,
         topology: &Topology,
         commands: &'a UnboundedSender<Command>,
         events: &'a Receiver<Event>,
     ) -> Self {
         Self {
             transport,
+            truths,
             commands,
             events,
             alive: vec![true; topology.nodes()],
@@ -130,7 +135,7 @@ impl<'a> WorldState<'a> {
             .collect();
         let _ = self
             .transport
-            .send(Channel::Tick, &stop_message(last), &sensors);
+            .send(Channel::Lifecycle, &stop_message(last), &sensors);
         let mut exited: HashSet<ActorId> = HashSet::new();
         let live: HashSet<ActorId> = topology.actors().filter(|a| self.is_alive(*a)).collect();
         let deadline = Instant::now() + Duration::from_secs(10);
