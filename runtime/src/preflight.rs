@@ -20,7 +20,8 @@ const BYTES_PER_PROCESS: u64 = 4 << 20;
 /// children without the centralized reference, 6.5 each; 2,653 with it,
 /// 5 more per sensor. Per child: its output pipe and its pidfd; the port
 /// tag and the service's dynamic configuration of the notifier that wakes
-/// it; its connection to the tick publisher. The centralized reference
+/// it; its connection to the lifecycle's or its control channel's
+/// publisher. The centralized reference
 /// subscribes to every sensor: a port tag, a dynamic configuration, a
 /// connection, the sensor's data segment, and its observation service.
 const FDS_PER_CHILD: u64 = 7;
@@ -137,9 +138,8 @@ pub fn check_footprint(need: &Footprint, room: &MachineRoom) -> anyhow::Result<(
         bail!(
             "the network needs about {} MB of shared memory in /dev/shm and it has {} MB free: \
              enlarge /dev/shm (in a container, `docker run --shm-size=…`; otherwise \
-             `mount -o remount,size=… /dev/shm`) or shrink the network (a network's shared \
-             memory grows with the square of its sensors: each keeps a connection to the tick's \
-             queue, which holds room for every sensor)",
+             `mount -o remount,size=… /dev/shm`) or shrink the network (its shared memory \
+             grows with its actors and links)",
             need.shared_bytes.div_ceil(1 << 20),
             free >> 20
         );

@@ -73,8 +73,8 @@ impl ChannelLimits {
     }
 
     /// A publisher's data segment. A sample is the message rounded up to 8
-    /// bytes and iceoryx2's 52 bytes of header and alignment (measured: the
-    /// tick's segment is 116 bytes a sample for 61-byte messages).
+    /// bytes and iceoryx2's 52 bytes of header and alignment (measured: a
+    /// segment of 61-byte messages is 116 bytes a sample).
     pub fn segment_bytes(&self) -> u64 {
         let sample = self.message_bytes.div_ceil(8) * 8 + 52;
         (self.samples() * sample) as u64
@@ -208,14 +208,14 @@ pub struct Footprint {
 
 /// A connection between a publisher and one subscriber: a byte for each
 /// sample of the publisher's segment, and 1,292 bytes (measured: 16,804
-/// bytes for the tick's 15,512 samples in the default run, 172,960 for its
-/// 171,668 at 2,601 processes). Every sensor has a connection to the
-/// tick's publisher, whose segment grows with the network too: the tick's
-/// connections grow with the square of the network, 432 MB of the 611 MB
-/// at 2,601 processes.
+/// bytes for a broadcast channel's 15,512 samples, 172,960 for 171,668).
+/// So a channel every actor reads costs the square of the network: such a
+/// channel (the truth, once a message to every sensor) took 432 MB of the
+/// 611 MB at 2,601 processes. The one left, the lifecycle's, keeps a
+/// short queue.
 const CONNECTION_BYTES: u64 = 1_400;
-/// A service's static and dynamic files: at most 6.1 kB measured (the
-/// tick's dynamic configuration, which lists every subscriber), most
+/// A service's static and dynamic files: at most 6.1 kB measured (a
+/// broadcast's dynamic configuration, which lists every subscriber), most
 /// under 2.5 kB.
 const SERVICE_BYTES: u64 = 4 << 10;
 /// A process's iceoryx2 node files (its details and monitor): 2.1 kB.
@@ -227,13 +227,14 @@ const FILES_PER_PROCESS: u64 = 5;
 const FILES_PER_SERVICE: u64 = 2;
 const FILES_PER_PORT: u64 = 2;
 /// The launcher's maps besides its children's (its own libraries, heap,
-/// its node), and per child (measured 3.0 in the default run and 3.2 at
-/// 2,600 processes: the wake-up service it notifies, the connection of the
-/// tick's or a control channel's publisher), and per sensor whose
-/// observations it reads (a connection, the sensor's data segment, the
-/// service's dynamic configuration).
-const LAUNCHER_BASE_MAPS: u64 = 256;
-const LAUNCHER_MAPS_PER_CHILD: u64 = 4;
+/// its node), and per child (the wake-up service it notifies, the
+/// connection of the lifecycle's or a control channel's publisher), and
+/// per sensor whose observations it reads (a connection, the sensor's data
+/// segment, the service's dynamic configuration). Fitted to 583 maps
+/// measured in the default run and 5,947 at 2,601 processes, about 2.3 a
+/// child between them, and kept above both.
+const LAUNCHER_BASE_MAPS: u64 = 64;
+const LAUNCHER_MAPS_PER_CHILD: u64 = 3;
 const LAUNCHER_MAPS_PER_OBSERVED_SENSOR: u64 = 4;
 
 impl Footprint {
@@ -306,21 +307,21 @@ mod tests {
 
     /// Against `/dev/shm` (`du -sb`, `find -type f | wc -l`) and
     /// `/proc/<launcher>/maps` while the network ran without the
-    /// centralized reference: 27,690,836 bytes, 7,013 files and 809 maps
-    /// for the default network of 235 processes; 611,027,369 bytes, 78,217
-    /// files and 8,446 maps for 2,601. The estimate stays above, within
+    /// centralized reference: 26,200,529 bytes, 8,094 files and 583 maps
+    /// for the default network of 235 processes; 226,248,205 bytes, 90,218
+    /// files and 5,947 maps for 2,601. The estimate stays above, within
     /// half again as much.
     #[test]
     fn the_footprint_is_estimated_above_what_runs_were_measured_to_use() {
         let cases = [
-            (topology(&[]), [27_690_836.0, 7_013.0, 809.0]),
+            (topology(&[]), [26_200_529.0, 8_094.0, 583.0]),
             (
                 topology(&[
                     "nodes.grid=[10,10]",
                     "region.width=5000",
                     "region.height=5000",
                 ]),
-                [611_027_369.0, 78_217.0, 8_446.0],
+                [226_248_205.0, 90_218.0, 5_947.0],
             ),
         ];
         for (t, measured) in cases {

@@ -31,7 +31,8 @@ use super::{bridge_key, decode, encode};
 
 /// How long each direction sleeps before checking whether to stop. The out
 /// side also drains its channels then: a message sent to another host
-/// without waking anyone there (a tick to sensors) leaves at the latest now.
+/// without waking anyone there (a consensus round's message to a neighbour
+/// it no longer waits for) leaves at the latest now.
 const POLL: Duration = Duration::from_millis(20);
 
 /// One item of a batch between hosts.
