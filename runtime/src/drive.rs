@@ -60,3 +60,48 @@ pub fn sensor_handles<T: Transport + ?Sized>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_graph::transport::{Channel, MemoryBus, MemoryTransport};
+    use fusion_graph::wire::{BitMask, Payload};
+    use fusion_graph::world_memory::TruthRing;
+    use fusion_graph::{Scenario, Topology};
+
+    /// An activation for a step the world holds is answered; one for a step
+    /// it does not hold is counted as a failed read and answered with
+    /// nothing, never with another step's truth.
+    #[test]
+    fn a_step_the_world_does_not_hold_is_counted_not_observed() {
+        let s = Scenario::default_scenario();
+        let t = Topology::from_scenario(&s, "d").unwrap();
+        let bus = MemoryBus::new();
+        let format = s.wire_format(&t);
+        let mut node = MemoryTransport::new(ActorId::Node(0), bus.clone(), format, 1);
+        node.subscribe(Channel::Observation(0)).unwrap();
+        let mut transport = MemoryTransport::new(ActorId::Sensor(0), bus, format, 2);
+        let mut sensor = SensorActor::new(&s, &t, 0).unwrap();
+        transport.publish_on(sensor.publication()).unwrap();
+        let truths = TruthRing::on_heap(4);
+        truths.write(1, &bounds::State::new(1000.0, 900.0, -6.0, -7.0));
+        let world = truths.reader();
+        let to = [sensor.reports_to()];
+        for step in [1, 2] {
+            let activation = Message::new(
+                ActorId::Node(0),
+                step,
+                0,
+                Payload::Activate {
+                    mask: BitMask::from_indices([0]),
+                },
+            );
+            sensor_handles(&mut sensor, &mut transport, &activation, &world, &to).unwrap();
+        }
+        assert_eq!(transport.accounting().world_misses(), 1);
+        let mut got = Vec::new();
+        node.receive(node.now(), &mut got).unwrap();
+        let steps: Vec<u32> = got.iter().map(|m| m.header.step).collect();
+        assert_eq!(steps, vec![1], "only the step the world held is observed");
+    }
+}

@@ -17,7 +17,6 @@ use cqnet_testkit::{exclusive, ActorId, MessageKind, Network, Run, Scenario};
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
 const STEPS: u32 = 8;
-const SENSORS: u64 = 25;
 const HEADER: u64 = 13;
 
 fn scenario(extra: &str) -> Scenario {
@@ -40,8 +39,8 @@ fn network(tag: &str, scenario: Scenario) -> Network {
         .time_limit(Duration::from_secs(180))
 }
 
-/// The counts the slots of `r`'s steps predict: the schedule to every
-/// sensor and the channel, a transmission message per transmitter, a
+/// The counts the slots of `r`'s steps predict: the schedule to each
+/// transmitter and the channel, a transmission message per transmitter, a
 /// delivery per step; and from the transmissions' bytes, the energy.
 fn assert_predicted_bytes(r: &Run, slots: u64) {
     let ticks = r.ticks();
@@ -49,11 +48,14 @@ fn assert_predicted_bytes(r: &Run, slots: u64) {
     let transmitters: u64 = ticks.iter().map(|t| t.active.len() as u64).sum();
     let schedule: u64 = ticks
         .iter()
-        .map(|t| HEADER + 3 + 10 * t.active.len() as u64)
+        .map(|t| {
+            let active = t.active.len() as u64;
+            (HEADER + 3 + 10 * active) * (active + 1)
+        })
         .sum();
     let steps = u64::from(STEPS);
     let predicted = [
-        (MessageKind::ActivateSlots, schedule * (SENSORS + 1)),
+        (MessageKind::ActivateSlots, schedule),
         (MessageKind::MacOutput, steps * (HEADER + 1 + 8 * slots)),
     ];
     for (kind, bytes) in predicted {
