@@ -191,7 +191,7 @@ impl TruthReader {
                 format!("{}: {what}", path.display()),
             )
         };
-        if len < HEADER_WORDS * 8 || len % 8 != 0 {
+        if len < HEADER_WORDS * 8 || !len.is_multiple_of(8) {
             return Err(bad(format!("{len} bytes is not a world ring")));
         }
         // SAFETY: the run's own file, which its writer never shrinks; read

@@ -18,7 +18,7 @@ use fusion_graph::transport::RunId;
 use fusion_graph::{ActorId, Scenario, Topology};
 use zenoh::Wait;
 
-use super::bridge::{Bridge, HostWorld};
+use super::bridge::{Bridge, HostWorld, Setting};
 use super::{
     command_key, decode, encode, event_key, liveliness_key, open_session, put, FromAgent, ToAgent,
 };
@@ -164,13 +164,16 @@ impl Agent<'_> {
         let world = (host != placement.host_of(ActorId::Launcher))
             .then(|| HostWorld::create(&domain, &scenario))
             .transpose()?;
+        let setting = Setting {
+            run: run.into(),
+            domain: domain.clone(),
+            placement: placement.clone(),
+            host,
+            topology: topology.clone(),
+        };
         let bridge = Bridge::start(
             self.session,
-            run,
-            domain.clone(),
-            placement.clone(),
-            host,
-            topology.clone(),
+            setting,
             &dir.join("accounting").join("bridge.counts"),
             world,
         )?;

@@ -157,36 +157,27 @@ impl HostWorld {
     }
 }
 
-/// What both directions need to know.
+/// Where a bridge stands, which both its directions need to know: the
+/// run, this host's domain and place among the hosts, and the network.
 #[derive(Clone)]
-struct Setting {
-    run: String,
-    domain: RunId,
-    placement: Placement,
-    host: usize,
-    topology: Topology,
+pub struct Setting {
+    pub run: String,
+    pub domain: RunId,
+    pub placement: Placement,
+    pub host: usize,
+    pub topology: Topology,
 }
 
 impl Bridge {
-    /// Opens host `host`'s ports in `domain` and starts both directions;
-    /// returns once both are ready, or with the first one's error.
+    /// Opens host `setting.host`'s ports in its domain and starts both
+    /// directions; returns once both are ready, or with the first one's
+    /// error. `world`: this host's world, when it is not the launcher's.
     pub fn start(
         session: &zenoh::Session,
-        run: &str,
-        domain: RunId,
-        placement: Placement,
-        host: usize,
-        topology: Topology,
+        setting: Setting,
         ledger: &Path,
         world: Option<HostWorld>,
     ) -> anyhow::Result<Self> {
-        let setting = Setting {
-            run: run.into(),
-            domain,
-            placement,
-            host,
-            topology,
-        };
         let stop = Arc::new(AtomicBool::new(false));
         let counts = Arc::new(Mutex::new(CountsLedger::open(ledger)?));
         let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<()>>();
