@@ -86,16 +86,17 @@ enum Words {
 
 impl Words {
     fn as_slice(&self) -> &[AtomicU64] {
-        let bytes: &[u8] = match self {
-            Words::Shared(m) => m,
-            Words::SharedReadOnly(m) => m,
+        let (start, len) = match self {
+            Words::Shared(m) => (m.as_ptr(), m.len()),
+            Words::SharedReadOnly(m) => (m.as_ptr(), m.len()),
             Words::Heap(words) => return words,
         };
         // SAFETY: a mapping is page-aligned, its length is a whole number
-        // of words (checked when it was opened), and every access to it
-        // goes through these atomics. Atomic loads of a read-only mapping
-        // are plain loads on the platforms we build for.
-        unsafe { std::slice::from_raw_parts(bytes.as_ptr().cast::<AtomicU64>(), bytes.len() / 8) }
+        // of words (checked when it was opened), it lives as long as
+        // `self`, and every access to it goes through these atomics.
+        // Atomic loads of a read-only mapping are plain loads on the
+        // platforms we build for.
+        unsafe { std::slice::from_raw_parts(start.cast::<AtomicU64>(), len / 8) }
     }
 }
 

@@ -388,14 +388,7 @@ mod tests {
         SensorActor::new(&s, &t, 12).unwrap()
     }
 
-    /// A target that stands still: the world holds it at every step.
-    struct Still(State);
-
-    impl WorldView for Still {
-        fn truth(&self, _step: u32) -> Result<State, TruthMissing> {
-            Ok(self.0)
-        }
-    }
+    use fusion_graph::world_memory::StillTarget as Still;
 
     /// Sensor 12 is the 13th of node 0's sensors.
     fn activation(step: u32, active: bool) -> Message {
