@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use crate::actor::ActorId;
 pub use crate::counters::{Counters, LinkKey};
 use crate::counters::{Links, Pair};
-use crate::ledger::{Ledger, LedgerError};
+use crate::ledger::{Ledger, LedgerCounts, LedgerError};
 use crate::wire::MessageKind;
 
 /// Counters per directed link and kind. An actor of a real network mirrors
@@ -42,9 +42,8 @@ impl Accounting {
     pub fn backed_by(ledger: Ledger) -> Self {
         let counts = ledger.counts();
         Self {
-            links: counts.links.0,
-            world_misses: counts.world_misses,
             ledger: Some(ledger),
+            ..Self::from(counts)
         }
     }
 
@@ -59,11 +58,6 @@ impl Accounting {
     /// Reads of the world's truth that failed.
     pub fn world_misses(&self) -> u64 {
         self.world_misses
-    }
-
-    /// Adds reads of the world that failed elsewhere (another host's).
-    pub fn add_world_misses(&mut self, misses: u64) {
-        self.world_misses += misses;
     }
 
     fn mirror(&mut self, key: LinkKey, pair: Pair, messages: i64, bytes: usize) {
@@ -282,14 +276,19 @@ impl From<Links> for Accounting {
     }
 }
 
+impl From<LedgerCounts> for Accounting {
+    fn from(counts: LedgerCounts) -> Self {
+        Self {
+            world_misses: counts.world_misses,
+            ..Self::from(counts.links)
+        }
+    }
+}
+
 /// The counts an actor left in its ledger at `path` (see
 /// [`crate::ledger::read_ledger`]).
 pub fn read_ledger(path: &std::path::Path) -> Result<Accounting, LedgerError> {
-    crate::ledger::read_ledger(path).map(|c| {
-        let mut a = Accounting::from(c.links);
-        a.world_misses = c.world_misses;
-        a
-    })
+    crate::ledger::read_ledger(path).map(Accounting::from)
 }
 
 #[cfg(test)]

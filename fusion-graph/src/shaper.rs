@@ -161,10 +161,10 @@ impl LinkShaper {
 
     /// Puts in place the rules of the step of `bytes`, when they follow steps.
     fn rules_for_message(&mut self, bytes: &[u8]) {
-        let Some(step) = crate::wire::peek_step(bytes) else {
+        let Some(follow) = self.follow.as_mut() else {
             return;
         };
-        let Some(follow) = self.follow.as_mut() else {
+        let Some(step) = crate::wire::peek_step(bytes) else {
             return;
         };
         if follow.step == Some(step) {
@@ -305,6 +305,50 @@ impl LinkShaper {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A receiver that follows steps judges each message by its own step's
+    /// rules: the link is cut at step 2 only, whatever came before.
+    #[test]
+    fn a_message_is_judged_by_the_rules_of_its_own_step() {
+        use crate::wire::{Message, Payload, WireFormat};
+        let node = ActorId::Node(0);
+        let mut s = LinkShaper::new(1);
+        let (tx, rx) = std::sync::mpsc::channel();
+        s.follow_steps(move |step| {
+            let _ = tx.send(step);
+            let blocked = LinkRule {
+                blocked: true,
+                ..LinkRule::default()
+            };
+            if step == 2 {
+                vec![(node, blocked)]
+            } else {
+                Vec::new()
+            }
+        });
+        let format = WireFormat {
+            cell_bytes: 1,
+            activation_bytes: 4,
+        };
+        let of_step = |step| {
+            Message::new(
+                node,
+                step,
+                0,
+                Payload::Control(crate::wire::Control::BeginStep),
+            )
+            .to_bytes(&format)
+        };
+        let t = Duration::ZERO;
+        let fates: Vec<Admission> = [1, 2, 2, 3, 2]
+            .into_iter()
+            .map(|k| s.admit(node, &of_step(k), t))
+            .collect();
+        use Admission::{Deliver, Dropped};
+        assert_eq!(fates, vec![Deliver, Dropped, Dropped, Deliver, Dropped]);
+        // Rules are made again only when the step changes.
+        assert_eq!(rx.try_iter().collect::<Vec<u32>>(), vec![1, 2, 3, 2]);
+    }
 
     /// netem's `rate`: a 14-byte message on a 1000 bit/s link with 2 ms of
     /// latency arrives 2 + 112 ms later, and one sent right behind it waits
