@@ -232,12 +232,11 @@ impl Placement {
             };
             // Each sensor, and the multiple-access channel (which reads the
             // schedule of its slots), has its own.
-            all.extend(topology.activation_channels(n).map(|c| {
-                let Channel::Activation { to, .. } = c else {
-                    unreachable!("an activation channel")
-                };
-                (c, vec![to])
-            }));
+            all.extend(
+                topology
+                    .activated_by(n)
+                    .map(|to| (Channel::Activation { node: n, to }, vec![to])),
+            );
             if topology.macs {
                 all.push((Channel::MacOutput(n), vec![ActorId::Node(n)]));
             }

@@ -92,20 +92,20 @@ impl Topology {
         }
     }
 
-    /// The activation channels of node `n`: one to each of its sensors,
-    /// and one to its multiple-access channel if it has one.
-    pub fn activation_channels(&self, n: u16) -> impl Iterator<Item = Channel> + '_ {
+    /// Whom node `n` activates: each of its sensors, and its
+    /// multiple-access channel if it has one.
+    pub fn activated_by(&self, n: u16) -> impl Iterator<Item = ActorId> + '_ {
         let sensors = self.node_sensors[n as usize]
             .iter()
-            .map(move |s| Channel::Activation {
-                node: n,
-                to: ActorId::Sensor(*s),
-            });
-        let mac = self.macs.then_some(Channel::Activation {
-            node: n,
-            to: ActorId::Mac(n),
-        });
-        sensors.chain(mac)
+            .map(|s| ActorId::Sensor(*s));
+        sensors.chain(self.macs.then_some(ActorId::Mac(n)))
+    }
+
+    /// The activation channels of node `n`, one to each actor it activates
+    /// ([`Topology::activated_by`]).
+    pub fn activation_channels(&self, n: u16) -> impl Iterator<Item = Channel> + '_ {
+        self.activated_by(n)
+            .map(move |to| Channel::Activation { node: n, to })
     }
 
     pub fn nodes(&self) -> usize {

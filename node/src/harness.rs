@@ -210,9 +210,9 @@ impl Net {
                         .push((i as u16, o.message.header.step, t.clone()))
                 }
                 // The harness's sensors always send: censoring is tested
-                // with the real sensor actors, in `sim`.
-                // The same activation goes to each active sensor on its
-                // own channel: the step's first copy stands for them all.
+                // with the real sensor actors, in `sim`. The same activation
+                // goes to each active sensor on its own channel: the step's
+                // first copy stands for them all.
                 Payload::Activate { mask } | Payload::ActivateWithFeedback { mask, .. } => {
                     let step = o.message.header.step;
                     if self

@@ -69,6 +69,8 @@ pub struct MacCentre {
     index: u16,
     seed: u64,
     own: Vec<u16>,
+    /// What it publishes on (see [`MacCentre::publications`]).
+    publications: Vec<Channel>,
     models: Vec<ObservationModel>,
     mac: MacConfig,
     /// The sensors' measurement noise variance r (eq. 4.2).
@@ -128,6 +130,10 @@ impl MacCentre {
             seed: scenario.seed,
             blocks: vec![[0.0; 3]; own.len()],
             own,
+            publications: topology
+                .activation_channels(index)
+                .chain([Channel::Telemetry(index)])
+                .collect(),
             models: sensor_models,
             mac,
             r,
@@ -157,14 +163,7 @@ impl MacCentre {
     /// An activation channel to each of its sensors and to its channel,
     /// and its telemetry.
     pub fn publications(&self) -> Vec<Channel> {
-        let node = self.index;
-        self.own
-            .iter()
-            .map(|s| ActorId::Sensor(*s))
-            .chain([ActorId::Mac(node)])
-            .map(|to| Channel::Activation { node, to })
-            .chain([Channel::Telemetry(node)])
-            .collect()
+        self.publications.clone()
     }
 
     /// Its sensors and its channel (the schedule wakes them), and the
@@ -393,17 +392,11 @@ fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Vec<Outgoing
             columns,
         },
     );
-    transmitters
+    let receivers = transmitters
         .iter()
         .map(|&j| ActorId::Sensor(own[j]))
-        .chain([ActorId::Mac(index)])
-        .map(|to| Outgoing {
-            channel: Channel::Activation { node: index, to },
-            message: message.clone(),
-            receivers: vec![to],
-            wake: None,
-        })
-        .collect()
+        .chain([ActorId::Mac(index)]);
+    wiring::to_each(index, &message, receivers).collect()
 }
 
 impl MacCentre {

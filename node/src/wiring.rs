@@ -74,15 +74,23 @@ pub(crate) fn activate(
     payload: Payload,
 ) {
     let message = Message::new(ActorId::Node(node), step, 0, payload);
-    out.extend(picks.iter().map(|&i| {
-        let to = ActorId::Sensor(own[i]);
-        Outgoing {
-            channel: Channel::Activation { node, to },
-            message: message.clone(),
-            receivers: vec![to],
-            wake: None,
-        }
-    }));
+    let active = picks.iter().map(|&i| ActorId::Sensor(own[i]));
+    out.extend(to_each(node, &message, active));
+}
+
+/// Node `node`'s `message` to each of `receivers` (its sensors, or its
+/// multiple-access channel), each on its own activation channel.
+pub(crate) fn to_each<'a>(
+    node: u16,
+    message: &'a Message,
+    receivers: impl IntoIterator<Item = ActorId> + 'a,
+) -> impl Iterator<Item = Outgoing> + 'a {
+    receivers.into_iter().map(move |to| Outgoing {
+        channel: Channel::Activation { node, to },
+        message: message.clone(),
+        receivers: vec![to],
+        wake: None,
+    })
 }
 
 /// The mask of `picks` for an activation's payload.
