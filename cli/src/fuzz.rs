@@ -515,15 +515,15 @@ impl Actors {
             .expect("the built-in compressive scenario");
         let field = Topology::from_scenario(&compressive, "compressive").expect("its topology");
         nodes.push(ProcessingNode::for_scenario(&compressive, &field, 0).expect("node-0"));
-        let truths = TruthRing::on_heap(16);
-        let mut world = runtime::world::World::new(&scenario).expect("the default world");
+        let (truths, seen) = TruthRing::on_heap(16);
+        let mut truth = runtime::world::World::new(&scenario).expect("the default world");
         for step in 1..=16 {
-            truths.write(step, &world.advance());
+            truths.write(step, &truth.advance());
         }
         Self {
             nodes,
             sensor: SensorActor::new(&scenario, &topology, 0).expect("sensor-0"),
-            world: truths.reader(),
+            world: seen,
             mac: sensor::mac::MacActor::new(&compressive, &field, 0)
                 .expect("mac-0")
                 .expect("the scenario has a channel"),

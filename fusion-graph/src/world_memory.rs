@@ -111,17 +111,22 @@ pub struct TruthRing {
 }
 
 impl TruthRing {
-    /// A ring of `capacity` steps on the heap, for a network in one process.
-    pub fn on_heap(capacity: usize) -> Self {
+    /// A ring of `capacity` steps on the heap, for a network in one
+    /// process, and its reader.
+    pub fn on_heap(capacity: usize) -> (Self, TruthReader) {
         let words: Arc<[AtomicU64]> = (0..words_for(capacity))
             .map(|_| AtomicU64::new(0))
             .collect();
+        let reader = TruthReader {
+            words: Words::Heap(words.clone()),
+            capacity,
+        };
         let ring = Self {
             words: Words::Heap(words),
             capacity,
         };
         ring.init();
-        ring
+        (ring, reader)
     }
 
     /// Creates (or takes over, zeroed) the ring of run `run` in shared
@@ -142,17 +147,6 @@ impl TruthRing {
         let w = self.words.as_slice();
         w[CAPACITY_AT].store(self.capacity as u64, Ordering::Relaxed);
         w[0].store(MAGIC, Ordering::Release);
-    }
-
-    /// A reader of this ring in the same process (`sim`).
-    pub fn reader(&self) -> TruthReader {
-        match &self.words {
-            Words::Heap(words) => TruthReader {
-                words: Words::Heap(words.clone()),
-                capacity: self.capacity,
-            },
-            _ => panic!("a shared ring is read through TruthReader::open"),
-        }
     }
 
     /// Writes the truth of `step`, over the slot of step `step − capacity`.
@@ -281,8 +275,7 @@ mod tests {
 
     #[test]
     fn a_step_written_is_read_back_exactly() {
-        let ring = TruthRing::on_heap(8);
-        let reader = ring.reader();
+        let (ring, reader) = TruthRing::on_heap(8);
         for step in 1..=5 {
             ring.write(step, &state(step));
         }
@@ -293,8 +286,7 @@ mod tests {
 
     #[test]
     fn a_step_not_written_or_overwritten_is_refused_not_stale() {
-        let ring = TruthRing::on_heap(4);
-        let reader = ring.reader();
+        let (ring, reader) = TruthRing::on_heap(4);
         assert_eq!(
             reader.truth(1),
             Err(TruthMissing::NotYetWritten { step: 1, latest: 0 })
@@ -323,8 +315,8 @@ mod tests {
     /// whole states: every state read is the one written with its step.
     #[test]
     fn a_reader_never_sees_a_torn_state() {
-        let ring = Arc::new(TruthRing::on_heap(1));
-        let reader = ring.reader();
+        let (ring, reader) = TruthRing::on_heap(1);
+        let ring = Arc::new(ring);
         let done = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let writer = {
             let (ring, done) = (ring.clone(), done.clone());
@@ -354,12 +346,12 @@ mod tests {
 
     #[test]
     fn a_slot_left_mid_write_is_reported_not_waited_on_forever() {
-        let ring = TruthRing::on_heap(2);
+        let (ring, reader) = TruthRing::on_heap(2);
         ring.write(1, &state(1));
         // A writer killed between its two sequence stores.
         let w = ring.words.as_slice();
         w[slot_at(1, 2)].fetch_add(1, Ordering::Relaxed);
-        assert_eq!(ring.reader().truth(1), Err(TruthMissing::Torn { step: 1 }));
+        assert_eq!(reader.truth(1), Err(TruthMissing::Torn { step: 1 }));
     }
 
     #[test]

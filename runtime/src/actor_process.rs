@@ -104,12 +104,12 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
             let world = TruthReader::open(&run).with_context(|| {
                 format!("{actor} cannot see the world (the run's truth in shared memory)")
             })?;
-            let i = SensorRun {
+            let sensor = SensorRun {
                 index: i,
                 centralized: args.centralized,
                 world,
             };
-            sensor_loop(&scenario, &topology, transport, i, &out)
+            sensor_loop(&scenario, &topology, transport, sensor, &out)
         }
         ActorId::Node(i) => {
             share_table_rows(&run);

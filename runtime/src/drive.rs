@@ -83,9 +83,8 @@ mod tests {
         let mut transport = MemoryTransport::new(ActorId::Sensor(0), bus, format, 2);
         let mut sensor = SensorActor::new(&s, &t, 0).unwrap();
         transport.publish_on(sensor.publication()).unwrap();
-        let truths = TruthRing::on_heap(4);
+        let (truths, world) = TruthRing::on_heap(4);
         truths.write(1, &bounds::State::new(1000.0, 900.0, -6.0, -7.0));
-        let world = truths.reader();
         let to = [sensor.reports_to()];
         for step in [1, 2] {
             let activation = Message::new(

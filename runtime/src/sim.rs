@@ -31,9 +31,8 @@ use crate::world::World;
 struct SensorSlot {
     actor: SensorActor,
     transport: MemoryTransport,
+    /// Running: a killed or stopped (SIGSTOP) sensor reads nothing.
     alive: bool,
-    /// Stopped (SIGSTOP): its queue still takes messages.
-    stopped: bool,
 }
 
 /// A multiple-access channel; no fault stops one.
@@ -111,7 +110,6 @@ impl InProcessNetwork {
                 actor,
                 transport,
                 alive: true,
-                stopped: false,
             });
         }
         let oracle =
@@ -138,7 +136,7 @@ impl InProcessNetwork {
             schedule.follow_link_faults(&mut transport, topology);
             macs.push(MacSlot { actor, transport });
         }
-        let truths = TruthRing::on_heap(WORLD_STEPS);
+        let (truths, sensors_see) = TruthRing::on_heap(WORLD_STEPS);
         let central = centralized
             .then(|| CentralizedReference::new(scenario, topology))
             .transpose()
@@ -153,7 +151,7 @@ impl InProcessNetwork {
             macs,
             central,
             world: World::new(scenario)?,
-            sensors_see: truths.reader(),
+            sensors_see,
             truths,
             schedule,
             retired: Accounting::default(),
@@ -264,12 +262,8 @@ impl InProcessNetwork {
                 }
                 ProcessEvent::Kill {
                     actor: ActorId::Sensor(i),
-                    signal,
-                } => {
-                    let slot = &mut self.sensors[i as usize];
-                    slot.alive = false;
-                    slot.stopped = signal == fusion_graph::scenario::Signal::Stop;
-                }
+                    ..
+                } => self.sensors[i as usize].alive = false,
                 ProcessEvent::Restart {
                     actor: ActorId::Sensor(i),
                     signal,
@@ -279,9 +273,7 @@ impl InProcessNetwork {
                     if signal != fusion_graph::scenario::Signal::Stop {
                         self.bus.borrow_mut().clear_inbox(ActorId::Sensor(i));
                     }
-                    let slot = &mut self.sensors[i as usize];
-                    slot.alive = true;
-                    slot.stopped = false;
+                    self.sensors[i as usize].alive = true;
                 }
                 _ => {}
             }

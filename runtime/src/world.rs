@@ -48,30 +48,6 @@ impl World {
     }
 }
 
-/// Where each sensor's process stands, as the launcher knows it.
-#[derive(Debug, Clone)]
-pub struct SensorStates {
-    /// Running: it reads its queue.
-    pub alive: Vec<bool>,
-    /// Stopped (SIGSTOP): its queue takes messages, read when it continues.
-    pub stopped: Vec<bool>,
-}
-
-impl SensorStates {
-    pub fn all_running(sensors: usize) -> Self {
-        Self {
-            alive: vec![true; sensors],
-            stopped: vec![false; sensors],
-        }
-    }
-
-    /// Records a kill (`stopped`: by SIGSTOP) or a restart of sensor `i`.
-    pub fn set(&mut self, i: u16, alive: bool, stopped: bool) {
-        self.alive[i as usize] = alive;
-        self.stopped[i as usize] = stopped;
-    }
-}
-
 /// The launcher's start of a step, the same in `sim` and `run`: the truth
 /// of `step` into the world's memory, where a sensor activated for it will
 /// look, then, to every live node, its membership view when it differs

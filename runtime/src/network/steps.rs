@@ -90,7 +90,7 @@ pub(super) fn run_steps(
             let left = step_end.saturating_duration_since(Instant::now());
             w.transport.wait(left.min(Duration::from_millis(50)))?;
             let rows = reports.take(&mut w.transport, step)?;
-            gaps.heard_from(&rows, &w.sensors.alive, &schedule);
+            gaps.heard_from(&rows, &w.sensors_alive, &schedule);
             publish_late_rows(view, &rows, step);
             reports
                 .rows
@@ -145,7 +145,7 @@ pub(super) fn run_steps(
     let wall = run_start.elapsed().as_secs_f64();
     if !lockstep && !w.interrupted {
         let heard = |rows: &[TickRow], w: &WorldState<'_>| {
-            gaps.heard_from(rows, &w.sensors.alive, &schedule)
+            gaps.heard_from(rows, &w.sensors_alive, &schedule)
         };
         await_last_reports(steps_done, w, &mut reports, recorder, heard)?;
     }

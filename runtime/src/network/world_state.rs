@@ -18,7 +18,6 @@ use crate::actor_process::stop_message;
 use crate::feed::{Hub, ViewEvent};
 use crate::summary::AppliedFault;
 use crate::supervisor::{Command, Event};
-use crate::world::SensorStates;
 use fusion_graph::world_memory::TruthRing;
 
 use super::options::RunProgress;
@@ -33,7 +32,8 @@ pub(super) struct WorldState<'a> {
     pub(super) commands: &'a UnboundedSender<Command>,
     pub(super) events: &'a Receiver<Event>,
     pub(super) alive: Vec<bool>,
-    pub(super) sensors: SensorStates,
+    /// Which sensors run (a stopped or killed one does not).
+    pub(super) sensors_alive: Vec<bool>,
     /// Actors we killed on purpose (their exit is not an error).
     pub(super) expected_exits: HashSet<ActorId>,
     pub(super) unexpected_exits: Vec<String>,
@@ -70,7 +70,7 @@ impl<'a> WorldState<'a> {
             commands,
             events,
             alive: vec![true; topology.nodes()],
-            sensors: SensorStates::all_running(topology.sensors()),
+            sensors_alive: vec![true; topology.sensors()],
             expected_exits: HashSet::new(),
             unexpected_exits: Vec::new(),
             crashed: Vec::new(),
@@ -159,7 +159,7 @@ impl<'a> WorldState<'a> {
     pub(super) fn is_alive(&self, a: ActorId) -> bool {
         match a {
             ActorId::Node(i) => self.alive[i as usize],
-            ActorId::Sensor(i) => self.sensors.alive[i as usize],
+            ActorId::Sensor(i) => self.sensors_alive[i as usize],
             // No fault stops a channel.
             ActorId::Launcher | ActorId::Mac(_) => true,
         }
@@ -323,7 +323,7 @@ impl<'a> WorldState<'a> {
                         self.expected_exits.insert(actor);
                     }
                     self.commands.send(Command::Signal { actor, signal })?;
-                    self.set_state(actor, false, signal == Signal::Stop);
+                    self.set_alive(actor, false);
                     changed = true;
                 }
                 ProcessEvent::Restart { actor, signal } => {
@@ -354,16 +354,12 @@ impl<'a> WorldState<'a> {
         Ok(changed)
     }
 
+    /// Records that `actor` runs, or no longer does (killed, or stopped by
+    /// SIGSTOP).
     pub(super) fn set_alive(&mut self, actor: ActorId, alive: bool) {
-        self.set_state(actor, alive, false);
-    }
-
-    /// `stopped`: not running, but its process and queues are there
-    /// (SIGSTOP). The launcher's ticks still reach a stopped sensor.
-    fn set_state(&mut self, actor: ActorId, alive: bool, stopped: bool) {
         match actor {
             ActorId::Node(i) => self.alive[i as usize] = alive,
-            ActorId::Sensor(i) => self.sensors.set(i, alive, stopped),
+            ActorId::Sensor(i) => self.sensors_alive[i as usize] = alive,
             ActorId::Launcher | ActorId::Mac(_) => {}
         }
     }
