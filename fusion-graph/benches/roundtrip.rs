@@ -11,7 +11,9 @@
 //! rounds a step, waiting as a node does (a short poll, then sleep). Its
 //! time per round is measured as `cqnet run` measures it (rounds 2 to 10
 //! of each step, per round), so it is the floor that scheduling nine
-//! processes on the machine's cores sets under the network's round p50.
+//! processes on the machine's cores sets under the network's round p50;
+//! the CPU the nine spend per round is the floor under the network's CPU
+//! per step beyond `sim`'s.
 //!
 //! `cargo bench -p fusion-graph --bench roundtrip` prints p50 and p99.
 //! The benchmark spawns itself as the echoing processes.
@@ -380,17 +382,45 @@ fn run_rounds(
     per_round
 }
 
+/// CPU time of this process so far (user and system).
+fn cpu_time() -> Duration {
+    // SAFETY: getrusage fills the struct it is given.
+    let usage = unsafe {
+        let mut u = std::mem::zeroed::<libc::rusage>();
+        assert_eq!(libc::getrusage(libc::RUSAGE_SELF, &mut u), 0);
+        u
+    };
+    let tv = |t: libc::timeval| Duration::new(t.tv_sec as u64, t.tv_usec as u32 * 1000);
+    tv(usage.ru_utime) + tv(usage.ru_stime)
+}
+
+/// [`run_rounds`] and the CPU this process spent in them.
+fn timed_rounds(
+    t: &mut IceoryxTransport,
+    node: u16,
+    neighbours: &[u16],
+    early: Vec<Heard>,
+) -> (Vec<f64>, Duration) {
+    let before = cpu_time();
+    let times = run_rounds(t, node, neighbours, early);
+    (times, cpu_time() - before)
+}
+
+/// A spawned node of the nine: its CPU in µs on the first line of its
+/// output, then its times per round.
 fn round_echo(run: &RunId) {
     let node: u16 = std::env::var(NODE).unwrap().parse().unwrap();
     let (mut t, neighbours, early) = round_node(run, node);
-    let times = run_rounds(&mut t, node, &neighbours, early);
-    let text: Vec<String> = times.iter().map(|x| x.to_string()).collect();
+    let (times, cpu) = timed_rounds(&mut t, node, &neighbours, early);
+    let mut text = vec![(cpu.as_secs_f64() * 1e6).to_string()];
+    text.extend(times.iter().map(|x| x.to_string()));
     std::fs::write(std::env::var(OUT).unwrap(), text.join("\n")).unwrap();
 }
 
 /// The nine-node round: node 0 here, the others spawned; percentiles of
-/// every node's per-step time per round.
-fn nine_node_round() -> (f64, f64) {
+/// every node's per-step time per round, and the CPU all nine spent per
+/// round in µs.
+fn nine_node_round() -> (f64, f64, f64) {
     let run = RunId::new(&format!("bench-rounds-{}", std::process::id())).unwrap();
     let dir = std::env::temp_dir().join(format!("cqnet-rounds-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -403,16 +433,21 @@ fn nine_node_round() -> (f64, f64) {
         })
         .collect();
     let (mut t, neighbours, early) = round_node(&run, 0);
-    let mut all = run_rounds(&mut t, 0, &neighbours, early);
+    let (mut all, cpu) = timed_rounds(&mut t, 0, &neighbours, early);
+    let mut cpu_micros = cpu.as_secs_f64() * 1e6;
     for (child, out) in &mut children {
         assert!(child.0.wait().unwrap().success(), "a round node failed");
         let text = std::fs::read_to_string(&*out).unwrap();
-        all.extend(text.lines().map(|l| l.parse::<f64>().unwrap()));
+        let mut lines = text.lines().map(|l| l.parse::<f64>().unwrap());
+        cpu_micros += lines.next().unwrap();
+        all.extend(lines);
     }
     drop(t);
     drop(children);
     let _ = std::fs::remove_dir_all(&dir);
-    percentiles(all)
+    let (p50, p99) = percentiles(all);
+    let rounds = f64::from(STEPS) * f64::from(ROUNDS_A_STEP);
+    (p50, p99, cpu_micros / rounds)
 }
 
 fn main() {
@@ -436,11 +471,15 @@ fn main() {
     println!("  bare iceoryx2, socket event (ipc):  p50 {b50:7.1} µs   p99 {b99:7.1} µs");
     println!("  bare iceoryx2, futex event:         p50 {f50:7.1} µs   p99 {f99:7.1} µs");
     println!("  cqnet's transport (futex event):    p50 {c50:7.1} µs   p99 {c99:7.1} µs");
-    let (r50, r99) = nine_node_round();
+    let (r50, r99, cpu) = nine_node_round();
     println!(
         "consensus round among the default scenario's {} nodes, each a process, \
          no arithmetic, {STEPS} steps of {ROUNDS_A_STEP} rounds:",
         topology().neighbours.len()
     );
     println!("  cqnet's transport, time per round:  p50 {r50:7.1} µs   p99 {r99:7.1} µs");
+    println!(
+        "  CPU of all nine per round:          {cpu:7.1} µs ({:.2} ms a step of {ROUNDS_A_STEP} rounds)",
+        cpu * f64::from(ROUNDS_A_STEP) / 1e3
+    );
 }
