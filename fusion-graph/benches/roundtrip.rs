@@ -6,9 +6,10 @@
 //! the futex event cqnet's transport uses (`transport/futex.rs`).
 //!
 //! Then the consensus round itself without its arithmetic: the default
-//! scenario's nine nodes, each its own process, exchange empty-valued
-//! consensus messages with their neighbours through cqnet's transport, ten
-//! rounds a step, waiting as a node does (a short poll, then sleep). Its
+//! scenario's nine nodes, each its own process, exchange the same
+//! consensus message with their neighbours through cqnet's transport, ten
+//! rounds a step, combining nothing and waiting as a node does (a short
+//! poll, yielding, then sleep). Its
 //! time per round is measured as `cqnet run` measures it (rounds 2 to 10
 //! of each step, per round), so it is the floor that scheduling nine
 //! processes on the machine's cores sets under the network's round p50;
