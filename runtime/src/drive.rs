@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use fusion_graph::world_memory::WorldView;
 use fusion_graph::{ActorId, Message, SendError, Transport};
-use node::{Outgoing, ProcessingNode};
+use node::{Outgoing, ProcessingNode, Work};
 use sensor::SensorActor;
 
 /// Runs the node's pending stages, each timed by the wall clock and
@@ -18,8 +18,20 @@ pub fn run_pending_work<T: Transport + ?Sized>(
     transport: &mut T,
     out: &mut Vec<Outgoing>,
 ) -> Result<(), SendError> {
+    run_pending_work_with(node, transport, out, |_| {})
+}
+
+/// [`run_pending_work`], calling `before` with each stage before it runs
+/// (where a process driver gives way to other processes).
+pub fn run_pending_work_with<T: Transport + ?Sized>(
+    node: &mut ProcessingNode,
+    transport: &mut T,
+    out: &mut Vec<Outgoing>,
+    before: impl Fn(Work),
+) -> Result<(), SendError> {
     send_all(transport, out)?;
     while let Some(work) = node.poll_work() {
+        before(work);
         let started = Instant::now();
         node.run_work(work);
         node.work_done(work, started.elapsed(), transport.now(), out);
