@@ -427,10 +427,10 @@ fn node_loop<T: Transport>(
 /// their last ones, runnable on the same core and waiting for each other;
 /// those rounds are on every node's way to the step's end, the fusion
 /// filter (tens of microseconds) only on this node's report. Alternately
-/// on two cores, `cqnet run --lockstep --no-central`'s round p50 was
-/// 61–64 µs without yielding, 46–53 with one yield and 44–46 with three
-/// (CPU and steps per second not resolved); yielding before the local
-/// filter as well did not help.
+/// on two cores, it took the round p50 of `cqnet run --lockstep
+/// --no-central` from 58–65 µs to 41–45 (a single yield: 46–53; CPU and
+/// steps per second not resolved); yielding before the local filter as
+/// well did not help.
 fn yield_before_fusion(neighbours: usize) -> impl Fn(Work) {
     move |work| {
         if work == Work::FusionFilter {
