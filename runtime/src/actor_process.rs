@@ -208,15 +208,7 @@ pub fn cpu_path(out: &Path, actor: ActorId) -> PathBuf {
 
 /// This process's user and system CPU time so far.
 fn process_cpu_time() -> Duration {
-    // SAFETY: getrusage only writes the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
-        return Duration::ZERO;
-    }
-    let time = |t: libc::timeval| {
-        Duration::from_secs(t.tv_sec.max(0) as u64) + Duration::from_micros(t.tv_usec.max(0) as u64)
-    };
-    time(usage.ru_utime) + time(usage.ru_stime)
+    Duration::from_secs_f64(crate::results::own_cpu_seconds().unwrap_or(0.0))
 }
 
 /// A node's CPU time over the steps, as [`cpu_path`] describes.
@@ -389,7 +381,7 @@ fn node_loop<T: Transport>(
         match actor.poll_timeout() {
             Some(due) => {
                 let timeout = due.saturating_sub(now).min(IDLE_WAIT);
-                wait_spinning(&mut t, timeout, SPIN_BEFORE_SLEEP)?
+                wait_as_a_node(&mut t, timeout)?
             }
             None => t.wait(IDLE_WAIT)?,
         }
@@ -439,6 +431,16 @@ fn yield_before_fusion(neighbours: usize) -> impl Fn(Work) {
             }
         }
     }
+}
+
+/// How a node waits for a message due within its step: it polls for
+/// [`SPIN_BEFORE_SLEEP`], yielding, then sleeps for what is left of
+/// `timeout`. Public so that a benchmark can wait exactly as a node does.
+pub fn wait_as_a_node<T: Transport>(
+    t: &mut T,
+    timeout: Duration,
+) -> Result<(), fusion_graph::WaitError> {
+    wait_spinning(t, timeout, SPIN_BEFORE_SLEEP)
 }
 
 /// Polls for a wake-up for up to `spin`, yielding between polls, then
