@@ -12,12 +12,12 @@ use crate::cli::{
 use crate::view::replay::{replay, FinishedRun};
 use crate::view::server::ViewServer;
 use experiments::{self as experiment, Entry, Experiment, Verdict};
-use runtime::feed::Hub;
-use runtime::montecarlo::run_monte_carlo;
-use runtime::network::RunProgress;
-use runtime::progress::{step_message, Progress};
-use runtime::results::{write_atomically, ResultsWriter};
-use runtime::summary::print_table;
+use launch::feed::Hub;
+use launch::montecarlo::run_monte_carlo;
+use launch::network::RunProgress;
+use launch::progress::{step_message, Progress};
+use launch::results::{write_atomically, ResultsWriter};
+use launch::summary::print_table;
 
 /// `cqnet`'s `main`.
 pub fn main() -> std::process::ExitCode {
@@ -86,7 +86,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             if args.runs == 1 {
                 let mut writer = ResultsWriter::create(&args.out)?;
                 let progress = Progress::new("sim", "steps", scenario.steps as u64);
-                let summary = runtime::sim::run_in_process(
+                let summary = launch::sim::run_in_process(
                     &scenario,
                     &topology,
                     &mut writer,
@@ -123,7 +123,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 println!(
                     "  RMSE {} m, {} {} m, local {} m, aux-FIM {} m",
                     m(mc.estimates.rmse),
-                    runtime::summary::bound_name(&scenario),
+                    launch::summary::bound_name(&scenario),
                     m(mc.estimates.mean_bound),
                     m(mc.estimates.mean_local_bound),
                     m(mc.estimates.mean_aux_bound)
@@ -133,7 +133,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     m(mc.estimates.centralized_rmse),
                     m(mc.estimates.mean_centralized_bound)
                 );
-                if let Some(line) = intervals(&mc, runtime::summary::bound_name(&scenario)) {
+                if let Some(line) = intervals(&mc, launch::summary::bound_name(&scenario)) {
                     println!("  {line}");
                 }
                 println!(
@@ -148,10 +148,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Run(args) => {
             let (scenario, topology) = load_scenario(&args.scenario)?;
             let run_id = match &args.run_id {
-                Some(id) => fusion_graph::transport::RunId::new(id)?,
-                None => fusion_graph::transport::RunId::generate(),
+                Some(id) => fusion_graph::RunId::new(id)?,
+                None => fusion_graph::RunId::generate(),
             };
-            let options = runtime::network::RunOptions {
+            let options = launch::network::RunOptions {
                 out: args.out.clone(),
                 lockstep: args.lockstep,
                 run_id,
@@ -164,7 +164,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 .view
                 .then(|| start_live_view(&scenario, &topology, &args.out, args.view_port))
                 .transpose()?;
-            let options = runtime::network::RunOptions {
+            let options = launch::network::RunOptions {
                 view: view.as_ref().map(|(hub, _)| hub.clone()),
                 ..options
             };
@@ -172,7 +172,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let processes = topology.actors().count() as u64;
             let progress = Progress::new("run", "processes ready", processes);
             let summary =
-                runtime::network::run_network(&scenario, &topology, options, move |p| match p {
+                launch::network::run_network(&scenario, &topology, options, move |p| match p {
                     RunProgress::Starting { ready, .. } => progress.set(ready as u64, ""),
                     RunProgress::Running => {
                         progress.set_total(steps);
@@ -190,9 +190,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Experiment(args) => run_experiments(&args),
         Command::Clean => {
-            let cleaned = fusion_graph::transport::iceoryx::sweep_abandoned_runs()
+            let cleaned = transport::iceoryx::sweep_abandoned_runs()
                 .context("sweeping abandoned runs")?;
-            let directories = fusion_graph::transport::iceoryx::remove_stale_node_directories()
+            let directories = transport::iceoryx::remove_stale_node_directories()
                 .context("removing empty iceoryx2 node directories")?;
             if cleaned.is_empty() && directories == 0 {
                 println!("no abandoned run: nothing to remove");
@@ -210,9 +210,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::View(args) => view_finished_run(&args),
         Command::Fuzz(args) => fuzz(&args),
         Command::Soak(args) => soak(&args),
-        Command::Actor(args) => runtime::actor_process::run_actor(&args),
+        Command::Actor(args) => launch::actor_process::run_actor(&args),
         #[cfg(feature = "zenoh")]
-        Command::Agent(args) => runtime::hosts::agent::run_agent(&args),
+        Command::Agent(args) => launch::hosts::agent::run_agent(&args),
     }
     .context("cqnet")
 }
@@ -225,7 +225,7 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
     scenario.steps = args.steps;
     crate::soak::add_periodic_kills(&mut scenario, &topology, args.kill_every, args.down);
     let topology = fusion_graph::Topology::from_scenario(&scenario, "soak")?;
-    let run_id = fusion_graph::transport::RunId::generate();
+    let run_id = fusion_graph::RunId::generate();
     let step = Arc::new(AtomicU32::new(0));
     let sampler = crate::soak::Sampler::start(
         run_id.clone(),
@@ -233,7 +233,7 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         std::time::Duration::from_secs_f64(args.sample_every),
     );
     let progress = Progress::new("soak", "steps", args.steps as u64);
-    let options = runtime::network::RunOptions {
+    let options = launch::network::RunOptions {
         out: args.out.clone(),
         lockstep: false,
         run_id,
@@ -242,7 +242,7 @@ fn soak(args: &SoakArgs) -> anyhow::Result<()> {
         local_agents: false,
         stop: None,
     };
-    let result = runtime::network::run_network(&scenario, &topology, options, move |p| {
+    let result = launch::network::run_network(&scenario, &topology, options, move |p| {
         if let RunProgress::Step { step: s, rows } = p {
             step.store(s, Ordering::Relaxed);
             progress.set(s as u64, step_message(rows));
@@ -344,7 +344,7 @@ fn start_live_view(
     port: u16,
 ) -> anyhow::Result<(Arc<Hub>, ViewServer)> {
     let hub = Arc::new(Hub::default());
-    let poll = runtime::network::traffic_poller(hub.clone(), topology.clone(), out.to_path_buf());
+    let poll = launch::network::traffic_poller(hub.clone(), topology.clone(), out.to_path_buf());
     let server = ViewServer::start(hub.clone(), port, Some(poll))?;
     eprintln!(
         "cqnet: live view of `{}` at {}",
@@ -490,11 +490,11 @@ impl ExperimentProgress {
 
 /// The 95 % intervals over runs of the RMSE and the bound, and of their
 /// difference run by run: what a figure of `sim --runs` can claim.
-fn intervals(mc: &runtime::montecarlo::MonteCarloSummary, bound_name: &str) -> Option<String> {
+fn intervals(mc: &launch::montecarlo::MonteCarloSummary, bound_name: &str) -> Option<String> {
     use experiments::paired::{rmse_interval, Paired};
     let rmse: Vec<f64> = mc.per_run.iter().filter_map(|r| r.estimates.rmse).collect();
     let (lo, hi) = rmse_interval(&rmse)?;
-    let per_run = |f: fn(&runtime::summary::Estimates) -> Option<f64>| {
+    let per_run = |f: fn(&launch::summary::Estimates) -> Option<f64>| {
         mc.per_run
             .iter()
             .map(|r| f(&r.estimates))

@@ -61,11 +61,11 @@ pub enum Command {
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]
-    Actor(runtime::actor_process::ActorArgs),
+    Actor(launch::actor_process::ActorArgs),
     /// Serve one host of a multi-host scenario (its `[[hosts]]`): start
     /// this host's actors and bridge when a launcher asks.
     #[cfg(feature = "zenoh")]
-    Agent(runtime::hosts::agent::AgentArgs),
+    Agent(launch::hosts::agent::AgentArgs),
 }
 
 #[derive(Debug, Args, Clone)]

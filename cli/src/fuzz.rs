@@ -31,7 +31,7 @@ use fusion_graph::scenario::{
     SENSOR_SELECTION_SCENARIO,
 };
 use fusion_graph::wire::{examples, seal, Message, WireFormat};
-use fusion_graph::world_memory::{TruthReader, TruthRing};
+use transport::world_memory::{TruthReader, TruthRing};
 use fusion_graph::Topology;
 use node::ProcessingNode;
 use rand::{Rng, SeedableRng};
@@ -442,7 +442,7 @@ fn scenario_outcome(text: &str, overrides: &[String]) -> String {
     };
     let _ = scenario.network_prior(&models);
     let _ = scenario.wire_format(&topology);
-    let _ = runtime::preflight::estimated_memory(&scenario, &topology, true);
+    let _ = launch::preflight::estimated_memory(&scenario, &topology, true);
     "ok".into()
 }
 
@@ -516,7 +516,7 @@ impl Actors {
         let field = Topology::from_scenario(&compressive, "compressive").expect("its topology");
         nodes.push(ProcessingNode::for_scenario(&compressive, &field, 0).expect("node-0"));
         let (truths, seen) = TruthRing::on_heap(16);
-        let mut truth = runtime::world::World::new(&scenario).expect("the default world");
+        let mut truth = launch::world::World::new(&scenario).expect("the default world");
         for step in 1..=16 {
             truths.write(step, &truth.advance());
         }

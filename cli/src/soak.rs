@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 
 use fusion_graph::faults::{Fault, Kill, Signal};
 use fusion_graph::scenario::Scenario;
-use fusion_graph::transport::iceoryx::run_resources;
-use fusion_graph::transport::RunId;
+use transport::iceoryx::run_resources;
+use fusion_graph::RunId;
 use fusion_graph::Topology;
 
 /// One sample of the run's footprint.
@@ -172,7 +172,7 @@ pub fn write_samples(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
             s.shm_entries
         ));
     }
-    runtime::results::write_atomically(path, text.as_bytes())
+    launch::results::write_atomically(path, text.as_bytes())
 }
 
 /// How one figure moved over the run: the mean of the samples in the

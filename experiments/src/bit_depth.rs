@@ -22,8 +22,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::paired::Paired;
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
-use runtime::montecarlo::run_monte_carlo_until;
-use runtime::results::write_atomically;
+use launch::montecarlo::run_monte_carlo_until;
+use launch::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -155,7 +155,7 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                     eprintln!(
                         "  {rate} bit/s, {bits:>2} bits: RMSE {rmse:.3} m, CQ/dPCRLB {bound:.3} m"
                     );
-                    let of = |f: fn(&runtime::summary::Estimates) -> Option<f64>| {
+                    let of = |f: fn(&launch::summary::Estimates) -> Option<f64>| {
                         mc.per_run.iter().map(|r| f(&r.estimates)).collect::<Vec<_>>()
                     };
                     let gap = Paired::of(&of(|e| e.rmse), &of(|e| e.mean_bound));

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use fusion_graph::Topology;
-use runtime::results::Tick;
+use launch::results::Tick;
 
 /// Per step (from 1), means over runs and nodes.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -8,8 +8,8 @@
 
 use super::paired::{Order, Paired};
 use super::{Arm, Check, Claim, Curve, Experiment, Figure, Outcome, Series, Verdict};
-use runtime::results::{steps_to_recover, window_rmse};
-use runtime::summary::{RECOVERY_FACTOR, RECOVERY_HOLD};
+use launch::results::{steps_to_recover, window_rmse};
+use launch::summary::{RECOVERY_FACTOR, RECOVERY_HOLD};
 
 /// Steps `WINDOW.0..WINDOW.1` carry the fault.
 pub const WINDOW: (u32, u32) = (20, 35);

@@ -33,8 +33,8 @@ use fusion_graph::Topology;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use runtime::montecarlo::run_monte_carlo_until;
-use runtime::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
+use launch::montecarlo::run_monte_carlo_until;
+use launch::results::{write_atomically, StepMeans, AVERAGE_FROM_STEP};
 
 /// A named, reproducible experiment.
 pub struct Experiment {
@@ -188,8 +188,8 @@ pub struct ArmOutcome {
 /// Each step's 95 % band of an RMSE over runs, from each run's per-step
 /// RMSE that `of` picks.
 pub(crate) fn rmse_bands_of(
-    per_run: &[Vec<runtime::summary::StepMeans>],
-    of: impl Fn(&runtime::summary::StepMeans) -> Option<f64>,
+    per_run: &[Vec<launch::summary::StepMeans>],
+    of: impl Fn(&launch::summary::StepMeans) -> Option<f64>,
 ) -> Vec<Option<(f64, f64)>> {
     let steps = per_run.iter().map(Vec::len).max().unwrap_or(0);
     (0..steps)
@@ -585,7 +585,7 @@ pub fn run(
             .transpose()
             .with_context(|| format!("non-conditional PCRLB of arm `{}`", arm.label))?;
         let per_step = |bytes: f64| bytes / scenario.steps as f64;
-        let kinds_per_step = |kinds: &[&str], value: &dyn Fn(&runtime::results::Traffic) -> f64| {
+        let kinds_per_step = |kinds: &[&str], value: &dyn Fn(&launch::results::Traffic) -> f64| {
             mc.per_run
                 .iter()
                 .flat_map(|s| {

@@ -36,7 +36,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::paired::{Order, Paired};
 use super::{Check, Claim, Computed, ComputedReport, Options};
-use runtime::results::write_atomically;
+use launch::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {

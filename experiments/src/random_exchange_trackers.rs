@@ -8,9 +8,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use bounds::diffusion::MonteCarloSize;
-use fusion_graph::accounting::Accounting;
+use transport::accounting::Accounting;
 use fusion_graph::scenario::{Scenario, RANDOM_EXCHANGE_SCENARIO};
-use fusion_graph::transport::RunId;
+use fusion_graph::RunId;
 use fusion_graph::wire::MessageKind;
 use fusion_graph::{ActorId, Topology};
 use plotters::prelude::*;
@@ -19,8 +19,8 @@ use super::diagnostics::run_ticks;
 use super::paired::{Order, Paired};
 use super::random_exchange_bounds::{draw_lines, Curves};
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
-use runtime::montecarlo::run_monte_carlo_until;
-use runtime::results::AVERAGE_FROM_STEP;
+use launch::montecarlo::run_monte_carlo_until;
+use launch::results::AVERAGE_FROM_STEP;
 
 pub fn experiments() -> Vec<Computed> {
     vec![
@@ -540,7 +540,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
 
 /// Runs one tracker's network and reads its costs back.
 fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Result<Cost> {
-    let options = runtime::network::RunOptions {
+    let options = launch::network::RunOptions {
         out: out.to_path_buf(),
         lockstep: false,
         run_id: RunId::generate(),
@@ -549,7 +549,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
         local_agents: false,
         stop: None,
     };
-    let summary = runtime::network::run_network(scenario, topology, options, |_| {})?;
+    let summary = launch::network::run_network(scenario, topology, options, |_| {})?;
     let links = links_csv(out);
     let text =
         std::fs::read_to_string(&links).with_context(|| format!("reading {}", links.display()))?;
@@ -559,7 +559,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
     let (rx, tx_per_link, tx_broadcast) =
         traffic(&accounting, topology, summary.steps as f64 * period);
     let cpu: Vec<f64> = (0..topology.nodes() as u16)
-        .filter_map(|n| runtime::actor_process::read_cpu_per_step(out, ActorId::Node(n)))
+        .filter_map(|n| launch::actor_process::read_cpu_per_step(out, ActorId::Node(n)))
         .collect();
     anyhow::ensure!(
         cpu.len() == topology.nodes(),

@@ -1,8 +1,16 @@
 //! What a message travels on: a run (its id names every shared-memory
 //! resource) and a channel of it (one publisher, its subscribers).
 
-use crate::actor::ActorId;
-use crate::SetupError;
+use wire::ActorId;
+
+/// A run id or a publisher that breaks the channels' rules.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ChannelError {
+    #[error("run id `{id}` must be 1-32 characters of a-z, 0-9 and -")]
+    BadRunId { id: String },
+    #[error("{actor} is not the publisher of channel {channel}")]
+    NotPublisher { channel: String, actor: String },
+}
 
 /// A publish/subscribe channel. Every channel has exactly one publisher, so a
 /// receiver always knows which directed link a message came over, even when
@@ -12,7 +20,7 @@ use crate::SetupError;
 )]
 pub enum Channel {
     /// Launcher → every sensor and multiple-access channel: the stop. (The
-    /// target's truth is not a message: see `world_memory`.)
+    /// target's truth is not a message: see `world`.)
     Lifecycle,
     /// Node → one of its sensors, or its multiple-access channel: the step's
     /// activation. One channel each, so that a sensor its node does not
@@ -48,11 +56,11 @@ impl Channel {
     }
 
     /// Only a channel's one publisher may publish on it.
-    pub fn check_publisher(self, actor: ActorId) -> Result<(), SetupError> {
+    pub fn check_publisher(self, actor: ActorId) -> Result<(), ChannelError> {
         if self.publisher() == actor {
             Ok(())
         } else {
-            Err(SetupError::NotPublisher {
+            Err(ChannelError::NotPublisher {
                 channel: self.service_suffix(),
                 actor: actor.to_string(),
             })
@@ -79,14 +87,14 @@ impl Channel {
 pub struct RunId(String);
 
 impl RunId {
-    pub fn new(id: &str) -> Result<Self, SetupError> {
+    pub fn new(id: &str) -> Result<Self, ChannelError> {
         let ok = !id.is_empty()
             && id.len() <= 32
             && id
                 .bytes()
                 .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
         if !ok {
-            return Err(SetupError::BadRunId { id: id.into() });
+            return Err(ChannelError::BadRunId { id: id.into() });
         }
         Ok(Self(id.into()))
     }

@@ -15,7 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::channel::{Channel, RunId};
 use crate::registered::Shape;
 use crate::scenario::Scenario;

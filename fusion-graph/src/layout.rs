@@ -3,7 +3,7 @@
 //! nearest node), the fusion graph within a radius; and the checks that
 //! the faults and hosts name actors of that network.
 
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::check::Check;
 use crate::hosts::Placement;
 use crate::scenario::Scenario;

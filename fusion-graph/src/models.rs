@@ -10,7 +10,7 @@ use bounds::{CoordinatedTurn, Dynamics, Gaussian, Mat4, ParameterError, Quantize
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::scenario::{Scenario, TargetStart};
 use crate::topology::Topology;
 use crate::wire::WireFormat;

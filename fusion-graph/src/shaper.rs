@@ -9,7 +9,7 @@ use std::time::Duration;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::actor::ActorId;
+use wire::ActorId;
 
 /// The faults currently applied to one incoming link.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

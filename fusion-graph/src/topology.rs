@@ -4,7 +4,7 @@
 
 use std::collections::VecDeque;
 
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::channel::Channel;
 #[cfg(test)]
 use crate::scenario::Scenario;

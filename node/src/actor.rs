@@ -17,7 +17,7 @@ use std::time::Duration;
 use bounds::{BoundError, State};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 

@@ -17,7 +17,7 @@
 use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use rand_chacha::ChaCha8Rng;

@@ -62,7 +62,7 @@ pub use mac_centre::MacCentre;
 pub use processing::ProcessingNode;
 pub use work::Work;
 
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::Message;
 use fusion_graph::ActorId;
 

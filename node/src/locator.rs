@@ -25,7 +25,7 @@ use std::time::Duration;
 
 use bounds::Quantizer;
 use fusion_graph::scenario::Scenario;
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
 

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::Message;
 use fusion_graph::{ActorId, Scenario, Topology};
 

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::sync::{LazyLock, RwLock};
 use std::time::Duration;
 
-use fusion_graph::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
+use wire::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
 use fusion_graph::registered::{self, Role, Shape};
 use fusion_graph::{Scenario, Topology};
 
@@ -299,10 +299,10 @@ pub fn register_manager(name: &str, build: ManagerBuilder) -> Result<(), Registr
 }
 
 /// Registers a protocol's own message payload (see
-/// [`fusion_graph::payloads`]): its messages are then decoded, counted
+/// [`wire::payloads`]): its messages are then decoded, counted
 /// per link under its name, and sized like the built-in ones.
 pub fn register_payload<P: ProtocolPayload>() -> Result<ProtocolKind, RegistryError> {
-    Ok(fusion_graph::payloads::register::<P>()?)
+    Ok(wire::payloads::register::<P>()?)
 }
 
 fn register(

@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use bounds::State;
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{BitMask, Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
 

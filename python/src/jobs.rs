@@ -12,9 +12,9 @@ use std::time::Duration;
 
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
-use runtime::network::RunProgress;
-use runtime::progress::step_message;
-use runtime::results::{write_atomically, ResultsWriter};
+use launch::network::RunProgress;
+use launch::progress::step_message;
+use launch::results::{write_atomically, ResultsWriter};
 
 use crate::scenario::PyScenario;
 use crate::to_py_err;
@@ -180,7 +180,7 @@ fn start_sim(
             let mut writer = ResultsWriter::create(&dir)?;
             let steps = s.steps as u64;
             shared.set(0, steps, "steps", String::new());
-            let summary = runtime::sim::run_in_process_until(
+            let summary = launch::sim::run_in_process_until(
                 &s,
                 &topology,
                 &mut writer,
@@ -191,7 +191,7 @@ fn start_sim(
             Ok(serde_json::to_string(&summary)?)
         } else {
             shared.set(0, runs as u64, "runs", String::new());
-            let mc = runtime::montecarlo::run_monte_carlo_until(
+            let mc = launch::montecarlo::run_monte_carlo_until(
                 &s,
                 &topology,
                 &dir,
@@ -223,13 +223,13 @@ fn start_run(
     let topology = scenario.topology()?;
     let s = scenario.scenario.clone();
     let run_id = match run_id {
-        Some(id) => fusion_graph::transport::RunId::new(&id).map_err(|e| to_py_err(&e.into()))?,
-        None => fusion_graph::transport::RunId::generate(),
+        Some(id) => fusion_graph::RunId::new(&id).map_err(|e| to_py_err(&e.into()))?,
+        None => fusion_graph::RunId::generate(),
     };
     let centralized = centralized.unwrap_or(s.reference.centralized);
     let dir = out.clone();
     Job::start("cqnet-run", out, move |shared| {
-        let options = runtime::network::RunOptions {
+        let options = launch::network::RunOptions {
             out: dir,
             lockstep,
             run_id,
@@ -240,7 +240,7 @@ fn start_run(
         };
         let steps = s.steps as u64;
         let reporter = shared.clone();
-        let summary = runtime::network::run_network(&s, &topology, options, move |p| match p {
+        let summary = launch::network::run_network(&s, &topology, options, move |p| match p {
             RunProgress::Starting { ready, of } => {
                 reporter.set(ready as u64, of as u64, "processes ready", String::new())
             }

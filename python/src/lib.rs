@@ -69,8 +69,8 @@ fn _cqnet(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// run has ended, whether it finished, failed or was interrupted.
 #[pyfunction]
 fn leftover_shared_memory(run_id: &str) -> PyResult<Vec<std::path::PathBuf>> {
-    let run = fusion_graph::transport::RunId::new(run_id).map_err(|e| to_py_err(&e.into()))?;
-    Ok(fusion_graph::transport::iceoryx::run_resources(&run))
+    let run = fusion_graph::RunId::new(run_id).map_err(|e| to_py_err(&e.into()))?;
+    Ok(transport::iceoryx::run_resources(&run))
 }
 
 /// Runs the `cqnet` command with these arguments (the first is the
@@ -92,7 +92,7 @@ fn cli_main(py: Python<'_>, args: Vec<String>) -> i32 {
 /// call holds for the process.
 #[pyfunction]
 fn set_actor_program(program: std::path::PathBuf, leading_args: Vec<String>) {
-    runtime::supervisor::ActorProgram {
+    launch::supervisor::ActorProgram {
         program,
         leading_args: leading_args.into_iter().map(Into::into).collect(),
     }

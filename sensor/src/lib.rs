@@ -23,9 +23,9 @@ use bounds::censoring::{CensoringRule, Feedback, NisCensor};
 use bounds::{Dynamics, ObservationModel, Quantizer, State};
 use fusion_graph::faults::{FaultSchedule, SensorFault};
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{unpack_mat4, Message, Payload};
-use fusion_graph::world_memory::{TruthMissing, WorldView};
+use fusion_graph::world::{TruthMissing, WorldView};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand::Rng;
 
@@ -388,7 +388,7 @@ mod tests {
         SensorActor::new(&s, &t, 12).unwrap()
     }
 
-    use fusion_graph::world_memory::StillTarget as Still;
+    use fusion_graph::world::StillTarget as Still;
 
     /// Sensor 12 is the 13th of node 0's sensors.
     fn activation(step: u32, active: bool) -> Message {

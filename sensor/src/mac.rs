@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{Message, Payload, MAX_SLOTS};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand_distr::{Distribution, StandardNormal};

@@ -3,8 +3,8 @@
 
 use std::process::Command;
 
-use fusion_graph::transport::iceoryx::remove_run_resources;
-use fusion_graph::transport::RunId;
+use transport::iceoryx::remove_run_resources;
+use fusion_graph::RunId;
 
 /// Kills whatever process still carries the run id and removes the run's
 /// shared memory.

@@ -65,7 +65,7 @@ mod separate_hosts;
 
 use std::sync::{Mutex, MutexGuard};
 
-pub use fusion_graph::accounting::{Accounting, Counters};
+pub use transport::accounting::{Accounting, Counters};
 pub use fusion_graph::faults::{
     BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector, Loss,
     Partition, Reorder, SensorMode, Signal,
@@ -75,7 +75,7 @@ pub use fusion_graph::wire::MessageKind;
 pub use fusion_graph::ActorId;
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
 pub use results::{Run, Tick};
-pub use runtime::summary::{AppliedFault, FaultCost, Summary};
+pub use launch::summary::{AppliedFault, FaultCost, Summary};
 pub use separate_hosts::{SeparateHosts, AGENT_PORT};
 
 /// The `cqnet` program's `main`, for a binary of your own crate (see the

@@ -10,7 +10,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use fusion_graph::scenario::{Fault, Scenario};
-use fusion_graph::transport::RunId;
+use fusion_graph::RunId;
 use fusion_graph::ActorId;
 
 use crate::cleanup::{kill_and_clean, processes_matching};
@@ -175,7 +175,7 @@ impl Network {
         let scenario = self.effective_scenario()?;
         hosts.apply_links(&scenario)?;
         let (mut command, agents) = on_separate_hosts(hosts, command, &out)?;
-        command.env(runtime::network::HOST_LINKS_APPLIED, "1");
+        command.env(launch::network::HOST_LINKS_APPLIED, "1");
         let cuts = schedule_cuts(hosts, &scenario, &out, self.time_limit);
         let mut running = self.spawn(command, executable, run_id, out)?;
         running.agents = agents;

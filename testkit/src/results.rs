@@ -6,16 +6,16 @@ use std::path::{Path, PathBuf};
 use std::process::ExitStatus;
 use std::sync::OnceLock;
 
-use fusion_graph::accounting::{Accounting, Counters};
-use fusion_graph::transport::iceoryx::run_resources;
-use fusion_graph::transport::RunId;
+use transport::accounting::{Accounting, Counters};
+use transport::iceoryx::run_resources;
+use fusion_graph::RunId;
 use fusion_graph::wire::MessageKind;
 use fusion_graph::ActorId;
-use runtime::summary::{AppliedFault, FaultCost, Summary};
+use launch::summary::{AppliedFault, FaultCost, Summary};
 
 use crate::cleanup::{kill_and_clean, processes_with};
 
-pub use runtime::results::Tick;
+pub use launch::results::Tick;
 
 /// Every row of a `ticks.csv` (none if it is missing); panics on a row that
 /// does not parse, naming it.

@@ -15,7 +15,7 @@ use bounds::location::{exact_information, log_likelihood, AmplitudeLaw, DecayLaw
 use bounds::Measurement;
 use cqnet_testkit::{exclusive, MessageKind, Network, Run, Scenario};
 use fusion_graph::wire::{BitMask, Message, Payload};
-use fusion_graph::world_memory::StillTarget;
+use fusion_graph::world::StillTarget;
 use fusion_graph::{ActorId, Topology};
 use node::location::{sensor_quantizer, Grid, ThresholdDesign};
 use sensor::SensorActor;

@@ -10,14 +10,14 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::Context;
-use fusion_graph::accounting::Accounting;
+use transport::accounting::Accounting;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Fault;
 use fusion_graph::Topology;
 
-use runtime::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
-use runtime::results::Tick;
-use runtime::summary::Summary;
+use launch::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
+use launch::results::Tick;
+use launch::summary::Summary;
 
 /// A finished run, read back.
 pub struct FinishedRun {

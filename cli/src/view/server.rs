@@ -16,7 +16,7 @@ use axum::Router;
 use futures_util::stream::{self, Stream, StreamExt};
 use tokio::sync::broadcast::error::RecvError;
 
-use runtime::feed::{Hub, Poll};
+use launch::feed::{Hub, Poll};
 
 /// The page: plain HTML and JS, no build step, nothing fetched from elsewhere.
 const PAGE: &str = include_str!("page.html");

@@ -8,7 +8,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::payloads::ProtocolPayload;
+use wire::payloads::ProtocolPayload;
 use fusion_graph::wire::{Packed, Payload};
 use fusion_graph::{MetropolisWeights, WireError};
 use node::fusion::{

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::effects::{ProcessEvent, Signal};
 use super::kind::{FaultKind, Targets, Window};
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::check::Check;
 use crate::ScenarioError;
 

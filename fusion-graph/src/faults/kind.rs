@@ -1,7 +1,7 @@
 //! What every fault kind is asked: when it holds, whom it names, its
 //! checks, its summary line, and what it does.
 
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
 

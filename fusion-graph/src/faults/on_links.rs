@@ -4,7 +4,7 @@
 
 use super::kind::{FaultKind, Targets, Window};
 use super::select::{check_links, link_targets, links_text, takes_link, LinkSelector};
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;

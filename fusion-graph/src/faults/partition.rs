@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::kind::{FaultKind, Targets, Window};
 use super::select::matches;
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;

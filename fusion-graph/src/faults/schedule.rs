@@ -2,10 +2,9 @@
 //! on each receiver's incoming links, and which actors die or come back.
 //! Every actor can evaluate it itself, so link faults need no control traffic.
 
-use crate::actor::ActorId;
-use crate::shaper::LinkRule;
+use wire::ActorId;
+use crate::shaper::{LinkRule, LinkShaper};
 use crate::topology::Topology;
-use crate::transport::Transport;
 
 use super::effects::{ProcessEvent, SensorFault};
 use super::fault::Fault;
@@ -71,39 +70,34 @@ impl FaultSchedule {
             .collect()
     }
 
-    /// Sets `transport`'s incoming link rules to those in force at `step`.
-    pub fn apply_link_faults<T: Transport + ?Sized>(
+    /// Sets the incoming link rules of `me`'s `shaper` to those in force at
+    /// `step`.
+    pub fn apply_link_faults(
         &self,
         step: u32,
-        transport: &mut T,
+        me: ActorId,
+        shaper: &mut LinkShaper,
         topology: &Topology,
     ) {
         if !self.has_link_faults() {
             return;
         }
-        let rules = self.incoming_rules(step, transport.me(), topology);
-        let shaper = transport.shaper();
+        let rules = self.incoming_rules(step, me, topology);
         shaper.clear_rules();
         for (from, rule) in rules {
             shaper.set_rule(from, rule);
         }
     }
 
-    /// Makes `transport` judge each message it receives by the link rules
-    /// of the message's own step: for a sensor or a multiple-access
+    /// Makes `me`'s `shaper` judge each message it receives by the link
+    /// rules of the message's own step: for a sensor or a multiple-access
     /// channel, which no `BeginStep` tells when a step begins.
-    pub fn follow_link_faults<T: Transport + ?Sized>(
-        &self,
-        transport: &mut T,
-        topology: &Topology,
-    ) {
+    pub fn follow_link_faults(&self, me: ActorId, shaper: &mut LinkShaper, topology: &Topology) {
         if !self.has_link_faults() {
             return;
         }
-        let (schedule, topology, me) = (self.clone(), topology.clone(), transport.me());
-        transport
-            .shaper()
-            .follow_steps(move |step| schedule.incoming_rules(step, me, &topology));
+        let (schedule, topology) = (self.clone(), topology.clone());
+        shaper.follow_steps(move |step| schedule.incoming_rules(step, me, &topology));
     }
 
     /// What the membership service tells each node at `step`: the live nodes

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::ScenarioError;
 
 use super::kind::Targets;

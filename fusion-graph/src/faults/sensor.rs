@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::effects::SensorFault;
 use super::kind::{FaultKind, Targets, Window};
 use super::select::{actor_word, in_share, matches};
-use crate::actor::ActorId;
+use wire::ActorId;
 use crate::check::Check;
 use crate::ScenarioError;
 

@@ -20,7 +20,7 @@ use std::time::Duration;
 
 use bounds::diffusion::EXCHANGE_ATTEMPTS;
 use bounds::Gaussian;
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{pack_mat4, unpack_mat4, GaussianMoments, Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use rand::seq::IndexedRandom;

@@ -11,7 +11,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{Message, Payload};
 use fusion_graph::{ActorId, MetropolisWeights, Topology};
 

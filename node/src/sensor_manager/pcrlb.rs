@@ -40,7 +40,7 @@ use std::time::Duration;
 use bounds::pcrlb::{dynamics_terms, information_update};
 use bounds::selection::{greedy, Candidate};
 use bounds::{BoundError, Mat4, State};
-use fusion_graph::transport::Channel;
+use fusion_graph::Channel;
 use fusion_graph::wire::{
     CandidateReport, ChosenSensors, Message, Payload, MAX_CHOSEN_PER_PIECE, MAX_REPORTED_CANDIDATES,
 };

@@ -1,0 +1,237 @@
+//! The in-memory transport: every actor in one process, messages passed
+//! through a shared bus, deterministic for a given seed. Time is whatever the
+//! driver says it is.
+
+use std::cell::RefCell;
+use std::collections::{HashMap, VecDeque};
+use std::rc::Rc;
+use std::time::Duration;
+
+use super::{Channel, Inbound, Outbound, Transport};
+use crate::accounting::Accounting;
+use wire::ActorId;
+use fusion_graph::shaper::LinkShaper;
+use wire::{Message, WireFormat};
+use crate::{ReceiveError, SendError, SetupError, WaitError};
+
+/// The shared medium: who subscribes to what, and each actor's inbox.
+#[derive(Debug, Default)]
+pub struct MemoryBus {
+    subscribers: HashMap<Channel, Vec<ActorId>>,
+    inboxes: HashMap<ActorId, VecDeque<(ActorId, Vec<u8>)>>,
+    /// The driver's clock.
+    now: Duration,
+}
+
+impl MemoryBus {
+    pub fn new() -> Rc<RefCell<Self>> {
+        Rc::new(RefCell::new(Self::default()))
+    }
+
+    pub fn subscribe(&mut self, actor: ActorId, channel: Channel) {
+        let subs = self.subscribers.entry(channel).or_default();
+        if !subs.contains(&actor) {
+            subs.push(actor);
+        }
+    }
+
+    pub fn set_now(&mut self, now: Duration) {
+        self.now = now;
+    }
+
+    /// Forgets whatever waits for `actor` (it died; its successor starts clean).
+    pub fn clear_inbox(&mut self, actor: ActorId) {
+        self.inboxes.remove(&actor);
+    }
+
+    /// Writes raw bytes as if `channel`'s publisher had sent them: for
+    /// testing how receivers cope with garbage.
+    pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) {
+        for to in self.subscribers.get(&channel).cloned().unwrap_or_default() {
+            self.inboxes
+                .entry(to)
+                .or_default()
+                .push_back((channel.publisher(), bytes.to_vec()));
+        }
+    }
+}
+
+pub struct MemoryTransport {
+    me: ActorId,
+    bus: Rc<RefCell<MemoryBus>>,
+    format: WireFormat,
+    accounting: Accounting,
+    shaper: LinkShaper,
+    buffer: Vec<u8>,
+}
+
+impl MemoryTransport {
+    pub fn new(me: ActorId, bus: Rc<RefCell<MemoryBus>>, format: WireFormat, seed: u64) -> Self {
+        Self {
+            me,
+            bus,
+            format,
+            accounting: Accounting::default(),
+            shaper: LinkShaper::new(seed),
+            buffer: Vec::with_capacity(512),
+        }
+    }
+}
+
+impl Transport for MemoryTransport {
+    fn me(&self) -> ActorId {
+        self.me
+    }
+
+    fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
+        channel.check_publisher(self.me)?;
+        Ok(())
+    }
+
+    fn subscribe(&mut self, channel: Channel) -> Result<(), SetupError> {
+        self.bus.borrow_mut().subscribe(self.me, channel);
+        Ok(())
+    }
+
+    /// Nothing sleeps in one process: there is no one to wake.
+    fn notify(&mut self, _actor: ActorId) -> Result<(), SetupError> {
+        Ok(())
+    }
+
+    /// Nothing sleeps in one process, so `wake` does not matter here.
+    fn send_waking(
+        &mut self,
+        channel: Channel,
+        message: &Message,
+        receivers: &[ActorId],
+        _wake: &[ActorId],
+    ) -> Result<(), SendError> {
+        let mut outbound = Outbound {
+            me: self.me,
+            format: &self.format,
+            accounting: &mut self.accounting,
+            buffer: &mut self.buffer,
+        };
+        let bus = &self.bus;
+        let me = self.me;
+        outbound.send(channel, message, receivers, |bytes| {
+            let mut bus = bus.borrow_mut();
+            let MemoryBus {
+                subscribers,
+                inboxes,
+                ..
+            } = &mut *bus;
+            for to in subscribers.get(&channel).into_iter().flatten() {
+                inboxes
+                    .entry(*to)
+                    .or_default()
+                    .push_back((me, bytes.to_vec()));
+            }
+            Ok(())
+        })
+    }
+
+    fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), ReceiveError> {
+        let arrived: Vec<(ActorId, Vec<u8>)> = self
+            .bus
+            .borrow_mut()
+            .inboxes
+            .get_mut(&self.me)
+            .map(|q| q.drain(..).collect())
+            .unwrap_or_default();
+        let mut inbound = Inbound {
+            me: self.me,
+            format: &self.format,
+            accounting: &mut self.accounting,
+            shaper: &mut self.shaper,
+        };
+        for (from, bytes) in arrived {
+            inbound.arrive(from, &bytes, now, out);
+        }
+        inbound.release(now, out);
+        Ok(())
+    }
+
+    /// Nothing to wait for in one process: the driver decides when things happen.
+    fn wait(&mut self, _timeout: Duration) -> Result<(), WaitError> {
+        Ok(())
+    }
+
+    fn now(&self) -> Duration {
+        self.bus.borrow().now
+    }
+
+    fn accounting(&self) -> &Accounting {
+        &self.accounting
+    }
+
+    fn accounting_mut(&mut self) -> &mut Accounting {
+        &mut self.accounting
+    }
+
+    fn shaper(&mut self) -> &mut LinkShaper {
+        &mut self.shaper
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::contract::{self, FORMAT};
+    use super::*;
+    use wire::MessageKind;
+
+    fn pair() -> (MemoryTransport, MemoryTransport, Rc<RefCell<MemoryBus>>) {
+        let bus = MemoryBus::new();
+        let sensor = MemoryTransport::new(ActorId::Sensor(0), bus.clone(), FORMAT, 1);
+        let mut node = MemoryTransport::new(ActorId::Node(0), bus.clone(), FORMAT, 2);
+        node.subscribe(Channel::Observation(0)).unwrap();
+        (sensor, node, bus)
+    }
+
+    #[test]
+    fn contract_delivery_and_counts() {
+        let (mut s, mut n, _) = pair();
+        contract::delivers_and_counts(&mut s, &mut n);
+    }
+
+    #[test]
+    fn contract_pairwise() {
+        let bus = MemoryBus::new();
+        let node = |i| MemoryTransport::new(ActorId::Node(i), bus.clone(), FORMAT, 10 + i as u64);
+        let (mut a, mut b, mut c) = (node(0), node(1), node(2));
+        b.subscribe(Channel::Pair { from: 0, to: 1 }).unwrap();
+        b.subscribe(Channel::Consensus(0)).unwrap();
+        c.subscribe(Channel::Consensus(0)).unwrap();
+        contract::a_pairwise_message_reaches_only_its_addressee(&mut a, &mut b, &mut c);
+    }
+
+    #[test]
+    fn contract_loss() {
+        let (mut s, mut n, _) = pair();
+        contract::loss_is_applied_and_counted(&mut s, &mut n);
+    }
+
+    #[test]
+    fn garbage_is_counted_as_malformed_and_dropped() {
+        let (_, mut n, bus) = pair();
+        bus.borrow_mut()
+            .inject_raw(Channel::Observation(0), &[1, 2, 3, 4, 5]);
+        let mut out = Vec::new();
+        n.receive(Duration::ZERO, &mut out).unwrap();
+        assert!(out.is_empty());
+        assert_eq!(
+            n.accounting()
+                .get(ActorId::Sensor(0), ActorId::Node(0), MessageKind::Malformed)
+                .malformed_messages,
+            1
+        );
+    }
+
+    #[test]
+    fn only_the_publisher_may_send_on_a_channel() {
+        let (mut s, _, _) = pair();
+        assert!(s
+            .send(Channel::Observation(1), &contract::obs(0, 1), &[])
+            .is_err());
+    }
+}

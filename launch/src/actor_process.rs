@@ -1,0 +1,523 @@
+//! `cqnet actor`: one actor of a `cqnet run` network in its own process.
+//! The shell around the same state machines the in-process driver runs:
+//! iceoryx2 in, state machine, iceoryx2 out, and nothing else.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use fusion_graph::faults::FaultSchedule;
+use fusion_graph::hosts::Placement;
+use fusion_graph::scenario::ClockMode;
+use transport::iceoryx::map_run_memory;
+use transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
+use fusion_graph::wire::{Control, Message, Payload};
+use transport::world_memory::TruthReader;
+use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
+use node::{ProcessingNode, Work};
+use sensor::SensorActor;
+
+use crate::drive::{run_pending_work_with, sensor_handles};
+use crate::results::write_atomically;
+
+/// Longest sleep between checks that the launcher is still there.
+const IDLE_WAIT: Duration = Duration::from_millis(100);
+
+/// A sensor's: it is woken by its activation alone, and a sensor its node
+/// never activates should cost nothing. The check is a backstop: the
+/// kernel kills an actor whose parent dies (`PR_SET_PDEATHSIG`).
+const SENSOR_IDLE_WAIT: Duration = Duration::from_secs(1);
+
+/// How long a node polls for a wake-up before it sleeps, while it waits for
+/// a message due within the step (a neighbour's round, its sensors'
+/// observations, a selection proposal). Sleeping costs the notifier a
+/// system call and the sleeper two context switches, ten or more times a
+/// step, and a round waits for its slowest wake-up. Between polls the node
+/// yields, so that any other process runnable on its core goes first: the
+/// polling costs a core only when it would have idled. It took the round
+/// p50 of `cqnet run --lockstep --no-central` from 177–202 µs to 145–163
+/// (2026-12-02, alternately with and without; 50 µs was among the best of
+/// 20 to 300).
+const SPIN_BEFORE_SLEEP: Duration = Duration::from_micros(50);
+
+/// Test hook: an actor named in this variable fails at start, so the
+/// launcher's handling of a child that cannot start can be tested.
+pub const FAIL_AT_START_ENV: &str = "CQNET_FAIL_AT_START";
+
+/// Where an actor keeps its byte counts: a ledger it updates on every send
+/// and receive, which the launcher reads (see `transport::ledger`).
+pub fn ledger_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.ledger"))
+}
+
+pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
+    close_inherited_descriptors().context("closing inherited descriptors")?;
+    // Die with the launcher, whatever happens to it.
+    nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL)
+        .context("prctl(PR_SET_PDEATHSIG)")?;
+    // Ctrl-C in a terminal reaches the whole process group: leave it to the
+    // launcher, which stops every actor in order.
+    // SAFETY: ignoring a signal installs no handler code.
+    unsafe {
+        nix::sys::signal::signal(
+            nix::sys::signal::Signal::SIGINT,
+            nix::sys::signal::SigHandler::SigIgn,
+        )
+    }
+    .context("ignoring SIGINT")?;
+    let actor: ActorId = args.actor.parse().map_err(anyhow::Error::msg)?;
+    if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {
+        anyhow::bail!("failing at start as {FAIL_AT_START_ENV} asks");
+    }
+    let (scenario, topology) = load_child_scenario(&args.scenario)?;
+    anyhow::ensure!(
+        topology.contains(actor) && actor != ActorId::Launcher,
+        "{actor} is not an actor of this scenario"
+    );
+    let run = RunId::new(&args.run_id)?;
+    let out = args
+        .scenario
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    std::fs::create_dir_all(out.join("accounting"))?;
+    // Only a restarted actor has a dead predecessor to sweep up after.
+    let sweep = if args.rejoin {
+        DeadNodeSweep::On
+    } else {
+        DeadNodeSweep::Off
+    };
+    let mut transport = IceoryxTransport::with_sweep(
+        &run,
+        actor,
+        &topology,
+        scenario.wire_format(&topology),
+        link_fault_seed(scenario.seed, actor),
+        sweep,
+    )?;
+    transport.keep_counts_in(&ledger_path(&out, actor))?;
+    if let Some(p) = Placement::from_scenario(&scenario, &topology, "", args.centralized)? {
+        transport.place_on(&p, p.host_of(actor));
+    }
+    match actor {
+        ActorId::Sensor(i) => {
+            let world = TruthReader::open(&run).with_context(|| {
+                format!("{actor} cannot see the world (the run's truth in shared memory)")
+            })?;
+            let sensor = SensorRun {
+                index: i,
+                centralized: args.centralized,
+                world,
+            };
+            sensor_loop(&scenario, &topology, transport, sensor, &out)
+        }
+        ActorId::Node(i) => {
+            share_table_rows(&run);
+            node_loop(&scenario, &topology, transport, i, &out, args.rejoin)
+        }
+        ActorId::Mac(i) => mac_loop(&scenario, &topology, transport, i, &out),
+        ActorId::Launcher => unreachable!("checked above"),
+    }
+}
+
+/// Puts this node's table rows in memory the run's nodes share, so that
+/// between them they build each row once (`bounds::shared_rows`). A
+/// failure costs only time: the node builds its own rows, as `sim` does.
+fn share_table_rows(run: &RunId) {
+    let len = bounds::table_memory::shared_table_bytes();
+    let shared = map_run_memory(run, "table_rows", len)
+        .map_err(anyhow::Error::from)
+        .and_then(|memory| {
+            // Rows are read until the process ends: so is the mapping kept.
+            let memory = Box::leak(Box::new(memory));
+            // SAFETY: the run's own file, zeroed when made, mapped for the
+            // rest of the process; the run's nodes are this executable and
+            // write it only through the shared tables.
+            unsafe { bounds::table_memory::share_table_rows(memory.as_mut_ptr(), memory.len()) }
+                .map_err(anyhow::Error::from)
+        });
+    if let Err(e) = shared {
+        tracing::warn!(error = %e, "table rows not shared; this node builds its own");
+    }
+}
+
+/// Closes every descriptor this process was started with beyond stdin,
+/// stdout and stderr. iceoryx2 makes its event sockets without
+/// close-on-exec, so a child starts with every socket its launcher held at
+/// that moment: each restarted actor kept about ten, some connected to
+/// listeners long dead, and the soak's descriptors grew with every restart.
+/// Nothing else in an actor has opened a descriptor this early.
+fn close_inherited_descriptors() -> std::io::Result<()> {
+    // SAFETY: close_range only closes descriptors; none above 2 is in use yet.
+    let closed = unsafe { libc::syscall(libc::SYS_close_range, 3u32, u32::MAX, 0u32) };
+    if closed == 0 {
+        return Ok(());
+    }
+    let error = std::io::Error::last_os_error();
+    if error.raw_os_error() != Some(libc::ENOSYS) {
+        return Err(error);
+    }
+    // Kernels before 5.9 have no close_range: one by one.
+    let open: Vec<i32> = std::fs::read_dir("/proc/self/fd")?
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse().ok())
+        .filter(|fd| *fd > 2)
+        .collect();
+    for fd in open {
+        // SAFETY: as above; the directory's own descriptor is already closed
+        // (EBADF, ignored).
+        unsafe { libc::close(fd) };
+    }
+    Ok(())
+}
+
+fn announce_ready() {
+    // The launcher reads this line from our stdout.
+    println!("ready");
+}
+
+fn launcher_gone() -> bool {
+    nix::unistd::getppid() == nix::unistd::Pid::from_raw(1)
+}
+
+/// On the launcher's Stop: the memory used. Measured only here: reading
+/// `smaps_rollup` walks every mapping (about 0.3 ms), too much to do every
+/// few steps in 234 processes. (Byte counts need no last write: the ledger
+/// holds them as they happen.)
+fn write_memory(me: ActorId, out: &Path) -> anyhow::Result<()> {
+    if let (Some(peak), Some(pss)) = (
+        crate::results::peak_memory_kb(),
+        crate::results::proportional_memory_kb(),
+    ) {
+        write_atomically(&memory_path(out, me), format!("{peak} {pss}").as_bytes())?;
+    }
+    Ok(())
+}
+
+/// Where an actor writes `<peak RSS kB> <PSS kB>`.
+pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.memory"))
+}
+
+/// Where a node writes `<CPU µs> <steps>`: the user and system CPU time it
+/// spent from its first `BeginStep` to the launcher's Stop, and the steps
+/// begun in it (the random-exchange paper's duty cycle).
+pub fn cpu_path(out: &Path, actor: ActorId) -> PathBuf {
+    out.join("accounting").join(format!("{actor}.cpu"))
+}
+
+/// This process's user and system CPU time so far.
+fn process_cpu_time() -> Duration {
+    Duration::from_secs_f64(crate::results::own_cpu_seconds().unwrap_or(0.0))
+}
+
+/// A node's CPU time over the steps, as [`cpu_path`] describes.
+#[derive(Debug, Clone, Copy, Default)]
+struct CpuOverSteps {
+    at_first_step: Option<Duration>,
+    steps: u32,
+}
+
+impl CpuOverSteps {
+    fn step_begun(&mut self) {
+        self.at_first_step.get_or_insert_with(process_cpu_time);
+        self.steps += 1;
+    }
+
+    fn write(&self, me: ActorId, out: &Path) -> anyhow::Result<()> {
+        let Some(first) = self.at_first_step else {
+            return Ok(());
+        };
+        let cpu = process_cpu_time().saturating_sub(first);
+        write_atomically(
+            &cpu_path(out, me),
+            format!("{} {}", cpu.as_micros(), self.steps).as_bytes(),
+        )
+    }
+}
+
+/// A node's CPU seconds per step begun, as it wrote them at the Stop.
+pub fn read_cpu_per_step(out: &Path, actor: ActorId) -> Option<f64> {
+    let text = std::fs::read_to_string(cpu_path(out, actor)).ok()?;
+    let mut f = text.split_whitespace().map(|v| v.parse::<u64>().ok());
+    let (micros, steps) = (f.next()??, f.next()??);
+    (steps > 0).then(|| micros as f64 / 1e6 / steps as f64)
+}
+
+/// Which sensor a process runs, and what it needs beside the scenario.
+struct SensorRun {
+    index: u16,
+    /// Its observations also go to the launcher's centralized reference.
+    centralized: bool,
+    /// Where it looks at the target.
+    world: TruthReader,
+}
+
+fn sensor_loop<T: Transport>(
+    scenario: &Scenario,
+    topology: &Topology,
+    mut t: T,
+    run: SensorRun,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let mut actor = SensorActor::new(scenario, topology, run.index)?;
+    t.publish_on(actor.publication())?;
+    for c in actor.subscriptions() {
+        t.subscribe(c)?;
+    }
+    t.notify(actor.reports_to())?;
+    let receivers: Vec<ActorId> = if run.centralized {
+        t.notify(ActorId::Launcher)?;
+        vec![actor.reports_to(), ActorId::Launcher]
+    } else {
+        vec![actor.reports_to()]
+    };
+    FaultSchedule::new(&scenario.faults).follow_link_faults(t.me(), t.shaper(), topology);
+    announce_ready();
+    let mut inbox = Vec::new();
+    loop {
+        t.wait(SENSOR_IDLE_WAIT)?;
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox)?;
+        for m in inbox.drain(..) {
+            if is_stop(&m) {
+                return write_memory(t.me(), out);
+            }
+            sensor_handles(&mut actor, &mut t, &m, &run.world, &receivers)?;
+        }
+        if launcher_gone() {
+            return Ok(());
+        }
+    }
+}
+
+/// The launcher's stop, on its lifecycle channel.
+fn is_stop(m: &Message) -> bool {
+    matches!(
+        (&m.payload, m.header.sender),
+        (Payload::Control(Control::Stop), ActorId::Launcher)
+    )
+}
+
+/// A multiple-access channel: woken by its centre's schedule and its
+/// sensors' transmissions, it delivers each step's slots to the centre
+/// when they end.
+fn mac_loop<T: Transport>(
+    scenario: &Scenario,
+    topology: &Topology,
+    mut t: T,
+    index: u16,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let mut actor = sensor::mac::MacActor::new(scenario, topology, index)?
+        .context("a channel actor in a scenario without a [channel]")?;
+    t.publish_on(actor.publication())?;
+    for c in actor.subscriptions() {
+        t.subscribe(c)?;
+    }
+    t.notify(actor.centre())?;
+    FaultSchedule::new(&scenario.faults).follow_link_faults(t.me(), t.shaper(), topology);
+    announce_ready();
+    let mut inbox = Vec::new();
+    loop {
+        let now = t.now();
+        match actor.poll_timeout() {
+            Some(due) => t.wait(due.saturating_sub(now).min(IDLE_WAIT))?,
+            None => t.wait(IDLE_WAIT)?,
+        }
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox)?;
+        for m in inbox.drain(..) {
+            if is_stop(&m) {
+                return write_memory(t.me(), out);
+            }
+            if let Some(z) = actor.handle(&m, t.now()) {
+                t.send(actor.publication(), &z, &[actor.centre()])?;
+            }
+        }
+        if let Some(z) = actor.handle_timeout(t.now()) {
+            t.send(actor.publication(), &z, &[actor.centre()])?;
+        }
+        if launcher_gone() {
+            return Ok(());
+        }
+    }
+}
+
+fn node_loop<T: Transport>(
+    scenario: &Scenario,
+    topology: &Topology,
+    mut t: T,
+    index: u16,
+    out: &Path,
+    rejoin: bool,
+) -> anyhow::Result<()> {
+    let mut actor = ProcessingNode::for_scenario(scenario, topology, index)?;
+    if rejoin {
+        actor.expect_rejoin();
+    }
+    if scenario.clock.mode == ClockMode::Realtime {
+        actor.bound_steps_by(Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3));
+    }
+    for c in actor.publications() {
+        t.publish_on(c)?;
+    }
+    for c in actor.subscriptions() {
+        t.subscribe(c)?;
+    }
+    for p in actor.peers() {
+        t.notify(p)?;
+    }
+    let schedule = FaultSchedule::new(&scenario.faults);
+    let give_way = yield_before_fusion(topology.neighbours[index as usize].len());
+    announce_ready();
+    let mut inbox = Vec::new();
+    let mut outgoing = Vec::new();
+    let mut cpu = CpuOverSteps::default();
+    loop {
+        let now = t.now();
+        match actor.poll_timeout() {
+            Some(due) => {
+                let timeout = due.saturating_sub(now).min(IDLE_WAIT);
+                wait_as_a_node(&mut t, timeout)?
+            }
+            None => t.wait(IDLE_WAIT)?,
+        }
+        inbox.clear();
+        let now = t.now();
+        t.receive(now, &mut inbox)?;
+        for m in inbox.drain(..) {
+            match (&m.payload, m.header.sender) {
+                (Payload::Control(Control::Stop), ActorId::Launcher) => {
+                    cpu.write(t.me(), out)?;
+                    return write_memory(t.me(), out);
+                }
+                (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                    cpu.step_begun();
+                    schedule.apply_link_faults(m.header.step, t.me(), t.shaper(), topology);
+                    t.update_connections();
+                }
+                _ => {}
+            }
+            // The time each message is handled at, not the batch's: a local
+            // filter run for an earlier message of the batch takes milliseconds.
+            actor.handle(&m, t.now(), &mut outgoing);
+            run_pending_work_with(&mut actor, &mut t, &mut outgoing, &give_way)?;
+        }
+        actor.handle_timeout(t.now(), &mut outgoing);
+        run_pending_work_with(&mut actor, &mut t, &mut outgoing, &give_way)?;
+        if launcher_gone() {
+            return Ok(());
+        }
+    }
+}
+
+/// Before its fusion filter a node gives its core away, once for each
+/// neighbour. Its own rounds are over, but its neighbours may still be in
+/// their last ones, runnable on the same core and waiting for each other;
+/// those rounds are on every node's way to the step's end, the fusion
+/// filter (tens of microseconds) only on this node's report. Alternately
+/// on two cores, it took the round p50 of `cqnet run --lockstep
+/// --no-central` from 58–65 µs to 41–45 (a single yield: 46–53; CPU and
+/// steps per second not resolved); yielding before the local filter as
+/// well did not help.
+fn yield_before_fusion(neighbours: usize) -> impl Fn(Work) {
+    move |work| {
+        if work == Work::FusionFilter {
+            for _ in 0..neighbours {
+                std::thread::yield_now();
+            }
+        }
+    }
+}
+
+/// How a node waits for a message due within its step: it polls for
+/// [`SPIN_BEFORE_SLEEP`], yielding, then sleeps for what is left of
+/// `timeout`. Public so that a benchmark can wait exactly as a node does.
+pub fn wait_as_a_node<T: Transport>(
+    t: &mut T,
+    timeout: Duration,
+) -> Result<(), transport::WaitError> {
+    wait_spinning(t, timeout, SPIN_BEFORE_SLEEP)
+}
+
+/// Polls for a wake-up for up to `spin`, yielding between polls, then
+/// sleeps for what is left of `timeout` if none came. The spin is timed by
+/// the wall clock, not the transport's, which a backend may hold still.
+fn wait_spinning<T: Transport>(
+    t: &mut T,
+    timeout: Duration,
+    spin: Duration,
+) -> Result<(), transport::WaitError> {
+    let started = Instant::now();
+    while started.elapsed() < spin.min(timeout) {
+        if t.poll_wake()? {
+            return Ok(());
+        }
+        std::thread::yield_now();
+    }
+    t.wait(timeout.saturating_sub(started.elapsed()))
+}
+
+/// The message that tells every sensor and channel to stop (sent on the
+/// lifecycle channel).
+pub fn stop_message(step: u32) -> Message {
+    Message::new(ActorId::Launcher, step, 0, Payload::Control(Control::Stop))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use transport::{MemoryBus, MemoryTransport};
+    use fusion_graph::wire::WireFormat;
+
+    /// The memory transport has no wake-ups and a clock that stands still
+    /// between the driver's steps: the spin still ends, by the wall clock.
+    #[test]
+    fn a_spin_ends_though_the_transport_clock_stands_still() {
+        let (done, finished) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let format = WireFormat {
+                cell_bytes: 1,
+                activation_bytes: 4,
+            };
+            let mut t = MemoryTransport::new(ActorId::Node(0), MemoryBus::new(), format, 1);
+            let waited = wait_spinning(&mut t, Duration::from_secs(1), Duration::from_millis(2));
+            let _ = done.send(waited.is_ok());
+        });
+        assert_eq!(
+            finished.recv_timeout(Duration::from_secs(20)),
+            Ok(true),
+            "the spin did not end"
+        );
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ActorArgs {
+    #[arg(long)]
+    pub run_id: String,
+    #[arg(long)]
+    pub actor: String,
+    /// The run's effective scenario, written by the launcher.
+    #[arg(long)]
+    pub scenario: PathBuf,
+    /// Sensors: also send observations to the launcher's centralized reference.
+    #[arg(long)]
+    pub centralized: bool,
+    /// Started mid-run (a restart): a node rejoins from a neighbour's fused
+    /// posterior, and every actor first sweeps the iceoryx2 resources its
+    /// dead predecessor left.
+    #[arg(long)]
+    pub rejoin: bool,
+}
+
+/// Loads the scenario file a launcher wrote for its children.
+pub fn load_child_scenario(path: &std::path::Path) -> anyhow::Result<(Scenario, Topology)> {
+    let scenario =
+        Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
+    let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
+    Ok((scenario, topology))
+}

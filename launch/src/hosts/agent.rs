@@ -1,0 +1,403 @@
+//! `cqnet agent`: one host's share of a multi-host run. It listens on its
+//! host's Zenoh endpoint, holds a liveliness token while it lives, and for
+//! each run the launcher sets up: opens its host's bridge, spawns, signals
+//! and reaps its host's actors (the one-host supervisor, unchanged), and
+//! reports their readiness, exits and byte counts.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use transport::accounting::read_ledger;
+use transport::accounting::Accounting;
+use fusion_graph::hosts::Placement;
+use transport::iceoryx::remove_run_resources;
+use fusion_graph::RunId;
+use fusion_graph::{ActorId, Scenario, Topology};
+use zenoh::Wait;
+
+use super::bridge::{Bridge, HostWorld, Setting};
+use super::{
+    command_key, decode, encode, event_key, liveliness_key, open_session, put, FromAgent, ToAgent,
+};
+use crate::actor_process::{cpu_path, ledger_path, memory_path};
+use crate::supervisor::{supervise, ChildSpec, Command, Event, HostFiles};
+
+#[derive(Debug, clap::Args)]
+pub struct AgentArgs {
+    /// The scenario file: its `[[hosts]]` give this host's endpoint and the
+    /// others'. The run itself uses the scenario the launcher sends.
+    pub scenario: PathBuf,
+    /// This host's name in the scenario.
+    #[arg(long)]
+    pub host: String,
+    /// Where the host's actors write their logs and byte counts.
+    #[arg(long, default_value = "out/agent")]
+    pub dir: PathBuf,
+    /// Serve one run and exit (as `cqnet run --local-agents` starts them).
+    #[arg(long)]
+    pub once: bool,
+}
+
+/// How often the agent looks at both its command subscription and its
+/// supervisor's events.
+const POLL: Duration = Duration::from_millis(5);
+/// How long the actors of a host the launcher lost get to exit after
+/// SIGKILL before the agent answers regardless.
+const CLEARING_TIMEOUT: Duration = Duration::from_secs(5);
+
+pub fn run_agent(args: &AgentArgs) -> anyhow::Result<()> {
+    let scenario = Scenario::load(&args.scenario, &[])?;
+    let topology = Topology::from_scenario(&scenario, &args.scenario.display().to_string())?;
+    let placement = Placement::from_scenario(&scenario, &topology, "", false)?
+        .context("the scenario has no [[hosts]] section")?;
+    let me = placement
+        .host_named(&args.host)
+        .with_context(|| format!("no host named {:?} in the scenario", args.host))?;
+    let hosts = placement.hosts();
+    let others: Vec<String> = hosts
+        .iter()
+        .enumerate()
+        .filter(|(g, _)| *g != me)
+        .map(|(_, h)| h.endpoint.clone())
+        .collect();
+    let session = open_session(Some(&hosts[me].endpoint), &others)?;
+    let commands = session
+        .declare_subscriber(command_key(&args.host))
+        .wait()
+        .map_err(|e| anyhow::anyhow!("subscribing to commands: {e}"))?;
+    // Declared last: the launcher sends its first command when it sees it.
+    let _token = session
+        .liveliness()
+        .declare_token(liveliness_key(&args.host))
+        .wait()
+        .map_err(|e| anyhow::anyhow!("declaring liveliness: {e}"))?;
+    println!("agent {} listening on {}", args.host, hosts[me].endpoint);
+    let agent = Agent {
+        session: &session,
+        host: &args.host,
+        dir: &args.dir,
+    };
+    loop {
+        let setup = loop {
+            match commands.recv_timeout(Duration::from_secs(1)) {
+                Ok(Some(sample)) => match decode::<ToAgent>(&sample.payload().to_bytes()) {
+                    Some(ToAgent::Setup {
+                        run,
+                        scenario,
+                        centralized,
+                        ..
+                    }) => break (run, scenario, centralized),
+                    Some(other) => tracing::debug!(?other, "no run set up; ignored"),
+                    None => tracing::warn!("a command that did not decode; dropped"),
+                },
+                Ok(None) => {}
+                Err(e) => bail!("the command subscription ended: {e}"),
+            }
+        };
+        match agent.serve(&setup.0, &setup.1, setup.2, &commands) {
+            Ok(Served::Finished) => {}
+            Ok(Served::Interrupted) => return Ok(()),
+            Err(e) => {
+                agent.tell(&FromAgent::Failed {
+                    message: format!("{e:#}"),
+                });
+                tracing::error!(error = %format!("{e:#}"), "run failed");
+            }
+        }
+        if args.once {
+            return Ok(());
+        }
+    }
+}
+
+struct Agent<'a> {
+    session: &'a zenoh::Session,
+    host: &'a str,
+    dir: &'a Path,
+}
+
+enum Served {
+    Finished,
+    Interrupted,
+}
+
+type Commands =
+    zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+
+impl Agent<'_> {
+    fn tell(&self, event: &FromAgent) {
+        if let Err(e) = put(self.session, &event_key(self.host), encode(event)) {
+            tracing::warn!(error = %e, "could not tell the launcher");
+        }
+    }
+
+    /// One run, from its setup to its shutdown.
+    fn serve(
+        &self,
+        run: &str,
+        scenario_text: &str,
+        centralized: bool,
+        commands: &Commands,
+    ) -> anyhow::Result<Served> {
+        let run_id = RunId::new(run)?;
+        let scenario = Scenario::from_toml(scenario_text, "the launcher's scenario", &[])?;
+        let topology = Topology::from_scenario(&scenario, "the launcher's scenario")?;
+        let placement = Placement::from_scenario(&scenario, &topology, "", centralized)?
+            .context("the launcher's scenario has no [[hosts]]")?;
+        let host = placement
+            .host_named(self.host)
+            .with_context(|| format!("the launcher's scenario has no host {:?}", self.host))?;
+        // What a predecessor killed with its actors left in the domain is
+        // swept as the bridge's nodes and the rejoining actors start (they
+        // sweep dead nodes); the domain itself is not removed, for on the
+        // launcher's host it holds the launcher's live ports.
+        let domain = placement.domain(&run_id, host);
+        let dir = self.dir.join(run);
+        std::fs::create_dir_all(dir.join("logs"))?;
+        std::fs::create_dir_all(dir.join("accounting"))?;
+        let scenario_file = dir.join("scenario.toml");
+        crate::results::write_atomically(&scenario_file, scenario_text.as_bytes())?;
+        // The launcher's host has the launcher's world; another host its own.
+        let world = (host != placement.host_of(ActorId::Launcher))
+            .then(|| HostWorld::create(&domain, &scenario))
+            .transpose()?;
+        let setting = Setting {
+            run: run.into(),
+            domain: domain.clone(),
+            placement: placement.clone(),
+            host,
+            topology: topology.clone(),
+        };
+        let bridge = Bridge::start(
+            self.session,
+            setting,
+            &dir.join("accounting").join("bridge.counts"),
+            world,
+        )?;
+        let spec = ChildSpec {
+            program: crate::supervisor::ActorProgram::for_this_process()?,
+            run_id: domain.as_str().into(),
+            scenario_file,
+            log_dir: dir.join("logs"),
+            centralized,
+        };
+        let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
+        let (event_tx, events) = mpsc::channel();
+        // The children's parent-death signal is tied to the thread that
+        // spawns them: this one lives until they are all reaped.
+        let supervisor = std::thread::Builder::new()
+            .name("supervisor".into())
+            .spawn(move || {
+                tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                    .map(|rt| rt.block_on(supervise(spec, command_rx, event_tx)))
+            })?;
+        self.tell(&FromAgent::SetUp { run: run.into() });
+        let mut interrupted = false;
+        // The actors started and not yet exited.
+        let mut running: HashSet<ActorId> = HashSet::new();
+        // Each file's length when it last went home in a progress report.
+        let mut sent_lengths: std::collections::HashMap<String, usize> = Default::default();
+        // Set up again after the launcher lost this host: the actors are
+        // being stopped, and the answer waits until they are gone.
+        let mut clearing: Option<Instant> = None;
+        'run: loop {
+            while let Ok(e) = events.try_recv() {
+                match e {
+                    Event::Ready(a) => {
+                        running.insert(a);
+                        self.tell(&FromAgent::Ready(a))
+                    }
+                    // The launcher counts a host's actors gone when it
+                    // loses the host: their exits are not news to it.
+                    Event::Exited { actor, .. } if clearing.is_some() => {
+                        running.remove(&actor);
+                    }
+                    Event::Exited {
+                        actor,
+                        status,
+                        stderr_tail,
+                    } => {
+                        running.remove(&actor);
+                        self.tell(&FromAgent::Exited {
+                            actor,
+                            status,
+                            stderr_tail,
+                        })
+                    }
+                    Event::Interrupted => {
+                        interrupted = true;
+                        let _ = command_tx.send(Command::Shutdown);
+                    }
+                    Event::AllReaped => break 'run,
+                    // Only the launcher's supervisor of several hosts says these.
+                    Event::HostBack(_) | Event::Counts { .. } => {}
+                }
+            }
+            if let Some(since) = clearing {
+                if running.is_empty() || since.elapsed() > CLEARING_TIMEOUT {
+                    if !running.is_empty() {
+                        tracing::warn!(
+                            left = running.len(),
+                            "actors still running after the host was lost; answering anyway"
+                        );
+                    }
+                    clearing = None;
+                    self.tell(&FromAgent::SetUp { run: run.into() });
+                }
+            }
+            let sample = match commands.recv_timeout(POLL) {
+                Ok(Some(s)) => s,
+                Ok(None) => continue,
+                Err(e) => bail!("the command subscription ended: {e}"),
+            };
+            let Some(command) = decode::<ToAgent>(&sample.payload().to_bytes()) else {
+                tracing::warn!("a command that did not decode; dropped");
+                continue;
+            };
+            let to_supervisor = match command {
+                ToAgent::Setup {
+                    run: again,
+                    after_loss: true,
+                    ..
+                } if again == run => {
+                    // Cut off longer than the lease, the launcher counts
+                    // this host's actors gone and will start their
+                    // successors: the ones still running here go first.
+                    if clearing.is_none() {
+                        tracing::warn!(
+                            actors = running.len(),
+                            "the launcher lost this host; stopping its actors for their successors"
+                        );
+                        clearing = Some(Instant::now());
+                        for actor in &running {
+                            let _ = command_tx.send(Command::Signal {
+                                actor: *actor,
+                                signal: fusion_graph::scenario::Signal::Kill,
+                            });
+                        }
+                    }
+                    None
+                }
+                ToAgent::Setup { run: again, .. } if again == run => {
+                    self.tell(&FromAgent::SetUp { run: run.into() });
+                    None
+                }
+                ToAgent::Setup { run: other, .. } => {
+                    tracing::warn!(%other, "a second run while one is going; ignored");
+                    None
+                }
+                ToAgent::Spawn { actor, rejoin } => Some(Command::Spawn { actor, rejoin }),
+                ToAgent::Signal { actor, signal } => Some(Command::Signal { actor, signal }),
+                ToAgent::Continue { actor } => Some(Command::Continue { actor }),
+                ToAgent::Collect => {
+                    self.tell(&FromAgent::Counts {
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology)
+                            .to_csv_with_world_misses(),
+                        bridge: bridge.counts(),
+                        home: host_files(&dir, &placement, host, &topology),
+                    });
+                    None
+                }
+                ToAgent::Progress => {
+                    let mut home = host_files(&dir, &placement, host, &topology);
+                    // Only what grew since the last report.
+                    home.files.retain(|(path, bytes)| {
+                        sent_lengths.insert(path.clone(), bytes.len()) != Some(bytes.len())
+                    });
+                    self.tell(&FromAgent::Progress {
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology)
+                            .to_csv_with_world_misses(),
+                        bridge: bridge.counts(),
+                        home,
+                    });
+                    None
+                }
+                ToAgent::Traffic => {
+                    self.tell(&FromAgent::Traffic {
+                        accounting_csv: host_accounting(&dir, &placement, host, &topology)
+                            .to_csv_with_world_misses(),
+                    });
+                    None
+                }
+                ToAgent::Shutdown => Some(Command::Shutdown),
+            };
+            if let Some(c) = to_supervisor {
+                let _ = command_tx.send(c);
+            }
+        }
+        let _ = supervisor.join();
+        bridge.stop();
+        // The launcher's own ports live in its host's domain; it removes
+        // that one itself once they are closed.
+        if host != placement.host_of(fusion_graph::ActorId::Launcher) {
+            remove_run_resources(&domain).context("removing the run's shared memory")?;
+        }
+        self.tell(&FromAgent::Finished);
+        Ok(if interrupted {
+            Served::Interrupted
+        } else {
+            Served::Finished
+        })
+    }
+}
+
+/// The most of an actor's log that comes home: its end, where a failure
+/// is told.
+const LOG_TAIL_BYTES: u64 = 256 << 10;
+
+/// What of this host's run goes home: each actor's log (its last
+/// [`LOG_TAIL_BYTES`]) and its memory and CPU files, by their paths in a
+/// run's results folder, and the CPU the agent and its reaped actors used.
+fn host_files(dir: &Path, placement: &Placement, host: usize, topology: &Topology) -> HostFiles {
+    let mut files = Vec::new();
+    for actor in placement.actors_on(host, topology) {
+        let log = dir.join("logs").join(format!("{actor}.log"));
+        if let Some(tail) = file_tail(&log, LOG_TAIL_BYTES) {
+            files.push((format!("logs/{actor}.log"), tail));
+        }
+        for path in [memory_path(dir, actor), cpu_path(dir, actor)] {
+            if let (Ok(bytes), Some(name)) = (std::fs::read(&path), path.file_name()) {
+                files.push((format!("accounting/{}", name.to_string_lossy()), bytes));
+            }
+        }
+    }
+    HostFiles {
+        files,
+        cpu_seconds: crate::results::own_cpu_seconds()
+            .zip(crate::results::children_cpu_seconds())
+            .map(|(own, children)| own + children),
+    }
+}
+
+/// The last `max` bytes of the file at `path`.
+fn file_tail(path: &Path, max: u64) -> Option<Vec<u8>> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).ok()?;
+    let len = f.metadata().ok()?.len();
+    f.seek(SeekFrom::Start(len.saturating_sub(max))).ok()?;
+    let mut bytes = Vec::new();
+    f.read_to_end(&mut bytes).ok()?;
+    Some(bytes)
+}
+
+/// The byte counts of every actor of this host, from their ledgers.
+fn host_accounting(
+    dir: &Path,
+    placement: &Placement,
+    host: usize,
+    topology: &Topology,
+) -> Accounting {
+    let mut total = Accounting::default();
+    for actor in placement.actors_on(host, topology) {
+        match read_ledger(&ledger_path(dir, actor)) {
+            Ok(a) => total.merge(&a),
+            Err(e) => tracing::warn!(%actor, error = %e, "byte counts not read"),
+        }
+    }
+    total
+}
