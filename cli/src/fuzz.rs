@@ -30,7 +30,7 @@ use fusion_graph::scenario::{
     Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
 };
-use fusion_graph::wire::{examples, seal, Message, WireFormat};
+use wire::{examples, seal, Message, WireFormat};
 use transport::world_memory::{TruthReader, TruthRing};
 use fusion_graph::Topology;
 use node::ProcessingNode;

@@ -14,7 +14,7 @@ use bounds::speb::{
     expected_information_over_prior, prior_positions, speb, RateLimitedLink, ReportingSensor, Speb,
 };
 use fusion_graph::scenario::Scenario;
-use fusion_graph::wire::HEADER_BYTES;
+use wire::HEADER_BYTES;
 use fusion_graph::Topology;
 use plotters::prelude::*;
 use rand::SeedableRng;

@@ -11,7 +11,7 @@ use bounds::diffusion::MonteCarloSize;
 use transport::accounting::Accounting;
 use fusion_graph::scenario::{Scenario, RANDOM_EXCHANGE_SCENARIO};
 use fusion_graph::RunId;
-use fusion_graph::wire::MessageKind;
+use wire::MessageKind;
 use fusion_graph::{ActorId, Topology};
 use plotters::prelude::*;
 

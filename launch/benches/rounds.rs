@@ -8,7 +8,7 @@
 //! network's round p50; the CPU the nine spend per round is the floor
 //! under the network's CPU per step beyond `sim`'s.
 //!
-//! `cargo bench -p runtime --bench rounds` prints p50, p99 and the CPU.
+//! `cargo bench -p launch --bench rounds` prints p50, p99 and the CPU.
 //! The benchmark spawns itself as the other eight nodes.
 
 use std::path::PathBuf;
@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use fusion_graph::wire::{ConsensusValues, Message, Payload, WireFormat};
+use wire::{ConsensusValues, Message, Payload, WireFormat};
 use fusion_graph::{ActorId, Scenario, Topology};
 use launch::actor_process::wait_as_a_node;
 use launch::results::own_cpu_seconds;

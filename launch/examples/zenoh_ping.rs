@@ -1,14 +1,14 @@
 //! The bare Zenoh round trip between two hosts, as cqnet's agents open
 //! their sessions (peer mode, TCP, no scouting): what a message between
 //! hosts costs before cqnet adds anything, beside the bare iceoryx2 round
-//! trip within a host (`cargo bench -p fusion-graph --bench roundtrip`).
+//! trip within a host (`cargo bench -p transport --bench roundtrip`).
 //!
 //! On one host (or namespace): `zenoh_ping pong tcp/10.213.0.2:17448`; on
 //! the other: `zenoh_ping ping tcp/10.213.0.2:17448 [count]`, which prints
 //! the round trip's p50 and p99 over `count` 64-byte messages (10,000).
 //!
 //! ```text
-//! cargo run --release -p runtime --features zenoh --example zenoh_ping -- pong tcp/127.0.0.1:17448
+//! cargo run --release -p launch --features zenoh --example zenoh_ping -- pong tcp/127.0.0.1:17448
 //! ```
 
 use std::time::{Duration, Instant};

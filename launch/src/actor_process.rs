@@ -11,7 +11,7 @@ use fusion_graph::hosts::Placement;
 use fusion_graph::scenario::ClockMode;
 use transport::iceoryx::map_run_memory;
 use transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
-use fusion_graph::wire::{Control, Message, Payload};
+use wire::{Control, Message, Payload};
 use transport::world_memory::TruthReader;
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::{ProcessingNode, Work};
@@ -471,7 +471,7 @@ pub fn stop_message(step: u32) -> Message {
 mod tests {
     use super::*;
     use transport::{MemoryBus, MemoryTransport};
-    use fusion_graph::wire::WireFormat;
+    use wire::WireFormat;
 
     /// The memory transport has no wake-ups and a clock that stands still
     /// between the driver's steps: the spin still ends, by the wall clock.

@@ -78,7 +78,7 @@ pub fn sensor_handles<T: Transport + ?Sized>(
 mod tests {
     use super::*;
     use transport::{Channel, MemoryBus, MemoryTransport};
-    use fusion_graph::wire::{BitMask, Payload};
+    use wire::{BitMask, Payload};
     use transport::world_memory::TruthRing;
     use fusion_graph::{Scenario, Topology};
 

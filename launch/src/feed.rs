@@ -309,7 +309,7 @@ mod tests {
 
     #[test]
     fn link_rates_sum_both_directions_of_node_links_only() {
-        use fusion_graph::wire::MessageKind;
+        use wire::MessageKind;
         let (_, t) = default_topology();
         let mut acc = transport::accounting::Accounting::default();
         acc.record_sent(

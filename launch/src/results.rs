@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use transport::accounting::Accounting;
-use fusion_graph::wire::{MessageKind, Telemetry};
+use wire::{MessageKind, Telemetry};
 use serde::Serialize;
 
 pub use crate::summary::{
@@ -378,7 +378,7 @@ pub fn energy(accounting: &Accounting, steps: u32) -> crate::summary::Energy {
         .by_kind()
         .get(&MessageKind::SlotValues)
         .map_or(0, |c| {
-            (c.sent_bytes - c.sent_messages * (fusion_graph::wire::HEADER_BYTES as u64 + 4)) / 8
+            (c.sent_bytes - c.sent_messages * (wire::HEADER_BYTES as u64 + 4)) / 8
         });
     crate::summary::Energy {
         transmissions,

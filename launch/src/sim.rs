@@ -15,7 +15,7 @@ use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::Scenario;
 use transport::{Channel, MemoryBus, MemoryTransport, Transport};
-use fusion_graph::wire::{Message, Payload, Telemetry};
+use wire::{Message, Payload, Telemetry};
 use transport::world_memory::{TruthReader, TruthRing, WORLD_STEPS};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};

@@ -5,7 +5,7 @@
 use bounds::{Dynamics, State};
 use fusion_graph::scenario::{Motion, Scenario};
 use transport::{Channel, Transport};
-use fusion_graph::wire::{BitMask, Control, Message, Payload};
+use wire::{BitMask, Control, Message, Payload};
 use transport::world_memory::TruthRing;
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream};
 use transport::SendError;

@@ -2,7 +2,7 @@
 //! log-likelihood of many quantized bearings peaks at the true state.
 
 use bounds::State;
-use fusion_graph::wire::{BitMask, Message, Payload};
+use wire::{BitMask, Message, Payload};
 use fusion_graph::world::StillTarget;
 use fusion_graph::{ActorId, Scenario, Topology};
 use node::{Observation, ObservedValue, SensingModel};

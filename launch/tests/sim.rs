@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use transport::accounting::Accounting;
-use fusion_graph::wire::{encoded_len, MessageKind};
+use wire::{encoded_len, MessageKind};
 use fusion_graph::{Scenario, Topology};
 use launch::results::ResultsWriter;
 use launch::sim::run_in_process;

@@ -18,7 +18,7 @@ use bounds::{BoundError, State};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::Channel;
-use fusion_graph::wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
+use wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 
 use crate::censoring::NodeCensoring;

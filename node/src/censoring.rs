@@ -4,7 +4,7 @@
 
 use bounds::censoring::{CensoringRule, Feedback, Innovation, NisCensor};
 use fusion_graph::scenario::{CensoringPolicy, FeedbackKind, Scenario};
-use fusion_graph::wire::{BitMask, Payload};
+use wire::{BitMask, Payload};
 use fusion_graph::{ScenarioError, Topology};
 
 use crate::estimator::{Censored, SensingModel};

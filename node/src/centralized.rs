@@ -4,7 +4,7 @@
 
 use bounds::BoundError;
 use fusion_graph::scenario::Scenario;
-use fusion_graph::wire::{Message, Payload};
+use wire::{Message, Payload};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 
 use crate::estimator::{LocalFilter, LocalUpdate, Observation, ObservedValue, SensingModel};

@@ -195,7 +195,7 @@ mod tests {
                     .collect()
             })
             .collect();
-        let deliver = |_: u16, _: u16, _: &fusion_graph::wire::Payload| {
+        let deliver = |_: u16, _: u16, _: &wire::Payload| {
             Fate::Deliver(Duration::from_micros(200))
         };
         let attempt = Duration::from_millis(20);

@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
-use fusion_graph::wire::{Control, Message, Payload, Telemetry};
+use wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use rand_chacha::ChaCha8Rng;
 
@@ -765,7 +765,7 @@ impl DiffusionNode {
 mod tests {
     use super::*;
     use crate::harness::{Fate, Net};
-    use fusion_graph::wire::MessageKind;
+    use wire::MessageKind;
 
     const ALL: [bool; 25] = [true; 25];
     const LONG: Duration = Duration::from_secs(5);

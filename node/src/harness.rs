@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use bounds::State;
-use fusion_graph::wire::{BitMask, Control, Message, Payload, Telemetry};
+use wire::{BitMask, Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 
 use crate::{Outgoing, ProcessingNode, SensingModel};

@@ -63,7 +63,7 @@ pub use processing::ProcessingNode;
 pub use work::Work;
 
 use fusion_graph::Channel;
-use fusion_graph::wire::Message;
+use wire::Message;
 use fusion_graph::ActorId;
 
 /// A message to publish.

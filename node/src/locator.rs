@@ -26,7 +26,7 @@ use std::time::Duration;
 use bounds::Quantizer;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
-use fusion_graph::wire::{Control, Message, Payload, Telemetry};
+use wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
 
 use crate::collector::{Collector, Offer, SensorAnswers};

@@ -30,7 +30,7 @@ use bounds::compressive::{
 use bounds::{Mat4, ObservationModel, State};
 use fusion_graph::scenario::{MacConfig, MacDesign, Scenario};
 use fusion_graph::Channel;
-use fusion_graph::wire::{Control, Message, Payload, SlotColumn, Telemetry};
+use wire::{Control, Message, Payload, SlotColumn, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use nalgebra::Cholesky;
 use rand_chacha::ChaCha8Rng;

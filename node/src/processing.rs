@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use fusion_graph::Channel;
-use fusion_graph::wire::Message;
+use wire::Message;
 use fusion_graph::{ActorId, Scenario, Topology};
 
 use crate::diffusion_node::DiffusionNode;

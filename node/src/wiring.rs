@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use bounds::State;
 use fusion_graph::Channel;
-use fusion_graph::wire::{BitMask, Message, Payload, Telemetry};
+use wire::{BitMask, Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
 
 use crate::Outgoing;

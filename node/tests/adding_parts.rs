@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use bounds::State;
-use fusion_graph::wire::{Control, Message, Payload};
+use wire::{Control, Message, Payload};
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::fusion::{Fused, FusionProtocol, Handled, InformationVector, RoundStats};
 use node::sensor_manager::{SelectionContext, SensorManager};

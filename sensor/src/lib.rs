@@ -24,7 +24,7 @@ use bounds::{Dynamics, ObservationModel, Quantizer, State};
 use fusion_graph::faults::{FaultSchedule, SensorFault};
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::Channel;
-use fusion_graph::wire::{unpack_mat4, Message, Payload};
+use wire::{unpack_mat4, Message, Payload};
 use fusion_graph::world::{TruthMissing, WorldView};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand::Rng;
@@ -413,7 +413,7 @@ mod tests {
             Payload::ActivateWithFeedback {
                 mask: BitMask::from_indices([12]),
                 estimate: estimate.into(),
-                covariance: Some(fusion_graph::wire::pack_mat4(&cov)),
+                covariance: Some(wire::pack_mat4(&cov)),
             },
         )
     }
@@ -500,7 +500,7 @@ mod tests {
                 0,
                 Payload::ActivateSlots {
                     slots: 4,
-                    columns: vec![fusion_graph::wire::SlotColumn {
+                    columns: vec![wire::SlotColumn {
                         sensor,
                         slots: 0b1011,
                         negative: 0b0010,

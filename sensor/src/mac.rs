@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
-use fusion_graph::wire::{Message, Payload, MAX_SLOTS};
+use wire::{Message, Payload, MAX_SLOTS};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand_distr::{Distribution, StandardNormal};
 
@@ -220,7 +220,7 @@ impl MacActor {
 mod tests {
     use super::*;
     use fusion_graph::scenario::COMPRESSIVE_SCENARIO;
-    use fusion_graph::wire::SlotColumn;
+    use wire::SlotColumn;
 
     fn field() -> (Scenario, Topology) {
         let s = Scenario::from_toml(COMPRESSIVE_SCENARIO, "c", &[]).unwrap();

@@ -71,7 +71,7 @@ pub use fusion_graph::faults::{
     Partition, Reorder, SensorMode, Signal,
 };
 pub use fusion_graph::scenario::Scenario;
-pub use fusion_graph::wire::MessageKind;
+pub use wire::MessageKind;
 pub use fusion_graph::ActorId;
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
 pub use results::{Run, Tick};

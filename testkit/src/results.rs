@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 use transport::accounting::{Accounting, Counters};
 use transport::iceoryx::run_resources;
 use fusion_graph::RunId;
-use fusion_graph::wire::MessageKind;
+use wire::MessageKind;
 use fusion_graph::ActorId;
 use launch::summary::{AppliedFault, FaultCost, Summary};
 

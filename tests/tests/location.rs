@@ -14,7 +14,7 @@ use std::time::Duration;
 use bounds::location::{exact_information, log_likelihood, AmplitudeLaw, DecayLaw};
 use bounds::Measurement;
 use cqnet_testkit::{exclusive, MessageKind, Network, Run, Scenario};
-use fusion_graph::wire::{BitMask, Message, Payload};
+use wire::{BitMask, Message, Payload};
 use fusion_graph::world::StillTarget;
 use fusion_graph::{ActorId, Topology};
 use node::location::{sensor_quantizer, Grid, ThresholdDesign};

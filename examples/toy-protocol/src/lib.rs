@@ -23,7 +23,7 @@ mod neighbourhood_mean;
 pub use first_k::FirstK;
 pub use neighbourhood_mean::{NeighbourhoodMean, NeighbourhoodValue};
 
-use fusion_graph::wire::MessageKind;
+use wire::MessageKind;
 use node::registry;
 
 /// Registers both parts and the protocol's payload, and returns the

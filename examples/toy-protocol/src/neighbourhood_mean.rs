@@ -9,7 +9,7 @@
 use std::time::Duration;
 
 use wire::payloads::ProtocolPayload;
-use fusion_graph::wire::{Packed, Payload};
+use wire::{Packed, Payload};
 use fusion_graph::{MetropolisWeights, WireError};
 use node::fusion::{
     Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone,

@@ -5,7 +5,7 @@
 //! twice: with the `ipc` service's event (a Unix datagram socket) and with
 //! the futex event cqnet's transport uses (`transport/futex.rs`).
 //!
-//! `cargo bench -p fusion-graph --bench roundtrip` prints p50 and p99.
+//! `cargo bench -p transport --bench roundtrip` prints p50 and p99.
 //! The benchmark spawns itself as the echoing process.
 
 use std::process::{Child, Command};
@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use transport::futex;
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use fusion_graph::wire::{ConsensusValues, Message, Payload, WireFormat};
+use wire::{ConsensusValues, Message, Payload, WireFormat};
 use fusion_graph::{ActorId, Scenario, Topology};
 use iceoryx2::prelude::*;
 

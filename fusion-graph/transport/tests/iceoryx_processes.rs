@@ -11,7 +11,7 @@ use transport::iceoryx::{
     remove_run_resources, run_resources, sweep_abandoned_runs, RunLease,
 };
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use fusion_graph::wire::{Message, MessageKind, Payload, WireFormat};
+use wire::{Message, MessageKind, Payload, WireFormat};
 use fusion_graph::{ActorId, LinkRule, Scenario, Topology};
 
 const ROLE: &str = "CQNET_FG_CHILD_ROLE";

@@ -9,7 +9,7 @@ use wire::payloads::{register, ProtocolPayload};
 use transport::iceoryx::remove_run_resources;
 use transport::limits::ChannelLimits;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use fusion_graph::wire::{Message, WireFormat, HEADER_BYTES};
+use wire::{Message, WireFormat, HEADER_BYTES};
 use fusion_graph::{ActorId, Scenario, Topology, WireError};
 
 /// 80 f64s: 640 bytes, twice the built-in consensus message.

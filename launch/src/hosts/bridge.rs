@@ -368,7 +368,7 @@ fn deliver(inlet: &BridgeInlet, bytes: &[u8], mut world: Option<&mut HostWorld>)
         let taken = match frame {
             Frame::Sample { channel, bytes } => {
                 if let (Some(w), ActorId::Launcher) = (world.as_deref_mut(), channel.publisher()) {
-                    if let Some(step) = fusion_graph::wire::peek_step(&bytes) {
+                    if let Some(step) = wire::peek_step(&bytes) {
                         w.advance_to(step);
                     }
                 }

@@ -8,7 +8,7 @@ use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Scenario;
 use transport::{IceoryxTransport, Transport};
-use fusion_graph::wire::{Message, Payload};
+use wire::{Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use node::CentralizedReference;
 

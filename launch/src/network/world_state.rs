@@ -10,7 +10,7 @@ use transport::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::scenario::Signal;
 use transport::{Channel, IceoryxTransport, Transport};
-use fusion_graph::wire::{Control, Message, Payload};
+use wire::{Control, Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use tokio::sync::mpsc::UnboundedSender;
 

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::wire::Payload;
+use wire::Payload;
 use fusion_graph::{MetropolisWeights, Topology};
 
 use super::information::InformationPieces;

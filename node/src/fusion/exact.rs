@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::rc::Rc;
 use std::time::Duration;
 
-use fusion_graph::wire::Message;
+use wire::Message;
 use fusion_graph::Topology;
 
 use super::{Fused, FusionProtocol, Handled, InformationVector, RoundStats};

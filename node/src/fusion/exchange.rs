@@ -21,7 +21,7 @@ use std::time::Duration;
 use bounds::diffusion::EXCHANGE_ATTEMPTS;
 use bounds::Gaussian;
 use fusion_graph::Channel;
-use fusion_graph::wire::{pack_mat4, unpack_mat4, GaussianMoments, Message, Payload};
+use wire::{pack_mat4, unpack_mat4, GaussianMoments, Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use rand::seq::IndexedRandom;
 use rand::Rng;
@@ -337,7 +337,7 @@ mod tests {
     use super::*;
     use crate::fusion::testing::{drive, Fate};
     use bounds::{Mat4, State};
-    use fusion_graph::wire::MessageKind;
+    use wire::MessageKind;
     use fusion_graph::Scenario;
     use rand::SeedableRng;
 

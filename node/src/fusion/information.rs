@@ -4,7 +4,7 @@
 //! the numbers its neighbours receive.
 
 use bounds::{Mat4, State};
-use fusion_graph::wire::{ConsensusValues, Packed, Payload};
+use wire::{ConsensusValues, Packed, Payload};
 
 use crate::estimator::{Contribution, NetworkSums};
 
@@ -22,7 +22,7 @@ pub struct InformationVector {
     pub s_obs: Option<Packed>,
 }
 
-pub use fusion_graph::wire::{pack_mat4 as pack_matrix, unpack_mat4 as unpack_matrix};
+pub use wire::{pack_mat4 as pack_matrix, unpack_mat4 as unpack_matrix};
 
 fn scale<const N: usize>(v: &[f64; N], w: f64) -> [f64; N] {
     v.map(|x| x * w)
@@ -154,9 +154,9 @@ mod tests {
             v.payloads(&mut payloads);
             assert_eq!(payloads.len(), 1 + with_aux as usize);
             let kind = if k == 1.5 {
-                fusion_graph::wire::MessageKind::Consensus
+                wire::MessageKind::Consensus
             } else {
-                fusion_graph::wire::MessageKind::ConsensusLate
+                wire::MessageKind::ConsensusLate
             };
             assert_eq!(payloads[0].kind(), kind);
             let mut pieces = InformationPieces::default();

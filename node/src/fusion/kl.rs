@@ -13,7 +13,7 @@
 use std::time::Duration;
 
 use bounds::{Gaussian, Mat4, State};
-use fusion_graph::wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
+use wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
 use fusion_graph::{MetropolisWeights, Topology};
 
 use super::rounds::weighted;
@@ -267,7 +267,7 @@ mod tests {
     /// and nothing else: K_max × (directed edges) messages of 13 + 112 B.
     #[test]
     fn a_step_costs_k_max_messages_per_directed_edge() {
-        use fusion_graph::wire::{encoded_len, WireFormat};
+        use wire::{encoded_len, WireFormat};
         let t = lattice();
         let directed: usize = t.neighbours.iter().map(Vec::len).sum();
         assert_eq!(directed, 80);

@@ -43,7 +43,7 @@ pub use vector_sum::{vector_sum, Summed, VectorSum, VectorSumRule};
 
 use std::time::Duration;
 
-use fusion_graph::wire::Message;
+use wire::Message;
 
 use crate::estimator::NetworkSums;
 use crate::Outgoing;

@@ -12,7 +12,7 @@
 use std::time::Duration;
 
 use fusion_graph::Channel;
-use fusion_graph::wire::{Message, Payload};
+use wire::{Message, Payload};
 use fusion_graph::{ActorId, MetropolisWeights, Topology};
 
 use super::{FusionProtocol, Handled, RoundStats};

@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::wire::{Message, Payload};
+use wire::{Message, Payload};
 use fusion_graph::ActorId;
 
 use super::FusionProtocol;

@@ -11,7 +11,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::wire::{Payload, LOCATION_CHUNK};
+use wire::{Payload, LOCATION_CHUNK};
 use fusion_graph::{MetropolisWeights, Topology};
 
 use super::rounds::weighted;

@@ -41,7 +41,7 @@ use bounds::pcrlb::{dynamics_terms, information_update};
 use bounds::selection::{greedy, Candidate};
 use bounds::{BoundError, Mat4, State};
 use fusion_graph::Channel;
-use fusion_graph::wire::{
+use wire::{
     CandidateReport, ChosenSensors, Message, Payload, MAX_CHOSEN_PER_PIECE, MAX_REPORTED_CANDIDATES,
 };
 use fusion_graph::{ActorId, Scenario, SpanningTree, Topology};
@@ -667,7 +667,7 @@ mod tests {
     use super::*;
     use std::collections::VecDeque;
 
-    use fusion_graph::wire::HEADER_BYTES;
+    use wire::HEADER_BYTES;
 
     const TIMEOUT: Duration = Duration::from_millis(50);
 
