@@ -74,7 +74,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             random_exchange,
             location,
             compressive,
+            former_seed001,
+            former_seed004,
         } => {
+            if former_seed001 {
+                anyhow::bail!("`--seed001` is now called `--sensor-selection`");
+            }
+            if former_seed004 {
+                anyhow::bail!("`--seed004` is now called `--random-exchange`");
+            }
             print!(
                 "{}",
                 builtin_scenario(sensor_selection, random_exchange, location, compressive)
@@ -190,8 +198,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Experiment(args) => run_experiments(&args),
         Command::Clean => {
-            let cleaned = transport::iceoryx::sweep_abandoned_runs()
-                .context("sweeping abandoned runs")?;
+            let cleaned =
+                transport::iceoryx::sweep_abandoned_runs().context("sweeping abandoned runs")?;
             let directories = transport::iceoryx::remove_stale_node_directories()
                 .context("removing empty iceoryx2 node directories")?;
             if cleaned.is_empty() && directories == 0 {

@@ -44,10 +44,10 @@ pub enum Command {
     Scenario {
         /// The sensor-selection scenario (25 bearing sensors a cell, at most
         /// 4 active per node and 18 in all) instead of the default.
-        #[arg(long, alias = "seed001", conflicts_with_all = ["random_exchange", "location", "compressive"])]
+        #[arg(long, conflicts_with_all = ["random_exchange", "location", "compressive"])]
         sensor_selection: bool,
         /// The random-exchange network of 25 RSS nodes instead of the default.
-        #[arg(long, alias = "seed004", conflicts_with_all = ["location", "compressive"])]
+        #[arg(long, conflicts_with_all = ["location", "compressive"])]
         random_exchange: bool,
         /// A static target located by 4 nodes from 64 amplitude sensors'
         /// quantized reports instead of the default.
@@ -58,6 +58,14 @@ pub enum Command {
         /// default.
         #[arg(long)]
         compressive: bool,
+        /// A flag the sensor-selection scenario went by once: refused,
+        /// naming `--sensor-selection`.
+        #[arg(long = "seed001", hide = true)]
+        former_seed001: bool,
+        /// A flag the random-exchange scenario went by once: refused,
+        /// naming `--random-exchange`.
+        #[arg(long = "seed004", hide = true)]
+        former_seed004: bool,
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]

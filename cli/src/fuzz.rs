@@ -30,13 +30,13 @@ use fusion_graph::scenario::{
     Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
 };
-use wire::{examples, seal, Message, WireFormat};
-use transport::world_memory::{TruthReader, TruthRing};
 use fusion_graph::Topology;
 use node::ProcessingNode;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sensor::SensorActor;
+use transport::world_memory::{TruthReader, TruthRing};
+use wire::{examples, seal, Message, WireFormat};
 
 /// What `cqnet fuzz` can aim at.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, clap::ValueEnum)]
@@ -502,10 +502,14 @@ impl Actors {
                 "filter.particles=64".to_string(),
                 format!("consensus.protocol=\"{protocol}\""),
             ];
-            let seed004 = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "seed004", &overrides)
-                .expect("the built-in random-exchange scenario");
-            let lattice = Topology::from_scenario(&seed004, "seed004").expect("its topology");
-            nodes.push(ProcessingNode::for_scenario(&seed004, &lattice, 12).expect("node-12"));
+            let random_exchange =
+                Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "random-exchange", &overrides)
+                    .expect("the built-in random-exchange scenario");
+            let lattice =
+                Topology::from_scenario(&random_exchange, "random-exchange").expect("its topology");
+            nodes.push(
+                ProcessingNode::for_scenario(&random_exchange, &lattice, 12).expect("node-12"),
+            );
         }
         let location = Scenario::from_toml(LOCATION_SCENARIO, "location", &[])
             .expect("the built-in location scenario");

@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 
 use fusion_graph::faults::{Fault, Kill, Signal};
 use fusion_graph::scenario::Scenario;
-use transport::iceoryx::run_resources;
 use fusion_graph::RunId;
 use fusion_graph::Topology;
+use transport::iceoryx::run_resources;
 
 /// One sample of the run's footprint.
 #[derive(Debug, Clone, Copy, PartialEq)]

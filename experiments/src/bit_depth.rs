@@ -14,11 +14,11 @@ use bounds::speb::{
     expected_information_over_prior, prior_positions, speb, RateLimitedLink, ReportingSensor, Speb,
 };
 use fusion_graph::scenario::Scenario;
-use wire::HEADER_BYTES;
 use fusion_graph::Topology;
 use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use wire::HEADER_BYTES;
 
 use super::paired::Paired;
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};

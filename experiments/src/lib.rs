@@ -484,7 +484,7 @@ pub enum Entry {
 /// The network experiment or computed one of that name, or an error that
 /// lists every name.
 pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
-    let name = by_figure(name);
+    refuse_former_name(name)?;
     if let Some(c) = computed_catalogue().into_iter().find(|c| c.name == name) {
         return Ok(Entry::Computed(c));
     }
@@ -501,21 +501,27 @@ pub fn catalogue() -> Vec<Experiment> {
     all
 }
 
-/// An experiment's name from a paper's seed and figure, as the papers'
-/// readers know them ("seed001-fig2"); any other name as it is.
-pub fn by_figure(name: &str) -> &str {
-    match name {
-        "seed000-fig1b" => "bound-aux-fim",
-        "seed000-fig1c" => "bound-against-bits",
-        "seed001-fig2" => "sensor-selection",
-        "seed004-fig1" => "random-exchange-trackers",
-        other => other,
+/// Names experiments once went by, a paper's number and figure, each with
+/// the name that says what it is.
+const FORMER_NAMES: [(&str, &str); 4] = [
+    ("seed000-fig1b", "bound-aux-fim"),
+    ("seed000-fig1c", "bound-against-bits"),
+    ("seed001-fig2", "sensor-selection"),
+    ("seed004-fig1", "random-exchange-trackers"),
+];
+
+/// A former name is refused rather than followed, so that scripts move to
+/// the name that says what the experiment is; the error names it.
+fn refuse_former_name(name: &str) -> anyhow::Result<()> {
+    match FORMER_NAMES.iter().find(|(former, _)| *former == name) {
+        Some((former, now)) => anyhow::bail!("the experiment `{former}` is now called `{now}`"),
+        None => Ok(()),
     }
 }
 
 /// The experiment of that name, or an error that lists the names.
 pub fn find(name: &str) -> anyhow::Result<Experiment> {
-    let name = by_figure(name);
+    refuse_former_name(name)?;
     let mut all = catalogue();
     match all.iter().position(|e| e.name == name) {
         Some(i) => Ok(all.swap_remove(i)),

@@ -8,12 +8,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use bounds::diffusion::MonteCarloSize;
-use transport::accounting::Accounting;
 use fusion_graph::scenario::{Scenario, RANDOM_EXCHANGE_SCENARIO};
 use fusion_graph::RunId;
-use wire::MessageKind;
 use fusion_graph::{ActorId, Topology};
 use plotters::prelude::*;
+use transport::accounting::Accounting;
+use wire::MessageKind;
 
 use super::diagnostics::run_ticks;
 use super::paired::{Order, Paired};

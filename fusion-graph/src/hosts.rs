@@ -15,12 +15,12 @@
 
 use serde::{Deserialize, Serialize};
 
-use wire::ActorId;
 use crate::channel::{Channel, RunId};
 use crate::registered::Shape;
 use crate::scenario::Scenario;
 use crate::topology::Topology;
 use crate::ScenarioError;
+use wire::ActorId;
 
 pub use crate::scenario::{HostConfig, HostLink};
 

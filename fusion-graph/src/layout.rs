@@ -3,12 +3,12 @@
 //! nearest node), the fusion graph within a radius; and the checks that
 //! the faults and hosts name actors of that network.
 
-use wire::ActorId;
 use crate::check::Check;
 use crate::hosts::Placement;
 use crate::scenario::Scenario;
 use crate::topology::{dist2, Topology};
 use crate::ScenarioError;
+use wire::ActorId;
 
 impl Topology {
     /// Builds the topology and checks the fusion graph and the fault

@@ -10,11 +10,11 @@ use bounds::{CoordinatedTurn, Dynamics, Gaussian, Mat4, ParameterError, Quantize
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use wire::ActorId;
 use crate::scenario::{Scenario, TargetStart};
 use crate::topology::Topology;
 use crate::wire::WireFormat;
 use crate::ScenarioError;
+use wire::ActorId;
 
 /// The models of a scenario, built from its values by the `bounds`
 /// constructors.

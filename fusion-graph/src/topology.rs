@@ -4,10 +4,10 @@
 
 use std::collections::VecDeque;
 
-use wire::ActorId;
 use crate::channel::Channel;
 #[cfg(test)]
 use crate::scenario::Scenario;
+use wire::ActorId;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Topology {
@@ -333,7 +333,7 @@ mod tests {
     /// The random-exchange paper: every node senses and processes, so each node's one
     /// sensor stands where the node does, and the graph is the 4-lattice.
     #[test]
-    fn seed004_puts_one_sensor_on_each_node_of_a_lattice() {
+    fn the_random_exchange_scenario_puts_one_sensor_on_each_node_of_a_lattice() {
         let s = Scenario::from_toml(
             crate::scenario::RANDOM_EXCHANGE_SCENARIO,
             "random-exchange.toml",

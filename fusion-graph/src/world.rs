@@ -31,4 +31,3 @@ impl WorldView for StillTarget {
         Ok(self.0)
     }
 }
-

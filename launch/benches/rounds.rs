@@ -15,12 +15,12 @@ use std::path::PathBuf;
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use transport::iceoryx::remove_run_resources;
-use transport::{Channel, IceoryxTransport, RunId, Transport};
-use wire::{ConsensusValues, Message, Payload, WireFormat};
 use fusion_graph::{ActorId, Scenario, Topology};
 use launch::actor_process::wait_as_a_node;
 use launch::results::own_cpu_seconds;
+use transport::iceoryx::remove_run_resources;
+use transport::{Channel, IceoryxTransport, RunId, Transport};
+use wire::{ConsensusValues, Message, Payload, WireFormat};
 
 const RUN: &str = "CQNET_ROUNDS_RUN";
 const NODE: &str = "CQNET_ROUNDS_NODE";

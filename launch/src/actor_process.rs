@@ -9,13 +9,13 @@ use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::hosts::Placement;
 use fusion_graph::scenario::ClockMode;
-use transport::iceoryx::map_run_memory;
-use transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
-use wire::{Control, Message, Payload};
-use transport::world_memory::TruthReader;
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::{ProcessingNode, Work};
 use sensor::SensorActor;
+use transport::iceoryx::map_run_memory;
+use transport::world_memory::TruthReader;
+use transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
+use wire::{Control, Message, Payload};
 
 use crate::drive::{run_pending_work_with, sensor_handles};
 use crate::results::write_atomically;

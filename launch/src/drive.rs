@@ -6,9 +6,9 @@ use std::time::Instant;
 
 use fusion_graph::world::WorldView;
 use fusion_graph::{ActorId, Message};
-use transport::{SendError, Transport};
 use node::{Outgoing, ProcessingNode, Work};
 use sensor::SensorActor;
+use transport::{SendError, Transport};
 
 /// Runs the node's pending stages, each timed by the wall clock and
 /// reported at the transport's time when it finished, and sends what each
@@ -77,10 +77,10 @@ pub fn sensor_handles<T: Transport + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fusion_graph::{Scenario, Topology};
+    use transport::world_memory::TruthRing;
     use transport::{Channel, MemoryBus, MemoryTransport};
     use wire::{BitMask, Payload};
-    use transport::world_memory::TruthRing;
-    use fusion_graph::{Scenario, Topology};
 
     /// An activation for a step the world holds is answered; one for a step
     /// it does not hold is counted as a failed read and answered with

@@ -5,9 +5,9 @@
 
 use anyhow::bail;
 use fusion_graph::registered::Shape;
-use transport::limits::Footprint;
 use fusion_graph::{Scenario, Topology};
 use nix::sys::resource::{getrlimit, setrlimit, Resource};
+use transport::limits::Footprint;
 
 /// Bytes a particle costs in one particle filter: particles, scratch,
 /// weights, uniform weights and log-likelihoods (`node::filter`).

@@ -6,9 +6,9 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use serde::Serialize;
 use transport::accounting::Accounting;
 use wire::{MessageKind, Telemetry};
-use serde::Serialize;
 
 pub use crate::summary::{
     steps_to_recover, window_rmse, BoundTraffic, Estimates, StepMeans, Traffic,

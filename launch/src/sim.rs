@@ -10,18 +10,18 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use bounds::State;
-use transport::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::Scenario;
-use transport::{Channel, MemoryBus, MemoryTransport, Transport};
-use wire::{Message, Payload, Telemetry};
-use transport::world_memory::{TruthReader, TruthRing, WORLD_STEPS};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
 use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
 use sensor::mac::MacActor;
 use sensor::SensorActor;
+use transport::accounting::Accounting;
+use transport::world_memory::{TruthReader, TruthRing, WORLD_STEPS};
+use transport::{Channel, MemoryBus, MemoryTransport, Transport};
+use wire::{Message, Payload, Telemetry};
 
 use crate::drive::{run_pending_work, sensor_handles};
 use crate::results::{Recorder, ResultsWriter, RunFacts, TickRow};
@@ -286,8 +286,12 @@ impl InProcessNetwork {
     /// step's (`FaultSchedule::follow_link_faults`), as they do there.
     fn apply_link_faults(&mut self, step: u32) {
         for n in &mut self.nodes {
-            self.schedule
-                .apply_link_faults(step, n.transport.me(), n.transport.shaper(), &self.topology);
+            self.schedule.apply_link_faults(
+                step,
+                n.transport.me(),
+                n.transport.shaper(),
+                &self.topology,
+            );
         }
     }
 

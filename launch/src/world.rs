@@ -4,12 +4,12 @@
 
 use bounds::{Dynamics, State};
 use fusion_graph::scenario::{Motion, Scenario};
+use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream};
+use rand_chacha::ChaCha8Rng;
+use transport::world_memory::TruthRing;
+use transport::SendError;
 use transport::{Channel, Transport};
 use wire::{BitMask, Control, Message, Payload};
-use transport::world_memory::TruthRing;
-use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream};
-use transport::SendError;
-use rand_chacha::ChaCha8Rng;
 
 pub struct World {
     /// `None`: the target stays where it starts.

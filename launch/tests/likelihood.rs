@@ -2,11 +2,11 @@
 //! log-likelihood of many quantized bearings peaks at the true state.
 
 use bounds::State;
-use wire::{BitMask, Message, Payload};
 use fusion_graph::world::StillTarget;
 use fusion_graph::{ActorId, Scenario, Topology};
 use node::{Observation, ObservedValue, SensingModel};
 use sensor::SensorActor;
+use wire::{BitMask, Message, Payload};
 
 #[test]
 fn summed_log_likelihood_peaks_at_the_truth() {

@@ -4,12 +4,12 @@
 
 use std::path::PathBuf;
 
-use transport::accounting::Accounting;
-use wire::{encoded_len, MessageKind};
 use fusion_graph::{Scenario, Topology};
 use launch::results::ResultsWriter;
 use launch::sim::run_in_process;
 use launch::summary::Summary;
+use transport::accounting::Accounting;
+use wire::{encoded_len, MessageKind};
 
 fn out_dir(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("sim-{name}-{}", std::process::id()))
@@ -218,11 +218,11 @@ fn the_closest_manager_activates_the_capped_set_every_step() {
     let o = vec!["sensors.manager=closest".to_string(), "steps=8".to_string()];
     let s = Scenario::from_toml(
         fusion_graph::scenario::SENSOR_SELECTION_SCENARIO,
-        "seed001",
+        "sensor-selection",
         &o,
     )
     .unwrap();
-    let t = Topology::from_scenario(&s, "seed001").unwrap();
+    let t = Topology::from_scenario(&s, "sensor-selection").unwrap();
     let dir = out_dir("closest");
     let mut w = ResultsWriter::create(&dir).unwrap();
     run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
@@ -249,11 +249,11 @@ fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     let o = vec!["steps=4".to_string()];
     let s = Scenario::from_toml(
         fusion_graph::scenario::SENSOR_SELECTION_SCENARIO,
-        "seed001",
+        "sensor-selection",
         &o,
     )
     .unwrap();
-    let t = Topology::from_scenario(&s, "seed001").unwrap();
+    let t = Topology::from_scenario(&s, "sensor-selection").unwrap();
     let dir = out_dir("pcrlb");
     let mut w = ResultsWriter::create(&dir).unwrap();
     let summary = run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();

@@ -18,8 +18,8 @@ use bounds::{BoundError, State};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::Channel;
-use wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
+use wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
 
 use crate::censoring::NodeCensoring;
 use crate::collector::{Collected, Collector, Lagging, Offer, SensorAnswers};

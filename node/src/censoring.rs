@@ -4,8 +4,8 @@
 
 use bounds::censoring::{CensoringRule, Feedback, Innovation, NisCensor};
 use fusion_graph::scenario::{CensoringPolicy, FeedbackKind, Scenario};
-use wire::{BitMask, Payload};
 use fusion_graph::{ScenarioError, Topology};
+use wire::{BitMask, Payload};
 
 use crate::estimator::{Censored, SensingModel};
 use crate::filter::Gaussian;

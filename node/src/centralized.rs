@@ -4,8 +4,8 @@
 
 use bounds::BoundError;
 use fusion_graph::scenario::Scenario;
-use wire::{Message, Payload};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
+use wire::{Message, Payload};
 
 use crate::estimator::{LocalFilter, LocalUpdate, Observation, ObservedValue, SensingModel};
 use crate::NodeError;

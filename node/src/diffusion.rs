@@ -132,11 +132,11 @@ mod tests {
     fn one_step_from_a_gaussian_is_the_kalman_update() {
         let s = Scenario::from_toml(
             fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
-            "seed004",
+            "random-exchange",
             &["observation={kind=\"linear\", h=[1.0, 0.0, 0.0, 0.0], r=4.0}".into()],
         )
         .unwrap();
-        let t = Topology::from_scenario(&s, "seed004").unwrap();
+        let t = Topology::from_scenario(&s, "random-exchange").unwrap();
         let model = SensingModel::from_scenario(&s, &t).unwrap();
         let from = Gaussian {
             mean: State::new(50.0, 50.0, 1.0, 0.0),
@@ -176,14 +176,14 @@ mod tests {
     /// 1/25, coasts well; the paper's ordering is for Fig. 1's experiment,
     /// not built yet, to test.)
     #[test]
-    fn the_trackers_track_the_seed004_target() {
+    fn the_trackers_track_the_random_exchange_target() {
         let s = Scenario::from_toml(
             fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
-            "seed004",
+            "random-exchange",
             &[],
         )
         .unwrap();
-        let t = Topology::from_scenario(&s, "seed004").unwrap();
+        let t = Topology::from_scenario(&s, "random-exchange").unwrap();
         let models = s.models().unwrap();
         let model = SensingModel::new(&models, &t);
         let prior = s.network_prior(&models);
@@ -195,9 +195,7 @@ mod tests {
                     .collect()
             })
             .collect();
-        let deliver = |_: u16, _: u16, _: &wire::Payload| {
-            Fate::Deliver(Duration::from_micros(200))
-        };
+        let deliver = |_: u16, _: u16, _: &wire::Payload| Fate::Deliver(Duration::from_micros(200));
         let attempt = Duration::from_millis(20);
 
         #[derive(Clone, Copy, PartialEq, Debug)]

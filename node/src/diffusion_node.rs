@@ -18,9 +18,9 @@ use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
-use wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use rand_chacha::ChaCha8Rng;
+use wire::{Control, Message, Payload, Telemetry};
 
 use crate::collector::{Collector, Offer, SensorAnswers};
 use crate::diffusion::DiffusionTracker;
@@ -777,7 +777,7 @@ mod tests {
     ];
 
     fn lattice(protocol: &str) -> Net {
-        Net::seed004_with(&[
+        Net::random_exchange_with(&[
             &format!("consensus.protocol=\"{protocol}\""),
             "filter.particles=200",
         ])

@@ -6,8 +6,8 @@
 use std::time::Duration;
 
 use bounds::State;
-use wire::{BitMask, Control, Message, Payload, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
+use wire::{BitMask, Control, Message, Payload, Telemetry};
 
 use crate::{Outgoing, ProcessingNode, SensingModel};
 
@@ -90,7 +90,7 @@ impl Net {
     }
 
     /// The random-exchange paper's lattice of 25 nodes, with overrides.
-    pub fn seed004_with(overrides: &[&str]) -> Self {
+    pub fn random_exchange_with(overrides: &[&str]) -> Self {
         Self::of(fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO, overrides)
     }
 

@@ -62,9 +62,9 @@ pub use mac_centre::MacCentre;
 pub use processing::ProcessingNode;
 pub use work::Work;
 
+use fusion_graph::ActorId;
 use fusion_graph::Channel;
 use wire::Message;
-use fusion_graph::ActorId;
 
 /// A message to publish.
 #[derive(Debug, Clone, PartialEq)]

@@ -26,8 +26,8 @@ use std::time::Duration;
 use bounds::Quantizer;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
-use wire::{Control, Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
+use wire::{Control, Message, Payload, Telemetry};
 
 use crate::collector::{Collector, Offer, SensorAnswers};
 use crate::estimator::ObservedValue;

@@ -30,10 +30,10 @@ use bounds::compressive::{
 use bounds::{Mat4, ObservationModel, State};
 use fusion_graph::scenario::{MacConfig, MacDesign, Scenario};
 use fusion_graph::Channel;
-use wire::{Control, Message, Payload, SlotColumn, Telemetry};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use nalgebra::Cholesky;
 use rand_chacha::ChaCha8Rng;
+use wire::{Control, Message, Payload, SlotColumn, Telemetry};
 
 use crate::filter::ParticleFilter;
 use crate::{wiring, NodeError, Outgoing, Work};

@@ -7,8 +7,8 @@
 use std::time::Duration;
 
 use fusion_graph::Channel;
-use wire::Message;
 use fusion_graph::{ActorId, Scenario, Topology};
+use wire::Message;
 
 use crate::diffusion_node::DiffusionNode;
 use crate::{LocatorNode, MacCentre, NodeActor, NodeError, Outgoing, Work};

@@ -14,9 +14,9 @@ use std::collections::BTreeMap;
 use std::sync::{LazyLock, RwLock};
 use std::time::Duration;
 
-use wire::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
 use fusion_graph::registered::{self, Role, Shape};
 use fusion_graph::{Scenario, Topology};
+use wire::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
 
 use crate::diffusion_node::Cooperation;
 use crate::fusion::{average_consensus, InformationFusion};

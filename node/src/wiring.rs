@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use bounds::State;
 use fusion_graph::Channel;
-use wire::{BitMask, Message, Payload, Telemetry};
 use fusion_graph::{ActorId, Topology};
+use wire::{BitMask, Message, Payload, Telemetry};
 
 use crate::Outgoing;
 

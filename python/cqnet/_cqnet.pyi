@@ -28,7 +28,7 @@ class Scenario:
     def default() -> "Scenario": ...
     @staticmethod
     def builtin(name: str) -> "Scenario":
-        """"default", "seed001" ("sensor-selection"), "seed004" ("random-exchange") or "location"."""
+        """"default", "sensor-selection", "random-exchange", "location" or "compressive"."""
     @staticmethod
     def from_file(path: _Path) -> "Scenario": ...
     @staticmethod

@@ -10,11 +10,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 
-use pyo3::exceptions::PyRuntimeError;
-use pyo3::prelude::*;
 use launch::network::RunProgress;
 use launch::progress::step_message;
 use launch::results::{write_atomically, ResultsWriter};
+use pyo3::exceptions::PyRuntimeError;
+use pyo3::prelude::*;
 
 use crate::scenario::PyScenario;
 use crate::to_py_err;

@@ -20,12 +20,12 @@ use crate::scenario_error;
 const BUILTIN: [(&str, &str, &str); 5] = [
     ("default", "<built-in default>", DEFAULT_SCENARIO),
     (
-        "seed001",
+        "sensor-selection",
         "<built-in sensor-selection>",
         SENSOR_SELECTION_SCENARIO,
     ),
     (
-        "seed004",
+        "random-exchange",
         "<built-in random-exchange>",
         RANDOM_EXCHANGE_SCENARIO,
     ),
@@ -37,14 +37,12 @@ const BUILTIN: [(&str, &str, &str); 5] = [
     ),
 ];
 
-/// Other names of the built-in scenarios: the file each comes from.
-fn builtin_alias(name: &str) -> &str {
-    match name {
-        "sensor-selection" => "seed001",
-        "random-exchange" => "seed004",
-        other => other,
-    }
-}
+/// Names built-in scenarios once went by, each with the name that says
+/// what it is. They are refused, naming the new one, not followed.
+const FORMER_NAMES: [(&str, &str); 2] = [
+    ("seed001", "sensor-selection"),
+    ("seed004", "random-exchange"),
+];
 
 /// A scenario, validated as `cqnet` validates a file: every key checked,
 /// the topology built. Change values with `set`, which checks them as
@@ -113,18 +111,28 @@ impl PyScenario {
         Self::builtin("default")
     }
 
-    /// A scenario cqnet carries: "default", "seed001" (the sensor-selection
-    /// paper's, also "sensor-selection"), "seed004" (the random-exchange
-    /// paper's RSS network, also "random-exchange"), "location" (a static
-    /// target located from quantized amplitudes) or "compressive" (a fusion
-    /// centre hearing its sensors through a multiple-access channel).
+    /// A scenario cqnet carries: "default", "sensor-selection" (25 bearing
+    /// sensors a cell with PCRLB-based selection), "random-exchange" (a
+    /// lattice of 25 RSS nodes for the random-exchange and KL trackers),
+    /// "location" (a static target located from quantized amplitudes) or
+    /// "compressive" (a fusion centre hearing its sensors through a
+    /// multiple-access channel).
     #[staticmethod]
     fn builtin(name: &str) -> PyResult<Self> {
-        let wanted = builtin_alias(name);
-        match BUILTIN.iter().find(|(n, _, _)| *n == wanted) {
+        if let Some((former, now)) = FORMER_NAMES.iter().find(|(former, _)| *former == name) {
+            return Err(PyValueError::new_err(format!(
+                "the built-in scenario `{former}` is now called `{now}`"
+            )));
+        }
+        match BUILTIN.iter().find(|(n, _, _)| *n == name) {
             Some((_, source, text)) => Self::parse(text, source, &[]),
             None => Err(PyValueError::new_err(format!(
-                "no built-in scenario `{name}`; there are: default, seed001 (sensor-selection), seed004 (random-exchange)"
+                "no built-in scenario `{name}`; there are: {}",
+                BUILTIN
+                    .iter()
+                    .map(|(n, _, _)| *n)
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ))),
         }
     }

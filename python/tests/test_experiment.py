@@ -10,7 +10,7 @@ def test_the_list_names_every_experiment():
 
 
 def test_a_network_experiment_gives_its_claims_and_data(tmp_out):
-    e = cqnet.experiment("seed000-fig1b", runs=2, steps=12, threads=2, out=tmp_out, progress=False)
+    e = cqnet.experiment("bound-aux-fim", runs=2, steps=12, threads=2, out=tmp_out, progress=False)
     assert e.name == "bound-aux-fim"
     assert e.verdict in ("holds", "does not hold", "not resolved")
     assert e.claims and all(c["runs"] == 2 for c in e.claims if c["mean_difference"] is not None)

@@ -6,13 +6,19 @@ import cqnet
 
 
 def test_builtins_load_and_round_trip_through_toml():
-    for name in ["default", "seed001", "sensor-selection", "seed004", "random-exchange", "location", "compressive"]:
+    for name in ["default", "sensor-selection", "random-exchange", "location", "compressive"]:
         s = cqnet.Scenario.builtin(name)
         assert cqnet.Scenario.from_toml(s.to_toml()) == s
     assert cqnet.Scenario.default().get("quantizer.bits") == 8
-    assert cqnet.Scenario.builtin("seed001").get("sensors.max_active_total") == 18
-    with pytest.raises(ValueError, match="seed001"):
-        cqnet.Scenario.builtin("seed999")
+    assert cqnet.Scenario.builtin("sensor-selection").get("sensors.max_active_total") == 18
+    with pytest.raises(ValueError, match="sensor-selection"):
+        cqnet.Scenario.builtin("no-such-scenario")
+
+
+def test_a_former_builtin_name_is_refused_naming_the_new_one():
+    for former, now in [("seed001", "sensor-selection"), ("seed004", "random-exchange")]:
+        with pytest.raises(ValueError, match=f"`{former}` is now called `{now}`"):
+            cqnet.Scenario.builtin(former)
 
 
 def test_set_changes_a_value_and_chains():

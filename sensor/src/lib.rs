@@ -23,11 +23,11 @@ use bounds::censoring::{CensoringRule, Feedback, NisCensor};
 use bounds::{Dynamics, ObservationModel, Quantizer, State};
 use fusion_graph::faults::{FaultSchedule, SensorFault};
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
-use fusion_graph::Channel;
-use wire::{unpack_mat4, Message, Payload};
 use fusion_graph::world::{TruthMissing, WorldView};
+use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand::Rng;
+use wire::{unpack_mat4, Message, Payload};
 
 #[derive(Debug, Clone)]
 pub struct SensorActor {

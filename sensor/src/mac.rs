@@ -18,9 +18,9 @@ use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
-use wire::{Message, Payload, MAX_SLOTS};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand_distr::{Distribution, StandardNormal};
+use wire::{Message, Payload, MAX_SLOTS};
 
 #[derive(Debug, Clone)]
 pub struct MacActor {

@@ -3,8 +3,8 @@
 
 use std::process::Command;
 
-use transport::iceoryx::remove_run_resources;
 use fusion_graph::RunId;
+use transport::iceoryx::remove_run_resources;
 
 /// Kills whatever process still carries the run id and removes the run's
 /// shared memory.

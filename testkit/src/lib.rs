@@ -65,18 +65,18 @@ mod separate_hosts;
 
 use std::sync::{Mutex, MutexGuard};
 
-pub use transport::accounting::{Accounting, Counters};
 pub use fusion_graph::faults::{
     BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector, Loss,
     Partition, Reorder, SensorMode, Signal,
 };
 pub use fusion_graph::scenario::Scenario;
-pub use wire::MessageKind;
 pub use fusion_graph::ActorId;
+pub use launch::summary::{AppliedFault, FaultCost, Summary};
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
 pub use results::{Run, Tick};
-pub use launch::summary::{AppliedFault, FaultCost, Summary};
 pub use separate_hosts::{SeparateHosts, AGENT_PORT};
+pub use transport::accounting::{Accounting, Counters};
+pub use wire::MessageKind;
 
 /// The `cqnet` program's `main`, for a binary of your own crate (see the
 /// crate's documentation).

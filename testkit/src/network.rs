@@ -10,8 +10,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use fusion_graph::scenario::{Fault, Scenario};
-use fusion_graph::RunId;
 use fusion_graph::ActorId;
+use fusion_graph::RunId;
 
 use crate::cleanup::{kill_and_clean, processes_matching};
 use crate::results::{read_ticks, Run};

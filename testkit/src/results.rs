@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::process::ExitStatus;
 use std::sync::OnceLock;
 
+use fusion_graph::ActorId;
+use fusion_graph::RunId;
+use launch::summary::{AppliedFault, FaultCost, Summary};
 use transport::accounting::{Accounting, Counters};
 use transport::iceoryx::run_resources;
-use fusion_graph::RunId;
 use wire::MessageKind;
-use fusion_graph::ActorId;
-use launch::summary::{AppliedFault, FaultCost, Summary};
 
 use crate::cleanup::{kill_and_clean, processes_with};
 

@@ -14,11 +14,11 @@ use std::time::Duration;
 use bounds::location::{exact_information, log_likelihood, AmplitudeLaw, DecayLaw};
 use bounds::Measurement;
 use cqnet_testkit::{exclusive, MessageKind, Network, Run, Scenario};
-use wire::{BitMask, Message, Payload};
 use fusion_graph::world::StillTarget;
 use fusion_graph::{ActorId, Topology};
 use node::location::{sensor_quantizer, Grid, ThresholdDesign};
 use sensor::SensorActor;
+use wire::{BitMask, Message, Payload};
 
 const CQNET: &str = env!("CARGO_BIN_EXE_cqnet-under-test");
 const STEPS: u32 = 4;

@@ -837,9 +837,9 @@ fn too_few_file_descriptors_are_refused_before_anything_starts() {
 #[test]
 fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     let _guard = exclusive();
-    let mut seed001 = sensor_selection_scenario();
-    seed001.steps = 30;
-    let mut running = Network::new(seed001)
+    let mut selection = sensor_selection_scenario();
+    selection.steps = 30;
+    let mut running = Network::new(selection)
         .executable(CQNET)
         .tag("select-kill")
         .lockstep()
@@ -871,4 +871,25 @@ fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
         }
     }
     r.assert_clean();
+}
+
+#[test]
+fn a_former_scenario_flag_is_refused_naming_the_new_one() {
+    for (former, now) in [
+        ("--seed001", "--sensor-selection"),
+        ("--seed004", "--random-exchange"),
+    ] {
+        let out = std::process::Command::new(CQNET)
+            .args(["scenario", former])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "`cqnet scenario {former}` succeeded");
+        assert!(stderr.contains(former) && stderr.contains(now), "{stderr}");
+        let out = std::process::Command::new(CQNET)
+            .args(["scenario", now])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "`cqnet scenario {now}` failed");
+    }
 }

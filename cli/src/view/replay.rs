@@ -10,10 +10,10 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::Context;
-use transport::accounting::Accounting;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Fault;
 use fusion_graph::Topology;
+use transport::accounting::Accounting;
 
 use launch::feed::{link_bytes_per_step, setup_event, step_event, Hub, NodeEstimate, ViewEvent};
 use launch::results::Tick;

@@ -23,8 +23,8 @@ mod neighbourhood_mean;
 pub use first_k::FirstK;
 pub use neighbourhood_mean::{NeighbourhoodMean, NeighbourhoodValue};
 
-use wire::MessageKind;
 use node::registry;
+use wire::MessageKind;
 
 /// Registers both parts and the protocol's payload, and returns the
 /// payload's message kind. Call it first in `main`, and in a test before

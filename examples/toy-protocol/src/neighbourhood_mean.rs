@@ -8,13 +8,13 @@
 
 use std::time::Duration;
 
-use wire::payloads::ProtocolPayload;
-use wire::{Packed, Payload};
 use fusion_graph::{MetropolisWeights, WireError};
 use node::fusion::{
     Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone,
 };
 use node::registry::{ParamError, Setup};
+use wire::payloads::ProtocolPayload;
+use wire::{Packed, Payload};
 
 /// One round's value on the wire: δη, δΛ and ΔL (24 numbers).
 #[derive(Debug, Clone, Copy, PartialEq)]

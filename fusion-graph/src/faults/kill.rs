@@ -5,9 +5,9 @@ use serde::{Deserialize, Serialize};
 
 use super::effects::{ProcessEvent, Signal};
 use super::kind::{FaultKind, Targets, Window};
-use wire::ActorId;
 use crate::check::Check;
 use crate::ScenarioError;
+use wire::ActorId;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

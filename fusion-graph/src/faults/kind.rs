@@ -1,9 +1,9 @@
 //! What every fault kind is asked: when it holds, whom it names, its
 //! checks, its summary line, and what it does.
 
-use wire::ActorId;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
+use wire::ActorId;
 
 use super::effects::{ProcessEvent, SensorFault};
 use crate::check::Check;

@@ -4,10 +4,10 @@
 
 use super::kind::{FaultKind, Targets, Window};
 use super::select::{check_links, link_targets, links_text, takes_link, LinkSelector};
-use wire::ActorId;
 use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
+use wire::ActorId;
 
 /// A fault on the links its selectors take, while its window holds.
 pub trait LinkFault {

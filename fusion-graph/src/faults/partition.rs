@@ -5,10 +5,10 @@ use serde::{Deserialize, Serialize};
 
 use super::kind::{FaultKind, Targets, Window};
 use super::select::matches;
-use wire::ActorId;
 use crate::check::Check;
 use crate::shaper::LinkRule;
 use crate::ScenarioError;
+use wire::ActorId;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -2,9 +2,9 @@
 //! on each receiver's incoming links, and which actors die or come back.
 //! Every actor can evaluate it itself, so link faults need no control traffic.
 
-use wire::ActorId;
 use crate::shaper::{LinkRule, LinkShaper};
 use crate::topology::Topology;
+use wire::ActorId;
 
 use super::effects::{ProcessEvent, SensorFault};
 use super::fault::Fault;

@@ -3,8 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use wire::ActorId;
 use crate::ScenarioError;
+use wire::ActorId;
 
 use super::kind::Targets;
 use crate::check::Check;

@@ -7,9 +7,9 @@ use serde::{Deserialize, Serialize};
 use super::effects::SensorFault;
 use super::kind::{FaultKind, Targets, Window};
 use super::select::{actor_word, in_share, matches};
-use wire::ActorId;
 use crate::check::Check;
 use crate::ScenarioError;
+use wire::ActorId;
 
 /// What a faulty sensor does instead of measuring honestly.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

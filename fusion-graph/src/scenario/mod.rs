@@ -566,7 +566,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn default_and_seed001_load() {
+    fn default_and_sensor_selection_load() {
         let d = Scenario::default_scenario();
         assert_eq!(d.quantizer.bits, 8);
         assert_eq!(d.filter.particles, 1000);
@@ -764,7 +764,7 @@ mod tests {
     /// The random-exchange paper's trackers have no sensor selection, censoring, auxiliary
     /// FIM or gate: asking for one is an error naming the key.
     #[test]
-    fn seed004_trackers_refuse_the_cf_dpf_parts_by_name() {
+    fn random_exchange_trackers_refuse_the_cf_dpf_parts_by_name() {
         for (set, key) in [
             ("sensors.manager=\"pcrlb\"", "sensors.manager"),
             ("sensors.max_active_total=5", "sensors.max_active_total"),

@@ -11,12 +11,12 @@
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
+use fusion_graph::{ActorId, Scenario, Topology};
+use iceoryx2::prelude::*;
 use transport::futex;
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
 use wire::{ConsensusValues, Message, Payload, WireFormat};
-use fusion_graph::{ActorId, Scenario, Topology};
-use iceoryx2::prelude::*;
 
 const ROLE: &str = "CQNET_ROUNDTRIP_ROLE";
 const RUN: &str = "CQNET_ROUNDTRIP_RUN";

@@ -2,10 +2,10 @@
 
 use std::collections::BTreeMap;
 
-use wire::ActorId;
 pub use crate::counters::{Counters, LinkKey};
 use crate::counters::{Links, Pair};
 use crate::ledger::{Ledger, LedgerCounts, LedgerError};
+use wire::ActorId;
 use wire::MessageKind;
 
 /// Counters per directed link and kind. An actor of a real network mirrors

@@ -12,11 +12,11 @@ use iceoryx2::prelude::*;
 
 use super::futex;
 use super::Channel;
-use wire::ActorId;
+use crate::{ReceiveError, SendError, SetupError, WaitError};
 use fusion_graph::channel::RunId;
 use fusion_graph::hosts::{actor_of_wake_id, Placement};
 use fusion_graph::topology::Topology;
-use crate::{ReceiveError, SendError, SetupError, WaitError};
+use wire::ActorId;
 
 use super::iceoryx::{listen, open_channel, publish, Pub, Sub};
 use super::limits::max_message_len;

@@ -21,14 +21,14 @@ pub use super::limits::QUEUE_DEPTH;
 use super::limits::{max_message_len, ChannelLimits};
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
-use wire::ActorId;
+use crate::ledger::Ledger;
+use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 use fusion_graph::channel::RunId;
 use fusion_graph::hosts::{wake_id, Placement};
-use crate::ledger::Ledger;
 use fusion_graph::shaper::LinkShaper;
 use fusion_graph::topology::Topology;
+use wire::ActorId;
 use wire::{Message, MessageKind, WireFormat};
-use crate::{BackendError, ReceiveError, SendError, SetupError, WaitError};
 
 pub(crate) use super::resources::RunResources;
 pub use super::resources::{
@@ -475,8 +475,8 @@ mod tests {
     //! The transport contract (`transport::contract`), run here with both
     //! ends in this process; `tests/iceoryx_processes.rs` runs the same
     //! checks across two processes.
-    use crate::contract::{self, FORMAT};
     use super::*;
+    use crate::contract::{self, FORMAT};
     use fusion_graph::scenario::Scenario;
 
     struct Pair {

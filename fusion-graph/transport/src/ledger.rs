@@ -32,8 +32,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use memmap2::MmapMut;
 
-use wire::ActorId;
 use crate::counters::{Counters, LinkKey, Links, Pair};
+use wire::ActorId;
 use wire::MessageKind;
 
 const MAGIC: u64 = u64::from_le_bytes(*b"CQLEDG02");

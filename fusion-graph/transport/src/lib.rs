@@ -13,17 +13,17 @@ pub mod counters;
 mod error;
 pub mod futex;
 pub mod iceoryx;
-pub mod limits;
 pub mod ledger;
+pub mod limits;
 pub mod memory;
 mod resources;
 mod wake;
 pub mod world_memory;
 
 pub use accounting::{Accounting, Counters};
+pub use bridge_ends::{BridgeInlet, BridgeOutlet};
 pub use error::{BackendError, ReceiveError, SendError, SetupError, TransportError, WaitError};
 pub use fusion_graph::channel::{Channel, RunId};
-pub use bridge_ends::{BridgeInlet, BridgeOutlet};
 pub use iceoryx::{DeadNodeSweep, IceoryxTransport};
 pub use memory::{MemoryBus, MemoryTransport};
 

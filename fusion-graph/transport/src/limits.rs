@@ -6,9 +6,9 @@
 //! (shared memory, files in it, the launcher's memory maps), so that a run
 //! too large for the machine is refused before anything starts.
 
-use wire::ActorId;
 use fusion_graph::hosts::{wake_id, Placement};
 use fusion_graph::topology::Topology;
+use wire::ActorId;
 use wire::HEADER_BYTES;
 
 use super::Channel;
@@ -298,7 +298,8 @@ mod tests {
 
     fn topology(overrides: &[&str]) -> Topology {
         let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
-        let s = Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, "t", &overrides).unwrap();
+        let s =
+            Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, "t", &overrides).unwrap();
         Topology::from_scenario(&s, "t").unwrap()
     }
 

@@ -9,10 +9,10 @@ use std::time::Duration;
 
 use super::{Channel, Inbound, Outbound, Transport};
 use crate::accounting::Accounting;
-use wire::ActorId;
-use fusion_graph::shaper::LinkShaper;
-use wire::{Message, WireFormat};
 use crate::{ReceiveError, SendError, SetupError, WaitError};
+use fusion_graph::shaper::LinkShaper;
+use wire::ActorId;
+use wire::{Message, WireFormat};
 
 /// The shared medium: who subscribes to what, and each actor's inbox.
 #[derive(Debug, Default)]
@@ -176,8 +176,8 @@ impl Transport for MemoryTransport {
 
 #[cfg(test)]
 mod tests {
-    use crate::contract::{self, FORMAT};
     use super::*;
+    use crate::contract::{self, FORMAT};
     use wire::MessageKind;
 
     fn pair() -> (MemoryTransport, MemoryTransport, Rc<RefCell<MemoryBus>>) {

@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use iceoryx2::prelude::*;
 
-use fusion_graph::channel::RunId;
 use crate::SetupError;
+use fusion_graph::channel::RunId;
 
 /// Where iceoryx2 keeps its files besides `/dev/shm`.
 /// Where iceoryx2 keeps a run's service and node files: on tmpfs beside the

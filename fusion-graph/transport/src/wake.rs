@@ -6,11 +6,11 @@ use iceoryx2::prelude::*;
 
 use super::futex;
 use super::Channel;
-use wire::ActorId;
+use crate::SetupError;
 use fusion_graph::channel::RunId;
 use fusion_graph::hosts::Placement;
 use fusion_graph::topology::Topology;
-use crate::SetupError;
+use wire::ActorId;
 
 use super::limits::WakeLimits;
 use super::resources::{retry, setup, RunResources};

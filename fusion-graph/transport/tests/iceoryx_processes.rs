@@ -6,13 +6,11 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use fusion_graph::{ActorId, LinkRule, Scenario, Topology};
 use transport::accounting::Accounting;
-use transport::iceoryx::{
-    remove_run_resources, run_resources, sweep_abandoned_runs, RunLease,
-};
+use transport::iceoryx::{remove_run_resources, run_resources, sweep_abandoned_runs, RunLease};
 use transport::{Channel, IceoryxTransport, RunId, Transport};
 use wire::{Message, MessageKind, Payload, WireFormat};
-use fusion_graph::{ActorId, LinkRule, Scenario, Topology};
 
 const ROLE: &str = "CQNET_FG_CHILD_ROLE";
 const RUN: &str = "CQNET_FG_CHILD_RUN";

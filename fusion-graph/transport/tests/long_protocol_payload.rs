@@ -5,12 +5,12 @@
 
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use wire::payloads::{register, ProtocolPayload};
+use fusion_graph::{ActorId, Scenario, Topology, WireError};
 use transport::iceoryx::remove_run_resources;
 use transport::limits::ChannelLimits;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
+use wire::payloads::{register, ProtocolPayload};
 use wire::{Message, WireFormat, HEADER_BYTES};
-use fusion_graph::{ActorId, Scenario, Topology, WireError};
 
 /// 80 f64s: 640 bytes, twice the built-in consensus message.
 #[derive(Debug, Clone, PartialEq)]

@@ -41,4 +41,3 @@ pub enum WireError {
     #[error("a Fisher information with a negative diagonal")]
     NegativeInformation,
 }
-

@@ -17,8 +17,8 @@
 pub use crate::protocol_kinds::{ProtocolBody, ProtocolKind, RegisterError, PROTOCOL_KINDS};
 
 use crate::protocol_kinds;
-use crate::{Message, MessageKind, Payload, HEADER_BYTES, MAX_MESSAGE_BYTES};
 use crate::WireError;
+use crate::{Message, MessageKind, Payload, HEADER_BYTES, MAX_MESSAGE_BYTES};
 
 /// A protocol's message body: a fixed size, its own encoding, and a
 /// decoding that refuses whatever the protocol would not accept.
@@ -92,8 +92,8 @@ pub fn register<P: ProtocolPayload>() -> Result<ProtocolKind, RegisterError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{encoded_len, WireFormat};
     use crate::ActorId;
+    use crate::{encoded_len, WireFormat};
 
     /// A payload of the tests' own: one finite f64 and a flag byte.
     #[derive(Debug, Clone, Copy, PartialEq)]

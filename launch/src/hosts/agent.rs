@@ -10,12 +10,12 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use transport::accounting::read_ledger;
-use transport::accounting::Accounting;
 use fusion_graph::hosts::Placement;
-use transport::iceoryx::remove_run_resources;
 use fusion_graph::RunId;
 use fusion_graph::{ActorId, Scenario, Topology};
+use transport::accounting::read_ledger;
+use transport::accounting::Accounting;
+use transport::iceoryx::remove_run_resources;
 use zenoh::Wait;
 
 use super::bridge::{Bridge, HostWorld, Setting};

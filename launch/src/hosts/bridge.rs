@@ -21,10 +21,10 @@ use std::time::Duration;
 
 use anyhow::Context;
 use fusion_graph::hosts::{BridgeCounts, Placement};
-use transport::{BridgeInlet, BridgeOutlet, Channel, RunId};
-use transport::world_memory::TruthRing;
 use fusion_graph::{ActorId, Topology};
 use serde::{Deserialize, Serialize};
+use transport::world_memory::TruthRing;
+use transport::{BridgeInlet, BridgeOutlet, Channel, RunId};
 use zenoh::Wait;
 
 use super::{bridge_key, decode, encode};

@@ -14,10 +14,10 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use transport::accounting::Accounting;
 use fusion_graph::hosts::{BridgeCounts, Placement};
 use fusion_graph::Topology;
 use tokio::sync::mpsc::UnboundedReceiver;
+use transport::accounting::Accounting;
 use zenoh::Wait;
 
 use super::{command_key, decode, encode, event_key, open_session, put, FromAgent, ToAgent};

@@ -6,11 +6,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use fusion_graph::hosts::Placement;
+use fusion_graph::{ActorId, Topology};
 use transport::accounting::read_ledger;
 use transport::accounting::Accounting;
-use fusion_graph::hosts::Placement;
 use transport::ledger::LedgerError;
-use fusion_graph::{ActorId, Topology};
 
 use crate::actor_process::{ledger_path, memory_path};
 use crate::feed::{link_bytes_per_step, Hub, ViewEvent};

@@ -19,11 +19,11 @@ use anyhow::{bail, Context};
 use fusion_graph::hosts::Placement;
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{ClockMode, Scenario};
-use transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
-use transport::{Channel, IceoryxTransport, RunId, Transport};
-use transport::world_memory::TruthRing;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use tokio::sync::mpsc::UnboundedSender;
+use transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};
+use transport::world_memory::TruthRing;
+use transport::{Channel, IceoryxTransport, RunId, Transport};
 
 use crate::feed::{setup_event, ViewEvent};
 use crate::results::{write_atomically, Recorder, ResultsWriter, RunFacts};

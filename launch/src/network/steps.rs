@@ -7,10 +7,10 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::scenario::Scenario;
-use transport::{IceoryxTransport, Transport};
-use wire::{Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use node::CentralizedReference;
+use transport::{IceoryxTransport, Transport};
+use wire::{Message, Payload};
 
 use crate::feed::{step_event, Hub, NodeEstimate, ViewEvent};
 use crate::results::{Recorder, TickRow};

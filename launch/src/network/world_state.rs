@@ -6,13 +6,13 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
 use anyhow::bail;
-use transport::accounting::Accounting;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::scenario::Signal;
-use transport::{Channel, IceoryxTransport, Transport};
-use wire::{Control, Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use tokio::sync::mpsc::UnboundedSender;
+use transport::accounting::Accounting;
+use transport::{Channel, IceoryxTransport, Transport};
+use wire::{Control, Message, Payload};
 
 use crate::actor_process::stop_message;
 use crate::feed::{Hub, ViewEvent};

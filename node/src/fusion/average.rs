@@ -4,8 +4,8 @@
 
 use std::time::Duration;
 
-use wire::Payload;
 use fusion_graph::{MetropolisWeights, Topology};
+use wire::Payload;
 
 use super::information::InformationPieces;
 use super::rounds::weighted;

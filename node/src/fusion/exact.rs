@@ -9,8 +9,8 @@ use std::collections::BTreeMap;
 use std::rc::Rc;
 use std::time::Duration;
 
-use wire::Message;
 use fusion_graph::Topology;
+use wire::Message;
 
 use super::{Fused, FusionProtocol, Handled, InformationVector, RoundStats};
 use crate::Outgoing;

@@ -21,11 +21,11 @@ use std::time::Duration;
 use bounds::diffusion::EXCHANGE_ATTEMPTS;
 use bounds::Gaussian;
 use fusion_graph::Channel;
-use wire::{pack_mat4, unpack_mat4, GaussianMoments, Message, Payload};
 use fusion_graph::{ActorId, Topology};
 use rand::seq::IndexedRandom;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use wire::{pack_mat4, unpack_mat4, GaussianMoments, Message, Payload};
 
 use super::{FusionProtocol, Handled, RoundStats};
 use crate::Outgoing;
@@ -337,20 +337,20 @@ mod tests {
     use super::*;
     use crate::fusion::testing::{drive, Fate};
     use bounds::{Mat4, State};
-    use wire::MessageKind;
     use fusion_graph::Scenario;
     use rand::SeedableRng;
+    use wire::MessageKind;
 
     const ATTEMPT: Duration = Duration::from_millis(20);
 
     fn lattice() -> Topology {
         let s = Scenario::from_toml(
             fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
-            "seed004",
+            "random-exchange",
             &[],
         )
         .unwrap();
-        Topology::from_scenario(&s, "seed004").unwrap()
+        Topology::from_scenario(&s, "random-exchange").unwrap()
     }
 
     fn own(r: u16) -> Gaussian {

@@ -13,8 +13,8 @@
 use std::time::Duration;
 
 use bounds::{Gaussian, Mat4, State};
-use wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
 use fusion_graph::{MetropolisWeights, Topology};
+use wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
 
 use super::rounds::weighted;
 use super::{RoundEngine, RoundRule, RoundStats, RoundsDone};
@@ -139,11 +139,11 @@ mod tests {
     fn lattice() -> Topology {
         let s = Scenario::from_toml(
             fusion_graph::scenario::RANDOM_EXCHANGE_SCENARIO,
-            "seed004",
+            "random-exchange",
             &[],
         )
         .unwrap();
-        Topology::from_scenario(&s, "seed004").unwrap()
+        Topology::from_scenario(&s, "random-exchange").unwrap()
     }
 
     /// Node r's Gaussian: a different mean and spread at every node.

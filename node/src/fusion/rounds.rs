@@ -12,8 +12,8 @@
 use std::time::Duration;
 
 use fusion_graph::Channel;
-use wire::{Message, Payload};
 use fusion_graph::{ActorId, MetropolisWeights, Topology};
+use wire::{Message, Payload};
 
 use super::{FusionProtocol, Handled, RoundStats};
 use crate::Outgoing;

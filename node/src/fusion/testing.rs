@@ -5,8 +5,8 @@
 
 use std::time::Duration;
 
-use wire::{Message, Payload};
 use fusion_graph::ActorId;
+use wire::{Message, Payload};
 
 use super::FusionProtocol;
 

@@ -11,8 +11,8 @@
 
 use std::time::Duration;
 
-use wire::{Payload, LOCATION_CHUNK};
 use fusion_graph::{MetropolisWeights, Topology};
+use wire::{Payload, LOCATION_CHUNK};
 
 use super::rounds::weighted;
 use super::{RoundEngine, RoundRule, RoundStats, RoundsDone};

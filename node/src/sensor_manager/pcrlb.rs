@@ -41,10 +41,10 @@ use bounds::pcrlb::{dynamics_terms, information_update};
 use bounds::selection::{greedy, Candidate};
 use bounds::{BoundError, Mat4, State};
 use fusion_graph::Channel;
+use fusion_graph::{ActorId, Scenario, SpanningTree, Topology};
 use wire::{
     CandidateReport, ChosenSensors, Message, Payload, MAX_CHOSEN_PER_PIECE, MAX_REPORTED_CANDIDATES,
 };
-use fusion_graph::{ActorId, Scenario, SpanningTree, Topology};
 
 use crate::estimator::SensingModel;
 use crate::fusion::Handled;
