@@ -149,6 +149,10 @@ mod tests {
         assert_eq!(names.len(), count, "two kinds share a name");
         assert!(kinds.len() >= 23, "the built-in kinds are readable");
         assert_eq!(MessageKind::from_u8(0), None);
-        assert_eq!(MessageKind::from_u8(255), None, "malformed is never on the wire");
+        assert_eq!(
+            MessageKind::from_u8(255),
+            None,
+            "malformed is never on the wire"
+        );
     }
 }
