@@ -3,9 +3,9 @@
 //! channels of a run, link faults and the rule they add up to, which host
 //! runs which actor, and how an actor looks at the world.
 //!
-//! The wire format is the member crate [`wire`] (re-exported here), and the
-//! transports that move it are the member crate `transport`, which this
-//! crate does not know.
+//! The wire format is the member crate `wire` (its actor id and message
+//! types re-exported here), and the transports that move it are the member
+//! crate `transport`, which this crate does not know.
 
 pub mod channel;
 pub mod check;
@@ -19,7 +19,6 @@ pub mod shaper;
 pub mod topology;
 pub mod world;
 
-pub use ::wire;
 pub use channel::{Channel, RunId};
 pub use scenario::Scenario;
 pub use shaper::{LinkRule, LinkShaper};

@@ -12,9 +12,9 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::scenario::{Scenario, TargetStart};
 use crate::topology::Topology;
-use crate::wire::WireFormat;
 use crate::ScenarioError;
 use wire::ActorId;
+use wire::WireFormat;
 
 /// The models of a scenario, built from its values by the `bounds`
 /// constructors.

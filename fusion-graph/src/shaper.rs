@@ -164,7 +164,7 @@ impl LinkShaper {
         let Some(follow) = self.follow.as_mut() else {
             return;
         };
-        let Some(step) = crate::wire::peek_step(bytes) else {
+        let Some(step) = wire::peek_step(bytes) else {
             return;
         };
         if follow.step == Some(step) {
@@ -253,7 +253,7 @@ impl LinkShaper {
             };
             let mut b = bytes.to_vec();
             if !b.is_empty() && self.chance(rule.corrupt) {
-                tampering.corrupted_kind = crate::wire::peek_kind(&b);
+                tampering.corrupted_kind = wire::peek_kind(&b);
                 let bit = self.rng.random_range(0..b.len() * 8);
                 b[bit / 8] ^= 1 << (bit % 8);
             }
@@ -310,7 +310,7 @@ mod tests {
     /// rules: the link is cut at step 2 only, whatever came before.
     #[test]
     fn a_message_is_judged_by_the_rules_of_its_own_step() {
-        use crate::wire::{Message, Payload, WireFormat};
+        use wire::{Message, Payload, WireFormat};
         let node = ActorId::Node(0);
         let mut s = LinkShaper::new(1);
         let (tx, rx) = std::sync::mpsc::channel();
@@ -331,13 +331,8 @@ mod tests {
             activation_bytes: 4,
         };
         let of_step = |step| {
-            Message::new(
-                node,
-                step,
-                0,
-                Payload::Control(crate::wire::Control::BeginStep),
-            )
-            .to_bytes(&format)
+            Message::new(node, step, 0, Payload::Control(wire::Control::BeginStep))
+                .to_bytes(&format)
         };
         let t = Duration::ZERO;
         let fates: Vec<Admission> = [1, 2, 2, 3, 2]

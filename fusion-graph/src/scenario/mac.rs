@@ -114,8 +114,7 @@ impl Scenario {
         };
         // The schedule carries a column for each transmitter in one
         // message; with every sensor sending, each needs a slot.
-        let most = (crate::wire::MAX_MESSAGE_BYTES - crate::wire::HEADER_BYTES - 3)
-            / crate::wire::SLOT_COLUMN_BYTES;
+        let most = (wire::MAX_MESSAGE_BYTES - wire::HEADER_BYTES - 3) / wire::SLOT_COLUMN_BYTES;
         if sensors > most {
             return Err(check.fail(
                 "sensors",

@@ -102,12 +102,12 @@ impl Scenario {
             return invalid("reference.centralized", theirs.into(), "true".into());
         }
         let cells = 1usize << self.quantizer.bits.min(16);
-        if !self.quantizer.raw && cells - 1 > crate::wire::MAX_THRESHOLDS {
+        if !self.quantizer.raw && cells - 1 > wire::MAX_THRESHOLDS {
             return invalid(
                 "quantizer.bits",
                 format!(
                     "at most 4 with consensus.protocol = \"ml_location\" (its {} thresholds travel with each activation)",
-                    crate::wire::MAX_THRESHOLDS
+                    wire::MAX_THRESHOLDS
                 ),
                 self.quantizer.bits.to_string(),
             );
