@@ -7,6 +7,7 @@
 //! types re-exported here), and the transports that move it are the member
 //! crate `transport`, which this crate does not know.
 
+pub mod actor;
 pub mod channel;
 pub mod check;
 pub mod faults;
@@ -19,6 +20,7 @@ pub mod shaper;
 pub mod topology;
 pub mod world;
 
+pub use actor::{Actor, Outgoing};
 pub use channel::{Channel, RunId};
 pub use scenario::Scenario;
 pub use shaper::{LinkRule, LinkShaper};

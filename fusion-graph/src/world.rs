@@ -21,6 +21,12 @@ pub trait WorldView {
     fn truth(&self, step: u32) -> Result<State, TruthMissing>;
 }
 
+impl<W: WorldView + ?Sized> WorldView for std::rc::Rc<W> {
+    fn truth(&self, step: u32) -> Result<State, TruthMissing> {
+        (**self).truth(step)
+    }
+}
+
 /// A world in which the target stands still at one state: the truth of
 /// every step. For a sensor looked at on its own (tests, examples).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -10,14 +10,16 @@ use fusion_graph::faults::FaultSchedule;
 use fusion_graph::hosts::Placement;
 use fusion_graph::scenario::ClockMode;
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
-use node::{ProcessingNode, Work};
+use fusion_graph::Actor;
+use node::{processing_node, Start};
+use sensor::mac::MacActor;
 use sensor::SensorActor;
 use transport::iceoryx::map_run_memory;
 use transport::world_memory::TruthReader;
 use transport::{DeadNodeSweep, IceoryxTransport, RunId, Transport};
 use wire::{Control, Message, Payload};
 
-use crate::drive::{run_pending_work_with, sensor_handles};
+use crate::drive::{deliver, time_passes};
 use crate::results::write_atomically;
 
 /// Longest sleep between checks that the launcher is still there.
@@ -99,23 +101,39 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
     if let Some(p) = Placement::from_scenario(&scenario, &topology, "", args.centralized)? {
         transport.place_on(&p, p.host_of(actor));
     }
+    let schedule = FaultSchedule::new(&scenario.faults);
     match actor {
         ActorId::Sensor(i) => {
             let world = TruthReader::open(&run).with_context(|| {
                 format!("{actor} cannot see the world (the run's truth in shared memory)")
             })?;
-            let sensor = SensorRun {
-                index: i,
-                centralized: args.centralized,
-                world,
-            };
-            sensor_loop(&scenario, &topology, transport, sensor, &out)
+            let sensor = SensorActor::new(&scenario, &topology, i)?.in_world(world, args.centralized);
+            schedule.follow_link_faults(transport.me(), transport.shaper(), &topology);
+            let pace = Pace::at_rest(SENSOR_IDLE_WAIT);
+            actor_loop(sensor, transport, &pace, &out)
+        }
+        ActorId::Mac(i) => {
+            let mac = MacActor::new(&scenario, &topology, i)?
+                .context("a channel actor in a scenario without a [channel]")?;
+            schedule.follow_link_faults(transport.me(), transport.shaper(), &topology);
+            actor_loop(mac, transport, &Pace::at_rest(IDLE_WAIT), &out)
         }
         ActorId::Node(i) => {
             share_table_rows(&run);
-            node_loop(&scenario, &topology, transport, i, &out, args.rejoin)
+            let start = Start {
+                rejoin: args.rejoin,
+                step_period: (scenario.clock.mode == ClockMode::Realtime)
+                    .then(|| Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3)),
+            };
+            let node = processing_node(&scenario, &topology, i, start)?;
+            let pace = Pace {
+                idle: IDLE_WAIT,
+                spin: SPIN_BEFORE_SLEEP,
+                give_way: topology.neighbours[i as usize].len(),
+                faults: Some((schedule, topology.clone())),
+            };
+            actor_loop(node, transport, &pace, &out)
         }
-        ActorId::Mac(i) => mac_loop(&scenario, &topology, transport, i, &out),
         ActorId::Launcher => unreachable!("checked above"),
     }
 }
@@ -244,123 +262,52 @@ pub fn read_cpu_per_step(out: &Path, actor: ActorId) -> Option<f64> {
     (steps > 0).then(|| micros as f64 / 1e6 / steps as f64)
 }
 
-/// Which sensor a process runs, and what it needs beside the scenario.
-struct SensorRun {
-    index: u16,
-    /// Its observations also go to the launcher's centralized reference.
-    centralized: bool,
-    /// Where it looks at the target.
-    world: TruthReader,
+/// How an actor of one kind waits in its process, and what its driver
+/// does for it besides handing it messages.
+struct Pace {
+    /// Its longest sleep: between checks that the launcher is still there.
+    idle: Duration,
+    /// How long it polls for a wake-up before it sleeps, while a message is
+    /// due within its step ([`SPIN_BEFORE_SLEEP`] for a node, none else).
+    spin: Duration,
+    /// How many times it gives its core away before a stage it asks to
+    /// give way for: a node, once per neighbour, before its fusion filter.
+    /// Its own rounds are over, but its neighbours may still be in their
+    /// last ones, runnable on the same core and waiting for each other;
+    /// those rounds are on every node's way to the step's end, the fusion
+    /// filter (tens of microseconds) only on this node's report.
+    /// Alternately on two cores, it took the round p50 of `cqnet run
+    /// --lockstep --no-central` from 58–65 µs to 41–45 (a single yield:
+    /// 46–53; CPU and steps per second not resolved); yielding before the
+    /// local filter as well did not help.
+    give_way: usize,
+    /// A node's links take the faults of the step each `BeginStep` begins.
+    /// (Sensors and channels follow each message's own step's faults,
+    /// set up once before the loop.)
+    faults: Option<(FaultSchedule, Topology)>,
 }
 
-fn sensor_loop<T: Transport>(
-    scenario: &Scenario,
-    topology: &Topology,
+impl Pace {
+    /// An actor woken by its messages alone, which never polls.
+    fn at_rest(idle: Duration) -> Self {
+        Self {
+            idle,
+            spin: Duration::ZERO,
+            give_way: 0,
+            faults: None,
+        }
+    }
+}
+
+/// The one loop of every actor process: wait for a wake-up or the actor's
+/// next timeout, hand it each message and the passing of time, run its
+/// work, send what it emitted; until the launcher's stop.
+fn actor_loop<A: Actor, T: Transport>(
+    mut actor: A,
     mut t: T,
-    run: SensorRun,
+    pace: &Pace,
     out: &Path,
 ) -> anyhow::Result<()> {
-    let mut actor = SensorActor::new(scenario, topology, run.index)?;
-    t.publish_on(actor.publication())?;
-    for c in actor.subscriptions() {
-        t.subscribe(c)?;
-    }
-    t.notify(actor.reports_to())?;
-    let receivers: Vec<ActorId> = if run.centralized {
-        t.notify(ActorId::Launcher)?;
-        vec![actor.reports_to(), ActorId::Launcher]
-    } else {
-        vec![actor.reports_to()]
-    };
-    FaultSchedule::new(&scenario.faults).follow_link_faults(t.me(), t.shaper(), topology);
-    announce_ready();
-    let mut inbox = Vec::new();
-    loop {
-        t.wait(SENSOR_IDLE_WAIT)?;
-        inbox.clear();
-        let now = t.now();
-        t.receive(now, &mut inbox)?;
-        for m in inbox.drain(..) {
-            if is_stop(&m) {
-                return write_memory(t.me(), out);
-            }
-            sensor_handles(&mut actor, &mut t, &m, &run.world, &receivers)?;
-        }
-        if launcher_gone() {
-            return Ok(());
-        }
-    }
-}
-
-/// The launcher's stop, on its lifecycle channel.
-fn is_stop(m: &Message) -> bool {
-    matches!(
-        (&m.payload, m.header.sender),
-        (Payload::Control(Control::Stop), ActorId::Launcher)
-    )
-}
-
-/// A multiple-access channel: woken by its centre's schedule and its
-/// sensors' transmissions, it delivers each step's slots to the centre
-/// when they end.
-fn mac_loop<T: Transport>(
-    scenario: &Scenario,
-    topology: &Topology,
-    mut t: T,
-    index: u16,
-    out: &Path,
-) -> anyhow::Result<()> {
-    let mut actor = sensor::mac::MacActor::new(scenario, topology, index)?
-        .context("a channel actor in a scenario without a [channel]")?;
-    t.publish_on(actor.publication())?;
-    for c in actor.subscriptions() {
-        t.subscribe(c)?;
-    }
-    t.notify(actor.centre())?;
-    FaultSchedule::new(&scenario.faults).follow_link_faults(t.me(), t.shaper(), topology);
-    announce_ready();
-    let mut inbox = Vec::new();
-    loop {
-        let now = t.now();
-        match actor.poll_timeout() {
-            Some(due) => t.wait(due.saturating_sub(now).min(IDLE_WAIT))?,
-            None => t.wait(IDLE_WAIT)?,
-        }
-        inbox.clear();
-        let now = t.now();
-        t.receive(now, &mut inbox)?;
-        for m in inbox.drain(..) {
-            if is_stop(&m) {
-                return write_memory(t.me(), out);
-            }
-            if let Some(z) = actor.handle(&m, t.now()) {
-                t.send(actor.publication(), &z, &[actor.centre()])?;
-            }
-        }
-        if let Some(z) = actor.handle_timeout(t.now()) {
-            t.send(actor.publication(), &z, &[actor.centre()])?;
-        }
-        if launcher_gone() {
-            return Ok(());
-        }
-    }
-}
-
-fn node_loop<T: Transport>(
-    scenario: &Scenario,
-    topology: &Topology,
-    mut t: T,
-    index: u16,
-    out: &Path,
-    rejoin: bool,
-) -> anyhow::Result<()> {
-    let mut actor = ProcessingNode::for_scenario(scenario, topology, index)?;
-    if rejoin {
-        actor.expect_rejoin();
-    }
-    if scenario.clock.mode == ClockMode::Realtime {
-        actor.bound_steps_by(Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3));
-    }
     for c in actor.publications() {
         t.publish_on(c)?;
     }
@@ -370,20 +317,20 @@ fn node_loop<T: Transport>(
     for p in actor.peers() {
         t.notify(p)?;
     }
-    let schedule = FaultSchedule::new(&scenario.faults);
-    let give_way = yield_before_fusion(topology.neighbours[index as usize].len());
     announce_ready();
+    let give_way = || {
+        for _ in 0..pace.give_way {
+            std::thread::yield_now();
+        }
+    };
     let mut inbox = Vec::new();
     let mut outgoing = Vec::new();
     let mut cpu = CpuOverSteps::default();
     loop {
         let now = t.now();
         match actor.poll_timeout() {
-            Some(due) => {
-                let timeout = due.saturating_sub(now).min(IDLE_WAIT);
-                wait_as_a_node(&mut t, timeout)?
-            }
-            None => t.wait(IDLE_WAIT)?,
+            Some(due) => wait_spinning(&mut t, due.saturating_sub(now).min(pace.idle), pace.spin)?,
+            None => t.wait(pace.idle)?,
         }
         inbox.clear();
         let now = t.now();
@@ -396,39 +343,22 @@ fn node_loop<T: Transport>(
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     cpu.step_begun();
-                    schedule.apply_link_faults(m.header.step, t.me(), t.shaper(), topology);
-                    t.update_connections();
+                    if let Some((schedule, topology)) = &pace.faults {
+                        schedule.apply_link_faults(m.header.step, t.me(), t.shaper(), topology);
+                        t.update_connections();
+                    }
                 }
                 _ => {}
             }
             // The time each message is handled at, not the batch's: a local
             // filter run for an earlier message of the batch takes milliseconds.
-            actor.handle(&m, t.now(), &mut outgoing);
-            run_pending_work_with(&mut actor, &mut t, &mut outgoing, &give_way)?;
+            let now = t.now();
+            deliver(&mut actor, &mut t, &m, now, &mut outgoing, give_way)?;
         }
-        actor.handle_timeout(t.now(), &mut outgoing);
-        run_pending_work_with(&mut actor, &mut t, &mut outgoing, &give_way)?;
+        let now = t.now();
+        time_passes(&mut actor, &mut t, now, &mut outgoing, give_way)?;
         if launcher_gone() {
             return Ok(());
-        }
-    }
-}
-
-/// Before its fusion filter a node gives its core away, once for each
-/// neighbour. Its own rounds are over, but its neighbours may still be in
-/// their last ones, runnable on the same core and waiting for each other;
-/// those rounds are on every node's way to the step's end, the fusion
-/// filter (tens of microseconds) only on this node's report. Alternately
-/// on two cores, it took the round p50 of `cqnet run --lockstep
-/// --no-central` from 58–65 µs to 41–45 (a single yield: 46–53; CPU and
-/// steps per second not resolved); yielding before the local filter as
-/// well did not help.
-fn yield_before_fusion(neighbours: usize) -> impl Fn(Work) {
-    move |work| {
-        if work == Work::FusionFilter {
-            for _ in 0..neighbours {
-                std::thread::yield_now();
-            }
         }
     }
 }

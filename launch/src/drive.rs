@@ -1,41 +1,63 @@
-//! What every driver of the actors does alike: run a node's heavy stages
-//! and time them (the node never reads a clock), let a sensor look at the
-//! world, and send what an actor emitted.
+//! What every driver of the actors does alike, written once over
+//! [`Actor`]: hand an actor a message or the passing of its timeout, run
+//! its heavy stages and time them (the actor never reads a clock), count
+//! the truths a sensor could not read, and send what the actor emitted.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
-use fusion_graph::world::WorldView;
-use fusion_graph::{ActorId, Message};
-use node::{Outgoing, ProcessingNode, Work};
-use sensor::SensorActor;
+use fusion_graph::{Actor, Message, Outgoing};
 use transport::{SendError, Transport};
 
-/// Runs the node's pending stages, each timed by the wall clock and
-/// reported at the transport's time when it finished, and sends what each
-/// stage emitted before the next begins: the telemetry of a step goes out
-/// before the node scores its sensors for the next.
-pub fn run_pending_work<T: Transport + ?Sized>(
-    node: &mut ProcessingNode,
+/// Hands `actor` one message at `now`, then runs whatever work it hands
+/// out and sends everything it emitted.
+pub fn deliver<A: Actor + ?Sized, T: Transport + ?Sized>(
+    actor: &mut A,
     transport: &mut T,
+    message: &Message,
+    now: Duration,
     out: &mut Vec<Outgoing>,
+    give_way: impl Fn(),
 ) -> Result<(), SendError> {
-    run_pending_work_with(node, transport, out, |_| {})
+    actor.handle(message, now, out);
+    for _ in 0..actor.take_world_misses() {
+        transport.accounting_mut().record_world_miss();
+    }
+    run_pending_work(actor, transport, out, give_way)
 }
 
-/// [`run_pending_work`], calling `before` with each stage before it runs
-/// (where a process driver gives way to other processes).
-pub fn run_pending_work_with<T: Transport + ?Sized>(
-    node: &mut ProcessingNode,
+/// Tells `actor` that `now` has come, if it waits for a time, then runs
+/// its work and sends what it emitted.
+pub fn time_passes<A: Actor + ?Sized, T: Transport + ?Sized>(
+    actor: &mut A,
+    transport: &mut T,
+    now: Duration,
+    out: &mut Vec<Outgoing>,
+    give_way: impl Fn(),
+) -> Result<(), SendError> {
+    actor.handle_timeout(now, out);
+    run_pending_work(actor, transport, out, give_way)
+}
+
+/// Runs the actor's pending stages, each timed by the wall clock and
+/// reported at the transport's time when it finished, and sends what each
+/// stage emitted before the next begins: the telemetry of a step goes out
+/// before the node scores its sensors for the next. Before a stage the
+/// actor asks to give way for, `give_way` runs (where a process driver
+/// yields its core).
+pub fn run_pending_work<A: Actor + ?Sized, T: Transport + ?Sized>(
+    actor: &mut A,
     transport: &mut T,
     out: &mut Vec<Outgoing>,
-    before: impl Fn(Work),
+    give_way: impl Fn(),
 ) -> Result<(), SendError> {
     send_all(transport, out)?;
-    while let Some(work) = node.poll_work() {
-        before(work);
+    while let Some(work) = actor.poll_work() {
+        if actor.gives_way_before(work) {
+            give_way();
+        }
         let started = Instant::now();
-        node.run_work(work);
-        node.work_done(work, started.elapsed(), transport.now(), out);
+        actor.run_work(work);
+        actor.work_done(work, started.elapsed(), transport.now(), out);
         send_all(transport, out)?;
     }
     Ok(())
@@ -53,31 +75,11 @@ pub fn send_all<T: Transport + ?Sized>(
     Ok(())
 }
 
-/// Hands a sensor one message and sends the observation it answers with,
-/// to `receivers`. A step the world does not hold is counted (the summary
-/// reports it) and logged; the sensor stays silent for that step.
-pub fn sensor_handles<T: Transport + ?Sized>(
-    sensor: &mut SensorActor,
-    transport: &mut T,
-    message: &Message,
-    world: &dyn WorldView,
-    receivers: &[ActorId],
-) -> Result<(), SendError> {
-    match sensor.handle(message, world) {
-        Ok(Some(observation)) => transport.send(sensor.publication(), &observation, receivers),
-        Ok(None) => Ok(()),
-        Err(missing) => {
-            tracing::warn!(sensor = %sensor.id(), error = %missing, "no observation this step");
-            transport.accounting_mut().record_world_miss();
-            Ok(())
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fusion_graph::{Scenario, Topology};
+    use fusion_graph::{ActorId, Scenario, Topology};
+    use sensor::SensorActor;
     use transport::world_memory::TruthRing;
     use transport::{Channel, MemoryBus, MemoryTransport};
     use wire::{BitMask, Payload};
@@ -94,11 +96,13 @@ mod tests {
         let mut node = MemoryTransport::new(ActorId::Node(0), bus.clone(), format, 1);
         node.subscribe(Channel::Observation(0)).unwrap();
         let mut transport = MemoryTransport::new(ActorId::Sensor(0), bus, format, 2);
-        let mut sensor = SensorActor::new(&s, &t, 0).unwrap();
-        transport.publish_on(sensor.publication()).unwrap();
         let (truths, world) = TruthRing::on_heap(4);
+        let mut sensor = SensorActor::new(&s, &t, 0).unwrap().in_world(world, false);
+        for c in sensor.publications() {
+            transport.publish_on(c).unwrap();
+        }
         truths.write(1, &bounds::State::new(1000.0, 900.0, -6.0, -7.0));
-        let to = [sensor.reports_to()];
+        let mut out = Vec::new();
         for step in [1, 2] {
             let activation = Message::new(
                 ActorId::Node(0),
@@ -108,7 +112,8 @@ mod tests {
                     mask: BitMask::from_indices([0]),
                 },
             );
-            sensor_handles(&mut sensor, &mut transport, &activation, &world, &to).unwrap();
+            let now = transport.now();
+            deliver(&mut sensor, &mut transport, &activation, now, &mut out, || {}).unwrap();
         }
         assert_eq!(transport.accounting().world_misses(), 1);
         let mut got = Vec::new();

@@ -15,36 +15,60 @@ use fusion_graph::registered::Shape;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
-use node::{CentralizedReference, NodeActor, Outgoing, ProcessingNode};
+use fusion_graph::Actor;
+use node::{processing_node, AnyNode, CentralizedReference, NodeActor, Outgoing, Start};
 use sensor::mac::MacActor;
-use sensor::SensorActor;
+use sensor::{SensorActor, SensorInWorld};
 use transport::accounting::Accounting;
 use transport::world_memory::{TruthReader, TruthRing, WORLD_STEPS};
 use transport::{Channel, MemoryBus, MemoryTransport, Transport};
 use wire::{Message, Payload, Telemetry};
 
-use crate::drive::{run_pending_work, sensor_handles};
+use crate::drive::{deliver, time_passes};
 use crate::results::{Recorder, ResultsWriter, RunFacts, TickRow};
 use crate::summary::Summary;
 use crate::world::World;
 
-struct SensorSlot {
-    actor: SensorActor,
+/// An actor of the network with its transport. A multiple-access channel
+/// is always alive: no fault stops one.
+struct Slot<A> {
+    actor: A,
     transport: MemoryTransport,
-    /// Running: a killed or stopped (SIGSTOP) sensor reads nothing.
+    /// Running: a killed or stopped (SIGSTOP) node or sensor reads nothing.
     alive: bool,
 }
 
-/// A multiple-access channel; no fault stops one.
-struct MacSlot {
-    actor: MacActor,
-    transport: MemoryTransport,
-}
+type SensorSlot = Slot<SensorInWorld<Rc<TruthReader>>>;
+type NodeSlot = Slot<AnyNode>;
 
-struct NodeSlot {
-    actor: ProcessingNode,
-    transport: MemoryTransport,
-    alive: bool,
+impl<A: Actor> Slot<A> {
+    fn new(actor: A, transport: MemoryTransport) -> anyhow::Result<Self> {
+        let mut slot = Self {
+            actor,
+            transport,
+            alive: true,
+        };
+        for c in slot.actor.subscriptions() {
+            slot.transport.subscribe(c)?;
+        }
+        Ok(slot)
+    }
+
+    /// Hands the actor everything due for it at `now`; true if anything was.
+    fn pass(
+        &mut self,
+        now: Duration,
+        inbox: &mut Vec<Message>,
+        outgoing: &mut Vec<Outgoing>,
+    ) -> anyhow::Result<bool> {
+        inbox.clear();
+        self.transport.receive(now, inbox)?;
+        let progressed = !inbox.is_empty();
+        for m in inbox.drain(..) {
+            deliver(&mut self.actor, &mut self.transport, &m, now, outgoing, || {})?;
+        }
+        Ok(progressed)
+    }
 }
 
 pub struct InProcessNetwork {
@@ -54,13 +78,12 @@ pub struct InProcessNetwork {
     launcher: MemoryTransport,
     sensors: Vec<SensorSlot>,
     nodes: Vec<NodeSlot>,
-    macs: Vec<MacSlot>,
+    macs: Vec<Slot<MacActor>>,
     central: Option<CentralizedReference>,
     world: World,
     /// The world's memory, which the launcher writes and the sensors read,
     /// here on the heap.
     truths: TruthRing,
-    sensors_see: TruthReader,
     schedule: FaultSchedule,
     /// Accounting of actors that died, kept so their bytes still count.
     retired: Accounting,
@@ -98,19 +121,15 @@ impl InProcessNetwork {
             }
         }
         let schedule = FaultSchedule::new(&scenario.faults);
+        let (truths, sensors_see) = TruthRing::on_heap(WORLD_STEPS);
+        let sensors_see = Rc::new(sensors_see);
         let mut sensors = Vec::new();
         for i in 0..topology.sensors() as u16 {
-            let actor = SensorActor::new(scenario, topology, i)?;
-            let mut transport = transport(ActorId::Sensor(i));
-            for c in actor.subscriptions() {
-                transport.subscribe(c)?;
-            }
-            schedule.follow_link_faults(transport.me(), transport.shaper(), topology);
-            sensors.push(SensorSlot {
-                actor,
-                transport,
-                alive: true,
-            });
+            let actor = SensorActor::new(scenario, topology, i)?
+                .in_world(sensors_see.clone(), centralized);
+            let mut slot = Slot::new(actor, transport(ActorId::Sensor(i)))?;
+            schedule.follow_link_faults(slot.transport.me(), slot.transport.shaper(), topology);
+            sensors.push(slot);
         }
         let oracle =
             (scenario.consensus.protocol.shape() == Shape::ExactSums).then(ExactSumOracle::shared);
@@ -122,6 +141,7 @@ impl InProcessNetwork {
                 &bus,
                 oracle.as_ref(),
                 i,
+                false,
             )?);
         }
         let mut macs = Vec::new();
@@ -129,14 +149,10 @@ impl InProcessNetwork {
             let Some(actor) = MacActor::new(scenario, topology, i)? else {
                 break;
             };
-            let mut transport = transport(ActorId::Mac(i));
-            for c in actor.subscriptions() {
-                transport.subscribe(c)?;
-            }
-            schedule.follow_link_faults(transport.me(), transport.shaper(), topology);
-            macs.push(MacSlot { actor, transport });
+            let mut slot = Slot::new(actor, transport(ActorId::Mac(i)))?;
+            schedule.follow_link_faults(slot.transport.me(), slot.transport.shaper(), topology);
+            macs.push(slot);
         }
-        let (truths, sensors_see) = TruthRing::on_heap(WORLD_STEPS);
         let central = centralized
             .then(|| CentralizedReference::new(scenario, topology))
             .transpose()
@@ -151,7 +167,6 @@ impl InProcessNetwork {
             macs,
             central,
             world: World::new(scenario)?,
-            sensors_see,
             truths,
             schedule,
             retired: Accounting::default(),
@@ -162,16 +177,22 @@ impl InProcessNetwork {
         })
     }
 
-    /// Node `i`; with the exact-sum oracle in the checking mode.
+    /// Node `i`, started at the run's start or, `rejoin`, mid-run; with
+    /// the exact-sum oracle in the checking mode.
     fn make_node(
         scenario: &Scenario,
         topology: &Topology,
         bus: &Rc<RefCell<MemoryBus>>,
         oracle: Option<&Rc<RefCell<ExactSumOracle>>>,
         i: u16,
+        rejoin: bool,
     ) -> anyhow::Result<NodeSlot> {
+        let start = Start {
+            rejoin,
+            step_period: None,
+        };
         let actor = match oracle {
-            None => ProcessingNode::for_scenario(scenario, topology, i),
+            None => processing_node(scenario, topology, i, start),
             Some(oracle) => NodeActor::with_parts(
                 scenario,
                 topology,
@@ -184,23 +205,16 @@ impl InProcessNetwork {
                     Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3),
                 )),
             )
-            .map(ProcessingNode::from),
+            .map(|n| Box::new(n.starting(start)) as AnyNode),
         }
         .with_context(|| format!("node-{i}"))?;
-        let mut transport = MemoryTransport::new(
+        let transport = MemoryTransport::new(
             ActorId::Node(i),
             bus.clone(),
             scenario.wire_format(topology),
             link_fault_seed(scenario.seed, ActorId::Node(i)),
         );
-        for c in actor.subscriptions() {
-            transport.subscribe(c)?;
-        }
-        Ok(NodeSlot {
-            actor,
-            transport,
-            alive: true,
-        })
+        Slot::new(actor, transport)
     }
 
     /// Every byte counted by every actor, living or dead.
@@ -255,8 +269,8 @@ impl InProcessNetwork {
                             &self.bus,
                             self.oracle.as_ref(),
                             i,
+                            true,
                         )?;
-                        self.nodes[i as usize].actor.expect_rejoin();
                     }
                     changed = true;
                 }
@@ -332,16 +346,12 @@ impl InProcessNetwork {
                 Some(t) if t <= deadline => {
                     now = now.max(t);
                     self.bus.borrow_mut().set_now(now);
+                    let out = &mut self.outgoing;
                     for n in self.nodes.iter_mut().filter(|n| n.alive) {
-                        self.outgoing.clear();
-                        n.actor.handle_timeout(now, &mut self.outgoing);
-                        run_pending_work(&mut n.actor, &mut n.transport, &mut self.outgoing)?;
+                        time_passes(&mut n.actor, &mut n.transport, now, out, || {})?;
                     }
                     for m in &mut self.macs {
-                        if let Some(z) = m.actor.handle_timeout(now) {
-                            m.transport
-                                .send(m.actor.publication(), &z, &[m.actor.centre()])?;
-                        }
+                        time_passes(&mut m.actor, &mut m.transport, now, out, || {})?;
                     }
                 }
                 _ => break,
@@ -399,52 +409,22 @@ impl InProcessNetwork {
         telemetry: &mut Vec<(u16, Telemetry)>,
     ) -> anyhow::Result<bool> {
         let mut progressed = false;
-        for s in self.sensors.iter_mut() {
-            // A stopped sensor reads nothing until it continues; a dead
-            // one's queue is cleared when its successor starts.
-            if !s.alive {
-                continue;
-            }
-            self.inbox.clear();
-            s.transport.receive(now, &mut self.inbox)?;
-            let receivers: &[ActorId] = if self.central.is_some() {
-                &[s.actor.reports_to(), ActorId::Launcher]
-            } else {
-                &[s.actor.reports_to()]
-            };
-            for m in self.inbox.drain(..) {
-                progressed = true;
-                sensor_handles(
-                    &mut s.actor,
-                    &mut s.transport,
-                    &m,
-                    &self.sensors_see,
-                    receivers,
-                )?;
-            }
+        let (inbox, out) = (&mut self.inbox, &mut self.outgoing);
+        // A stopped sensor reads nothing until it continues; a dead one's
+        // queue is cleared when its successor starts.
+        for s in self.sensors.iter_mut().filter(|s| s.alive) {
+            progressed |= s.pass(now, inbox, out)?;
         }
         for mac in &mut self.macs {
-            self.inbox.clear();
-            mac.transport.receive(now, &mut self.inbox)?;
-            for m in self.inbox.drain(..) {
-                progressed = true;
-                if let Some(z) = mac.actor.handle(&m, now) {
-                    mac.transport
-                        .send(mac.actor.publication(), &z, &[mac.actor.centre()])?;
-                }
-            }
+            progressed |= mac.pass(now, inbox, out)?;
         }
+        // A node that is down loses what reaches it meanwhile.
         for n in self.nodes.iter_mut() {
-            self.inbox.clear();
-            n.transport.receive(now, &mut self.inbox)?;
-            if !n.alive {
-                continue;
-            }
-            for m in self.inbox.drain(..) {
-                progressed = true;
-                self.outgoing.clear();
-                n.actor.handle(&m, now, &mut self.outgoing);
-                run_pending_work(&mut n.actor, &mut n.transport, &mut self.outgoing)?;
+            if n.alive {
+                progressed |= n.pass(now, inbox, out)?;
+            } else {
+                inbox.clear();
+                n.transport.receive(now, inbox)?;
             }
         }
         self.inbox.clear();

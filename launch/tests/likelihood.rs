@@ -21,7 +21,7 @@ fn summed_log_likelihood_peaks_at_the_truth() {
         let owner = t.sensor_owner[i as usize];
         let mask = BitMask::from_indices(0..t.node_sensors[owner as usize].len());
         let m = a
-            .handle(
+            .answer(
                 &Message::new(ActorId::Node(owner), 5, 0, Payload::Activate { mask }),
                 &StillTarget(truth),
             )

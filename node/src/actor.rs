@@ -31,7 +31,7 @@ use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
 use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs};
-use crate::{wiring, NodeError, Outgoing, Work};
+use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
 
 #[derive(Debug)]
 enum Phase {
@@ -266,8 +266,15 @@ impl NodeActor {
         self.step_period = Some(period);
     }
 
-    pub fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
+    /// The node as a process starts it: rejoining, bounded in time, or neither.
+    pub fn starting(mut self, start: crate::Start) -> Self {
+        if start.rejoin {
+            self.expect_rejoin();
+        }
+        if let Some(period) = start.step_period {
+            self.bound_steps_by(period);
+        }
+        self
     }
 
     /// Marks a node started in the middle of a run (a restart): it rejoins
@@ -276,45 +283,12 @@ impl NodeActor {
         self.needs_state = true;
     }
 
-    /// The channels this node reads.
-    pub fn subscriptions(&self) -> Vec<Channel> {
-        wiring::subscriptions(&self.topology, self.index)
-    }
-
-    /// The channels this node publishes on.
-    pub fn publications(&self) -> Vec<Channel> {
-        wiring::publications(&self.topology, self.index)
-    }
-
-    /// Actors this node sends to (to wake them).
-    pub fn peers(&self) -> Vec<ActorId> {
-        wiring::peers(&self.topology, self.index)
-    }
-
     fn own_sensors(&self) -> &[u16] {
         &self.topology.node_sensors[self.index as usize]
     }
 
     fn neighbours(&self) -> &[u16] {
         &self.topology.neighbours[self.index as usize]
-    }
-
-    pub fn is_idle(&self) -> bool {
-        matches!(self.phase, Phase::Idle)
-    }
-
-    /// Messages that arrived after their round or step had passed.
-    pub fn late_messages(&self) -> u64 {
-        self.late_messages
-    }
-
-    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
-    pub fn poll_timeout(&self) -> Option<Duration> {
-        if let Some(due) = self.ahead_due() {
-            return Some(due);
-        }
-        let waiting = self.stage_timeout()?;
-        Some(self.step_deadline.map_or(waiting, |d| waiting.min(d)))
     }
 
     /// When the stage that waits next times out, if a stage waits.
@@ -336,197 +310,6 @@ impl NodeActor {
     fn ahead_due(&self) -> Option<Duration> {
         let a = self.ahead.as_ref().filter(|a| !a.released)?;
         matches!(self.phase, Phase::Idle).then_some(a.due)
-    }
-
-    /// The heavy stage waiting to run, if any.
-    pub fn poll_work(&self) -> Option<Work> {
-        match &self.phase {
-            Phase::Selecting(s) if !s.scored => Some(Work::SelectionScores),
-            Phase::Idle if self.ahead.as_ref().is_some_and(ScoredAhead::wants_scoring) => {
-                Some(Work::SelectionScores)
-            }
-            Phase::Fusing(f) => f.pending_work(),
-            _ => None,
-        }
-    }
-
-    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
-        match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                self.begin_step(step, now, out)
-            }
-            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.update_membership(alive, out)
-            }
-            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell))
-            }
-            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value))
-            }
-            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
-            (Payload::SelectionReport(_) | Payload::SelectionChoice(_), ActorId::Node(_)) => {
-                let handled = match &mut self.manager {
-                    Manager::Negotiated(selection) => selection.handle(message, now, out),
-                    Manager::Alone(_) => Handled::NotMine,
-                };
-                match handled {
-                    Handled::Taken => self.poll_selection(now, out),
-                    Handled::Late => self.late_messages += 1,
-                    Handled::NotMine => {}
-                }
-            }
-            (p, from) => match self.protocol.handle(message, now, out) {
-                Handled::Taken => self.poll_protocol(),
-                Handled::Late => self.late_messages += 1,
-                Handled::NotMine => {
-                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a node")
-                }
-            },
-        }
-    }
-
-    /// Called when the time from [`poll_timeout`](Self::poll_timeout) has come.
-    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        if self.ahead_due().is_some_and(|due| now >= due) {
-            if let Some(a) = self.ahead.as_mut() {
-                a.released = true;
-            }
-        }
-        if self.step_deadline.is_some_and(|d| now >= d) && self.stage_timeout().is_some() {
-            return self.close_at_deadline(now, out);
-        }
-        match &self.phase {
-            Phase::Selecting(s) if s.scored => {
-                if let Manager::Negotiated(selection) = &mut self.manager {
-                    selection.handle_timeout(now, out);
-                }
-                self.poll_selection(now, out);
-            }
-            Phase::Collecting(c) if now >= c.deadline() => self.close_collection(),
-            Phase::Fusing(_) => {
-                self.protocol.handle_timeout(now, out);
-                self.poll_protocol();
-            }
-            _ => {}
-        }
-    }
-
-    /// Runs the pending heavy stage; the driver times it and then calls
-    /// [`work_done`](Self::work_done).
-    pub fn run_work(&mut self, work: Work) {
-        if work == Work::SelectionScores {
-            return self.score_selection();
-        }
-        let Phase::Fusing(f) = &mut self.phase else {
-            return;
-        };
-        match work {
-            Work::SelectionScores | Work::Weigh | Work::Adopt => {}
-            Work::LocalFilter => {
-                let Some(mut collected) = f.collected.take() else {
-                    return;
-                };
-                if let Some(threshold) = self.gate {
-                    match self
-                        .local
-                        .gate(&self.model, &collected.observations, threshold)
-                    {
-                        Ok((kept, gated)) => {
-                            collected.observations = kept;
-                            self.gated = gated;
-                            self.observations = collected.observations.len() as u16;
-                        }
-                        Err(e) => {
-                            tracing::error!(node = self.index, error = %e, "innovation gate failed; using every observation")
-                        }
-                    }
-                }
-                let (silent, censored) = self.censoring.as_ref().map_or_else(
-                    || (Vec::new(), Vec::new()),
-                    |c| {
-                        let step = collected.step;
-                        (c.silences(step, &collected.silent), c.active(step))
-                    },
-                );
-                let evidence = Evidence {
-                    received: &collected.observations,
-                    lagged: &f.lagged,
-                    silent: &silent,
-                    censored: &censored,
-                };
-                let update = self
-                    .local
-                    .update(&self.model, &evidence, self.with_aux)
-                    .and_then(|mut update| {
-                        let c = &mut update.contribution;
-                        (c.delta_l, c.delta_l_late) = self
-                            .fusion
-                            .observation_information(&self.model, &evidence)?;
-                        Ok(update)
-                    })
-                    .unwrap_or_else(|e| {
-                        tracing::error!(node = self.index, error = %e, "local filter step failed; contributing nothing");
-                        LocalUpdate {
-                            contribution: Contribution::zero(),
-                            estimate: State::zeros(),
-                            bound: None,
-                        }
-                    });
-                f.local = Some(update);
-            }
-            Work::FusionFilter => {
-                let Some(fused) = f.fused.take() else {
-                    return;
-                };
-                let update = match self.fusion.step(&self.model, &fused.sums) {
-                    Ok(u) => Some(u),
-                    Err(e) => {
-                        tracing::error!(node = self.index, error = %e, "fusion filter step failed");
-                        None
-                    }
-                };
-                f.finished = Some((update, fused));
-            }
-        }
-    }
-
-    /// The driver's report that `work` finished at `now` after `elapsed`:
-    /// the step goes on (the fusion protocol starts after the local filter;
-    /// telemetry goes out after the fusion filter).
-    pub fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        if work == Work::SelectionScores {
-            if let (Phase::Idle, Some(ahead)) = (&self.phase, self.ahead.as_mut()) {
-                ahead.scoring_time = elapsed;
-                return;
-            }
-            return self.start_selection(elapsed, false, now, out);
-        }
-        let Phase::Fusing(f) = &mut self.phase else {
-            return;
-        };
-        match work {
-            Work::SelectionScores | Work::Weigh | Work::Adopt => {}
-            Work::LocalFilter => {
-                f.local_time = elapsed;
-                let Some(local) = f.local else {
-                    return;
-                };
-                let value =
-                    InformationVector::from_contribution(&local.contribution, self.with_aux);
-                let step = f.step;
-                self.protocol.start(step, value, &self.view, now, out);
-                self.poll_protocol();
-            }
-            Work::FusionFilter => self.report(elapsed, out),
-        }
     }
 
     /// Takes the protocol's result, if it has one.
@@ -946,6 +729,249 @@ impl NodeActor {
     }
 }
 
+impl Node for NodeActor {
+    fn is_idle(&self) -> bool {
+        matches!(self.phase, Phase::Idle)
+    }
+
+    /// Messages that arrived after their round or step had passed.
+    fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+}
+
+
+impl Actor for NodeActor {
+    type Work = Work;
+
+    /// Its neighbours may still be in their last rounds, which every node
+    /// waits for; the fusion filter (tens of microseconds) is on this
+    /// node's report alone.
+    fn gives_way_before(&self, work: Work) -> bool {
+        work == Work::FusionFilter
+    }
+
+    fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    /// The channels this node reads.
+    fn subscriptions(&self) -> Vec<Channel> {
+        wiring::subscriptions(&self.topology, self.index)
+    }
+
+    /// The channels this node publishes on.
+    fn publications(&self) -> Vec<Channel> {
+        wiring::publications(&self.topology, self.index)
+    }
+
+    /// Actors this node sends to (to wake them).
+    fn peers(&self) -> Vec<ActorId> {
+        wiring::peers(&self.topology, self.index)
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                self.begin_step(step, now, out)
+            }
+            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
+                self.update_membership(alive, out)
+            }
+            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Cell(*cell))
+            }
+            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Raw(*value))
+            }
+            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
+            (Payload::SelectionReport(_) | Payload::SelectionChoice(_), ActorId::Node(_)) => {
+                let handled = match &mut self.manager {
+                    Manager::Negotiated(selection) => selection.handle(message, now, out),
+                    Manager::Alone(_) => Handled::NotMine,
+                };
+                match handled {
+                    Handled::Taken => self.poll_selection(now, out),
+                    Handled::Late => self.late_messages += 1,
+                    Handled::NotMine => {}
+                }
+            }
+            (p, from) => match self.protocol.handle(message, now, out) {
+                Handled::Taken => self.poll_protocol(),
+                Handled::Late => self.late_messages += 1,
+                Handled::NotMine => {
+                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a node")
+                }
+            },
+        }
+    }
+
+    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
+    fn poll_timeout(&self) -> Option<Duration> {
+        if let Some(due) = self.ahead_due() {
+            return Some(due);
+        }
+        let waiting = self.stage_timeout()?;
+        Some(self.step_deadline.map_or(waiting, |d| waiting.min(d)))
+    }
+
+    /// Called when the time from [`poll_timeout`](Self::poll_timeout) has come.
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if self.ahead_due().is_some_and(|due| now >= due) {
+            if let Some(a) = self.ahead.as_mut() {
+                a.released = true;
+            }
+        }
+        if self.step_deadline.is_some_and(|d| now >= d) && self.stage_timeout().is_some() {
+            return self.close_at_deadline(now, out);
+        }
+        match &self.phase {
+            Phase::Selecting(s) if s.scored => {
+                if let Manager::Negotiated(selection) = &mut self.manager {
+                    selection.handle_timeout(now, out);
+                }
+                self.poll_selection(now, out);
+            }
+            Phase::Collecting(c) if now >= c.deadline() => self.close_collection(),
+            Phase::Fusing(_) => {
+                self.protocol.handle_timeout(now, out);
+                self.poll_protocol();
+            }
+            _ => {}
+        }
+    }
+
+    /// The heavy stage waiting to run, if any.
+    fn poll_work(&self) -> Option<Work> {
+        match &self.phase {
+            Phase::Selecting(s) if !s.scored => Some(Work::SelectionScores),
+            Phase::Idle if self.ahead.as_ref().is_some_and(ScoredAhead::wants_scoring) => {
+                Some(Work::SelectionScores)
+            }
+            Phase::Fusing(f) => f.pending_work(),
+            _ => None,
+        }
+    }
+
+    /// Runs the pending heavy stage; the driver times it and then calls
+    /// [`work_done`](Self::work_done).
+    fn run_work(&mut self, work: Work) {
+        if work == Work::SelectionScores {
+            return self.score_selection();
+        }
+        let Phase::Fusing(f) = &mut self.phase else {
+            return;
+        };
+        match work {
+            Work::SelectionScores | Work::Weigh | Work::Adopt => {}
+            Work::LocalFilter => {
+                let Some(mut collected) = f.collected.take() else {
+                    return;
+                };
+                if let Some(threshold) = self.gate {
+                    match self
+                        .local
+                        .gate(&self.model, &collected.observations, threshold)
+                    {
+                        Ok((kept, gated)) => {
+                            collected.observations = kept;
+                            self.gated = gated;
+                            self.observations = collected.observations.len() as u16;
+                        }
+                        Err(e) => {
+                            tracing::error!(node = self.index, error = %e, "innovation gate failed; using every observation")
+                        }
+                    }
+                }
+                let (silent, censored) = self.censoring.as_ref().map_or_else(
+                    || (Vec::new(), Vec::new()),
+                    |c| {
+                        let step = collected.step;
+                        (c.silences(step, &collected.silent), c.active(step))
+                    },
+                );
+                let evidence = Evidence {
+                    received: &collected.observations,
+                    lagged: &f.lagged,
+                    silent: &silent,
+                    censored: &censored,
+                };
+                let update = self
+                    .local
+                    .update(&self.model, &evidence, self.with_aux)
+                    .and_then(|mut update| {
+                        let c = &mut update.contribution;
+                        (c.delta_l, c.delta_l_late) = self
+                            .fusion
+                            .observation_information(&self.model, &evidence)?;
+                        Ok(update)
+                    })
+                    .unwrap_or_else(|e| {
+                        tracing::error!(node = self.index, error = %e, "local filter step failed; contributing nothing");
+                        LocalUpdate {
+                            contribution: Contribution::zero(),
+                            estimate: State::zeros(),
+                            bound: None,
+                        }
+                    });
+                f.local = Some(update);
+            }
+            Work::FusionFilter => {
+                let Some(fused) = f.fused.take() else {
+                    return;
+                };
+                let update = match self.fusion.step(&self.model, &fused.sums) {
+                    Ok(u) => Some(u),
+                    Err(e) => {
+                        tracing::error!(node = self.index, error = %e, "fusion filter step failed");
+                        None
+                    }
+                };
+                f.finished = Some((update, fused));
+            }
+        }
+    }
+
+    /// The driver's report that `work` finished at `now` after `elapsed`:
+    /// the step goes on (the fusion protocol starts after the local filter;
+    /// telemetry goes out after the fusion filter).
+    fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        if work == Work::SelectionScores {
+            if let (Phase::Idle, Some(ahead)) = (&self.phase, self.ahead.as_mut()) {
+                ahead.scoring_time = elapsed;
+                return;
+            }
+            return self.start_selection(elapsed, false, now, out);
+        }
+        let Phase::Fusing(f) = &mut self.phase else {
+            return;
+        };
+        match work {
+            Work::SelectionScores | Work::Weigh | Work::Adopt => {}
+            Work::LocalFilter => {
+                f.local_time = elapsed;
+                let Some(local) = f.local else {
+                    return;
+                };
+                let value =
+                    InformationVector::from_contribution(&local.contribution, self.with_aux);
+                let step = f.step;
+                self.protocol.start(step, value, &self.view, now, out);
+                self.poll_protocol();
+            }
+            Work::FusionFilter => self.report(elapsed, out),
+        }
+    }
+}
+
+
 /// This step's selection scores: the conditional manager's over the fusion
 /// filter's predicted particles, the at-the-estimate one's at its estimate
 /// (taken before the filter predicts).
@@ -972,6 +998,7 @@ mod tests {
     //! The node on the virtual-clock harness: three nodes in a line.
     use super::*;
     use crate::harness::{Fate, Net};
+    use crate::Start;
 
     const ALL: [bool; 3] = [true; 3];
     const LONG: Duration = Duration::from_secs(5);
@@ -1116,9 +1143,10 @@ mod tests {
     #[test]
     fn in_real_time_the_scoring_waits_for_the_steps_deadline() {
         let mut net = Net::line_with(&["sensors.manager=pcrlb"]);
-        for n in net.nodes.iter_mut().flatten() {
-            n.bound_steps_by(Duration::from_millis(100));
-        }
+        net.start_nodes(Start {
+            rejoin: false,
+            step_period: Some(Duration::from_millis(100)),
+        });
         net.begin_step(1, &ALL);
         net.run(Duration::from_millis(89));
         assert_eq!(net.telemetry.len(), 3, "every node reported");
@@ -1296,7 +1324,7 @@ mod tests {
         }
         let mut fresh = NodeActor::new(&net.scenario, &net.topology, 2).unwrap();
         fresh.expect_rejoin();
-        net.nodes[2] = Some(fresh.into());
+        net.nodes[2] = Some(Box::new(fresh));
         net.begin_step(7, &ALL);
         net.run(LONG);
         assert!(

@@ -12,7 +12,7 @@
 //! rounds on the natural parameters, then [`Work::Adopt`] → telemetry.
 //!
 //! It is driven exactly as [`NodeActor`](crate::NodeActor) is, so the same
-//! drivers run it (see [`ProcessingNode`](crate::ProcessingNode)).
+//! drivers run it (see [`processing_node`](crate::processing_node)).
 
 use std::time::Duration;
 
@@ -30,7 +30,7 @@ use crate::fusion::{
     RandomExchange, RoundStats,
 };
 use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
-use crate::{wiring, NodeError, Outgoing, Work};
+use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
 
 /// How a tracker node cooperates, by the scenario's `consensus.protocol`;
 /// the registry ([`crate::registry`]) builds it by name.
@@ -211,214 +211,12 @@ impl DiffusionNode {
         })
     }
 
-    pub fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
-    }
-
     fn own_sensors(&self) -> &[u16] {
         &self.topology.node_sensors[self.index as usize]
     }
 
     fn neighbours(&self) -> &[u16] {
         &self.topology.neighbours[self.index as usize]
-    }
-
-    /// The channels this node reads: a CF/DPF node's, and for random
-    /// exchange each neighbour's channel to it.
-    pub fn subscriptions(&self) -> Vec<Channel> {
-        let mut v = wiring::subscriptions(&self.topology, self.index);
-        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
-            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
-                from: *m,
-                to: self.index,
-            }));
-        }
-        v
-    }
-
-    /// The channels this node publishes on: a CF/DPF node's, and for random
-    /// exchange its channel to each neighbour.
-    pub fn publications(&self) -> Vec<Channel> {
-        let mut v = wiring::publications(&self.topology, self.index);
-        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
-            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
-                from: self.index,
-                to: *m,
-            }));
-        }
-        v
-    }
-
-    /// Actors this node sends to (to wake them).
-    pub fn peers(&self) -> Vec<ActorId> {
-        wiring::peers(&self.topology, self.index)
-    }
-
-    pub fn is_idle(&self) -> bool {
-        self.stepping.is_none()
-    }
-
-    pub fn late_messages(&self) -> u64 {
-        self.late_messages
-    }
-
-    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
-    pub fn poll_timeout(&self) -> Option<Duration> {
-        let s = self.stepping.as_ref()?;
-        let listening = match &s.collector {
-            Some(c) => Some(c.deadline()),
-            None if !s.relays_closed => Some(s.relay_deadline),
-            None => None,
-        };
-        let protocol = self.cooperation.protocol_ref().poll_timeout();
-        [listening, protocol].into_iter().flatten().min()
-    }
-
-    /// The heavy stage waiting to run, if any.
-    pub fn poll_work(&self) -> Option<Work> {
-        let s = self.stepping.as_ref()?;
-        let measured = s.collector.is_none() && s.relays_closed;
-        match &self.cooperation {
-            Cooperation::RandomExchange(_) if measured && !s.weighed && s.exchanged.is_some() => {
-                Some(Work::Weigh)
-            }
-            Cooperation::Kl { .. } if measured && !s.weighed => Some(Work::Weigh),
-            Cooperation::Kl { .. } if s.fused.is_some() => Some(Work::Adopt),
-            _ => None,
-        }
-    }
-
-    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
-        match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                self.begin_step(step, now, out)
-            }
-            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.view = alive.to_bools(self.topology.nodes());
-                self.view[self.index as usize] = true;
-            }
-            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell), out)
-            }
-            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value), out)
-            }
-            (Payload::NeighbourObservation { sensor, value }, ActorId::Node(m)) => {
-                self.take_relay(step, m, *sensor, *value)
-            }
-            (p, from) => match self.cooperation.protocol().handle(message, now, out) {
-                Handled::Taken => self.poll_protocol(),
-                Handled::Late => self.late_messages += 1,
-                Handled::NotMine => {
-                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a random-exchange or KL node")
-                }
-            },
-        }
-    }
-
-    /// Called when the time from [`poll_timeout`](Self::poll_timeout) has come.
-    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        if s.collector.as_ref().is_some_and(|c| now >= c.deadline()) {
-            self.close_own(out);
-        }
-        if self
-            .stepping
-            .as_ref()
-            .is_some_and(|s| s.collector.is_none() && !s.relays_closed && now >= s.relay_deadline)
-        {
-            self.close_relays();
-        }
-        self.cooperation.protocol().handle_timeout(now, out);
-        self.poll_protocol();
-    }
-
-    /// Runs the pending heavy stage; the driver times it and then calls
-    /// [`work_done`](Self::work_done).
-    pub fn run_work(&mut self, work: Work) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        match (work, &self.cooperation) {
-            (Work::Weigh, Cooperation::RandomExchange(_)) => {
-                let from = s
-                    .exchanged
-                    .map_or_else(|| self.tracker.summary(), |e| e.posterior);
-                if let Err(e) =
-                    self.tracker
-                        .assimilate_from(&from, &self.model, &s.observations, &mut self.rng)
-                {
-                    tracing::error!(node = self.index, error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
-                    self.tracker
-                        .local_posterior(&self.model, &s.observations, &mut self.rng);
-                }
-                s.weighed = true;
-            }
-            (Work::Weigh, Cooperation::Kl { .. }) => {
-                let local =
-                    self.tracker
-                        .local_posterior(&self.model, &s.observations, &mut self.rng);
-                s.local = NaturalGaussian::from_moments(&local);
-                if s.local.is_none() {
-                    tracing::error!(
-                        node = self.index,
-                        "the local posterior is degenerate; not fusing this step"
-                    );
-                }
-                s.weighed = true;
-            }
-            (Work::Adopt, Cooperation::Kl { .. }) => {
-                let Some(fused) = s.fused.take() else { return };
-                s.stats = fused.stats;
-                match fused.fused.to_moments() {
-                    Some(g) => {
-                        if let Err(e) = self.tracker.adopt(&g, &mut self.rng) {
-                            tracing::error!(node = self.index, error = %e, "keeping the local particles");
-                        }
-                    }
-                    None => tracing::error!(
-                        node = self.index,
-                        "the fused information is not positive definite; keeping the local particles"
-                    ),
-                }
-            }
-            _ => {}
-        }
-    }
-
-    /// The driver's report that `work` finished at `now` after `elapsed`.
-    pub fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        match (work, &mut self.cooperation) {
-            (Work::Weigh, Cooperation::RandomExchange(_)) => {
-                s.weigh_time = elapsed;
-                self.report(Duration::ZERO, out);
-            }
-            (Work::Weigh, Cooperation::Kl { fusion, .. }) => {
-                s.weigh_time = elapsed;
-                match s.local.take() {
-                    Some(local) => {
-                        s.fusing = true;
-                        fusion.start(s.step, local, &self.view, now, out);
-                        self.poll_protocol();
-                    }
-                    None => self.report(Duration::ZERO, out),
-                }
-            }
-            (Work::Adopt, Cooperation::Kl { .. }) => self.report(elapsed, out),
-            _ => {}
-        }
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
@@ -760,6 +558,216 @@ impl DiffusionNode {
         }
     }
 }
+
+impl Node for DiffusionNode {
+    fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
+
+    fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+}
+
+
+impl Actor for DiffusionNode {
+    type Work = Work;
+
+    fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    /// The channels this node reads: a CF/DPF node's, and for random
+    /// exchange each neighbour's channel to it.
+    fn subscriptions(&self) -> Vec<Channel> {
+        let mut v = wiring::subscriptions(&self.topology, self.index);
+        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
+            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
+                from: *m,
+                to: self.index,
+            }));
+        }
+        v
+    }
+
+    /// The channels this node publishes on: a CF/DPF node's, and for random
+    /// exchange its channel to each neighbour.
+    fn publications(&self) -> Vec<Channel> {
+        let mut v = wiring::publications(&self.topology, self.index);
+        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
+            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
+                from: self.index,
+                to: *m,
+            }));
+        }
+        v
+    }
+
+    /// Actors this node sends to (to wake them).
+    fn peers(&self) -> Vec<ActorId> {
+        wiring::peers(&self.topology, self.index)
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                self.begin_step(step, now, out)
+            }
+            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
+                self.view = alive.to_bools(self.topology.nodes());
+                self.view[self.index as usize] = true;
+            }
+            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Cell(*cell), out)
+            }
+            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Raw(*value), out)
+            }
+            (Payload::NeighbourObservation { sensor, value }, ActorId::Node(m)) => {
+                self.take_relay(step, m, *sensor, *value)
+            }
+            (p, from) => match self.cooperation.protocol().handle(message, now, out) {
+                Handled::Taken => self.poll_protocol(),
+                Handled::Late => self.late_messages += 1,
+                Handled::NotMine => {
+                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a random-exchange or KL node")
+                }
+            },
+        }
+    }
+
+    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
+    fn poll_timeout(&self) -> Option<Duration> {
+        let s = self.stepping.as_ref()?;
+        let listening = match &s.collector {
+            Some(c) => Some(c.deadline()),
+            None if !s.relays_closed => Some(s.relay_deadline),
+            None => None,
+        };
+        let protocol = self.cooperation.protocol_ref().poll_timeout();
+        [listening, protocol].into_iter().flatten().min()
+    }
+
+    /// Called when the time from [`poll_timeout`](Self::poll_timeout) has come.
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if s.collector.as_ref().is_some_and(|c| now >= c.deadline()) {
+            self.close_own(out);
+        }
+        if self
+            .stepping
+            .as_ref()
+            .is_some_and(|s| s.collector.is_none() && !s.relays_closed && now >= s.relay_deadline)
+        {
+            self.close_relays();
+        }
+        self.cooperation.protocol().handle_timeout(now, out);
+        self.poll_protocol();
+    }
+
+    /// The heavy stage waiting to run, if any.
+    fn poll_work(&self) -> Option<Work> {
+        let s = self.stepping.as_ref()?;
+        let measured = s.collector.is_none() && s.relays_closed;
+        match &self.cooperation {
+            Cooperation::RandomExchange(_) if measured && !s.weighed && s.exchanged.is_some() => {
+                Some(Work::Weigh)
+            }
+            Cooperation::Kl { .. } if measured && !s.weighed => Some(Work::Weigh),
+            Cooperation::Kl { .. } if s.fused.is_some() => Some(Work::Adopt),
+            _ => None,
+        }
+    }
+
+    /// Runs the pending heavy stage; the driver times it and then calls
+    /// [`work_done`](Self::work_done).
+    fn run_work(&mut self, work: Work) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match (work, &self.cooperation) {
+            (Work::Weigh, Cooperation::RandomExchange(_)) => {
+                let from = s
+                    .exchanged
+                    .map_or_else(|| self.tracker.summary(), |e| e.posterior);
+                if let Err(e) =
+                    self.tracker
+                        .assimilate_from(&from, &self.model, &s.observations, &mut self.rng)
+                {
+                    tracing::error!(node = self.index, error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
+                    self.tracker
+                        .local_posterior(&self.model, &s.observations, &mut self.rng);
+                }
+                s.weighed = true;
+            }
+            (Work::Weigh, Cooperation::Kl { .. }) => {
+                let local =
+                    self.tracker
+                        .local_posterior(&self.model, &s.observations, &mut self.rng);
+                s.local = NaturalGaussian::from_moments(&local);
+                if s.local.is_none() {
+                    tracing::error!(
+                        node = self.index,
+                        "the local posterior is degenerate; not fusing this step"
+                    );
+                }
+                s.weighed = true;
+            }
+            (Work::Adopt, Cooperation::Kl { .. }) => {
+                let Some(fused) = s.fused.take() else { return };
+                s.stats = fused.stats;
+                match fused.fused.to_moments() {
+                    Some(g) => {
+                        if let Err(e) = self.tracker.adopt(&g, &mut self.rng) {
+                            tracing::error!(node = self.index, error = %e, "keeping the local particles");
+                        }
+                    }
+                    None => tracing::error!(
+                        node = self.index,
+                        "the fused information is not positive definite; keeping the local particles"
+                    ),
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// The driver's report that `work` finished at `now` after `elapsed`.
+    fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match (work, &mut self.cooperation) {
+            (Work::Weigh, Cooperation::RandomExchange(_)) => {
+                s.weigh_time = elapsed;
+                self.report(Duration::ZERO, out);
+            }
+            (Work::Weigh, Cooperation::Kl { fusion, .. }) => {
+                s.weigh_time = elapsed;
+                match s.local.take() {
+                    Some(local) => {
+                        s.fusing = true;
+                        fusion.start(s.step, local, &self.view, now, out);
+                        self.poll_protocol();
+                    }
+                    None => self.report(Duration::ZERO, out),
+                }
+            }
+            (Work::Adopt, Cooperation::Kl { .. }) => self.report(elapsed, out),
+            _ => {}
+        }
+    }
+}
+
 
 #[cfg(test)]
 mod tests {

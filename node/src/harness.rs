@@ -9,7 +9,7 @@ use bounds::State;
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use wire::{BitMask, Control, Message, Payload, Telemetry};
 
-use crate::{Outgoing, ProcessingNode, SensingModel};
+use crate::{processing_node, Actor, AnyNode, Outgoing, SensingModel, Start};
 
 /// Three nodes in a line (0 — 1 — 2), three sensors each, 300 particles.
 pub const LINE: &str = r#"
@@ -65,7 +65,7 @@ type Rule = Box<dyn FnMut(&Message, ActorId) -> Fate>;
 pub struct Net {
     pub scenario: Scenario,
     pub topology: Topology,
-    pub nodes: Vec<Option<ProcessingNode>>,
+    pub nodes: Vec<Option<AnyNode>>,
     pub now: Duration,
     model: SensingModel,
     truth: State,
@@ -100,7 +100,7 @@ impl Net {
         let scenario = Scenario::from_toml(text, "harness", &overrides).unwrap();
         let topology = Topology::from_scenario(&scenario, "harness").unwrap();
         let nodes = (0..topology.nodes() as u16)
-            .map(|i| Some(ProcessingNode::for_scenario(&scenario, &topology, i).unwrap()))
+            .map(|i| Some(processing_node(&scenario, &topology, i, Start::default()).unwrap()))
             .collect();
         Self {
             model: SensingModel::from_scenario(&scenario, &topology).unwrap(),
@@ -114,6 +114,13 @@ impl Net {
             sent: Vec::new(),
             activations: Vec::new(),
             rule: Box::new(|_, _| Fate::Deliver),
+        }
+    }
+
+    /// Builds every node afresh, started as `start` says.
+    pub fn start_nodes(&mut self, start: Start) {
+        for (i, n) in self.nodes.iter_mut().enumerate() {
+            *n = Some(processing_node(&self.scenario, &self.topology, i as u16, start).unwrap());
         }
     }
 

@@ -23,10 +23,12 @@
 //!   evidence over shared grids and its node;
 //! - [`mac_centre`]: a fusion centre that hears its sensors through a
 //!   multiple-access channel and designs who transmits in which slot;
-//! - [`processing`]: any node behind one face, as the scenario says;
-//!   `wiring` holds what both nodes read, publish and send alike.
+//! - `build`: the node a scenario describes, of whatever kind, as an
+//!   [`AnyNode`]; `wiring` holds what every kind reads, publishes and
+//!   sends alike.
 
 pub mod actor;
+mod build;
 mod censoring;
 pub mod centralized;
 pub mod collector;
@@ -40,7 +42,6 @@ pub mod gate;
 pub mod location;
 pub mod locator;
 pub mod mac_centre;
-pub mod processing;
 pub mod registry;
 pub mod sensing;
 pub mod sensor_manager;
@@ -59,20 +60,7 @@ pub use estimator::{
 };
 pub use locator::LocatorNode;
 pub use mac_centre::MacCentre;
-pub use processing::ProcessingNode;
+pub use build::{processing_node, AnyNode, Node, Start};
 pub use work::Work;
 
-use fusion_graph::ActorId;
-use fusion_graph::Channel;
-use wire::Message;
-
-/// A message to publish.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Outgoing {
-    pub channel: Channel,
-    pub message: Message,
-    pub receivers: Vec<ActorId>,
-    /// Whom to wake, when not every receiver: a consensus round wakes only
-    /// the neighbours it still waits for.
-    pub wake: Option<Vec<ActorId>>,
-}
+pub use fusion_graph::actor::{Actor, Outgoing};

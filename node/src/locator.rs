@@ -34,7 +34,7 @@ use crate::estimator::ObservedValue;
 use crate::fusion::{vector_sum, FusionProtocol, Handled, RoundStats, Summed, VectorSum};
 use crate::location::{position_bound, sensor_quantizer, Grid, LocalEvidence, LocationConfig};
 use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
-use crate::{wiring, NodeError, Outgoing, Work};
+use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
 
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
@@ -130,120 +130,6 @@ impl LocatorNode {
             deadline_missed: false,
             answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
         })
-    }
-
-    pub fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
-    }
-
-    pub fn subscriptions(&self) -> Vec<Channel> {
-        wiring::subscriptions(&self.topology, self.index)
-    }
-
-    pub fn publications(&self) -> Vec<Channel> {
-        wiring::publications(&self.topology, self.index)
-    }
-
-    pub fn peers(&self) -> Vec<ActorId> {
-        wiring::peers(&self.topology, self.index)
-    }
-
-    pub fn is_idle(&self) -> bool {
-        self.stepping.is_none()
-    }
-
-    pub fn late_messages(&self) -> u64 {
-        self.late_messages
-    }
-
-    pub fn poll_timeout(&self) -> Option<Duration> {
-        let s = self.stepping.as_ref()?;
-        let listening = s.collector.as_ref().map(Collector::deadline);
-        let consensus = s.phase.and_then(|p| self.phases[p].poll_timeout());
-        [listening, consensus].into_iter().flatten().min()
-    }
-
-    pub fn poll_work(&self) -> Option<Work> {
-        let s = self.stepping.as_ref()?;
-        (s.collector.is_none() && !s.weighed).then_some(Work::Weigh)
-    }
-
-    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
-        match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                self.begin_step(step, now, out)
-            }
-            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.view = alive.to_bools(self.topology.nodes());
-                self.view[self.index as usize] = true;
-            }
-            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell), out)
-            }
-            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value), out)
-            }
-            (Payload::LocationConsensus { .. }, ActorId::Node(_)) => {
-                // Round k of phase p is round p·N_c + k on the wire.
-                let phase = (message.header.round.max(1) - 1) / self.rounds.max(1);
-                let handled = match self.phases.get_mut(phase as usize) {
-                    Some(engine) => engine.handle(message, now, out),
-                    None => Handled::Late,
-                };
-                match handled {
-                    Handled::Taken => self.poll_phases(now, out),
-                    Handled::Late | Handled::NotMine => self.late_messages += 1,
-                }
-            }
-            (p, from) => {
-                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a locator node")
-            }
-        }
-    }
-
-    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        if s.collector.as_ref().is_some_and(|c| now >= c.deadline()) {
-            self.close_own();
-        }
-        if let Some(p) = self.stepping.as_ref().and_then(|s| s.phase) {
-            self.phases[p].handle_timeout(now, out);
-        }
-        self.poll_phases(now, out);
-    }
-
-    /// [`Work::Weigh`]: the node's log-likelihood over the coarse grid.
-    pub fn run_work(&mut self, work: Work) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        if work == Work::Weigh && !s.weighed {
-            self.evidence.log_likelihood(&self.coarse, &mut s.coarse);
-            s.weighed = true;
-        }
-    }
-
-    pub fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        if work != Work::Weigh || s.phase.is_some() {
-            return;
-        }
-        s.weigh_time = elapsed;
-        s.phase = Some(0);
-        let value = std::mem::take(&mut s.coarse);
-        self.phases[0].start_at(s.step, 0, value, &self.view, now, out);
-        self.poll_phases(now, out);
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
@@ -446,6 +332,128 @@ impl LocatorNode {
         }
     }
 }
+
+impl Node for LocatorNode {
+    fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
+
+    fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+}
+
+
+impl Actor for LocatorNode {
+    type Work = Work;
+
+    fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    fn subscriptions(&self) -> Vec<Channel> {
+        wiring::subscriptions(&self.topology, self.index)
+    }
+
+    fn publications(&self) -> Vec<Channel> {
+        wiring::publications(&self.topology, self.index)
+    }
+
+    fn peers(&self) -> Vec<ActorId> {
+        wiring::peers(&self.topology, self.index)
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                self.begin_step(step, now, out)
+            }
+            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
+                self.view = alive.to_bools(self.topology.nodes());
+                self.view[self.index as usize] = true;
+            }
+            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Cell(*cell), out)
+            }
+            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Raw(*value), out)
+            }
+            (Payload::LocationConsensus { .. }, ActorId::Node(_)) => {
+                // Round k of phase p is round p·N_c + k on the wire.
+                let phase = (message.header.round.max(1) - 1) / self.rounds.max(1);
+                let handled = match self.phases.get_mut(phase as usize) {
+                    Some(engine) => engine.handle(message, now, out),
+                    None => Handled::Late,
+                };
+                match handled {
+                    Handled::Taken => self.poll_phases(now, out),
+                    Handled::Late | Handled::NotMine => self.late_messages += 1,
+                }
+            }
+            (p, from) => {
+                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a locator node")
+            }
+        }
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        let s = self.stepping.as_ref()?;
+        let listening = s.collector.as_ref().map(Collector::deadline);
+        let consensus = s.phase.and_then(|p| self.phases[p].poll_timeout());
+        [listening, consensus].into_iter().flatten().min()
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if s.collector.as_ref().is_some_and(|c| now >= c.deadline()) {
+            self.close_own();
+        }
+        if let Some(p) = self.stepping.as_ref().and_then(|s| s.phase) {
+            self.phases[p].handle_timeout(now, out);
+        }
+        self.poll_phases(now, out);
+    }
+
+    fn poll_work(&self) -> Option<Work> {
+        let s = self.stepping.as_ref()?;
+        (s.collector.is_none() && !s.weighed).then_some(Work::Weigh)
+    }
+
+    /// [`Work::Weigh`]: the node's log-likelihood over the coarse grid.
+    fn run_work(&mut self, work: Work) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if work == Work::Weigh && !s.weighed {
+            self.evidence.log_likelihood(&self.coarse, &mut s.coarse);
+            s.weighed = true;
+        }
+    }
+
+    fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        if work != Work::Weigh || s.phase.is_some() {
+            return;
+        }
+        s.weigh_time = elapsed;
+        s.phase = Some(0);
+        let value = std::mem::take(&mut s.coarse);
+        self.phases[0].start_at(s.step, 0, value, &self.view, now, out);
+        self.poll_phases(now, out);
+    }
+}
+
 
 /// The grid's best point by the summed log-likelihood; `fallback` when
 /// the sums are flat (no report anywhere yet).

@@ -36,7 +36,7 @@ use rand_chacha::ChaCha8Rng;
 use wire::{Control, Message, Payload, SlotColumn, Telemetry};
 
 use crate::filter::ParticleFilter;
-use crate::{wiring, NodeError, Outgoing, Work};
+use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
 
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
@@ -151,129 +151,6 @@ impl MacCentre {
         })
     }
 
-    pub fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
-    }
-
-    /// Its control and its channel's deliveries.
-    pub fn subscriptions(&self) -> Vec<Channel> {
-        vec![Channel::Control(self.id()), Channel::MacOutput(self.index)]
-    }
-
-    /// An activation channel to each of its sensors and to its channel,
-    /// and its telemetry.
-    pub fn publications(&self) -> Vec<Channel> {
-        self.publications.clone()
-    }
-
-    /// Its sensors and its channel (the schedule wakes them), and the
-    /// launcher.
-    pub fn peers(&self) -> Vec<ActorId> {
-        let mut v: Vec<ActorId> = self.own.iter().map(|s| ActorId::Sensor(*s)).collect();
-        v.push(ActorId::Mac(self.index));
-        v.push(ActorId::Launcher);
-        v
-    }
-
-    pub fn is_idle(&self) -> bool {
-        self.stepping.is_none()
-    }
-
-    pub fn late_messages(&self) -> u64 {
-        self.late_messages
-    }
-
-    pub fn poll_timeout(&self) -> Option<Duration> {
-        let s = self.stepping.as_ref()?;
-        s.received.is_none().then_some(s.deadline).flatten()
-    }
-
-    pub fn poll_work(&self) -> Option<Work> {
-        let s = self.stepping.as_ref()?;
-        match (&s.design, &s.received) {
-            (None, _) => Some(Work::SelectionScores),
-            (Some(_), Some(_)) if !s.weighed => Some(Work::Weigh),
-            _ => None,
-        }
-    }
-
-    /// The launcher's `BeginStep` and the channel's delivery; a delivery
-    /// for another step, or with another count of slots than the step's,
-    /// is counted late and dropped.
-    pub fn handle(&mut self, message: &Message, _now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
-        match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => self.begin_step(step, out),
-            (Payload::Control(Control::Membership { .. }), ActorId::Launcher) => {}
-            (Payload::MacOutput { values }, ActorId::Mac(m)) if m == self.index => {
-                let slots = self
-                    .stepping
-                    .as_ref()
-                    .and_then(|s| s.design.as_ref())
-                    .map(|d| d.likelihood.sensing_matrix().slots());
-                match self.stepping.as_mut() {
-                    Some(s)
-                        if s.step == step
-                            && s.received.is_none()
-                            && slots == Some(values.len()) =>
-                    {
-                        s.received = Some(values.clone())
-                    }
-                    _ => self.late_messages += 1,
-                }
-            }
-            (p, from) => {
-                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a fusion centre")
-            }
-        }
-    }
-
-    /// A delivery that did not come by the deadline: a lost step.
-    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        let lost = self
-            .stepping
-            .as_ref()
-            .is_some_and(|s| s.received.is_none() && s.deadline.is_some_and(|d| now >= d));
-        if lost {
-            self.report(out);
-        }
-    }
-
-    pub fn run_work(&mut self, work: Work) {
-        match work {
-            Work::SelectionScores => self.design(),
-            Work::Weigh => self.weigh(),
-            _ => {}
-        }
-    }
-
-    pub fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        match work {
-            Work::SelectionScores if s.deadline.is_none() => {
-                s.select_time = elapsed;
-                s.deadline = Some(now + self.listen);
-                let step = s.step;
-                if let Some(d) = s.design.as_ref() {
-                    out.extend(schedule(self.index, &self.own, step, d));
-                }
-            }
-            Work::Weigh => {
-                s.weigh_time = elapsed;
-                self.report(out);
-            }
-            _ => {}
-        }
-    }
-
     fn begin_step(&mut self, step: u32, out: &mut Vec<Outgoing>) {
         if !wiring::is_next_step(step, self.steps, self.last_step) {
             tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
@@ -365,6 +242,137 @@ impl MacCentre {
         });
     }
 }
+
+impl Node for MacCentre {
+    fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
+
+    fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+}
+
+
+impl Actor for MacCentre {
+    type Work = Work;
+
+    fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    /// Its control and its channel's deliveries.
+    fn subscriptions(&self) -> Vec<Channel> {
+        vec![Channel::Control(self.id()), Channel::MacOutput(self.index)]
+    }
+
+    /// An activation channel to each of its sensors and to its channel,
+    /// and its telemetry.
+    fn publications(&self) -> Vec<Channel> {
+        self.publications.clone()
+    }
+
+    /// Its sensors and its channel (the schedule wakes them), and the
+    /// launcher.
+    fn peers(&self) -> Vec<ActorId> {
+        let mut v: Vec<ActorId> = self.own.iter().map(|s| ActorId::Sensor(*s)).collect();
+        v.push(ActorId::Mac(self.index));
+        v.push(ActorId::Launcher);
+        v
+    }
+
+    /// The launcher's `BeginStep` and the channel's delivery; a delivery
+    /// for another step, or with another count of slots than the step's,
+    /// is counted late and dropped.
+    fn handle(&mut self, message: &Message, _now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => self.begin_step(step, out),
+            (Payload::Control(Control::Membership { .. }), ActorId::Launcher) => {}
+            (Payload::MacOutput { values }, ActorId::Mac(m)) if m == self.index => {
+                let slots = self
+                    .stepping
+                    .as_ref()
+                    .and_then(|s| s.design.as_ref())
+                    .map(|d| d.likelihood.sensing_matrix().slots());
+                match self.stepping.as_mut() {
+                    Some(s)
+                        if s.step == step
+                            && s.received.is_none()
+                            && slots == Some(values.len()) =>
+                    {
+                        s.received = Some(values.clone())
+                    }
+                    _ => self.late_messages += 1,
+                }
+            }
+            (p, from) => {
+                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a fusion centre")
+            }
+        }
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        let s = self.stepping.as_ref()?;
+        s.received.is_none().then_some(s.deadline).flatten()
+    }
+
+    /// A delivery that did not come by the deadline: a lost step.
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let lost = self
+            .stepping
+            .as_ref()
+            .is_some_and(|s| s.received.is_none() && s.deadline.is_some_and(|d| now >= d));
+        if lost {
+            self.report(out);
+        }
+    }
+
+    fn poll_work(&self) -> Option<Work> {
+        let s = self.stepping.as_ref()?;
+        match (&s.design, &s.received) {
+            (None, _) => Some(Work::SelectionScores),
+            (Some(_), Some(_)) if !s.weighed => Some(Work::Weigh),
+            _ => None,
+        }
+    }
+
+    fn run_work(&mut self, work: Work) {
+        match work {
+            Work::SelectionScores => self.design(),
+            Work::Weigh => self.weigh(),
+            _ => {}
+        }
+    }
+
+    fn work_done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        let Some(s) = self.stepping.as_mut() else {
+            return;
+        };
+        match work {
+            Work::SelectionScores if s.deadline.is_none() => {
+                s.select_time = elapsed;
+                s.deadline = Some(now + self.listen);
+                let step = s.step;
+                if let Some(d) = s.design.as_ref() {
+                    out.extend(schedule(self.index, &self.own, step, d));
+                }
+            }
+            Work::Weigh => {
+                s.weigh_time = elapsed;
+                self.report(out);
+            }
+            _ => {}
+        }
+    }
+}
+
 
 /// The schedule of node `index`'s step, each transmitting sensor's column:
 /// to each transmitter and to the channel, each on its own activation

@@ -8,7 +8,7 @@ use bounds::State;
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::fusion::{Fused, FusionProtocol, Handled, InformationVector, RoundStats};
 use node::sensor_manager::{SelectionContext, SensorManager};
-use node::{NodeActor, Outgoing, SensingModel};
+use node::{Actor, Node, NodeActor, Outgoing, SensingModel};
 use wire::{Control, Message, Payload};
 
 /// A sensor manager: always the node's first `k` sensors.

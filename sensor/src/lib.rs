@@ -24,7 +24,9 @@ use bounds::{Dynamics, ObservationModel, Quantizer, State};
 use fusion_graph::faults::{FaultSchedule, SensorFault};
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::world::{TruthMissing, WorldView};
-use fusion_graph::Channel;
+use std::time::Duration;
+
+use fusion_graph::{Actor, Channel, Outgoing};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand::Rng;
 use wire::{unpack_mat4, Message, Payload};
@@ -58,6 +60,76 @@ pub struct SensorActor {
     last_honest_value: Option<f64>,
     /// Its node, or the channel in front of it.
     reports_to: ActorId,
+}
+
+/// A sensor as its drivers run it: with the world it looks at and the
+/// actors its observations go to (its node or channel, and in a run with
+/// a centralized reference the launcher too).
+pub struct SensorInWorld<W> {
+    sensor: SensorActor,
+    world: W,
+    receivers: Vec<ActorId>,
+    world_misses: u32,
+}
+
+impl SensorActor {
+    /// This sensor looking at `world`; `and_launcher` also sends its
+    /// observations to the launcher's centralized reference.
+    pub fn in_world<W: WorldView>(self, world: W, and_launcher: bool) -> SensorInWorld<W> {
+        let mut receivers = vec![self.reports_to];
+        if and_launcher {
+            receivers.push(ActorId::Launcher);
+        }
+        SensorInWorld {
+            sensor: self,
+            world,
+            receivers,
+            world_misses: 0,
+        }
+    }
+}
+
+impl<W: WorldView> Actor for SensorInWorld<W> {
+    /// A sensor's work is its answer, too light to time apart.
+    type Work = ();
+
+    fn id(&self) -> ActorId {
+        self.sensor.id()
+    }
+
+    fn subscriptions(&self) -> Vec<Channel> {
+        self.sensor.subscriptions().to_vec()
+    }
+
+    fn publications(&self) -> Vec<Channel> {
+        vec![self.sensor.publication()]
+    }
+
+    fn peers(&self) -> Vec<ActorId> {
+        self.receivers.clone()
+    }
+
+    /// A step the world does not hold is counted ([`Actor::take_world_misses`])
+    /// and logged; the sensor stays silent for that step.
+    fn handle(&mut self, message: &Message, _now: Duration, out: &mut Vec<Outgoing>) {
+        match self.sensor.answer(message, &self.world) {
+            Ok(Some(observation)) => out.push(Outgoing {
+                channel: self.sensor.publication(),
+                message: observation,
+                receivers: self.receivers.clone(),
+                wake: None,
+            }),
+            Ok(None) => {}
+            Err(missing) => {
+                tracing::warn!(sensor = %self.sensor.id(), error = %missing, "no observation this step");
+                self.world_misses += 1;
+            }
+        }
+    }
+
+    fn take_world_misses(&mut self) -> u32 {
+        std::mem::take(&mut self.world_misses)
+    }
 }
 
 /// Whether this sensor stays silent when activated.
@@ -137,11 +209,11 @@ impl SensorActor {
         Channel::Observation(self.index)
     }
 
-    /// Handles one message: its node's activation, which it answers with
-    /// the observation of the activation's step, looking at the target in
-    /// `world`; anything else is ignored. A step the world does not hold
-    /// is an error, never a stale observation.
-    pub fn handle(
+    /// Answers one message: its node's activation, with the observation
+    /// of the activation's step, looking at the target in `world`;
+    /// anything else is ignored. A step the world does not hold is an
+    /// error, never a stale observation.
+    pub fn answer(
         &mut self,
         message: &Message,
         world: &dyn WorldView,
@@ -435,7 +507,7 @@ mod tests {
         for step in 1..=40 {
             let mut a = censoring_actor(&censoring);
             match a
-                .handle(&activation_with_feedback(step, before, 1.0), &Still(truth))
+                .answer(&activation_with_feedback(step, before, 1.0), &Still(truth))
                 .unwrap()
             {
                 Some(_) => sent += 1,
@@ -448,7 +520,7 @@ mod tests {
         for step in 1..=10 {
             let mut a = censoring_actor(&censoring);
             assert!(
-                a.handle(&activation_with_feedback(step, far, 1.0), &Still(truth))
+                a.answer(&activation_with_feedback(step, far, 1.0), &Still(truth))
                     .unwrap()
                     .is_some(),
                 "a prediction 280 m off must not silence the sensor"
@@ -456,7 +528,7 @@ mod tests {
         }
         let mut a = censoring_actor(&censoring);
         assert!(
-            a.handle(&activation(3, true), &Still(truth))
+            a.answer(&activation(3, true), &Still(truth))
                 .unwrap()
                 .is_some(),
             "no feedback: send"
@@ -470,7 +542,7 @@ mod tests {
         let steps = 3000;
         let sent = (1..=steps)
             .filter(|&step| {
-                a.handle(&activation(step, true), &Still(truth))
+                a.answer(&activation(step, true), &Still(truth))
                     .unwrap()
                     .is_some()
             })
@@ -513,7 +585,7 @@ mod tests {
         let Some(Message {
             payload: Payload::SlotValues { slots, values },
             ..
-        }) = a.handle(&schedule(6), &Still(truth)).unwrap()
+        }) = a.answer(&schedule(6), &Still(truth)).unwrap()
         else {
             panic!("no transmission")
         };
@@ -522,7 +594,7 @@ mod tests {
         assert_eq!(values, vec![z, -z, z]);
         let mut other = SensorActor::new(&s, &t, 7).unwrap();
         assert!(
-            other.handle(&schedule(6), &Still(truth)).unwrap().is_none(),
+            other.answer(&schedule(6), &Still(truth)).unwrap().is_none(),
             "not scheduled: silent"
         );
     }
@@ -549,22 +621,22 @@ mod tests {
         let truth = State::new(1000.0, 900.0, -6.0, -7.0);
         let world = OnlyStepOne(truth);
         let mut a = actor();
-        let first = a.handle(&activation(1, true), &world).unwrap().unwrap();
+        let first = a.answer(&activation(1, true), &world).unwrap().unwrap();
         assert_eq!(
-            a.handle(&activation(1, true), &world),
+            a.answer(&activation(1, true), &world),
             Ok(None),
             "one observation per step"
         );
-        let second = actor().handle(&activation(1, true), &Still(truth)).unwrap();
+        let second = actor().answer(&activation(1, true), &Still(truth)).unwrap();
         assert_eq!(Some(first), second, "the same look at the same target");
         // Not activated: silent, and the world is not read.
-        assert_eq!(a.handle(&activation(2, false), &world), Ok(None));
+        assert_eq!(a.answer(&activation(2, false), &world), Ok(None));
         // Activated for a step the world has not written: an error, once.
         assert_eq!(
-            a.handle(&activation(2, true), &world),
+            a.answer(&activation(2, true), &world),
             Err(TruthMissing::NotYetWritten { step: 2, latest: 1 })
         );
-        assert_eq!(a.handle(&activation(2, true), &world), Ok(None));
+        assert_eq!(a.answer(&activation(2, true), &world), Ok(None));
     }
 
     #[test]
@@ -582,7 +654,7 @@ mod tests {
             let Some(Message {
                 payload: Payload::Observation { cell },
                 ..
-            }) = a.handle(&activation(step, true), &Still(truth)).unwrap()
+            }) = a.answer(&activation(step, true), &Still(truth)).unwrap()
             else {
                 panic!("no observation")
             };
@@ -608,7 +680,7 @@ mod tests {
     fn six_steps(a: &mut SensorActor, truth: State) -> Vec<Option<Payload>> {
         (1..=6)
             .map(|k| {
-                a.handle(&activation(k, true), &Still(truth))
+                a.answer(&activation(k, true), &Still(truth))
                     .unwrap()
                     .map(|m| m.payload)
             })

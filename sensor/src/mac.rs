@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
-use fusion_graph::Channel;
+use fusion_graph::{Actor, Channel, Outgoing};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
 use rand_distr::{Distribution, StandardNormal};
 use wire::{Message, Payload, MAX_SLOTS};
@@ -70,13 +70,9 @@ impl MacActor {
         }))
     }
 
-    pub fn id(&self) -> ActorId {
-        ActorId::Mac(self.index)
-    }
-
     /// The launcher's lifecycle (the stop), the centre's schedule, and its
     /// sensors' transmissions.
-    pub fn subscriptions(&self) -> Vec<Channel> {
+    fn channels_read(&self) -> Vec<Channel> {
         let mut v = vec![
             Channel::Lifecycle,
             Channel::Activation {
@@ -103,7 +99,7 @@ impl MacActor {
     }
 
     /// When the open slots end, if a schedule opened them.
-    pub fn poll_timeout(&self) -> Option<Duration> {
+    pub fn slots_end(&self) -> Option<Duration> {
         self.frame.as_ref()?.schedule.as_ref().map(|s| s.2)
     }
 
@@ -111,7 +107,7 @@ impl MacActor {
     /// the slots. A message of a later step ends the slots of an earlier
     /// one still open (their timeout not yet handled): that delivery is
     /// returned, and the later step's slots end at their own time.
-    pub fn handle(&mut self, message: &Message, now: Duration) -> Option<Message> {
+    pub fn take(&mut self, message: &Message, now: Duration) -> Option<Message> {
         let step = message.header.step;
         if self.delivered.is_some_and(|d| step <= d) {
             if matches!(message.payload, Payload::SlotValues { .. }) {
@@ -166,8 +162,8 @@ impl MacActor {
     }
 
     /// Ends the slots whose time is up with what they heard.
-    pub fn handle_timeout(&mut self, now: Duration) -> Option<Message> {
-        if self.poll_timeout().is_some_and(|due| now >= due) {
+    pub fn end_slots(&mut self, now: Duration) -> Option<Message> {
+        if self.slots_end().is_some_and(|due| now >= due) {
             return self.deliver();
         }
         None
@@ -213,6 +209,54 @@ impl MacActor {
             0,
             Payload::MacOutput { values: sums },
         ))
+    }
+}
+
+impl Actor for MacActor {
+    /// Adding up a step's slots is too light to time apart.
+    type Work = ();
+
+    fn id(&self) -> ActorId {
+        ActorId::Mac(self.index)
+    }
+
+    fn subscriptions(&self) -> Vec<Channel> {
+        self.channels_read()
+    }
+
+    fn publications(&self) -> Vec<Channel> {
+        vec![self.publication()]
+    }
+
+    fn peers(&self) -> Vec<ActorId> {
+        vec![self.centre()]
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        if let Some(delivery) = self.take(message, now) {
+            out.push(self.to_centre(delivery));
+        }
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.slots_end()
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        if let Some(delivery) = self.end_slots(now) {
+            out.push(self.to_centre(delivery));
+        }
+    }
+}
+
+impl MacActor {
+    fn to_centre(&self, delivery: Message) -> Outgoing {
+        Outgoing {
+            channel: self.publication(),
+            message: delivery,
+            receivers: vec![self.centre()],
+            wake: None,
+        }
     }
 }
 
@@ -282,7 +326,7 @@ mod tests {
             ];
             let mut delivered = None;
             for (k, i) in order.iter().enumerate() {
-                let out = mac.handle(&messages[*i], Duration::ZERO);
+                let out = mac.take(&messages[*i], Duration::ZERO);
                 if k < 2 {
                     assert!(out.is_none(), "order {order:?}: delivered early");
                 }
@@ -305,20 +349,20 @@ mod tests {
         let (s, t) = field();
         let mut mac = MacActor::new(&s, &t, 0).unwrap().unwrap();
         let at = Duration::from_secs(1);
-        mac.handle(
+        mac.take(
             &schedule(3, vec![column(3, 0b001, 0), column(7, 0b010, 0)]),
             at,
         );
-        mac.handle(&sent(3, 3, 0b001, vec![2.0]), at);
+        mac.take(&sent(3, 3, 0b001, vec![2.0]), at);
         let ended = mac
-            .handle(&schedule(4, vec![column(7, 0b100, 0)]), at)
+            .take(&schedule(4, vec![column(7, 0b100, 0)]), at)
             .expect("step 3's slots end");
         assert_eq!(ended.header.step, 3);
         let e = noise(&s, 4);
         let Some(Message {
             payload: Payload::MacOutput { values },
             header,
-        }) = mac.handle(&sent(7, 4, 0b100, vec![1.0]), at)
+        }) = mac.take(&sent(7, 4, 0b100, vec![1.0]), at)
         else {
             panic!("step 4's slots did not end")
         };
@@ -335,23 +379,23 @@ mod tests {
         let mut mac = MacActor::new(&s, &t, 0).unwrap().unwrap();
         let start = Duration::from_secs(1);
         assert!(mac
-            .handle(
+            .take(
                 &schedule(5, vec![column(3, 0b001, 0), column(7, 0b001, 0)]),
                 start
             )
             .is_none());
-        assert!(mac.handle(&sent(3, 5, 0b001, vec![2.0]), start).is_none());
-        let due = mac.poll_timeout().expect("the slots end");
-        assert!(mac.handle_timeout(due - Duration::from_millis(1)).is_none());
+        assert!(mac.take(&sent(3, 5, 0b001, vec![2.0]), start).is_none());
+        let due = mac.slots_end().expect("the slots end");
+        assert!(mac.end_slots(due - Duration::from_millis(1)).is_none());
         let Some(Message {
             payload: Payload::MacOutput { values },
             ..
-        }) = mac.handle_timeout(due)
+        }) = mac.end_slots(due)
         else {
             panic!("nothing delivered at the slots' end")
         };
         assert_eq!(values, vec![2.0 + e[0], e[1], e[2]]);
-        assert!(mac.handle(&sent(7, 5, 0b001, vec![9.0]), due).is_none());
+        assert!(mac.take(&sent(7, 5, 0b001, vec![9.0]), due).is_none());
         assert_eq!(mac.late_messages(), 1);
     }
 }

@@ -69,7 +69,7 @@ fn every_report(s: &Scenario, t: &Topology, steps: u32) -> Vec<([f64; 2], u32)> 
                 },
             );
             let report = sensor
-                .handle(&activation, &StillTarget(truth))
+                .answer(&activation, &StillTarget(truth))
                 .expect("the world holds every step")
                 .expect("an active sensor reports");
             let Payload::Observation { cell } = report.payload else {

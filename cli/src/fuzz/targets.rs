@@ -8,7 +8,8 @@ use fusion_graph::scenario::{
 use std::time::Duration;
 
 use fusion_graph::Topology;
-use node::ProcessingNode;
+use fusion_graph::Actor;
+use node::{processing_node, AnyNode, Start};
 use sensor::SensorActor;
 use transport::world_memory::{TruthReader, TruthRing};
 use wire::{examples, seal, Message, WireFormat};
@@ -119,7 +120,7 @@ pub(super) fn shape(message: &str) -> String {
 /// locator node, and a fusion centre with its multiple-access channel,
 /// handed every input that decodes as one message.
 pub(super) struct Actors {
-    nodes: Vec<ProcessingNode>,
+    nodes: Vec<AnyNode>,
     sensor: SensorActor,
     /// The sensor's world: the truth of steps 1 to 16 only, so that a
     /// forged step exercises the refusal of a step it does not hold.
@@ -135,7 +136,7 @@ impl Actors {
             .expect("the built-in scenario");
         let topology = Topology::from_scenario(&scenario, "default").expect("its topology");
         let mut nodes =
-            vec![ProcessingNode::for_scenario(&scenario, &topology, 4).expect("node-4")];
+            vec![processing_node(&scenario, &topology, 4, Start::default()).expect("node-4")];
         for protocol in ["random_exchange", "kl_iterative"] {
             let overrides = [
                 "filter.particles=64".to_string(),
@@ -147,17 +148,17 @@ impl Actors {
             let lattice =
                 Topology::from_scenario(&random_exchange, "random-exchange").expect("its topology");
             nodes.push(
-                ProcessingNode::for_scenario(&random_exchange, &lattice, 12).expect("node-12"),
+                processing_node(&random_exchange, &lattice, 12, Start::default()).expect("node-12"),
             );
         }
         let location = Scenario::from_toml(LOCATION_SCENARIO, "location", &[])
             .expect("the built-in location scenario");
         let ring = Topology::from_scenario(&location, "location").expect("its topology");
-        nodes.push(ProcessingNode::for_scenario(&location, &ring, 1).expect("node-1"));
+        nodes.push(processing_node(&location, &ring, 1, Start::default()).expect("node-1"));
         let compressive = Scenario::from_toml(COMPRESSIVE_SCENARIO, "compressive", &overrides[..1])
             .expect("the built-in compressive scenario");
         let field = Topology::from_scenario(&compressive, "compressive").expect("its topology");
-        nodes.push(ProcessingNode::for_scenario(&compressive, &field, 0).expect("node-0"));
+        nodes.push(processing_node(&compressive, &field, 0, Start::default()).expect("node-0"));
         let (truths, seen) = TruthRing::on_heap(16);
         let mut truth = launch::world::World::new(&scenario).expect("the default world");
         for step in 1..=16 {
@@ -201,12 +202,12 @@ impl Actors {
                 }
             }
         }
-        let observed = match self.sensor.handle(&message, &self.world) {
+        let observed = match self.sensor.answer(&message, &self.world) {
             Ok(observation) => observation.is_some(),
             Err(_) => false,
         };
-        let delivered = self.mac.handle(&message, self.now).is_some()
-            | self.mac.handle_timeout(self.now).is_some();
+        let delivered = self.mac.take(&message, self.now).is_some()
+            | self.mac.end_slots(self.now).is_some();
         let observed = observed || delivered;
         format!(
             "{:?} sent {} observed {observed}",

@@ -1,0 +1,66 @@
+//! The processing node a scenario describes, whatever its kind: the CF/DPF
+//! node ([`NodeActor`]), one of the random-exchange paper's trackers
+//! ([`DiffusionNode`]), a static target's locator ([`LocatorNode`]), as
+//! the scenario's `consensus.protocol` says, or a fusion centre behind a
+//! multiple-access channel ([`MacCentre`]), when the scenario has one.
+//! Every kind is an [`Actor`] with the same stages, so the drivers hold
+//! any of them as an [`AnyNode`].
+
+use std::time::Duration;
+
+use fusion_graph::registered::Shape;
+use fusion_graph::{Scenario, Topology};
+
+use crate::diffusion_node::DiffusionNode;
+use crate::{Actor, LocatorNode, MacCentre, NodeActor, NodeError, Work};
+
+/// What a processing node is beyond an actor of the network.
+pub trait Node: Actor<Work = Work> {
+    /// Between steps: nothing collected, fused or waiting.
+    fn is_idle(&self) -> bool;
+
+    /// Messages that arrived after their round or step had passed.
+    fn late_messages(&self) -> u64;
+}
+
+/// A processing node of any kind.
+pub type AnyNode = Box<dyn Node>;
+
+/// How a node process starts, beside what the scenario says.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Start {
+    /// Started in the middle of a run (a restart): a CF/DPF node rejoins
+    /// from a neighbour's fused posterior. A random-exchange node starts
+    /// from the prior and is pulled back by its exchanges or fusion.
+    pub rejoin: bool,
+    /// In real time, the step's period: a CF/DPF node closes its waiting
+    /// stages in time for it ([`NodeActor::bound_steps_by`]). The trackers
+    /// bound their steps by their own listening windows.
+    pub step_period: Option<Duration>,
+}
+
+/// Node `index` as the scenario describes it.
+pub fn processing_node(
+    scenario: &Scenario,
+    topology: &Topology,
+    index: u16,
+    start: Start,
+) -> Result<AnyNode, NodeError> {
+    if scenario.channel.is_some() {
+        return Ok(Box::new(MacCentre::new(scenario, topology, index)?));
+    }
+    if scenario.consensus.protocol.shape() == Shape::Locator {
+        let config = crate::registry::location_config(scenario)?;
+        return Ok(Box::new(LocatorNode::new(scenario, topology, index, config)?));
+    }
+    if let Some(cooperation) = crate::registry::cooperation(scenario, topology, index)? {
+        return Ok(Box::new(DiffusionNode::new(
+            scenario,
+            topology,
+            index,
+            cooperation,
+        )?));
+    }
+    let node = NodeActor::new(scenario, topology, index)?;
+    Ok(Box::new(node.starting(start)))
+}
