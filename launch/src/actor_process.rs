@@ -9,8 +9,8 @@ use anyhow::Context;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::hosts::Placement;
 use fusion_graph::scenario::ClockMode;
-use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use fusion_graph::Actor;
+use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::{processing_node, Start};
 use sensor::mac::MacActor;
 use sensor::SensorActor;
@@ -107,7 +107,8 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
             let world = TruthReader::open(&run).with_context(|| {
                 format!("{actor} cannot see the world (the run's truth in shared memory)")
             })?;
-            let sensor = SensorActor::new(&scenario, &topology, i)?.in_world(world, args.centralized);
+            let sensor =
+                SensorActor::new(&scenario, &topology, i)?.in_world(world, args.centralized);
             schedule.follow_link_faults(transport.me(), transport.shaper(), &topology);
             let pace = Pace::at_rest(SENSOR_IDLE_WAIT);
             actor_loop(sensor, transport, &pace, &out)

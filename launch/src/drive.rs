@@ -113,7 +113,15 @@ mod tests {
                 },
             );
             let now = transport.now();
-            deliver(&mut sensor, &mut transport, &activation, now, &mut out, || {}).unwrap();
+            deliver(
+                &mut sensor,
+                &mut transport,
+                &activation,
+                now,
+                &mut out,
+                || {},
+            )
+            .unwrap();
         }
         assert_eq!(transport.accounting().world_misses(), 1);
         let mut got = Vec::new();

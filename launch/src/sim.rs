@@ -13,10 +13,10 @@ use bounds::State;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::Scenario;
+use fusion_graph::Actor;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
-use fusion_graph::Actor;
-use node::{processing_node, AnyNode, CentralizedReference, NodeActor, Outgoing, Start};
+use node::{processing_node, AnyNode, CentralizedReference, CfDpfNode, Outgoing, Start};
 use sensor::mac::MacActor;
 use sensor::{SensorActor, SensorInWorld};
 use transport::accounting::Accounting;
@@ -65,7 +65,14 @@ impl<A: Actor> Slot<A> {
         self.transport.receive(now, inbox)?;
         let progressed = !inbox.is_empty();
         for m in inbox.drain(..) {
-            deliver(&mut self.actor, &mut self.transport, &m, now, outgoing, || {})?;
+            deliver(
+                &mut self.actor,
+                &mut self.transport,
+                &m,
+                now,
+                outgoing,
+                || {},
+            )?;
         }
         Ok(progressed)
     }
@@ -125,8 +132,8 @@ impl InProcessNetwork {
         let sensors_see = Rc::new(sensors_see);
         let mut sensors = Vec::new();
         for i in 0..topology.sensors() as u16 {
-            let actor = SensorActor::new(scenario, topology, i)?
-                .in_world(sensors_see.clone(), centralized);
+            let actor =
+                SensorActor::new(scenario, topology, i)?.in_world(sensors_see.clone(), centralized);
             let mut slot = Slot::new(actor, transport(ActorId::Sensor(i)))?;
             schedule.follow_link_faults(slot.transport.me(), slot.transport.shaper(), topology);
             sensors.push(slot);
@@ -193,7 +200,7 @@ impl InProcessNetwork {
         };
         let actor = match oracle {
             None => processing_node(scenario, topology, i, start),
-            Some(oracle) => NodeActor::with_parts(
+            Some(oracle) => CfDpfNode::with_parts(
                 scenario,
                 topology,
                 i,

@@ -18,9 +18,9 @@ use fusion_graph::registered::{self, Role, Shape};
 use fusion_graph::{Scenario, Topology};
 use wire::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
 
-use crate::diffusion_node::Cooperation;
 use crate::fusion::{average_consensus, InformationFusion};
 use crate::location::{LocationConfig, ThresholdDesign};
+use crate::nodes::trackers::Cooperation;
 use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, UniformRandom};
 
 /// What a protocol or manager is built from: the run's scenario and

@@ -11,9 +11,17 @@ pub enum Work {
     LocalFilter,
     /// The fusion filter and the global bounds.
     FusionFilter,
-    /// The random-exchange paper's nodes: the filter's prediction and its weighing with the
-    /// step's measurements (from the exchanged posterior, in RndEx-PF).
+    /// A tracker's prediction and its weighing with the step's
+    /// measurements (from the exchanged posterior, in RndEx-PF).
     Weigh,
-    /// The random-exchange paper's KL fusion: the particles redrawn from the fused Gaussian.
+    /// KL fusion: the particles redrawn from the fused Gaussian.
     Adopt,
+    /// A locator's log-likelihood over the region's grid.
+    GridLikelihood,
+    /// A fusion centre's design of the step's slots: the prediction, each
+    /// sensor's expected information, the transmission probabilities and
+    /// the sensing matrix drawn from them.
+    Design,
+    /// A fusion centre's weighing of its particles with the channel's delivery.
+    WeighDelivery,
 }

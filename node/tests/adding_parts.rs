@@ -1,5 +1,5 @@
 //! How to add a sensor manager and a fusion protocol: a toy of each,
-//! plugged into a node with `NodeActor::with_parts` and run for a step.
+//! plugged into a node with `CfDpfNode::with_parts` and run for a step.
 //! ARCHITECTURE.md points here; keep the two in step.
 
 use std::time::Duration;
@@ -8,7 +8,7 @@ use bounds::State;
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::fusion::{Fused, FusionProtocol, Handled, InformationVector, RoundStats};
 use node::sensor_manager::{SelectionContext, SensorManager};
-use node::{Actor, Node, NodeActor, Outgoing, SensingModel};
+use node::{Actor, CfDpfNode, Node, Outgoing, SensingModel};
 use wire::{Control, Message, Payload};
 
 /// A sensor manager: always the node's first `k` sensors.
@@ -70,7 +70,7 @@ impl FusionProtocol for Alone {
 fn a_node_runs_a_step_with_a_toy_manager_and_a_toy_protocol() {
     let scenario = Scenario::default_scenario();
     let topology = Topology::from_scenario(&scenario, "default").unwrap();
-    let mut node = NodeActor::with_parts(
+    let mut node = CfDpfNode::with_parts(
         &scenario,
         &topology,
         8,

@@ -26,8 +26,8 @@ use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::world::{TruthMissing, WorldView};
 use std::time::Duration;
 
-use fusion_graph::{Actor, Channel, Outgoing};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
+use fusion_graph::{Actor, Channel, Outgoing};
 use rand::Rng;
 use wire::{unpack_mat4, Message, Payload};
 

@@ -17,8 +17,8 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
-use fusion_graph::{Actor, Channel, Outgoing};
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
+use fusion_graph::{Actor, Channel, Outgoing};
 use rand_distr::{Distribution, StandardNormal};
 use wire::{Message, Payload, MAX_SLOTS};
 

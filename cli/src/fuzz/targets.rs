@@ -7,8 +7,8 @@ use fusion_graph::scenario::{
 };
 use std::time::Duration;
 
-use fusion_graph::Topology;
 use fusion_graph::Actor;
+use fusion_graph::Topology;
 use node::{processing_node, AnyNode, Start};
 use sensor::SensorActor;
 use transport::world_memory::{TruthReader, TruthRing};
@@ -206,8 +206,8 @@ impl Actors {
             Ok(observation) => observation.is_some(),
             Err(_) => false,
         };
-        let delivered = self.mac.take(&message, self.now).is_some()
-            | self.mac.end_slots(self.now).is_some();
+        let delivered =
+            self.mac.take(&message, self.now).is_some() | self.mac.end_slots(self.now).is_some();
         let observed = observed || delivered;
         format!(
             "{:?} sent {} observed {observed}",

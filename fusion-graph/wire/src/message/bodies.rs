@@ -62,6 +62,34 @@ pub struct ConsensusValues {
     pub delta_l_late: Option<Packed>,
 }
 
+/// The stages a node times, by their place in [`Telemetry::stage_micros`].
+/// Each node kind fills the ones it has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// The node's own evidence: the CF/DPF's local filter with the local
+    /// bound; a tracker's or locator's weighing of its measurements.
+    Local = 0,
+    /// The global estimate: the CF/DPF's fusion filter with the global
+    /// bounds; KL fusion's adoption; a fusion centre's weighing.
+    Global = 1,
+    /// Consensus rounds 2..N_c: when every neighbour is already
+    /// exchanging, the rounds' own latency.
+    LaterRounds = 2,
+    /// The whole consensus (round 1 also waits for the slowest
+    /// neighbour's filter).
+    Consensus = 3,
+    /// The sensor selection, from `BeginStep` to the activation (zero for
+    /// a manager that chooses alone).
+    Selection = 4,
+    /// The selection's scoring, wherever it ran: in the step, or before it
+    /// began.
+    Scoring = 5,
+}
+
+impl Stage {
+    pub const COUNT: usize = 6;
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Telemetry {
     pub estimate: [f64; 4],
@@ -80,14 +108,8 @@ pub struct Telemetry {
     pub deadline_missed: bool,
     /// Messages that arrived after their round or step had passed, since the last telemetry.
     pub late_messages: u32,
-    /// Microseconds in: the local filter (with the local bound), the fusion
-    /// filter (with the global bounds), consensus rounds 2..N_c (when every
-    /// neighbour is already exchanging: the rounds' own latency), and the
-    /// whole consensus (round 1 also waits for the slowest neighbour's
-    /// filter), the sensor selection (from `BeginStep` to the activation;
-    /// zero for a manager that chooses alone), and the selection's scoring
-    /// (wherever it ran: in the step, or before it began).
-    pub stage_micros: [u32; 6],
+    /// Microseconds in each [`Stage`], at its place.
+    pub stage_micros: [u32; Stage::COUNT],
     /// Own sensors activated several times that never answered, and the
     /// first of them (0 and `None` with censoring, where silence is an
     /// answer).

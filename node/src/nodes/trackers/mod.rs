@@ -11,7 +11,7 @@
 //! and weigh (RndEx-PF: from the exchanged posterior) → KL fusion only: K_max
 //! rounds on the natural parameters, then [`Work::Adopt`] → telemetry.
 //!
-//! It is driven exactly as [`NodeActor`](crate::NodeActor) is, so the same
+//! It is driven exactly as [`CfDpfNode`](crate::CfDpfNode) is, so the same
 //! drivers run it (see [`processing_node`](crate::processing_node)).
 
 use std::time::Duration;
@@ -20,17 +20,20 @@ use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use rand_chacha::ChaCha8Rng;
-use wire::{Control, Message, Payload, Telemetry};
+use wire::{Control, Message, Payload, Stage};
 
-use crate::collector::{Collector, Offer, SensorAnswers};
+use crate::collector::{Collector, Offer};
 use crate::diffusion::DiffusionTracker;
 use crate::estimator::{Observation, ObservedValue, SensingModel};
 use crate::fusion::{
     kl_fusion, Exchanged, FusionProtocol, Handled, KlFused, KlFusion, NaturalGaussian,
     RandomExchange, RoundStats,
 };
-use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
-use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
+use crate::sensor_manager::{SensorManager, UniformRandom};
+use crate::{Actor, Node, NodeError, Outgoing, Work};
+
+use super::core::mask;
+use super::{NodeCore, Report};
 
 /// How a tracker node cooperates, by the scenario's `consensus.protocol`;
 /// the registry ([`crate::registry`]) builds it by name.
@@ -142,9 +145,8 @@ struct Stepping {
     weigh_time: Duration,
 }
 
-pub struct DiffusionNode {
-    index: u16,
-    topology: Topology,
+pub struct TrackerNode {
+    core: NodeCore,
     model: SensingModel,
     tracker: DiffusionTracker,
     rng: ChaCha8Rng,
@@ -152,26 +154,18 @@ pub struct DiffusionNode {
     cooperation: Cooperation,
     /// Sensors each node activates per step: how many relays to expect.
     active_per_node: usize,
-    view: Vec<bool>,
     listen: Duration,
-    steps: u32,
-    last_step: Option<u32>,
     stepping: Option<Box<Stepping>>,
     /// Neighbours' relayed measurements of the running step or a later one:
     /// (step, neighbour, measurement).
     relayed: Vec<(u32, u16, Observation)>,
-    late_messages: u64,
-    late_reported: u64,
-    deadline_missed: bool,
-    /// Which own sensors ever answered an activation.
-    answers: SensorAnswers,
 }
 
 fn round_timeout(scenario: &Scenario) -> Duration {
     Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)
 }
 
-impl DiffusionNode {
+impl TrackerNode {
     /// Node `index` of a tracker network, cooperating as `cooperation` says.
     pub fn new(
         scenario: &Scenario,
@@ -190,75 +184,55 @@ impl DiffusionNode {
             source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
         })?;
         Ok(Self {
-            index,
-            topology: topology.clone(),
+            core: NodeCore::new(
+                scenario,
+                topology,
+                index,
+                models.quantizer.as_ref().map(|q| q.cells()),
+            ),
             model,
             tracker,
             rng,
             manager: UniformRandom::for_scenario(scenario),
             cooperation,
             active_per_node: scenario.sensors.active_per_node as usize,
-            view: topology.all_alive(),
             listen: round_timeout(scenario),
-            steps: scenario.steps,
-            last_step: None,
             stepping: None,
             relayed: Vec::new(),
-            late_messages: 0,
-            late_reported: 0,
-            deadline_missed: false,
-            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
         })
     }
 
-    fn own_sensors(&self) -> &[u16] {
-        &self.topology.node_sensors[self.index as usize]
-    }
-
     fn neighbours(&self) -> &[u16] {
-        &self.topology.neighbours[self.index as usize]
+        self.core.neighbours()
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !wiring::is_next_step(step, self.steps, self.last_step) {
-            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+        if !self.core.is_next_step(step) {
             return;
         }
         if self.stepping.is_some() {
-            self.deadline_missed = true;
+            self.core.overran();
             self.force_finish(now, out);
         }
-        for _ in self.last_step.map_or(step, |l| l + 1)..step {
+        for _ in 0..self.core.enter_step(step) {
             self.tracker.coast(&self.model, &mut self.rng);
         }
-        self.last_step = Some(step);
         self.relayed.retain(|(s, _, _)| *s >= step);
         self.cooperation.protocol().expect_step(step);
-        let own = self.own_sensors().to_vec();
-        let picks = self.manager.choose(&SelectionContext {
+        let picks = self
+            .manager
+            .choose(&self.core.selection_context(step, None));
+        let mask = mask(&picks);
+        let collector = self.core.activate(
             step,
-            node: self.index,
-            own_sensors: &own,
-            view: &self.view,
-            predicted: None,
-            sensor_positions: &self.topology.sensor_positions,
-            node_sensors: &self.topology.node_sensors,
-        });
-        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
-        let mask = wiring::mask(&picks);
-        wiring::activate(
-            out,
-            self.index,
-            step,
-            &own,
             &picks,
             Payload::Activate { mask },
+            now + self.listen,
+            out,
         );
-        self.answers.activated(&active);
-        let cells = self.model.quantizer.as_ref().map(|q| q.cells());
         self.stepping = Some(Box::new(Stepping {
             step,
-            collector: Some(Collector::new(step, active, now + self.listen, cells)),
+            collector: Some(collector),
             observations: Vec::new(),
             relays_closed: !self.cooperation.uses_neighbourhood(),
             relay_deadline: now + 2 * self.listen,
@@ -273,43 +247,25 @@ impl DiffusionNode {
         // RndEx-PF swaps the posterior of the step before, while the
         // measurements of this one come in.
         if let Cooperation::RandomExchange(exchange) = &mut self.cooperation {
-            exchange.start(step, self.tracker.summary(), &self.view, now, out);
+            exchange.start(step, self.tracker.summary(), self.core.view(), now, out);
             self.poll_protocol();
         }
         // A step with no active sensor has nothing to wait for.
-        if self
-            .stepping
-            .as_ref()
-            .and_then(|s| s.collector.as_ref())
-            .is_some_and(Collector::is_complete)
-        {
+        if self.collecting().is_some_and(Collector::is_complete) {
             self.close_own(out);
         }
     }
 
+    /// The collector of the step's own observations, while it listens.
+    fn collecting(&self) -> Option<&Collector> {
+        self.stepping.as_ref().and_then(|s| s.collector.as_ref())
+    }
+
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, out: &mut Vec<Outgoing>) {
-        self.answers.answered(sensor);
-        let offer = match self.stepping.as_mut().and_then(|s| s.collector.as_mut()) {
-            Some(c) => c.offer(step, sensor, value),
-            None => Offer::Late,
-        };
-        match offer {
-            Offer::Taken => {
-                let complete = self
-                    .stepping
-                    .as_ref()
-                    .and_then(|s| s.collector.as_ref())
-                    .is_some_and(Collector::is_complete);
-                if complete {
-                    self.close_own(out);
-                }
-            }
-            Offer::Late => self.late_messages += 1,
-            Offer::Invalid => tracing::warn!(
-                node = self.index,
-                sensor,
-                "observation outside the quantizer's cells dropped"
-            ),
+        let collector = self.stepping.as_mut().and_then(|s| s.collector.as_mut());
+        let offer = self.core.offer(collector, step, sensor, value);
+        if offer == Offer::Taken && self.collecting().is_some_and(Collector::is_complete) {
+            self.close_own(out);
         }
     }
 
@@ -330,7 +286,7 @@ impl DiffusionNode {
             let receivers: Vec<ActorId> = neighbours.iter().map(|m| ActorId::Node(*m)).collect();
             let wake: Vec<ActorId> = neighbours
                 .iter()
-                .filter(|m| self.view[**m as usize])
+                .filter(|m| self.core.view()[**m as usize])
                 .map(|m| ActorId::Node(*m))
                 .collect();
             for o in &collected.observations {
@@ -339,7 +295,7 @@ impl DiffusionNode {
                     ObservedValue::Cell(c) => c as f64,
                 };
                 out.push(Outgoing {
-                    channel: Channel::Consensus(self.index),
+                    channel: Channel::Consensus(self.core.index()),
                     message: Message::new(
                         me,
                         s.step,
@@ -361,9 +317,9 @@ impl DiffusionNode {
     /// A neighbour's measurement: kept for its step if it is a measurement
     /// of one of that neighbour's sensors, in range.
     fn take_relay(&mut self, step: u32, from: u16, sensor: u16, value: f64) {
-        let current = self.last_step.unwrap_or(0);
+        let current = self.core.last_step().unwrap_or(0);
         let from_a_neighbour = self.neighbours().contains(&from)
-            && self.topology.node_sensors[from as usize].contains(&sensor);
+            && self.core.topology().node_sensors[from as usize].contains(&sensor);
         let value = match &self.model.quantizer {
             Some(q) if value.fract() == 0.0 && value >= 0.0 && value < q.cells() as f64 => {
                 Some(ObservedValue::Cell(value as u32))
@@ -374,7 +330,7 @@ impl DiffusionNode {
         };
         let (true, Some(value)) = (from_a_neighbour, value) else {
             tracing::warn!(
-                node = self.index,
+                node = self.core.index(),
                 from,
                 sensor,
                 "a relayed measurement of no sensor of that neighbour, or out of range; dropped"
@@ -390,12 +346,12 @@ impl DiffusionNode {
             .iter()
             .any(|(s, _, o)| *s == step && o.sensor == sensor);
         if step < current || (step == current && closed) || duplicate {
-            self.late_messages += 1;
+            self.core.count_late();
             return;
         }
         // One step ahead at most: a neighbour never runs further ahead.
         if step > current + 1 {
-            self.late_messages += 1;
+            self.core.count_late();
             return;
         }
         self.relayed
@@ -411,12 +367,12 @@ impl DiffusionNode {
         if s.relays_closed || s.collector.is_some() {
             return;
         }
-        let neighbours = &self.topology.neighbours[self.index as usize];
+        let neighbours = self.core.neighbours();
         let all_in = neighbours
             .iter()
-            .filter(|m| self.view[**m as usize])
+            .filter(|m| self.core.view()[**m as usize])
             .all(|m| {
-                let expected = self.topology.node_sensors[*m as usize]
+                let expected = self.core.topology().node_sensors[*m as usize]
                     .len()
                     .min(self.active_per_node);
                 let heard = self
@@ -480,37 +436,12 @@ impl DiffusionNode {
             return;
         };
         let estimate = self.tracker.estimate();
-        let (unanswered_sensors, first_unanswered) = self.answers.unanswered();
-        let telemetry = Telemetry {
-            estimate: wiring::reported_estimate(&estimate),
-            bound: None,
-            local_bound: None,
-            aux_bound: None,
-            rounds_completed: s.stats.rounds_completed,
-            live_neighbours: s.stats.neighbours_heard,
-            observations: s.observations.len() as u16,
-            gated: 0,
-            lagged: 0,
-            deadline_missed: self.deadline_missed,
-            late_messages: (self.late_messages - self.late_reported) as u32,
-            stage_micros: [
-                wiring::micros(s.weigh_time),
-                wiring::micros(adopt_time),
-                wiring::micros(s.stats.later_rounds),
-                wiring::micros(s.stats.total),
-                0,
-                0,
-            ],
-            unanswered_sensors,
-            first_unanswered,
-            spread: None,
-            active: Vec::new(),
-            design: Vec::new(),
-            without_choice: false,
-        };
-        self.deadline_missed = false;
-        self.late_reported = self.late_messages;
-        out.push(wiring::telemetry(self.index, s.step, telemetry));
+        let report = Report::of(&estimate)
+            .rounds(&s.stats)
+            .observations(s.observations.len() as u16)
+            .stage(Stage::Local, s.weigh_time)
+            .stage(Stage::Global, adopt_time);
+        out.push(self.core.report(s.step, report));
     }
 
     /// Ends an overrun step at once with what it has: no more waiting for
@@ -559,32 +490,31 @@ impl DiffusionNode {
     }
 }
 
-impl Node for DiffusionNode {
+impl Node for TrackerNode {
     fn is_idle(&self) -> bool {
         self.stepping.is_none()
     }
 
     fn late_messages(&self) -> u64 {
-        self.late_messages
+        self.core.late_messages()
     }
 }
 
-
-impl Actor for DiffusionNode {
+impl Actor for TrackerNode {
     type Work = Work;
 
     fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
+        self.core.id()
     }
 
     /// The channels this node reads: a CF/DPF node's, and for random
     /// exchange each neighbour's channel to it.
     fn subscriptions(&self) -> Vec<Channel> {
-        let mut v = wiring::subscriptions(&self.topology, self.index);
+        let mut v = self.core.subscriptions();
         if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
             v.extend(self.neighbours().iter().map(|m| Channel::Pair {
                 from: *m,
-                to: self.index,
+                to: self.core.index(),
             }));
         }
         v
@@ -593,10 +523,10 @@ impl Actor for DiffusionNode {
     /// The channels this node publishes on: a CF/DPF node's, and for random
     /// exchange its channel to each neighbour.
     fn publications(&self) -> Vec<Channel> {
-        let mut v = wiring::publications(&self.topology, self.index);
+        let mut v = self.core.publications();
         if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
             v.extend(self.neighbours().iter().map(|m| Channel::Pair {
-                from: self.index,
+                from: self.core.index(),
                 to: *m,
             }));
         }
@@ -605,7 +535,7 @@ impl Actor for DiffusionNode {
 
     /// Actors this node sends to (to wake them).
     fn peers(&self) -> Vec<ActorId> {
-        wiring::peers(&self.topology, self.index)
+        self.core.peers()
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
@@ -615,8 +545,7 @@ impl Actor for DiffusionNode {
                 self.begin_step(step, now, out)
             }
             (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.view = alive.to_bools(self.topology.nodes());
-                self.view[self.index as usize] = true;
+                self.core.take_view(alive);
             }
             (Payload::Observation { cell }, ActorId::Sensor(s)) => {
                 self.observe(step, s, ObservedValue::Cell(*cell), out)
@@ -629,9 +558,9 @@ impl Actor for DiffusionNode {
             }
             (p, from) => match self.cooperation.protocol().handle(message, now, out) {
                 Handled::Taken => self.poll_protocol(),
-                Handled::Late => self.late_messages += 1,
+                Handled::Late => self.core.count_late(),
                 Handled::NotMine => {
-                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a random-exchange or KL node")
+                    tracing::debug!(node = self.core.index(), kind = ?p.kind(), %from, "ignored a message not meant for a random-exchange or KL node")
                 }
             },
         }
@@ -697,7 +626,7 @@ impl Actor for DiffusionNode {
                     self.tracker
                         .assimilate_from(&from, &self.model, &s.observations, &mut self.rng)
                 {
-                    tracing::error!(node = self.index, error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
+                    tracing::error!(node = self.core.index(), error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
                     self.tracker
                         .local_posterior(&self.model, &s.observations, &mut self.rng);
                 }
@@ -710,7 +639,7 @@ impl Actor for DiffusionNode {
                 s.local = NaturalGaussian::from_moments(&local);
                 if s.local.is_none() {
                     tracing::error!(
-                        node = self.index,
+                        node = self.core.index(),
                         "the local posterior is degenerate; not fusing this step"
                     );
                 }
@@ -722,11 +651,11 @@ impl Actor for DiffusionNode {
                 match fused.fused.to_moments() {
                     Some(g) => {
                         if let Err(e) = self.tracker.adopt(&g, &mut self.rng) {
-                            tracing::error!(node = self.index, error = %e, "keeping the local particles");
+                            tracing::error!(node = self.core.index(), error = %e, "keeping the local particles");
                         }
                     }
                     None => tracing::error!(
-                        node = self.index,
+                        node = self.core.index(),
                         "the fused information is not positive definite; keeping the local particles"
                     ),
                 }
@@ -736,13 +665,7 @@ impl Actor for DiffusionNode {
     }
 
     /// The driver's report that `work` finished at `now` after `elapsed`.
-    fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
+    fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
@@ -756,7 +679,7 @@ impl Actor for DiffusionNode {
                 match s.local.take() {
                     Some(local) => {
                         s.fusing = true;
-                        fusion.start(s.step, local, &self.view, now, out);
+                        fusion.start(s.step, local, self.core.view(), now, out);
                         self.poll_protocol();
                     }
                     None => self.report(Duration::ZERO, out),
@@ -767,7 +690,6 @@ impl Actor for DiffusionNode {
         }
     }
 }
-
 
 #[cfg(test)]
 mod tests {

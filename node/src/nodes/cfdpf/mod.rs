@@ -9,8 +9,8 @@
 //! Inputs are decoded messages and the passing of timeouts, each with the
 //! time it happens at; outputs are messages to send. The node never reads a
 //! clock: the heavy stages are [`Work`] the driver runs with
-//! [`run_work`](NodeActor::run_work) and reports back, timed, with
-//! [`work_done`](NodeActor::work_done).
+//! [`run_work`](CfDpfNode::run_work) and reports back, timed, with
+//! [`work_done`](CfDpfNode::work_done).
 
 use std::time::Duration;
 
@@ -19,10 +19,10 @@ use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
-use wire::{BitMask, Control, Message, Payload, StateTransfer, Telemetry};
+use wire::{BitMask, Control, Message, Payload, Stage, StateTransfer};
 
 use crate::censoring::NodeCensoring;
-use crate::collector::{Collected, Collector, Lagging, Offer, SensorAnswers};
+use crate::collector::{Collected, Collector, Lagging, Offer};
 use crate::estimator::{
     Contribution, Evidence, FusionFilter, FusionUpdate, LocalFilter, LocalUpdate, Observation,
     ObservedValue, SensingModel,
@@ -30,8 +30,11 @@ use crate::estimator::{
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
-use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionContext, SelectionInputs};
-use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
+use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionInputs};
+use crate::{Actor, Node, NodeError, Outgoing, Work};
+
+use super::core::mask;
+use super::{NodeCore, Report};
 
 #[derive(Debug)]
 enum Phase {
@@ -110,20 +113,17 @@ impl Fusing {
     }
 }
 
-pub struct NodeActor {
-    index: u16,
+pub struct CfDpfNode {
+    core: NodeCore,
     with_aux: bool,
     /// How long a step's collection waits for its active sensors: the
     /// round timeout, or with censoring the sensors' listening slot.
     listen: Duration,
-    topology: Topology,
     model: SensingModel,
     local: LocalFilter,
     fusion: FusionFilter,
     manager: Manager,
     protocol: InformationFusion,
-    /// This node's membership view: the live nodes it can reach.
-    view: Vec<bool>,
     phase: Phase,
     /// Observations used this step, deadline missed: reported in telemetry.
     observations: u16,
@@ -132,22 +132,13 @@ pub struct NodeActor {
     /// Observations the gate left out this step.
     gated: u16,
     lagged: u16,
-    deadline_missed: bool,
     /// Set when this node restarted mid-run: it takes the first fused
     /// posterior a neighbour offers instead of starting from the prior.
     needs_state: bool,
-    last_step: Option<u32>,
     /// NIS censoring at this node's sensors, if the scenario asks for it.
     censoring: Option<NodeCensoring>,
     /// Observations that missed their step's collection.
     lagging: Lagging,
-    /// Which own sensors ever answered an activation.
-    answers: SensorAnswers,
-    /// The scenario's last step: a step beyond it is not of this run.
-    steps: u32,
-    late_messages: u64,
-    /// `late_messages` as of the last telemetry.
-    late_reported: u64,
     /// From `BeginStep` to the activation, this step.
     selection_time: Duration,
     /// The selection's scoring this step, wherever it ran.
@@ -169,7 +160,7 @@ pub struct NodeActor {
 /// filter's and the report's.
 const WAITING_SHARE_OF_STEP: f64 = 0.9;
 
-impl NodeActor {
+impl CfDpfNode {
     /// The node as the scenario describes it: its sensor manager and fusion
     /// protocol are the registry's (`crate::registry`) for the names the
     /// scenario gives.
@@ -217,34 +208,31 @@ impl NodeActor {
         )
         .map_err(filter_error)?;
         Ok(Self {
-            index,
+            core: NodeCore::new(
+                scenario,
+                topology,
+                index,
+                models.quantizer.as_ref().map(|q| q.cells()),
+            ),
             with_aux: scenario.consensus.auxiliary_fim,
             listen: if scenario.censoring.policy == CensoringPolicy::Off {
                 Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)
             } else {
                 Duration::from_secs_f64(scenario.censoring.listen_ms / 1e3)
             },
-            topology: topology.clone(),
             model,
             local,
             fusion,
             manager: manager.into(),
             protocol,
-            view: topology.all_alive(),
             phase: Phase::Idle,
             observations: 0,
             gate: (scenario.filter.gate > 0.0).then_some(scenario.filter.gate),
             gated: 0,
             lagged: 0,
-            deadline_missed: false,
             needs_state: false,
-            last_step: None,
             censoring: NodeCensoring::for_scenario(scenario, &models, topology, index)?,
             lagging: Lagging::new(models.quantizer.as_ref().map(|q| q.cells())),
-            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
-            steps: scenario.steps,
-            late_messages: 0,
-            late_reported: 0,
             selection_time: Duration::ZERO,
             scoring_time: Duration::ZERO,
             without_choice: false,
@@ -284,11 +272,11 @@ impl NodeActor {
     }
 
     fn own_sensors(&self) -> &[u16] {
-        &self.topology.node_sensors[self.index as usize]
+        self.core.own_sensors()
     }
 
     fn neighbours(&self) -> &[u16] {
-        &self.topology.neighbours[self.index as usize]
+        self.core.neighbours()
     }
 
     /// When the stage that waits next times out, if a stage waits.
@@ -322,27 +310,23 @@ impl NodeActor {
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !wiring::is_next_step(step, self.steps, self.last_step) {
-            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+        if !self.core.is_next_step(step) {
             return;
         }
         // Missed steps (a lost BeginStep, or SIGSTOP and SIGCONT): the filters
         // and bounds coast through them so that they are at the right time.
-        if let Some(last) = self.last_step {
-            for _ in last + 1..step {
-                if let Err(e) = self
-                    .local
-                    .coast(&self.model)
-                    .and_then(|_| self.fusion.coast(&self.model))
-                {
-                    tracing::error!(node = self.index, error = %e, "coasting through a missed step failed");
-                }
+        for _ in 0..self.core.enter_step(step) {
+            if let Err(e) = self
+                .local
+                .coast(&self.model)
+                .and_then(|_| self.fusion.coast(&self.model))
+            {
+                tracing::error!(node = self.core.index(), error = %e, "coasting through a missed step failed");
             }
         }
-        self.last_step = Some(step);
         if !self.is_idle() {
             // The previous step overran: finish it with what we have.
-            self.deadline_missed = true;
+            self.core.overran();
             self.force_finish(now, out);
         }
         self.step_deadline = self
@@ -384,22 +368,14 @@ impl NodeActor {
             match self.fusion.predict(&self.model) {
                 Ok(p) => Some(p),
                 Err(e) => {
-                    tracing::error!(node = self.index, error = %e, "prediction failed");
+                    tracing::error!(node = self.core.index(), error = %e, "prediction failed");
                     None
                 }
             }
         } else {
             None
         };
-        manager.choose(&SelectionContext {
-            step,
-            node: self.index,
-            own_sensors: &self.topology.node_sensors[self.index as usize],
-            view: &self.view,
-            predicted,
-            sensor_positions: &self.topology.sensor_positions,
-            node_sensors: &self.topology.node_sensors,
-        })
+        manager.choose(&self.core.selection_context(step, predicted))
     }
 
     /// The selection's scores, from the fusion filter's prediction.
@@ -418,7 +394,7 @@ impl NodeActor {
         };
         let inputs = selection_inputs(selection, &mut self.fusion, &self.model, &own)
             .unwrap_or_else(|e| {
-                tracing::error!(node = self.index, error = %e, "selection scores failed; proposing nothing");
+                tracing::error!(node = self.core.index(), error = %e, "selection scores failed; proposing nothing");
                 SelectionInputs {
                     predicted: bounds::Mat4::identity(),
                     own: Vec::new(),
@@ -448,7 +424,7 @@ impl NodeActor {
         s.rounds_started = now;
         self.scoring_time = scoring_time;
         selection.expect_step(s.step);
-        selection.start(s.step, inputs, &self.view, now, out);
+        selection.start(s.step, inputs, self.core.view(), now, out);
         self.poll_selection(now, out);
     }
 
@@ -472,19 +448,18 @@ impl NodeActor {
     /// Sends the activation of `picks` (positions in the node's own sensor
     /// list) and starts collecting their observations.
     fn activate(&mut self, step: u32, picks: Vec<usize>, now: Duration, out: &mut Vec<Outgoing>) {
-        let own = &self.topology.node_sensors[self.index as usize];
-        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
-        let mask = wiring::mask(&picks);
+        let own = self.core.own_sensors();
+        self.active = picks.iter().map(|&i| own[i]).collect();
+        let mask = mask(&picks);
         let payload = match &mut self.censoring {
             None => Payload::Activate { mask },
             Some(c) => c.activate(step, &picks, own, &self.model, mask),
         };
-        wiring::activate(out, self.index, step, own, &picks, payload);
-        self.answers.activated(&active);
-        self.active.clone_from(&active);
-        let cells = self.model.quantizer.as_ref().map(|q| q.cells());
-        let nothing_to_hear = active.is_empty();
-        self.phase = Phase::Collecting(Collector::new(step, active, now + self.listen, cells));
+        let collector = self
+            .core
+            .activate(step, &picks, payload, now + self.listen, out);
+        let nothing_to_hear = self.active.is_empty();
+        self.phase = Phase::Collecting(collector);
         // A node that activated no sensor has nothing to wait for. Waiting
         // out the listening window made it start its rounds a round timeout
         // late, just when its neighbours' first round timed out without it.
@@ -494,7 +469,7 @@ impl NodeActor {
     }
 
     fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
-        self.answers.answered(sensor);
+        self.core.answered(sensor);
         let (offer, complete) = match &mut self.phase {
             Phase::Collecting(c) => {
                 let offer = c.offer(step, sensor, value);
@@ -509,15 +484,7 @@ impl NodeActor {
             Offer::Late => self.lagging.offer(step, sensor, value),
             other => other,
         };
-        match offer {
-            Offer::Taken => {}
-            Offer::Late => self.late_messages += 1,
-            Offer::Invalid => tracing::warn!(
-                node = self.index,
-                sensor,
-                "observation outside the quantizer's cells dropped"
-            ),
-        }
+        self.core.note(offer, sensor);
     }
 
     fn close_collection(&mut self) {
@@ -552,51 +519,33 @@ impl NodeActor {
         let (Some(local), Some((update, fused))) = (f.local, f.finished) else {
             return;
         };
-        let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
         let estimate = update.map_or(local.estimate, |u| u.estimate);
-        // With censoring, a sensor's silence is its answer.
-        let (unanswered_sensors, first_unanswered) = match self.censoring {
-            None => self.answers.unanswered(),
-            Some(_) => (0, None),
-        };
         if let (Some(c), Some(u)) = (self.censoring.as_mut(), update) {
             c.fed_back = u.posterior;
         }
-        let telemetry = Telemetry {
-            estimate: wiring::reported_estimate(&estimate),
-            bound: finite(update.and_then(|u| u.bound)),
-            local_bound: finite(local.bound),
-            aux_bound: finite(update.and_then(|u| u.aux_bound)),
-            rounds_completed: fused.stats.rounds_completed,
-            live_neighbours: fused.stats.neighbours_heard,
-            observations: self.observations,
-            gated: self.gated,
-            lagged: self.lagged,
-            deadline_missed: self.deadline_missed,
-            late_messages: (self.late_messages - self.late_reported) as u32,
-            stage_micros: [
-                wiring::micros(f.local_time),
-                wiring::micros(fusion_time),
-                wiring::micros(fused.stats.later_rounds),
-                wiring::micros(fused.stats.total),
-                wiring::micros(self.selection_time),
-                wiring::micros(self.scoring_time),
-            ],
-            unanswered_sensors,
-            first_unanswered,
-            spread: update.map(|u| u.spread).filter(|s| s.is_finite()),
-            active: std::mem::take(&mut self.active),
-            design: Vec::new(),
-            without_choice: self.without_choice,
-        };
+        let report = Report::of(&estimate)
+            .bound(update.and_then(|u| u.bound))
+            .local_bound(local.bound)
+            .aux_bound(update.and_then(|u| u.aux_bound))
+            .rounds(&fused.stats)
+            .observations(self.observations)
+            .gated(self.gated)
+            .lagged(self.lagged)
+            .stage(Stage::Local, f.local_time)
+            .stage(Stage::Global, fusion_time)
+            .stage(Stage::Selection, self.selection_time)
+            .stage(Stage::Scoring, self.scoring_time)
+            // With censoring, a sensor's silence is its answer.
+            .silence_answers(self.censoring.is_some())
+            .spread(update.map(|u| u.spread))
+            .active(std::mem::take(&mut self.active))
+            .without_choice(self.without_choice);
         self.observations = 0;
         self.selection_time = Duration::ZERO;
         self.scoring_time = Duration::ZERO;
         self.without_choice = false;
-        self.deadline_missed = false;
-        self.late_reported = self.late_messages;
-        out.push(wiring::telemetry(self.index, f.step, telemetry));
-        if matches!(self.manager, Manager::Negotiated(_)) && f.step < self.steps {
+        out.push(self.core.report(f.step, report));
+        if matches!(self.manager, Manager::Negotiated(_)) && f.step < self.core.steps() {
             let due = self.step_deadline.unwrap_or(Duration::ZERO);
             self.ahead = Some(ScoredAhead {
                 step: f.step + 1,
@@ -671,16 +620,16 @@ impl NodeActor {
     }
 
     fn update_membership(&mut self, alive: &BitMask, out: &mut Vec<Outgoing>) {
-        let before = std::mem::replace(&mut self.view, alive.to_bools(self.topology.nodes()));
-        self.view[self.index as usize] = true;
+        let before = self.core.take_view(alive);
         // A neighbour that came back gets our fused posterior to rejoin from.
         let returned: Vec<ActorId> = self
             .neighbours()
             .iter()
-            .filter(|m| self.view[**m as usize] && !before[**m as usize])
+            .filter(|m| self.core.view()[**m as usize] && !before[**m as usize])
             .map(|m| ActorId::Node(*m))
             .collect();
-        if let (false, Some(step), false) = (returned.is_empty(), self.last_step, self.needs_state)
+        if let (false, Some(step), false) =
+            (returned.is_empty(), self.core.last_step(), self.needs_state)
         {
             let p = self.fusion.posterior();
             let state = StateTransfer {
@@ -692,7 +641,7 @@ impl NodeActor {
             // Every neighbour's queue gets it (it is our channel), so it is
             // counted as sent to each; only the returned are woken for it.
             out.push(Outgoing {
-                channel: Channel::Consensus(self.index),
+                channel: Channel::Consensus(self.core.index()),
                 message: Message::new(self.id(), step, 0, Payload::StateTransfer(state)),
                 receivers: self
                     .neighbours()
@@ -723,25 +672,24 @@ impl NodeActor {
         // Scored on the filter just replaced.
         self.ahead = None;
         tracing::info!(
-            node = self.index,
+            node = self.core.index(),
             "rejoined from a neighbour's fused posterior"
         );
     }
 }
 
-impl Node for NodeActor {
+impl Node for CfDpfNode {
     fn is_idle(&self) -> bool {
         matches!(self.phase, Phase::Idle)
     }
 
     /// Messages that arrived after their round or step had passed.
     fn late_messages(&self) -> u64 {
-        self.late_messages
+        self.core.late_messages()
     }
 }
 
-
-impl Actor for NodeActor {
+impl Actor for CfDpfNode {
     type Work = Work;
 
     /// Its neighbours may still be in their last rounds, which every node
@@ -752,22 +700,22 @@ impl Actor for NodeActor {
     }
 
     fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
+        self.core.id()
     }
 
     /// The channels this node reads.
     fn subscriptions(&self) -> Vec<Channel> {
-        wiring::subscriptions(&self.topology, self.index)
+        self.core.subscriptions()
     }
 
     /// The channels this node publishes on.
     fn publications(&self) -> Vec<Channel> {
-        wiring::publications(&self.topology, self.index)
+        self.core.publications()
     }
 
     /// Actors this node sends to (to wake them).
     fn peers(&self) -> Vec<ActorId> {
-        wiring::peers(&self.topology, self.index)
+        self.core.peers()
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
@@ -793,15 +741,15 @@ impl Actor for NodeActor {
                 };
                 match handled {
                     Handled::Taken => self.poll_selection(now, out),
-                    Handled::Late => self.late_messages += 1,
+                    Handled::Late => self.core.count_late(),
                     Handled::NotMine => {}
                 }
             }
             (p, from) => match self.protocol.handle(message, now, out) {
                 Handled::Taken => self.poll_protocol(),
-                Handled::Late => self.late_messages += 1,
+                Handled::Late => self.core.count_late(),
                 Handled::NotMine => {
-                    tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a node")
+                    tracing::debug!(node = self.core.index(), kind = ?p.kind(), %from, "ignored a message not meant for a node")
                 }
             },
         }
@@ -865,6 +813,7 @@ impl Actor for NodeActor {
         };
         match work {
             Work::SelectionScores | Work::Weigh | Work::Adopt => {}
+            Work::GridLikelihood | Work::Design | Work::WeighDelivery => {}
             Work::LocalFilter => {
                 let Some(mut collected) = f.collected.take() else {
                     return;
@@ -880,7 +829,7 @@ impl Actor for NodeActor {
                             self.observations = collected.observations.len() as u16;
                         }
                         Err(e) => {
-                            tracing::error!(node = self.index, error = %e, "innovation gate failed; using every observation")
+                            tracing::error!(node = self.core.index(), error = %e, "innovation gate failed; using every observation")
                         }
                     }
                 }
@@ -908,7 +857,7 @@ impl Actor for NodeActor {
                         Ok(update)
                     })
                     .unwrap_or_else(|e| {
-                        tracing::error!(node = self.index, error = %e, "local filter step failed; contributing nothing");
+                        tracing::error!(node = self.core.index(), error = %e, "local filter step failed; contributing nothing");
                         LocalUpdate {
                             contribution: Contribution::zero(),
                             estimate: State::zeros(),
@@ -924,7 +873,7 @@ impl Actor for NodeActor {
                 let update = match self.fusion.step(&self.model, &fused.sums) {
                     Ok(u) => Some(u),
                     Err(e) => {
-                        tracing::error!(node = self.index, error = %e, "fusion filter step failed");
+                        tracing::error!(node = self.core.index(), error = %e, "fusion filter step failed");
                         None
                     }
                 };
@@ -936,13 +885,7 @@ impl Actor for NodeActor {
     /// The driver's report that `work` finished at `now` after `elapsed`:
     /// the step goes on (the fusion protocol starts after the local filter;
     /// telemetry goes out after the fusion filter).
-    fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
+    fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
         if work == Work::SelectionScores {
             if let (Phase::Idle, Some(ahead)) = (&self.phase, self.ahead.as_mut()) {
                 ahead.scoring_time = elapsed;
@@ -955,6 +898,7 @@ impl Actor for NodeActor {
         };
         match work {
             Work::SelectionScores | Work::Weigh | Work::Adopt => {}
+            Work::GridLikelihood | Work::Design | Work::WeighDelivery => {}
             Work::LocalFilter => {
                 f.local_time = elapsed;
                 let Some(local) = f.local else {
@@ -963,14 +907,13 @@ impl Actor for NodeActor {
                 let value =
                     InformationVector::from_contribution(&local.contribution, self.with_aux);
                 let step = f.step;
-                self.protocol.start(step, value, &self.view, now, out);
+                self.protocol.start(step, value, self.core.view(), now, out);
                 self.poll_protocol();
             }
             Work::FusionFilter => self.report(elapsed, out),
         }
     }
 }
-
 
 /// This step's selection scores: the conditional manager's over the fusion
 /// filter's predicted particles, the at-the-estimate one's at its estimate
@@ -1322,7 +1265,7 @@ mod tests {
             net.begin_step(step, &[true, true, false]);
             net.run(LONG);
         }
-        let mut fresh = NodeActor::new(&net.scenario, &net.topology, 2).unwrap();
+        let mut fresh = CfDpfNode::new(&net.scenario, &net.topology, 2).unwrap();
         fresh.expect_rejoin();
         net.nodes[2] = Some(Box::new(fresh));
         net.begin_step(7, &ALL);

@@ -1,18 +1,29 @@
-//! The processing node a scenario describes, whatever its kind: the CF/DPF
-//! node ([`NodeActor`]), one of the random-exchange paper's trackers
-//! ([`DiffusionNode`]), a static target's locator ([`LocatorNode`]), as
-//! the scenario's `consensus.protocol` says, or a fusion centre behind a
-//! multiple-access channel ([`MacCentre`]), when the scenario has one.
-//! Every kind is an [`Actor`] with the same stages, so the drivers hold
-//! any of them as an [`AnyNode`].
+//! The processing nodes, by kind: the CF/DPF node ([`CfDpfNode`]), the
+//! random-exchange paper's trackers ([`TrackerNode`]), a static target's
+//! locator ([`LocatorNode`]), as the scenario's `consensus.protocol` says,
+//! or a fusion centre behind a multiple-access channel ([`MacCentre`]),
+//! when the scenario has one. What every kind shares (the step guard, the
+//! membership view, late and overrun bookkeeping, activation and
+//! collection, the report) is the [`NodeCore`] each holds; a kind holds
+//! only its algorithm beside it. Every kind is an [`Actor`] and a [`Node`],
+//! so the drivers hold any of them as an [`AnyNode`].
+
+pub mod cfdpf;
+pub mod core;
+pub mod locator;
+pub mod mac_centre;
+pub mod report;
+pub mod trackers;
+
+pub use self::core::NodeCore;
+pub use report::Report;
 
 use std::time::Duration;
 
 use fusion_graph::registered::Shape;
 use fusion_graph::{Scenario, Topology};
 
-use crate::diffusion_node::DiffusionNode;
-use crate::{Actor, LocatorNode, MacCentre, NodeActor, NodeError, Work};
+use crate::{Actor, CfDpfNode, LocatorNode, MacCentre, NodeError, TrackerNode, Work};
 
 /// What a processing node is beyond an actor of the network.
 pub trait Node: Actor<Work = Work> {
@@ -34,7 +45,7 @@ pub struct Start {
     /// from the prior and is pulled back by its exchanges or fusion.
     pub rejoin: bool,
     /// In real time, the step's period: a CF/DPF node closes its waiting
-    /// stages in time for it ([`NodeActor::bound_steps_by`]). The trackers
+    /// stages in time for it ([`CfDpfNode::bound_steps_by`]). The trackers
     /// bound their steps by their own listening windows.
     pub step_period: Option<Duration>,
 }
@@ -51,16 +62,18 @@ pub fn processing_node(
     }
     if scenario.consensus.protocol.shape() == Shape::Locator {
         let config = crate::registry::location_config(scenario)?;
-        return Ok(Box::new(LocatorNode::new(scenario, topology, index, config)?));
+        return Ok(Box::new(LocatorNode::new(
+            scenario, topology, index, config,
+        )?));
     }
     if let Some(cooperation) = crate::registry::cooperation(scenario, topology, index)? {
-        return Ok(Box::new(DiffusionNode::new(
+        return Ok(Box::new(TrackerNode::new(
             scenario,
             topology,
             index,
             cooperation,
         )?));
     }
-    let node = NodeActor::new(scenario, topology, index)?;
+    let node = CfDpfNode::new(scenario, topology, index)?;
     Ok(Box::new(node.starting(start)))
 }

@@ -3,7 +3,7 @@
 //!
 //! A step: the launcher's `BeginStep` → the node activates its sensors,
 //! sending them the quantizer's thresholds → its sensors' reports, until
-//! all arrived or the listening deadline → [`Work::Weigh`]: its
+//! all arrived or the listening deadline → [`Work::GridLikelihood`]: its
 //! log-likelihood over the region's grid, with every report so far →
 //! consensus phases of `consensus.rounds` rounds each, every one a network
 //! sum ([`VectorSum`]):
@@ -23,18 +23,21 @@
 
 use std::time::Duration;
 
-use bounds::Quantizer;
+use bounds::{Quantizer, State};
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Channel;
 use fusion_graph::{ActorId, Topology};
-use wire::{Control, Message, Payload, Telemetry};
+use wire::{Control, Message, Payload, Stage};
 
-use crate::collector::{Collector, Offer, SensorAnswers};
+use crate::collector::{Collector, Offer};
 use crate::estimator::ObservedValue;
 use crate::fusion::{vector_sum, FusionProtocol, Handled, RoundStats, Summed, VectorSum};
 use crate::location::{position_bound, sensor_quantizer, Grid, LocalEvidence, LocationConfig};
-use crate::sensor_manager::{SelectionContext, SensorManager, UniformRandom};
-use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
+use crate::sensor_manager::{SensorManager, UniformRandom};
+use crate::{Actor, Node, NodeError, Outgoing, Work};
+
+use super::core::mask;
+use super::{NodeCore, Report};
 
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
@@ -42,7 +45,7 @@ struct Stepping {
     /// The node's sensors, while it still listens to them.
     collector: Option<Collector>,
     observations: u16,
-    /// [`Work::Weigh`] has run: `coarse` holds the node's log-likelihood.
+    /// [`Work::GridLikelihood`] has run: `coarse` holds the node's log-likelihood.
     weighed: bool,
     coarse: Vec<f64>,
     /// The consensus phase running: grid phases `0..=refinements`, then
@@ -57,8 +60,7 @@ struct Stepping {
 }
 
 pub struct LocatorNode {
-    index: u16,
-    topology: Topology,
+    core: NodeCore,
     coarse: Grid,
     /// The thresholds sent with each activation; `None`: raw reports.
     quantizer: Option<Quantizer>,
@@ -74,15 +76,8 @@ pub struct LocatorNode {
     /// all read noise, has a nearly singular J and a bound of 10⁷⁰ m,
     /// reported as none.
     region_diagonal: f64,
-    view: Vec<bool>,
     listen: Duration,
-    steps: u32,
-    last_step: Option<u32>,
     stepping: Option<Box<Stepping>>,
-    late_messages: u64,
-    late_reported: u64,
-    deadline_missed: bool,
-    answers: SensorAnswers,
 }
 
 impl LocatorNode {
@@ -110,8 +105,12 @@ impl LocatorNode {
                 .stop_awaiting_the_late()
         };
         Ok(Self {
-            index,
-            topology: topology.clone(),
+            core: NodeCore::new(
+                scenario,
+                topology,
+                index,
+                quantizer.as_ref().map(Quantizer::cells),
+            ),
             evidence: LocalEvidence::new(scenario, topology, index, quantizer.clone()),
             phases: (0..=grids).map(phase).collect(),
             coarse,
@@ -120,43 +119,27 @@ impl LocatorNode {
             rounds,
             region_centre: [scenario.region.width / 2.0, scenario.region.height / 2.0],
             region_diagonal: scenario.region.width.hypot(scenario.region.height),
-            view: topology.all_alive(),
             listen: timeout,
-            steps: scenario.steps,
-            last_step: None,
             stepping: None,
-            late_messages: 0,
-            late_reported: 0,
-            deadline_missed: false,
-            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
         })
     }
 
     fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !wiring::is_next_step(step, self.steps, self.last_step) {
-            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+        if !self.core.is_next_step(step) {
             return;
         }
         if self.stepping.is_some() {
-            self.deadline_missed = true;
+            self.core.overran();
             self.force_finish(now, out);
         }
-        self.last_step = Some(step);
+        self.core.enter_step(step);
         for engine in &mut self.phases {
             engine.expect_step(step);
         }
-        let own = self.topology.node_sensors[self.index as usize].clone();
-        let picks = self.manager.choose(&SelectionContext {
-            step,
-            node: self.index,
-            own_sensors: &own,
-            view: &self.view,
-            predicted: None,
-            sensor_positions: &self.topology.sensor_positions,
-            node_sensors: &self.topology.node_sensors,
-        });
-        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
-        let mask = wiring::mask(&picks);
+        let picks = self
+            .manager
+            .choose(&self.core.selection_context(step, None));
+        let mask = mask(&picks);
         let payload = match &self.quantizer {
             Some(q) => Payload::ActivateThresholds {
                 mask,
@@ -164,13 +147,13 @@ impl LocatorNode {
             },
             None => Payload::Activate { mask },
         };
-        wiring::activate(out, self.index, step, &own, &picks, payload);
-        self.answers.activated(&active);
-        let cells = self.quantizer.as_ref().map(Quantizer::cells);
-        let empty = active.is_empty();
+        let collector = self
+            .core
+            .activate(step, &picks, payload, now + self.listen, out);
+        let empty = collector.is_complete();
         self.stepping = Some(Box::new(Stepping {
             step,
-            collector: Some(Collector::new(step, active, now + self.listen, cells)),
+            collector: Some(collector),
             observations: 0,
             weighed: false,
             coarse: Vec::new(),
@@ -185,29 +168,16 @@ impl LocatorNode {
         }
     }
 
-    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, _: &mut Vec<Outgoing>) {
-        self.answers.answered(sensor);
-        let offer = match self.stepping.as_mut().and_then(|s| s.collector.as_mut()) {
-            Some(c) => c.offer(step, sensor, value),
-            None => Offer::Late,
-        };
-        match offer {
-            Offer::Taken => {
-                let complete = self
-                    .stepping
-                    .as_ref()
-                    .and_then(|s| s.collector.as_ref())
-                    .is_some_and(Collector::is_complete);
-                if complete {
-                    self.close_own();
-                }
-            }
-            Offer::Late => self.late_messages += 1,
-            Offer::Invalid => tracing::warn!(
-                node = self.index,
-                sensor,
-                "observation outside the quantizer's cells dropped"
-            ),
+    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
+        let collector = self.stepping.as_mut().and_then(|s| s.collector.as_mut());
+        let offer = self.core.offer(collector, step, sensor, value);
+        let complete = self
+            .stepping
+            .as_ref()
+            .and_then(|s| s.collector.as_ref())
+            .is_some_and(Collector::is_complete);
+        if offer == Offer::Taken && complete {
+            self.close_own();
         }
     }
 
@@ -263,7 +233,7 @@ impl LocatorNode {
         };
         s.phase = Some(next);
         let offset = next as u16 * self.rounds;
-        self.phases[next].start_at(s.step, offset, value, &self.view, now, out);
+        self.phases[next].start_at(s.step, offset, value, self.core.view(), now, out);
     }
 
     /// The step's telemetry; `information` is the network's, when the last
@@ -273,43 +243,16 @@ impl LocatorNode {
             return;
         };
         let estimate = s.estimate.unwrap_or(self.region_centre);
-        let (unanswered_sensors, first_unanswered) = self.answers.unanswered();
-        let telemetry = Telemetry {
-            estimate: wiring::reported_estimate(&bounds::State::new(
-                estimate[0],
-                estimate[1],
-                0.0,
-                0.0,
-            )),
-            bound: information.and_then(position_bound),
-            local_bound: position_bound(self.evidence.information(estimate))
-                .filter(|b| *b <= self.region_diagonal),
-            aux_bound: None,
-            rounds_completed: s.stats.rounds_completed,
-            live_neighbours: s.stats.neighbours_heard,
-            observations: s.observations,
-            gated: 0,
-            lagged: 0,
-            deadline_missed: self.deadline_missed,
-            late_messages: (self.late_messages - self.late_reported) as u32,
-            stage_micros: [
-                wiring::micros(s.weigh_time),
-                0,
-                wiring::micros(s.stats.later_rounds),
-                wiring::micros(s.stats.total),
-                0,
-                0,
-            ],
-            unanswered_sensors,
-            first_unanswered,
-            spread: None,
-            active: Vec::new(),
-            design: Vec::new(),
-            without_choice: false,
-        };
-        self.deadline_missed = false;
-        self.late_reported = self.late_messages;
-        out.push(wiring::telemetry(self.index, s.step, telemetry));
+        let report = Report::of(&State::new(estimate[0], estimate[1], 0.0, 0.0))
+            .bound(information.and_then(position_bound))
+            .local_bound(
+                position_bound(self.evidence.information(estimate))
+                    .filter(|b| *b <= self.region_diagonal),
+            )
+            .rounds(&s.stats)
+            .observations(s.observations)
+            .stage(Stage::Local, s.weigh_time);
+        out.push(self.core.report(s.step, report));
     }
 
     /// Ends an overrun step at once with what it has: no more waiting for
@@ -339,28 +282,27 @@ impl Node for LocatorNode {
     }
 
     fn late_messages(&self) -> u64 {
-        self.late_messages
+        self.core.late_messages()
     }
 }
-
 
 impl Actor for LocatorNode {
     type Work = Work;
 
     fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
+        self.core.id()
     }
 
     fn subscriptions(&self) -> Vec<Channel> {
-        wiring::subscriptions(&self.topology, self.index)
+        self.core.subscriptions()
     }
 
     fn publications(&self) -> Vec<Channel> {
-        wiring::publications(&self.topology, self.index)
+        self.core.publications()
     }
 
     fn peers(&self) -> Vec<ActorId> {
-        wiring::peers(&self.topology, self.index)
+        self.core.peers()
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
@@ -370,14 +312,13 @@ impl Actor for LocatorNode {
                 self.begin_step(step, now, out)
             }
             (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.view = alive.to_bools(self.topology.nodes());
-                self.view[self.index as usize] = true;
+                self.core.take_view(alive);
             }
             (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell), out)
+                self.observe(step, s, ObservedValue::Cell(*cell))
             }
             (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value), out)
+                self.observe(step, s, ObservedValue::Raw(*value))
             }
             (Payload::LocationConsensus { .. }, ActorId::Node(_)) => {
                 // Round k of phase p is round p·N_c + k on the wire.
@@ -388,11 +329,11 @@ impl Actor for LocatorNode {
                 };
                 match handled {
                     Handled::Taken => self.poll_phases(now, out),
-                    Handled::Late | Handled::NotMine => self.late_messages += 1,
+                    Handled::Late | Handled::NotMine => self.core.count_late(),
                 }
             }
             (p, from) => {
-                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a locator node")
+                tracing::debug!(node = self.core.index(), kind = ?p.kind(), %from, "ignored a message not meant for a locator node")
             }
         }
     }
@@ -419,41 +360,34 @@ impl Actor for LocatorNode {
 
     fn poll_work(&self) -> Option<Work> {
         let s = self.stepping.as_ref()?;
-        (s.collector.is_none() && !s.weighed).then_some(Work::Weigh)
+        (s.collector.is_none() && !s.weighed).then_some(Work::GridLikelihood)
     }
 
-    /// [`Work::Weigh`]: the node's log-likelihood over the coarse grid.
+    /// [`Work::GridLikelihood`]: the node's log-likelihood over the coarse grid.
     fn run_work(&mut self, work: Work) {
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
-        if work == Work::Weigh && !s.weighed {
+        if work == Work::GridLikelihood && !s.weighed {
             self.evidence.log_likelihood(&self.coarse, &mut s.coarse);
             s.weighed = true;
         }
     }
 
-    fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
+    fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
-        if work != Work::Weigh || s.phase.is_some() {
+        if work != Work::GridLikelihood || s.phase.is_some() {
             return;
         }
         s.weigh_time = elapsed;
         s.phase = Some(0);
         let value = std::mem::take(&mut s.coarse);
-        self.phases[0].start_at(s.step, 0, value, &self.view, now, out);
+        self.phases[0].start_at(s.step, 0, value, self.core.view(), now, out);
         self.poll_phases(now, out);
     }
 }
-
 
 /// The grid's best point by the summed log-likelihood; `fallback` when
 /// the sums are flat (no report anywhere yet).

@@ -2,14 +2,14 @@
 //! channel (a scenario with a `[channel]`; dissertation ch. 4), as an
 //! I/O-free state machine driven as every processing node is.
 //!
-//! A step: the launcher's `BeginStep` → [`Work::SelectionScores`]: the
+//! A step: the launcher's `BeginStep` → [`Work::Design`]: the
 //! particle filter's prediction, each sensor's `G_j = E[∇a_j ∇a_jᵀ]` over
 //! the predicted particles, and the design of the step's slots (the
 //! transmission probabilities that maximize `det J`, and a sensing matrix
 //! drawn from them; or random sensors; or all) → the schedule
 //! (`activate_slots`) to the sensors and the channel → the channel's
 //! delivery `z`, until it arrives or the listening deadline →
-//! [`Work::Weigh`]: the particles weighed by `N(z; Φa(x), rΦΦᵀ + εI)`
+//! [`Work::WeighDelivery`]: the particles weighed by `N(z; Φa(x), rΦΦᵀ + εI)`
 //! (eq. 4.13) → telemetry with the estimate, the design, and two bounds
 //! from the recursion of eq. 4.8: the PCRLB given the drawn Φ (eq. 4.14,
 //! carried to the next step) and, as the auxiliary bound, the one eq.
@@ -33,15 +33,17 @@ use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use nalgebra::Cholesky;
 use rand_chacha::ChaCha8Rng;
-use wire::{Control, Message, Payload, SlotColumn, Telemetry};
+use wire::{Control, Message, Payload, SlotColumn, Stage};
 
 use crate::filter::ParticleFilter;
-use crate::{Actor, Node, wiring, NodeError, Outgoing, Work};
+use crate::{Actor, Node, NodeError, Outgoing, Work};
+
+use super::{NodeCore, Report};
 
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
     step: u32,
-    /// The design, once [`Work::SelectionScores`] ran.
+    /// The design, once [`Work::Design`] ran.
     design: Option<Design>,
     /// The listening deadline, from the schedule's sending.
     deadline: Option<Duration>,
@@ -66,6 +68,7 @@ struct Design {
 }
 
 pub struct MacCentre {
+    core: NodeCore,
     index: u16,
     seed: u64,
     own: Vec<u16>,
@@ -82,12 +85,7 @@ pub struct MacCentre {
     information: Mat4,
     blocks: Vec<PositionBlock>,
     listen: Duration,
-    steps: u32,
-    last_step: Option<u32>,
     stepping: Option<Box<Stepping>>,
-    late_messages: u64,
-    late_reported: u64,
-    deadline_missed: bool,
 }
 
 impl MacCentre {
@@ -126,6 +124,8 @@ impl MacCentre {
         // after the channel stops hearing its sensors.
         let listen = Duration::from_secs_f64(2.0 * mac.slot_timeout_ms / 1e3);
         Ok(Self {
+            // Its sensors answer the channel, never the centre.
+            core: NodeCore::new(scenario, topology, index, None),
             index,
             seed: scenario.seed,
             blocks: vec![[0.0; 3]; own.len()],
@@ -142,25 +142,19 @@ impl MacCentre {
             dynamics: models.dynamics,
             information,
             listen,
-            steps: scenario.steps,
-            last_step: None,
             stepping: None,
-            late_messages: 0,
-            late_reported: 0,
-            deadline_missed: false,
         })
     }
 
     fn begin_step(&mut self, step: u32, out: &mut Vec<Outgoing>) {
-        if !wiring::is_next_step(step, self.steps, self.last_step) {
-            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+        if !self.core.is_next_step(step) {
             return;
         }
         if self.stepping.is_some() {
-            self.deadline_missed = true;
+            self.core.overran();
             self.report(out);
         }
-        self.last_step = Some(step);
+        self.core.enter_step(step);
         self.stepping = Some(Box::new(Stepping {
             step,
             design: None,
@@ -173,7 +167,7 @@ impl MacCentre {
         }));
     }
 
-    /// [`Work::SelectionScores`]: the prediction, the sensors' `G_j` over
+    /// [`Work::Design`]: the prediction, the sensors' `G_j` over
     /// it, and the step's design.
     fn design(&mut self) {
         let Some(s) = self.stepping.as_mut() else {
@@ -249,16 +243,15 @@ impl Node for MacCentre {
     }
 
     fn late_messages(&self) -> u64 {
-        self.late_messages
+        self.core.late_messages()
     }
 }
-
 
 impl Actor for MacCentre {
     type Work = Work;
 
     fn id(&self) -> ActorId {
-        ActorId::Node(self.index)
+        self.core.id()
     }
 
     /// Its control and its channel's deliveries.
@@ -303,7 +296,7 @@ impl Actor for MacCentre {
                     {
                         s.received = Some(values.clone())
                     }
-                    _ => self.late_messages += 1,
+                    _ => self.core.count_late(),
                 }
             }
             (p, from) => {
@@ -331,40 +324,34 @@ impl Actor for MacCentre {
     fn poll_work(&self) -> Option<Work> {
         let s = self.stepping.as_ref()?;
         match (&s.design, &s.received) {
-            (None, _) => Some(Work::SelectionScores),
-            (Some(_), Some(_)) if !s.weighed => Some(Work::Weigh),
+            (None, _) => Some(Work::Design),
+            (Some(_), Some(_)) if !s.weighed => Some(Work::WeighDelivery),
             _ => None,
         }
     }
 
     fn run_work(&mut self, work: Work) {
         match work {
-            Work::SelectionScores => self.design(),
-            Work::Weigh => self.weigh(),
+            Work::Design => self.design(),
+            Work::WeighDelivery => self.weigh(),
             _ => {}
         }
     }
 
-    fn work_done(
-        &mut self,
-        work: Work,
-        elapsed: Duration,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
+    fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
         match work {
-            Work::SelectionScores if s.deadline.is_none() => {
+            Work::Design if s.deadline.is_none() => {
                 s.select_time = elapsed;
                 s.deadline = Some(now + self.listen);
                 let step = s.step;
                 if let Some(d) = s.design.as_ref() {
-                    out.extend(schedule(self.index, &self.own, step, d));
+                    out.extend(schedule(&self.core, &self.own, step, d));
                 }
             }
-            Work::Weigh => {
+            Work::WeighDelivery => {
                 s.weigh_time = elapsed;
                 self.report(out);
             }
@@ -373,11 +360,11 @@ impl Actor for MacCentre {
     }
 }
 
-
 /// The schedule of node `index`'s step, each transmitting sensor's column:
 /// to each transmitter and to the channel, each on its own activation
 /// channel (a sensor that does not transmit hears nothing and sleeps).
-fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Vec<Outgoing> {
+fn schedule(core: &NodeCore, own: &[u16], step: u32, design: &Design) -> Vec<Outgoing> {
+    let index = core.index();
     let phi = design.likelihood.sensing_matrix();
     let transmitters = design.likelihood.transmitters();
     let columns: Vec<SlotColumn> = transmitters
@@ -404,11 +391,11 @@ fn schedule(index: u16, own: &[u16], step: u32, design: &Design) -> Vec<Outgoing
         .iter()
         .map(|&j| ActorId::Sensor(own[j]))
         .chain([ActorId::Mac(index)]);
-    wiring::to_each(index, &message, receivers).collect()
+    core.to_each(&message, receivers).collect()
 }
 
 impl MacCentre {
-    /// [`Work::Weigh`]: the particles weighed by eq. 4.13; the estimate is
+    /// [`Work::WeighDelivery`]: the particles weighed by eq. 4.13; the estimate is
     /// the weighted mean, then they are resampled.
     fn weigh(&mut self) {
         let Some(s) = self.stepping.as_mut() else {
@@ -468,38 +455,18 @@ impl MacCentre {
             }
             None => (None, None, Vec::new(), Vec::new(), 0),
         };
-        let telemetry = Telemetry {
-            estimate: wiring::reported_estimate(&estimate),
-            bound,
-            local_bound: None,
+        let report = Report::of(&estimate)
+            .bound(bound)
             // What eq. 4.19 promised the design: beside the bound of the
             // drawn Φ, it shows how far the approximation is off.
-            aux_bound: promised,
-            rounds_completed: 0,
-            live_neighbours: 0,
-            observations: if heard { slots as u16 } else { 0 },
-            gated: 0,
-            lagged: 0,
-            deadline_missed: self.deadline_missed,
-            late_messages: (self.late_messages - self.late_reported) as u32,
-            stage_micros: [
-                0,
-                wiring::micros(s.weigh_time),
-                0,
-                0,
-                wiring::micros(s.select_time),
-                // The design is its scoring, and runs in the step.
-                wiring::micros(s.select_time),
-            ],
-            unanswered_sensors: 0,
-            first_unanswered: None,
-            spread: None,
-            active,
-            design,
-            without_choice: false,
-        };
-        self.deadline_missed = false;
-        self.late_reported = self.late_messages;
-        out.push(wiring::telemetry(self.index, s.step, telemetry));
+            .aux_bound(promised)
+            .observations(if heard { slots as u16 } else { 0 })
+            .stage(Stage::Global, s.weigh_time)
+            .stage(Stage::Selection, s.select_time)
+            // The design is its scoring, and runs in the step.
+            .stage(Stage::Scoring, s.select_time)
+            .active(active)
+            .design(design);
+        out.push(self.core.report(s.step, report));
     }
 }

@@ -1,0 +1,277 @@
+//! What every processing node keeps alike, whatever its algorithm: who it
+//! is in the topology and what it reads, publishes and wakes; its view of
+//! who is alive; the step guard; the late messages and overrun steps it
+//! reports; which of its sensors ever answered; the activation of its
+//! sensors and the collection of their observations; and the step's
+//! report ([`Report`]). A node kind holds a [`NodeCore`] and its own
+//! algorithm.
+
+use std::time::Duration;
+
+use fusion_graph::{ActorId, Channel, Scenario, Topology};
+use wire::{BitMask, Message, Payload};
+
+use crate::collector::{Collector, Offer, SensorAnswers};
+use crate::estimator::ObservedValue;
+use crate::sensor_manager::SelectionContext;
+use crate::Outgoing;
+
+use super::report::Report;
+
+pub struct NodeCore {
+    index: u16,
+    topology: Topology,
+    /// The live nodes this node can reach, itself always among them.
+    view: Vec<bool>,
+    /// The scenario's last step: a step beyond it is not of this run.
+    steps: u32,
+    last_step: Option<u32>,
+    late_messages: u64,
+    /// `late_messages` as of the last report.
+    late_reported: u64,
+    /// The step being reported began before the one before it finished.
+    deadline_missed: bool,
+    /// Which own sensors ever answered an activation.
+    answers: SensorAnswers,
+    /// The quantizer's cell count (`None`: raw observations).
+    cells: Option<usize>,
+}
+
+impl NodeCore {
+    pub fn new(scenario: &Scenario, topology: &Topology, index: u16, cells: Option<usize>) -> Self {
+        Self {
+            index,
+            topology: topology.clone(),
+            view: topology.all_alive(),
+            steps: scenario.steps,
+            last_step: None,
+            late_messages: 0,
+            late_reported: 0,
+            deadline_missed: false,
+            answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
+            cells,
+        }
+    }
+
+    pub fn index(&self) -> u16 {
+        self.index
+    }
+
+    pub fn id(&self) -> ActorId {
+        ActorId::Node(self.index)
+    }
+
+    pub fn topology(&self) -> &Topology {
+        &self.topology
+    }
+
+    pub fn own_sensors(&self) -> &[u16] {
+        &self.topology.node_sensors[self.index as usize]
+    }
+
+    pub fn neighbours(&self) -> &[u16] {
+        &self.topology.neighbours[self.index as usize]
+    }
+
+    /// The live nodes this node can reach (`view()[i]` for node i).
+    pub fn view(&self) -> &[bool] {
+        &self.view
+    }
+
+    /// The scenario's last step.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+
+    /// The last step begun.
+    pub fn last_step(&self) -> Option<u32> {
+        self.last_step
+    }
+
+    /// The channels a node reads: its control, its sensors' observations
+    /// and its neighbours' consensus channels.
+    pub fn subscriptions(&self) -> Vec<Channel> {
+        let mut v = vec![Channel::Control(self.id())];
+        v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
+        v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
+        v
+    }
+
+    /// The channels a node publishes on: an activation channel to each of
+    /// its sensors, its consensus channel and its telemetry.
+    pub fn publications(&self) -> Vec<Channel> {
+        let mut v: Vec<Channel> = self.topology.activation_channels(self.index).collect();
+        v.push(Channel::Consensus(self.index));
+        v.push(Channel::Telemetry(self.index));
+        v
+    }
+
+    /// The actors a node sends to (to wake them): its sensors, its
+    /// neighbours, the launcher.
+    pub fn peers(&self) -> Vec<ActorId> {
+        let mut v: Vec<ActorId> = self
+            .own_sensors()
+            .iter()
+            .map(|s| ActorId::Sensor(*s))
+            .collect();
+        v.extend(self.neighbours().iter().map(|m| ActorId::Node(*m)));
+        v.push(ActorId::Launcher);
+        v
+    }
+
+    /// The step guard: whether a `BeginStep` for `step` moves the node on.
+    /// Only a later step of this run does; a repeated, past or impossible
+    /// step (a corrupted or forged message) is logged and dropped: coasting
+    /// to step 4·10⁹ would hang the node for good.
+    pub fn is_next_step(&self, step: u32) -> bool {
+        let next = step != 0 && step <= self.steps && self.last_step.is_none_or(|l| step > l);
+        if !next {
+            tracing::warn!(node = self.index, step, last = ?self.last_step, "BeginStep out of order or beyond the run; dropped");
+        }
+        next
+    }
+
+    /// Enters `step` (past [`is_next_step`](Self::is_next_step)); returns
+    /// the steps missed since the last one (a lost `BeginStep`, or SIGSTOP
+    /// and SIGCONT), which the node's filters coast through.
+    pub fn enter_step(&mut self, step: u32) -> u32 {
+        let missed = self.last_step.map_or(0, |l| step.saturating_sub(l + 1));
+        self.last_step = Some(step);
+        missed
+    }
+
+    /// The step before overran: its report says so.
+    pub fn overran(&mut self) {
+        self.deadline_missed = true;
+    }
+
+    /// The launcher's membership view; the node is always in its own.
+    /// Returns the view it replaces.
+    pub fn take_view(&mut self, alive: &BitMask) -> Vec<bool> {
+        let mut view = alive.to_bools(self.topology.nodes());
+        view[self.index as usize] = true;
+        std::mem::replace(&mut self.view, view)
+    }
+
+    /// A message that arrived after its round or step had passed.
+    pub fn count_late(&mut self) {
+        self.late_messages += 1;
+    }
+
+    pub fn late_messages(&self) -> u64 {
+        self.late_messages
+    }
+
+    /// What a sensor manager choosing for `step` is told.
+    pub fn selection_context<'a>(
+        &'a self,
+        step: u32,
+        predicted: Option<&'a [bounds::State]>,
+    ) -> SelectionContext<'a> {
+        SelectionContext {
+            step,
+            node: self.index,
+            own_sensors: self.own_sensors(),
+            view: &self.view,
+            predicted,
+            sensor_positions: &self.topology.sensor_positions,
+            node_sensors: &self.topology.node_sensors,
+        }
+    }
+
+    /// Activates `picks` (positions in the node's own sensor list) for
+    /// `step` with `payload`, the same message to each on its own channel
+    /// so that a sensor not active receives nothing and sleeps; returns
+    /// the collector of their observations until `deadline`.
+    pub fn activate(
+        &mut self,
+        step: u32,
+        picks: &[usize],
+        payload: Payload,
+        deadline: Duration,
+        out: &mut Vec<Outgoing>,
+    ) -> Collector {
+        let own = self.own_sensors();
+        let active: Vec<u16> = picks.iter().map(|&i| own[i]).collect();
+        let message = Message::new(self.id(), step, 0, payload);
+        out.extend(self.to_each(&message, active.iter().map(|s| ActorId::Sensor(*s))));
+        self.answers.activated(&active);
+        Collector::new(step, active, deadline, self.cells)
+    }
+
+    /// The node's `message` to each of `receivers` (its sensors, or its
+    /// multiple-access channel), each on its own activation channel.
+    pub fn to_each<'a>(
+        &self,
+        message: &'a Message,
+        receivers: impl IntoIterator<Item = ActorId> + 'a,
+    ) -> impl Iterator<Item = Outgoing> + 'a {
+        let node = self.index;
+        receivers.into_iter().map(move |to| Outgoing {
+            channel: Channel::Activation { node, to },
+            message: message.clone(),
+            receivers: vec![to],
+            wake: None,
+        })
+    }
+
+    /// A sensor's observation, offered to the step's collector if one
+    /// listens: the sensor has answered; a late one is counted, one outside
+    /// the quantizer's cells dropped with a warning.
+    pub fn offer(
+        &mut self,
+        collector: Option<&mut Collector>,
+        step: u32,
+        sensor: u16,
+        value: ObservedValue,
+    ) -> Offer {
+        self.answers.answered(sensor);
+        let offer = collector.map_or(Offer::Late, |c| c.offer(step, sensor, value));
+        self.note(offer, sensor);
+        offer
+    }
+
+    /// Counts a late observation and warns of an invalid one.
+    pub fn note(&mut self, offer: Offer, sensor: u16) {
+        match offer {
+            Offer::Taken => {}
+            Offer::Late => self.late_messages += 1,
+            Offer::Invalid => tracing::warn!(
+                node = self.index,
+                sensor,
+                "observation outside the quantizer's cells dropped"
+            ),
+        }
+    }
+
+    /// A sensor answered (what it said is the node's to file).
+    pub fn answered(&mut self, sensor: u16) {
+        self.answers.answered(sensor);
+    }
+
+    /// The step's telemetry to the launcher: `report`, with what the core
+    /// keeps (the late messages since the last report, whether the step
+    /// overran, and, unless the report says otherwise, the sensors that
+    /// never answered).
+    pub fn report(&mut self, step: u32, report: Report) -> Outgoing {
+        let unanswered = self.answers.unanswered();
+        let telemetry = report.finish(
+            (self.late_messages - self.late_reported) as u32,
+            self.deadline_missed,
+            unanswered,
+        );
+        self.deadline_missed = false;
+        self.late_reported = self.late_messages;
+        Outgoing {
+            channel: Channel::Telemetry(self.index),
+            message: Message::new(self.id(), step, 0, Payload::Telemetry(telemetry)),
+            receivers: vec![ActorId::Launcher],
+            wake: None,
+        }
+    }
+}
+
+/// The mask of `picks` for an activation's payload.
+pub fn mask(picks: &[usize]) -> BitMask {
+    BitMask::from_indices(picks.iter().copied())
+}
