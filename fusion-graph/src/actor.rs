@@ -24,9 +24,22 @@ pub struct Outgoing {
     pub wake: Option<Vec<ActorId>>,
 }
 
-/// An actor as its drivers see it. Only [`handle`](Actor::handle) and the
-/// wiring are required: an actor that never waits and never works leaves
-/// the rest as they are.
+/// Who an actor is and how it is connected: what its transport must open
+/// for it before it runs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Wiring {
+    pub actor: ActorId,
+    /// The channels it reads.
+    pub reads: Vec<Channel>,
+    /// The channels it publishes on.
+    pub publishes: Vec<Channel>,
+    /// The actors it sends to, whom its transport must be able to wake.
+    pub wakes: Vec<ActorId>,
+}
+
+/// An actor as its drivers see it. Only [`wiring`](Actor::wiring) and
+/// [`handle`](Actor::handle) are required: an actor that never waits and
+/// never works leaves the rest as they are.
 pub trait Actor {
     /// The heavy stages this actor hands out, which a driver runs with
     /// [`run_work`](Actor::run_work), times by its own clock and reports
@@ -34,16 +47,7 @@ pub trait Actor {
     /// clock, so its results do not depend on one.
     type Work: Copy + Eq + fmt::Debug;
 
-    fn id(&self) -> ActorId;
-
-    /// The channels it reads.
-    fn subscriptions(&self) -> Vec<Channel>;
-
-    /// The channels it publishes on.
-    fn publications(&self) -> Vec<Channel>;
-
-    /// The actors it sends to, whom its transport must be able to wake.
-    fn peers(&self) -> Vec<ActorId>;
+    fn wiring(&self) -> Wiring;
 
     /// Takes one message, handled at `now`.
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>);
@@ -95,17 +99,8 @@ pub trait Actor {
 impl<A: Actor + ?Sized> Actor for Box<A> {
     type Work = A::Work;
 
-    fn id(&self) -> ActorId {
-        (**self).id()
-    }
-    fn subscriptions(&self) -> Vec<Channel> {
-        (**self).subscriptions()
-    }
-    fn publications(&self) -> Vec<Channel> {
-        (**self).publications()
-    }
-    fn peers(&self) -> Vec<ActorId> {
-        (**self).peers()
+    fn wiring(&self) -> Wiring {
+        (**self).wiring()
     }
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
         (**self).handle(message, now, out)

@@ -20,7 +20,7 @@ pub mod shaper;
 pub mod topology;
 pub mod world;
 
-pub use actor::{Actor, Outgoing};
+pub use actor::{Actor, Outgoing, Wiring};
 pub use channel::{Channel, RunId};
 pub use scenario::Scenario;
 pub use shaper::{LinkRule, LinkShaper};

@@ -309,13 +309,14 @@ fn actor_loop<A: Actor, T: Transport>(
     pace: &Pace,
     out: &Path,
 ) -> anyhow::Result<()> {
-    for c in actor.publications() {
+    let wiring = actor.wiring();
+    for c in wiring.publishes {
         t.publish_on(c)?;
     }
-    for c in actor.subscriptions() {
+    for c in wiring.reads {
         t.subscribe(c)?;
     }
-    for p in actor.peers() {
+    for p in wiring.wakes {
         t.notify(p)?;
     }
     announce_ready();

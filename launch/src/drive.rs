@@ -98,7 +98,7 @@ mod tests {
         let mut transport = MemoryTransport::new(ActorId::Sensor(0), bus, format, 2);
         let (truths, world) = TruthRing::on_heap(4);
         let mut sensor = SensorActor::new(&s, &t, 0).unwrap().in_world(world, false);
-        for c in sensor.publications() {
+        for c in sensor.wiring().publishes {
             transport.publish_on(c).unwrap();
         }
         truths.write(1, &bounds::State::new(1000.0, 900.0, -6.0, -7.0));

@@ -48,7 +48,7 @@ impl<A: Actor> Slot<A> {
             transport,
             alive: true,
         };
-        for c in slot.actor.subscriptions() {
+        for c in slot.actor.wiring().reads {
             slot.transport.subscribe(c)?;
         }
         Ok(slot)

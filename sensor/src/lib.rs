@@ -27,7 +27,7 @@ use fusion_graph::world::{TruthMissing, WorldView};
 use std::time::Duration;
 
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
-use fusion_graph::{Actor, Channel, Outgoing};
+use fusion_graph::{Actor, Channel, Outgoing, Wiring};
 use rand::Rng;
 use wire::{unpack_mat4, Message, Payload};
 
@@ -93,20 +93,13 @@ impl<W: WorldView> Actor for SensorInWorld<W> {
     /// A sensor's work is its answer, too light to time apart.
     type Work = ();
 
-    fn id(&self) -> ActorId {
-        self.sensor.id()
-    }
-
-    fn subscriptions(&self) -> Vec<Channel> {
-        self.sensor.subscriptions().to_vec()
-    }
-
-    fn publications(&self) -> Vec<Channel> {
-        vec![self.sensor.publication()]
-    }
-
-    fn peers(&self) -> Vec<ActorId> {
-        self.receivers.clone()
+    fn wiring(&self) -> Wiring {
+        Wiring {
+            actor: self.sensor.id(),
+            reads: self.sensor.subscriptions().to_vec(),
+            publishes: vec![self.sensor.publication()],
+            wakes: self.receivers.clone(),
+        }
     }
 
     /// A step the world does not hold is counted ([`Actor::take_world_misses`])

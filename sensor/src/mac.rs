@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
 use fusion_graph::{stream_rng, ActorId, ScenarioError, Stream, Topology};
-use fusion_graph::{Actor, Channel, Outgoing};
+use fusion_graph::{Actor, Channel, Outgoing, Wiring};
 use rand_distr::{Distribution, StandardNormal};
 use wire::{Message, Payload, MAX_SLOTS};
 
@@ -68,6 +68,10 @@ impl MacActor {
             delivered: None,
             late: 0,
         }))
+    }
+
+    pub fn id(&self) -> ActorId {
+        ActorId::Mac(self.index)
     }
 
     /// The launcher's lifecycle (the stop), the centre's schedule, and its
@@ -216,20 +220,13 @@ impl Actor for MacActor {
     /// Adding up a step's slots is too light to time apart.
     type Work = ();
 
-    fn id(&self) -> ActorId {
-        ActorId::Mac(self.index)
-    }
-
-    fn subscriptions(&self) -> Vec<Channel> {
-        self.channels_read()
-    }
-
-    fn publications(&self) -> Vec<Channel> {
-        vec![self.publication()]
-    }
-
-    fn peers(&self) -> Vec<ActorId> {
-        vec![self.centre()]
+    fn wiring(&self) -> Wiring {
+        Wiring {
+            actor: self.id(),
+            reads: self.channels_read(),
+            publishes: vec![self.publication()],
+            wakes: vec![self.centre()],
+        }
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {

@@ -8,15 +8,86 @@
 
 use std::time::Duration;
 
-use fusion_graph::{ActorId, Channel, Scenario, Topology};
-use wire::{BitMask, Message, Payload};
+use fusion_graph::{Actor, ActorId, Channel, Scenario, Topology, Wiring};
+use wire::{BitMask, Control, Message, Payload};
 
 use crate::collector::{Collector, Offer, SensorAnswers};
 use crate::estimator::ObservedValue;
+use crate::fusion::Handled;
 use crate::sensor_manager::SelectionContext;
-use crate::Outgoing;
+use crate::{Node, Outgoing, Work};
 
 use super::report::Report;
+
+/// A node kind's algorithm as the core hands it the inputs every node gets
+/// alike: the step that passed the step guard, its sensors' observations,
+/// a new membership view; the rest of its messages are its own.
+pub trait NodeKind {
+    fn core(&self) -> &NodeCore;
+
+    fn core_mut(&mut self) -> &mut NodeCore;
+
+    /// Between steps: nothing collected, fused or waiting.
+    fn is_idle(&self) -> bool;
+
+    /// The step before is still running when the next begins: finish it at
+    /// once with what it has (its report says it overran).
+    fn finish_overrun(&mut self, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// The launcher's `BeginStep` for `step`, the next step of the run,
+    /// `missed` steps after the last one begun (a lost `BeginStep`, or
+    /// SIGSTOP and SIGCONT), which the kind's filters coast through.
+    fn begin_step(&mut self, step: u32, missed: u32, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// An own sensor's observation of `step`.
+    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, out: &mut Vec<Outgoing>);
+
+    /// The membership view changed from `before` ([`NodeCore::view`] has
+    /// the new one).
+    fn view_changed(&mut self, _before: &[bool], _out: &mut Vec<Outgoing>) {}
+
+    /// Any other message: the kind's protocol's, a neighbour's.
+    fn take(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// Hands one message to the kind by what it is: the one dispatch of
+    /// every node kind's [`Actor::handle`](crate::Actor::handle).
+    fn dispatch(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        let step = message.header.step;
+        match (&message.payload, message.header.sender) {
+            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
+                if self.core().is_next_step(step) {
+                    if !self.is_idle() {
+                        self.core_mut().overran();
+                        self.finish_overrun(now, out);
+                    }
+                    let missed = self.core_mut().enter_step(step);
+                    self.begin_step(step, missed, now, out)
+                }
+            }
+            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
+                let before = self.core_mut().take_view(alive);
+                self.view_changed(&before, out)
+            }
+            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Cell(*cell), out)
+            }
+            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
+                self.observe(step, s, ObservedValue::Raw(*value), out)
+            }
+            _ => self.take(message, now, out),
+        }
+    }
+}
+
+impl<K: NodeKind + Actor<Work = Work>> Node for K {
+    fn is_idle(&self) -> bool {
+        NodeKind::is_idle(self)
+    }
+
+    fn late_messages(&self) -> u64 {
+        self.core().late_messages()
+    }
+}
 
 pub struct NodeCore {
     index: u16,
@@ -88,9 +159,19 @@ impl NodeCore {
         self.last_step
     }
 
+    /// A node's wiring: what it reads, publishes on and wakes.
+    pub fn wiring(&self) -> Wiring {
+        Wiring {
+            actor: self.id(),
+            reads: self.subscriptions(),
+            publishes: self.publications(),
+            wakes: self.peers(),
+        }
+    }
+
     /// The channels a node reads: its control, its sensors' observations
     /// and its neighbours' consensus channels.
-    pub fn subscriptions(&self) -> Vec<Channel> {
+    fn subscriptions(&self) -> Vec<Channel> {
         let mut v = vec![Channel::Control(self.id())];
         v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
         v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
@@ -99,7 +180,7 @@ impl NodeCore {
 
     /// The channels a node publishes on: an activation channel to each of
     /// its sensors, its consensus channel and its telemetry.
-    pub fn publications(&self) -> Vec<Channel> {
+    fn publications(&self) -> Vec<Channel> {
         let mut v: Vec<Channel> = self.topology.activation_channels(self.index).collect();
         v.push(Channel::Consensus(self.index));
         v.push(Channel::Telemetry(self.index));
@@ -108,7 +189,7 @@ impl NodeCore {
 
     /// The actors a node sends to (to wake them): its sensors, its
     /// neighbours, the launcher.
-    pub fn peers(&self) -> Vec<ActorId> {
+    fn peers(&self) -> Vec<ActorId> {
         let mut v: Vec<ActorId> = self
             .own_sensors()
             .iter()
@@ -119,7 +200,8 @@ impl NodeCore {
         v
     }
 
-    /// The step guard: whether a `BeginStep` for `step` moves the node on.
+    /// The step guard: whether a `BeginStep` for `step` moves the node on
+    /// (asked by [`NodeKind::dispatch`]).
     /// Only a later step of this run does; a repeated, past or impossible
     /// step (a corrupted or forged message) is logged and dropped: coasting
     /// to step 4·10⁹ would hang the node for good.
@@ -132,16 +214,15 @@ impl NodeCore {
     }
 
     /// Enters `step` (past [`is_next_step`](Self::is_next_step)); returns
-    /// the steps missed since the last one (a lost `BeginStep`, or SIGSTOP
-    /// and SIGCONT), which the node's filters coast through.
-    pub fn enter_step(&mut self, step: u32) -> u32 {
+    /// the steps missed since the last one.
+    fn enter_step(&mut self, step: u32) -> u32 {
         let missed = self.last_step.map_or(0, |l| step.saturating_sub(l + 1));
         self.last_step = Some(step);
         missed
     }
 
     /// The step before overran: its report says so.
-    pub fn overran(&mut self) {
+    fn overran(&mut self) {
         self.deadline_missed = true;
     }
 
@@ -242,6 +323,22 @@ impl NodeCore {
                 "observation outside the quantizer's cells dropped"
             ),
         }
+    }
+
+    /// What the node's protocol made of `message`: a late one is counted,
+    /// one not meant for the node logged; true if it was taken.
+    pub fn taken(&mut self, handled: Handled, message: &Message) -> bool {
+        match handled {
+            Handled::Taken => return true,
+            Handled::Late => self.late_messages += 1,
+            Handled::NotMine => tracing::debug!(
+                node = self.index,
+                kind = ?message.header.kind,
+                from = %message.header.sender,
+                "ignored a message not meant for this node"
+            ),
+        }
+        false
     }
 
     /// A sensor answered (what it said is the node's to file).

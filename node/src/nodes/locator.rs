@@ -25,19 +25,19 @@ use std::time::Duration;
 
 use bounds::{Quantizer, State};
 use fusion_graph::scenario::Scenario;
-use fusion_graph::Channel;
+use fusion_graph::Wiring;
 use fusion_graph::{ActorId, Topology};
-use wire::{Control, Message, Payload, Stage};
+use wire::{Message, Payload, Stage};
 
 use crate::collector::{Collector, Offer};
 use crate::estimator::ObservedValue;
 use crate::fusion::{vector_sum, FusionProtocol, Handled, RoundStats, Summed, VectorSum};
 use crate::location::{position_bound, sensor_quantizer, Grid, LocalEvidence, LocationConfig};
 use crate::sensor_manager::{SensorManager, UniformRandom};
-use crate::{Actor, Node, NodeError, Outgoing, Work};
+use crate::{Actor, NodeError, Outgoing, Work};
 
 use super::core::mask;
-use super::{NodeCore, Report};
+use super::{NodeCore, NodeKind, Report};
 
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
@@ -124,63 +124,6 @@ impl LocatorNode {
         })
     }
 
-    fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !self.core.is_next_step(step) {
-            return;
-        }
-        if self.stepping.is_some() {
-            self.core.overran();
-            self.force_finish(now, out);
-        }
-        self.core.enter_step(step);
-        for engine in &mut self.phases {
-            engine.expect_step(step);
-        }
-        let picks = self
-            .manager
-            .choose(&self.core.selection_context(step, None));
-        let mask = mask(&picks);
-        let payload = match &self.quantizer {
-            Some(q) => Payload::ActivateThresholds {
-                mask,
-                thresholds: (1..q.cells() as u32).map(|c| q.cell_edges(c).0).collect(),
-            },
-            None => Payload::Activate { mask },
-        };
-        let collector = self
-            .core
-            .activate(step, &picks, payload, now + self.listen, out);
-        let empty = collector.is_complete();
-        self.stepping = Some(Box::new(Stepping {
-            step,
-            collector: Some(collector),
-            observations: 0,
-            weighed: false,
-            coarse: Vec::new(),
-            phase: None,
-            grid: self.coarse,
-            estimate: None,
-            stats: RoundStats::default(),
-            weigh_time: Duration::ZERO,
-        }));
-        if empty {
-            self.close_own();
-        }
-    }
-
-    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
-        let collector = self.stepping.as_mut().and_then(|s| s.collector.as_mut());
-        let offer = self.core.offer(collector, step, sensor, value);
-        let complete = self
-            .stepping
-            .as_ref()
-            .and_then(|s| s.collector.as_ref())
-            .is_some_and(Collector::is_complete);
-        if offer == Offer::Taken && complete {
-            self.close_own();
-        }
-    }
-
     /// The node's sensors are done: their reports join the evidence.
     fn close_own(&mut self) {
         let Some(s) = self.stepping.as_mut() else {
@@ -254,10 +197,24 @@ impl LocatorNode {
             .stage(Stage::Local, s.weigh_time);
         out.push(self.core.report(s.step, report));
     }
+}
+
+impl NodeKind for LocatorNode {
+    fn core(&self) -> &NodeCore {
+        &self.core
+    }
+
+    fn core_mut(&mut self) -> &mut NodeCore {
+        &mut self.core
+    }
+
+    fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
 
     /// Ends an overrun step at once with what it has: no more waiting for
     /// sensors or neighbours; its stages are not timed.
-    fn force_finish(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+    fn finish_overrun(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         self.close_own();
         while let Some(s) = self.stepping.as_ref() {
             if let Some(work) = self.poll_work() {
@@ -274,52 +231,58 @@ impl LocatorNode {
             }
         }
     }
-}
 
-impl Node for LocatorNode {
-    fn is_idle(&self) -> bool {
-        self.stepping.is_none()
+    fn begin_step(&mut self, step: u32, _: u32, now: Duration, out: &mut Vec<Outgoing>) {
+        for engine in &mut self.phases {
+            engine.expect_step(step);
+        }
+        let picks = self
+            .manager
+            .choose(&self.core.selection_context(step, None));
+        let mask = mask(&picks);
+        let payload = match &self.quantizer {
+            Some(q) => Payload::ActivateThresholds {
+                mask,
+                thresholds: (1..q.cells() as u32).map(|c| q.cell_edges(c).0).collect(),
+            },
+            None => Payload::Activate { mask },
+        };
+        let collector = self
+            .core
+            .activate(step, &picks, payload, now + self.listen, out);
+        let empty = collector.is_complete();
+        self.stepping = Some(Box::new(Stepping {
+            step,
+            collector: Some(collector),
+            observations: 0,
+            weighed: false,
+            coarse: Vec::new(),
+            phase: None,
+            grid: self.coarse,
+            estimate: None,
+            stats: RoundStats::default(),
+            weigh_time: Duration::ZERO,
+        }));
+        if empty {
+            self.close_own();
+        }
     }
 
-    fn late_messages(&self) -> u64 {
-        self.core.late_messages()
-    }
-}
-
-impl Actor for LocatorNode {
-    type Work = Work;
-
-    fn id(&self) -> ActorId {
-        self.core.id()
-    }
-
-    fn subscriptions(&self) -> Vec<Channel> {
-        self.core.subscriptions()
+    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, _: &mut Vec<Outgoing>) {
+        let collector = self.stepping.as_mut().and_then(|s| s.collector.as_mut());
+        let offer = self.core.offer(collector, step, sensor, value);
+        let complete = self
+            .stepping
+            .as_ref()
+            .and_then(|s| s.collector.as_ref())
+            .is_some_and(Collector::is_complete);
+        if offer == Offer::Taken && complete {
+            self.close_own();
+        }
     }
 
-    fn publications(&self) -> Vec<Channel> {
-        self.core.publications()
-    }
-
-    fn peers(&self) -> Vec<ActorId> {
-        self.core.peers()
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
+    fn take(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
         match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                self.begin_step(step, now, out)
-            }
-            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.core.take_view(alive);
-            }
-            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell))
-            }
-            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value))
-            }
             (Payload::LocationConsensus { .. }, ActorId::Node(_)) => {
                 // Round k of phase p is round p·N_c + k on the wire.
                 let phase = (message.header.round.max(1) - 1) / self.rounds.max(1);
@@ -332,10 +295,22 @@ impl Actor for LocatorNode {
                     Handled::Late | Handled::NotMine => self.core.count_late(),
                 }
             }
-            (p, from) => {
-                tracing::debug!(node = self.core.index(), kind = ?p.kind(), %from, "ignored a message not meant for a locator node")
+            _ => {
+                self.core.taken(Handled::NotMine, message);
             }
         }
+    }
+}
+
+impl Actor for LocatorNode {
+    type Work = Work;
+
+    fn wiring(&self) -> Wiring {
+        self.core.wiring()
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        self.dispatch(message, now, out)
     }
 
     fn poll_timeout(&self) -> Option<Duration> {

@@ -29,16 +29,17 @@ use bounds::compressive::{
 };
 use bounds::{Mat4, ObservationModel, State};
 use fusion_graph::scenario::{MacConfig, MacDesign, Scenario};
-use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
+use fusion_graph::{Channel, Wiring};
 use nalgebra::Cholesky;
 use rand_chacha::ChaCha8Rng;
-use wire::{Control, Message, Payload, SlotColumn, Stage};
+use wire::{Message, Payload, SlotColumn, Stage};
 
 use crate::filter::ParticleFilter;
-use crate::{Actor, Node, NodeError, Outgoing, Work};
+use crate::fusion::Handled;
+use crate::{Actor, NodeError, ObservedValue, Outgoing, Work};
 
-use super::{NodeCore, Report};
+use super::{NodeCore, NodeKind, Report};
 
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
@@ -72,7 +73,7 @@ pub struct MacCentre {
     index: u16,
     seed: u64,
     own: Vec<u16>,
-    /// What it publishes on (see [`MacCentre::publications`]).
+    /// What it publishes on (see its [`Wiring`]).
     publications: Vec<Channel>,
     models: Vec<ObservationModel>,
     mac: MacConfig,
@@ -146,27 +147,6 @@ impl MacCentre {
         })
     }
 
-    fn begin_step(&mut self, step: u32, out: &mut Vec<Outgoing>) {
-        if !self.core.is_next_step(step) {
-            return;
-        }
-        if self.stepping.is_some() {
-            self.core.overran();
-            self.report(out);
-        }
-        self.core.enter_step(step);
-        self.stepping = Some(Box::new(Stepping {
-            step,
-            design: None,
-            deadline: None,
-            received: None,
-            weighed: false,
-            estimate: State::zeros(),
-            select_time: Duration::ZERO,
-            weigh_time: Duration::ZERO,
-        }));
-    }
-
     /// [`Work::Design`]: the prediction, the sensors' `G_j` over
     /// it, and the step's design.
     fn design(&mut self) {
@@ -237,51 +217,52 @@ impl MacCentre {
     }
 }
 
-impl Node for MacCentre {
+impl NodeKind for MacCentre {
+    fn core(&self) -> &NodeCore {
+        &self.core
+    }
+
+    fn core_mut(&mut self) -> &mut NodeCore {
+        &mut self.core
+    }
+
     fn is_idle(&self) -> bool {
         self.stepping.is_none()
     }
 
-    fn late_messages(&self) -> u64 {
-        self.core.late_messages()
-    }
-}
-
-impl Actor for MacCentre {
-    type Work = Work;
-
-    fn id(&self) -> ActorId {
-        self.core.id()
+    /// Reported with what it has: its prediction, if nothing was weighed.
+    fn finish_overrun(&mut self, _: Duration, out: &mut Vec<Outgoing>) {
+        self.report(out)
     }
 
-    /// Its control and its channel's deliveries.
-    fn subscriptions(&self) -> Vec<Channel> {
-        vec![Channel::Control(self.id()), Channel::MacOutput(self.index)]
+    fn begin_step(&mut self, step: u32, _: u32, _: Duration, _: &mut Vec<Outgoing>) {
+        self.stepping = Some(Box::new(Stepping {
+            step,
+            design: None,
+            deadline: None,
+            received: None,
+            weighed: false,
+            estimate: State::zeros(),
+            select_time: Duration::ZERO,
+            weigh_time: Duration::ZERO,
+        }));
     }
 
-    /// An activation channel to each of its sensors and to its channel,
-    /// and its telemetry.
-    fn publications(&self) -> Vec<Channel> {
-        self.publications.clone()
+    /// Its sensors transmit to the channel, never to the centre.
+    fn observe(&mut self, step: u32, sensor: u16, _: ObservedValue, _: &mut Vec<Outgoing>) {
+        tracing::debug!(
+            node = self.index,
+            sensor,
+            step,
+            "ignored an observation sent past the channel"
+        );
     }
 
-    /// Its sensors and its channel (the schedule wakes them), and the
-    /// launcher.
-    fn peers(&self) -> Vec<ActorId> {
-        let mut v: Vec<ActorId> = self.own.iter().map(|s| ActorId::Sensor(*s)).collect();
-        v.push(ActorId::Mac(self.index));
-        v.push(ActorId::Launcher);
-        v
-    }
-
-    /// The launcher's `BeginStep` and the channel's delivery; a delivery
-    /// for another step, or with another count of slots than the step's,
-    /// is counted late and dropped.
-    fn handle(&mut self, message: &Message, _now: Duration, out: &mut Vec<Outgoing>) {
+    /// The channel's delivery; one for another step, or with another count
+    /// of slots than the step's, is counted late and dropped.
+    fn take(&mut self, message: &Message, _now: Duration, _out: &mut Vec<Outgoing>) {
         let step = message.header.step;
         match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => self.begin_step(step, out),
-            (Payload::Control(Control::Membership { .. }), ActorId::Launcher) => {}
             (Payload::MacOutput { values }, ActorId::Mac(m)) if m == self.index => {
                 let slots = self
                     .stepping
@@ -299,10 +280,37 @@ impl Actor for MacCentre {
                     _ => self.core.count_late(),
                 }
             }
-            (p, from) => {
-                tracing::debug!(node = self.index, kind = ?p.kind(), %from, "ignored a message not meant for a fusion centre")
+            _ => {
+                self.core.taken(Handled::NotMine, message);
             }
         }
+    }
+}
+
+impl Actor for MacCentre {
+    type Work = Work;
+
+    /// It reads its control and its channel's deliveries, publishes an
+    /// activation channel to each of its sensors and to its channel, and
+    /// its telemetry, and wakes its sensors and its channel (the schedule)
+    /// and the launcher.
+    fn wiring(&self) -> Wiring {
+        let mut wakes: Vec<ActorId> = self.own.iter().map(|s| ActorId::Sensor(*s)).collect();
+        wakes.push(ActorId::Mac(self.index));
+        wakes.push(ActorId::Launcher);
+        Wiring {
+            actor: self.core.id(),
+            reads: vec![
+                Channel::Control(self.core.id()),
+                Channel::MacOutput(self.index),
+            ],
+            publishes: self.publications.clone(),
+            wakes,
+        }
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        self.dispatch(message, now, out)
     }
 
     fn poll_timeout(&self) -> Option<Duration> {

@@ -15,7 +15,7 @@ pub mod mac_centre;
 pub mod report;
 pub mod trackers;
 
-pub use self::core::NodeCore;
+pub use self::core::{NodeCore, NodeKind};
 pub use report::Report;
 
 use std::time::Duration;
@@ -25,7 +25,8 @@ use fusion_graph::{Scenario, Topology};
 
 use crate::{Actor, CfDpfNode, LocatorNode, MacCentre, NodeError, TrackerNode, Work};
 
-/// What a processing node is beyond an actor of the network.
+/// What a processing node is beyond an actor of the network (every
+/// [`NodeKind`] is one).
 pub trait Node: Actor<Work = Work> {
     /// Between steps: nothing collected, fused or waiting.
     fn is_idle(&self) -> bool;

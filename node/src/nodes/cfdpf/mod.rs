@@ -17,9 +17,9 @@ use std::time::Duration;
 use bounds::{BoundError, State};
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
-use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
-use wire::{BitMask, Control, Message, Payload, Stage, StateTransfer};
+use fusion_graph::{Channel, Wiring};
+use wire::{Message, Payload, Stage, StateTransfer};
 
 use crate::censoring::NodeCensoring;
 use crate::collector::{Collected, Collector, Lagging, Offer};
@@ -31,10 +31,10 @@ use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
 use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionInputs};
-use crate::{Actor, Node, NodeError, Outgoing, Work};
+use crate::{Actor, NodeError, Outgoing, Work};
 
 use super::core::mask;
-use super::{NodeCore, Report};
+use super::{NodeCore, NodeKind, Report};
 
 #[derive(Debug)]
 enum Phase {
@@ -309,56 +309,6 @@ impl CfDpfNode {
         }
     }
 
-    fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !self.core.is_next_step(step) {
-            return;
-        }
-        // Missed steps (a lost BeginStep, or SIGSTOP and SIGCONT): the filters
-        // and bounds coast through them so that they are at the right time.
-        for _ in 0..self.core.enter_step(step) {
-            if let Err(e) = self
-                .local
-                .coast(&self.model)
-                .and_then(|_| self.fusion.coast(&self.model))
-            {
-                tracing::error!(node = self.core.index(), error = %e, "coasting through a missed step failed");
-            }
-        }
-        if !self.is_idle() {
-            // The previous step overran: finish it with what we have.
-            self.core.overran();
-            self.force_finish(now, out);
-        }
-        self.step_deadline = self
-            .step_period
-            .map(|p| now + p.mul_f64(WAITING_SHARE_OF_STEP));
-        self.protocol.expect_step(step);
-        match &self.manager {
-            Manager::Alone(_) => {
-                let picks = self.choose_alone(step);
-                self.activate(step, picks, now, out);
-            }
-            Manager::Negotiated(_) => {
-                // Scores made for this step, taken by value.
-                let (inputs, scoring_time) = match self.ahead.take() {
-                    Some(a) if a.step == step => (a.inputs, a.scoring_time),
-                    _ => (None, Duration::ZERO),
-                };
-                let scored = inputs.is_some();
-                self.phase = Phase::Selecting(Selecting {
-                    step,
-                    inputs,
-                    scored,
-                    scoring_time: Duration::ZERO,
-                    rounds_started: now,
-                });
-                if scored {
-                    self.start_selection(scoring_time, true, now, out);
-                }
-            }
-        }
-    }
-
     /// A manager that chooses alone, from the prediction if it asks for one.
     fn choose_alone(&mut self, step: u32) -> Vec<usize> {
         let Manager::Alone(manager) = &mut self.manager else {
@@ -468,25 +418,6 @@ impl CfDpfNode {
         }
     }
 
-    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue) {
-        self.core.answered(sensor);
-        let (offer, complete) = match &mut self.phase {
-            Phase::Collecting(c) => {
-                let offer = c.offer(step, sensor, value);
-                (offer, offer == Offer::Taken && c.is_complete())
-            }
-            _ => (Offer::Late, false),
-        };
-        if complete {
-            self.close_collection();
-        }
-        let offer = match offer {
-            Offer::Late => self.lagging.offer(step, sensor, value),
-            other => other,
-        };
-        self.core.note(offer, sensor);
-    }
-
     fn close_collection(&mut self) {
         let Phase::Collecting(c) = std::mem::replace(&mut self.phase, Phase::Idle) else {
             return;
@@ -583,9 +514,47 @@ impl CfDpfNode {
         }
     }
 
+    fn take_state(&mut self, s: &StateTransfer) {
+        if !self.needs_state {
+            return;
+        }
+        let posterior = Gaussian {
+            mean: State::from(s.mean),
+            cov: unpack_matrix(&s.covariance),
+        };
+        let info = unpack_matrix(&s.information);
+        self.fusion.reset(
+            &posterior,
+            info,
+            self.with_aux.then(|| unpack_matrix(&s.aux_information)),
+        );
+        self.local.reset(&posterior, info);
+        self.needs_state = false;
+        // Scored on the filter just replaced.
+        self.ahead = None;
+        tracing::info!(
+            node = self.core.index(),
+            "rejoined from a neighbour's fused posterior"
+        );
+    }
+}
+
+impl NodeKind for CfDpfNode {
+    fn core(&self) -> &NodeCore {
+        &self.core
+    }
+
+    fn core_mut(&mut self) -> &mut NodeCore {
+        &mut self.core
+    }
+
+    fn is_idle(&self) -> bool {
+        matches!(self.phase, Phase::Idle)
+    }
+
     /// Runs every remaining stage at once, without waiting for anyone; the
     /// stages of an overrun step are not timed.
-    fn force_finish(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+    fn finish_overrun(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         if let Phase::Selecting(Selecting { step, .. }) = self.phase {
             // Too late to activate anyone for this step: it is fused with
             // no observations of this node's.
@@ -619,8 +588,68 @@ impl CfDpfNode {
         }
     }
 
-    fn update_membership(&mut self, alive: &BitMask, out: &mut Vec<Outgoing>) {
-        let before = self.core.take_view(alive);
+    fn begin_step(&mut self, step: u32, missed: u32, now: Duration, out: &mut Vec<Outgoing>) {
+        // The filters and bounds coast through missed steps so that they
+        // are at the right time (after an overrun step is finished at its own).
+        for _ in 0..missed {
+            if let Err(e) = self
+                .local
+                .coast(&self.model)
+                .and_then(|_| self.fusion.coast(&self.model))
+            {
+                tracing::error!(node = self.core.index(), error = %e, "coasting through a missed step failed");
+            }
+        }
+        self.step_deadline = self
+            .step_period
+            .map(|p| now + p.mul_f64(WAITING_SHARE_OF_STEP));
+        self.protocol.expect_step(step);
+        match &self.manager {
+            Manager::Alone(_) => {
+                let picks = self.choose_alone(step);
+                self.activate(step, picks, now, out);
+            }
+            Manager::Negotiated(_) => {
+                // Scores made for this step, taken by value.
+                let (inputs, scoring_time) = match self.ahead.take() {
+                    Some(a) if a.step == step => (a.inputs, a.scoring_time),
+                    _ => (None, Duration::ZERO),
+                };
+                let scored = inputs.is_some();
+                self.phase = Phase::Selecting(Selecting {
+                    step,
+                    inputs,
+                    scored,
+                    scoring_time: Duration::ZERO,
+                    rounds_started: now,
+                });
+                if scored {
+                    self.start_selection(scoring_time, true, now, out);
+                }
+            }
+        }
+    }
+
+    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, _: &mut Vec<Outgoing>) {
+        self.core.answered(sensor);
+        let (offer, complete) = match &mut self.phase {
+            Phase::Collecting(c) => {
+                let offer = c.offer(step, sensor, value);
+                (offer, offer == Offer::Taken && c.is_complete())
+            }
+            _ => (Offer::Late, false),
+        };
+        if complete {
+            self.close_collection();
+        }
+        let offer = match offer {
+            Offer::Late => self.lagging.offer(step, sensor, value),
+            other => other,
+        };
+        self.core.note(offer, sensor);
+    }
+
+    fn view_changed(&mut self, before: &[bool], out: &mut Vec<Outgoing>) {
         // A neighbour that came back gets our fused posterior to rejoin from.
         let returned: Vec<ActorId> = self
             .neighbours()
@@ -642,7 +671,7 @@ impl CfDpfNode {
             // counted as sent to each; only the returned are woken for it.
             out.push(Outgoing {
                 channel: Channel::Consensus(self.core.index()),
-                message: Message::new(self.id(), step, 0, Payload::StateTransfer(state)),
+                message: Message::new(self.core.id(), step, 0, Payload::StateTransfer(state)),
                 receivers: self
                     .neighbours()
                     .iter()
@@ -653,39 +682,27 @@ impl CfDpfNode {
         }
     }
 
-    fn take_state(&mut self, s: &StateTransfer) {
-        if !self.needs_state {
-            return;
+    fn take(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        match (&message.payload, message.header.sender) {
+            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
+            (Payload::SelectionReport(_) | Payload::SelectionChoice(_), ActorId::Node(_)) => {
+                let handled = match &mut self.manager {
+                    Manager::Negotiated(selection) => selection.handle(message, now, out),
+                    Manager::Alone(_) => Handled::NotMine,
+                };
+                match handled {
+                    Handled::Taken => self.poll_selection(now, out),
+                    Handled::Late => self.core.count_late(),
+                    Handled::NotMine => {}
+                }
+            }
+            _ => {
+                let handled = self.protocol.handle(message, now, out);
+                if self.core.taken(handled, message) {
+                    self.poll_protocol()
+                }
+            }
         }
-        let posterior = Gaussian {
-            mean: State::from(s.mean),
-            cov: unpack_matrix(&s.covariance),
-        };
-        let info = unpack_matrix(&s.information);
-        self.fusion.reset(
-            &posterior,
-            info,
-            self.with_aux.then(|| unpack_matrix(&s.aux_information)),
-        );
-        self.local.reset(&posterior, info);
-        self.needs_state = false;
-        // Scored on the filter just replaced.
-        self.ahead = None;
-        tracing::info!(
-            node = self.core.index(),
-            "rejoined from a neighbour's fused posterior"
-        );
-    }
-}
-
-impl Node for CfDpfNode {
-    fn is_idle(&self) -> bool {
-        matches!(self.phase, Phase::Idle)
-    }
-
-    /// Messages that arrived after their round or step had passed.
-    fn late_messages(&self) -> u64 {
-        self.core.late_messages()
     }
 }
 
@@ -699,60 +716,12 @@ impl Actor for CfDpfNode {
         work == Work::FusionFilter
     }
 
-    fn id(&self) -> ActorId {
-        self.core.id()
-    }
-
-    /// The channels this node reads.
-    fn subscriptions(&self) -> Vec<Channel> {
-        self.core.subscriptions()
-    }
-
-    /// The channels this node publishes on.
-    fn publications(&self) -> Vec<Channel> {
-        self.core.publications()
-    }
-
-    /// Actors this node sends to (to wake them).
-    fn peers(&self) -> Vec<ActorId> {
-        self.core.peers()
+    fn wiring(&self) -> Wiring {
+        self.core.wiring()
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
-        match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                self.begin_step(step, now, out)
-            }
-            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.update_membership(alive, out)
-            }
-            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell))
-            }
-            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value))
-            }
-            (Payload::StateTransfer(s), ActorId::Node(_)) => self.take_state(s),
-            (Payload::SelectionReport(_) | Payload::SelectionChoice(_), ActorId::Node(_)) => {
-                let handled = match &mut self.manager {
-                    Manager::Negotiated(selection) => selection.handle(message, now, out),
-                    Manager::Alone(_) => Handled::NotMine,
-                };
-                match handled {
-                    Handled::Taken => self.poll_selection(now, out),
-                    Handled::Late => self.core.count_late(),
-                    Handled::NotMine => {}
-                }
-            }
-            (p, from) => match self.protocol.handle(message, now, out) {
-                Handled::Taken => self.poll_protocol(),
-                Handled::Late => self.core.count_late(),
-                Handled::NotMine => {
-                    tracing::debug!(node = self.core.index(), kind = ?p.kind(), %from, "ignored a message not meant for a node")
-                }
-            },
-        }
+        self.dispatch(message, now, out)
     }
 
     /// When [`handle_timeout`](Self::handle_timeout) should next be called.
@@ -942,6 +911,7 @@ mod tests {
     use super::*;
     use crate::harness::{Fate, Net};
     use crate::Start;
+    use wire::Control;
 
     const ALL: [bool; 3] = [true; 3];
     const LONG: Duration = Duration::from_secs(5);

@@ -17,10 +17,10 @@
 use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
-use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
+use fusion_graph::{Channel, Wiring};
 use rand_chacha::ChaCha8Rng;
-use wire::{Control, Message, Payload, Stage};
+use wire::{Message, Payload, Stage};
 
 use crate::collector::{Collector, Offer};
 use crate::diffusion::DiffusionTracker;
@@ -30,10 +30,10 @@ use crate::fusion::{
     RandomExchange, RoundStats,
 };
 use crate::sensor_manager::{SensorManager, UniformRandom};
-use crate::{Actor, Node, NodeError, Outgoing, Work};
+use crate::{Actor, NodeError, Outgoing, Work};
 
 use super::core::mask;
-use super::{NodeCore, Report};
+use super::{NodeCore, NodeKind, Report};
 
 /// How a tracker node cooperates, by the scenario's `consensus.protocol`;
 /// the registry ([`crate::registry`]) builds it by name.
@@ -206,67 +206,9 @@ impl TrackerNode {
         self.core.neighbours()
     }
 
-    fn begin_step(&mut self, step: u32, now: Duration, out: &mut Vec<Outgoing>) {
-        if !self.core.is_next_step(step) {
-            return;
-        }
-        if self.stepping.is_some() {
-            self.core.overran();
-            self.force_finish(now, out);
-        }
-        for _ in 0..self.core.enter_step(step) {
-            self.tracker.coast(&self.model, &mut self.rng);
-        }
-        self.relayed.retain(|(s, _, _)| *s >= step);
-        self.cooperation.protocol().expect_step(step);
-        let picks = self
-            .manager
-            .choose(&self.core.selection_context(step, None));
-        let mask = mask(&picks);
-        let collector = self.core.activate(
-            step,
-            &picks,
-            Payload::Activate { mask },
-            now + self.listen,
-            out,
-        );
-        self.stepping = Some(Box::new(Stepping {
-            step,
-            collector: Some(collector),
-            observations: Vec::new(),
-            relays_closed: !self.cooperation.uses_neighbourhood(),
-            relay_deadline: now + 2 * self.listen,
-            exchanged: None,
-            weighed: false,
-            local: None,
-            fused: None,
-            fusing: false,
-            stats: RoundStats::default(),
-            weigh_time: Duration::ZERO,
-        }));
-        // RndEx-PF swaps the posterior of the step before, while the
-        // measurements of this one come in.
-        if let Cooperation::RandomExchange(exchange) = &mut self.cooperation {
-            exchange.start(step, self.tracker.summary(), self.core.view(), now, out);
-            self.poll_protocol();
-        }
-        // A step with no active sensor has nothing to wait for.
-        if self.collecting().is_some_and(Collector::is_complete) {
-            self.close_own(out);
-        }
-    }
-
     /// The collector of the step's own observations, while it listens.
     fn collecting(&self) -> Option<&Collector> {
         self.stepping.as_ref().and_then(|s| s.collector.as_ref())
-    }
-
-    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, out: &mut Vec<Outgoing>) {
-        let collector = self.stepping.as_mut().and_then(|s| s.collector.as_mut());
-        let offer = self.core.offer(collector, step, sensor, value);
-        if offer == Offer::Taken && self.collecting().is_some_and(Collector::is_complete) {
-            self.close_own(out);
-        }
     }
 
     /// The node's own sensors are done: relay their measurements (with
@@ -274,7 +216,7 @@ impl TrackerNode {
     fn close_own(&mut self, out: &mut Vec<Outgoing>) {
         let relay = self.cooperation.uses_neighbourhood();
         let neighbours: Vec<u16> = self.neighbours().to_vec();
-        let me = self.id();
+        let me = self.core.id();
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
@@ -443,10 +385,24 @@ impl TrackerNode {
             .stage(Stage::Global, adopt_time);
         out.push(self.core.report(s.step, report));
     }
+}
+
+impl NodeKind for TrackerNode {
+    fn core(&self) -> &NodeCore {
+        &self.core
+    }
+
+    fn core_mut(&mut self) -> &mut NodeCore {
+        &mut self.core
+    }
+
+    fn is_idle(&self) -> bool {
+        self.stepping.is_none()
+    }
 
     /// Ends an overrun step at once with what it has: no more waiting for
     /// sensors, relays or neighbours; its stages are not timed.
-    fn force_finish(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+    fn finish_overrun(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         if self
             .stepping
             .as_ref()
@@ -488,85 +444,94 @@ impl TrackerNode {
             }
         }
     }
-}
 
-impl Node for TrackerNode {
-    fn is_idle(&self) -> bool {
-        self.stepping.is_none()
+    fn begin_step(&mut self, step: u32, missed: u32, now: Duration, out: &mut Vec<Outgoing>) {
+        for _ in 0..missed {
+            self.tracker.coast(&self.model, &mut self.rng);
+        }
+        self.relayed.retain(|(s, _, _)| *s >= step);
+        self.cooperation.protocol().expect_step(step);
+        let picks = self
+            .manager
+            .choose(&self.core.selection_context(step, None));
+        let mask = mask(&picks);
+        let collector = self.core.activate(
+            step,
+            &picks,
+            Payload::Activate { mask },
+            now + self.listen,
+            out,
+        );
+        self.stepping = Some(Box::new(Stepping {
+            step,
+            collector: Some(collector),
+            observations: Vec::new(),
+            relays_closed: !self.cooperation.uses_neighbourhood(),
+            relay_deadline: now + 2 * self.listen,
+            exchanged: None,
+            weighed: false,
+            local: None,
+            fused: None,
+            fusing: false,
+            stats: RoundStats::default(),
+            weigh_time: Duration::ZERO,
+        }));
+        // RndEx-PF swaps the posterior of the step before, while the
+        // measurements of this one come in.
+        if let Cooperation::RandomExchange(exchange) = &mut self.cooperation {
+            exchange.start(step, self.tracker.summary(), self.core.view(), now, out);
+            self.poll_protocol();
+        }
+        // A step with no active sensor has nothing to wait for.
+        if self.collecting().is_some_and(Collector::is_complete) {
+            self.close_own(out);
+        }
     }
 
-    fn late_messages(&self) -> u64 {
-        self.core.late_messages()
+    fn observe(&mut self, step: u32, sensor: u16, value: ObservedValue, out: &mut Vec<Outgoing>) {
+        let collector = self.stepping.as_mut().and_then(|s| s.collector.as_mut());
+        let offer = self.core.offer(collector, step, sensor, value);
+        if offer == Offer::Taken && self.collecting().is_some_and(Collector::is_complete) {
+            self.close_own(out);
+        }
+    }
+
+    fn take(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        match (&message.payload, message.header.sender) {
+            (Payload::NeighbourObservation { sensor, value }, ActorId::Node(m)) => {
+                self.take_relay(message.header.step, m, *sensor, *value)
+            }
+            _ => {
+                let handled = self.cooperation.protocol().handle(message, now, out);
+                if self.core.taken(handled, message) {
+                    self.poll_protocol()
+                }
+            }
+        }
     }
 }
 
 impl Actor for TrackerNode {
     type Work = Work;
 
-    fn id(&self) -> ActorId {
-        self.core.id()
-    }
-
-    /// The channels this node reads: a CF/DPF node's, and for random
-    /// exchange each neighbour's channel to it.
-    fn subscriptions(&self) -> Vec<Channel> {
-        let mut v = self.core.subscriptions();
+    /// A node's wiring and, for random exchange, a channel to each
+    /// neighbour and from each.
+    fn wiring(&self) -> Wiring {
+        let mut wiring = self.core.wiring();
         if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
-            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
-                from: *m,
-                to: self.core.index(),
-            }));
+            let me = self.core.index();
+            for m in self.neighbours() {
+                wiring.reads.push(Channel::Pair { from: *m, to: me });
+                wiring.publishes.push(Channel::Pair { from: me, to: *m });
+            }
         }
-        v
-    }
-
-    /// The channels this node publishes on: a CF/DPF node's, and for random
-    /// exchange its channel to each neighbour.
-    fn publications(&self) -> Vec<Channel> {
-        let mut v = self.core.publications();
-        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
-            v.extend(self.neighbours().iter().map(|m| Channel::Pair {
-                from: self.core.index(),
-                to: *m,
-            }));
-        }
-        v
-    }
-
-    /// Actors this node sends to (to wake them).
-    fn peers(&self) -> Vec<ActorId> {
-        self.core.peers()
+        wiring
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        let step = message.header.step;
-        match (&message.payload, message.header.sender) {
-            (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
-                self.begin_step(step, now, out)
-            }
-            (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                self.core.take_view(alive);
-            }
-            (Payload::Observation { cell }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Cell(*cell), out)
-            }
-            (Payload::RawObservation { value }, ActorId::Sensor(s)) => {
-                self.observe(step, s, ObservedValue::Raw(*value), out)
-            }
-            (Payload::NeighbourObservation { sensor, value }, ActorId::Node(m)) => {
-                self.take_relay(step, m, *sensor, *value)
-            }
-            (p, from) => match self.cooperation.protocol().handle(message, now, out) {
-                Handled::Taken => self.poll_protocol(),
-                Handled::Late => self.core.count_late(),
-                Handled::NotMine => {
-                    tracing::debug!(node = self.core.index(), kind = ?p.kind(), %from, "ignored a message not meant for a random-exchange or KL node")
-                }
-            },
-        }
+        self.dispatch(message, now, out)
     }
 
-    /// When [`handle_timeout`](Self::handle_timeout) should next be called.
     fn poll_timeout(&self) -> Option<Duration> {
         let s = self.stepping.as_ref()?;
         let listening = match &s.collector {
