@@ -1,6 +1,7 @@
-//! The random-exchange paper's processing node as an I/O-free state machine: one particle
-//! filter ([`DiffusionTracker`]) summarized as a Gaussian, cooperating by
-//! random exchange (RndEx-PF) or by KL fusion.
+//! The random-exchange paper's tracker node as an I/O-free state machine:
+//! one particle filter ([`DiffusionTracker`]) summarized as a Gaussian,
+//! cooperating by random exchange (RndEx-PF, `exchange.rs`) or by KL
+//! fusion (`kl.rs`), each a [`Cooperation`].
 //!
 //! A step: the launcher's `BeginStep` → the node activates its sensors
 //! (and, in RndEx-PF, starts the exchange with its posterior of the step
@@ -25,99 +26,106 @@ use wire::{Message, Payload, Stage};
 use crate::collector::{Collector, Offer};
 use crate::diffusion::DiffusionTracker;
 use crate::estimator::{Observation, ObservedValue, SensingModel};
-use crate::fusion::{
-    kl_fusion, Exchanged, FusionProtocol, Handled, KlFused, KlFusion, NaturalGaussian,
-    RandomExchange, RoundStats,
-};
+use crate::fusion::{Handled, RoundStats};
 use crate::sensor_manager::{SensorManager, UniformRandom};
 use crate::{Actor, NodeError, Outgoing, Work};
 
 use super::core::mask;
 use super::{NodeCore, NodeKind, Report};
 
-/// How a tracker node cooperates, by the scenario's `consensus.protocol`;
-/// the registry ([`crate::registry`]) builds it by name.
-pub enum Cooperation {
-    RandomExchange(RandomExchange),
-    Kl {
-        fusion: KlFusion,
-        /// Weigh the closed neighbourhood's measurements before fusing (the
-        /// modified forms) rather than the node's own only (consensus KL).
-        neighbourhood: bool,
-    },
-}
+mod exchange;
+mod kl;
 
-impl Cooperation {
-    /// RndEx-PF's: a posterior swapped with one random neighbour a step.
-    pub fn random_exchange(scenario: &Scenario, topology: &Topology, index: u16) -> Self {
-        Cooperation::RandomExchange(RandomExchange::new(
-            index,
-            topology,
-            round_timeout(scenario),
-            stream_rng(scenario.seed, ActorId::Node(index), 0, Stream::Exchange),
-        ))
+pub use exchange::ExchangeCooperation;
+pub use kl::KlCooperation;
+
+/// How a tracker node cooperates with its neighbours, beside the step
+/// every tracker shares (its sensors, its neighbours' relays, its
+/// report): RndEx-PF's exchange ([`ExchangeCooperation`]) or KL fusion
+/// ([`KlCooperation`]). The registry ([`crate::registry`]) builds one by
+/// the scenario's `consensus.protocol`.
+pub trait Cooperation {
+    /// Whether the node relays its measurements and weighs its
+    /// neighbours'.
+    fn uses_neighbourhood(&self) -> bool;
+
+    /// Whether it talks to one neighbour at a time, over channels per
+    /// pair of nodes.
+    fn pairs(&self) -> bool {
+        false
     }
 
-    /// KL fusion of the posteriors over `rounds` rounds, after weighing the
-    /// closed neighbourhood's measurements (`neighbourhood`) or the node's
-    /// own only.
-    pub fn kl(
-        scenario: &Scenario,
-        topology: &Topology,
-        index: u16,
-        rounds: u32,
-        neighbourhood: bool,
-    ) -> Self {
-        Cooperation::Kl {
-            fusion: kl_fusion(index, topology, rounds as u16, round_timeout(scenario))
-                .presume_gone_after(2),
-            neighbourhood,
-        }
-    }
-
-    fn uses_neighbourhood(&self) -> bool {
-        match self {
-            Cooperation::RandomExchange(_) => true,
-            Cooperation::Kl { neighbourhood, .. } => *neighbourhood,
-        }
-    }
-
-    fn protocol(&mut self) -> &mut dyn Protocol {
-        match self {
-            Cooperation::RandomExchange(p) => p,
-            Cooperation::Kl { fusion, .. } => fusion,
-        }
-    }
-
-    fn protocol_ref(&self) -> &dyn Protocol {
-        match self {
-            Cooperation::RandomExchange(p) => p,
-            Cooperation::Kl { fusion, .. } => fusion,
-        }
-    }
-}
-
-/// What both protocols share, whatever their value and result.
-trait Protocol {
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled;
-    fn poll_timeout(&self) -> Option<Duration>;
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>);
+    /// A new step began: the protocol's messages of earlier steps are late.
     fn expect_step(&mut self, step: u32);
+
+    /// The step begins, its measurements still to come.
+    fn begin(
+        &mut self,
+        step: u32,
+        filter: &TrackerFilter,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    );
+
+    /// A neighbour's message to the protocol.
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled;
+
+    fn poll_timeout(&self) -> Option<Duration>;
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// Takes the protocol's result, if it has one.
+    fn poll(&mut self);
+
+    /// The step's rounds, for its report.
+    fn stats(&self) -> RoundStats;
+
+    /// The heavy stage waiting, given whether the step's measurements are
+    /// all in.
+    fn pending(&self, measured: bool) -> Option<Work>;
+
+    /// Runs `work` on the node's filter with the step's measurements.
+    fn run(&mut self, work: Work, filter: &mut TrackerFilter, observations: &[Observation]);
+
+    /// `work` is done, at `now` after `elapsed`: what comes next.
+    #[allow(clippy::too_many_arguments)]
+    fn done(
+        &mut self,
+        work: Work,
+        elapsed: Duration,
+        step: u32,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) -> Next;
+
+    /// Ends what the protocol still waits for, with what it has; false if
+    /// nothing was left that could finish the step.
+    fn finish_now(
+        &mut self,
+        filter: &TrackerFilter,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) -> bool;
 }
 
-impl<P: FusionProtocol> Protocol for P {
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        FusionProtocol::handle(self, message, now, out)
-    }
-    fn poll_timeout(&self) -> Option<Duration> {
-        FusionProtocol::poll_timeout(self)
-    }
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        FusionProtocol::handle_timeout(self, now, out)
-    }
-    fn expect_step(&mut self, step: u32) {
-        FusionProtocol::expect_step(self, step)
-    }
+/// What a tracker's step does after a stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Next {
+    /// Waits for its protocol.
+    Wait,
+    /// Reports, the adoption of a fused posterior having taken `adopt_time`.
+    Report { adopt_time: Duration },
+}
+
+/// A tracker node's particle filter, with what it weighs by and draws from.
+pub struct TrackerFilter {
+    pub tracker: DiffusionTracker,
+    pub model: SensingModel,
+    pub rng: ChaCha8Rng,
+    /// The node, for its logs.
+    pub node: u16,
 }
 
 /// One step, from `BeginStep` to its telemetry.
@@ -131,27 +139,14 @@ struct Stepping {
     /// protocol wants none).
     relays_closed: bool,
     relay_deadline: Duration,
-    /// RndEx-PF: the exchange's result.
-    exchanged: Option<Exchanged>,
-    /// [`Work::Weigh`] has run.
-    weighed: bool,
-    /// KL: the local posterior β⁰, until the fusion takes it.
-    local: Option<NaturalGaussian>,
-    /// KL: the fusion's result, until adopted.
-    fused: Option<KlFused>,
-    /// KL fusion is running.
-    fusing: bool,
-    stats: RoundStats,
     weigh_time: Duration,
 }
 
 pub struct TrackerNode {
     core: NodeCore,
-    model: SensingModel,
-    tracker: DiffusionTracker,
-    rng: ChaCha8Rng,
+    filter: TrackerFilter,
     manager: UniformRandom,
-    cooperation: Cooperation,
+    cooperation: Box<dyn Cooperation>,
     /// Sensors each node activates per step: how many relays to expect.
     active_per_node: usize,
     listen: Duration,
@@ -171,7 +166,7 @@ impl TrackerNode {
         scenario: &Scenario,
         topology: &Topology,
         index: u16,
-        cooperation: Cooperation,
+        cooperation: Box<dyn Cooperation>,
     ) -> Result<Self, NodeError> {
         let models = scenario.models()?;
         let model = SensingModel::new(&models, topology);
@@ -190,9 +185,12 @@ impl TrackerNode {
                 index,
                 models.quantizer.as_ref().map(|q| q.cells()),
             ),
-            model,
-            tracker,
-            rng,
+            filter: TrackerFilter {
+                tracker,
+                model,
+                rng,
+                node: index,
+            },
             manager: UniformRandom::for_scenario(scenario),
             cooperation,
             active_per_node: scenario.sensors.active_per_node as usize,
@@ -262,7 +260,7 @@ impl TrackerNode {
         let current = self.core.last_step().unwrap_or(0);
         let from_a_neighbour = self.neighbours().contains(&from)
             && self.core.topology().node_sensors[from as usize].contains(&sensor);
-        let value = match &self.model.quantizer {
+        let value = match &self.filter.model.quantizer {
             Some(q) if value.fract() == 0.0 && value >= 0.0 && value < q.cells() as f64 => {
                 Some(ObservedValue::Cell(value as u32))
             }
@@ -349,26 +347,10 @@ impl TrackerNode {
         self.relayed.retain(|(st, _, _)| *st != step);
     }
 
-    /// Takes the protocol's result, if it has one.
+    /// Takes the protocol's result, if it has one, while a step runs.
     fn poll_protocol(&mut self) {
-        let Some(s) = self.stepping.as_mut() else {
-            return;
-        };
-        match &mut self.cooperation {
-            Cooperation::RandomExchange(exchange) => {
-                if let Some(e) = exchange.poll_result() {
-                    s.stats = e.stats;
-                    s.exchanged = Some(e);
-                }
-            }
-            Cooperation::Kl { fusion, .. } => {
-                if s.fusing {
-                    if let Some(f) = fusion.poll_result() {
-                        s.fusing = false;
-                        s.fused = Some(f);
-                    }
-                }
-            }
+        if self.stepping.is_some() {
+            self.cooperation.poll();
         }
     }
 
@@ -377,9 +359,9 @@ impl TrackerNode {
         let Some(s) = self.stepping.take() else {
             return;
         };
-        let estimate = self.tracker.estimate();
+        let estimate = self.filter.tracker.estimate();
         let report = Report::of(&estimate)
-            .rounds(&s.stats)
+            .rounds(&self.cooperation.stats())
             .observations(s.observations.len() as u16)
             .stage(Stage::Local, s.weigh_time)
             .stage(Stage::Global, adopt_time);
@@ -419,38 +401,20 @@ impl NodeKind for TrackerNode {
                 self.work_done(work, Duration::ZERO, now, out);
                 continue;
             }
-            let own = self.tracker.summary();
-            let Some(s) = self.stepping.as_mut() else {
-                break;
-            };
-            match &mut self.cooperation {
-                Cooperation::RandomExchange(exchange) if s.exchanged.is_none() => {
-                    let stayed = Exchanged {
-                        posterior: own,
-                        partner: None,
-                        stats: RoundStats::default(),
-                    };
-                    s.exchanged = Some(exchange.finish_now(now, out).unwrap_or(stayed));
-                }
-                Cooperation::Kl { fusion, .. } if s.fusing => {
-                    s.fusing = false;
-                    s.fused = fusion.finish_now(now, out);
-                    if s.fused.is_none() {
-                        self.report(Duration::ZERO, out);
-                    }
-                }
-                // Nothing left that could finish the step: report it as is.
-                _ => self.report(Duration::ZERO, out),
+            // Nothing left that could finish the step: report it as is.
+            if !self.cooperation.finish_now(&self.filter, now, out) {
+                self.report(Duration::ZERO, out);
             }
         }
     }
 
     fn begin_step(&mut self, step: u32, missed: u32, now: Duration, out: &mut Vec<Outgoing>) {
         for _ in 0..missed {
-            self.tracker.coast(&self.model, &mut self.rng);
+            let f = &mut self.filter;
+            f.tracker.coast(&f.model, &mut f.rng);
         }
         self.relayed.retain(|(s, _, _)| *s >= step);
-        self.cooperation.protocol().expect_step(step);
+        self.cooperation.expect_step(step);
         let picks = self
             .manager
             .choose(&self.core.selection_context(step, None));
@@ -468,20 +432,10 @@ impl NodeKind for TrackerNode {
             observations: Vec::new(),
             relays_closed: !self.cooperation.uses_neighbourhood(),
             relay_deadline: now + 2 * self.listen,
-            exchanged: None,
-            weighed: false,
-            local: None,
-            fused: None,
-            fusing: false,
-            stats: RoundStats::default(),
             weigh_time: Duration::ZERO,
         }));
-        // RndEx-PF swaps the posterior of the step before, while the
-        // measurements of this one come in.
-        if let Cooperation::RandomExchange(exchange) = &mut self.cooperation {
-            exchange.start(step, self.tracker.summary(), self.core.view(), now, out);
-            self.poll_protocol();
-        }
+        self.cooperation
+            .begin(step, &self.filter, self.core.view(), now, out);
         // A step with no active sensor has nothing to wait for.
         if self.collecting().is_some_and(Collector::is_complete) {
             self.close_own(out);
@@ -502,7 +456,7 @@ impl NodeKind for TrackerNode {
                 self.take_relay(message.header.step, m, *sensor, *value)
             }
             _ => {
-                let handled = self.cooperation.protocol().handle(message, now, out);
+                let handled = self.cooperation.handle(message, now, out);
                 if self.core.taken(handled, message) {
                     self.poll_protocol()
                 }
@@ -514,11 +468,11 @@ impl NodeKind for TrackerNode {
 impl Actor for TrackerNode {
     type Work = Work;
 
-    /// A node's wiring and, for random exchange, a channel to each
+    /// A node's wiring and, when it talks in pairs, a channel to each
     /// neighbour and from each.
     fn wiring(&self) -> Wiring {
         let mut wiring = self.core.wiring();
-        if matches!(self.cooperation, Cooperation::RandomExchange(_)) {
+        if self.cooperation.pairs() {
             let me = self.core.index();
             for m in self.neighbours() {
                 wiring.reads.push(Channel::Pair { from: *m, to: me });
@@ -539,7 +493,7 @@ impl Actor for TrackerNode {
             None if !s.relays_closed => Some(s.relay_deadline),
             None => None,
         };
-        let protocol = self.cooperation.protocol_ref().poll_timeout();
+        let protocol = self.cooperation.poll_timeout();
         [listening, protocol].into_iter().flatten().min()
     }
 
@@ -558,75 +512,25 @@ impl Actor for TrackerNode {
         {
             self.close_relays();
         }
-        self.cooperation.protocol().handle_timeout(now, out);
+        self.cooperation.handle_timeout(now, out);
         self.poll_protocol();
     }
 
     /// The heavy stage waiting to run, if any.
     fn poll_work(&self) -> Option<Work> {
         let s = self.stepping.as_ref()?;
-        let measured = s.collector.is_none() && s.relays_closed;
-        match &self.cooperation {
-            Cooperation::RandomExchange(_) if measured && !s.weighed && s.exchanged.is_some() => {
-                Some(Work::Weigh)
-            }
-            Cooperation::Kl { .. } if measured && !s.weighed => Some(Work::Weigh),
-            Cooperation::Kl { .. } if s.fused.is_some() => Some(Work::Adopt),
-            _ => None,
-        }
+        self.cooperation
+            .pending(s.collector.is_none() && s.relays_closed)
     }
 
     /// Runs the pending heavy stage; the driver times it and then calls
     /// [`work_done`](Self::work_done).
     fn run_work(&mut self, work: Work) {
-        let Some(s) = self.stepping.as_mut() else {
+        let Some(s) = self.stepping.as_ref() else {
             return;
         };
-        match (work, &self.cooperation) {
-            (Work::Weigh, Cooperation::RandomExchange(_)) => {
-                let from = s
-                    .exchanged
-                    .map_or_else(|| self.tracker.summary(), |e| e.posterior);
-                if let Err(e) =
-                    self.tracker
-                        .assimilate_from(&from, &self.model, &s.observations, &mut self.rng)
-                {
-                    tracing::error!(node = self.core.index(), error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
-                    self.tracker
-                        .local_posterior(&self.model, &s.observations, &mut self.rng);
-                }
-                s.weighed = true;
-            }
-            (Work::Weigh, Cooperation::Kl { .. }) => {
-                let local =
-                    self.tracker
-                        .local_posterior(&self.model, &s.observations, &mut self.rng);
-                s.local = NaturalGaussian::from_moments(&local);
-                if s.local.is_none() {
-                    tracing::error!(
-                        node = self.core.index(),
-                        "the local posterior is degenerate; not fusing this step"
-                    );
-                }
-                s.weighed = true;
-            }
-            (Work::Adopt, Cooperation::Kl { .. }) => {
-                let Some(fused) = s.fused.take() else { return };
-                s.stats = fused.stats;
-                match fused.fused.to_moments() {
-                    Some(g) => {
-                        if let Err(e) = self.tracker.adopt(&g, &mut self.rng) {
-                            tracing::error!(node = self.core.index(), error = %e, "keeping the local particles");
-                        }
-                    }
-                    None => tracing::error!(
-                        node = self.core.index(),
-                        "the fused information is not positive definite; keeping the local particles"
-                    ),
-                }
-            }
-            _ => {}
-        }
+        self.cooperation
+            .run(work, &mut self.filter, &s.observations);
     }
 
     /// The driver's report that `work` finished at `now` after `elapsed`.
@@ -634,24 +538,13 @@ impl Actor for TrackerNode {
         let Some(s) = self.stepping.as_mut() else {
             return;
         };
-        match (work, &mut self.cooperation) {
-            (Work::Weigh, Cooperation::RandomExchange(_)) => {
-                s.weigh_time = elapsed;
-                self.report(Duration::ZERO, out);
-            }
-            (Work::Weigh, Cooperation::Kl { fusion, .. }) => {
-                s.weigh_time = elapsed;
-                match s.local.take() {
-                    Some(local) => {
-                        s.fusing = true;
-                        fusion.start(s.step, local, self.core.view(), now, out);
-                        self.poll_protocol();
-                    }
-                    None => self.report(Duration::ZERO, out),
-                }
-            }
-            (Work::Adopt, Cooperation::Kl { .. }) => self.report(elapsed, out),
-            _ => {}
+        if work == Work::Weigh {
+            s.weigh_time = elapsed;
+        }
+        let view = self.core.view();
+        match self.cooperation.done(work, elapsed, s.step, view, now, out) {
+            Next::Wait => {}
+            Next::Report { adopt_time } => self.report(adopt_time, out),
         }
     }
 }
