@@ -12,7 +12,6 @@ pub mod channel;
 pub mod check;
 pub mod faults;
 pub mod hosts;
-pub mod layout;
 pub mod models;
 pub mod registered;
 pub mod scenario;

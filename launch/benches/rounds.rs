@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use fusion_graph::{ActorId, Scenario, Topology};
 use launch::actor_process::wait_as_a_node;
-use launch::results::own_cpu_seconds;
+use launch::usage::own_cpu_seconds;
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
 use wire::{ConsensusValues, Message, Payload, WireFormat};

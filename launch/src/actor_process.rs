@@ -205,8 +205,8 @@ fn launcher_gone() -> bool {
 /// holds them as they happen.)
 fn write_memory(me: ActorId, out: &Path) -> anyhow::Result<()> {
     if let (Some(peak), Some(pss)) = (
-        crate::results::peak_memory_kb(),
-        crate::results::proportional_memory_kb(),
+        crate::usage::peak_memory_kb(),
+        crate::usage::proportional_memory_kb(),
     ) {
         write_atomically(&memory_path(out, me), format!("{peak} {pss}").as_bytes())?;
     }
@@ -227,7 +227,7 @@ pub fn cpu_path(out: &Path, actor: ActorId) -> PathBuf {
 
 /// This process's user and system CPU time so far.
 fn process_cpu_time() -> Duration {
-    Duration::from_secs_f64(crate::results::own_cpu_seconds().unwrap_or(0.0))
+    Duration::from_secs_f64(crate::usage::own_cpu_seconds().unwrap_or(0.0))
 }
 
 /// A node's CPU time over the steps, as [`cpu_path`] describes.

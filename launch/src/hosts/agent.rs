@@ -368,8 +368,8 @@ fn host_files(dir: &Path, placement: &Placement, host: usize, topology: &Topolog
     }
     HostFiles {
         files,
-        cpu_seconds: crate::results::own_cpu_seconds()
-            .zip(crate::results::children_cpu_seconds())
+        cpu_seconds: crate::usage::own_cpu_seconds()
+            .zip(crate::usage::children_cpu_seconds())
             .map(|(own, children)| own + children),
     }
 }

@@ -11,7 +11,7 @@ use fusion_graph::ActorId;
 use crate::results::TickRow;
 use crate::summary::AppliedFault;
 
-use super::world_state::name_some;
+use super::processes::name_some;
 
 /// Everything the reports leave out.
 pub(super) struct Gaps {

@@ -7,8 +7,8 @@
 mod gather;
 mod holes;
 mod options;
+mod processes;
 mod steps;
-mod world_state;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
@@ -35,8 +35,8 @@ use gather::{
     bring_home, children_memory, hosts_traffic_path, merge_accounting, write_hosts_report,
 };
 pub use options::{RunOptions, RunProgress};
+use processes::{crash_fault, Processes};
 use steps::run_steps;
-use world_state::{crash_fault, WorldState};
 
 /// Runs the network: spawns every actor, runs the steps, stops and reaps
 /// every child and removes the run's shared memory, pass or fail.
@@ -288,7 +288,7 @@ fn world_thread(
     // Before any sensor starts: a sensor maps it as it starts.
     let truths = TruthRing::create(&launcher_domain(placement, options))
         .context("making the world's memory, where sensors read the truth")?;
-    let mut w = WorldState::new(transport, truths, topology, commands, events);
+    let mut w = Processes::new(transport, truths, topology, commands, events);
     let view = options.view.as_deref();
     if let Some(hub) = view {
         hub.publish(&setup_event(scenario, topology, "live"));

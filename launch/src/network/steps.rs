@@ -19,7 +19,7 @@ use crate::world::World;
 
 use super::holes::Gaps;
 use super::options::{RunOptions, RunProgress};
-use super::world_state::{crash_fault, WorldState};
+use super::processes::{crash_fault, Processes};
 
 /// The steps, from the first to the scenario's last or an interruption:
 /// each ticks the world, applies the faults, gathers the nodes' reports
@@ -31,7 +31,7 @@ pub(super) fn run_steps(
     topology: &Topology,
     options: &RunOptions,
     lockstep: bool,
-    w: &mut WorldState<'_>,
+    w: &mut Processes<'_>,
     recorder: &mut Recorder<'_>,
     progress: &mut dyn FnMut(RunProgress<'_>),
 ) -> anyhow::Result<(u32, f64, Gaps)> {
@@ -144,7 +144,7 @@ pub(super) fn run_steps(
     }
     let wall = run_start.elapsed().as_secs_f64();
     if !lockstep && !w.interrupted {
-        let heard = |rows: &[TickRow], w: &WorldState<'_>| {
+        let heard = |rows: &[TickRow], w: &Processes<'_>| {
             gaps.heard_from(rows, &w.sensors_alive, &schedule)
         };
         await_last_reports(steps_done, w, &mut reports, recorder, heard)?;
@@ -164,10 +164,10 @@ const LAST_REPORTS_AT_MOST: Duration = Duration::from_secs(30);
 /// them in a network that lagged by more than its run.
 fn await_last_reports(
     last: u32,
-    w: &mut WorldState<'_>,
+    w: &mut Processes<'_>,
     reports: &mut StepReports,
     recorder: &mut Recorder<'_>,
-    mut heard: impl FnMut(&[TickRow], &WorldState<'_>),
+    mut heard: impl FnMut(&[TickRow], &Processes<'_>),
 ) -> anyhow::Result<()> {
     let started = Instant::now();
     let mut idle_until = started + LAST_REPORTS_IDLE;

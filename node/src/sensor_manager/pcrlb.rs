@@ -47,7 +47,7 @@ use wire::{
 };
 
 use crate::estimator::SensingModel;
-use crate::fusion::Handled;
+use crate::fusion::{FusionProtocol, Handled};
 use crate::Outgoing;
 
 /// Which bound scores a candidate set.
@@ -226,12 +226,6 @@ impl PcrlbSelection {
         Ok(SelectionInputs { predicted, own })
     }
 
-    /// Messages of earlier steps are late from now on.
-    pub fn expect_step(&mut self, step: u32) {
-        self.current_step = self.current_step.max(step);
-        self.early.retain(|m| m.header.step >= step);
-    }
-
     /// The spanning tree over `view`, built once per view.
     fn tree_for(&mut self, view: &[bool]) -> SpanningTree {
         match &self.tree {
@@ -242,55 +236,6 @@ impl PcrlbSelection {
                 tree
             }
         }
-    }
-
-    /// Starts `step`'s selection over the live nodes in `view`.
-    pub fn start(
-        &mut self,
-        step: u32,
-        inputs: SelectionInputs,
-        view: &[bool],
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        self.expect_step(step);
-        self.result = None;
-        let mut view = view.to_vec();
-        view[self.node as usize] = true;
-        let tree = self.tree_for(&view);
-        let me = self.node as usize;
-        let depth = tree.depth[me].unwrap_or(0);
-        let mut running = Running {
-            step,
-            started: now,
-            parent: tree.parent[me],
-            children: tree
-                .children(self.node)
-                .map(|node| Child {
-                    node,
-                    heard: 0,
-                    parts: None,
-                })
-                .collect(),
-            gather_until: now + self.round_timeout * u32::from(tree.below[me]),
-            choice_until: now + self.round_timeout * (u32::from(tree.height() + depth) + 1),
-            candidates: Vec::with_capacity(self.topology.sensors()),
-            sent: 0,
-            held: None,
-            gathered: false,
-            choice: Vec::new(),
-            inputs,
-        };
-        self.report_own(&mut running, out);
-        self.running = Some(running);
-        let early = std::mem::take(&mut self.early);
-        let (now_due, later): (Vec<Message>, Vec<Message>) =
-            early.into_iter().partition(|m| m.header.step == step);
-        self.early = later;
-        for m in &now_due {
-            self.take(m, now, out);
-        }
-        self.close_gather_if_done(now, out);
     }
 
     /// Adds the node's own candidates and sends them up, all but the last
@@ -362,34 +307,6 @@ impl PcrlbSelection {
                 .collect(),
             wake: Some(wake),
         }
-    }
-
-    pub fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        let step = message.header.step;
-        if !matches!(
-            message.payload,
-            Payload::SelectionReport(_) | Payload::SelectionChoice(_)
-        ) {
-            return Handled::NotMine;
-        }
-        if step < self.current_step || self.ended_step.is_some_and(|e| step <= e) {
-            // A choice heard twice (a child forwards it on the channel its
-            // parent reads too) is not late; a report after the gather is.
-            return match message.payload {
-                Payload::SelectionChoice(_) if step == self.current_step => Handled::Taken,
-                _ => Handled::Late,
-            };
-        }
-        if self.running.as_ref().is_none_or(|r| r.step < step) {
-            if self.early.len() >= MOST_EARLY_MESSAGES {
-                return Handled::Late;
-            }
-            self.early.push(message.clone());
-            return Handled::Taken;
-        }
-        let handled = self.take(message, now, out);
-        self.close_gather_if_done(now, out);
-        handled
     }
 
     /// A message of the running step.
@@ -600,7 +517,102 @@ impl PcrlbSelection {
         });
     }
 
-    pub fn poll_timeout(&self) -> Option<Duration> {
+    /// Without the choice, the node activates nothing.
+    fn give_up(&mut self, now: Duration) {
+        if let Some(r) = self.running.take() {
+            self.end(r, Vec::new(), 0, false, Mat4::zeros(), now);
+        }
+    }
+}
+
+impl FusionProtocol for PcrlbSelection {
+    type Value = SelectionInputs;
+    type Output = Selected;
+
+    /// Messages of earlier steps are late from now on.
+    fn expect_step(&mut self, step: u32) {
+        self.current_step = self.current_step.max(step);
+        self.early.retain(|m| m.header.step >= step);
+    }
+
+    /// Starts `step`'s selection over the live nodes in `view`.
+    fn start(
+        &mut self,
+        step: u32,
+        inputs: SelectionInputs,
+        view: &[bool],
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) {
+        self.expect_step(step);
+        self.result = None;
+        let mut view = view.to_vec();
+        view[self.node as usize] = true;
+        let tree = self.tree_for(&view);
+        let me = self.node as usize;
+        let depth = tree.depth[me].unwrap_or(0);
+        let mut running = Running {
+            step,
+            started: now,
+            parent: tree.parent[me],
+            children: tree
+                .children(self.node)
+                .map(|node| Child {
+                    node,
+                    heard: 0,
+                    parts: None,
+                })
+                .collect(),
+            gather_until: now + self.round_timeout * u32::from(tree.below[me]),
+            choice_until: now + self.round_timeout * (u32::from(tree.height() + depth) + 1),
+            candidates: Vec::with_capacity(self.topology.sensors()),
+            sent: 0,
+            held: None,
+            gathered: false,
+            choice: Vec::new(),
+            inputs,
+        };
+        self.report_own(&mut running, out);
+        self.running = Some(running);
+        let early = std::mem::take(&mut self.early);
+        let (now_due, later): (Vec<Message>, Vec<Message>) =
+            early.into_iter().partition(|m| m.header.step == step);
+        self.early = later;
+        for m in &now_due {
+            self.take(m, now, out);
+        }
+        self.close_gather_if_done(now, out);
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
+        let step = message.header.step;
+        if !matches!(
+            message.payload,
+            Payload::SelectionReport(_) | Payload::SelectionChoice(_)
+        ) {
+            return Handled::NotMine;
+        }
+        if step < self.current_step || self.ended_step.is_some_and(|e| step <= e) {
+            // A choice heard twice (a child forwards it on the channel its
+            // parent reads too) is not late; a report after the gather is.
+            return match message.payload {
+                Payload::SelectionChoice(_) if step == self.current_step => Handled::Taken,
+                _ => Handled::Late,
+            };
+        }
+        if self.running.as_ref().is_none_or(|r| r.step < step) {
+            if self.early.len() >= MOST_EARLY_MESSAGES {
+                return Handled::Late;
+            }
+            self.early.push(message.clone());
+            return Handled::Taken;
+        }
+        let handled = self.take(message, now, out);
+        self.close_gather_if_done(now, out);
+        handled
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
         let r = self.running.as_ref()?;
         Some(if r.gathered {
             r.choice_until
@@ -609,7 +621,7 @@ impl PcrlbSelection {
         })
     }
 
-    pub fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
         let Some(r) = &self.running else {
             return;
         };
@@ -621,21 +633,14 @@ impl PcrlbSelection {
         }
     }
 
-    /// Without the choice, the node activates nothing.
-    fn give_up(&mut self, now: Duration) {
-        if let Some(r) = self.running.take() {
-            self.end(r, Vec::new(), 0, false, Mat4::zeros(), now);
-        }
-    }
-
     /// The step's selection, once it is done.
-    pub fn poll_result(&mut self) -> Option<Selected> {
+    fn poll_result(&mut self) -> Option<Selected> {
         self.result.take()
     }
 
     /// Ends the running selection at once: the root chooses among what it
     /// has; any other node without the choice activates nothing.
-    pub fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<Selected> {
+    fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<Selected> {
         if let Some(r) = self.running.as_mut() {
             if r.parent.is_none() {
                 r.gather_until = now;

@@ -14,7 +14,7 @@
 
 use std::time::Duration;
 
-use bounds::{BoundError, State};
+use bounds::State;
 use fusion_graph::registered::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
@@ -29,12 +29,16 @@ use crate::estimator::{
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
-use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
-use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionInputs};
+use crate::fusion::{Fused, FusionProtocol, Handled, InformationFusion, InformationVector};
+use crate::sensor_manager::Manager;
 use crate::{Actor, NodeError, Outgoing, Work};
 
 use super::core::mask;
 use super::{NodeCore, NodeKind, Report};
+
+mod selection;
+
+use selection::{ScoredAhead, Selecting};
 
 #[derive(Debug)]
 enum Phase {
@@ -43,46 +47,6 @@ enum Phase {
     Selecting(Selecting),
     Collecting(Collector),
     Fusing(Box<Fusing>),
-}
-
-#[derive(Debug)]
-struct Selecting {
-    step: u32,
-    /// The scores, from [`Work::SelectionScores`] until the selection starts.
-    inputs: Option<SelectionInputs>,
-    scored: bool,
-    scoring_time: Duration,
-    /// When the selection's rounds began.
-    rounds_started: Duration,
-}
-
-/// The next step's selection scores, computed in the idle time after a
-/// step's report so that the step itself starts with its candidates ready.
-/// Nothing between a report and the next `BeginStep` touches the fusion
-/// filter but a neighbour's state for a rejoining node, which drops them;
-/// a step begun other than the next drops them too (the filter coasts).
-///
-/// In real time the scoring waits for the step's deadline, when every
-/// node's waits have closed: scored at once after the report, it took the
-/// CPU from neighbours still in their last consensus rounds (round p50
-/// 240 → 570 µs on two cores with the selection paper's network).
-#[derive(Debug)]
-struct ScoredAhead {
-    step: u32,
-    /// When the scoring may run.
-    due: Duration,
-    /// `None` until [`Work::SelectionScores`] has run.
-    inputs: Option<SelectionInputs>,
-    scoring_time: Duration,
-    /// Set once `due` has passed.
-    released: bool,
-}
-
-impl ScoredAhead {
-    /// Released and not yet scored.
-    fn wants_scoring(&self) -> bool {
-        self.released && self.inputs.is_none()
-    }
 }
 
 /// One step from the closing of its collection to its telemetry.
@@ -294,104 +258,12 @@ impl CfDpfNode {
         }
     }
 
-    /// When the next step's scoring may run, while it waits.
-    fn ahead_due(&self) -> Option<Duration> {
-        let a = self.ahead.as_ref().filter(|a| !a.released)?;
-        matches!(self.phase, Phase::Idle).then_some(a.due)
-    }
-
     /// Takes the protocol's result, if it has one.
     fn poll_protocol(&mut self) {
         if let Phase::Fusing(f) = &mut self.phase {
             if f.local.is_some() && f.fused.is_none() && f.finished.is_none() {
                 f.fused = self.protocol.poll_result();
             }
-        }
-    }
-
-    /// A manager that chooses alone, from the prediction if it asks for one.
-    fn choose_alone(&mut self, step: u32) -> Vec<usize> {
-        let Manager::Alone(manager) = &mut self.manager else {
-            return Vec::new();
-        };
-        let predicted = if manager.needs_prediction() {
-            match self.fusion.predict(&self.model) {
-                Ok(p) => Some(p),
-                Err(e) => {
-                    tracing::error!(node = self.core.index(), error = %e, "prediction failed");
-                    None
-                }
-            }
-        } else {
-            None
-        };
-        manager.choose(&self.core.selection_context(step, predicted))
-    }
-
-    /// The selection's scores, from the fusion filter's prediction.
-    fn score_selection(&mut self) {
-        let own = self.own_sensors().to_vec();
-        let Manager::Negotiated(selection) = &mut self.manager else {
-            return;
-        };
-        let slot = match (&mut self.phase, self.ahead.as_mut()) {
-            (Phase::Selecting(s), _) if !s.scored => {
-                s.scored = true;
-                &mut s.inputs
-            }
-            (Phase::Idle, Some(ahead)) => &mut ahead.inputs,
-            _ => return,
-        };
-        let inputs = selection_inputs(selection, &mut self.fusion, &self.model, &own)
-            .unwrap_or_else(|e| {
-                tracing::error!(node = self.core.index(), error = %e, "selection scores failed; proposing nothing");
-                SelectionInputs {
-                    predicted: bounds::Mat4::identity(),
-                    own: Vec::new(),
-                }
-            });
-        *slot = Some(inputs);
-    }
-
-    /// Starts the selection with its scores, computed just now or, `ahead`,
-    /// before the step began (their time is then not the step's).
-    fn start_selection(
-        &mut self,
-        scoring_time: Duration,
-        ahead: bool,
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) {
-        let (Phase::Selecting(s), Manager::Negotiated(selection)) =
-            (&mut self.phase, &mut self.manager)
-        else {
-            return;
-        };
-        let Some(inputs) = s.inputs.take() else {
-            return;
-        };
-        s.scoring_time = if ahead { Duration::ZERO } else { scoring_time };
-        s.rounds_started = now;
-        self.scoring_time = scoring_time;
-        selection.expect_step(s.step);
-        selection.start(s.step, inputs, self.core.view(), now, out);
-        self.poll_selection(now, out);
-    }
-
-    /// Activates the selection's sensors once it is done.
-    fn poll_selection(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        let (Phase::Selecting(s), Manager::Negotiated(selection)) =
-            (&self.phase, &mut self.manager)
-        else {
-            return;
-        };
-        if let Some(selected) = selection.poll_result() {
-            // Scoring as the driver timed it, if it ran in the step, then
-            // the gather and the choice by the clock.
-            self.selection_time = s.scoring_time + now.saturating_sub(s.rounds_started);
-            let step = s.step;
-            self.without_choice = !selected.heard;
-            self.activate(step, selected.own, now, out);
         }
     }
 
@@ -880,27 +752,6 @@ impl Actor for CfDpfNode {
                 self.poll_protocol();
             }
             Work::FusionFilter => self.report(elapsed, out),
-        }
-    }
-}
-
-/// This step's selection scores: the conditional manager's over the fusion
-/// filter's predicted particles, the at-the-estimate one's at its estimate
-/// (taken before the filter predicts).
-fn selection_inputs(
-    selection: &PcrlbSelection,
-    fusion: &mut FusionFilter,
-    model: &SensingModel,
-    own: &[u16],
-) -> Result<SelectionInputs, BoundError> {
-    match selection.scoring() {
-        Scoring::Conditional => Ok(SelectionInputs {
-            predicted: fusion.predicted_information(model)?,
-            own: fusion.expected_information(model, own)?,
-        }),
-        Scoring::AtEstimate => {
-            let estimate = fusion.posterior().mean;
-            selection.nonconditional_inputs(model, &estimate)
         }
     }
 }

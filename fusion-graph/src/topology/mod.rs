@@ -1,8 +1,10 @@
 //! The network as a graph: where nodes and sensors are, which sensors each
 //! node owns, the fusion graph, and Metropolis consensus weights. How a
-//! scenario lays it out is [`crate::layout`].
+//! scenario lays it out ([`Topology::from_scenario`]) is `layout.rs`.
 
 use std::collections::VecDeque;
+
+mod layout;
 
 use crate::channel::Channel;
 #[cfg(test)]

@@ -3,10 +3,10 @@
 //! nearest node), the fusion graph within a radius; and the checks that
 //! the faults and hosts name actors of that network.
 
+use super::{dist2, Topology};
 use crate::check::Check;
 use crate::hosts::Placement;
 use crate::scenario::Scenario;
-use crate::topology::{dist2, Topology};
 use crate::ScenarioError;
 use wire::ActorId;
 

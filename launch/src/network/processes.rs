@@ -25,7 +25,7 @@ use super::options::RunProgress;
 /// How long children get to start and say `ready`.
 const START_TIMEOUT: Duration = Duration::from_secs(120);
 
-pub(super) struct WorldState<'a> {
+pub(super) struct Processes<'a> {
     pub(super) transport: IceoryxTransport,
     /// The truth of recent steps, which this host's sensors read.
     pub(super) truths: TruthRing,
@@ -56,7 +56,7 @@ pub(super) struct WorldState<'a> {
     ready: Vec<ActorId>,
 }
 
-impl<'a> WorldState<'a> {
+impl<'a> Processes<'a> {
     pub(super) fn new(
         transport: IceoryxTransport,
         truths: TruthRing,
