@@ -1,7 +1,7 @@
 //! Every experiment of `cqnet experiment` runs at a small size, so that the
 //! machinery (arms, Monte Carlo, series, non-conditional bound, CSV, SVG,
 //! check) cannot rot. The papers' results themselves need the full size;
-//! their figures are in the README.
+//! their figures are in docs/experiments.md.
 
 use experiments::{self as experiment, Figure, Options};
 
