@@ -81,13 +81,15 @@ impl DiffusionBounds {
 /// Attempts a node makes to find a partner in one step.
 pub const EXCHANGE_ATTEMPTS: u32 = 3;
 
-/// One step of the random exchange protocol as cqnet's nodes run it
-/// (`node::fusion::RandomExchange`), without losses: in each of
+/// One step's matching of random exchange: in each of
 /// [`EXCHANGE_ATTEMPTS`] attempts every node not yet paired flips a coin;
 /// a requester asks one neighbour it has not asked, chosen uniformly; a
-/// listener accepts the first request that reaches it (here: one of them
-/// uniformly) and refuses the rest. `partner[r]` is the node whose posterior
-/// r continues from (r itself when it stayed unpaired).
+/// listener takes one of the requests it got, chosen uniformly, and
+/// refuses the rest. `partner[r]` is the node whose posterior r continues
+/// from (r itself when it stayed unpaired). cqnet's nodes draw this very
+/// matching, alike, from the network's stream of the step
+/// (`node::fusion::RandomExchange`), so the protocol's pairs and the RndEx
+/// PCRLB's path model are one law.
 pub fn random_matching<R: Rng + ?Sized>(neighbours: &[Vec<usize>], rng: &mut R) -> Vec<usize> {
     let n = neighbours.len();
     let mut partner: Vec<usize> = (0..n).collect();

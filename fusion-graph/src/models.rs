@@ -190,7 +190,8 @@ pub enum Stream {
     Truth = 7,
     /// A sensor's coin for random censoring.
     Censoring = 8,
-    /// A node's coins and partner choices in random exchange (the random-exchange paper).
+    /// The random-exchange paper's matching of a step, which every node
+    /// draws alike (drawn for the launcher, standing for the network).
     Exchange = 9,
     /// A fusion centre's sensing matrix, or its random choice of sensors,
     /// for a multiple-access channel.

@@ -6,6 +6,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use fusion_graph::scenario::{ClockMode, Scenario};
 use serde::Serialize;
 use transport::accounting::Accounting;
 use wire::{MessageKind, Telemetry};
@@ -539,6 +540,7 @@ impl<'w> Recorder<'w> {
             .sum();
         let (traffic, bound_traffic) = traffic(accounting, facts.steps_done.max(1));
         let means = self.series.means();
+        let timing_dependent = timing_dependent(&self.scenario, &facts.command);
         let summary = crate::summary::Summary {
             command: facts.command,
             run_id: facts.run_id,
@@ -566,6 +568,7 @@ impl<'w> Recorder<'w> {
                 })
                 .collect(),
             fault_cost: self.cost,
+            timing_dependent,
             wall_seconds: facts.wall_seconds,
             steps_per_second: facts.steps_per_second,
             stage_micros: self.stages.means(),
@@ -583,6 +586,35 @@ impl<'w> Recorder<'w> {
         self.writer.write_summary(&summary)?;
         Ok(summary)
     }
+}
+
+/// What in `scenario`, run by `command`, can end a wait by the clock, so
+/// that its results depend on when messages arrive (see
+/// `Summary::timing_dependent`). `sim`'s clock is virtual; a `run` in real
+/// time ends its waits by the period.
+pub fn timing_dependent(scenario: &Scenario, command: &str) -> Vec<String> {
+    let mut why = Vec::new();
+    if command == "run" && scenario.clock.mode == ClockMode::Realtime {
+        why.push("the real-time clock: every step's waits end by its period".to_string());
+    }
+    for f in &scenario.faults {
+        if f.kind().loses_messages() {
+            why.push(format!(
+                "the fault at step {} ({}) loses messages on purpose; a wait for one ends by the clock",
+                f.at_step(),
+                f.kind().describe()
+            ));
+        }
+    }
+    for h in &scenario.hosts {
+        if h.link.as_ref().is_some_and(|l| l.cut_at_step.is_some()) {
+            why.push(format!(
+                "host {}'s link is cut; waits for its nodes end by the clock",
+                h.name
+            ));
+        }
+    }
+    why
 }
 
 #[cfg(test)]

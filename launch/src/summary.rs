@@ -119,6 +119,13 @@ pub struct Summary {
     pub world_misses: u64,
     pub faults: Vec<AppliedFault>,
     pub fault_cost: FaultCost,
+    /// What can make this run's results depend on when messages arrive,
+    /// so that `run --lockstep` need not reproduce `sim` bit for bit: a
+    /// wait that can end by the clock (a message lost on purpose, an actor
+    /// killed, a host cut off, or the real-time clock itself). Empty: a
+    /// lockstep run of this scenario is `sim`'s to the bit.
+    #[serde(default)]
+    pub timing_dependent: Vec<String>,
     pub wall_seconds: f64,
     pub steps_per_second: f64,
     /// Mean microseconds per node-step: local filter (with local bound),
@@ -348,6 +355,9 @@ pub fn print_table(s: &Summary) {
         );
     }
     println!("  {:<34} {:>12}", "deadline misses", s.deadline_misses);
+    for why in &s.timing_dependent {
+        println!("  results may depend on message timing (lockstep need not equal sim): {why}");
+    }
     if s.world_misses > 0 {
         println!(
             "  activations whose step the world did not hold (no observation): {}",

@@ -242,14 +242,7 @@ mod tests {
                         let summaries: Vec<Gaussian> =
                             trackers.iter().map(|t| t.summary()).collect();
                         let nodes = (0..25u16)
-                            .map(|r| {
-                                RandomExchange::new(
-                                    r,
-                                    &t,
-                                    attempt,
-                                    ChaCha8Rng::seed_from_u64(step as u64 * 97 + r as u64),
-                                )
-                            })
+                            .map(|r| RandomExchange::new(r, &t, attempt, step as u64 * 97))
                             .collect();
                         let got = drive(
                             nodes,

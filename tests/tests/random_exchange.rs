@@ -75,8 +75,7 @@ fn kl_fusion_in_its_three_forms_sends_k_max_gaussians_per_link_and_step_as_sim_d
         let r = run(protocol);
         assert_complete(&r, protocol);
         // Every wait ends when all it waits for has come, so the run is
-        // `sim`'s bit for bit (random exchange is not: who pairs with whom
-        // is which request arrives first).
+        // `sim`'s bit for bit.
         let s = network(protocol).sim().unwrap();
         s.assert_success();
         assert_eq!(
@@ -115,6 +114,11 @@ fn random_exchange_sends_one_posterior_per_paired_node_and_answers_every_request
     let _guard = exclusive();
     let r = run("random_exchange");
     assert_complete(&r, "random_exchange");
+    // The pairs are the network's draw of the step, not the order requests
+    // arrive in: the run is `sim`'s bit for bit.
+    let s = network("random_exchange").sim().unwrap();
+    s.assert_success();
+    assert_eq!(r.sorted_tick_lines(), s.sorted_tick_lines());
     let c = |k| r.counters(k);
     // A node that paired received its partner's posterior, sent on the
     // pair's own channel; the telemetry says who paired.
@@ -125,8 +129,11 @@ fn random_exchange_sends_one_posterior_per_paired_node_and_answers_every_request
         c(MessageKind::ExchangePosterior).sent_bytes,
         paired * GAUSSIAN
     );
-    // Each request is answered (accepted or refused), 13 + 0 and 13 + 1 bytes.
+    // Each request is answered (accepted or refused), 13 + 0 and 13 + 1 bytes;
+    // with every node alive, the lower-numbered node of each pair asks, and
+    // no one else.
     let requests = c(MessageKind::ExchangeRequest).sent_messages;
+    assert_eq!(2 * requests, paired);
     assert_eq!(c(MessageKind::ExchangeReply).sent_messages, requests);
     assert_eq!(c(MessageKind::ExchangeRequest).sent_bytes, requests * 13);
     assert_eq!(c(MessageKind::ExchangeReply).sent_bytes, requests * 14);

@@ -54,4 +54,8 @@ impl LinkFault for BurstLoss {
             loss_bad: self.loss_bad,
         });
     }
+
+    fn loses_messages(&self) -> bool {
+        true
+    }
 }

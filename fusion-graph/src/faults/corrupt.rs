@@ -33,4 +33,8 @@ impl LinkFault for Corrupt {
     fn shape(&self, rule: &mut LinkRule) {
         rule.corrupt = either(rule.corrupt, self.probability);
     }
+
+    fn loses_messages(&self) -> bool {
+        true
+    }
 }

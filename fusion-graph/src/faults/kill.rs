@@ -58,4 +58,10 @@ impl FaultKind for Kill {
             events.push(ProcessEvent::Restart { actor, signal });
         }
     }
+
+    /// What was sent to a killed or stopped actor, and what its neighbours
+    /// wait for from it until they learn it is gone, never arrives.
+    fn loses_messages(&self) -> bool {
+        true
+    }
 }

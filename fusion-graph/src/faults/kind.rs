@@ -73,4 +73,13 @@ pub trait FaultKind {
 
     /// The kills and restarts the fault makes at `step`.
     fn process_events(&self, _step: u32, _events: &mut Vec<ProcessEvent>) {}
+
+    /// Whether the fault makes messages that were sent never arrive (lost,
+    /// corrupted, or to or from an actor killed or stopped), so that a wait
+    /// for one ends by the clock. What a node has heard of its other
+    /// neighbours by then depends on timing: `run --lockstep` need not
+    /// reproduce `sim` under such a fault.
+    fn loses_messages(&self) -> bool {
+        false
+    }
 }

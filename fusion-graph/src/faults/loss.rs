@@ -32,4 +32,8 @@ impl LinkFault for Loss {
     fn shape(&self, rule: &mut LinkRule) {
         rule.loss = either(rule.loss, self.probability);
     }
+
+    fn loses_messages(&self) -> bool {
+        true
+    }
 }

@@ -24,6 +24,11 @@ pub trait LinkFault {
 
     /// Adds its effect to the rule of a link it takes.
     fn shape(&self, rule: &mut LinkRule);
+
+    /// See [`FaultKind::loses_messages`].
+    fn loses_messages(&self) -> bool {
+        false
+    }
 }
 
 /// `links()` and `window()` from the kind's `links`, `at_step` and
@@ -59,6 +64,10 @@ impl<T: LinkFault> FaultKind for T {
 
     fn describe(&self) -> String {
         format!("{} on {}", self.effect(), links_text(self.links()))
+    }
+
+    fn loses_messages(&self) -> bool {
+        LinkFault::loses_messages(self)
     }
 
     fn acts_on_links(&self) -> bool {

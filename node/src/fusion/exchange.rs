@@ -2,29 +2,29 @@
 //! parametric posterior with one random neighbour, by request and
 //! acknowledgement, and continues the step from the posterior it received.
 //!
-//! A step is [`EXCHANGE_ATTEMPTS`] attempts of `attempt` each. In every
-//! attempt a node not yet paired flips a coin: a *requester* asks one live
-//! neighbour it has not asked yet; a *listener* accepts the first request
-//! that reaches it and refuses the rest; a requester refuses every request.
-//! So no node is ever paired twice, and no two requests can cross in a
-//! cycle of refusals. An accepted request is answered with the reply and
-//! the listener's posterior; the requester sends its own on the reply.
+//! Who pairs with whom is a random matching of the live fusion graph that
+//! every node draws alike, from the network's stream of the step
+//! ([`Stream::Exchange`]), by the law of the RndEx PCRLB's path model
+//! ([`random_matching`]: attempts in which every unpaired node flips a
+//! coin, a requester asks a neighbour it has not asked, a listener takes
+//! one of its requests). So the pairing is the model's to the draw, and it
+//! does not depend on which message reaches a node first: `run --lockstep`
+//! pairs as `sim` does. The pair then exchanges by request and
+//! acknowledgement: the lower-numbered node asks, its partner accepts with
+//! its posterior, and the asker answers with its own. A request from a
+//! neighbour that is not the node's partner (their membership views
+//! differ) is refused, and both keep their own.
 //!
-//! Nothing waits forever. A lost request or reply costs the attempt; a lost
-//! posterior, or a partner that died, ends the step at `attempt` after the
-//! last attempt with the node's own posterior. A node that stays unpaired
-//! keeps its own. The same protocol, without losses, is the path model of
-//! the RndEx PCRLB (`bounds::diffusion::random_matching`).
+//! Nothing waits forever. A lost request, reply or posterior, or a partner
+//! that died, ends the step at two attempts' time with the node's own
+//! posterior. A node the matching leaves unpaired keeps its own at once.
 
 use std::time::Duration;
 
-use bounds::diffusion::EXCHANGE_ATTEMPTS;
+use bounds::diffusion::random_matching;
 use bounds::Gaussian;
 use fusion_graph::Channel;
-use fusion_graph::{ActorId, Topology};
-use rand::seq::IndexedRandom;
-use rand::Rng;
-use rand_chacha::ChaCha8Rng;
+use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use wire::{pack_mat4, unpack_mat4, GaussianMoments, Message, Payload};
 
 use super::{FusionProtocol, Handled, RoundStats};
@@ -41,12 +41,15 @@ pub struct Exchanged {
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Role {
-    /// Asked `to` this attempt (`None`: refused, or no one left to ask).
+    /// Asked its partner; waiting for the acknowledgement.
     Requesting {
-        to: Option<u16>,
+        partner: u16,
     },
-    Listening,
-    /// Waiting for the partner's posterior.
+    /// Waiting for its partner's request.
+    Listening {
+        partner: u16,
+    },
+    /// Sent its posterior; waiting for the partner's.
     Paired {
         partner: u16,
     },
@@ -57,19 +60,19 @@ enum Role {
 struct Running {
     step: u32,
     own: Gaussian,
-    view: Vec<bool>,
     started: Duration,
-    /// 0-based.
-    attempt: u32,
-    asked: Vec<u16>,
     role: Role,
 }
 
 pub struct RandomExchange {
     node: u16,
-    neighbours: Vec<u16>,
+    topology: Topology,
+    /// How long a request and its reply take; the step's exchange ends by
+    /// two of them.
     attempt: Duration,
-    rng: ChaCha8Rng,
+    /// The scenario's seed: the step's matching is drawn from the
+    /// network's stream of it.
+    seed: u64,
     current_step: u32,
     running: Option<Running>,
     /// Messages of a step this node has not started yet.
@@ -78,13 +81,14 @@ pub struct RandomExchange {
 }
 
 impl RandomExchange {
-    /// `attempt`: how long one attempt lasts (a request and its reply).
-    pub fn new(node: u16, topology: &Topology, attempt: Duration, rng: ChaCha8Rng) -> Self {
+    /// `attempt`: how long one attempt lasts (a request and its reply);
+    /// `seed`: the scenario's, which every node of the run shares.
+    pub fn new(node: u16, topology: &Topology, attempt: Duration, seed: u64) -> Self {
         Self {
             node,
-            neighbours: topology.neighbours[node as usize].clone(),
+            topology: topology.clone(),
             attempt,
-            rng,
+            seed,
             current_step: 0,
             running: None,
             early: Vec::new(),
@@ -92,13 +96,26 @@ impl RandomExchange {
         }
     }
 
-    fn send(&self, to: u16, step: u32, attempt: u32, payload: Payload, out: &mut Vec<Outgoing>) {
+    /// This node's partner at `step` in the matching of the live fusion
+    /// graph (`view`), which every node with the same view draws alike;
+    /// `None` if it stays unpaired.
+    pub fn partner(&self, step: u32, view: &[bool]) -> Option<u16> {
+        let partners = step_matching(&self.topology, view, self.seed, step);
+        let p = partners[self.node as usize];
+        (p != self.node as usize).then_some(p as u16)
+    }
+
+    fn neighbours(&self) -> &[u16] {
+        &self.topology.neighbours[self.node as usize]
+    }
+
+    fn send(&self, to: u16, step: u32, payload: Payload, out: &mut Vec<Outgoing>) {
         out.push(Outgoing {
             channel: Channel::Pair {
                 from: self.node,
                 to,
             },
-            message: Message::new(ActorId::Node(self.node), step, attempt as u16 + 1, payload),
+            message: Message::new(ActorId::Node(self.node), step, 1, payload),
             receivers: vec![ActorId::Node(to)],
             wake: None,
         });
@@ -111,33 +128,6 @@ impl RandomExchange {
         })
     }
 
-    /// A new attempt for a node not yet paired: a coin for its role.
-    fn begin_attempt(&mut self, out: &mut Vec<Outgoing>) {
-        let Some(r) = &self.running else { return };
-        let (step, attempt) = (r.step, r.attempt);
-        let requesting = self.rng.random::<bool>();
-        let untried: Vec<u16> = self
-            .neighbours
-            .iter()
-            .copied()
-            .filter(|n| r.view[*n as usize] && !r.asked.contains(n))
-            .collect();
-        let role = if requesting {
-            let to = untried.choose(&mut self.rng).copied();
-            if let Some(to) = to {
-                self.send(to, step, attempt, Payload::ExchangeRequest, out);
-            }
-            Role::Requesting { to }
-        } else {
-            Role::Listening
-        };
-        let r = self.running.as_mut().expect("checked above");
-        if let Role::Requesting { to: Some(to) } = role {
-            r.asked.push(to);
-        }
-        r.role = role;
-    }
-
     fn finish(&mut self, posterior: Gaussian, partner: Option<u16>, now: Duration) {
         let Some(r) = self.running.as_mut() else {
             return;
@@ -147,7 +137,7 @@ impl RandomExchange {
             posterior,
             partner,
             stats: RoundStats {
-                rounds_completed: r.attempt as u16 + 1,
+                rounds_completed: 1,
                 neighbours_heard: u16::from(partner.is_some()),
                 total: now.saturating_sub(r.started),
                 later_rounds: Duration::ZERO,
@@ -155,12 +145,34 @@ impl RandomExchange {
         });
     }
 
-    /// Pairs with `partner`, having sent it this node's posterior.
-    fn pair(&mut self, partner: u16) {
+    fn set_role(&mut self, role: Role) {
         if let Some(r) = self.running.as_mut() {
-            r.role = Role::Paired { partner };
+            r.role = role;
         }
     }
+}
+
+/// The matching of `step` over the fusion graph's live nodes (`view`):
+/// [`random_matching`] on the network's stream of the step. `partner[r]`
+/// is r itself when r stays unpaired.
+pub fn step_matching(topology: &Topology, view: &[bool], seed: u64, step: u32) -> Vec<usize> {
+    let live = |n: usize| view.get(n).copied().unwrap_or(false);
+    let neighbours: Vec<Vec<usize>> = topology
+        .neighbours
+        .iter()
+        .enumerate()
+        .map(|(r, ns)| {
+            if !live(r) {
+                return Vec::new();
+            }
+            ns.iter()
+                .map(|&m| m as usize)
+                .filter(|&m| live(m))
+                .collect()
+        })
+        .collect();
+    let mut rng = stream_rng(seed, ActorId::Launcher, step, Stream::Exchange);
+    random_matching(&neighbours, &mut rng)
 }
 
 impl FusionProtocol for RandomExchange {
@@ -182,16 +194,25 @@ impl FusionProtocol for RandomExchange {
     ) {
         self.current_step = self.current_step.max(step);
         self.done = None;
+        let mut view = view.to_vec();
+        if let Some(me) = view.get_mut(self.node as usize) {
+            *me = true;
+        }
+        let partner = self.partner(step, &view);
         self.running = Some(Running {
             step,
             own: value,
-            view: view.to_vec(),
             started: now,
-            attempt: 0,
-            asked: Vec::new(),
-            role: Role::Listening,
+            role: Role::Finished,
         });
-        self.begin_attempt(out);
+        match partner {
+            None => self.finish(value, None, now),
+            Some(p) if self.node < p => {
+                self.send(p, step, Payload::ExchangeRequest, out);
+                self.set_role(Role::Requesting { partner: p });
+            }
+            Some(p) => self.set_role(Role::Listening { partner: p }),
+        }
         let early: Vec<Message> = std::mem::take(&mut self.early);
         for m in early {
             if m.header.step == step {
@@ -213,74 +234,55 @@ impl FusionProtocol for RandomExchange {
             return Handled::NotMine;
         }
         let step = message.header.step;
-        if !self.neighbours.contains(&from) || step < self.current_step {
+        if !self.neighbours().contains(&from) || step < self.current_step {
             return Handled::Late;
         }
         let Some(r) = self.running.as_ref().filter(|r| r.step == step) else {
             // A neighbour already in a step this node has not begun. Each
-            // neighbour sends at most a request, a reply and a posterior per
-            // attempt; more than that is not a protocol's, and is dropped.
-            let cap = 3 * EXCHANGE_ATTEMPTS as usize * self.neighbours.len();
+            // neighbour sends at most a request, a reply and a posterior a
+            // step; more than that is not a protocol's, and is dropped.
+            let cap = 3 * self.neighbours().len();
             if self.early.len() >= cap {
                 return Handled::Late;
             }
             self.early.push(message.clone());
             return Handled::Taken;
         };
-        let (role, attempt, own) = (r.role, r.attempt, r.own);
-        let asked_before = r.asked.contains(&from);
+        let (role, own) = (r.role, r.own);
+        let received = |g: &GaussianMoments| Gaussian {
+            mean: g.mean.into(),
+            cov: unpack_mat4(&g.covariance),
+        };
         match (&message.payload, role) {
-            (Payload::ExchangeRequest, Role::Listening) if r.view[from as usize] => {
-                self.send(
-                    from,
-                    step,
-                    attempt,
-                    Payload::ExchangeReply { accepted: true },
-                    out,
-                );
-                self.send(from, step, attempt, Self::posterior_payload(&own), out);
-                self.pair(from);
+            (Payload::ExchangeRequest, Role::Listening { partner }) if partner == from => {
+                self.send(from, step, Payload::ExchangeReply { accepted: true }, out);
+                self.send(from, step, Self::posterior_payload(&own), out);
+                self.set_role(Role::Paired { partner });
             }
+            // Not this node's partner this step (their views differ), or a
+            // second request.
             (Payload::ExchangeRequest, _) => {
-                self.send(
-                    from,
-                    step,
-                    attempt,
-                    Payload::ExchangeReply { accepted: false },
-                    out,
-                );
+                self.send(from, step, Payload::ExchangeReply { accepted: false }, out);
             }
-            (
-                Payload::ExchangeReply { accepted: true },
-                Role::Requesting { .. } | Role::Listening,
-            ) if asked_before => {
-                self.send(from, step, attempt, Self::posterior_payload(&own), out);
-                self.pair(from);
-            }
-            (Payload::ExchangeReply { accepted: false }, Role::Requesting { to: Some(to) })
-                if to == from =>
+            (Payload::ExchangeReply { accepted: true }, Role::Requesting { partner })
+                if partner == from =>
             {
-                if let Some(r) = self.running.as_mut() {
-                    r.role = Role::Requesting { to: None };
-                }
+                self.send(from, step, Self::posterior_payload(&own), out);
+                self.set_role(Role::Paired { partner });
+            }
+            (Payload::ExchangeReply { accepted: false }, Role::Requesting { partner })
+                if partner == from =>
+            {
+                self.finish(own, None, now);
             }
             (Payload::ExchangePosterior(g), Role::Paired { partner }) if partner == from => {
-                let g = Gaussian {
-                    mean: g.mean.into(),
-                    cov: unpack_mat4(&g.covariance),
-                };
-                self.finish(g, Some(from), now);
+                self.finish(received(g), Some(from), now);
             }
-            // The reply was lost or overtaken: the posterior says accepted.
-            (Payload::ExchangePosterior(g), Role::Requesting { .. } | Role::Listening)
-                if asked_before =>
-            {
-                self.send(from, step, attempt, Self::posterior_payload(&own), out);
-                let g = Gaussian {
-                    mean: g.mean.into(),
-                    cov: unpack_mat4(&g.covariance),
-                };
-                self.finish(g, Some(from), now);
+            // The acknowledgement was lost or overtaken: the posterior says
+            // accepted.
+            (Payload::ExchangePosterior(g), Role::Requesting { partner }) if partner == from => {
+                self.send(from, step, Self::posterior_payload(&own), out);
+                self.finish(received(g), Some(from), now);
             }
             _ => return Handled::Late,
         }
@@ -289,31 +291,17 @@ impl FusionProtocol for RandomExchange {
 
     fn poll_timeout(&self) -> Option<Duration> {
         let r = self.running.as_ref()?;
-        if r.role == Role::Finished {
-            return None;
-        }
-        let attempts_over = r.attempt + 1 >= EXCHANGE_ATTEMPTS;
-        // Paired after the last attempt: one attempt's grace for the posterior.
-        let k = if attempts_over {
-            EXCHANGE_ATTEMPTS + 1
-        } else {
-            r.attempt + 1
-        };
-        Some(r.started + self.attempt * k)
+        (r.role != Role::Finished).then_some(r.started + self.attempt * 2)
     }
 
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        while self.poll_timeout().is_some_and(|t| t <= now) {
-            let r = self.running.as_mut().expect("a timeout only while running");
-            if r.attempt + 1 >= EXCHANGE_ATTEMPTS {
-                let own = r.own;
-                self.finish(own, None, now);
-                return;
-            }
-            r.attempt += 1;
-            if !matches!(r.role, Role::Paired { .. }) {
-                self.begin_attempt(out);
-            }
+    fn handle_timeout(&mut self, now: Duration, _out: &mut Vec<Outgoing>) {
+        if self.poll_timeout().is_some_and(|t| t <= now) {
+            let own = self
+                .running
+                .as_ref()
+                .expect("a timeout only while running")
+                .own;
+            self.finish(own, None, now);
         }
     }
 
@@ -336,9 +324,12 @@ impl FusionProtocol for RandomExchange {
 mod tests {
     use super::*;
     use crate::fusion::testing::{drive, Fate};
+    use bounds::diffusion::EXCHANGE_ATTEMPTS;
     use bounds::{Mat4, State};
     use fusion_graph::Scenario;
+    use rand::Rng;
     use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
     use wire::MessageKind;
 
     const ATTEMPT: Duration = Duration::from_millis(20);
@@ -367,14 +358,7 @@ mod tests {
     ) -> Vec<Option<Exchanged>> {
         let t = lattice();
         let nodes = (0..25u16)
-            .map(|r| {
-                RandomExchange::new(
-                    r,
-                    &t,
-                    ATTEMPT,
-                    ChaCha8Rng::seed_from_u64(seed * 100 + r as u64),
-                )
-            })
+            .map(|r| RandomExchange::new(r, &t, ATTEMPT, seed))
             .collect();
         drive(nodes, own, view, fate, ATTEMPT * (EXCHANGE_ATTEMPTS + 2))
     }
@@ -422,6 +406,83 @@ mod tests {
             (share - modelled).abs() < 0.03,
             "protocol {share}, bound's model {modelled}"
         );
+    }
+
+    /// The protocol's pairs follow the RndEx PCRLB's path model: how often
+    /// each edge of the lattice pairs, over 4,000 steps of the protocol
+    /// (its messages delivered in an order the seed shuffles), is within
+    /// its sampling error of how often the model's matching pairs it, drawn
+    /// 4,000 times from a generator of its own.
+    #[test]
+    fn the_protocols_pairs_follow_the_path_models_law() {
+        let t = lattice();
+        let neighbours: Vec<Vec<usize>> = t
+            .neighbours
+            .iter()
+            .map(|ns| ns.iter().map(|&n| n as usize).collect())
+            .collect();
+        let edges: Vec<(usize, usize)> = neighbours
+            .iter()
+            .enumerate()
+            .flat_map(|(r, ns)| ns.iter().filter(move |&&m| m > r).map(move |&m| (r, m)))
+            .collect();
+        let trials = 4000;
+        let mut protocol = vec![0u32; edges.len()];
+        let mut model = vec![0u32; edges.len()];
+        let mut rng = ChaCha8Rng::seed_from_u64(77);
+        let count = |counts: &mut Vec<u32>, partner: &dyn Fn(usize) -> usize| {
+            for (e, (r, m)) in edges.iter().enumerate() {
+                if partner(*r) == *m {
+                    counts[e] += 1;
+                }
+            }
+        };
+        for seed in 0..trials {
+            // Each message's latency drawn from the seed: the arrival order
+            // must not matter.
+            let mut jitter = ChaCha8Rng::seed_from_u64(seed + 1_000_000);
+            let got = exchange(seed, &[true; 25], |_, _, _| {
+                Fate::Deliver(Duration::from_micros(jitter.random_range(1..900)))
+            });
+            count(&mut protocol, &|r| {
+                got[r].unwrap().partner.map_or(r, usize::from)
+            });
+            let p = bounds::diffusion::random_matching(&neighbours, &mut rng);
+            count(&mut model, &|r| p[r]);
+        }
+        for (e, (a, b)) in protocol.iter().zip(&model).enumerate() {
+            // Two binomial shares of `trials` draws each: their difference's
+            // standard error, from the pooled share.
+            let pooled = f64::from(a + b) / (2.0 * trials as f64);
+            let se = (2.0 * pooled * (1.0 - pooled) / trials as f64).sqrt();
+            let diff = (f64::from(*a) - f64::from(*b)) / trials as f64;
+            assert!(
+                diff.abs() <= 4.5 * se.max(1e-9),
+                "edge {:?}: protocol {a}, model {b} in {trials}",
+                edges[e]
+            );
+        }
+    }
+
+    /// Who pairs with whom does not depend on the order messages arrive in:
+    /// the same seed under different latencies gives the same pairs.
+    #[test]
+    fn the_pairs_do_not_depend_on_arrival_order() {
+        for seed in 0..50 {
+            let partners = |spread: u64| -> Vec<Option<u16>> {
+                let mut jitter = ChaCha8Rng::seed_from_u64(spread);
+                exchange(seed, &[true; 25], |_, _, _| {
+                    Fate::Deliver(Duration::from_micros(jitter.random_range(1..5000)))
+                })
+                .iter()
+                .map(|e| e.unwrap().partner)
+                .collect()
+            };
+            let first = partners(1);
+            for spread in 2..6 {
+                assert_eq!(partners(spread), first, "seed {seed}");
+            }
+        }
     }
 
     /// Every message is a request, a reply, or one of the two posteriors of
@@ -477,7 +538,7 @@ mod tests {
     #[test]
     fn a_request_for_a_step_not_begun_is_kept_until_it_begins() {
         let t = lattice();
-        let mut node = RandomExchange::new(0, &t, ATTEMPT, ChaCha8Rng::seed_from_u64(1));
+        let mut node = RandomExchange::new(0, &t, ATTEMPT, 1);
         let request = Message::new(ActorId::Node(1), 2, 1, Payload::ExchangeRequest);
         let mut out = Vec::new();
         node.expect_step(1);

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
+use fusion_graph::{Scenario, Topology};
 use wire::Message;
 
 use crate::estimator::Observation;
@@ -25,12 +25,7 @@ pub struct ExchangeCooperation {
 impl ExchangeCooperation {
     pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Self {
         Self {
-            exchange: RandomExchange::new(
-                index,
-                topology,
-                round_timeout(scenario),
-                stream_rng(scenario.seed, ActorId::Node(index), 0, Stream::Exchange),
-            ),
+            exchange: RandomExchange::new(index, topology, round_timeout(scenario), scenario.seed),
             exchanged: None,
             weighed: false,
         }
