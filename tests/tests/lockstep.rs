@@ -28,7 +28,12 @@ const MANAGERS: [&str; 5] = [
     "pcrlb_at_estimate",
     "pcrlb_offline",
 ];
-const TRACKERS: [&str; 4] = ["random_exchange", "kl_consensus", "kl_diffusion", "kl_iterative"];
+const TRACKERS: [&str; 4] = [
+    "random_exchange",
+    "kl_consensus",
+    "kl_diffusion",
+    "kl_iterative",
+];
 
 /// Every built-in scenario with the protocols and managers it allows: the
 /// CF/DPF with each manager, and each tracker (which activates at random),
@@ -75,7 +80,10 @@ fn every_built_in_scenario_protocol_and_manager_runs_in_lockstep_as_sim_does() {
     for (i, (scenario, protocol, manager)) in combinations.into_iter().enumerate() {
         let what = format!("{scenario} with {protocol} and {manager}");
         let n = network(i, scenario, protocol, manager);
-        let s = n.clone().sim().unwrap_or_else(|e| panic!("{what}: sim: {e}"));
+        let s = n
+            .clone()
+            .sim()
+            .unwrap_or_else(|e| panic!("{what}: sim: {e}"));
         s.assert_success();
         assert!(
             s.summary().timing_dependent.is_empty(),

@@ -94,6 +94,29 @@ impl Topology {
         }
     }
 
+    /// The actors that read `channel` in this network, each of which gets
+    /// every message published on it. (In a run with a centralized
+    /// reference the launcher reads every observation channel too, which
+    /// the topology does not say.)
+    pub fn readers(&self, channel: Channel) -> Vec<ActorId> {
+        match channel {
+            Channel::Lifecycle => (0..self.sensors() as u16)
+                .map(ActorId::Sensor)
+                .chain((0..self.mac_count() as u16).map(ActorId::Mac))
+                .collect(),
+            Channel::Observation(s) => vec![self.reports_to(s)],
+            Channel::Consensus(n) => self.neighbours[n as usize]
+                .iter()
+                .map(|m| ActorId::Node(*m))
+                .collect(),
+            Channel::Activation { to, .. } => vec![to],
+            Channel::Control(a) => vec![a],
+            Channel::Telemetry(_) => vec![ActorId::Launcher],
+            Channel::Pair { to, .. } => vec![ActorId::Node(to)],
+            Channel::MacOutput(n) => vec![ActorId::Node(n)],
+        }
+    }
+
     /// Whom node `n` activates: each of its sensors, and its
     /// multiple-access channel if it has one.
     pub fn activated_by(&self, n: u16) -> impl Iterator<Item = ActorId> + '_ {

@@ -23,6 +23,12 @@ pub enum SetupError {
 pub enum SendError {
     #[error("{actor} does not publish on channel {channel}")]
     NotPublisher { channel: String, actor: String },
+    #[error("channel {channel} is read by {readers}, and each of them gets every message on it: a message for {receivers} alone cannot be sent on it (a message to one neighbour goes on the pair's own channel)")]
+    Receivers {
+        channel: String,
+        receivers: String,
+        readers: String,
+    },
     #[error("publishing on {channel}")]
     Backend {
         channel: String,

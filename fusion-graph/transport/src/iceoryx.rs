@@ -87,6 +87,9 @@ pub struct IceoryxTransport {
     start: Instant,
     node: Node<futex::Service>,
     publishers: HashMap<Channel, Pub>,
+    /// Who reads each channel this actor publishes on: a send's receivers
+    /// must be them all.
+    readers: HashMap<Channel, Vec<ActorId>>,
     subscribers: Vec<(Channel, Sub)>,
     /// Which subscriptions were heard from since the last `receive`: see
     /// [`Heard`].
@@ -145,6 +148,7 @@ impl IceoryxTransport {
                 .map_err(|e| setup("listener", e))?,
             node,
             publishers: HashMap::new(),
+            readers: HashMap::new(),
             subscribers: Vec::new(),
             heard: Heard::new(me, topology),
             notifiers: HashMap::new(),
@@ -252,6 +256,7 @@ impl Transport for IceoryxTransport {
     /// Becomes the publisher of one of this actor's channels.
     fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
         channel.check_publisher(self.me)?;
+        self.readers.insert(channel, self.topology.readers(channel));
         self.add_publisher(channel)
     }
 
@@ -322,6 +327,15 @@ impl Transport for IceoryxTransport {
                 channel: channel.service_suffix(),
                 actor: self.me.to_string(),
             })?;
+        let readers = self.readers.get(&channel).map_or(&[][..], Vec::as_slice);
+        // The launcher's centralized reference, in a run that has one,
+        // reads every observation channel; the topology does not say.
+        let may_read: &[ActorId] = if matches!(channel, Channel::Observation(_)) {
+            &[ActorId::Launcher]
+        } else {
+            &[]
+        };
+        crate::check_receivers(channel, receivers, readers, may_read)?;
         Outbound {
             me: self.me,
             format: &self.format,
@@ -630,16 +644,19 @@ mod tests {
         let node = |i| {
             IceoryxTransport::new(&run, ActorId::Node(i), &topology, FORMAT, 10 + i as u64).unwrap()
         };
-        let (mut a, mut b, mut c) = (node(0), node(1), node(2));
+        // Node 0's neighbours on the default 3 × 3 grid: 1 and 3.
+        assert_eq!(topology.neighbours[0], [1, 3]);
+        let (mut a, mut b, mut c) = (node(0), node(1), node(3));
         b.subscribe(Channel::Pair { from: 0, to: 1 }).unwrap();
         b.subscribe(Channel::Consensus(0)).unwrap();
         c.subscribe(Channel::Consensus(0)).unwrap();
         a.publish_on(Channel::Pair { from: 0, to: 1 }).unwrap();
         a.publish_on(Channel::Consensus(0)).unwrap();
         a.notify(ActorId::Node(1)).unwrap();
-        a.notify(ActorId::Node(2)).unwrap();
+        a.notify(ActorId::Node(3)).unwrap();
         a.update_connections();
         contract::a_pairwise_message_reaches_only_its_addressee(&mut a, &mut b, &mut c);
+        contract::a_send_to_some_of_a_channels_readers_is_refused(&mut a, &mut b, &mut c);
         drop((a, b, c));
         let _ = remove_run_resources(&run);
     }

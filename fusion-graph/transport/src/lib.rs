@@ -113,6 +113,7 @@ impl Outbound<'_> {
     /// to `publish`. Counted first: an actor killed in between has sent
     /// what no one receives, which is a loss, never a receipt of something
     /// unsent. A failed publish takes the count back.
+    /// A backend checks the receivers first ([`check_receivers`]).
     pub fn send(
         &mut self,
         channel: Channel,
@@ -140,6 +141,44 @@ impl Outbound<'_> {
             }
         })
     }
+}
+
+/// Whether a message on `channel` for `receivers` reaches them and no one
+/// else: every actor that reads a channel gets every message on it, so
+/// the receivers must be its `readers`, all of them, and may include
+/// those that `may_read` it (the launcher's centralized reference on an
+/// observation channel, in a run that has one). Otherwise a reader would
+/// receive what was never counted as sent to it, and the link's count of
+/// what was lost would go negative: the send is refused instead.
+pub fn check_receivers(
+    channel: Channel,
+    receivers: &[ActorId],
+    readers: &[ActorId],
+    may_read: &[ActorId],
+) -> Result<(), SendError> {
+    let every_reader = readers.iter().all(|r| receivers.contains(r));
+    let only_readers = receivers
+        .iter()
+        .all(|r| readers.contains(r) || may_read.contains(r));
+    if every_reader && only_readers {
+        return Ok(());
+    }
+    Err(SendError::Receivers {
+        channel: channel.service_suffix(),
+        receivers: actor_list(receivers),
+        readers: actor_list(readers),
+    })
+}
+
+fn actor_list(actors: &[ActorId]) -> String {
+    if actors.is_empty() {
+        return "no one".into();
+    }
+    actors
+        .iter()
+        .map(ActorId::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The receive path every backend shares: link fault, then decode, then
@@ -325,6 +364,45 @@ pub(crate) mod contract {
             .accounting()
             .get(a.me(), b.me(), MessageKind::ExchangeRequest);
         assert_eq!((got.received_messages, got.received_bytes), (1, 13));
+    }
+
+    /// A message on a channel every one of whose readers gets it cannot be
+    /// sent to some of them alone: the send is refused, naming the
+    /// readers, and nothing is counted or delivered. (`b` and `c` both
+    /// read `a`'s consensus channel.)
+    pub fn a_send_to_some_of_a_channels_readers_is_refused<T: Transport>(
+        a: &mut T,
+        b: &mut T,
+        c: &mut T,
+    ) {
+        let value = Message::new(
+            a.me(),
+            1,
+            1,
+            Payload::KlConsensus(wire::GaussianInformation {
+                eta: [1.0; 4],
+                lambda: [2.0; 10],
+            }),
+        );
+        let ActorId::Node(n) = a.me() else {
+            panic!("a node publishes a consensus channel")
+        };
+        let consensus = Channel::Consensus(n);
+        let sent = |a: &T| {
+            a.accounting()
+                .get(a.me(), b.me(), MessageKind::KlConsensus)
+                .sent_messages
+        };
+        let before = sent(a);
+        let refused = a.send(consensus, &value, &[b.me()]);
+        match refused {
+            Err(SendError::Receivers { readers, .. }) => {
+                assert!(readers.contains(&c.me().to_string()), "{readers}")
+            }
+            other => panic!("not refused: {other:?}"),
+        }
+        assert_eq!(sent(a), before, "a refused message is not counted");
+        assert!(receive_n(c, 1).is_empty());
     }
 
     /// Loss on the link drops roughly its probability, and is counted.

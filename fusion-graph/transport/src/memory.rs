@@ -114,6 +114,11 @@ impl Transport for MemoryTransport {
         };
         let bus = &self.bus;
         let me = self.me;
+        {
+            let subscribers = &bus.borrow().subscribers;
+            let readers = subscribers.get(&channel).map_or(&[][..], Vec::as_slice);
+            crate::check_receivers(channel, receivers, readers, &[])?;
+        }
         outbound.send(channel, message, receivers, |bytes| {
             let mut bus = bus.borrow_mut();
             let MemoryBus {
@@ -203,6 +208,16 @@ mod tests {
         b.subscribe(Channel::Consensus(0)).unwrap();
         c.subscribe(Channel::Consensus(0)).unwrap();
         contract::a_pairwise_message_reaches_only_its_addressee(&mut a, &mut b, &mut c);
+    }
+
+    #[test]
+    fn contract_some_readers_alone() {
+        let bus = MemoryBus::new();
+        let node = |i| MemoryTransport::new(ActorId::Node(i), bus.clone(), FORMAT, 10 + i as u64);
+        let (mut a, mut b, mut c) = (node(0), node(1), node(2));
+        b.subscribe(Channel::Consensus(0)).unwrap();
+        c.subscribe(Channel::Consensus(0)).unwrap();
+        contract::a_send_to_some_of_a_channels_readers_is_refused(&mut a, &mut b, &mut c);
     }
 
     #[test]

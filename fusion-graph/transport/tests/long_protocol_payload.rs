@@ -65,7 +65,11 @@ fn a_registered_payload_longer_than_consensus_messages_fits_its_channel() {
         sender.update_connections();
         let value = Wide(std::array::from_fn(|i| i as f64));
         let message = Message::new(a, 1, 1, value.to_payload());
-        sender.send(Channel::Consensus(0), &message, &[b]).unwrap();
+        // Every neighbour of node 0 reads its consensus channel (1 and 3
+        // on the default grid): the message is for them both.
+        sender
+            .send(Channel::Consensus(0), &message, &[b, ActorId::Node(3)])
+            .unwrap();
         let mut got = Vec::new();
         let start = Instant::now();
         while got.is_empty() && start.elapsed() < Duration::from_secs(10) {
