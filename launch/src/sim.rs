@@ -457,24 +457,8 @@ impl InProcessNetwork {
 /// The centralized reference's step as a telemetry row.
 pub fn central_telemetry(estimate: State, bound: Option<f64>) -> Telemetry {
     Telemetry {
-        estimate: estimate.into(),
         bound,
-        local_bound: None,
-        aux_bound: None,
-        rounds_completed: 0,
-        live_neighbours: 0,
-        observations: 0,
-        gated: 0,
-        lagged: 0,
-        deadline_missed: false,
-        late_messages: 0,
-        stage_micros: [0; 6],
-        unanswered_sensors: 0,
-        first_unanswered: None,
-        spread: None,
-        active: Vec::new(),
-        design: Vec::new(),
-        without_choice: false,
+        ..Telemetry::of_estimate(estimate.into())
     }
 }
 

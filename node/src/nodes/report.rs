@@ -31,26 +31,7 @@ impl Report {
             }
         });
         Self {
-            telemetry: Telemetry {
-                estimate,
-                bound: None,
-                local_bound: None,
-                aux_bound: None,
-                rounds_completed: 0,
-                live_neighbours: 0,
-                observations: 0,
-                gated: 0,
-                lagged: 0,
-                deadline_missed: false,
-                late_messages: 0,
-                stage_micros: [0; Stage::COUNT],
-                unanswered_sensors: 0,
-                first_unanswered: None,
-                spread: None,
-                active: Vec::new(),
-                design: Vec::new(),
-                without_choice: false,
-            },
+            telemetry: Telemetry::of_estimate(estimate),
             silence_answers: false,
         }
     }

@@ -132,6 +132,33 @@ pub struct Telemetry {
     pub without_choice: bool,
 }
 
+impl Telemetry {
+    /// A report of `estimate` and nothing else: no bounds, rounds, stage
+    /// times or sensors; the fields a reporter has it sets after.
+    pub fn of_estimate(estimate: [f64; 4]) -> Self {
+        Self {
+            estimate,
+            bound: None,
+            local_bound: None,
+            aux_bound: None,
+            rounds_completed: 0,
+            live_neighbours: 0,
+            observations: 0,
+            gated: 0,
+            lagged: 0,
+            deadline_missed: false,
+            late_messages: 0,
+            stage_micros: [0; Stage::COUNT],
+            unanswered_sensors: 0,
+            first_unanswered: None,
+            spread: None,
+            active: Vec::new(),
+            design: Vec::new(),
+            without_choice: false,
+        }
+    }
+}
+
 /// The most activated sensors a telemetry message may list.
 pub const MAX_REPORTED_ACTIVE: usize = 256;
 
