@@ -621,6 +621,19 @@ pub fn timing_dependent(scenario: &Scenario, command: &str) -> Vec<String> {
 mod tests {
     use super::*;
 
+    /// A real-time run's waits end by the clock; `sim`'s and a lockstep
+    /// run's do not, unless a fault loses messages.
+    #[test]
+    fn what_makes_a_run_depend_on_timing_is_named() {
+        let s = Scenario::default_scenario();
+        assert_eq!(s.clock.mode, ClockMode::Realtime);
+        assert!(timing_dependent(&s, "sim").is_empty());
+        assert!(timing_dependent(&s, "run --lockstep").is_empty());
+        let real_time = timing_dependent(&s, "run");
+        assert_eq!(real_time.len(), 1);
+        assert!(real_time[0].contains("real-time clock"), "{real_time:?}");
+    }
+
     fn row(step: u32, node: u16) -> TickRow {
         TickRow {
             step,
