@@ -20,7 +20,7 @@ use wire::payloads::{ProtocolKind, ProtocolPayload, RegisterError};
 
 use crate::fusion::{average_consensus, InformationFusion};
 use crate::location::{LocationConfig, ThresholdDesign};
-use crate::nodes::trackers::{Cooperation, ExchangeCooperation, KlCooperation};
+use crate::nodes::trackers::{ExchangeCooperation, KlCooperation, Tracker};
 use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, UniformRandom};
 
 /// What a protocol or manager is built from: the run's scenario and
@@ -129,7 +129,7 @@ pub type ProtocolBuilder = fn(&Setup<'_>) -> Result<InformationFusion, ParamErro
 /// Builds a node's sensor manager.
 pub type ManagerBuilder = fn(&Setup<'_>) -> Result<Manager, ParamError>;
 /// Builds a tracker node's cooperation (the random-exchange and KL trackers).
-type TrackerBuilder = fn(&Setup<'_>) -> Result<Box<dyn Cooperation>, ParamError>;
+type TrackerBuilder = fn(&Setup<'_>) -> Result<Tracker, ParamError>;
 
 /// Why a registration or a scenario's choice was refused.
 #[derive(Debug, thiserror::Error)]
@@ -198,40 +198,36 @@ fn average(setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
     ))
 }
 
-fn random_exchange(setup: &Setup<'_>) -> Result<Box<dyn Cooperation>, ParamError> {
+fn random_exchange(setup: &Setup<'_>) -> Result<Tracker, ParamError> {
     setup.params.only(&[])?;
-    Ok(Box::new(ExchangeCooperation::new(
+    Ok(Tracker::Exchange(Box::new(ExchangeCooperation::new(
         setup.scenario,
         setup.topology,
         setup.node,
-    )))
+    ))))
 }
 
-fn kl_consensus(setup: &Setup<'_>) -> Result<Box<dyn Cooperation>, ParamError> {
+fn kl_consensus(setup: &Setup<'_>) -> Result<Tracker, ParamError> {
     kl(setup, setup.scenario.consensus.rounds, false)
 }
 
-fn kl_diffusion(setup: &Setup<'_>) -> Result<Box<dyn Cooperation>, ParamError> {
+fn kl_diffusion(setup: &Setup<'_>) -> Result<Tracker, ParamError> {
     kl(setup, 1, true)
 }
 
-fn kl_iterative(setup: &Setup<'_>) -> Result<Box<dyn Cooperation>, ParamError> {
+fn kl_iterative(setup: &Setup<'_>) -> Result<Tracker, ParamError> {
     kl(setup, setup.scenario.consensus.rounds, true)
 }
 
-fn kl(
-    setup: &Setup<'_>,
-    rounds: u32,
-    neighbourhood: bool,
-) -> Result<Box<dyn Cooperation>, ParamError> {
+fn kl(setup: &Setup<'_>, rounds: u32, neighbourhood: bool) -> Result<Tracker, ParamError> {
     setup.params.only(&[])?;
-    Ok(Box::new(KlCooperation::new(
+    Ok(Tracker::Kl(Box::new(KlCooperation::new(
         setup.scenario,
         setup.topology,
         setup.node,
         rounds,
         neighbourhood,
-    )))
+    ))))
 }
 
 fn random(setup: &Setup<'_>) -> Result<Manager, ParamError> {
@@ -414,7 +410,7 @@ pub fn cooperation(
     scenario: &Scenario,
     topology: &Topology,
     node: u16,
-) -> Result<Option<Box<dyn Cooperation>>, ParamError> {
+) -> Result<Option<Tracker>, ParamError> {
     let protocol = scenario.consensus.protocol;
     let Some(build) = parts().trackers.get(protocol.name()).copied() else {
         return Ok(None);

@@ -23,7 +23,7 @@ use std::time::Duration;
 use fusion_graph::registered::Shape;
 use fusion_graph::{Scenario, Topology};
 
-use crate::{Actor, CfDpfNode, LocatorNode, MacCentre, NodeError, TrackerNode, Work};
+use crate::{Actor, CfDpfNode, LocatorNode, MacCentre, NodeError, Work};
 
 /// What a processing node is beyond an actor of the network (every
 /// [`NodeKind`] is one).
@@ -67,13 +67,8 @@ pub fn processing_node(
             scenario, topology, index, config,
         )?));
     }
-    if let Some(cooperation) = crate::registry::cooperation(scenario, topology, index)? {
-        return Ok(Box::new(TrackerNode::new(
-            scenario,
-            topology,
-            index,
-            cooperation,
-        )?));
+    if let Some(tracker) = crate::registry::cooperation(scenario, topology, index)? {
+        return tracker.node(scenario, topology, index);
     }
     let node = CfDpfNode::new(scenario, topology, index)?;
     Ok(Box::new(node.starting(start)))

@@ -7,10 +7,9 @@
 use std::time::Duration;
 
 use fusion_graph::{Scenario, Topology};
-use wire::Message;
 
 use crate::estimator::Observation;
-use crate::fusion::{Exchanged, FusionProtocol, Handled, RandomExchange, RoundStats};
+use crate::fusion::{Exchanged, FusionProtocol, RandomExchange, RoundStats};
 use crate::{Outgoing, Work};
 
 use super::{round_timeout, Cooperation, Next, TrackerFilter};
@@ -33,16 +32,22 @@ impl ExchangeCooperation {
 }
 
 impl Cooperation for ExchangeCooperation {
+    type Protocol = RandomExchange;
+
+    fn protocol(&mut self) -> &mut RandomExchange {
+        &mut self.exchange
+    }
+
+    fn protocol_ref(&self) -> &RandomExchange {
+        &self.exchange
+    }
+
     fn uses_neighbourhood(&self) -> bool {
         true
     }
 
     fn pairs(&self) -> bool {
         true
-    }
-
-    fn expect_step(&mut self, step: u32) {
-        self.exchange.expect_step(step)
     }
 
     /// Swaps the posterior of the step before, while the measurements of
@@ -60,18 +65,6 @@ impl Cooperation for ExchangeCooperation {
         self.exchange
             .start(step, filter.tracker.summary(), view, now, out);
         self.poll();
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        self.exchange.handle(message, now, out)
-    }
-
-    fn poll_timeout(&self) -> Option<Duration> {
-        self.exchange.poll_timeout()
-    }
-
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        self.exchange.handle_timeout(now, out)
     }
 
     fn poll(&mut self) {

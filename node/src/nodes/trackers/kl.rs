@@ -7,12 +7,9 @@
 use std::time::Duration;
 
 use fusion_graph::{Scenario, Topology};
-use wire::Message;
 
 use crate::estimator::Observation;
-use crate::fusion::{
-    kl_fusion, FusionProtocol, Handled, KlFused, KlFusion, NaturalGaussian, RoundStats,
-};
+use crate::fusion::{kl_fusion, FusionProtocol, KlFused, KlFusion, NaturalGaussian, RoundStats};
 use crate::{Outgoing, Work};
 
 use super::{round_timeout, Cooperation, Next, TrackerFilter};
@@ -57,12 +54,18 @@ impl KlCooperation {
 }
 
 impl Cooperation for KlCooperation {
-    fn uses_neighbourhood(&self) -> bool {
-        self.neighbourhood
+    type Protocol = KlFusion;
+
+    fn protocol(&mut self) -> &mut KlFusion {
+        &mut self.fusion
     }
 
-    fn expect_step(&mut self, step: u32) {
-        self.fusion.expect_step(step)
+    fn protocol_ref(&self) -> &KlFusion {
+        &self.fusion
+    }
+
+    fn uses_neighbourhood(&self) -> bool {
+        self.neighbourhood
     }
 
     fn begin(&mut self, _: u32, _: &TrackerFilter, _: &[bool], _: Duration, _: &mut Vec<Outgoing>) {
@@ -71,18 +74,6 @@ impl Cooperation for KlCooperation {
         self.fusing = false;
         self.weighed = false;
         self.stats = RoundStats::default();
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled {
-        self.fusion.handle(message, now, out)
-    }
-
-    fn poll_timeout(&self) -> Option<Duration> {
-        self.fusion.poll_timeout()
-    }
-
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
-        self.fusion.handle_timeout(now, out)
     }
 
     fn poll(&mut self) {

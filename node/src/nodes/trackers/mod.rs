@@ -26,7 +26,7 @@ use wire::{Message, Payload, Stage};
 use crate::collector::{Collector, Offer};
 use crate::diffusion::DiffusionTracker;
 use crate::estimator::{Observation, ObservedValue, SensingModel};
-use crate::fusion::{Handled, RoundStats};
+use crate::fusion::{FusionProtocol, RoundStats};
 use crate::sensor_manager::{SensorManager, UniformRandom};
 use crate::{Actor, NodeError, Outgoing, Work};
 
@@ -45,6 +45,13 @@ pub use kl::KlCooperation;
 /// ([`KlCooperation`]). The registry ([`crate::registry`]) builds one by
 /// the scenario's `consensus.protocol`.
 pub trait Cooperation {
+    /// The fusion protocol it runs with the neighbours.
+    type Protocol: FusionProtocol;
+
+    fn protocol(&mut self) -> &mut Self::Protocol;
+
+    fn protocol_ref(&self) -> &Self::Protocol;
+
     /// Whether the node relays its measurements and weighs its
     /// neighbours'.
     fn uses_neighbourhood(&self) -> bool;
@@ -55,9 +62,6 @@ pub trait Cooperation {
         false
     }
 
-    /// A new step began: the protocol's messages of earlier steps are late.
-    fn expect_step(&mut self, step: u32);
-
     /// The step begins, its measurements still to come.
     fn begin(
         &mut self,
@@ -67,13 +71,6 @@ pub trait Cooperation {
         now: Duration,
         out: &mut Vec<Outgoing>,
     );
-
-    /// A neighbour's message to the protocol.
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) -> Handled;
-
-    fn poll_timeout(&self) -> Option<Duration>;
-
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>);
 
     /// Takes the protocol's result, if it has one.
     fn poll(&mut self);
@@ -110,6 +107,28 @@ pub trait Cooperation {
     ) -> bool;
 }
 
+/// The cooperation a scenario's `consensus.protocol` names, as the
+/// registry builds it.
+pub enum Tracker {
+    Exchange(Box<ExchangeCooperation>),
+    Kl(Box<KlCooperation>),
+}
+
+impl Tracker {
+    /// Node `index` of a tracker network, cooperating so.
+    pub fn node(
+        self,
+        scenario: &Scenario,
+        topology: &Topology,
+        index: u16,
+    ) -> Result<crate::AnyNode, NodeError> {
+        Ok(match self {
+            Tracker::Exchange(c) => Box::new(TrackerNode::new(scenario, topology, index, *c)?),
+            Tracker::Kl(c) => Box::new(TrackerNode::new(scenario, topology, index, *c)?),
+        })
+    }
+}
+
 /// What a tracker's step does after a stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Next {
@@ -142,11 +161,11 @@ struct Stepping {
     weigh_time: Duration,
 }
 
-pub struct TrackerNode {
+pub struct TrackerNode<C> {
     core: NodeCore,
     filter: TrackerFilter,
     manager: UniformRandom,
-    cooperation: Box<dyn Cooperation>,
+    cooperation: C,
     /// Sensors each node activates per step: how many relays to expect.
     active_per_node: usize,
     listen: Duration,
@@ -160,13 +179,13 @@ fn round_timeout(scenario: &Scenario) -> Duration {
     Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)
 }
 
-impl TrackerNode {
+impl<C: Cooperation> TrackerNode<C> {
     /// Node `index` of a tracker network, cooperating as `cooperation` says.
     pub fn new(
         scenario: &Scenario,
         topology: &Topology,
         index: u16,
-        cooperation: Box<dyn Cooperation>,
+        cooperation: C,
     ) -> Result<Self, NodeError> {
         let models = scenario.models()?;
         let model = SensingModel::new(&models, topology);
@@ -369,7 +388,7 @@ impl TrackerNode {
     }
 }
 
-impl NodeKind for TrackerNode {
+impl<C: Cooperation> NodeKind for TrackerNode<C> {
     fn core(&self) -> &NodeCore {
         &self.core
     }
@@ -414,7 +433,7 @@ impl NodeKind for TrackerNode {
             f.tracker.coast(&f.model, &mut f.rng);
         }
         self.relayed.retain(|(s, _, _)| *s >= step);
-        self.cooperation.expect_step(step);
+        self.cooperation.protocol().expect_step(step);
         let picks = self
             .manager
             .choose(&self.core.selection_context(step, None));
@@ -456,7 +475,7 @@ impl NodeKind for TrackerNode {
                 self.take_relay(message.header.step, m, *sensor, *value)
             }
             _ => {
-                let handled = self.cooperation.handle(message, now, out);
+                let handled = self.cooperation.protocol().handle(message, now, out);
                 if self.core.taken(handled, message) {
                     self.poll_protocol()
                 }
@@ -465,7 +484,7 @@ impl NodeKind for TrackerNode {
     }
 }
 
-impl Actor for TrackerNode {
+impl<C: Cooperation> Actor for TrackerNode<C> {
     type Work = Work;
 
     /// A node's wiring and, when it talks in pairs, a channel to each
@@ -493,7 +512,7 @@ impl Actor for TrackerNode {
             None if !s.relays_closed => Some(s.relay_deadline),
             None => None,
         };
-        let protocol = self.cooperation.poll_timeout();
+        let protocol = self.cooperation.protocol_ref().poll_timeout();
         [listening, protocol].into_iter().flatten().min()
     }
 
@@ -512,7 +531,7 @@ impl Actor for TrackerNode {
         {
             self.close_relays();
         }
-        self.cooperation.handle_timeout(now, out);
+        self.cooperation.protocol().handle_timeout(now, out);
         self.poll_protocol();
     }
 
