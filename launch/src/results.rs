@@ -365,8 +365,17 @@ pub fn traffic(accounting: &Accounting, steps: u32) -> (Vec<Traffic>, BoundTraff
     let aux = kinds
         .get(&MessageKind::ConsensusAux)
         .map(|c| c.sent_messages);
+    // A protocol of one's own counts what its payload says carries the
+    // bound's information.
+    let declared: u64 = kinds
+        .iter()
+        .map(|(k, c)| match k {
+            MessageKind::Protocol(p) => c.sent_messages * p.bound_bytes() as u64,
+            _ => 0,
+        })
+        .sum();
     let bound = BoundTraffic {
-        cq_dpcrlb_bytes: consensus * 80,
+        cq_dpcrlb_bytes: consensus * 80 + declared,
         auxiliary_fim_bytes: aux.map(|a| consensus * 80 + a * 80),
     };
     (rows, bound)

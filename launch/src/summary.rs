@@ -520,8 +520,9 @@ pub struct Traffic {
 }
 
 /// Bytes of bound information carried by consensus: ΔL (10 numbers) per
-/// consensus message for CQ/dPCRLB; the auxiliary-FIM baseline needs S_obs
-/// (10 more) per round as well.
+/// consensus message for CQ/dPCRLB, and in a protocol's own messages the
+/// bytes its payload declares (`ProtocolPayload::BOUND_BYTES`); the
+/// auxiliary-FIM baseline needs S_obs (10 more) per round as well.
 #[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct BoundTraffic {
     pub cq_dpcrlb_bytes: u64,

@@ -28,6 +28,8 @@ impl ProtocolPayload for NeighbourhoodValue {
     const KIND: u8 = 200;
     const NAME: &'static str = "neighbourhood_mean";
     const LEN: usize = 24 * 8;
+    /// ΔL, 10 numbers of the 24: what the bound is computed from.
+    const BOUND_BYTES: usize = 10 * 8;
 
     fn encode(&self, out: &mut Vec<u8>) {
         let numbers = self

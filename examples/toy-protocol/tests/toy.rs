@@ -46,6 +46,13 @@ fn assert_toy_parts_ran(run: &Run, kind: MessageKind) {
         }
     }
     assert_eq!(run.unaccounted(kind), 0);
+    // Its ΔL (80 of each message's bytes) is the bound's traffic, as the
+    // built-in consensus's is.
+    assert_eq!(
+        run.summary().bound_traffic.cq_dpcrlb_bytes,
+        run.counters(kind).sent_messages * 80
+    );
+    assert!(run.summary().bound_traffic.cq_dpcrlb_bytes > 0);
     // No average consensus ran: the toy replaced it.
     assert_eq!(run.counters(MessageKind::Consensus).sent_messages, 0);
     // Each node's first two sensors observe every step, the others never.

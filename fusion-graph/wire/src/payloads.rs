@@ -30,6 +30,11 @@ pub trait ProtocolPayload: Sized {
     const NAME: &'static str;
     /// The body's size in bytes; every message of the kind has it.
     const LEN: usize;
+    /// How many of those bytes carry what the bound is computed from (the
+    /// CQ/dPCRLB's ΔL, say): a run's summary counts them, in every message
+    /// of the kind sent, as the bound's traffic, as it counts the built-in
+    /// consensus messages' 80. None, unless the protocol says.
+    const BOUND_BYTES: usize = 0;
 
     /// Appends exactly [`LEN`](Self::LEN) bytes.
     fn encode(&self, out: &mut Vec<u8>);
@@ -86,7 +91,16 @@ pub fn register<P: ProtocolPayload>() -> Result<ProtocolKind, RegisterError> {
     if HEADER_BYTES + P::LEN > MAX_MESSAGE_BYTES {
         return Err(RegisterError::TooLong { name, len: P::LEN });
     }
-    protocol_kinds::claim(P::KIND, name, P::LEN, |body| P::decode(body).map(drop))
+    if P::BOUND_BYTES > P::LEN {
+        return Err(RegisterError::BoundBytes {
+            name,
+            bound: P::BOUND_BYTES,
+            len: P::LEN,
+        });
+    }
+    protocol_kinds::claim(P::KIND, name, P::LEN, P::BOUND_BYTES, |body| {
+        P::decode(body).map(drop)
+    })
 }
 
 #[cfg(test)]
@@ -181,6 +195,52 @@ mod tests {
             Message::decode(&short, &FORMAT),
             Err(WireError::Length { .. })
         ));
+    }
+
+    /// A payload's declared bound bytes are read back from its kind, and
+    /// more of them than its body has is refused.
+    #[test]
+    fn the_bound_bytes_a_payload_declares_are_its_kinds() {
+        struct Bounded;
+        impl ProtocolPayload for Bounded {
+            const KIND: u8 = 230;
+            const NAME: &'static str = "bounded";
+            const LEN: usize = 16;
+            const BOUND_BYTES: usize = 8;
+            fn encode(&self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&[0; 16]);
+            }
+            fn decode(_: &[u8]) -> Result<Self, WireError> {
+                Ok(Bounded)
+            }
+        }
+        struct Overbound;
+        impl ProtocolPayload for Overbound {
+            const KIND: u8 = 231;
+            const NAME: &'static str = "overbound";
+            const LEN: usize = 4;
+            const BOUND_BYTES: usize = 8;
+            fn encode(&self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&[0; 4]);
+            }
+            fn decode(_: &[u8]) -> Result<Self, WireError> {
+                Ok(Overbound)
+            }
+        }
+        assert_eq!(register::<Bounded>().unwrap().bound_bytes(), 8);
+        assert_eq!(register::<Probe>().unwrap().bound_bytes(), 0);
+        assert!(matches!(
+            register::<Overbound>(),
+            Err(RegisterError::BoundBytes {
+                bound: 8,
+                len: 4,
+                ..
+            })
+        ));
+        assert!(
+            ProtocolKind::registered(231).is_none(),
+            "its kind stays free"
+        );
     }
 
     #[test]

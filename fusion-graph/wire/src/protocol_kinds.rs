@@ -31,6 +31,12 @@ impl ProtocolKind {
         entry(self).name
     }
 
+    /// The bytes of each message of the kind that carry the bound's
+    /// information (`ProtocolPayload::BOUND_BYTES`).
+    pub fn bound_bytes(self) -> usize {
+        entry(self).bound_bytes
+    }
+
     /// The registered payload's body size in bytes.
     pub fn body_len(self) -> usize {
         entry(self).len
@@ -59,19 +65,27 @@ pub enum RegisterError {
     NameTaken { name: &'static str, kind: u8 },
     #[error("payload {name:?}: {len} bytes do not fit in a message")]
     TooLong { name: &'static str, len: usize },
+    #[error("payload {name:?}: {bound} bytes of the bound's information in a body of {len}")]
+    BoundBytes {
+        name: &'static str,
+        bound: usize,
+        len: usize,
+    },
     #[error(
         "payload {name:?}: a name is lowercase letters, digits and '_', and not a built-in kind's"
     )]
     BadName { name: &'static str },
 }
 
-/// Claims `kind` for a payload called `name` of `len` bytes whose bodies
-/// `check` accepts. Claiming it again with the same name and size is
-/// harmless; with another, an error.
+/// Claims `kind` for a payload called `name` of `len` bytes, `bound_bytes`
+/// of them the bound's information, whose bodies `check` accepts. Claiming
+/// it again with the same name and size is harmless; with another, an
+/// error.
 pub fn claim(
     kind: u8,
     name: &'static str,
     len: usize,
+    bound_bytes: usize,
     check: fn(&[u8]) -> Result<(), WireError>,
 ) -> Result<ProtocolKind, RegisterError> {
     let slot = slot(kind).ok_or(RegisterError::KindOutOfRange { name, kind })?;
@@ -87,7 +101,12 @@ pub fn claim(
             kind: other.0,
         });
     }
-    let entry = slot.get_or_init(|| Entry { name, len, check });
+    let entry = slot.get_or_init(|| Entry {
+        name,
+        len,
+        bound_bytes,
+        check,
+    });
     if entry.name != name || entry.len != len {
         return Err(RegisterError::KindTaken {
             name,
@@ -125,6 +144,7 @@ pub fn longest_body() -> usize {
 struct Entry {
     name: &'static str,
     len: usize,
+    bound_bytes: usize,
     /// The protocol's own decoding, its value dropped.
     check: fn(&[u8]) -> Result<(), WireError>,
 }
