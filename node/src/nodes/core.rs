@@ -8,6 +8,7 @@
 
 use std::time::Duration;
 
+use bounds::Quantizer;
 use fusion_graph::{Actor, ActorId, Channel, Scenario, Topology, Wiring};
 use wire::{BitMask, Control, Message, Payload};
 
@@ -109,7 +110,15 @@ pub struct NodeCore {
 }
 
 impl NodeCore {
-    pub fn new(scenario: &Scenario, topology: &Topology, index: u16, cells: Option<usize>) -> Self {
+    /// Node `index`, whose sensors report cells of `quantizer` (`None`:
+    /// raw values, or none reach the node itself).
+    pub fn new(
+        scenario: &Scenario,
+        topology: &Topology,
+        index: u16,
+        quantizer: Option<&Quantizer>,
+    ) -> Self {
+        let cells = quantizer.map(Quantizer::cells);
         Self {
             index,
             topology: topology.clone(),

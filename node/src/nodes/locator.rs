@@ -105,12 +105,7 @@ impl LocatorNode {
                 .stop_awaiting_the_late()
         };
         Ok(Self {
-            core: NodeCore::new(
-                scenario,
-                topology,
-                index,
-                quantizer.as_ref().map(Quantizer::cells),
-            ),
+            core: NodeCore::new(scenario, topology, index, quantizer.as_ref()),
             evidence: LocalEvidence::new(scenario, topology, index, quantizer.clone()),
             phases: (0..=grids).map(phase).collect(),
             coarse,

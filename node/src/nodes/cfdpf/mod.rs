@@ -172,12 +172,7 @@ impl CfDpfNode {
         )
         .map_err(filter_error)?;
         Ok(Self {
-            core: NodeCore::new(
-                scenario,
-                topology,
-                index,
-                models.quantizer.as_ref().map(|q| q.cells()),
-            ),
+            core: NodeCore::new(scenario, topology, index, models.quantizer.as_ref()),
             with_aux: scenario.consensus.auxiliary_fim,
             listen: if scenario.censoring.policy == CensoringPolicy::Off {
                 Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)

@@ -198,12 +198,7 @@ impl<C: Cooperation> TrackerNode<C> {
             source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
         })?;
         Ok(Self {
-            core: NodeCore::new(
-                scenario,
-                topology,
-                index,
-                models.quantizer.as_ref().map(|q| q.cells()),
-            ),
+            core: NodeCore::new(scenario, topology, index, models.quantizer.as_ref()),
             filter: TrackerFilter {
                 tracker,
                 model,
