@@ -366,7 +366,7 @@ fn actor_loop<A: Actor, T: Transport>(
 }
 
 /// How a node waits for a message due within its step: it polls for
-/// [`SPIN_BEFORE_SLEEP`], yielding, then sleeps for what is left of
+/// `SPIN_BEFORE_SLEEP` (50 µs), yielding, then sleeps for what is left of
 /// `timeout`. Public so that a benchmark can wait exactly as a node does.
 pub fn wait_as_a_node<T: Transport>(
     t: &mut T,

@@ -1,7 +1,7 @@
 //! Payloads that protocols declare for themselves, outside this crate.
 //!
 //! A protocol of one's own needs messages of its own, counted per link and
-//! kind like every other. Rather than a variant in [`crate::wire`] for each,
+//! kind like every other. Rather than a variant of [`Payload`] for each,
 //! a protocol declares its payload type ([`ProtocolPayload`]: a kind byte,
 //! a name, a fixed size, an encoding) and registers it once at start-up with
 //! [`register`]. On the wire it is an ordinary message: the header with the

@@ -51,7 +51,7 @@ pub trait NodeKind {
     fn take(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>);
 
     /// Hands one message to the kind by what it is: the one dispatch of
-    /// every node kind's [`Actor::handle`](crate::Actor::handle).
+    /// every node kind's [`Actor::handle`].
     fn dispatch(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
         let step = message.header.step;
         match (&message.payload, message.header.sender) {

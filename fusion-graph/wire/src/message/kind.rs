@@ -102,7 +102,7 @@ message_kinds! {
     /// thresholds (one byte), then the thresholds, increasing.
     ActivateThresholds = 19, "activate_thresholds";
     /// One piece of a locator's consensus value, which is longer than one
-    /// message: the piece's index (u16), then [`LOCATION_CHUNK`] f64.
+    /// message: the piece's index (u16), then [`LOCATION_CHUNK`](crate::LOCATION_CHUNK) f64.
     LocationConsensus = 20, "location_consensus";
     /// A fusion centre's schedule of its multiple-access channel: the
     /// slots of the step (one byte), the count of transmitting sensors
