@@ -637,9 +637,20 @@ mod tests {
         contract::delivers_and_counts(sensor.as_mut().unwrap(), node.as_mut().unwrap());
     }
 
+    /// Removes a run's resources when dropped: after the test's transports
+    /// (declared after it, so dropped before it), pass or fail.
+    struct Cleanup(RunId);
+
+    impl Drop for Cleanup {
+        fn drop(&mut self) {
+            let _ = remove_run_resources(&self.0);
+        }
+    }
+
     #[test]
     fn contract_pairwise() {
         let run = RunId::new(&format!("u{}-pairwise", std::process::id())).unwrap();
+        let _cleanup = Cleanup(run.clone());
         let topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
         let node = |i| {
             IceoryxTransport::new(&run, ActorId::Node(i), &topology, FORMAT, 10 + i as u64).unwrap()
@@ -657,8 +668,6 @@ mod tests {
         a.update_connections();
         contract::a_pairwise_message_reaches_only_its_addressee(&mut a, &mut b, &mut c);
         contract::a_send_to_some_of_a_channels_readers_is_refused(&mut a, &mut b, &mut c);
-        drop((a, b, c));
-        let _ = remove_run_resources(&run);
     }
 
     #[test]
