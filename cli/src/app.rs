@@ -32,6 +32,11 @@ where
     I: IntoIterator<Item = T>,
     T: Into<std::ffi::OsString> + Clone,
 {
+    let args: Vec<std::ffi::OsString> = args.into_iter().map(Into::into).collect();
+    if let Some(refused) = former_scenario_flag(&args) {
+        eprintln!("cqnet: error: {refused}");
+        return std::process::ExitCode::FAILURE;
+    }
     let cli = Cli::parse_from(args);
     let actor_name = match &cli.command {
         Command::Actor(a) => Some(a.actor.clone()),
@@ -48,6 +53,19 @@ where
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// `cqnet scenario --<former name>`: refused, naming the flag that replaced
+/// it (see `fusion_graph::scenario::FORMER_BUILT_IN_NAMES`).
+fn former_scenario_flag(args: &[std::ffi::OsString]) -> Option<String> {
+    if args.get(1).is_none_or(|a| a != "scenario") {
+        return None;
+    }
+    args.iter().skip(2).find_map(|a| {
+        let flag = a.to_str()?.strip_prefix("--")?;
+        let now = fusion_graph::scenario::renamed_built_in(flag)?;
+        Some(format!("`--{flag}` is now called `--{now}`"))
+    })
 }
 
 fn init_logging(actor: Option<&str>, quiet: bool) {
@@ -74,15 +92,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             random_exchange,
             location,
             compressive,
-            former_seed001,
-            former_seed004,
         } => {
-            if former_seed001 {
-                anyhow::bail!("`--seed001` is now called `--sensor-selection`");
-            }
-            if former_seed004 {
-                anyhow::bail!("`--seed004` is now called `--random-exchange`");
-            }
             print!(
                 "{}",
                 builtin_scenario(sensor_selection, random_exchange, location, compressive)

@@ -58,14 +58,6 @@ pub enum Command {
         /// default.
         #[arg(long)]
         compressive: bool,
-        /// A flag the sensor-selection scenario went by once: refused,
-        /// naming `--sensor-selection`.
-        #[arg(long = "seed001", hide = true)]
-        former_seed001: bool,
-        /// A flag the random-exchange scenario went by once: refused,
-        /// naming `--random-exchange`.
-        #[arg(long = "seed004", hide = true)]
-        former_seed004: bool,
     },
     /// Internal: one actor of a `cqnet run` network.
     #[command(hide = true)]

@@ -37,13 +37,6 @@ const BUILTIN: [(&str, &str, &str); 5] = [
     ),
 ];
 
-/// Names built-in scenarios once went by, each with the name that says
-/// what it is. They are refused, naming the new one, not followed.
-const FORMER_NAMES: [(&str, &str); 2] = [
-    ("seed001", "sensor-selection"),
-    ("seed004", "random-exchange"),
-];
-
 /// A scenario, validated as `cqnet` validates a file: every key checked,
 /// the topology built. Change values with `set`, which checks them as
 /// `--set` does; `to_toml` gives the file.
@@ -119,9 +112,9 @@ impl PyScenario {
     /// multiple-access channel).
     #[staticmethod]
     fn builtin(name: &str) -> PyResult<Self> {
-        if let Some((former, now)) = FORMER_NAMES.iter().find(|(former, _)| *former == name) {
+        if let Some(now) = fusion_graph::scenario::renamed_built_in(name) {
             return Err(PyValueError::new_err(format!(
-                "the built-in scenario `{former}` is now called `{now}`"
+                "the built-in scenario `{name}` is now called `{now}`"
             )));
         }
         match BUILTIN.iter().find(|(n, _, _)| *n == name) {
