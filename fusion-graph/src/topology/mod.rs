@@ -79,19 +79,10 @@ impl Topology {
         }
     }
 
-    /// How many subscribers `channel` has in this network (the launcher's
-    /// centralized reference reads every observation).
+    /// How many subscribers `channel` has in this network: its readers,
+    /// and on an observation channel the launcher's centralized reference.
     pub fn subscribers(&self, channel: Channel) -> usize {
-        match channel {
-            Channel::Lifecycle => self.sensors() + self.mac_count(),
-            Channel::Observation(_) => 2,
-            Channel::Consensus(n) => self.neighbours[n as usize].len(),
-            Channel::Activation { .. }
-            | Channel::Control(_)
-            | Channel::Telemetry(_)
-            | Channel::Pair { .. }
-            | Channel::MacOutput(_) => 1,
-        }
+        self.readers(channel).len() + usize::from(matches!(channel, Channel::Observation(_)))
     }
 
     /// The actors that read `channel` in this network, each of which gets

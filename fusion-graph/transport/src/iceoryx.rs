@@ -86,10 +86,9 @@ pub struct IceoryxTransport {
     format: WireFormat,
     start: Instant,
     node: Node<futex::Service>,
-    publishers: HashMap<Channel, Pub>,
-    /// Who reads each channel this actor publishes on: a send's receivers
-    /// must be them all.
-    readers: HashMap<Channel, Vec<ActorId>>,
+    /// Each channel this actor publishes on, with who reads it: a send's
+    /// receivers must be them all.
+    publishers: HashMap<Channel, (Pub, Vec<ActorId>)>,
     subscribers: Vec<(Channel, Sub)>,
     /// Which subscriptions were heard from since the last `receive`: see
     /// [`Heard`].
@@ -148,7 +147,6 @@ impl IceoryxTransport {
                 .map_err(|e| setup("listener", e))?,
             node,
             publishers: HashMap::new(),
-            readers: HashMap::new(),
             subscribers: Vec::new(),
             heard: Heard::new(me, topology),
             notifiers: HashMap::new(),
@@ -173,7 +171,8 @@ impl IceoryxTransport {
             .initial_max_slice_len(max_message_len(channel, &self.topology))
             .create()
             .map_err(|e| setup("publisher", e))?;
-        self.publishers.insert(channel, publisher);
+        let readers = self.topology.readers(channel);
+        self.publishers.insert(channel, (publisher, readers));
         Ok(())
     }
 
@@ -256,7 +255,6 @@ impl Transport for IceoryxTransport {
     /// Becomes the publisher of one of this actor's channels.
     fn publish_on(&mut self, channel: Channel) -> Result<(), SetupError> {
         channel.check_publisher(self.me)?;
-        self.readers.insert(channel, self.topology.readers(channel));
         self.add_publisher(channel)
     }
 
@@ -308,7 +306,7 @@ impl Transport for IceoryxTransport {
 
     /// Connects publishers to subscribers that appeared since they were made.
     fn update_connections(&mut self) {
-        for p in self.publishers.values() {
+        for (p, _) in self.publishers.values() {
             let _ = p.update_connections();
         }
     }
@@ -320,14 +318,13 @@ impl Transport for IceoryxTransport {
         receivers: &[ActorId],
         wake: &[ActorId],
     ) -> Result<(), SendError> {
-        let publisher = self
-            .publishers
-            .get(&channel)
-            .ok_or_else(|| SendError::NotPublisher {
-                channel: channel.service_suffix(),
-                actor: self.me.to_string(),
-            })?;
-        let readers = self.readers.get(&channel).map_or(&[][..], Vec::as_slice);
+        let (publisher, readers) =
+            self.publishers
+                .get(&channel)
+                .ok_or_else(|| SendError::NotPublisher {
+                    channel: channel.service_suffix(),
+                    actor: self.me.to_string(),
+                })?;
         // The launcher's centralized reference, in a run that has one,
         // reads every observation channel; the topology does not say.
         let may_read: &[ActorId] = if matches!(channel, Channel::Observation(_)) {

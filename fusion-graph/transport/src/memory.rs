@@ -112,21 +112,17 @@ impl Transport for MemoryTransport {
             accounting: &mut self.accounting,
             buffer: &mut self.buffer,
         };
-        let bus = &self.bus;
         let me = self.me;
-        {
-            let subscribers = &bus.borrow().subscribers;
-            let readers = subscribers.get(&channel).map_or(&[][..], Vec::as_slice);
-            crate::check_receivers(channel, receivers, readers, &[])?;
-        }
+        let mut bus = self.bus.borrow_mut();
+        let MemoryBus {
+            subscribers,
+            inboxes,
+            ..
+        } = &mut *bus;
+        let readers = subscribers.get(&channel).map_or(&[][..], Vec::as_slice);
+        crate::check_receivers(channel, receivers, readers, &[])?;
         outbound.send(channel, message, receivers, |bytes| {
-            let mut bus = bus.borrow_mut();
-            let MemoryBus {
-                subscribers,
-                inboxes,
-                ..
-            } = &mut *bus;
-            for to in subscribers.get(&channel).into_iter().flatten() {
+            for to in readers {
                 inboxes
                     .entry(*to)
                     .or_default()
