@@ -84,10 +84,6 @@ impl<K: NodeKind + Actor<Work = Work>> Node for K {
     fn is_idle(&self) -> bool {
         NodeKind::is_idle(self)
     }
-
-    fn late_messages(&self) -> u64 {
-        self.core().late_messages()
-    }
 }
 
 pub struct NodeCore {
@@ -246,10 +242,6 @@ impl NodeCore {
     /// A message that arrived after its round or step had passed.
     pub fn count_late(&mut self) {
         self.late_messages += 1;
-    }
-
-    pub fn late_messages(&self) -> u64 {
-        self.late_messages
     }
 
     /// What a sensor manager choosing for `step` is told.

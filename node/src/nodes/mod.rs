@@ -30,9 +30,6 @@ use crate::{Actor, CfDpfNode, LocatorNode, MacCentre, NodeError, Work};
 pub trait Node: Actor<Work = Work> {
     /// Between steps: nothing collected, fused or waiting.
     fn is_idle(&self) -> bool;
-
-    /// Messages that arrived after their round or step had passed.
-    fn late_messages(&self) -> u64;
 }
 
 /// A processing node of any kind.
