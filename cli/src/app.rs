@@ -1,5 +1,7 @@
-//! The `cqnet` program, as a library function so that the integration tests
-//! can build the very same program as their own binary.
+//! The `cqnet` program as a value, [`App`]: cqnet's parts and a program's
+//! own, behind cqnet's command line. `cqnet` itself is `App::new().main()`;
+//! a program with a protocol of its own adds it before `main`, and its
+//! binary is then the launcher and every actor of its runs.
 
 use std::sync::Arc;
 
@@ -18,16 +20,99 @@ use launch::network::RunProgress;
 use launch::progress::{step_message, Progress};
 use launch::results::{write_atomically, ResultsWriter};
 use launch::summary::print_table;
+use node::parts::{ManagerFactory, NodeFactory, Parts, PartsError, ProtocolFactory};
+use wire::payloads::ProtocolPayload;
 
-/// `cqnet`'s `main`.
-pub fn main() -> std::process::ExitCode {
-    main_with(std::env::args_os())
+pub use fusion_graph::vocabulary::Vocabulary;
+
+/// A program built on cqnet: the parts its scenarios may name (cqnet's own
+/// and those it adds) and cqnet's command line over them.
+///
+/// ```no_run
+/// # use cqnet::App;
+/// fn main() -> std::process::ExitCode {
+///     App::new()
+///         // .payload::<MyValue>()
+///         // .protocol("my_protocol", my_protocol::build)
+///         // .manager("my_manager", my_manager::build)
+///         .main()
+/// }
+/// ```
+///
+/// Every process of a run is the same program, so every actor gets the
+/// same parts, and the same kind bytes for the same payloads. Nothing is
+/// registered anywhere: a test may build several `App`s in one process.
+#[derive(Default)]
+pub struct App {
+    parts: Parts,
 }
 
-/// `cqnet`'s `main` over the given arguments, the first being the
-/// program's name: what a program that carries cqnet as a library (the
-/// Python package's `cqnet` command, and its actors' processes) calls.
-pub fn main_with<I, T>(args: I) -> std::process::ExitCode
+impl App {
+    /// cqnet's own parts.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A fusion protocol of the CF/DPF (see [`node::parts::ProtocolFactory`]).
+    pub fn protocol(self, name: &'static str, factory: impl ProtocolFactory) -> Self {
+        Self {
+            parts: self.parts.protocol(name, factory),
+        }
+    }
+
+    /// A node of a kind of its own: a tracker, a locator (see
+    /// [`node::parts::NodeFactory`]).
+    pub fn node(self, name: &'static str, factory: impl NodeFactory) -> Self {
+        Self {
+            parts: self.parts.node(name, factory),
+        }
+    }
+
+    /// A sensor manager (see [`node::parts::ManagerFactory`]).
+    pub fn manager(self, name: &'static str, factory: impl ManagerFactory) -> Self {
+        Self {
+            parts: self.parts.manager(name, factory),
+        }
+    }
+
+    /// A payload the program's protocols send, given the next kind byte.
+    pub fn payload<P: ProtocolPayload>(self) -> Self {
+        Self {
+            parts: self.parts.payload::<P>(),
+        }
+    }
+
+    /// What the program's scenarios are read in, or the first mistake in
+    /// its list of parts.
+    pub fn vocabulary(&self) -> Result<Vocabulary, PartsError> {
+        self.parts.vocabulary()
+    }
+
+    /// The program's `main`: cqnet's command line over its parts.
+    pub fn main(self) -> std::process::ExitCode {
+        self.main_with(std::env::args_os())
+    }
+
+    /// The same over the given arguments, the first being the program's
+    /// name: what a program that carries cqnet as a library (the Python
+    /// package's `cqnet` command, and its actors' processes) calls.
+    pub fn main_with<I, T>(self, args: I) -> std::process::ExitCode
+    where
+        I: IntoIterator<Item = T>,
+        T: Into<std::ffi::OsString> + Clone,
+    {
+        let vocabulary = match self.vocabulary() {
+            Ok(v) => v,
+            Err(e) => {
+                eprintln!("cqnet: error: the program's parts: {e}");
+                return std::process::ExitCode::FAILURE;
+            }
+        };
+        main_in(vocabulary, args)
+    }
+}
+
+fn main_in<I, T>(vocabulary: Vocabulary, args: I) -> std::process::ExitCode
 where
     I: IntoIterator<Item = T>,
     T: Into<std::ffi::OsString> + Clone,
@@ -46,7 +131,7 @@ where
     // warnings would bury its report.
     let quiet = matches!(cli.command, Command::Fuzz(_));
     init_logging(actor_name.as_deref(), quiet);
-    match run(cli) {
+    match run(cli, vocabulary) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("cqnet: error: {e:#}");
@@ -85,7 +170,7 @@ fn init_logging(actor: Option<&str>, quiet: bool) {
     }
 }
 
-fn run(cli: Cli) -> anyhow::Result<()> {
+fn run(cli: Cli, vocabulary: Vocabulary) -> anyhow::Result<()> {
     match cli.command {
         Command::Scenario {
             sensor_selection,
@@ -100,7 +185,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok::<(), anyhow::Error>(())
         }
         Command::Sim(args) => {
-            let (scenario, topology) = load_scenario(&args.scenario)?;
+            let (scenario, topology) = load_scenario(&args.scenario, vocabulary)?;
             if args.runs == 1 {
                 let mut writer = ResultsWriter::create(&args.out)?;
                 let progress = Progress::new("sim", "steps", scenario.steps as u64);
@@ -164,7 +249,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Run(args) => {
-            let (scenario, topology) = load_scenario(&args.scenario)?;
+            let (scenario, topology) = load_scenario(&args.scenario, vocabulary)?;
             let run_id = match &args.run_id {
                 Some(id) => fusion_graph::RunId::new(id)?,
                 None => fusion_graph::RunId::generate(),
@@ -225,21 +310,21 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::View(args) => view_finished_run(&args),
+        Command::View(args) => view_finished_run(&args, vocabulary),
         Command::Fuzz(args) => fuzz(&args),
-        Command::Soak(args) => soak(&args),
-        Command::Actor(args) => launch::actor_process::run_actor(&args),
+        Command::Soak(args) => soak(&args, vocabulary),
+        Command::Actor(args) => launch::actor_process::run_actor(&args, vocabulary),
         #[cfg(feature = "zenoh")]
-        Command::Agent(args) => launch::hosts::agent::run_agent(&args),
+        Command::Agent(args) => launch::hosts::agent::run_agent(&args, vocabulary),
     }
     .context("cqnet")
 }
 
 /// `cqnet soak`: the scenario for `--steps` real-time steps with periodic
 /// kills, its footprint sampled throughout, and how each figure moved.
-fn soak(args: &SoakArgs) -> anyhow::Result<()> {
+fn soak(args: &SoakArgs, vocabulary: Vocabulary) -> anyhow::Result<()> {
     use std::sync::atomic::{AtomicU32, Ordering};
-    let (mut scenario, topology) = load_scenario(&args.scenario)?;
+    let (mut scenario, topology) = load_scenario(&args.scenario, vocabulary)?;
     scenario.steps = args.steps;
     crate::soak::add_periodic_kills(&mut scenario, &topology, args.kill_every, args.down);
     let topology = fusion_graph::Topology::from_scenario(&scenario, "soak")?;
@@ -373,8 +458,8 @@ fn start_live_view(
 }
 
 /// `cqnet view OUT_DIR`: replays a finished run in the view until Ctrl-C.
-fn view_finished_run(args: &ViewArgs) -> anyhow::Result<()> {
-    let run = FinishedRun::read(&args.out_dir)?;
+fn view_finished_run(args: &ViewArgs, vocabulary: Vocabulary) -> anyhow::Result<()> {
+    let run = FinishedRun::read(&args.out_dir, vocabulary)?;
     let hub = Arc::new(Hub::default());
     let server = ViewServer::start(hub.clone(), args.port, None)?;
     println!(

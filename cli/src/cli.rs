@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
+use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::scenario::{
     Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
@@ -205,14 +206,23 @@ pub struct ExperimentArgs {
 }
 
 /// The scenario the arguments name, validated, with its topology.
-pub fn load_scenario(args: &ScenarioArgs) -> anyhow::Result<(Scenario, Topology)> {
+/// `vocabulary`: the program's parts, which the scenario may name.
+pub fn load_scenario(
+    args: &ScenarioArgs,
+    vocabulary: Vocabulary,
+) -> anyhow::Result<(Scenario, Topology)> {
     let (scenario, source) = match &args.scenario {
         Some(path) => (
-            Scenario::load(path, &args.overrides)?,
+            Scenario::load_in(vocabulary, path, &args.overrides)?,
             path.display().to_string(),
         ),
         None => (
-            Scenario::from_toml(DEFAULT_SCENARIO, "<built-in default>", &args.overrides)?,
+            Scenario::from_toml_in(
+                vocabulary,
+                DEFAULT_SCENARIO,
+                "<built-in default>",
+                &args.overrides,
+            )?,
             "<built-in default>".to_string(),
         ),
     };

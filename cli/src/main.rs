@@ -1,5 +1,5 @@
 //! `cqnet`: run a decentralized sensor network and compute its CQ/dPCRLB.
 
 fn main() -> std::process::ExitCode {
-    cqnet::app::main()
+    cqnet::App::new().main()
 }

@@ -553,7 +553,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
     let links = links_csv(out);
     let text =
         std::fs::read_to_string(&links).with_context(|| format!("reading {}", links.display()))?;
-    let accounting = Accounting::from_csv(&text)
+    let accounting = Accounting::from_csv(&text, wire::payloads::Payloads::NONE)
         .with_context(|| format!("{} is not an accounting table", links.display()))?;
     let period = scenario.clock.step_period_ms / 1e3;
     let (rx, tx_per_link, tx_broadcast) =

@@ -16,7 +16,6 @@
 use serde::{Deserialize, Serialize};
 
 use crate::channel::{Channel, RunId};
-use crate::registered::Shape;
 use crate::scenario::Scenario;
 use crate::topology::Topology;
 use crate::ScenarioError;
@@ -158,7 +157,7 @@ impl Placement {
             hosts: s.hosts.clone(),
             node_host,
             sensor_host,
-            pairs: s.consensus.protocol.shape() == Shape::Tracker { pairs: true },
+            pairs: s.consensus.protocol.shape().pairs(),
             centralized,
         }))
     }

@@ -13,10 +13,10 @@ pub mod check;
 pub mod faults;
 pub mod hosts;
 pub mod models;
-pub mod registered;
 pub mod scenario;
 pub mod shaper;
 pub mod topology;
+pub mod vocabulary;
 pub mod world;
 
 pub use actor::{Actor, Outgoing, Wiring};

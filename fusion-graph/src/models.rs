@@ -166,6 +166,7 @@ impl Scenario {
             cell_bytes: (self.quantizer.bits as usize).div_ceil(8),
             // An activation mask has at least one byte.
             activation_bytes: topology.most_sensors_per_node().div_ceil(8).max(1),
+            payloads: self.vocabulary.payloads(),
         }
     }
 }

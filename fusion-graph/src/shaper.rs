@@ -329,6 +329,7 @@ mod tests {
         let format = WireFormat {
             cell_bytes: 1,
             activation_bytes: 4,
+            payloads: wire::payloads::Payloads::NONE,
         };
         let of_step = |step| {
             Message::new(node, step, 0, Payload::Control(wire::Control::BeginStep))

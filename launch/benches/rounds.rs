@@ -31,6 +31,7 @@ const ROUNDS_A_STEP: u16 = 10;
 const FORMAT: WireFormat = WireFormat {
     cell_bytes: 1,
     activation_bytes: 4,
+    payloads: wire::payloads::Payloads::NONE,
 };
 
 /// A consensus message heard: (step, round, from).

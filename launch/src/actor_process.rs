@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::hosts::Placement;
 use fusion_graph::scenario::ClockMode;
@@ -52,7 +53,9 @@ pub fn ledger_path(out: &Path, actor: ActorId) -> PathBuf {
     out.join("accounting").join(format!("{actor}.ledger"))
 }
 
-pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
+/// `vocabulary`: the program's parts, which the run's scenario may name
+/// (every actor is the same program as the launcher).
+pub fn run_actor(args: &ActorArgs, vocabulary: Vocabulary) -> anyhow::Result<()> {
     close_inherited_descriptors().context("closing inherited descriptors")?;
     // Die with the launcher, whatever happens to it.
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL)
@@ -71,7 +74,7 @@ pub fn run_actor(args: &ActorArgs) -> anyhow::Result<()> {
     if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {
         anyhow::bail!("failing at start as {FAIL_AT_START_ENV} asks");
     }
-    let (scenario, topology) = load_child_scenario(&args.scenario)?;
+    let (scenario, topology) = load_child_scenario(&args.scenario, vocabulary)?;
     anyhow::ensure!(
         topology.contains(actor) && actor != ActorId::Launcher,
         "{actor} is not an actor of this scenario"
@@ -414,6 +417,7 @@ mod tests {
             let format = WireFormat {
                 cell_bytes: 1,
                 activation_bytes: 4,
+                payloads: wire::payloads::Payloads::NONE,
             };
             let mut t = MemoryTransport::new(ActorId::Node(0), MemoryBus::new(), format, 1);
             let waited = wait_spinning(&mut t, Duration::from_secs(1), Duration::from_millis(2));
@@ -447,9 +451,12 @@ pub struct ActorArgs {
 }
 
 /// Loads the scenario file a launcher wrote for its children.
-pub fn load_child_scenario(path: &std::path::Path) -> anyhow::Result<(Scenario, Topology)> {
+pub fn load_child_scenario(
+    path: &std::path::Path,
+    vocabulary: Vocabulary,
+) -> anyhow::Result<(Scenario, Topology)> {
     let scenario =
-        Scenario::load(path, &[]).with_context(|| format!("scenario {}", path.display()))?;
+        Scenario::load_in(vocabulary, path, &[]).with_context(|| format!("scenario {}", path.display()))?;
     let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
     Ok((scenario, topology))
 }

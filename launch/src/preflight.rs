@@ -4,7 +4,6 @@
 //! refused at the 2,000th child, or a full `/dev/shm` at the 900th).
 
 use anyhow::bail;
-use fusion_graph::registered::Shape;
 use fusion_graph::{Scenario, Topology};
 use nix::sys::resource::{getrlimit, setrlimit, Resource};
 use transport::limits::Footprint;
@@ -96,7 +95,7 @@ pub fn check(scenario: &Scenario, topology: &Topology, centralized: bool) -> any
 /// What the run's iceoryx2 services and shared tables will take of the
 /// machine (`transport::limits`).
 pub fn footprint(scenario: &Scenario, topology: &Topology, centralized: bool) -> Footprint {
-    let pairs = scenario.consensus.protocol.shape() == Shape::Tracker { pairs: true };
+    let pairs = scenario.consensus.protocol.shape().pairs();
     let tables = bounds::table_memory::shared_table_bytes() as u64;
     Footprint::of(topology, pairs, centralized, tables)
 }

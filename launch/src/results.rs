@@ -510,7 +510,7 @@ impl<'w> Recorder<'w> {
                     self.round_latency
                         .add(t.stage_micros[2] as f64 / (t.rounds_completed - 1) as f64);
                 }
-                if (t.live_neighbours as usize) < self.degree[n as usize] {
+                if t.missed_neighbours > 0 {
                     self.cost.rounds_with_fewer_neighbours += 1;
                 }
             }

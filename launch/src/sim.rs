@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use bounds::State;
 use fusion_graph::faults::{FaultSchedule, ProcessEvent};
-use fusion_graph::registered::Shape;
+use fusion_graph::vocabulary::Shape;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::Actor;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
@@ -204,7 +204,7 @@ impl InProcessNetwork {
                 scenario,
                 topology,
                 i,
-                node::registry::manager(scenario, topology, i)?,
+                node::parts::manager(scenario, topology, i)?,
                 Box::new(ExactSums::new(
                     i,
                     topology,
@@ -492,7 +492,7 @@ pub fn run_in_process_until(
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
-    node::registry::check(scenario, topology)?;
+    node::parts::check(scenario, topology)?;
     let mut net = InProcessNetwork::new(scenario, topology, centralized)?;
     let dir = writer.dir().to_path_buf();
     let mut recorder = Recorder::new(writer, scenario, topology);

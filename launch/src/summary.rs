@@ -74,7 +74,8 @@ pub struct FaultCost {
     pub dropped_messages: u64,
     /// Messages that arrived after their round or step had passed.
     pub late_messages: u64,
-    /// Node-steps whose last consensus round heard fewer neighbours than the topology has.
+    /// Node-steps whose last round heard fewer neighbours than the fusion
+    /// protocol expected (every neighbour, for average consensus).
     pub rounds_with_fewer_neighbours: u64,
     /// Node-steps with no telemetry (dead, stopped or too late).
     pub missing_node_steps: u64,

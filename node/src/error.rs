@@ -19,7 +19,7 @@ pub enum NodeError {
     )]
     NotCfDpf(ConsensusProtocol),
     #[error(transparent)]
-    Param(#[from] crate::registry::ParamError),
+    Param(#[from] crate::parts::ParamError),
     #[error("consensus.protocol = \"exact\" needs the exact-sum oracle of one process (`cqnet sim`): real processes have no exact network sum")]
     NoExactSums,
 }

@@ -21,8 +21,8 @@
 //!   node core and its report), the CF/DPF node tying the filters, bounds
 //!   and protocols together, the random-exchange paper's trackers, the
 //!   locator, and the fusion centre behind a multiple-access channel;
-//! - [`registry`]: the fusion protocols and sensor managers a scenario can
-//!   name, the built-in ones and those a program registers.
+//! - [`parts`]: what each fusion protocol, node kind and sensor manager a
+//!   scenario can name builds, cqnet's own and a program's, in one list.
 
 mod censoring;
 pub mod centralized;
@@ -35,7 +35,7 @@ pub mod fusion;
 pub mod gate;
 pub mod location;
 pub mod nodes;
-pub mod registry;
+pub mod parts;
 pub mod sensing;
 pub mod sensor_manager;
 mod work;

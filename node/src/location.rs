@@ -32,8 +32,8 @@ pub enum ThresholdDesign {
     Uniform,
 }
 
-/// `consensus.params` of `ml_location`, as the registry reads them
-/// ([`crate::registry::location_config`]).
+/// `consensus.params` of `ml_location`, as the parts read them
+/// ([`crate::parts::location_config`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LocationConfig {
     /// Points of each grid along x and y.

@@ -37,16 +37,18 @@
 //! `CQNET_BIN` environment variable; `cqnet` as Cargo built it, in the
 //! target folder the test runs from or that of the current directory's
 //! workspace; `cqnet` on `PATH`. To build it with your tests, add a
-//! binary to your crate whose `main` is [`cqnet_main`]:
+//! binary to your crate whose `main` is your program's [`App`] (re-exported
+//! from `cqnet`):
 //!
 //! ```no_run
 //! // src/bin/cqnet.rs
 //! fn main() -> std::process::ExitCode {
-//!     cqnet_testkit::cqnet_main()
+//!     cqnet_testkit::App::new().main()
 //! }
 //! ```
 //!
-//! and in an integration test, `Network::new(s).executable(env!("CARGO_BIN_EXE_cqnet"))`.
+//! and in an integration test, `Network::new(s).executable(env!("CARGO_BIN_EXE_cqnet"))`
+//! (with `.parts(app.vocabulary()?)` if the app adds parts the scenario names).
 //!
 //! # Cleanup
 //!
@@ -70,6 +72,8 @@ pub use fusion_graph::faults::{
     Partition, Reorder, SensorMode, Signal,
 };
 pub use fusion_graph::scenario::Scenario;
+pub use cqnet::App;
+pub use fusion_graph::vocabulary::Vocabulary;
 pub use fusion_graph::ActorId;
 pub use launch::summary::{AppliedFault, FaultCost, Summary};
 pub use network::{Network, RunningNetwork, Target, DEFAULT_TIME_LIMIT};
@@ -77,12 +81,6 @@ pub use results::{Run, Tick};
 pub use separate_hosts::{SeparateHosts, AGENT_PORT};
 pub use transport::accounting::{Accounting, Counters};
 pub use wire::MessageKind;
-
-/// The `cqnet` program's `main`, for a binary of your own crate (see the
-/// crate's documentation).
-pub fn cqnet_main() -> std::process::ExitCode {
-    cqnet::app::main()
-}
 
 /// The built-in default scenario: 9 processing nodes on a 3 × 3 grid, 225
 /// bearing sensors, 100 steps.

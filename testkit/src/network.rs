@@ -1,6 +1,7 @@
 //! Building a network and launching it: `cqnet run` as a child process with
 //! its own run id and output folder, watched, bounded in time and cleaned up.
 
+use fusion_graph::vocabulary::Vocabulary;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -47,6 +48,8 @@ pub struct Network {
     time_limit: Duration,
     /// Each host in a namespace of its own ([`Network::on_separate_hosts`]).
     separate: Option<Arc<SeparateHosts>>,
+    /// The parts of the program under test, which the scenario may name.
+    vocabulary: Vocabulary,
 }
 
 impl Network {
@@ -74,7 +77,16 @@ impl Network {
             tag: "run".into(),
             time_limit: DEFAULT_TIME_LIMIT,
             separate: None,
+            vocabulary: Vocabulary::BUILT_IN,
         }
+    }
+
+    /// The parts of the program under test (its [`cqnet::App`]'s
+    /// vocabulary), when its scenario names parts of its own: the test
+    /// reads the scenario and the run's files in them.
+    pub fn parts(mut self, vocabulary: Vocabulary) -> Self {
+        self.vocabulary = vocabulary;
+        self
     }
 
     /// Runs each host of the scenario (`[[hosts]]`, `--features zenoh`) in
@@ -217,10 +229,11 @@ impl Network {
     fn effective_scenario(&self) -> Result<Scenario, Error> {
         let mut scenario = match &self.source {
             Source::Value(s) => (**s).clone(),
-            Source::File(path) => Scenario::load(path, &[])?,
+            Source::File(path) => Scenario::load_in(self.vocabulary, path, &[])?,
         };
         scenario.faults.extend(self.faults.iter().cloned());
-        Ok(Scenario::from_toml(
+        Ok(Scenario::from_toml_in(
+            self.vocabulary,
             &scenario.to_toml(),
             "<the run's scenario>",
             &self.overrides,
@@ -235,7 +248,7 @@ impl Network {
             (source, _) => {
                 let mut scenario = match source {
                     Source::Value(s) => (**s).clone(),
-                    Source::File(path) => Scenario::load(path, &[])?,
+                    Source::File(path) => Scenario::load_in(self.vocabulary, path, &[])?,
                 };
                 scenario.faults.extend(self.faults.iter().cloned());
                 let write_err = |source| Error::WriteScenario {
@@ -291,6 +304,7 @@ impl Network {
             agents: Vec::new(),
             hosts: None,
             cuts: None,
+            vocabulary: self.vocabulary,
         })
     }
 
@@ -567,6 +581,8 @@ pub struct RunningNetwork {
     hosts: Option<Arc<SeparateHosts>>,
     /// The thread that cuts and restores host links at their steps.
     cuts: Option<CutSchedule>,
+    /// The program's parts, which its files may name.
+    vocabulary: Vocabulary,
 }
 
 impl RunningNetwork {
@@ -730,6 +746,7 @@ impl RunningNetwork {
             stdout,
             stderr,
             ticks,
+            self.vocabulary,
         ))
     }
 }

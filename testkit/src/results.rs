@@ -1,6 +1,7 @@
 //! A finished run's results, read back from its output folder, with the
 //! questions a test asks of them.
 
+use fusion_graph::vocabulary::Vocabulary;
 use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 use std::process::ExitStatus;
@@ -42,6 +43,7 @@ pub struct Run {
     ticks: Vec<Tick>,
     summary: OnceLock<Option<Summary>>,
     accounting: OnceLock<Option<Accounting>>,
+    vocabulary: Vocabulary,
 }
 
 impl Run {
@@ -53,6 +55,7 @@ impl Run {
         stdout: String,
         stderr: String,
         ticks: Vec<Tick>,
+        vocabulary: Vocabulary,
     ) -> Self {
         Self {
             run_id,
@@ -64,6 +67,7 @@ impl Run {
             ticks,
             summary: OnceLock::new(),
             accounting: OnceLock::new(),
+            vocabulary,
         }
     }
 
@@ -133,7 +137,8 @@ impl Run {
         self.summary
             .get_or_init(|| {
                 let text = std::fs::read_to_string(self.out.join("summary.json")).ok()?;
-                Some(serde_json::from_str(&text).expect("summary.json is a cqnet summary"))
+                let summary = self.vocabulary.reading(|| serde_json::from_str(&text));
+                Some(summary.expect("summary.json is a cqnet summary"))
             })
             .as_ref()
             .unwrap_or_else(|| {
@@ -150,7 +155,8 @@ impl Run {
         self.accounting
             .get_or_init(|| {
                 let text = std::fs::read_to_string(self.out.join("links.csv")).ok()?;
-                Some(Accounting::from_csv(&text).expect("links.csv is a cqnet link table"))
+                let accounting = Accounting::from_csv(&text, self.vocabulary.payloads());
+                Some(accounting.expect("links.csv is a cqnet link table"))
             })
             .as_ref()
             .unwrap_or_else(|| panic!("run {} wrote no links.csv:\n{}", self.run_id(), self.stderr))

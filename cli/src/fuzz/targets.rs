@@ -12,6 +12,7 @@ use fusion_graph::Topology;
 use node::{processing_node, AnyNode, Start};
 use sensor::SensorActor;
 use transport::world_memory::{TruthReader, TruthRing};
+use wire::payloads::Payloads;
 use wire::{examples, seal, Message, WireFormat};
 
 use super::Target;
@@ -55,14 +56,17 @@ const FORMATS: [WireFormat; 3] = [
     WireFormat {
         cell_bytes: 1,
         activation_bytes: 4,
+        payloads: Payloads::NONE,
     },
     WireFormat {
         cell_bytes: 2,
         activation_bytes: 4,
+        payloads: Payloads::NONE,
     },
     WireFormat {
         cell_bytes: 1,
         activation_bytes: 32,
+        payloads: Payloads::NONE,
     },
 ];
 

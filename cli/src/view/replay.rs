@@ -5,6 +5,7 @@
 //! active, and link traffic over time (the replay shows each link's
 //! average over the whole run).
 
+use fusion_graph::vocabulary::Vocabulary;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Duration;
@@ -29,7 +30,8 @@ pub struct FinishedRun {
 }
 
 impl FinishedRun {
-    pub fn read(dir: &Path) -> anyhow::Result<Self> {
+    /// The run in `dir`, written by a program with `vocabulary`'s parts.
+    pub fn read(dir: &Path, vocabulary: Vocabulary) -> anyhow::Result<Self> {
         let summary_path = dir.join("summary.json");
         let text = std::fs::read_to_string(&summary_path).with_context(|| {
             format!(
@@ -38,7 +40,8 @@ impl FinishedRun {
                 dir.display()
             )
         })?;
-        let summary: Summary = serde_json::from_str(&text)
+        let summary: Summary = vocabulary
+            .reading(|| serde_json::from_str(&text))
             .with_context(|| format!("{} is not a cqnet summary", summary_path.display()))?;
         let topology =
             Topology::from_scenario(&summary.scenario, &summary_path.display().to_string())?;
@@ -48,7 +51,7 @@ impl FinishedRun {
         let steps = parse_ticks(&ticks).with_context(|| format!("in {}", ticks_path.display()))?;
         let accounting = std::fs::read_to_string(dir.join("links.csv"))
             .ok()
-            .and_then(|t| Accounting::from_csv(&t));
+            .and_then(|t| Accounting::from_csv(&t, vocabulary.payloads()));
         Ok(Self {
             summary,
             topology,

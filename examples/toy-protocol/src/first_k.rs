@@ -1,6 +1,6 @@
 //! A sensor manager: each node activates its first `k` sensors, every step.
 
-use node::registry::{ParamError, Setup};
+use node::parts::{ParamError, Setup};
 use node::sensor_manager::{Manager, SelectionContext, SensorManager};
 
 pub struct FirstK {

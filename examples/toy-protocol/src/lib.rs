@@ -1,16 +1,19 @@
-//! A fusion protocol and a sensor manager of our own, plugged into cqnet
-//! through its registry, without a line of cqnet changed:
+//! Two fusion protocols and a sensor manager of our own, handed to cqnet
+//! in the program's [`App`], without a line of cqnet changed:
 //!
 //! - [`NeighbourhoodMean`]: a few rounds of plain averaging over each
-//!   node's closed neighbourhood, with a message kind of its own;
+//!   node's closed neighbourhood, broadcast, with a message kind of its own;
+//! - [`PushSum`]: push-sum gossip, each round a node keeps half its value
+//!   and weight and sends the other half to one neighbour, over the pair's
+//!   own channel;
 //! - [`FirstK`]: a node always activates its first `k` sensors.
 //!
 //! A scenario chooses them by name:
 //!
 //! ```toml
 //! [consensus]
-//! protocol = "neighbourhood_mean"
-//! params = { rounds = 3 }
+//! protocol = "push_sum"     # or "neighbourhood_mean"
+//! rounds = 10
 //!
 //! [sensors]
 //! manager = "first_k"
@@ -19,27 +22,21 @@
 
 mod first_k;
 mod neighbourhood_mean;
+mod push_sum;
 
 pub use first_k::FirstK;
 pub use neighbourhood_mean::{NeighbourhoodMean, NeighbourhoodValue};
+pub use push_sum::{gossip_target, PushSum, PushSumValue};
 
-use node::registry;
-use wire::MessageKind;
+use cqnet::App;
 
-/// Registers both parts and the protocol's payload, and returns the
-/// payload's message kind. Call it first in `main`, and in a test before
-/// reading a run's results (so that `links.csv` names the kind).
-pub fn register() -> Result<MessageKind, String> {
-    use std::sync::OnceLock;
-    // Registering twice is refused (the name is taken), so a test that
-    // calls this from several threads gets the first call's answer.
-    static DONE: OnceLock<Result<MessageKind, String>> = OnceLock::new();
-    let done = DONE.get_or_init(|| {
-        let kind = registry::register_payload::<NeighbourhoodValue>().map_err(|e| e.to_string())?;
-        registry::register_protocol("neighbourhood_mean", neighbourhood_mean::build)
-            .map_err(|e| e.to_string())?;
-        registry::register_manager("first_k", first_k::build).map_err(|e| e.to_string())?;
-        Ok(MessageKind::Protocol(kind))
-    });
-    done.clone()
+/// cqnet with this crate's parts: what `main` runs, and what a test reads
+/// the program's scenarios and results in (`app().vocabulary()`).
+pub fn app() -> App {
+    App::new()
+        .payload::<NeighbourhoodValue>()
+        .payload::<PushSumValue>()
+        .protocol("neighbourhood_mean", neighbourhood_mean::build)
+        .protocol("push_sum", PushSum)
+        .manager("first_k", first_k::build)
 }

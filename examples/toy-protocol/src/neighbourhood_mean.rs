@@ -6,14 +6,12 @@
 //! the nodes do not converge to the network's average: a toy, to show what
 //! adding a protocol takes. Its value travels in a message kind of its own.
 
-use std::time::Duration;
-
 use fusion_graph::{MetropolisWeights, WireError};
 use node::fusion::{
-    Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone,
+    At, Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone,
 };
-use node::registry::{ParamError, Setup};
-use wire::payloads::ProtocolPayload;
+use node::parts::{ParamError, Setup};
+use wire::payloads::{PayloadKind, ProtocolPayload};
 use wire::{Packed, Payload};
 
 /// One round's value on the wire: δη, δΛ and ΔL (24 numbers).
@@ -25,7 +23,6 @@ pub struct NeighbourhoodValue {
 }
 
 impl ProtocolPayload for NeighbourhoodValue {
-    const KIND: u8 = 200;
     const NAME: &'static str = "neighbourhood_mean";
     const LEN: usize = 24 * 8;
     /// ΔL, 10 numbers of the 24: what the bound is computed from.
@@ -58,36 +55,38 @@ impl ProtocolPayload for NeighbourhoodValue {
     }
 }
 
-/// The round rule: the mean of the closed neighbourhood's values.
-pub struct NeighbourhoodMean;
+/// The round rule: the mean of the closed neighbourhood's values. It
+/// carries the estimate's parts and ΔL only; the node hands it vectors
+/// without ΔL_late, and refuses the auxiliary FIM for it.
+pub struct NeighbourhoodMean {
+    /// The kind the program gave [`NeighbourhoodValue`].
+    kind: PayloadKind<NeighbourhoodValue>,
+}
 
 impl RoundRule for NeighbourhoodMean {
+    type Input = InformationVector;
     type Value = InformationVector;
     type Output = Fused;
     type Pieces = Option<InformationVector>;
 
-    fn payloads(&self, v: &InformationVector, out: &mut Vec<Payload>) {
+    fn begin(&self, _: u32, input: InformationVector) -> InformationVector {
+        input
+    }
+
+    fn payloads(&self, _: At, v: &InformationVector, out: &mut Vec<Payload>) {
         let value = NeighbourhoodValue {
             delta_eta: v.delta_eta,
             delta_lambda: v.delta_lambda,
             delta_l: v.delta_l,
         };
-        out.push(value.to_payload());
+        out.push(self.kind.payload(&value));
     }
 
     fn absorb(&self, pieces: &mut Option<InformationVector>, payload: &Payload) -> bool {
-        let Some(v) = NeighbourhoodValue::from_payload(payload) else {
+        let Some(v) = self.kind.read(payload) else {
             return false;
         };
-        *pieces = Some(InformationVector {
-            delta_eta: v.delta_eta,
-            delta_lambda: v.delta_lambda,
-            delta_l: v.delta_l,
-            // A toy: it does not carry ΔL_late, so its bound does not
-            // credit observations that arrive a step late.
-            delta_l_late: [0.0; 10],
-            s_obs: None,
-        });
+        *pieces = Some(InformationVector::new(v.delta_eta, v.delta_lambda, v.delta_l));
         true
     }
 
@@ -106,8 +105,6 @@ impl RoundRule for NeighbourhoodMean {
         for (_, v) in heard {
             next.add_scaled(w, v);
         }
-        // Its payload has no ΔL_late (see `absorb`): none of it is mixed.
-        next.delta_l_late = [0.0; 10];
         next
     }
 
@@ -119,25 +116,18 @@ impl RoundRule for NeighbourhoodMean {
     }
 }
 
-/// `consensus.params.rounds` (1 to 50, default 1); each round closes at the
-/// scenario's `consensus.round_timeout_ms`.
+/// `consensus.rounds` rounds a step, each closing at the scenario's
+/// `consensus.round_timeout_ms`; no parameters of its own.
 pub fn build(setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
-    let params = setup.params;
-    params.only(&["rounds"])?;
-    let rounds = params.integer("rounds", 1..=50, 1)?;
-    if setup.scenario.consensus.auxiliary_fim {
-        return Err(ParamError {
-            key: "consensus.auxiliary_fim".into(),
-            expected: "false: neighbourhood_mean carries no S_obs".into(),
-            got: "true".into(),
-        });
-    }
-    let timeout = Duration::from_secs_f64(setup.scenario.consensus.round_timeout_ms / 1e3);
+    setup.params.only(&[])?;
+    let rule = NeighbourhoodMean {
+        kind: setup.payload::<NeighbourhoodValue>()?,
+    };
     Ok(Box::new(RoundEngine::new(
-        NeighbourhoodMean,
+        rule,
         setup.node,
         setup.topology,
-        rounds as u16,
-        timeout,
+        setup.rounds(),
+        setup.round_timeout(),
     )))
 }

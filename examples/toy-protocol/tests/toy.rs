@@ -1,25 +1,31 @@
-//! The toy protocol and manager, registered only in this crate's program,
-//! run in one process (`sim`) and as real processes (`run --lockstep`):
-//! each round's value crosses every fusion-graph link under the protocol's
-//! own kind, counted like any other message, and the manager's choice shows
-//! in which sensors send.
+//! The toy protocols and manager, parts of this crate's program only, run
+//! in one process (`sim`) and as real processes (`run --lockstep`): each
+//! round's value crosses the links its protocol sends on, under the
+//! protocol's own kind, counted like any other message, and the manager's
+//! choice shows in which sensors send.
 
-use cqnet_testkit::{default_scenario, ActorId, MessageKind, Network, Run};
+use cqnet_testkit::{default_scenario, ActorId, MessageKind, Network, Run, Vocabulary};
 use fusion_graph::Topology;
+use node::fusion::At;
+use toy_protocol::{gossip_target, NeighbourhoodValue, PushSumValue};
 
 const STEPS: u32 = 6;
 const ROUNDS: u32 = 2;
 /// The header and the 24 numbers.
 const MESSAGE_BYTES: u64 = 13 + 24 * 8;
 
-fn toy_network() -> Network {
-    toy_protocol::register().expect("the toy parts register");
+fn vocabulary() -> Vocabulary {
+    toy_protocol::app().vocabulary().expect("the toy parts list")
+}
+
+fn toy_network(protocol: &str) -> Network {
     let mut scenario = default_scenario();
     scenario.steps = STEPS;
     Network::new(scenario)
         .executable(env!("CARGO_BIN_EXE_toy-protocol"))
-        .set("consensus.protocol", "\"neighbourhood_mean\"")
-        .set("consensus.params", format!("{{ rounds = {ROUNDS} }}"))
+        .parts(vocabulary())
+        .set("consensus.protocol", format!("\"{protocol}\""))
+        .set("consensus.rounds", ROUNDS)
         .set("sensors.manager", "\"first_k\"")
         .set("sensors.manager_params", "{ k = 2 }")
         .no_central()
@@ -75,24 +81,91 @@ fn assert_toy_parts_ran(run: &Run, kind: MessageKind) {
 
 #[test]
 fn the_toy_protocol_and_manager_run_in_sim_and_as_processes_alike() {
-    let kind = toy_protocol::register().unwrap();
-    let sim = toy_network().sim().expect("sim starts");
+    let kind = vocabulary().payloads().of::<NeighbourhoodValue>().unwrap().kind();
+    let sim = toy_network("neighbourhood_mean").sim().expect("sim starts");
     assert_toy_parts_ran(&sim, kind);
-    let run = toy_network().lockstep().run().expect("run starts");
+    let run = toy_network("neighbourhood_mean").lockstep().run().expect("run starts");
     assert_toy_parts_ran(&run, kind);
     run.assert_clean();
     // Lockstep is sim, bit for bit, whatever the protocol.
     assert_eq!(run.sorted_tick_lines(), sim.sorted_tick_lines());
 }
 
+/// What push-sum must show under both drivers: each round's half crosses
+/// exactly the link to the neighbour drawn, and nothing else.
+fn assert_push_sum_ran(run: &Run, kind: MessageKind) {
+    run.assert_success();
+    let scenario = default_scenario();
+    let topology = Topology::from_scenario(&scenario, "default").unwrap();
+    let mut total = 0;
+    for (a, neighbours) in topology.neighbours.iter().enumerate() {
+        for &b in neighbours {
+            let expected = (1..=STEPS)
+                .flat_map(|step| (1..=ROUNDS as u16).map(move |round| At { step, round }))
+                .filter(|&at| gossip_target(&topology, scenario.seed, a as u16, at) == b)
+                .count() as u64;
+            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b));
+            assert_eq!(run.messages(from, to, kind), expected, "{from} → {to}");
+            assert_eq!(run.bytes(from, to, kind), expected * (13 + 25 * 8));
+            total += expected;
+        }
+    }
+    // One message a node a round: nothing broadcast, nothing lost.
+    assert_eq!(total, u64::from(STEPS * ROUNDS) * topology.nodes() as u64);
+    assert_eq!(run.counters(kind).sent_messages, total);
+    assert_eq!(run.unaccounted(kind), 0);
+    assert_eq!(run.counters(MessageKind::Consensus).sent_messages, 0);
+    assert_eq!(
+        run.summary().bound_traffic.cq_dpcrlb_bytes,
+        total * 80,
+        "its ΔL is the bound's traffic"
+    );
+    // Hearing only the neighbours that gossip to it is no fault.
+    assert_eq!(run.summary().fault_cost.rounds_with_fewer_neighbours, 0);
+    for tick in run.ticks().iter().filter(|t| t.is_node()) {
+        assert_eq!(tick.rounds_completed, ROUNDS, "{}", tick.line);
+        assert!(tick.error.is_finite(), "{}", tick.line);
+    }
+}
+
+#[test]
+fn push_sum_gossips_point_to_point_in_sim_and_as_processes_alike() {
+    let kind = vocabulary().payloads().of::<PushSumValue>().unwrap().kind();
+    let sim = toy_network("push_sum").sim().expect("sim starts");
+    assert_push_sum_ran(&sim, kind);
+    let run = toy_network("push_sum").lockstep().run().expect("run starts");
+    assert_push_sum_ran(&run, kind);
+    run.assert_clean();
+    assert_eq!(run.sorted_tick_lines(), sim.sorted_tick_lines());
+}
+
+/// Two programs' parts in one test process: the toy's and cqnet's own,
+/// which does not know the toy's names.
+#[test]
+fn another_program_does_not_know_the_toys_parts() {
+    let text = fusion_graph::scenario::DEFAULT_SCENARIO;
+    let set = ["consensus.protocol=\"push_sum\"".to_string()];
+    let own = cqnet_testkit::App::new().vocabulary().unwrap();
+    let refused = fusion_graph::Scenario::from_toml_in(own, text, "d", &set).unwrap_err();
+    assert!(refused.to_string().contains("consensus.protocol"), "{refused}");
+    let toy = fusion_graph::Scenario::from_toml_in(vocabulary(), text, "d", &set).unwrap();
+    assert_eq!(toy.consensus.protocol.name(), "push_sum");
+    assert!(own.payloads().of::<PushSumValue>().is_none());
+}
+
 #[test]
 fn a_bad_parameter_is_refused_by_its_full_key() {
-    let run = toy_network()
-        .set("consensus.params", "{ rounds = 0 }")
+    let run = toy_network("neighbourhood_mean")
+        .set("consensus.params", "{ rounds = 3 }")
         .sim()
         .expect("sim starts");
     run.assert_failure_naming(&["consensus.params.rounds"]);
-    let run = toy_network()
+    let run = toy_network("push_sum")
+        .set("consensus.auxiliary_fim", "true")
+        .sim()
+        .expect("sim starts");
+    run.assert_failure_naming(&["consensus.auxiliary_fim"]);
+    let run = toy_network("neighbourhood_mean")
         .set("sensors.manager_params", "{ k = 2, kk = 3 }")
         .sim()
         .expect("sim starts");

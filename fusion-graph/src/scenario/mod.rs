@@ -5,7 +5,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::registered::{Role, Shape};
+use crate::vocabulary::{Part, Role, Shape, Vocabulary};
 use crate::ScenarioError;
 
 mod mac;
@@ -19,40 +19,54 @@ pub use crate::faults::{
 pub use mac::{MacConfig, MacDesign, MAX_SLOTS as MAX_MAC_SLOTS};
 pub use overrides::apply_override;
 
-/// A part a scenario names (a fusion protocol, a sensor manager): a name
-/// of [`crate::registered`]'s vocabulary, built in or registered by the
-/// program. An unknown name is refused at its key, listing the names it
-/// could have been.
+/// A part a scenario names (a fusion protocol, a sensor manager): a part
+/// of the [`Vocabulary`] it is read in, built in or the program's. An
+/// unknown name is refused at its key, listing the names it could have
+/// been.
 macro_rules! named_part {
-    ($(#[$doc:meta])* $ty:ident, $role:expr, $what:literal) => {
+    ($(#[$doc:meta])* $ty:ident, $role:path) => {
         $(#[$doc])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-        pub struct $ty(&'static str);
+        #[derive(Debug, Clone, Copy)]
+        pub struct $ty(&'static Part);
 
         impl $ty {
             /// The name the scenario file spells it with.
             pub fn name(self) -> &'static str {
-                self.0
+                self.0.name
             }
 
-            /// The built-in or registered part called `name`.
-            pub fn from_name(name: &str) -> Option<Self> {
-                crate::registered::lookup($role, name).map(Self)
+            /// The part, with what builds it.
+            pub fn part(self) -> &'static Part {
+                self.0
             }
 
             /// Whether it is one of the parts cqnet ships.
             pub fn is_built_in(self) -> bool {
-                crate::registered::is_built_in($role, self.0)
+                Vocabulary::BUILT_IN.part($role, self.0.name).is_some()
             }
 
-            fn expected() -> String {
-                crate::registered::names($role)
-                    .iter()
-                    .map(|n| format!("`{n}`"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
+            const fn built_in(name: &'static str) -> Self {
+                // Found at compile time: a name missing from the table
+                // does not build.
+                let parts = Vocabulary::built_in_parts();
+                let mut i = 0;
+                while i < parts.len() {
+                    if matches!(parts[i].role, $role) && const_eq(parts[i].name, name) {
+                        return Self(&parts[i]);
+                    }
+                    i += 1;
+                }
+                panic!("not a built-in part")
             }
         }
+
+        impl PartialEq for $ty {
+            fn eq(&self, other: &Self) -> bool {
+                self.0.name == other.0.name
+            }
+        }
+
+        impl Eq for $ty {}
 
         impl Serialize for $ty {
             fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
@@ -63,16 +77,35 @@ macro_rules! named_part {
         impl<'de> Deserialize<'de> for $ty {
             fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
                 let name = String::deserialize(d)?;
-                Self::from_name(&name).ok_or_else(|| {
+                let vocabulary = Vocabulary::current();
+                vocabulary.part($role, &name).map(Self).ok_or_else(|| {
+                    let expected: Vec<String> =
+                        vocabulary.names($role).map(|n| format!("`{n}`")).collect();
                     serde::de::Error::custom(format!(
                         "unknown {} `{name}`, expected one of {}",
-                        $what,
-                        Self::expected()
+                        $role.what(),
+                        expected.join(", ")
                     ))
                 })
             }
         }
     };
+}
+
+/// `a == b`, at compile time.
+const fn const_eq(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < a.len() {
+        if a[i] != b[i] {
+            return false;
+        }
+        i += 1;
+    }
+    true
 }
 
 /// The built-in default scenario (docs/equations.md's table).
@@ -139,6 +172,11 @@ pub struct Scenario {
     /// the centre (compressive sensor management); none by default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel: Option<MacConfig>,
+    /// The program's parts and payloads the scenario was read in (cqnet's
+    /// own, unless read with [`Scenario::from_toml_in`]). Not in the file:
+    /// a run's actors, being the same program, read it in the same one.
+    #[serde(skip, default = "Vocabulary::current")]
+    pub vocabulary: Vocabulary,
 }
 
 /// Censoring at the sensor: of the `active_per_node` sensors a node
@@ -302,27 +340,26 @@ pub struct SensorLayout {
 named_part!(
     /// A sensor manager's name (`sensors.manager`).
     SensorManagerKind,
-    Role::Manager,
-    "sensor manager"
+    Role::Manager
 );
 
 impl SensorManagerKind {
     /// `active_per_node` of the node's own sensors, uniformly at random.
-    pub const RANDOM: Self = Self("random");
+    pub const RANDOM: Self = Self::built_in("random");
     /// The sensors nearest the predicted target position, network-wide, at
     /// most `active_per_node` per node (the closest-sensor baseline of
     /// sensor selection).
-    pub const CLOSEST: Self = Self("closest");
+    pub const CLOSEST: Self = Self::built_in("closest");
     /// Greedy selection by the conditional PCRLB, made once at the fusion
     /// graph's centre on every node's candidates.
-    pub const PCRLB: Self = Self("pcrlb");
+    pub const PCRLB: Self = Self::built_in("pcrlb");
     /// The same greedy selection scored by Tichavsky's recursion run at
     /// the fusion filter's estimates (data enter through x̂).
-    pub const PCRLB_AT_ESTIMATE: Self = Self("pcrlb_at_estimate");
+    pub const PCRLB_AT_ESTIMATE: Self = Self::built_in("pcrlb_at_estimate");
     /// The conventional PCRLB manager: greedy on the offline
     /// (non-conditional) bound, averaged over trajectories from the prior,
     /// a schedule every node computes alike before the run; no messages.
-    pub const PCRLB_OFFLINE: Self = Self("pcrlb_offline");
+    pub const PCRLB_OFFLINE: Self = Self::built_in("pcrlb_offline");
 }
 
 impl Default for SensorManagerKind {
@@ -443,31 +480,30 @@ pub struct FilterConfig {
 named_part!(
     /// A fusion protocol's name (`consensus.protocol`).
     ConsensusProtocol,
-    Role::Protocol,
-    "fusion protocol"
+    Role::Protocol
 );
 
 impl ConsensusProtocol {
     /// N_c rounds of average consensus with Metropolis weights.
-    pub const AVERAGE: Self = Self("average");
+    pub const AVERAGE: Self = Self::built_in("average");
     /// The exact network sum, as if consensus had converged: for checking.
-    pub const EXACT: Self = Self("exact");
+    pub const EXACT: Self = Self::built_in("exact");
     /// RndEx-PF: a posterior swapped with one random neighbour, then the
     /// closed neighbourhood's measurements.
-    pub const RANDOM_EXCHANGE: Self = Self("random_exchange");
+    pub const RANDOM_EXCHANGE: Self = Self::built_in("random_exchange");
     /// Consensus KL: `rounds` rounds of KL fusion on posteriors weighed
     /// with the node's own measurements only.
-    pub const KL_CONSENSUS: Self = Self("kl_consensus");
+    pub const KL_CONSENSUS: Self = Self::built_in("kl_consensus");
     /// Non-iterative KL with local cooperation: the closed neighbourhood's
     /// measurements, then one round of KL fusion (K_max = 1).
-    pub const KL_DIFFUSION: Self = Self("kl_diffusion");
+    pub const KL_DIFFUSION: Self = Self::built_in("kl_diffusion");
     /// Iterative KL with local cooperation: the closed neighbourhood's
     /// measurements, then `rounds` rounds (K_max).
-    pub const KL_ITERATIVE: Self = Self("kl_iterative");
+    pub const KL_ITERATIVE: Self = Self::built_in("kl_iterative");
 
     /// What the protocol needs of the network.
     pub fn shape(self) -> Shape {
-        crate::registered::shape(self.0)
+        self.0.shape
     }
 
     /// One of the random-exchange and KL trackers: one particle filter per
@@ -477,7 +513,7 @@ impl ConsensusProtocol {
     }
 
     /// ML location of a static target over a shared grid, with its CRLB.
-    pub const ML_LOCATION: Self = Self("ml_location");
+    pub const ML_LOCATION: Self = Self::built_in("ml_location");
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -527,18 +563,40 @@ impl Scenario {
             .expect("the built-in default scenario is valid")
     }
 
-    /// Reads and validates a scenario file, applying `key=value` overrides.
+    /// Reads and validates a scenario file, applying `key=value` overrides,
+    /// in cqnet's own vocabulary.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
+        Self::load_in(Vocabulary::BUILT_IN, path, overrides)
+    }
+
+    /// Reads and validates a scenario file in a program's vocabulary.
+    pub fn load_in(
+        vocabulary: Vocabulary,
+        path: &Path,
+        overrides: &[String],
+    ) -> Result<Self, ScenarioError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| ScenarioError::Read {
             file: file.clone(),
             message: e.to_string(),
         })?;
-        Self::from_toml(&text, &file, overrides)
+        Self::from_toml_in(vocabulary, &text, &file, overrides)
     }
 
-    /// Parses and validates scenario text; `source` names it in errors.
+    /// Parses and validates scenario text in cqnet's own vocabulary;
+    /// `source` names it in errors.
     pub fn from_toml(
+        text: &str,
+        source: &str,
+        overrides: &[String],
+    ) -> Result<Self, ScenarioError> {
+        Self::from_toml_in(Vocabulary::BUILT_IN, text, source, overrides)
+    }
+
+    /// Parses and validates scenario text in a program's vocabulary: the
+    /// parts it names are the program's, and its payloads the program's.
+    pub fn from_toml_in(
+        vocabulary: Vocabulary,
         text: &str,
         source: &str,
         overrides: &[String],
@@ -563,10 +621,13 @@ impl Scenario {
         // of the merged document.
         let deserializer =
             toml::Deserializer::parse(&text).map_err(|e| parse_error(e.to_string()))?;
-        let scenario: Scenario = serde_path_to_error::deserialize(deserializer).map_err(|e| {
-            let path = e.path().to_string();
-            parse_error(format!("`{path}`: {}", e.into_inner().message()))
-        })?;
+        let mut scenario: Scenario = vocabulary
+            .reading(|| serde_path_to_error::deserialize(deserializer))
+            .map_err(|e| {
+                let path = e.path().to_string();
+                parse_error(format!("`{path}`: {}", e.into_inner().message()))
+            })?;
+        scenario.vocabulary = vocabulary;
         scenario.validate(source)?;
         Ok(scenario)
     }

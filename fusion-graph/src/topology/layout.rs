@@ -36,6 +36,7 @@ impl Topology {
             node_sensors,
             neighbours,
             macs: s.channel.is_some(),
+            payloads: s.vocabulary.payloads(),
         };
         if !s.fusion_graph.allow_disconnected
             && topology.components(&topology.all_alive()).len() > 1

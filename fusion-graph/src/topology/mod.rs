@@ -24,6 +24,10 @@ pub struct Topology {
     /// Whether each node hears its sensors through a multiple-access
     /// channel, an actor of its own (`mac-<i>` for node i).
     pub macs: bool,
+    /// The payloads the program declared for its own protocols: the
+    /// channels between nodes make room for the longest, and the counts
+    /// name their kinds.
+    pub payloads: wire::payloads::Payloads,
 }
 
 /// A breadth-first spanning tree of one live component of the fusion

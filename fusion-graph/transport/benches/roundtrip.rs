@@ -25,6 +25,7 @@ const WARMUP: usize = 200;
 const FORMAT: WireFormat = WireFormat {
     cell_bytes: 1,
     activation_bytes: 4,
+    payloads: wire::payloads::Payloads::NONE,
 };
 
 fn topology() -> Topology {

@@ -6,6 +6,7 @@ pub use crate::counters::{Counters, LinkKey};
 use crate::counters::{Links, Pair};
 use crate::ledger::{Ledger, LedgerCounts, LedgerError};
 use wire::ActorId;
+use wire::payloads::Payloads;
 use wire::MessageKind;
 
 /// Counters per directed link and kind. An actor of a real network mirrors
@@ -211,8 +212,9 @@ impl Accounting {
 
     /// Reads back what [`to_csv`](Self::to_csv) or
     /// [`to_csv_with_world_misses`](Self::to_csv_with_world_misses) wrote;
-    /// `None` on any bad row.
-    pub fn from_csv(text: &str) -> Option<Self> {
+    /// `None` on any bad row. `payloads`: the program's, whose kinds the
+    /// table may name.
+    pub fn from_csv(text: &str, payloads: Payloads) -> Option<Self> {
         let mut a = Accounting::default();
         for line in text.lines().skip(1).filter(|l| !l.is_empty()) {
             if let Some(misses) = line.strip_prefix(WORLD_MISSES_LINE) {
@@ -226,7 +228,7 @@ impl Accounting {
             }
             // Every kind byte, so that a kind added later is read back too.
             let kind = (0..=u8::MAX)
-                .filter_map(kind_or_malformed)
+                .filter_map(|v| kind_or_malformed(v, payloads))
                 .find(|k| k.name() == f[2])?;
             let n: Vec<u64> = f[3..]
                 .iter()
@@ -258,11 +260,11 @@ const WORLD_MISSES_LINE: &str = "# world_misses,";
 
 /// A kind byte as the ledger writes it: a message kind, or 255 for a
 /// malformed message's line.
-fn kind_or_malformed(v: u8) -> Option<MessageKind> {
+pub(crate) fn kind_or_malformed(v: u8, payloads: Payloads) -> Option<MessageKind> {
     if v == 255 {
         Some(MessageKind::Malformed)
     } else {
-        MessageKind::from_u8(v)
+        MessageKind::from_code(v, payloads)
     }
 }
 
@@ -287,8 +289,8 @@ impl From<LedgerCounts> for Accounting {
 
 /// The counts an actor left in its ledger at `path` (see
 /// [`crate::ledger::read_ledger`]).
-pub fn read_ledger(path: &std::path::Path) -> Result<Accounting, LedgerError> {
-    crate::ledger::read_ledger(path).map(Accounting::from)
+pub fn read_ledger(path: &std::path::Path, payloads: Payloads) -> Result<Accounting, LedgerError> {
+    crate::ledger::read_ledger(path, payloads).map(Accounting::from)
 }
 
 #[cfg(test)]
@@ -342,16 +344,16 @@ mod tests {
             203
         );
         assert_eq!(b.by_kind()[&MessageKind::Malformed].malformed_messages, 1);
-        assert_eq!(Accounting::from_csv(&b.to_csv()).unwrap(), b);
+        assert_eq!(Accounting::from_csv(&b.to_csv(), Payloads::NONE).unwrap(), b);
         // The failed reads of the world travel only on the agents' form.
         b.record_world_miss();
         b.merge(&b.clone());
         assert_eq!(b.world_misses(), 2);
-        assert_eq!(Accounting::from_csv(&b.to_csv()).unwrap().world_misses(), 0);
+        assert_eq!(Accounting::from_csv(&b.to_csv(), Payloads::NONE).unwrap().world_misses(), 0);
         assert_eq!(
-            Accounting::from_csv(&b.to_csv_with_world_misses()).unwrap(),
+            Accounting::from_csv(&b.to_csv_with_world_misses(), Payloads::NONE).unwrap(),
             b
         );
-        assert!(Accounting::from_csv(&(b.to_csv() + "# world_misses,x\n")).is_none());
+        assert!(Accounting::from_csv(&(b.to_csv() + "# world_misses,x\n"), Payloads::NONE).is_none());
     }
 }

@@ -227,9 +227,12 @@ impl IceoryxTransport {
     pub fn keep_counts_in(&mut self, path: &std::path::Path) -> Result<(), SetupError> {
         // Every (from, to, kind) the actor can count: each peer, both ways,
         // every kind and the malformed.
-        let kinds = (0..=u8::MAX).filter_map(MessageKind::from_u8).count() + 1;
+        let kinds = (0..=u8::MAX)
+            .filter_map(|k| MessageKind::from_code(k, self.format.payloads))
+            .count()
+            + 1;
         let capacity = self.topology.peers(self.me) * 2 * kinds;
-        let ledger = Ledger::open_or_create(path, capacity).map_err(|e| setup("ledger", e))?;
+        let ledger = Ledger::open_or_create(path, capacity, self.format.payloads).map_err(|e| setup("ledger", e))?;
         self.accounting = Accounting::backed_by(ledger);
         Ok(())
     }

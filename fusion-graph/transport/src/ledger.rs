@@ -34,7 +34,7 @@ use memmap2::MmapMut;
 
 use crate::counters::{Counters, LinkKey, Links, Pair};
 use wire::ActorId;
-use wire::MessageKind;
+use wire::payloads::Payloads;
 
 const MAGIC: u64 = u64::from_le_bytes(*b"CQLEDG02");
 const HEADER_WORDS: usize = 8;
@@ -68,13 +68,19 @@ pub struct Ledger {
     map: MmapMut,
     path: String,
     slots: HashMap<LinkKey, usize>,
+    /// The program's payloads, whose kinds a slot may name.
+    payloads: Payloads,
 }
 
 impl Ledger {
     /// Opens the ledger at `path`, continuing the counts of an earlier
     /// incarnation of the actor if the file holds one, or creates it with
-    /// room for `capacity` links.
-    pub fn open_or_create(path: &Path, capacity: usize) -> Result<Self, LedgerError> {
+    /// room for `capacity` links. `payloads`: the program's.
+    pub fn open_or_create(
+        path: &Path,
+        capacity: usize,
+        payloads: Payloads,
+    ) -> Result<Self, LedgerError> {
         let name = path.display().to_string();
         let io = |source| LedgerError::Io {
             path: name.clone(),
@@ -100,6 +106,7 @@ impl Ledger {
             map,
             path: name,
             slots: HashMap::new(),
+            payloads,
         };
         if fresh {
             ledger.store(CAPACITY, capacity as u64);
@@ -108,7 +115,7 @@ impl Ledger {
             // A predecessor killed mid-update left its journal: undo that
             // update here too, so that counting continues from exact values.
             let words = ledger.words();
-            let recovered = decode(&snapshot(words), &ledger.path)?;
+            let recovered = decode(&snapshot(words), &ledger.path, payloads)?;
             ledger.undo_journal();
             for (i, key) in recovered.keys.into_iter().enumerate() {
                 ledger.slots.insert(key, i);
@@ -198,7 +205,7 @@ impl Ledger {
 
     /// The counts as they stand.
     pub fn counts(&self) -> LedgerCounts {
-        decode(&snapshot(self.words()), &self.path)
+        decode(&snapshot(self.words()), &self.path, self.payloads)
             .map(|d| d.counts)
             .unwrap_or_default()
     }
@@ -207,7 +214,7 @@ impl Ledger {
 /// Reads the ledger an actor left at `path`, undoing the update a kill
 /// interrupted. Safe to call while the actor still runs (the launcher's live
 /// view does): the figures are then a moment's, not a final count.
-pub fn read_ledger(path: &Path) -> Result<LedgerCounts, LedgerError> {
+pub fn read_ledger(path: &Path, payloads: Payloads) -> Result<LedgerCounts, LedgerError> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| LedgerError::Io {
         path: name.clone(),
@@ -217,7 +224,7 @@ pub fn read_ledger(path: &Path) -> Result<LedgerCounts, LedgerError> {
         .chunks_exact(8)
         .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
         .collect();
-    Ok(decode(&words, &name)?.counts)
+    Ok(decode(&words, &name, payloads)?.counts)
 }
 
 /// What a ledger holds: the counts of each link, and the actor's failed
@@ -242,7 +249,7 @@ struct Decoded {
 }
 
 /// The counts in `words`, with the journal's interrupted update undone.
-fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
+fn decode(words: &[u64], path: &str, payloads: Payloads) -> Result<Decoded, LedgerError> {
     let damaged = |what: &str| LedgerError::Damaged {
         path: path.to_string(),
         what: what.to_string(),
@@ -273,7 +280,7 @@ fn decode(words: &[u64], path: &str) -> Result<Decoded, LedgerError> {
     let mut links = Links::default();
     let mut keys = Vec::with_capacity(used);
     for s in &slots {
-        let key = decode_key(s[0]).ok_or_else(|| damaged("a slot holds no link"))?;
+        let key = decode_key(s[0], payloads).ok_or_else(|| damaged("a slot holds no link"))?;
         keys.push(key);
         links.add(
             key,
@@ -314,14 +321,11 @@ fn encode_key((from, to, kind): LinkKey) -> u64 {
     1 << 56 | encode_actor(from) << 32 | encode_actor(to) << 8 | kind.code() as u64
 }
 
-fn decode_key(v: u64) -> Option<LinkKey> {
+fn decode_key(v: u64, payloads: Payloads) -> Option<LinkKey> {
     if v >> 56 != 1 {
         return None;
     }
-    let kind = match (v & 0xff) as u8 {
-        255 => MessageKind::Malformed,
-        k => MessageKind::from_u8(k)?,
-    };
+    let kind = crate::accounting::kind_or_malformed((v & 0xff) as u8, payloads)?;
     Some((
         decode_actor((v >> 32) & 0xff_ffff)?,
         decode_actor((v >> 8) & 0xff_ffff)?,
@@ -379,16 +383,16 @@ mod tests {
             MessageKind::Malformed,
         ] {
             let k = (ActorId::Launcher, ActorId::Node(u16::MAX), kind);
-            assert_eq!(decode_key(encode_key(k)), Some(k));
-            assert_eq!(decode_key(encode_key(key(kind))), Some(key(kind)));
+            assert_eq!(decode_key(encode_key(k), Payloads::NONE), Some(k));
+            assert_eq!(decode_key(encode_key(key(kind)), Payloads::NONE), Some(key(kind)));
         }
-        assert_eq!(decode_key(0), None);
+        assert_eq!(decode_key(0, Payloads::NONE), None);
     }
 
     #[test]
     fn counts_are_read_back_and_a_reopened_ledger_continues_them() {
         let path = temp("reopen");
-        let mut l = Ledger::open_or_create(&path, 8).unwrap();
+        let mut l = Ledger::open_or_create(&path, 8, Payloads::NONE).unwrap();
         l.add(key(MessageKind::Activate), Pair::Sent, 1, 16)
             .unwrap();
         l.add(key(MessageKind::Activate), Pair::Sent, 1, 16)
@@ -396,15 +400,15 @@ mod tests {
         l.add(key(MessageKind::Observation), Pair::Dropped, 1, 12)
             .unwrap();
         drop(l);
-        let mut l = Ledger::open_or_create(&path, 8).unwrap();
+        let mut l = Ledger::open_or_create(&path, 8, Payloads::NONE).unwrap();
         l.add(key(MessageKind::Activate), Pair::Sent, 1, 16)
             .unwrap();
         l.count_world_miss();
-        let read = read_ledger(&path).unwrap();
+        let read = read_ledger(&path, Payloads::NONE).unwrap();
         assert_eq!(read.world_misses, 1);
         assert_eq!(l.counts(), read);
         l.count_world_miss();
-        assert_eq!(read_ledger(&path).unwrap().world_misses, 2);
+        assert_eq!(read_ledger(&path, Payloads::NONE).unwrap().world_misses, 2);
         let a = read.links;
         let c = a.get(
             ActorId::Node(3),
@@ -425,7 +429,7 @@ mod tests {
     #[test]
     fn an_update_cut_short_is_undone_on_reading() {
         let path = temp("cut");
-        let mut l = Ledger::open_or_create(&path, 4).unwrap();
+        let mut l = Ledger::open_or_create(&path, 4, Payloads::NONE).unwrap();
         l.add(key(MessageKind::Consensus), Pair::Received, 1, 203)
             .unwrap();
         let base = slot_base(0) + 1 + 2 * Pair::Received as usize;
@@ -436,7 +440,7 @@ mod tests {
         l.store(JOURNAL_SLOT, 1);
         l.store(base, 2);
         l.map.flush().unwrap();
-        let c = read_ledger(&path).unwrap().links.get(
+        let c = read_ledger(&path, Payloads::NONE).unwrap().links.get(
             ActorId::Node(3),
             ActorId::Sensor(700),
             MessageKind::Consensus,
@@ -444,10 +448,10 @@ mod tests {
         assert_eq!((c.received_messages, c.received_bytes), (1, 203));
         // The next incarnation continues from the undone values.
         drop(l);
-        let mut l = Ledger::open_or_create(&path, 4).unwrap();
+        let mut l = Ledger::open_or_create(&path, 4, Payloads::NONE).unwrap();
         l.add(key(MessageKind::Consensus), Pair::Received, 1, 203)
             .unwrap();
-        let c = read_ledger(&path).unwrap().links.get(
+        let c = read_ledger(&path, Payloads::NONE).unwrap().links.get(
             ActorId::Node(3),
             ActorId::Sensor(700),
             MessageKind::Consensus,
@@ -458,7 +462,7 @@ mod tests {
     #[test]
     fn a_full_ledger_and_a_damaged_file_are_errors() {
         let path = temp("full");
-        let mut l = Ledger::open_or_create(&path, 1).unwrap();
+        let mut l = Ledger::open_or_create(&path, 1, Payloads::NONE).unwrap();
         l.add(key(MessageKind::Activate), Pair::Sent, 1, 1).unwrap();
         assert!(matches!(
             l.add(key(MessageKind::Control), Pair::Sent, 1, 1),
@@ -466,7 +470,7 @@ mod tests {
         ));
         let bad = temp("bad");
         std::fs::write(&bad, b"not a ledger at all, just text....").unwrap();
-        let e = read_ledger(&bad).unwrap_err().to_string();
+        let e = read_ledger(&bad, Payloads::NONE).unwrap_err().to_string();
         assert!(e.contains("bad") && e.contains("not a cqnet ledger"), "{e}");
     }
 }

@@ -227,7 +227,7 @@ impl Inbound<'_> {
             Ok(m) => m.header.kind,
             Err(_) => tampering
                 .corrupted_kind
-                .and_then(MessageKind::from_u8)
+                .and_then(|k| MessageKind::from_code(k, self.format.payloads))
                 .unwrap_or(MessageKind::Malformed),
         };
         if tampering.duplicate {
@@ -270,6 +270,7 @@ pub(crate) mod contract {
     pub const FORMAT: WireFormat = WireFormat {
         cell_bytes: 1,
         activation_bytes: 4,
+        payloads: wire::payloads::Payloads::NONE,
     };
 
     pub fn obs(sensor: u16, step: u32) -> Message {

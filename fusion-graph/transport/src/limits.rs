@@ -82,12 +82,12 @@ impl ChannelLimits {
 }
 
 /// Largest message each channel carries, which sizes its shared memory.
-/// The channels between nodes also make room for the longest payload a
-/// program registered for its own protocol: every process of a run is the
+/// The channels between nodes also make room for the longest payload the
+/// program declared for its own protocols: every process of a run is the
 /// same program, so all open the services alike. A message longer than
 /// its channel's room could not be sent at all.
 pub(crate) fn max_message_len(channel: Channel, topology: &Topology) -> usize {
-    let protocols = wire::protocol_kinds::longest_body();
+    let protocols = topology.payloads.longest_body();
     HEADER_BYTES
         + match channel {
             Channel::Lifecycle => 16,

@@ -17,6 +17,7 @@ const RUN: &str = "CQNET_FG_CHILD_RUN";
 const FORMAT: WireFormat = WireFormat {
     cell_bytes: 1,
     activation_bytes: 4,
+    payloads: wire::payloads::Payloads::NONE,
 };
 const SENSOR: ActorId = ActorId::Sensor(0);
 const NODE: ActorId = ActorId::Node(0);

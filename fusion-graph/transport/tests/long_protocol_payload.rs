@@ -39,6 +39,7 @@ impl ProtocolPayload for Wide {
 const FORMAT: WireFormat = WireFormat {
     cell_bytes: 1,
     activation_bytes: 4,
+    payloads: wire::payloads::Payloads::NONE,
 };
 
 #[test]

@@ -6,7 +6,6 @@
 pub mod actor;
 mod message;
 pub mod payloads;
-pub mod protocol_kinds;
 
 pub use actor::ActorId;
 pub use message::*;

@@ -2,31 +2,38 @@
 //!
 //! A protocol of one's own needs messages of its own, counted per link and
 //! kind like every other. Rather than a variant of [`Payload`] for each,
-//! a protocol declares its payload type ([`ProtocolPayload`]: a kind byte,
-//! a name, a fixed size, an encoding) and registers it once at start-up with
-//! [`register`]. On the wire it is an ordinary message: the header with the
-//! protocol's kind byte, then its body. Decoding checks the body's length
-//! and lets the protocol's own `decode` refuse what it would not accept, so
-//! that a malformed message is counted and dropped at the transport, like
-//! any other, and never reaches the protocol.
+//! a protocol declares its payload type ([`ProtocolPayload`]: a name, a
+//! fixed size, an encoding) and the program lists it among its parts. The
+//! program gives out the kind bytes, in the order its payloads are listed,
+//! from [`PROTOCOL_KINDS`]: nobody picks one by hand, so two libraries'
+//! payloads cannot collide, and every process of a run, being the same
+//! program, gives out the same bytes.
 //!
-//! Every process of a run must register the same payloads (the launcher
-//! too, to name them in `links.csv`): they are the same program, so
-//! registering in `main` before anything else does it.
+//! The kinds a program gave out travel as a value, [`Payloads`], inside
+//! the [`WireFormat`](crate::WireFormat) every codec call is given: there
+//! is no table in the process to register with, so a test can hold two
+//! programs' payloads at once. On the wire a protocol's message is an
+//! ordinary one: the header with its kind byte, then its body. Decoding
+//! checks the body's length and lets the protocol's own `decode` refuse
+//! what it would not accept, so that a malformed message is counted and
+//! dropped at the transport, like any other, and never reaches the
+//! protocol.
 
-pub use crate::protocol_kinds::{ProtocolBody, ProtocolKind, RegisterError, PROTOCOL_KINDS};
+use std::any::TypeId;
+use std::fmt;
+use std::marker::PhantomData;
 
-use crate::protocol_kinds;
 use crate::WireError;
 use crate::{Message, MessageKind, Payload, HEADER_BYTES, MAX_MESSAGE_BYTES};
 
+/// The kind bytes left to protocols' own payloads.
+pub const PROTOCOL_KINDS: std::ops::RangeInclusive<u8> = 128..=254;
+
 /// A protocol's message body: a fixed size, its own encoding, and a
 /// decoding that refuses whatever the protocol would not accept.
-pub trait ProtocolPayload: Sized {
-    /// The kind byte on the wire, one of [`PROTOCOL_KINDS`], unique in the
-    /// program.
-    const KIND: u8;
-    /// The kind's name in `links.csv` and the summary: lowercase, no commas.
+pub trait ProtocolPayload: Sized + 'static {
+    /// The kind's name in `links.csv` and the summary: lowercase letters,
+    /// digits and `_`, unique in the program.
     const NAME: &'static str;
     /// The body's size in bytes; every message of the kind has it.
     const LEN: usize;
@@ -41,66 +48,290 @@ pub trait ProtocolPayload: Sized {
 
     /// The value from exactly [`LEN`](Self::LEN) bytes, or why not.
     fn decode(body: &[u8]) -> Result<Self, WireError>;
+}
 
-    /// The payload to put in a [`Message`].
-    fn to_payload(&self) -> Payload {
-        let mut bytes = Vec::with_capacity(Self::LEN);
-        self.encode(&mut bytes);
-        debug_assert_eq!(
-            bytes.len(),
-            Self::LEN,
-            "{} encodes its declared size",
-            Self::NAME
-        );
-        let kind = ProtocolKind::registered(Self::KIND)
-            .unwrap_or_else(|| panic!("payload {:?} is sent before it is registered", Self::NAME));
-        Payload::Protocol(ProtocolBody { kind, bytes })
+/// One payload a program declared: its kind byte, name, sizes and check.
+#[derive(Clone)]
+pub struct PayloadEntry {
+    code: u8,
+    name: &'static str,
+    len: usize,
+    bound_bytes: usize,
+    type_id: TypeId,
+    /// The protocol's own decoding, its value dropped.
+    check: fn(&[u8]) -> Result<(), WireError>,
+}
+
+impl PayloadEntry {
+    /// `P`'s entry under the next kind byte after those of `declared`, or
+    /// why `P` cannot be declared beside them.
+    pub fn next<P: ProtocolPayload>(declared: &[PayloadEntry]) -> Result<Self, RegisterError> {
+        let name = P::NAME;
+        let well_formed = !name.is_empty()
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
+        let built_in = (0..*PROTOCOL_KINDS.start())
+            .filter_map(MessageKind::from_u8)
+            .chain([MessageKind::Malformed])
+            .any(|k| k.name() == name);
+        if !well_formed || built_in {
+            return Err(RegisterError::BadName { name });
+        }
+        if let Some(other) = declared.iter().find(|e| e.name == name) {
+            return Err(RegisterError::NameTaken {
+                name,
+                kind: other.code,
+            });
+        }
+        if declared.iter().any(|e| e.type_id == TypeId::of::<P>()) {
+            return Err(RegisterError::Twice { name });
+        }
+        if HEADER_BYTES + P::LEN > MAX_MESSAGE_BYTES {
+            return Err(RegisterError::TooLong { name, len: P::LEN });
+        }
+        if P::BOUND_BYTES > P::LEN {
+            return Err(RegisterError::BoundBytes {
+                name,
+                bound: P::BOUND_BYTES,
+                len: P::LEN,
+            });
+        }
+        let code = PROTOCOL_KINDS
+            .clone()
+            .nth(declared.len())
+            .ok_or(RegisterError::Full { name })?;
+        Ok(Self {
+            code,
+            name,
+            len: P::LEN,
+            bound_bytes: P::BOUND_BYTES,
+            type_id: TypeId::of::<P>(),
+            check: |body| P::decode(body).map(drop),
+        })
+    }
+}
+
+/// The payloads a program declared, as the codec and the counts read
+/// them. Copied freely: the entries live as long as the program.
+#[derive(Clone, Copy)]
+pub struct Payloads(&'static [PayloadEntry]);
+
+impl Payloads {
+    /// A program with no payloads of its own (cqnet's built-in parts).
+    pub const NONE: Self = Self(&[]);
+
+    /// The payloads of `entries`, kept for the rest of the program (a
+    /// program declares its parts once; a test that builds several keeps
+    /// a few hundred bytes each).
+    pub fn new(entries: Vec<PayloadEntry>) -> Self {
+        if entries.is_empty() {
+            return Self::NONE;
+        }
+        Self(Box::leak(entries.into_boxed_slice()))
     }
 
-    /// This payload, if `payload` is one; `None` for any other kind.
-    fn from_payload(payload: &Payload) -> Option<Self> {
+    /// The kind under byte `code`, if a payload has it.
+    pub fn kind(self, code: u8) -> Option<ProtocolKind> {
+        let at = code.checked_sub(*PROTOCOL_KINDS.start())? as usize;
+        self.0.get(at).map(ProtocolKind)
+    }
+
+    /// `P`'s kind, if the program declared it.
+    pub fn of<P: ProtocolPayload>(self) -> Option<PayloadKind<P>> {
+        self.0
+            .iter()
+            .find(|e| e.type_id == TypeId::of::<P>())
+            .map(|e| PayloadKind {
+                kind: ProtocolKind(e),
+                payload: PhantomData,
+            })
+    }
+
+    /// Every declared kind, in the order of their bytes.
+    pub fn kinds(self) -> impl Iterator<Item = ProtocolKind> {
+        self.0.iter().map(ProtocolKind)
+    }
+
+    /// The longest declared body: the consensus and pair channels make
+    /// room for it (`transport::limits`).
+    pub fn longest_body(self) -> usize {
+        self.0.iter().map(|e| e.len).max().unwrap_or(0)
+    }
+}
+
+impl PartialEq for Payloads {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.len() == other.0.len()
+            && self
+                .0
+                .iter()
+                .zip(other.0)
+                .all(|(a, b)| a.name == b.name && a.len == b.len)
+    }
+}
+
+impl fmt::Debug for Payloads {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_list().entries(self.kinds()).finish()
+    }
+}
+
+impl Default for Payloads {
+    fn default() -> Self {
+        Self::NONE
+    }
+}
+
+/// A kind byte a program gave a payload (one of [`PROTOCOL_KINDS`]).
+#[derive(Clone, Copy)]
+pub struct ProtocolKind(&'static PayloadEntry);
+
+impl ProtocolKind {
+    pub fn code(self) -> u8 {
+        self.0.code
+    }
+
+    /// The payload's name.
+    pub fn name(self) -> &'static str {
+        self.0.name
+    }
+
+    /// The bytes of each message of the kind that carry the bound's
+    /// information (`ProtocolPayload::BOUND_BYTES`).
+    pub fn bound_bytes(self) -> usize {
+        self.0.bound_bytes
+    }
+
+    /// The payload's body size in bytes.
+    pub fn body_len(self) -> usize {
+        self.0.len
+    }
+
+    /// Checks a received body: its length, then the protocol's own decoding.
+    pub(crate) fn check_body(self, body: &[u8]) -> Result<(), WireError> {
+        if body.len() != self.0.len {
+            return Err(WireError::Length {
+                expected: self.0.len,
+                got: body.len(),
+            });
+        }
+        (self.0.check)(body)
+    }
+}
+
+impl PartialEq for ProtocolKind {
+    fn eq(&self, other: &Self) -> bool {
+        self.code() == other.code()
+    }
+}
+
+impl Eq for ProtocolKind {}
+
+impl PartialOrd for ProtocolKind {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for ProtocolKind {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.code().cmp(&other.code())
+    }
+}
+
+impl std::hash::Hash for ProtocolKind {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.code().hash(state)
+    }
+}
+
+impl fmt::Debug for ProtocolKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}({})", self.name(), self.code())
+    }
+}
+
+/// `P`'s kind in the program that declared it: how a protocol puts a `P`
+/// in a message and reads one back.
+pub struct PayloadKind<P> {
+    kind: ProtocolKind,
+    payload: PhantomData<fn() -> P>,
+}
+
+impl<P> Clone for PayloadKind<P> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<P> Copy for PayloadKind<P> {}
+
+impl<P> fmt::Debug for PayloadKind<P> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.kind.fmt(f)
+    }
+}
+
+impl<P: ProtocolPayload> PayloadKind<P> {
+    /// The message kind `P`'s messages carry.
+    pub fn kind(self) -> MessageKind {
+        MessageKind::Protocol(self.kind)
+    }
+
+    /// `value` as the payload of a [`Message`].
+    pub fn payload(self, value: &P) -> Payload {
+        let mut bytes = Vec::with_capacity(P::LEN);
+        value.encode(&mut bytes);
+        debug_assert_eq!(bytes.len(), P::LEN, "{} encodes its declared size", P::NAME);
+        Payload::Protocol(ProtocolBody {
+            kind: self.kind,
+            bytes,
+        })
+    }
+
+    /// The `P` in `payload`, if it carries one; `None` for any other kind.
+    pub fn read(self, payload: &Payload) -> Option<P> {
         match payload {
-            Payload::Protocol(body) if body.kind.code() == Self::KIND => {
-                Self::decode(&body.bytes).ok()
-            }
+            Payload::Protocol(body) if body.kind == self.kind => P::decode(&body.bytes).ok(),
             _ => None,
         }
     }
 
-    /// This payload, if `message` carries one; `None` for any other kind.
-    fn from_message(message: &Message) -> Option<Self> {
-        Self::from_payload(&message.payload)
+    /// The `P` in `message`, if it carries one.
+    pub fn read_message(self, message: &Message) -> Option<P> {
+        self.read(&message.payload)
     }
 }
 
-/// Registers `P`, so that messages of its kind are decoded, sized and
-/// counted. Registering the same payload again is harmless.
-pub fn register<P: ProtocolPayload>() -> Result<ProtocolKind, RegisterError> {
-    let name = P::NAME;
-    let well_formed = !name.is_empty()
-        && name
-            .bytes()
-            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
-    let built_in = (0..*PROTOCOL_KINDS.start())
-        .filter_map(MessageKind::from_u8)
-        .chain([MessageKind::Malformed])
-        .any(|k| k.name() == name);
-    if !well_formed || built_in {
-        return Err(RegisterError::BadName { name });
-    }
-    if HEADER_BYTES + P::LEN > MAX_MESSAGE_BYTES {
-        return Err(RegisterError::TooLong { name, len: P::LEN });
-    }
-    if P::BOUND_BYTES > P::LEN {
-        return Err(RegisterError::BoundBytes {
-            name,
-            bound: P::BOUND_BYTES,
-            len: P::LEN,
-        });
-    }
-    protocol_kinds::claim(P::KIND, name, P::LEN, P::BOUND_BYTES, |body| {
-        P::decode(body).map(drop)
-    })
+/// A protocol payload as it travels: its kind and its encoded body.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ProtocolBody {
+    pub kind: ProtocolKind,
+    pub bytes: Vec<u8>,
+}
+
+/// Why a payload could not be declared.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RegisterError {
+    #[error("payload {name:?}: the name is kind {kind}'s already")]
+    NameTaken { name: &'static str, kind: u8 },
+    #[error("payload {name:?} is declared twice")]
+    Twice { name: &'static str },
+    #[error("payload {name:?}: the {} kinds left to protocols are all given out", PROTOCOL_KINDS.len())]
+    Full { name: &'static str },
+    #[error("payload {name:?}: {len} bytes do not fit in a message")]
+    TooLong { name: &'static str, len: usize },
+    #[error("payload {name:?}: {bound} bytes of the bound's information in a body of {len}")]
+    BoundBytes {
+        name: &'static str,
+        bound: usize,
+        len: usize,
+    },
+    #[error(
+        "payload {name:?}: a name is lowercase letters, digits and '_', and not a built-in kind's"
+    )]
+    BadName { name: &'static str },
 }
 
 #[cfg(test)]
@@ -117,7 +348,6 @@ mod tests {
     }
 
     impl ProtocolPayload for Probe {
-        const KIND: u8 = 200;
         const NAME: &'static str = "probe";
         const LEN: usize = 9;
 
@@ -140,59 +370,107 @@ mod tests {
         }
     }
 
-    const FORMAT: WireFormat = WireFormat {
-        cell_bytes: 1,
-        activation_bytes: 4,
-    };
+    /// A payload of `LEN` zero bytes, `BOUND` of them the bound's, named `name`.
+    macro_rules! blank {
+        ($ty:ident, $name:literal, $len:literal, $bound:literal) => {
+            struct $ty;
+            impl ProtocolPayload for $ty {
+                const NAME: &'static str = $name;
+                const LEN: usize = $len;
+                const BOUND_BYTES: usize = $bound;
+                fn encode(&self, out: &mut Vec<u8>) {
+                    out.extend_from_slice(&[0; $len]);
+                }
+                fn decode(_: &[u8]) -> Result<Self, WireError> {
+                    Ok($ty)
+                }
+            }
+        };
+    }
+
+    fn format(payloads: Payloads) -> WireFormat {
+        WireFormat {
+            cell_bytes: 1,
+            activation_bytes: 4,
+            payloads,
+        }
+    }
+
+    fn declare(list: &[fn(&[PayloadEntry]) -> Result<PayloadEntry, RegisterError>]) -> Payloads {
+        let mut entries = Vec::new();
+        for next in list {
+            let entry = next(&entries).unwrap();
+            entries.push(entry);
+        }
+        Payloads::new(entries)
+    }
 
     #[test]
-    fn a_registered_payload_round_trips_with_its_declared_size_and_name() {
-        let kind = register::<Probe>().unwrap();
-        assert_eq!(
-            register::<Probe>().unwrap(),
-            kind,
-            "registering twice is harmless"
-        );
+    fn a_declared_payload_round_trips_with_its_declared_size_and_name() {
+        blank!(First, "first", 2, 0);
+        let payloads = declare(&[PayloadEntry::next::<First>, PayloadEntry::next::<Probe>]);
+        let kind = payloads.of::<Probe>().unwrap();
+        assert_eq!(kind.kind().code(), 129, "kinds are given out in order");
         let probe = Probe {
             value: -2.5,
             flag: true,
         };
-        let m = Message::new(ActorId::Node(3), 7, 1, probe.to_payload());
-        assert_eq!(m.header.kind, MessageKind::Protocol(kind));
+        let m = Message::new(ActorId::Node(3), 7, 1, kind.payload(&probe));
+        assert_eq!(m.header.kind, kind.kind());
         assert_eq!(m.header.kind.name(), "probe");
-        let bytes = m.to_bytes(&FORMAT);
-        assert_eq!(Some(bytes.len()), encoded_len(m.header.kind, &FORMAT));
-        let back = Message::decode(&bytes, &FORMAT).unwrap();
-        assert_eq!(Probe::from_message(&back), Some(probe));
-        assert_eq!(MessageKind::from_u8(200), Some(MessageKind::Protocol(kind)));
+        let format = format(payloads);
+        let bytes = m.to_bytes(&format);
+        assert_eq!(Some(bytes.len()), encoded_len(m.header.kind, &format));
+        let back = Message::decode(&bytes, &format).unwrap();
+        assert_eq!(kind.read_message(&back), Some(probe));
+        assert_eq!(
+            MessageKind::from_code(129, payloads),
+            Some(MessageKind::Protocol(payloads.kind(129).unwrap()))
+        );
+        assert_eq!(
+            Message::decode(&bytes, &self::format(Payloads::NONE)),
+            Err(WireError::UnknownKind { kind: 129 }),
+            "a program that did not declare it cannot read it"
+        );
+    }
+
+    #[test]
+    fn two_programs_payloads_live_side_by_side() {
+        blank!(Other, "other", 3, 0);
+        let one = declare(&[PayloadEntry::next::<Probe>]);
+        let two = declare(&[PayloadEntry::next::<Other>]);
+        assert_eq!(one.kind(128).unwrap().name(), "probe");
+        assert_eq!(two.kind(128).unwrap().name(), "other");
+        assert!(two.of::<Probe>().is_none());
     }
 
     #[test]
     fn a_body_the_protocol_refuses_is_a_wire_error() {
-        register::<Probe>().unwrap();
+        let payloads = declare(&[PayloadEntry::next::<Probe>]);
+        let format = format(payloads);
+        let kind = payloads.of::<Probe>().unwrap();
         let good = Message::new(
             ActorId::Node(1),
             1,
             0,
-            Probe {
+            kind.payload(&Probe {
                 value: 1.0,
                 flag: false,
-            }
-            .to_payload(),
+            }),
         )
-        .to_bytes(&FORMAT);
+        .to_bytes(&format);
         let mut flag = good.clone();
         *flag.last_mut().unwrap() = 7;
         crate::seal(&mut flag);
         assert_eq!(
-            Message::decode(&flag, &FORMAT),
+            Message::decode(&flag, &format),
             Err(WireError::Flag { got: 7 })
         );
         let mut short = good.clone();
         short.pop();
         crate::seal(&mut short);
         assert!(matches!(
-            Message::decode(&short, &FORMAT),
+            Message::decode(&short, &format),
             Err(WireError::Length { .. })
         ));
     }
@@ -201,102 +479,44 @@ mod tests {
     /// more of them than its body has is refused.
     #[test]
     fn the_bound_bytes_a_payload_declares_are_its_kinds() {
-        struct Bounded;
-        impl ProtocolPayload for Bounded {
-            const KIND: u8 = 230;
-            const NAME: &'static str = "bounded";
-            const LEN: usize = 16;
-            const BOUND_BYTES: usize = 8;
-            fn encode(&self, out: &mut Vec<u8>) {
-                out.extend_from_slice(&[0; 16]);
-            }
-            fn decode(_: &[u8]) -> Result<Self, WireError> {
-                Ok(Bounded)
-            }
-        }
-        struct Overbound;
-        impl ProtocolPayload for Overbound {
-            const KIND: u8 = 231;
-            const NAME: &'static str = "overbound";
-            const LEN: usize = 4;
-            const BOUND_BYTES: usize = 8;
-            fn encode(&self, out: &mut Vec<u8>) {
-                out.extend_from_slice(&[0; 4]);
-            }
-            fn decode(_: &[u8]) -> Result<Self, WireError> {
-                Ok(Overbound)
-            }
-        }
-        assert_eq!(register::<Bounded>().unwrap().bound_bytes(), 8);
-        assert_eq!(register::<Probe>().unwrap().bound_bytes(), 0);
+        blank!(Bounded, "bounded", 16, 8);
+        blank!(Overbound, "overbound", 4, 8);
+        let payloads = declare(&[PayloadEntry::next::<Bounded>, PayloadEntry::next::<Probe>]);
+        assert_eq!(payloads.kind(128).unwrap().bound_bytes(), 8);
+        assert_eq!(payloads.kind(129).unwrap().bound_bytes(), 0);
         assert!(matches!(
-            register::<Overbound>(),
+            PayloadEntry::next::<Overbound>(&[]),
             Err(RegisterError::BoundBytes {
                 bound: 8,
                 len: 4,
                 ..
             })
         ));
-        assert!(
-            ProtocolKind::registered(231).is_none(),
-            "its kind stays free"
-        );
     }
 
     #[test]
-    fn an_unregistered_kind_is_unknown_and_clashes_are_refused() {
-        assert_eq!(MessageKind::from_u8(201), None);
-        struct Clash;
-        impl ProtocolPayload for Clash {
-            const KIND: u8 = 200;
-            const NAME: &'static str = "clash";
-            const LEN: usize = 1;
-            fn encode(&self, out: &mut Vec<u8>) {
-                out.push(0)
-            }
-            fn decode(_: &[u8]) -> Result<Self, WireError> {
-                Ok(Clash)
-            }
-        }
-        register::<Probe>().unwrap();
+    fn names_are_checked_and_not_shared() {
+        blank!(Twin, "probe", 1, 0);
+        blank!(Builtin, "consensus", 1, 0);
+        blank!(Shouting, "Loud", 1, 0);
+        let mut entries = vec![PayloadEntry::next::<Probe>(&[]).unwrap()];
         assert!(matches!(
-            register::<Clash>(),
-            Err(RegisterError::KindTaken { taken: "probe", .. })
+            PayloadEntry::next::<Twin>(&entries),
+            Err(RegisterError::NameTaken { kind: 128, .. })
         ));
-        struct Low;
-        impl ProtocolPayload for Low {
-            const KIND: u8 = 5;
-            const NAME: &'static str = "low";
-            const LEN: usize = 1;
-            fn encode(&self, out: &mut Vec<u8>) {
-                out.push(0)
-            }
-            fn decode(_: &[u8]) -> Result<Self, WireError> {
-                Ok(Low)
-            }
-        }
         assert!(matches!(
-            register::<Low>(),
-            Err(RegisterError::KindOutOfRange { kind: 5, .. })
+            PayloadEntry::next::<Probe>(&entries),
+            Err(RegisterError::NameTaken { .. }) | Err(RegisterError::Twice { .. })
         ));
-        /// The probe's name under another kind: refused, and the kind
-        /// stays free.
-        struct Twin;
-        impl ProtocolPayload for Twin {
-            const KIND: u8 = 202;
-            const NAME: &'static str = "probe";
-            const LEN: usize = 1;
-            fn encode(&self, out: &mut Vec<u8>) {
-                out.push(0)
-            }
-            fn decode(_: &[u8]) -> Result<Self, WireError> {
-                Ok(Twin)
-            }
-        }
         assert!(matches!(
-            register::<Twin>(),
-            Err(RegisterError::NameTaken { kind: 200, .. })
+            PayloadEntry::next::<Builtin>(&entries),
+            Err(RegisterError::BadName { .. })
         ));
-        assert_eq!(ProtocolKind::registered(202), None);
+        assert!(matches!(
+            PayloadEntry::next::<Shouting>(&entries),
+            Err(RegisterError::BadName { .. })
+        ));
+        entries.clear();
+        assert_eq!(Payloads::new(entries).kinds().count(), 0);
     }
 }

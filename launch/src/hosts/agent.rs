@@ -10,6 +10,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
+use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::hosts::Placement;
 use fusion_graph::RunId;
 use fusion_graph::{ActorId, Scenario, Topology};
@@ -48,8 +49,10 @@ const POLL: Duration = Duration::from_millis(5);
 /// SIGKILL before the agent answers regardless.
 const CLEARING_TIMEOUT: Duration = Duration::from_secs(5);
 
-pub fn run_agent(args: &AgentArgs) -> anyhow::Result<()> {
-    let scenario = Scenario::load(&args.scenario, &[])?;
+/// `vocabulary`: the program's parts, which the launcher's scenario may
+/// name (the agent is the same program as the launcher).
+pub fn run_agent(args: &AgentArgs, vocabulary: Vocabulary) -> anyhow::Result<()> {
+    let scenario = Scenario::load_in(vocabulary, &args.scenario, &[])?;
     let topology = Topology::from_scenario(&scenario, &args.scenario.display().to_string())?;
     let placement = Placement::from_scenario(&scenario, &topology, "", false)?
         .context("the scenario has no [[hosts]] section")?;
@@ -79,6 +82,7 @@ pub fn run_agent(args: &AgentArgs) -> anyhow::Result<()> {
         session: &session,
         host: &args.host,
         dir: &args.dir,
+        vocabulary,
     };
     loop {
         let setup = loop {
@@ -117,6 +121,7 @@ struct Agent<'a> {
     session: &'a zenoh::Session,
     host: &'a str,
     dir: &'a Path,
+    vocabulary: Vocabulary,
 }
 
 enum Served {
@@ -143,7 +148,12 @@ impl Agent<'_> {
         commands: &Commands,
     ) -> anyhow::Result<Served> {
         let run_id = RunId::new(run)?;
-        let scenario = Scenario::from_toml(scenario_text, "the launcher's scenario", &[])?;
+        let scenario = Scenario::from_toml_in(
+            self.vocabulary,
+            scenario_text,
+            "the launcher's scenario",
+            &[],
+        )?;
         let topology = Topology::from_scenario(&scenario, "the launcher's scenario")?;
         let placement = Placement::from_scenario(&scenario, &topology, "", centralized)?
             .context("the launcher's scenario has no [[hosts]]")?;
@@ -394,7 +404,7 @@ fn host_accounting(
 ) -> Accounting {
     let mut total = Accounting::default();
     for actor in placement.actors_on(host, topology) {
-        match read_ledger(&ledger_path(dir, actor)) {
+        match read_ledger(&ledger_path(dir, actor), topology.payloads) {
             Ok(a) => total.merge(&a),
             Err(e) => tracing::warn!(%actor, error = %e, "byte counts not read"),
         }

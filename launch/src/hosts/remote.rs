@@ -275,7 +275,7 @@ pub fn supervise_hosts(
                     state[host].progress = Some((accounting_csv, bridge));
                 }
                 FromAgent::Traffic { accounting_csv } => {
-                    traffic[host] = Accounting::from_csv(&accounting_csv);
+                    traffic[host] = Accounting::from_csv(&accounting_csv, setup.topology.payloads);
                     if let Some(path) = &setup.traffic {
                         write_traffic(path, &traffic);
                     }
@@ -329,7 +329,7 @@ pub fn supervise_hosts(
         if let Some(since) = collecting {
             let all = state.iter().all(|s| !s.set_up || s.counts.is_some());
             if all || since.elapsed() >= COLLECT_TIMEOUT {
-                let _ = events.send(merged_counts(&hosts, &state));
+                let _ = events.send(merged_counts(&hosts, &state, setup.topology.payloads));
                 collecting = None;
             }
         }
@@ -359,14 +359,18 @@ fn write_traffic(path: &Path, traffic: &[Option<Accounting>]) {
     }
 }
 
-fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState]) -> Event {
+fn merged_counts(
+    hosts: &[fusion_graph::hosts::HostConfig],
+    state: &[HostState],
+    payloads: wire::payloads::Payloads,
+) -> Event {
     let mut accounting = Accounting::default();
     let mut bridges = Vec::new();
     let mut homes = Vec::new();
     for (host, s) in hosts.iter().zip(state) {
         match &s.counts {
             Some((csv, bridge, home)) => {
-                match Accounting::from_csv(csv) {
+                match Accounting::from_csv(csv, payloads) {
                     Some(a) => accounting.merge(&a),
                     None => tracing::warn!(host = %host.name, "its byte counts did not parse"),
                 }
@@ -377,7 +381,7 @@ fn merged_counts(hosts: &[fusion_graph::hosts::HostConfig], state: &[HostState])
                 // Lost for good: what it last reported.
                 Some((csv, bridge)) => {
                     tracing::warn!(host = %host.name, "the host's byte counts as of its last progress report");
-                    if let Some(a) = Accounting::from_csv(csv) {
+                    if let Some(a) = Accounting::from_csv(csv, payloads) {
                         accounting.merge(&a);
                     }
                     bridges.push((host.name.clone(), *bridge));

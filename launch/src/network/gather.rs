@@ -103,7 +103,7 @@ pub(super) fn merge_accounting(
     let mut total = launcher.clone();
     for a in topology.actors() {
         let path = ledger_path(out, a);
-        match read_ledger(&path) {
+        match read_ledger(&path, topology.payloads) {
             Ok(acc) => total.merge(&acc),
             Err(LedgerError::Io { source, .. })
                 if source.kind() == std::io::ErrorKind::NotFound => {}
@@ -126,12 +126,12 @@ pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate:
     Box::new(move || {
         let mut accounting = Accounting::default();
         for n in 0..topology.nodes() as u16 {
-            if let Ok(acc) = read_ledger(&ledger_path(&out, ActorId::Node(n))) {
+            if let Ok(acc) = read_ledger(&ledger_path(&out, ActorId::Node(n)), topology.payloads) {
                 accounting.merge(&acc);
             }
         }
         let from_hosts = std::fs::read_to_string(hosts_traffic_path(&out)).ok();
-        if let Some(acc) = from_hosts.as_deref().and_then(Accounting::from_csv) {
+        if let Some(acc) = from_hosts.as_deref().and_then(|csv| Accounting::from_csv(csv, topology.payloads)) {
             accounting.merge(&acc);
         }
         let steps = hub.latest_step().max(1) as f64;

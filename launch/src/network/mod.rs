@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use fusion_graph::hosts::Placement;
-use fusion_graph::registered::Shape;
+use fusion_graph::vocabulary::Shape;
 use fusion_graph::scenario::{ClockMode, Scenario};
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use tokio::sync::mpsc::UnboundedSender;
@@ -49,7 +49,7 @@ pub fn run_network(
     if scenario.consensus.protocol.shape() == Shape::ExactSums {
         bail!("consensus.protocol = \"exact\" is a checking mode of `cqnet sim` only: real processes have no exact network sum");
     }
-    node::registry::check(scenario, topology)?;
+    node::parts::check(scenario, topology)?;
     crate::preflight::check(scenario, topology, options.centralized)?;
     // The children read the clock's mode from the scenario they are given.
     let scenario = &clocked(scenario, options.lockstep);

@@ -54,6 +54,8 @@ pub(super) struct Processes<'a> {
     starting: HashSet<ActorId>,
     /// Of those, the ones that said `ready`, to join at the next step.
     ready: Vec<ActorId>,
+    /// The program's payloads, which the hosts' counts may name.
+    payloads: wire::payloads::Payloads,
 }
 
 impl<'a> Processes<'a> {
@@ -81,6 +83,7 @@ impl<'a> Processes<'a> {
             returning: Vec::new(),
             starting: HashSet::new(),
             ready: Vec::new(),
+            payloads: topology.payloads,
         }
     }
 
@@ -288,7 +291,7 @@ impl<'a> Processes<'a> {
                     bridges,
                     homes,
                 }) => {
-                    match Accounting::from_csv(&accounting_csv) {
+                    match Accounting::from_csv(&accounting_csv, self.payloads) {
                         Some(a) => total.merge(&a),
                         None => tracing::warn!("the hosts' byte counts did not parse"),
                     }

@@ -8,7 +8,7 @@ use fusion_graph::{MetropolisWeights, Topology};
 use wire::Payload;
 
 use super::information::InformationPieces;
-use super::rounds::weighted;
+use super::rounds::{weighted, At};
 use super::{Fused, InformationVector, RoundEngine, RoundRule, RoundsDone};
 
 /// The round rule of average consensus on the information vector.
@@ -17,11 +17,16 @@ pub struct Metropolis {
 }
 
 impl RoundRule for Metropolis {
+    type Input = InformationVector;
     type Value = InformationVector;
     type Output = Fused;
     type Pieces = InformationPieces;
 
-    fn payloads(&self, value: &InformationVector, out: &mut Vec<Payload>) {
+    fn begin(&self, _: u32, input: InformationVector) -> InformationVector {
+        input
+    }
+
+    fn payloads(&self, _: At, value: &InformationVector, out: &mut Vec<Payload>) {
         value.payloads(out);
     }
 

@@ -86,6 +86,7 @@ impl ExactSums {
                 .iter()
                 .filter(|m| view[**m as usize])
                 .count() as u16,
+            neighbours_expected: self.live_neighbours.len() as u16,
             ..RoundStats::default()
         }
     }

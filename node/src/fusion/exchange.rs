@@ -132,6 +132,8 @@ impl RandomExchange {
         let Some(r) = self.running.as_mut() else {
             return;
         };
+        // Still `Finished` here only if the step's matching left it alone.
+        let matched = !matches!(r.role, Role::Finished);
         r.role = Role::Finished;
         self.done = Some(Exchanged {
             posterior,
@@ -139,6 +141,7 @@ impl RandomExchange {
             stats: RoundStats {
                 rounds_completed: 1,
                 neighbours_heard: u16::from(partner.is_some()),
+                neighbours_expected: u16::from(matched),
                 total: now.saturating_sub(r.started),
                 later_rounds: Duration::ZERO,
             },

@@ -35,6 +35,19 @@ fn add_scaled<const N: usize>(acc: &mut [f64; N], w: f64, v: &[f64; N]) {
 }
 
 impl InformationVector {
+    /// The estimate's parts and the bound's ΔL, with no late information
+    /// and no `S_obs`: what a protocol that carries only those rebuilds
+    /// from its messages.
+    pub fn new(delta_eta: [f64; 4], delta_lambda: Packed, delta_l: Packed) -> Self {
+        Self {
+            delta_eta,
+            delta_lambda,
+            delta_l,
+            delta_l_late: [0.0; 10],
+            s_obs: None,
+        }
+    }
+
     /// A node's contribution; `S_obs` travels only `with_aux`.
     pub fn from_contribution(c: &Contribution, with_aux: bool) -> Self {
         Self {

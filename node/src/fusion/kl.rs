@@ -16,7 +16,7 @@ use bounds::{Gaussian, Mat4, State};
 use fusion_graph::{MetropolisWeights, Topology};
 use wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
 
-use super::rounds::weighted;
+use super::rounds::{weighted, At};
 use super::{RoundEngine, RoundRule, RoundStats, RoundsDone};
 
 /// A Gaussian in information form: `Λ = P⁻¹`, `η = P⁻¹ m`.
@@ -75,11 +75,16 @@ pub struct KlFused {
 pub struct KlRule;
 
 impl RoundRule for KlRule {
+    type Input = NaturalGaussian;
     type Value = NaturalGaussian;
     type Output = KlFused;
     type Pieces = Option<NaturalGaussian>;
 
-    fn payloads(&self, value: &NaturalGaussian, out: &mut Vec<Payload>) {
+    fn begin(&self, _: u32, input: NaturalGaussian) -> NaturalGaussian {
+        input
+    }
+
+    fn payloads(&self, _: At, value: &NaturalGaussian, out: &mut Vec<Payload>) {
         out.push(Payload::KlConsensus(value.to_wire()));
     }
 
@@ -274,6 +279,7 @@ mod tests {
         let format = WireFormat {
             cell_bytes: 1,
             activation_bytes: 1,
+            payloads: wire::payloads::Payloads::NONE,
         };
         for rounds in [1u16, 10] {
             let mut bytes = 0;

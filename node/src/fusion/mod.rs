@@ -38,7 +38,7 @@ pub use exact::{ExactSumOracle, ExactSums};
 pub use exchange::{Exchanged, RandomExchange};
 pub use information::InformationVector;
 pub use kl::{kl_fusion, KlFused, KlFusion, KlRule, NaturalGaussian};
-pub use rounds::{RoundEngine, RoundRule, RoundsDone};
+pub use rounds::{At, RoundEngine, RoundRule, RoundsDone, To};
 pub use vector_sum::{vector_sum, Summed, VectorSum, VectorSumRule};
 
 use std::time::Duration;
@@ -65,6 +65,11 @@ pub struct RoundStats {
     pub rounds_completed: u16,
     /// Neighbours heard in the last round.
     pub neighbours_heard: u16,
+    /// Neighbours the protocol expected to hear in the last round, dead
+    /// ones included: every neighbour for average consensus, the partner
+    /// for random exchange, those whose gossip targets the node for a
+    /// push-sum. Hearing fewer is what a fault cost the step.
+    pub neighbours_expected: u16,
     /// From the start to the result.
     pub total: Duration,
     /// From the end of round 1 to the result: the rounds' own latency, once

@@ -1,7 +1,8 @@
 //! The round engine the round-based protocols share: round k's value goes
-//! to every live neighbour; the round completes when every live neighbour's
-//! round-k value is in, or at the round's timeout with those heard; then
-//! [`RoundRule::combine`] gives round k+1's value. Values for rounds still to
+//! to every live neighbour (or, if the rule says, to one neighbour over
+//! the pair's channel); the round completes when every live neighbour the
+//! rule expects has its round-k value in, or at the round's timeout with
+//! those heard; then [`RoundRule::combine`] gives round k+1's value. Values for rounds still to
 //! come are kept (a neighbour may be ahead); values for rounds past are late.
 //!
 //! A protocol that runs the engine several times within one step (a
@@ -18,16 +19,57 @@ use wire::{Message, Payload};
 use super::{FusionProtocol, Handled, RoundStats};
 use crate::Outgoing;
 
+/// A round of a step, as a rule is told it: `round` is its number on the
+/// wire (1 for a step's first).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct At {
+    pub step: u32,
+    pub round: u16,
+}
+
+/// Whom a round's value goes to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum To {
+    /// Every neighbour, on the node's consensus channel.
+    Everyone,
+    /// One neighbour, on the pair's own channel (the protocol's factory
+    /// says it needs pairs, `Needs::POINT_TO_POINT`).
+    Neighbour(u16),
+    /// Nobody this round.
+    Nobody,
+}
+
 /// What a round-based protocol's value is and how a round combines it.
 pub trait RoundRule {
+    /// What a node brings to a step.
+    type Input;
+    /// What the rounds mix: the input, or more (a push-sum's weight).
     type Value: Clone;
     /// What the protocol yields once its rounds are done.
     type Output;
     /// A neighbour's value as its payloads arrive (it may take more than one).
     type Pieces: Default + Clone;
 
-    /// The payloads one round's value travels in.
-    fn payloads(&self, value: &Self::Value, out: &mut Vec<Payload>);
+    /// The first round's value from what the node brings.
+    fn begin(&self, step: u32, input: Self::Input) -> Self::Value;
+
+    /// The payloads round `at`'s value travels in.
+    fn payloads(&self, at: At, value: &Self::Value, out: &mut Vec<Payload>);
+
+    /// Whom round `at`'s value goes to: every neighbour, unless the rule
+    /// says otherwise.
+    fn to(&self, at: At) -> To {
+        let _ = at;
+        To::Everyone
+    }
+
+    /// Whether neighbour `from` sends to this node in round `at`: the
+    /// round waits only for those, and hearing fewer of them is what a
+    /// fault cost. Every neighbour, unless the rule says otherwise.
+    fn expects(&self, at: At, from: u16) -> bool {
+        let _ = (at, from);
+        true
+    }
 
     /// Takes `payload` into `pieces`; false if it is not one of this rule's.
     fn absorb(&self, pieces: &mut Self::Pieces, payload: &Payload) -> bool;
@@ -92,6 +134,7 @@ struct Running<V> {
     started: Duration,
     first_round_done: Option<Duration>,
     neighbours_heard: u16,
+    neighbours_expected: u16,
     /// Round k is `offset + k` on the wire.
     offset: u16,
     /// Set once only neighbours on probation are missing: the round waits
@@ -237,6 +280,7 @@ impl<R: RoundRule> RoundEngine<R> {
             started: now,
             first_round_done: None,
             neighbours_heard: 0,
+            neighbours_expected: 0,
             offset,
             grace_until: None,
         };
@@ -253,20 +297,52 @@ impl<R: RoundRule> RoundEngine<R> {
             .filter(move |m| view[*m as usize])
     }
 
+    /// The running round, as the rule is told it.
+    fn at(r: &Running<R::Value>) -> At {
+        At {
+            step: r.step,
+            round: r.offset + r.round,
+        }
+    }
+
+    /// This node's neighbours in `view` that the rule expects this round.
+    fn expected<'a>(&'a self, r: &'a Running<R::Value>) -> impl Iterator<Item = u16> + 'a {
+        let at = Self::at(r);
+        self.live_neighbours(&r.view)
+            .filter(move |m| self.rule.expects(at, *m))
+    }
+
     fn send_round(&self, r: &Running<R::Value>, out: &mut Vec<Outgoing>) {
-        // Published on our channel, the message reaches every neighbour's
-        // queue, the ones outside our view (dead, or across a partition) too,
-        // so it is counted as sent to all of them; only the live are woken.
-        let receivers: Vec<ActorId> = self.topology.neighbours[self.node as usize]
-            .iter()
-            .map(|m| ActorId::Node(*m))
-            .collect();
-        let wake: Vec<ActorId> = self.live_neighbours(&r.view).map(ActorId::Node).collect();
+        let neighbours = &self.topology.neighbours[self.node as usize];
+        let (channel, receivers, wake) = match self.rule.to(Self::at(r)) {
+            To::Nobody => return,
+            // Published on our channel, the message reaches every
+            // neighbour's queue, the ones outside our view (dead, or across
+            // a partition) too, so it is counted as sent to all of them;
+            // only the live are woken.
+            To::Everyone => (
+                Channel::Consensus(self.node),
+                neighbours.iter().map(|m| ActorId::Node(*m)).collect(),
+                self.live_neighbours(&r.view).map(ActorId::Node).collect(),
+            ),
+            To::Neighbour(m) => {
+                debug_assert!(neighbours.contains(&m), "a pair is two neighbours");
+                let live = r.view.get(m as usize).copied().unwrap_or(false);
+                (
+                    Channel::Pair {
+                        from: self.node,
+                        to: m,
+                    },
+                    vec![ActorId::Node(m)],
+                    if live { vec![ActorId::Node(m)] } else { vec![] },
+                )
+            }
+        };
         let mut payloads = Vec::with_capacity(2);
-        self.rule.payloads(&r.value, &mut payloads);
+        self.rule.payloads(Self::at(r), &r.value, &mut payloads);
         for payload in payloads {
             out.push(Outgoing {
-                channel: Channel::Consensus(self.node),
+                channel,
                 message: Message::new(
                     ActorId::Node(self.node),
                     r.step,
@@ -296,7 +372,7 @@ impl<R: RoundRule> RoundEngine<R> {
         };
         let mut only_probation = true;
         let mut all_in = true;
-        for m in self.live_neighbours(&r.view) {
+        for m in self.expected(r) {
             let standing = self.standing[m as usize];
             if standing == Standing::NotAwaited || self.heard_value(r, m).is_some() {
                 continue;
@@ -321,8 +397,10 @@ impl<R: RoundRule> RoundEngine<R> {
         };
         let mut present = r.view.clone();
         let mut values = Vec::new();
+        let at = Self::at(&r);
         let live: Vec<u16> = self.live_neighbours(&r.view).collect();
         for m in live {
+            let expected = self.rule.expects(at, m);
             match self.heard_value(&r, m) {
                 Some(v) => {
                     values.push((m, v));
@@ -332,6 +410,8 @@ impl<R: RoundRule> RoundEngine<R> {
                         *s = Standing::OnTime;
                     }
                 }
+                // Not sending to us this round: neither heard nor missed.
+                None if !expected => present[m as usize] = false,
                 None => {
                     present[m as usize] = false;
                     self.misses[m as usize] += 1;
@@ -355,6 +435,10 @@ impl<R: RoundRule> RoundEngine<R> {
         self.heard
             .retain(|h| !(h.step == r.step && h.round == wire_round));
         r.neighbours_heard = values.len() as u16;
+        r.neighbours_expected = self.topology.neighbours[self.node as usize]
+            .iter()
+            .filter(|m| self.rule.expects(at, **m))
+            .count() as u16;
         if r.round == 1 {
             r.first_round_done = Some(now);
         }
@@ -371,6 +455,7 @@ impl<R: RoundRule> RoundEngine<R> {
                 stats: RoundStats {
                     rounds_completed: self.rounds,
                     neighbours_heard: r.neighbours_heard,
+                    neighbours_expected: r.neighbours_expected,
                     total: now.saturating_sub(r.started),
                     later_rounds: r
                         .first_round_done
@@ -395,7 +480,7 @@ impl<R: RoundRule> RoundEngine<R> {
 
 /// A round-based protocol is its engine; its rule says the rest.
 impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
-    type Value = R::Value;
+    type Value = R::Input;
     type Output = R::Output;
 
     fn expect_step(&mut self, step: u32) {
@@ -406,11 +491,12 @@ impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
     fn start(
         &mut self,
         step: u32,
-        value: R::Value,
+        input: R::Input,
         view: &[bool],
         now: Duration,
         out: &mut Vec<Outgoing>,
     ) {
+        let value = self.rule.begin(step, input);
         self.start_at(step, 0, value, view, now, out);
     }
 

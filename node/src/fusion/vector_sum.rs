@@ -14,7 +14,7 @@ use std::time::Duration;
 use fusion_graph::{MetropolisWeights, Topology};
 use wire::{Payload, LOCATION_CHUNK};
 
-use super::rounds::weighted;
+use super::rounds::{weighted, At};
 use super::{RoundEngine, RoundRule, RoundStats, RoundsDone};
 
 /// The network's sum of the nodes' vectors, as one node's consensus has it.
@@ -39,12 +39,17 @@ impl VectorSumRule {
 }
 
 impl RoundRule for VectorSumRule {
+    type Input = Vec<f64>;
     type Value = Vec<f64>;
     type Output = Summed;
     /// Each piece once it is in.
     type Pieces = Vec<Option<[f64; LOCATION_CHUNK]>>;
 
-    fn payloads(&self, value: &Vec<f64>, out: &mut Vec<Payload>) {
+    fn begin(&self, _: u32, input: Vec<f64>) -> Vec<f64> {
+        input
+    }
+
+    fn payloads(&self, _: At, value: &Vec<f64>, out: &mut Vec<Payload>) {
         for (chunk, part) in value.chunks(LOCATION_CHUNK).enumerate() {
             let mut values = [0.0; LOCATION_CHUNK];
             values[..part.len()].copy_from_slice(part);

@@ -103,6 +103,9 @@ pub struct NodeCore {
     answers: SensorAnswers,
     /// The quantizer's cell count (`None`: raw observations).
     cells: Option<usize>,
+    /// Its protocol talks to one neighbour at a time, over a channel per
+    /// pair of neighbours.
+    pairs: bool,
 }
 
 impl NodeCore {
@@ -126,6 +129,7 @@ impl NodeCore {
             deadline_missed: false,
             answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
             cells,
+            pairs: scenario.consensus.protocol.shape().pairs(),
         }
     }
 
@@ -175,20 +179,30 @@ impl NodeCore {
     }
 
     /// The channels a node reads: its control, its sensors' observations
-    /// and its neighbours' consensus channels.
+    /// and its neighbours' consensus channels (and, when its protocol
+    /// talks in pairs, each neighbour's channel to it).
     fn subscriptions(&self) -> Vec<Channel> {
+        let me = self.index;
         let mut v = vec![Channel::Control(self.id())];
         v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
         v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
+        if self.pairs {
+            v.extend(self.neighbours().iter().map(|&m| Channel::Pair { from: m, to: me }));
+        }
         v
     }
 
     /// The channels a node publishes on: an activation channel to each of
-    /// its sensors, its consensus channel and its telemetry.
+    /// its sensors, its consensus channel (and, in pairs, one to each
+    /// neighbour) and its telemetry.
     fn publications(&self) -> Vec<Channel> {
-        let mut v: Vec<Channel> = self.topology.activation_channels(self.index).collect();
-        v.push(Channel::Consensus(self.index));
-        v.push(Channel::Telemetry(self.index));
+        let me = self.index;
+        let mut v: Vec<Channel> = self.topology.activation_channels(me).collect();
+        v.push(Channel::Consensus(me));
+        if self.pairs {
+            v.extend(self.neighbours().iter().map(|&to| Channel::Pair { from: me, to }));
+        }
+        v.push(Channel::Telemetry(me));
         v
     }
 

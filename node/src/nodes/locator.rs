@@ -82,7 +82,7 @@ pub struct LocatorNode {
 
 impl LocatorNode {
     /// Node `index` of a locator network, with the protocol's parameters
-    /// (read and checked by the registry, [`crate::registry::location_config`]).
+    /// (read and checked by its factory, [`crate::parts::location_config`]).
     pub fn new(
         scenario: &Scenario,
         topology: &Topology,
@@ -150,6 +150,7 @@ impl LocatorNode {
         };
         s.stats.rounds_completed += summed.stats.rounds_completed;
         s.stats.neighbours_heard = summed.stats.neighbours_heard;
+        s.stats.neighbours_expected = summed.stats.neighbours_expected;
         s.stats.total += summed.stats.total;
         s.stats.later_rounds += summed.stats.later_rounds;
         let information_phase = self.phases.len() - 1;

@@ -20,10 +20,9 @@ pub use report::Report;
 
 use std::time::Duration;
 
-use fusion_graph::registered::Shape;
 use fusion_graph::{Scenario, Topology};
 
-use crate::{Actor, CfDpfNode, LocatorNode, MacCentre, NodeError, Work};
+use crate::{Actor, CfDpfNode, MacCentre, NodeError, Work};
 
 /// What a processing node is beyond an actor of the network (every
 /// [`NodeKind`] is one).
@@ -58,14 +57,8 @@ pub fn processing_node(
     if scenario.channel.is_some() {
         return Ok(Box::new(MacCentre::new(scenario, topology, index)?));
     }
-    if scenario.consensus.protocol.shape() == Shape::Locator {
-        let config = crate::registry::location_config(scenario)?;
-        return Ok(Box::new(LocatorNode::new(
-            scenario, topology, index, config,
-        )?));
-    }
-    if let Some(tracker) = crate::registry::cooperation(scenario, topology, index)? {
-        return tracker.node(scenario, topology, index);
+    if let Some(node) = crate::parts::node_of_its_own(scenario, topology, index, start)? {
+        return Ok(node);
     }
     let node = CfDpfNode::new(scenario, topology, index)?;
     Ok(Box::new(node.starting(start)))

@@ -59,6 +59,9 @@ impl Report {
     pub fn rounds(mut self, stats: &RoundStats) -> Self {
         self.telemetry.rounds_completed = stats.rounds_completed;
         self.telemetry.live_neighbours = stats.neighbours_heard;
+        self.telemetry.missed_neighbours = stats
+            .neighbours_expected
+            .saturating_sub(stats.neighbours_heard);
         self.stage(Stage::LaterRounds, stats.later_rounds)
             .stage(Stage::Consensus, stats.total)
     }

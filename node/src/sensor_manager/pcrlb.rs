@@ -753,6 +753,7 @@ mod tests {
             let format = fusion_graph::WireFormat {
                 cell_bytes: 1,
                 activation_bytes: 4,
+                payloads: wire::payloads::Payloads::NONE,
             };
             self.sent
                 .iter()

@@ -3,5 +3,5 @@
 //! the two lines a user's crate needs to do the same.
 
 fn main() -> std::process::ExitCode {
-    cqnet_testkit::cqnet_main()
+    cqnet_testkit::App::new().main()
 }

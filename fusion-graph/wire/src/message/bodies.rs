@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::MessageKind;
-use crate::protocol_kinds::ProtocolBody;
+use crate::payloads::ProtocolBody;
 
 /// A set of small indices as a bit mask, bit i of byte i/8: which of a
 /// node's sensors are active, or which nodes are alive.
@@ -99,6 +99,9 @@ pub struct Telemetry {
     pub aux_bound: Option<f64>,
     pub rounds_completed: u16,
     pub live_neighbours: u16,
+    /// Neighbours the fusion protocol expected in its last round but did
+    /// not hear (what "fewer neighbours" means is the protocol's).
+    pub missed_neighbours: u16,
     pub observations: u16,
     /// Observations the innovation gate left out.
     pub gated: u16,
@@ -143,6 +146,7 @@ impl Telemetry {
             aux_bound: None,
             rounds_completed: 0,
             live_neighbours: 0,
+            missed_neighbours: 0,
             observations: 0,
             gated: 0,
             lagged: 0,

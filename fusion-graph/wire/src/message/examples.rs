@@ -18,6 +18,7 @@ pub fn examples() -> Vec<Message> {
         aux_bound: Some(2.0),
         rounds_completed: 10,
         live_neighbours: 4,
+        missed_neighbours: 1,
         observations: 3,
         gated: 1,
         lagged: 2,

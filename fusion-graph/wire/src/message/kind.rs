@@ -1,9 +1,7 @@
 //! The kinds of message: one table gives each built-in kind its byte on
 //! the wire and its name in the counts, so that adding a kind is one line.
 
-use serde::{Deserialize, Serialize};
-
-use crate::protocol_kinds::ProtocolKind;
+use crate::payloads::{Payloads, ProtocolKind};
 
 /// Declares [`MessageKind`] from one table, `Variant = byte, "name";`,
 /// with the conversions to and from the byte and the name read off the
@@ -11,26 +9,32 @@ use crate::protocol_kinds::ProtocolKind;
 macro_rules! message_kinds {
     ($($(#[$meta:meta])* $variant:ident = $code:literal, $name:literal;)*) => {
         /// Message kinds, also the unit of byte accounting: the built-in
-        /// ones, and those protocols register for their own payloads
+        /// ones, and those a program gives its protocols' own payloads
         /// ([`crate::payloads`]).
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
         #[repr(u8)]
         pub enum MessageKind {
             $($(#[$meta])* $variant = $code,)*
-            /// A protocol's own payload, under the kind byte it registered.
+            /// A protocol's own payload, under the kind byte the program gave it.
             Protocol(ProtocolKind) = 128,
             /// Accounting only: bytes whose kind could not be read.
             Malformed = 255,
         }
 
         impl MessageKind {
-            /// The kind of a byte read off the wire: a built-in kind, or
-            /// one a protocol registered; `None` for any other byte.
+            /// The built-in kind of a byte; `None` for any other byte.
             pub fn from_u8(v: u8) -> Option<Self> {
                 match v {
                     $($code => Some(Self::$variant),)*
-                    k => ProtocolKind::registered(k).map(Self::Protocol),
+                    _ => None,
                 }
+            }
+
+            /// The kind of a byte read off the wire: a built-in kind, or
+            /// one the program gave a payload of its own; `None` for any
+            /// other byte.
+            pub fn from_code(v: u8, payloads: Payloads) -> Option<Self> {
+                Self::from_u8(v).or_else(|| payloads.kind(v).map(Self::Protocol))
             }
 
             /// The kind's name in the counts and the result files.

@@ -25,7 +25,7 @@ use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
-use crate::protocol_kinds::{self, ProtocolBody};
+use crate::payloads::{Payloads, ProtocolBody};
 use crate::WireError;
 
 /// Bumped whenever the encoding changes.
@@ -69,13 +69,16 @@ pub struct Header {
     pub step: u32,
     pub round: u16,
 }
-/// What the receiver must know to read a message: the sizes the scenario fixes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What the receiver must know to read a message: the sizes the scenario
+/// fixes, and the payloads the program declared for its own protocols.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WireFormat {
     /// `ceil(N_L/8)`.
     pub cell_bytes: usize,
     /// `ceil(max sensors per node / 8)`.
     pub activation_bytes: usize,
+    /// The kinds the program gave its protocols' payloads.
+    pub payloads: Payloads,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -231,7 +234,8 @@ impl Message {
                 computed,
             });
         }
-        let kind = MessageKind::from_u8(h.kind).ok_or(WireError::UnknownKind { kind: h.kind })?;
+        let kind = MessageKind::from_code(h.kind, format.payloads)
+            .ok_or(WireError::UnknownKind { kind: h.kind })?;
         let sender =
             ActorId::from_wire(h.sender_kind, h.sender_index).ok_or(WireError::UnknownSender {
                 kind: h.sender_kind,
@@ -424,7 +428,7 @@ impl Message {
                 }
             }
             MessageKind::Protocol(k) => {
-                protocol_kinds::check_body(k, body)?;
+                k.check_body(body)?;
                 Payload::Protocol(ProtocolBody {
                     kind: k,
                     bytes: body.to_vec(),
@@ -689,6 +693,7 @@ mod tests {
     const FORMAT: WireFormat = WireFormat {
         cell_bytes: 1,
         activation_bytes: 4,
+        payloads: crate::payloads::Payloads::NONE,
     };
 
     #[test]
@@ -713,6 +718,7 @@ mod tests {
         let f = WireFormat {
             cell_bytes: 2,
             activation_bytes: 4,
+            payloads: crate::payloads::Payloads::NONE,
         };
         assert_eq!(m.to_bytes(&f).len(), HEADER_BYTES + 2);
         assert_eq!(Message::decode(&m.to_bytes(&f), &f).unwrap(), m);
@@ -800,6 +806,7 @@ mod tests {
             .to_bytes(&WireFormat {
                 cell_bytes: 2,
                 activation_bytes: 4,
+                payloads: crate::payloads::Payloads::NONE,
             });
         let mut unsealed = obs.clone();
         unsealed[12] ^= 0x40;

@@ -15,7 +15,7 @@
 use std::time::Duration;
 
 use bounds::State;
-use fusion_graph::registered::Shape;
+use fusion_graph::vocabulary::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use fusion_graph::{Channel, Wiring};
@@ -126,18 +126,17 @@ const WAITING_SHARE_OF_STEP: f64 = 0.9;
 
 impl CfDpfNode {
     /// The node as the scenario describes it: its sensor manager and fusion
-    /// protocol are the registry's (`crate::registry`) for the names the
-    /// scenario gives.
+    /// protocol are what the scenario's names build (`crate::parts`).
     pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Result<Self, NodeError> {
         let protocol = scenario.consensus.protocol;
         match protocol.shape() {
             Shape::ExactSums => return Err(NodeError::NoExactSums),
             Shape::Tracker { .. } | Shape::Locator => return Err(NodeError::NotCfDpf(protocol)),
-            Shape::Rounds => {}
+            Shape::Rounds { .. } => {}
         }
-        let protocol = crate::registry::information_fusion(scenario, topology, index)?
+        let protocol = crate::parts::information_fusion(scenario, topology, index)?
             .expect("a protocol of rounds has a builder");
-        let manager = crate::registry::manager(scenario, topology, index)?;
+        let manager = crate::parts::manager(scenario, topology, index)?;
         Self::with_parts(scenario, topology, index, manager, protocol)
     }
 

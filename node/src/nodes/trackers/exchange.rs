@@ -46,9 +46,6 @@ impl Cooperation for ExchangeCooperation {
         true
     }
 
-    fn pairs(&self) -> bool {
-        true
-    }
 
     /// Swaps the posterior of the step before, while the measurements of
     /// this one come in.

@@ -42,8 +42,8 @@ pub use kl::KlCooperation;
 /// How a tracker node cooperates with its neighbours, beside the step
 /// every tracker shares (its sensors, its neighbours' relays, its
 /// report): RndEx-PF's exchange ([`ExchangeCooperation`]) or KL fusion
-/// ([`KlCooperation`]). The registry ([`crate::registry`]) builds one by
-/// the scenario's `consensus.protocol`.
+/// ([`KlCooperation`]), or a program's own: a node factory
+/// ([`crate::parts::NodeFactory`]) builds a [`TrackerNode`] around one.
 pub trait Cooperation {
     /// The fusion protocol it runs with the neighbours.
     type Protocol: FusionProtocol;
@@ -55,12 +55,6 @@ pub trait Cooperation {
     /// Whether the node relays its measurements and weighs its
     /// neighbours'.
     fn uses_neighbourhood(&self) -> bool;
-
-    /// Whether it talks to one neighbour at a time, over channels per
-    /// pair of nodes.
-    fn pairs(&self) -> bool {
-        false
-    }
 
     /// The step begins, its measurements still to come.
     fn begin(
@@ -105,28 +99,6 @@ pub trait Cooperation {
         now: Duration,
         out: &mut Vec<Outgoing>,
     ) -> bool;
-}
-
-/// The cooperation a scenario's `consensus.protocol` names, as the
-/// registry builds it.
-pub enum Tracker {
-    Exchange(Box<ExchangeCooperation>),
-    Kl(Box<KlCooperation>),
-}
-
-impl Tracker {
-    /// Node `index` of a tracker network, cooperating so.
-    pub fn node(
-        self,
-        scenario: &Scenario,
-        topology: &Topology,
-        index: u16,
-    ) -> Result<crate::AnyNode, NodeError> {
-        Ok(match self {
-            Tracker::Exchange(c) => Box::new(TrackerNode::new(scenario, topology, index, *c)?),
-            Tracker::Kl(c) => Box::new(TrackerNode::new(scenario, topology, index, *c)?),
-        })
-    }
 }
 
 /// What a tracker's step does after a stage.
@@ -482,18 +454,8 @@ impl<C: Cooperation> NodeKind for TrackerNode<C> {
 impl<C: Cooperation> Actor for TrackerNode<C> {
     type Work = Work;
 
-    /// A node's wiring and, when it talks in pairs, a channel to each
-    /// neighbour and from each.
     fn wiring(&self) -> Wiring {
-        let mut wiring = self.core.wiring();
-        if self.cooperation.pairs() {
-            let me = self.core.index();
-            for m in self.neighbours() {
-                wiring.reads.push(Channel::Pair { from: *m, to: me });
-                wiring.publishes.push(Channel::Pair { from: me, to: *m });
-            }
-        }
-        wiring
+        self.core.wiring()
     }
 
     fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {

@@ -1,0 +1,192 @@
+//! Push-sum gossip (Kempe, Dobra and Gehrke, "Gossip-based computation of
+//! aggregate information", FOCS 2003) on the CF/DPF's information vector.
+//!
+//! Each node holds a value x and a weight w, starting from its own vector
+//! and 1. Each round it keeps half of both and sends the other half to one
+//! neighbour, drawn anew each round; it adds what it receives. The sums of
+//! x and of w over the network never change, so every node's x / w tends
+//! to the network's average, whatever the graph, without the doubly
+//! stochastic weights average consensus needs. The network's sums are
+//! N_f · x / w.
+//!
+//! Sends are point to point: the factory says it needs pairs, and each
+//! round's value crosses only the link to the neighbour drawn. Every node
+//! can draw any node's target ([`gossip_target`]), so a node waits in a
+//! round for exactly the neighbours that send to it, and a round that
+//! hears fewer than those is what a fault cost the step.
+
+use fusion_graph::{MetropolisWeights, Topology, WireError};
+use node::fusion::{
+    At, Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone, To,
+};
+use node::parts::{Needs, ParamError, ProtocolFactory, Setup};
+use wire::payloads::{PayloadKind, ProtocolPayload};
+use wire::Payload;
+
+/// Half a node's value and weight, on its way to one neighbour: δη, δΛ,
+/// ΔL (24 numbers) and the weight.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PushSumValue {
+    pub value: InformationVector,
+    pub weight: f64,
+}
+
+impl ProtocolPayload for PushSumValue {
+    const NAME: &'static str = "push_sum";
+    const LEN: usize = 25 * 8;
+    /// ΔL, 10 numbers of the 25: what the bound is computed from.
+    const BOUND_BYTES: usize = 10 * 8;
+
+    fn encode(&self, out: &mut Vec<u8>) {
+        let v = &self.value;
+        let numbers = v.delta_eta.iter().chain(&v.delta_lambda).chain(&v.delta_l);
+        for x in numbers.chain([&self.weight]) {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+
+    fn decode(body: &[u8]) -> Result<Self, WireError> {
+        let mut n = [0.0; 25];
+        for (x, bytes) in n.iter_mut().zip(body.chunks_exact(8)) {
+            *x = f64::from_le_bytes(bytes.try_into().map_err(|_| WireError::Truncated)?);
+            if !x.is_finite() {
+                return Err(WireError::NonFinite);
+            }
+        }
+        if n[24] <= 0.0 {
+            // A weight is a share of a node's 1: never zero or less.
+            return Err(WireError::NonFinite);
+        }
+        Ok(Self {
+            value: InformationVector::new(
+                n[..4].try_into().expect("4"),
+                n[4..14].try_into().expect("10"),
+                n[14..24].try_into().expect("10"),
+            ),
+            weight: n[24],
+        })
+    }
+}
+
+/// The neighbour node `node` sends to in `at`, drawn from the scenario's
+/// `seed` by a hash every node computes alike.
+pub fn gossip_target(topology: &Topology, seed: u64, node: u16, at: At) -> u16 {
+    let neighbours = &topology.neighbours[node as usize];
+    let key = seed ^ (u64::from(at.step) << 32) ^ (u64::from(at.round) << 16) ^ u64::from(node);
+    neighbours[(splitmix64(key) % neighbours.len() as u64) as usize]
+}
+
+/// SplitMix64's finalizer: a well-mixed 64-bit hash of `x`.
+fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The round rule.
+struct Rule {
+    node: u16,
+    topology: Topology,
+    seed: u64,
+    kind: PayloadKind<PushSumValue>,
+}
+
+impl RoundRule for Rule {
+    type Input = InformationVector;
+    type Value = PushSumValue;
+    type Output = Fused;
+    type Pieces = Option<PushSumValue>;
+
+    fn begin(&self, _: u32, value: InformationVector) -> PushSumValue {
+        PushSumValue { value, weight: 1.0 }
+    }
+
+    /// The half that leaves.
+    fn payloads(&self, _: At, own: &PushSumValue, out: &mut Vec<Payload>) {
+        out.push(self.kind.payload(&halved(own)));
+    }
+
+    fn to(&self, at: At) -> To {
+        if self.topology.neighbours[self.node as usize].is_empty() {
+            return To::Nobody;
+        }
+        To::Neighbour(gossip_target(&self.topology, self.seed, self.node, at))
+    }
+
+    fn expects(&self, at: At, from: u16) -> bool {
+        gossip_target(&self.topology, self.seed, from, at) == self.node
+    }
+
+    fn absorb(&self, pieces: &mut Option<PushSumValue>, payload: &Payload) -> bool {
+        let Some(v) = self.kind.read(payload) else {
+            return false;
+        };
+        *pieces = Some(v);
+        true
+    }
+
+    fn assemble(&self, pieces: &Option<PushSumValue>) -> Option<PushSumValue> {
+        *pieces
+    }
+
+    /// The half kept, plus the halves received.
+    fn combine(
+        &self,
+        own: &PushSumValue,
+        heard: &[(u16, PushSumValue)],
+        _: &MetropolisWeights,
+    ) -> PushSumValue {
+        let alone = self.topology.neighbours[self.node as usize].is_empty();
+        let mut next = if alone { *own } else { halved(own) };
+        for (_, v) in heard {
+            next.value.add_scaled(1.0, &v.value);
+            next.weight += v.weight;
+        }
+        next
+    }
+
+    fn finish(&self, done: RoundsDone<PushSumValue>) -> Fused {
+        let PushSumValue { value, weight } = done.value;
+        let n = done.component_size as f64;
+        Fused {
+            sums: value.scaled(n / weight).to_sums(),
+            stats: done.stats,
+        }
+    }
+}
+
+fn halved(v: &PushSumValue) -> PushSumValue {
+    PushSumValue {
+        value: v.value.scaled(0.5),
+        weight: v.weight / 2.0,
+    }
+}
+
+/// Push-sum's factory: `consensus.rounds` rounds a step, each closing at
+/// `consensus.round_timeout_ms`; no parameters of its own; sends to one
+/// neighbour at a time.
+pub struct PushSum;
+
+impl ProtocolFactory for PushSum {
+    fn needs(&self) -> Needs {
+        Needs::POINT_TO_POINT
+    }
+
+    fn build(&self, setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
+        setup.params.only(&[])?;
+        let rule = Rule {
+            node: setup.node,
+            topology: setup.topology.clone(),
+            seed: setup.scenario.seed,
+            kind: setup.payload::<PushSumValue>()?,
+        };
+        Ok(Box::new(RoundEngine::new(
+            rule,
+            setup.node,
+            setup.topology,
+            setup.rounds(),
+            setup.round_timeout(),
+        )))
+    }
+}

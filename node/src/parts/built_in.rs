@@ -1,0 +1,184 @@
+//! cqnet's own parts, listed through the same methods a program uses for
+//! its own ([`Parts::new`](super::Parts::new)).
+
+use fusion_graph::vocabulary::Shape;
+use fusion_graph::Scenario;
+
+use super::{Carries, ParamError, Parts, ProtocolFactory, Setup};
+use crate::fusion::{average_consensus, InformationFusion};
+use crate::location::{LocationConfig, ThresholdDesign};
+use crate::nodes::trackers::{ExchangeCooperation, KlCooperation, TrackerNode};
+use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, UniformRandom};
+use crate::{AnyNode, LocatorNode, NodeError, Start};
+
+/// Adds cqnet's own parts to `parts`, in the order the scenario format's
+/// vocabulary lists them.
+pub(super) fn add(parts: Parts) -> Parts {
+    parts
+        .protocol("average", Average)
+        .exact_sums("exact")
+        .node("random_exchange", (PAIRED_TRACKER, random_exchange))
+        .node("kl_consensus", (TRACKER, kl_consensus))
+        .node("kl_diffusion", (TRACKER, kl_diffusion))
+        .node("kl_iterative", (TRACKER, kl_iterative))
+        .node("ml_location", (Shape::Locator, locator))
+        .manager("random", random)
+        .manager("closest", closest)
+        .manager("pcrlb", pcrlb)
+        .manager("pcrlb_at_estimate", pcrlb_at_estimate)
+        .manager("pcrlb_offline", pcrlb_offline)
+}
+
+const TRACKER: Shape = Shape::Tracker { pairs: false };
+const PAIRED_TRACKER: Shape = Shape::Tracker { pairs: true };
+
+// The built-in parts take no parameters of their own, but the locator.
+
+/// Average consensus: it carries every part of the information vector.
+struct Average;
+
+impl ProtocolFactory for Average {
+    fn carries(&self) -> Carries {
+        Carries {
+            late: true,
+            s_obs: true,
+        }
+    }
+
+    fn build(&self, setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
+        setup.params.only(&[])?;
+        Ok(Box::new(
+            average_consensus(
+                setup.node,
+                setup.topology,
+                setup.rounds(),
+                setup.round_timeout(),
+                setup.scenario.consensus.auxiliary_fim,
+            )
+            .stop_awaiting_the_late(),
+        ))
+    }
+}
+
+fn random_exchange(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
+    setup.params.only(&[])?;
+    let cooperation = ExchangeCooperation::new(setup.scenario, setup.topology, setup.node);
+    tracker(setup, cooperation)
+}
+
+fn kl_consensus(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
+    kl(setup, setup.scenario.consensus.rounds, false)
+}
+
+fn kl_diffusion(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
+    kl(setup, 1, true)
+}
+
+fn kl_iterative(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
+    kl(setup, setup.scenario.consensus.rounds, true)
+}
+
+fn kl(setup: &Setup<'_>, rounds: u32, neighbourhood: bool) -> Result<AnyNode, NodeError> {
+    setup.params.only(&[])?;
+    let cooperation = KlCooperation::new(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        rounds,
+        neighbourhood,
+    );
+    tracker(setup, cooperation)
+}
+
+fn tracker<C: crate::nodes::trackers::Cooperation + 'static>(
+    setup: &Setup<'_>,
+    cooperation: C,
+) -> Result<AnyNode, NodeError> {
+    let node = TrackerNode::new(setup.scenario, setup.topology, setup.node, cooperation)?;
+    Ok(Box::new(node))
+}
+
+fn locator(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
+    let config = location_config(setup.scenario)?;
+    let node = LocatorNode::new(setup.scenario, setup.topology, setup.node, config)?;
+    Ok(Box::new(node))
+}
+
+/// `consensus.params` of `ml_location`: `grid_x`, `grid_y` (5 to 61
+/// points, default 21), `refinements` (0 to 4, default 2) and `thresholds`
+/// (`"designed"`, the default for amplitude sensors, or `"uniform"`).
+pub fn location_config(scenario: &Scenario) -> Result<LocationConfig, ParamError> {
+    let params = super::protocol_params(scenario);
+    params.only(&["grid_x", "grid_y", "refinements", "thresholds"])?;
+    let axis = |name| params.integer(name, 5..=61, 21).map(|v| v as usize);
+    let amplitude = matches!(scenario.observation, bounds::SensorLaw::Amplitude { .. });
+    let default = if amplitude { "designed" } else { "uniform" };
+    let thresholds = match params.text("thresholds", default)? {
+        "designed" if amplitude || scenario.quantizer.raw => ThresholdDesign::Designed,
+        "designed" => {
+            return Err(params.error(
+                "thresholds",
+                "\"uniform\": the designed thresholds are for amplitude sensors",
+                "\"designed\"",
+            ))
+        }
+        "uniform" => ThresholdDesign::Uniform,
+        other => {
+            return Err(params.error(
+                "thresholds",
+                "\"designed\" or \"uniform\"",
+                format!("\"{other}\""),
+            ))
+        }
+    };
+    Ok(LocationConfig {
+        grid: [axis("grid_x")?, axis("grid_y")?],
+        refinements: params.integer("refinements", 0..=4, 2)? as usize,
+        thresholds,
+    })
+}
+
+fn random(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(Manager::Alone(Box::new(UniformRandom::for_scenario(
+        setup.scenario,
+    ))))
+}
+
+fn closest(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(Manager::Alone(Box::new(Closest::for_scenario(
+        setup.scenario,
+    ))))
+}
+
+fn pcrlb(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(sensor_manager::negotiated(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        Scoring::Conditional,
+    ))
+}
+
+fn pcrlb_at_estimate(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    Ok(sensor_manager::negotiated(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        Scoring::AtEstimate,
+    ))
+}
+
+fn pcrlb_offline(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    let manager =
+        OfflinePcrlb::for_scenario(setup.scenario, setup.topology).map_err(|e| ParamError {
+            key: "sensors.manager".into(),
+            expected: "a scenario whose offline PCRLB can be computed".into(),
+            got: e.to_string(),
+        })?;
+    Ok(Manager::Alone(Box::new(manager)))
+}
