@@ -655,6 +655,7 @@ mod tests {
                 aux_bound: None,
                 rounds_completed: 3,
                 live_neighbours: 1,
+                missed_neighbours: 0,
                 observations: 3,
                 gated: 0,
                 lagged: 0,

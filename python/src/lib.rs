@@ -78,7 +78,7 @@ fn leftover_shared_memory(run_id: &str) -> PyResult<Vec<std::path::PathBuf>> {
 /// command, and how each actor of a `run` started from Python runs.
 #[pyfunction]
 fn cli_main(py: Python<'_>, args: Vec<String>) -> i32 {
-    let code = py.detach(|| cqnet::app::main_with(args));
+    let code = py.detach(|| cqnet::App::new().main_with(args));
     if code == std::process::ExitCode::SUCCESS {
         0
     } else {

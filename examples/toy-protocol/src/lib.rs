@@ -6,6 +6,9 @@
 //! - [`PushSum`]: push-sum gossip, each round a node keeps half its value
 //!   and weight and sends the other half to one neighbour, over the pair's
 //!   own channel;
+//! - a tracker of our own (`gossip_tracker`): the tracker node's particle
+//!   filter, its posteriors fused by push-sum on their natural parameters
+//!   over pair channels ([`PosteriorShare`]);
 //! - [`FirstK`]: a node always activates its first `k` sensors.
 //!
 //! A scenario chooses them by name:
@@ -21,10 +24,12 @@
 //! ```
 
 mod first_k;
+mod gossip_tracker;
 mod neighbourhood_mean;
 mod push_sum;
 
 pub use first_k::FirstK;
+pub use gossip_tracker::PosteriorShare;
 pub use neighbourhood_mean::{NeighbourhoodMean, NeighbourhoodValue};
 pub use push_sum::{gossip_target, PushSum, PushSumValue};
 
@@ -36,7 +41,9 @@ pub fn app() -> App {
     App::new()
         .payload::<NeighbourhoodValue>()
         .payload::<PushSumValue>()
+        .payload::<PosteriorShare>()
         .protocol("neighbourhood_mean", neighbourhood_mean::build)
         .protocol("push_sum", PushSum)
+        .node("gossip_tracker", gossip_tracker::factory())
         .manager("first_k", first_k::build)
 }

@@ -7,7 +7,7 @@
 use cqnet_testkit::{default_scenario, ActorId, MessageKind, Network, Run, Vocabulary};
 use fusion_graph::Topology;
 use node::fusion::At;
-use toy_protocol::{gossip_target, NeighbourhoodValue, PushSumValue};
+use toy_protocol::{gossip_target, NeighbourhoodValue, PosteriorShare, PushSumValue};
 
 const STEPS: u32 = 6;
 const ROUNDS: u32 = 2;
@@ -26,6 +26,11 @@ fn toy_network(protocol: &str) -> Network {
         .parts(vocabulary())
         .set("consensus.protocol", format!("\"{protocol}\""))
         .set("consensus.rounds", ROUNDS)
+        // Generous, so that a loaded machine's scheduling never closes a
+        // round before its neighbours' values are in (which would make
+        // `run --lockstep` differ from `sim`); a round that has them all
+        // closes at once.
+        .set("consensus.round_timeout_ms", 500)
         .set("sensors.manager", "\"first_k\"")
         .set("sensors.manager_params", "{ k = 2 }")
         .no_central()
@@ -81,6 +86,7 @@ fn assert_toy_parts_ran(run: &Run, kind: MessageKind) {
 
 #[test]
 fn the_toy_protocol_and_manager_run_in_sim_and_as_processes_alike() {
+    let _one_network_at_a_time = cqnet_testkit::exclusive();
     let kind = vocabulary().payloads().of::<NeighbourhoodValue>().unwrap().kind();
     let sim = toy_network("neighbourhood_mean").sim().expect("sim starts");
     assert_toy_parts_ran(&sim, kind);
@@ -130,6 +136,7 @@ fn assert_push_sum_ran(run: &Run, kind: MessageKind) {
 
 #[test]
 fn push_sum_gossips_point_to_point_in_sim_and_as_processes_alike() {
+    let _one_network_at_a_time = cqnet_testkit::exclusive();
     let kind = vocabulary().payloads().of::<PushSumValue>().unwrap().kind();
     let sim = toy_network("push_sum").sim().expect("sim starts");
     assert_push_sum_ran(&sim, kind);
@@ -170,4 +177,58 @@ fn a_bad_parameter_is_refused_by_its_full_key() {
         .sim()
         .expect("sim starts");
     run.assert_failure_naming(&["sensors.manager_params.kk"]);
+}
+
+/// The tracker of our own on the random-exchange network: each round's
+/// half of a posterior crosses exactly the link to the neighbour drawn,
+/// and the nodes track.
+fn assert_gossip_tracker_ran(run: &Run, kind: MessageKind) {
+    run.assert_success();
+    let scenario = cqnet_testkit::random_exchange_scenario();
+    let topology = Topology::from_scenario(&scenario, "random-exchange").unwrap();
+    let mut total = 0;
+    for (a, neighbours) in topology.neighbours.iter().enumerate() {
+        for &b in neighbours {
+            let expected = (1..=STEPS)
+                .flat_map(|step| (1..=ROUNDS as u16).map(move |round| At { step, round }))
+                .filter(|&at| gossip_target(&topology, scenario.seed, a as u16, at) == b)
+                .count() as u64;
+            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b));
+            assert_eq!(run.messages(from, to, kind), expected, "{from} → {to}");
+            assert_eq!(run.bytes(from, to, kind), expected * (13 + 15 * 8));
+            total += expected;
+        }
+    }
+    assert_eq!(total, u64::from(STEPS * ROUNDS) * topology.nodes() as u64);
+    assert_eq!(run.unaccounted(kind), 0);
+    assert_eq!(run.counters(MessageKind::KlConsensus).sent_messages, 0);
+    assert_eq!(run.summary().fault_cost.rounds_with_fewer_neighbours, 0);
+    for tick in run.ticks().iter().filter(|t| t.is_node()) {
+        assert_eq!(tick.rounds_completed, ROUNDS, "{}", tick.line);
+        assert!(tick.error.is_finite(), "{}", tick.line);
+    }
+}
+
+fn tracker_network() -> Network {
+    let mut scenario = cqnet_testkit::random_exchange_scenario();
+    scenario.steps = STEPS;
+    Network::new(scenario)
+        .executable(env!("CARGO_BIN_EXE_toy-protocol"))
+        .parts(vocabulary())
+        .set("consensus.protocol", "\"gossip_tracker\"")
+        .set("consensus.rounds", ROUNDS)
+        .set("consensus.round_timeout_ms", 500)
+        .no_central()
+}
+
+#[test]
+fn a_tracker_of_our_own_runs_in_sim_and_as_processes_alike() {
+    let _one_network_at_a_time = cqnet_testkit::exclusive();
+    let kind = vocabulary().payloads().of::<PosteriorShare>().unwrap().kind();
+    let sim = tracker_network().sim().expect("sim starts");
+    assert_gossip_tracker_ran(&sim, kind);
+    let run = tracker_network().lockstep().run().expect("run starts");
+    assert_gossip_tracker_ran(&run, kind);
+    run.assert_clean();
+    assert_eq!(run.sorted_tick_lines(), sim.sorted_tick_lines());
 }

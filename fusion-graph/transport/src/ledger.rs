@@ -336,6 +336,7 @@ fn decode_key(v: u64, payloads: Payloads) -> Option<LinkKey> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use wire::MessageKind;
 
     fn key(kind: MessageKind) -> LinkKey {
         (ActorId::Node(3), ActorId::Sensor(700), kind)

@@ -88,7 +88,7 @@ impl Run {
             .nth(1)
             .and_then(|s| s.split("ACCOUNTING-END").next())
             .expect("child printed its accounting");
-        Accounting::from_csv(csv).unwrap()
+        Accounting::from_csv(csv, wire::payloads::Payloads::NONE).unwrap()
     }
 }
 

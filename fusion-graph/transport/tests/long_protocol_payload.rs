@@ -1,7 +1,6 @@
 //! A program's own protocol payload longer than the built-in consensus
 //! messages: the channels between nodes make room for it, and it crosses
-//! iceoryx2 between two actors. In its own test binary (its own process),
-//! since a registration is for the whole program.
+//! iceoryx2 between two actors.
 
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -9,7 +8,7 @@ use fusion_graph::{ActorId, Scenario, Topology, WireError};
 use transport::iceoryx::remove_run_resources;
 use transport::limits::ChannelLimits;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use wire::payloads::{register, ProtocolPayload};
+use wire::payloads::{PayloadEntry, Payloads, ProtocolPayload};
 use wire::{Message, WireFormat, HEADER_BYTES};
 
 /// 80 f64s: 640 bytes, twice the built-in consensus message.
@@ -17,7 +16,6 @@ use wire::{Message, WireFormat, HEADER_BYTES};
 struct Wide([f64; 80]);
 
 impl ProtocolPayload for Wide {
-    const KIND: u8 = 210;
     const NAME: &'static str = "wide";
     const LEN: usize = 640;
 
@@ -36,18 +34,20 @@ impl ProtocolPayload for Wide {
     }
 }
 
-const FORMAT: WireFormat = WireFormat {
-    cell_bytes: 1,
-    activation_bytes: 4,
-    payloads: wire::payloads::Payloads::NONE,
-};
-
 #[test]
-fn a_registered_payload_longer_than_consensus_messages_fits_its_channel() {
-    let topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
+fn a_declared_payload_longer_than_consensus_messages_fits_its_channel() {
+    let mut topology = Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap();
     let before = ChannelLimits::of(&topology, Channel::Consensus(0)).message_bytes;
     assert!(before < HEADER_BYTES + Wide::LEN);
-    register::<Wide>().unwrap();
+    let payloads = Payloads::new(vec![PayloadEntry::next::<Wide>(&[]).unwrap()]);
+    // What a scenario read in a program that declares `Wide` lays out.
+    topology.payloads = payloads;
+    let kind = payloads.of::<Wide>().unwrap();
+    let format = WireFormat {
+        cell_bytes: 1,
+        activation_bytes: 4,
+        payloads,
+    };
     let limits = ChannelLimits::of(&topology, Channel::Consensus(0));
     assert_eq!(limits.message_bytes, HEADER_BYTES + Wide::LEN);
     // Node 0's round value reaches its neighbour node 1 over iceoryx2.
@@ -58,14 +58,14 @@ fn a_registered_payload_longer_than_consensus_messages_fits_its_channel() {
     let run = RunId::new(&format!("t{}-wide-{n:x}", std::process::id())).unwrap();
     let result = std::panic::catch_unwind(|| {
         let (a, b) = (ActorId::Node(0), ActorId::Node(1));
-        let mut sender = IceoryxTransport::new(&run, a, &topology, FORMAT, 1).unwrap();
-        let mut receiver = IceoryxTransport::new(&run, b, &topology, FORMAT, 2).unwrap();
+        let mut sender = IceoryxTransport::new(&run, a, &topology, format, 1).unwrap();
+        let mut receiver = IceoryxTransport::new(&run, b, &topology, format, 2).unwrap();
         receiver.subscribe(Channel::Consensus(0)).unwrap();
         sender.publish_on(Channel::Consensus(0)).unwrap();
         sender.notify(b).unwrap();
         sender.update_connections();
         let value = Wide(std::array::from_fn(|i| i as f64));
-        let message = Message::new(a, 1, 1, value.to_payload());
+        let message = Message::new(a, 1, 1, kind.payload(&value));
         // Every neighbour of node 0 reads its consensus channel (1 and 3
         // on the default grid): the message is for them both.
         sender
@@ -79,7 +79,7 @@ fn a_registered_payload_longer_than_consensus_messages_fits_its_channel() {
             receiver.wait(Duration::from_millis(20)).unwrap();
         }
         assert_eq!(got.len(), 1);
-        assert_eq!(Wide::from_payload(&got[0].payload), Some(value));
+        assert_eq!(kind.read(&got[0].payload), Some(value));
     });
     let _ = remove_run_resources(&run);
     result.unwrap();

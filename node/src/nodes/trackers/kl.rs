@@ -3,6 +3,11 @@
 //! forms, diffusion and iterative), then K_max rounds of consensus on the
 //! natural parameters of the nodes' Gaussian posteriors fuse them, and the
 //! node redraws its particles from the fused Gaussian.
+//!
+//! The fusion of the posteriors is a protocol of its own: KL fusion's
+//! Metropolis rounds by default, or a program's
+//! ([`KlCooperation::with_protocol`]), which then has a tracker of its own
+//! with the weighing and the adoption for free.
 
 use std::time::Duration;
 
@@ -14,8 +19,13 @@ use crate::{Outgoing, Work};
 
 use super::{round_timeout, Cooperation, Next, TrackerFilter};
 
-pub struct KlCooperation {
-    fusion: KlFusion,
+/// Any protocol that fuses the nodes' posteriors in natural parameters.
+pub trait PosteriorFusion: FusionProtocol<Value = NaturalGaussian, Output = KlFused> {}
+
+impl<P: FusionProtocol<Value = NaturalGaussian, Output = KlFused>> PosteriorFusion for P {}
+
+pub struct KlCooperation<P: PosteriorFusion = KlFusion> {
+    fusion: P,
     /// Weigh the closed neighbourhood's measurements before fusing (the
     /// modified forms) rather than the node's own only (consensus KL).
     neighbourhood: bool,
@@ -40,9 +50,18 @@ impl KlCooperation {
         rounds: u32,
         neighbourhood: bool,
     ) -> Self {
+        let fusion = kl_fusion(index, topology, rounds as u16, round_timeout(scenario))
+            .presume_gone_after(2);
+        Self::with_protocol(fusion, neighbourhood)
+    }
+}
+
+impl<P: PosteriorFusion> KlCooperation<P> {
+    /// The posteriors fused by `fusion`, after weighing the closed
+    /// neighbourhood's measurements (`neighbourhood`) or the node's own.
+    pub fn with_protocol(fusion: P, neighbourhood: bool) -> Self {
         Self {
-            fusion: kl_fusion(index, topology, rounds as u16, round_timeout(scenario))
-                .presume_gone_after(2),
+            fusion,
             neighbourhood,
             local: None,
             fused: None,
@@ -53,14 +72,14 @@ impl KlCooperation {
     }
 }
 
-impl Cooperation for KlCooperation {
-    type Protocol = KlFusion;
+impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
+    type Protocol = P;
 
-    fn protocol(&mut self) -> &mut KlFusion {
+    fn protocol(&mut self) -> &mut P {
         &mut self.fusion
     }
 
-    fn protocol_ref(&self) -> &KlFusion {
+    fn protocol_ref(&self) -> &P {
         &self.fusion
     }
 

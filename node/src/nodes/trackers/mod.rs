@@ -37,7 +37,7 @@ mod exchange;
 mod kl;
 
 pub use exchange::ExchangeCooperation;
-pub use kl::KlCooperation;
+pub use kl::{KlCooperation, PosteriorFusion};
 
 /// How a tracker node cooperates with its neighbours, beside the step
 /// every tracker shares (its sensors, its neighbours' relays, its

@@ -1,0 +1,183 @@
+//! A tracker of our own: the random-exchange paper's tracker node (one
+//! particle filter per node, weighed with its closed neighbourhood's
+//! measurements, summarized as a Gaussian), whose posteriors are fused by
+//! push-sum gossip on their natural parameters rather than by KL fusion's
+//! Metropolis rounds.
+//!
+//! Push-sum on (Λμ, Λ) with weights converges to the network's average of
+//! the natural parameters, the same point KL fusion's consensus reaches,
+//! but each round a node sends to one neighbour only, over the pair's
+//! channel. The weighing and the adoption of the fused Gaussian are
+//! cqnet's ([`KlCooperation::with_protocol`]); the fusion is ours.
+
+use fusion_graph::vocabulary::Shape;
+use fusion_graph::{MetropolisWeights, Topology, WireError};
+use node::fusion::{At, KlFused, NaturalGaussian, RoundEngine, RoundRule, RoundsDone, To};
+use node::nodes::trackers::KlCooperation;
+use node::parts::Setup;
+use node::{AnyNode, NodeError, Start, TrackerNode};
+use wire::payloads::{PayloadKind, ProtocolPayload};
+use wire::{pack_mat4, unpack_mat4, Payload};
+
+use crate::gossip_target;
+
+/// Half a node's natural parameters and weight, on their way to one
+/// neighbour: Λμ (4), Λ's upper triangle (10) and the weight.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosteriorShare {
+    pub eta: [f64; 4],
+    pub lambda: [f64; 10],
+    pub weight: f64,
+}
+
+impl ProtocolPayload for PosteriorShare {
+    const NAME: &'static str = "posterior_share";
+    const LEN: usize = 15 * 8;
+
+    fn encode(&self, out: &mut Vec<u8>) {
+        for x in self.eta.iter().chain(&self.lambda).chain([&self.weight]) {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+
+    fn decode(body: &[u8]) -> Result<Self, WireError> {
+        let mut n = [0.0; 15];
+        for (x, bytes) in n.iter_mut().zip(body.chunks_exact(8)) {
+            *x = f64::from_le_bytes(bytes.try_into().map_err(|_| WireError::Truncated)?);
+            if !x.is_finite() {
+                return Err(WireError::NonFinite);
+            }
+        }
+        if n[14] <= 0.0 {
+            return Err(WireError::NonFinite);
+        }
+        Ok(Self {
+            eta: n[..4].try_into().expect("4"),
+            lambda: n[4..14].try_into().expect("10"),
+            weight: n[14],
+        })
+    }
+}
+
+impl PosteriorShare {
+    fn halved(&self) -> Self {
+        Self {
+            eta: self.eta.map(|x| x / 2.0),
+            lambda: self.lambda.map(|x| x / 2.0),
+            weight: self.weight / 2.0,
+        }
+    }
+
+    fn add(&mut self, other: &Self) {
+        for (a, b) in self.eta.iter_mut().zip(&other.eta) {
+            *a += b;
+        }
+        for (a, b) in self.lambda.iter_mut().zip(&other.lambda) {
+            *a += b;
+        }
+        self.weight += other.weight;
+    }
+}
+
+struct Rule {
+    node: u16,
+    topology: Topology,
+    seed: u64,
+    kind: PayloadKind<PosteriorShare>,
+}
+
+impl RoundRule for Rule {
+    type Input = NaturalGaussian;
+    type Value = PosteriorShare;
+    type Output = KlFused;
+    type Pieces = Option<PosteriorShare>;
+
+    fn begin(&self, _: u32, g: NaturalGaussian) -> PosteriorShare {
+        PosteriorShare {
+            eta: g.eta.into(),
+            lambda: pack_mat4(&g.lambda),
+            weight: 1.0,
+        }
+    }
+
+    fn payloads(&self, _: At, own: &PosteriorShare, out: &mut Vec<Payload>) {
+        out.push(self.kind.payload(&own.halved()));
+    }
+
+    fn to(&self, at: At) -> To {
+        if self.topology.neighbours[self.node as usize].is_empty() {
+            return To::Nobody;
+        }
+        To::Neighbour(gossip_target(&self.topology, self.seed, self.node, at))
+    }
+
+    fn expects(&self, at: At, from: u16) -> bool {
+        gossip_target(&self.topology, self.seed, from, at) == self.node
+    }
+
+    fn absorb(&self, pieces: &mut Option<PosteriorShare>, payload: &Payload) -> bool {
+        let Some(v) = self.kind.read(payload) else {
+            return false;
+        };
+        *pieces = Some(v);
+        true
+    }
+
+    fn assemble(&self, pieces: &Option<PosteriorShare>) -> Option<PosteriorShare> {
+        *pieces
+    }
+
+    fn combine(
+        &self,
+        own: &PosteriorShare,
+        heard: &[(u16, PosteriorShare)],
+        _: &MetropolisWeights,
+    ) -> PosteriorShare {
+        let alone = self.topology.neighbours[self.node as usize].is_empty();
+        let mut next = if alone { *own } else { own.halved() };
+        for (_, v) in heard {
+            next.add(v);
+        }
+        next
+    }
+
+    /// The network's average of the natural parameters, x / w.
+    fn finish(&self, done: RoundsDone<PosteriorShare>) -> KlFused {
+        let v = done.value;
+        let w = v.weight;
+        KlFused {
+            fused: NaturalGaussian {
+                eta: v.eta.map(|x| x / w).into(),
+                lambda: unpack_mat4(&v.lambda.map(|x| x / w)),
+            },
+            stats: done.stats,
+        }
+    }
+}
+
+/// `consensus.protocol = "gossip_tracker"`: `consensus.rounds` rounds of
+/// push-sum a step over pair channels, after weighing the closed
+/// neighbourhood's measurements; no parameters of its own.
+pub fn factory() -> (Shape, fn(&Setup<'_>, Start) -> Result<AnyNode, NodeError>) {
+    (Shape::Tracker { pairs: true }, build)
+}
+
+fn build(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
+    setup.params.only(&[])?;
+    let rule = Rule {
+        node: setup.node,
+        topology: setup.topology.clone(),
+        seed: setup.scenario.seed,
+        kind: setup.payload::<PosteriorShare>()?,
+    };
+    let rounds = RoundEngine::new(
+        rule,
+        setup.node,
+        setup.topology,
+        setup.rounds(),
+        setup.round_timeout(),
+    );
+    let cooperation = KlCooperation::with_protocol(rounds, true);
+    let node = TrackerNode::new(setup.scenario, setup.topology, setup.node, cooperation)?;
+    Ok(Box::new(node))
+}
