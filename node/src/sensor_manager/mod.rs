@@ -24,6 +24,10 @@ pub use random::UniformRandom;
 
 use fusion_graph::{Scenario, Topology};
 
+use crate::estimator::{FusionFilter, SensingModel};
+use crate::fusion::FusionProtocol;
+use bounds::BoundError;
+
 use bounds::{Mat4, State};
 
 /// What a node knows when it chooses.
@@ -50,7 +54,22 @@ pub enum Manager {
     /// On its own, from what it knows.
     Alone(Box<dyn SensorManager>),
     /// With the other nodes, by exchanging messages.
-    Negotiated(Box<PcrlbSelection>),
+    Negotiated(Box<dyn NegotiatedManager>),
+}
+
+/// A sensor manager that chooses with the other nodes, by messages (the
+/// PCRLB selection, gathered along a spanning tree, is one): a protocol
+/// from what the node's fusion filter knows to the step's choice, which
+/// the CF/DPF node runs before it activates its sensors.
+pub trait NegotiatedManager: FusionProtocol<Value = SelectionInputs, Output = Selected> {
+    /// What the node brings to the step's negotiation, from its fusion
+    /// filter (before it predicts) and its sensors' models.
+    fn inputs(
+        &self,
+        fusion: &mut FusionFilter,
+        model: &SensingModel,
+        own: &[u16],
+    ) -> Result<SelectionInputs, BoundError>;
 }
 
 impl From<Box<dyn SensorManager>> for Manager {

@@ -525,6 +525,29 @@ impl PcrlbSelection {
     }
 }
 
+impl super::NegotiatedManager for PcrlbSelection {
+    /// The conditional manager's scores over the fusion filter's
+    /// predicted particles, the at-the-estimate one's at its estimate
+    /// (taken before the filter predicts).
+    fn inputs(
+        &self,
+        fusion: &mut crate::estimator::FusionFilter,
+        model: &SensingModel,
+        own: &[u16],
+    ) -> Result<SelectionInputs, BoundError> {
+        match self.scoring {
+            Scoring::Conditional => Ok(SelectionInputs {
+                predicted: fusion.predicted_information(model)?,
+                own: fusion.expected_information(model, own)?,
+            }),
+            Scoring::AtEstimate => {
+                let estimate = fusion.posterior().mean;
+                self.nonconditional_inputs(model, &estimate)
+            }
+        }
+    }
+}
+
 impl FusionProtocol for PcrlbSelection {
     type Value = SelectionInputs;
     type Output = Selected;

@@ -29,7 +29,7 @@ use crate::estimator::{
 };
 use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
-use crate::fusion::{Fused, FusionProtocol, Handled, InformationFusion, InformationVector};
+use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
 use crate::sensor_manager::Manager;
 use crate::{Actor, NodeError, Outgoing, Work};
 

@@ -1,16 +1,13 @@
-//! The CF/DPF node's part in a negotiated sensor selection (the PCRLB
-//! selection, gathered to the fusion graph's centre along a spanning tree
-//! and chosen there once): its scores, from the fusion filter's prediction,
+//! The CF/DPF node's part in a negotiated sensor selection (any
+//! `NegotiatedManager`; cqnet's is the PCRLB selection, gathered to the
+//! fusion graph's centre along a spanning tree and chosen there once): its
+//! scores, from the fusion filter's prediction,
 //! computed in the step or ahead of it, and the activation once the choice
 //! reaches it. A manager that chooses alone is asked here too.
 
 use std::time::Duration;
 
-use bounds::BoundError;
-
-use crate::estimator::{FusionFilter, SensingModel};
-use crate::fusion::FusionProtocol;
-use crate::sensor_manager::{Manager, PcrlbSelection, Scoring, SelectionInputs};
+use crate::sensor_manager::{Manager, SelectionInputs};
 use crate::Outgoing;
 
 use super::{CfDpfNode, Phase};
@@ -95,7 +92,7 @@ impl CfDpfNode {
             (Phase::Idle, Some(ahead)) => &mut ahead.inputs,
             _ => return,
         };
-        let inputs = selection_inputs(selection, &mut self.fusion, &self.model, &own)
+        let inputs = selection.inputs(&mut self.fusion, &self.model, &own)
             .unwrap_or_else(|e| {
                 tracing::error!(node = self.core.index(), error = %e, "selection scores failed; proposing nothing");
                 SelectionInputs {
@@ -145,27 +142,6 @@ impl CfDpfNode {
             let step = s.step;
             self.without_choice = !selected.heard;
             self.activate(step, selected.own, now, out);
-        }
-    }
-}
-
-/// This step's selection scores: the conditional manager's over the fusion
-/// filter's predicted particles, the at-the-estimate one's at its estimate
-/// (taken before the filter predicts).
-fn selection_inputs(
-    selection: &PcrlbSelection,
-    fusion: &mut FusionFilter,
-    model: &SensingModel,
-    own: &[u16],
-) -> Result<SelectionInputs, BoundError> {
-    match selection.scoring() {
-        Scoring::Conditional => Ok(SelectionInputs {
-            predicted: fusion.predicted_information(model)?,
-            own: fusion.expected_information(model, own)?,
-        }),
-        Scoring::AtEstimate => {
-            let estimate = fusion.posterior().mean;
-            selection.nonconditional_inputs(model, &estimate)
         }
     }
 }
