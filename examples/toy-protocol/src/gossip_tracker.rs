@@ -8,18 +8,19 @@
 //! the natural parameters, the same point KL fusion's consensus reaches,
 //! but each round a node sends to one neighbour only, over the pair's
 //! channel. The weighing and the adoption of the fused Gaussian are
-//! cqnet's ([`KlCooperation::with_protocol`]); the fusion is ours.
+//! cqnet's ([`KlCooperation::with_protocol`]); the fusion is ours, the
+//! same push-sum rule as the CF/DPF's ([`Gossip`]) on another [`Mass`].
 
 use fusion_graph::vocabulary::Shape;
-use fusion_graph::{MetropolisWeights, Topology, WireError};
-use node::fusion::{At, KlFused, NaturalGaussian, RoundEngine, RoundRule, RoundsDone, To};
+use fusion_graph::WireError;
+use node::fusion::{KlFused, NaturalGaussian, RoundEngine, RoundsDone};
 use node::nodes::trackers::KlCooperation;
 use node::parts::Setup;
 use node::{AnyNode, NodeError, Start, TrackerNode};
-use wire::payloads::{PayloadKind, ProtocolPayload};
-use wire::{pack_mat4, unpack_mat4, Payload};
+use wire::payloads::ProtocolPayload;
+use wire::{pack_mat4, unpack_mat4};
 
-use crate::gossip_target;
+use crate::push_sum::{Gossip, Mass};
 
 /// Half a node's natural parameters and weight, on their way to one
 /// neighbour: Λμ (4), Λ's upper triangle (10) and the weight.
@@ -59,7 +60,7 @@ impl ProtocolPayload for PosteriorShare {
     }
 }
 
-impl PosteriorShare {
+impl Mass for PosteriorShare {
     fn halved(&self) -> Self {
         Self {
             eta: self.eta.map(|x| x / 2.0),
@@ -79,79 +80,25 @@ impl PosteriorShare {
     }
 }
 
-struct Rule {
-    node: u16,
-    topology: Topology,
-    seed: u64,
-    kind: PayloadKind<PosteriorShare>,
+/// The step's posterior in natural parameters, weight 1.
+fn begin(g: NaturalGaussian) -> PosteriorShare {
+    PosteriorShare {
+        eta: g.eta.into(),
+        lambda: pack_mat4(&g.lambda),
+        weight: 1.0,
+    }
 }
 
-impl RoundRule for Rule {
-    type Input = NaturalGaussian;
-    type Value = PosteriorShare;
-    type Output = KlFused;
-    type Pieces = Option<PosteriorShare>;
-
-    fn begin(&self, _: u32, g: NaturalGaussian) -> PosteriorShare {
-        PosteriorShare {
-            eta: g.eta.into(),
-            lambda: pack_mat4(&g.lambda),
-            weight: 1.0,
-        }
-    }
-
-    fn payloads(&self, _: At, own: &PosteriorShare, out: &mut Vec<Payload>) {
-        out.push(self.kind.payload(&own.halved()));
-    }
-
-    fn to(&self, at: At) -> To {
-        if self.topology.neighbours[self.node as usize].is_empty() {
-            return To::Nobody;
-        }
-        To::Neighbour(gossip_target(&self.topology, self.seed, self.node, at))
-    }
-
-    fn expects(&self, at: At, from: u16) -> bool {
-        gossip_target(&self.topology, self.seed, from, at) == self.node
-    }
-
-    fn absorb(&self, pieces: &mut Option<PosteriorShare>, payload: &Payload) -> bool {
-        let Some(v) = self.kind.read(payload) else {
-            return false;
-        };
-        *pieces = Some(v);
-        true
-    }
-
-    fn assemble(&self, pieces: &Option<PosteriorShare>) -> Option<PosteriorShare> {
-        *pieces
-    }
-
-    fn combine(
-        &self,
-        own: &PosteriorShare,
-        heard: &[(u16, PosteriorShare)],
-        _: &MetropolisWeights,
-    ) -> PosteriorShare {
-        let alone = self.topology.neighbours[self.node as usize].is_empty();
-        let mut next = if alone { *own } else { own.halved() };
-        for (_, v) in heard {
-            next.add(v);
-        }
-        next
-    }
-
-    /// The network's average of the natural parameters, x / w.
-    fn finish(&self, done: RoundsDone<PosteriorShare>) -> KlFused {
-        let v = done.value;
-        let w = v.weight;
-        KlFused {
-            fused: NaturalGaussian {
-                eta: v.eta.map(|x| x / w).into(),
-                lambda: unpack_mat4(&v.lambda.map(|x| x / w)),
-            },
-            stats: done.stats,
-        }
+/// The network's average of the natural parameters, x / w.
+fn end(done: RoundsDone<PosteriorShare>) -> KlFused {
+    let v = done.value;
+    let w = v.weight;
+    KlFused {
+        fused: NaturalGaussian {
+            eta: v.eta.map(|x| x / w).into(),
+            lambda: unpack_mat4(&v.lambda.map(|x| x / w)),
+        },
+        stats: done.stats,
     }
 }
 
@@ -164,11 +111,13 @@ pub fn factory() -> (Shape, fn(&Setup<'_>, Start) -> Result<AnyNode, NodeError>)
 
 fn build(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
     setup.params.only(&[])?;
-    let rule = Rule {
+    let rule = Gossip {
         node: setup.node,
         topology: setup.topology.clone(),
         seed: setup.scenario.seed,
         kind: setup.payload::<PosteriorShare>()?,
+        begin,
+        end,
     };
     let rounds = RoundEngine::new(
         rule,

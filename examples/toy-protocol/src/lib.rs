@@ -31,7 +31,7 @@ mod push_sum;
 pub use first_k::FirstK;
 pub use gossip_tracker::PosteriorShare;
 pub use neighbourhood_mean::{NeighbourhoodMean, NeighbourhoodValue};
-pub use push_sum::{gossip_target, PushSum, PushSumValue};
+pub use push_sum::{gossip_target, Gossip, Mass, PushSum, PushSumValue};
 
 use cqnet::App;
 

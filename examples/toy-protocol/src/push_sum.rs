@@ -84,27 +84,41 @@ fn splitmix64(x: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The round rule.
-struct Rule {
-    node: u16,
-    topology: Topology,
-    seed: u64,
-    kind: PayloadKind<PushSumValue>,
+/// A value push-sum can carry: its weight inside, split in halves and
+/// summed. Both the CF/DPF's information vector ([`PushSumValue`]) and a
+/// tracker's posterior (`PosteriorShare`) are.
+pub trait Mass: ProtocolPayload + Copy {
+    /// The half that leaves (and the half that stays).
+    fn halved(&self) -> Self;
+    /// `self += other`.
+    fn add(&mut self, other: &Self);
 }
 
-impl RoundRule for Rule {
-    type Input = InformationVector;
-    type Value = PushSumValue;
-    type Output = Fused;
-    type Pieces = Option<PushSumValue>;
+/// Push-sum's round rule over any [`Mass`]: a node's input becomes its
+/// first value by `begin`, and its last round's value the protocol's
+/// output by `end` (which divides by the weight).
+pub struct Gossip<I, V, O> {
+    pub node: u16,
+    pub topology: Topology,
+    pub seed: u64,
+    pub kind: PayloadKind<V>,
+    pub begin: fn(I) -> V,
+    pub end: fn(RoundsDone<V>) -> O,
+}
 
-    fn begin(&self, _: u32, value: InformationVector) -> PushSumValue {
-        PushSumValue { value, weight: 1.0 }
+impl<I, V: Mass, O> RoundRule for Gossip<I, V, O> {
+    type Input = I;
+    type Value = V;
+    type Output = O;
+    type Pieces = Option<V>;
+
+    fn begin(&self, _: u32, input: I) -> V {
+        (self.begin)(input)
     }
 
     /// The half that leaves.
-    fn payloads(&self, _: At, own: &PushSumValue, out: &mut Vec<Payload>) {
-        out.push(self.kind.payload(&halved(own)));
+    fn payloads(&self, _: At, own: &V, out: &mut Vec<Payload>) {
+        out.push(self.kind.payload(&own.halved()));
     }
 
     fn to(&self, at: At) -> To {
@@ -118,7 +132,7 @@ impl RoundRule for Rule {
         gossip_target(&self.topology, self.seed, from, at) == self.node
     }
 
-    fn absorb(&self, pieces: &mut Option<PushSumValue>, payload: &Payload) -> bool {
+    fn absorb(&self, pieces: &mut Option<V>, payload: &Payload) -> bool {
         let Some(v) = self.kind.read(payload) else {
             return false;
         };
@@ -126,40 +140,36 @@ impl RoundRule for Rule {
         true
     }
 
-    fn assemble(&self, pieces: &Option<PushSumValue>) -> Option<PushSumValue> {
+    fn assemble(&self, pieces: &Option<V>) -> Option<V> {
         *pieces
     }
 
     /// The half kept, plus the halves received.
-    fn combine(
-        &self,
-        own: &PushSumValue,
-        heard: &[(u16, PushSumValue)],
-        _: &MetropolisWeights,
-    ) -> PushSumValue {
+    fn combine(&self, own: &V, heard: &[(u16, V)], _: &MetropolisWeights) -> V {
         let alone = self.topology.neighbours[self.node as usize].is_empty();
-        let mut next = if alone { *own } else { halved(own) };
+        let mut next = if alone { *own } else { own.halved() };
         for (_, v) in heard {
-            next.value.add_scaled(1.0, &v.value);
-            next.weight += v.weight;
+            next.add(v);
         }
         next
     }
 
-    fn finish(&self, done: RoundsDone<PushSumValue>) -> Fused {
-        let PushSumValue { value, weight } = done.value;
-        let n = done.component_size as f64;
-        Fused {
-            sums: value.scaled(n / weight).to_sums(),
-            stats: done.stats,
-        }
+    fn finish(&self, done: RoundsDone<V>) -> O {
+        (self.end)(done)
     }
 }
 
-fn halved(v: &PushSumValue) -> PushSumValue {
-    PushSumValue {
-        value: v.value.scaled(0.5),
-        weight: v.weight / 2.0,
+impl Mass for PushSumValue {
+    fn halved(&self) -> Self {
+        PushSumValue {
+            value: self.value.scaled(0.5),
+            weight: self.weight / 2.0,
+        }
+    }
+
+    fn add(&mut self, other: &Self) {
+        self.value.add_scaled(1.0, &other.value);
+        self.weight += other.weight;
     }
 }
 
@@ -175,11 +185,21 @@ impl ProtocolFactory for PushSum {
 
     fn build(&self, setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
         setup.params.only(&[])?;
-        let rule = Rule {
+        let rule = Gossip {
             node: setup.node,
             topology: setup.topology.clone(),
             seed: setup.scenario.seed,
             kind: setup.payload::<PushSumValue>()?,
+            begin: |value| PushSumValue { value, weight: 1.0 },
+            // The network's sums: N_f times the average, x / w.
+            end: |done| Fused {
+                sums: done
+                    .value
+                    .value
+                    .scaled(done.component_size as f64 / done.value.weight)
+                    .to_sums(),
+                stats: done.stats,
+            },
         };
         Ok(Box::new(RoundEngine::new(
             rule,
