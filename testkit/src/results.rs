@@ -47,6 +47,8 @@ pub struct Run {
 }
 
 impl Run {
+    // A run is what its network left: each part is needed, none optional.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         run_id: RunId,
         out: PathBuf,

@@ -15,7 +15,7 @@ use fusion_graph::vocabulary::Shape;
 use fusion_graph::WireError;
 use node::fusion::{KlFused, NaturalGaussian, RoundEngine, RoundsDone};
 use node::nodes::trackers::KlCooperation;
-use node::parts::Setup;
+use node::parts::{BuildNode, Setup};
 use node::{AnyNode, NodeError, Start, TrackerNode};
 use wire::payloads::ProtocolPayload;
 use wire::{pack_mat4, unpack_mat4};
@@ -105,7 +105,7 @@ fn end(done: RoundsDone<PosteriorShare>) -> KlFused {
 /// `consensus.protocol = "gossip_tracker"`: `consensus.rounds` rounds of
 /// push-sum a step over pair channels, after weighing the closed
 /// neighbourhood's measurements; no parameters of its own.
-pub fn factory() -> (Shape, fn(&Setup<'_>, Start) -> Result<AnyNode, NodeError>) {
+pub fn factory() -> (Shape, BuildNode) {
     (Shape::Tracker { pairs: true }, build)
 }
 

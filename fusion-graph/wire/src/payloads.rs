@@ -396,7 +396,10 @@ mod tests {
         }
     }
 
-    fn declare(list: &[fn(&[PayloadEntry]) -> Result<PayloadEntry, RegisterError>]) -> Payloads {
+    /// Declares a payload beside those before it.
+    type Declare = fn(&[PayloadEntry]) -> Result<PayloadEntry, RegisterError>;
+
+    fn declare(list: &[Declare]) -> Payloads {
         let mut entries = Vec::new();
         for next in list {
             let entry = next(&entries).unwrap();

@@ -108,6 +108,9 @@ pub trait NodeFactory: Send + Sync + 'static {
     fn build(&self, setup: &Setup<'_>, start: Start) -> Result<AnyNode, NodeError>;
 }
 
+/// A node kind's factory as a plain function, to pair with its [`Shape`].
+pub type BuildNode = fn(&Setup<'_>, Start) -> Result<AnyNode, NodeError>;
+
 impl<F> NodeFactory for (Shape, F)
 where
     F: Fn(&Setup<'_>, Start) -> Result<AnyNode, NodeError> + Send + Sync + 'static,
