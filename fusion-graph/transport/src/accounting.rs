@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 
 pub use crate::counters::{Counters, LinkKey};
-use crate::counters::{Links, Pair};
+use crate::counters::{kind_or_malformed, Links, Pair};
 use crate::ledger::{Ledger, LedgerCounts, LedgerError};
 use wire::ActorId;
 use wire::payloads::Payloads;
@@ -257,16 +257,6 @@ impl Accounting {
 
 /// The start of the line that carries the failed reads of the world.
 const WORLD_MISSES_LINE: &str = "# world_misses,";
-
-/// A kind byte as the ledger writes it: a message kind, or 255 for a
-/// malformed message's line.
-pub(crate) fn kind_or_malformed(v: u8, payloads: Payloads) -> Option<MessageKind> {
-    if v == 255 {
-        Some(MessageKind::Malformed)
-    } else {
-        MessageKind::from_code(v, payloads)
-    }
-}
 
 impl From<Links> for Accounting {
     fn from(links: Links) -> Self {

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use wire::ActorId;
+use wire::payloads::Payloads;
 use wire::MessageKind;
 
 /// Messages and encoded bytes on one directed link, of one kind.
@@ -97,5 +98,15 @@ impl Links {
 
     pub fn get(&self, from: ActorId, to: ActorId, kind: MessageKind) -> Counters {
         self.0.get(&(from, to, kind)).copied().unwrap_or_default()
+    }
+}
+
+/// A kind byte as the ledger writes it: a message kind, or 255 for a
+/// malformed message's line.
+pub(crate) fn kind_or_malformed(v: u8, payloads: Payloads) -> Option<MessageKind> {
+    if v == 255 {
+        Some(MessageKind::Malformed)
+    } else {
+        MessageKind::from_code(v, payloads)
     }
 }

@@ -32,7 +32,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use memmap2::MmapMut;
 
-use crate::counters::{Counters, LinkKey, Links, Pair};
+use crate::counters::{kind_or_malformed, Counters, LinkKey, Links, Pair};
 use wire::ActorId;
 use wire::payloads::Payloads;
 
@@ -325,7 +325,7 @@ fn decode_key(v: u64, payloads: Payloads) -> Option<LinkKey> {
     if v >> 56 != 1 {
         return None;
     }
-    let kind = crate::accounting::kind_or_malformed((v & 0xff) as u8, payloads)?;
+    let kind = kind_or_malformed((v & 0xff) as u8, payloads)?;
     Some((
         decode_actor((v >> 32) & 0xff_ffff)?,
         decode_actor((v >> 8) & 0xff_ffff)?,
