@@ -332,7 +332,7 @@ pub struct SensorLayout {
     /// Which sensors each node activates (the selection paper's comparison).
     #[serde(default)]
     pub manager: SensorManagerKind,
-    /// The manager's own parameters, which it checks (`node::registry`).
+    /// The manager's own parameters, which it checks (`node::parts`).
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub manager_params: toml::Table,
 }
@@ -521,7 +521,7 @@ impl ConsensusProtocol {
 pub struct ConsensusConfig {
     pub rounds: u32,
     pub protocol: ConsensusProtocol,
-    /// The protocol's own parameters, which it checks (`node::registry`).
+    /// The protocol's own parameters, which it checks (`node::parts`).
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub params: toml::Table,
     #[serde(default)]
