@@ -3,11 +3,11 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::scenario::{
     Scenario, COMPRESSIVE_SCENARIO, DEFAULT_SCENARIO, LOCATION_SCENARIO, RANDOM_EXCHANGE_SCENARIO,
     SENSOR_SELECTION_SCENARIO,
 };
+use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::Topology;
 
 #[derive(Debug, Parser)]

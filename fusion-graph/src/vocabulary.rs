@@ -170,9 +170,7 @@ impl Vocabulary {
 
     /// The part of `role` called `name`, if the program has one.
     pub fn part(self, role: Role, name: &str) -> Option<&'static Part> {
-        self.parts
-            .iter()
-            .find(|p| p.role == role && p.name == name)
+        self.parts.iter().find(|p| p.role == role && p.name == name)
     }
 
     /// Every name of `role`, in the order listed.

@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::faults::FaultSchedule;
 use fusion_graph::hosts::Placement;
 use fusion_graph::scenario::ClockMode;
+use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::Actor;
 use fusion_graph::{link_fault_seed, ActorId, Scenario, Topology};
 use node::{processing_node, Start};
@@ -455,8 +455,8 @@ pub fn load_child_scenario(
     path: &std::path::Path,
     vocabulary: Vocabulary,
 ) -> anyhow::Result<(Scenario, Topology)> {
-    let scenario =
-        Scenario::load_in(vocabulary, path, &[]).with_context(|| format!("scenario {}", path.display()))?;
+    let scenario = Scenario::load_in(vocabulary, path, &[])
+        .with_context(|| format!("scenario {}", path.display()))?;
     let topology = Topology::from_scenario(&scenario, &path.display().to_string())?;
     Ok((scenario, topology))
 }

@@ -2,8 +2,8 @@
 //! in CI time (fewer and shorter runs than the 20-run figures in the README,
 //! with tolerances loosened accordingly).
 
-use wire::payloads::Payloads;
 use std::path::PathBuf;
+use wire::payloads::Payloads;
 
 use fusion_graph::{Scenario, Topology};
 use launch::results::ResultsWriter;
@@ -110,8 +110,11 @@ fn auxiliary_fim_baseline_is_close_and_costs_twice_the_bound_traffic() {
         Some(2 * s.bound_traffic.cq_dpcrlb_bytes)
     );
     // The same from links.csv: one aux message (10 numbers) per consensus message.
-    let links =
-        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+    let links = Accounting::from_csv(
+        &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+        Payloads::NONE,
+    )
+    .unwrap();
     let kinds = links.by_kind();
     assert_eq!(
         kinds[&MessageKind::Consensus].sent_messages,
@@ -145,8 +148,11 @@ fn links_csv_bytes_are_the_encoded_message_sizes() {
     let (s, dir) = run("bytes", &["steps=12"], true);
     let (scenario, topology) = scenario(&["steps=12"]);
     let format = scenario.wire_format(&topology);
-    let links =
-        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+    let links = Accounting::from_csv(
+        &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+        Payloads::NONE,
+    )
+    .unwrap();
     for (kind, c) in links.by_kind() {
         if let Some(size) = encoded_len(kind, &format) {
             assert_eq!(c.sent_bytes, c.sent_messages * size as u64, "{kind:?}");
@@ -260,8 +266,11 @@ fn pcrlb_selection_activates_n_max_and_its_bytes_are_predicted() {
     let summary = run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
     let per_step = observations_per_step(&dir, 4);
     assert!(per_step.values().all(|n| *n == 18), "{per_step:?}");
-    let links =
-        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+    let links = Accounting::from_csv(
+        &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+        Payloads::NONE,
+    )
+    .unwrap();
     let reports = links.by_kind()[&MessageKind::SelectionReport];
     let block = 312 + 312 + 48;
     // Corners: their own block over 2 links; sides: their own and their
@@ -299,8 +308,11 @@ fn a_partition_leaves_every_link_balanced() {
     let dir = out_dir("partition-balance");
     let mut w = ResultsWriter::create(&dir).unwrap();
     run_in_process(&s, &t, &mut w, true, |_, _| {}).unwrap();
-    let links =
-        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+    let links = Accounting::from_csv(
+        &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+        Payloads::NONE,
+    )
+    .unwrap();
     let consensus = links.get(
         fusion_graph::ActorId::Node(1),
         fusion_graph::ActorId::Node(2),
@@ -336,8 +348,11 @@ fn a_stopped_sensor_reads_its_activations_later_and_a_killed_one_loses_them() {
         let dir = out_dir(&format!("sensor-{name}-balance"));
         let mut w = ResultsWriter::create(&dir).unwrap();
         run_in_process(&s, &t, &mut w, false, |_, _| {}).unwrap();
-        let links =
-            Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+        let links = Accounting::from_csv(
+            &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+            Payloads::NONE,
+        )
+        .unwrap();
         let owner = fusion_graph::ActorId::Node(t.sensor_owner[3]);
         let activation = links.get(
             owner,
@@ -371,8 +386,11 @@ fn duplicated_reordered_and_corrupted_messages_balance_every_link() {
         "faults=[{{kind = \"duplicate\", probability = 0.3, {all}}}, {{kind = \"reorder\", probability = 0.3, delay_ms = 20.0, {all}}}, {{kind = \"corrupt\", probability = 0.2, {all}}}]"
     );
     let (summary, dir) = run("tamper-balance", &["steps=15", &faults], false);
-    let links =
-        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+    let links = Accounting::from_csv(
+        &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+        Payloads::NONE,
+    )
+    .unwrap();
     for ((from, to, kind), c) in links.iter() {
         assert_eq!(
             c.sent_messages + c.duplicated_messages,
@@ -423,8 +441,11 @@ fn nis_censoring_holds_its_budget_and_its_feedback_costs_what_its_size_says() {
         (mean / 1.5 - 1.0).abs() < 0.15,
         "{mean} transmissions per node-step"
     );
-    let links =
-        Accounting::from_csv(&std::fs::read_to_string(dir.join("links.csv")).unwrap(), Payloads::NONE).unwrap();
+    let links = Accounting::from_csv(
+        &std::fs::read_to_string(dir.join("links.csv")).unwrap(),
+        Payloads::NONE,
+    )
+    .unwrap();
     let kinds = links.by_kind();
     let feedback = kinds[&MessageKind::ActivateFeedbackCovariance];
     // Every node, every step, to each sensor it activates (the feedback is

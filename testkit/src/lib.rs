@@ -67,12 +67,12 @@ mod separate_hosts;
 
 use std::sync::{Mutex, MutexGuard};
 
+pub use cqnet::App;
 pub use fusion_graph::faults::{
     BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector, Loss,
     Partition, Reorder, SensorMode, Signal,
 };
 pub use fusion_graph::scenario::Scenario;
-pub use cqnet::App;
 pub use fusion_graph::vocabulary::Vocabulary;
 pub use fusion_graph::ActorId;
 pub use launch::summary::{AppliedFault, FaultCost, Summary};

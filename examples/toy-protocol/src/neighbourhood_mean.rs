@@ -86,7 +86,11 @@ impl RoundRule for NeighbourhoodMean {
         let Some(v) = self.kind.read(payload) else {
             return false;
         };
-        *pieces = Some(InformationVector::new(v.delta_eta, v.delta_lambda, v.delta_l));
+        *pieces = Some(InformationVector::new(
+            v.delta_eta,
+            v.delta_lambda,
+            v.delta_l,
+        ));
         true
     }
 

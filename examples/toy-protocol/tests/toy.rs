@@ -15,7 +15,9 @@ const ROUNDS: u32 = 2;
 const MESSAGE_BYTES: u64 = 13 + 24 * 8;
 
 fn vocabulary() -> Vocabulary {
-    toy_protocol::app().vocabulary().expect("the toy parts list")
+    toy_protocol::app()
+        .vocabulary()
+        .expect("the toy parts list")
 }
 
 fn toy_network(protocol: &str) -> Network {
@@ -87,10 +89,17 @@ fn assert_toy_parts_ran(run: &Run, kind: MessageKind) {
 #[test]
 fn the_toy_protocol_and_manager_run_in_sim_and_as_processes_alike() {
     let _one_network_at_a_time = cqnet_testkit::exclusive();
-    let kind = vocabulary().payloads().of::<NeighbourhoodValue>().unwrap().kind();
+    let kind = vocabulary()
+        .payloads()
+        .of::<NeighbourhoodValue>()
+        .unwrap()
+        .kind();
     let sim = toy_network("neighbourhood_mean").sim().expect("sim starts");
     assert_toy_parts_ran(&sim, kind);
-    let run = toy_network("neighbourhood_mean").lockstep().run().expect("run starts");
+    let run = toy_network("neighbourhood_mean")
+        .lockstep()
+        .run()
+        .expect("run starts");
     assert_toy_parts_ran(&run, kind);
     run.assert_clean();
     // Lockstep is sim, bit for bit, whatever the protocol.
@@ -140,7 +149,10 @@ fn push_sum_gossips_point_to_point_in_sim_and_as_processes_alike() {
     let kind = vocabulary().payloads().of::<PushSumValue>().unwrap().kind();
     let sim = toy_network("push_sum").sim().expect("sim starts");
     assert_push_sum_ran(&sim, kind);
-    let run = toy_network("push_sum").lockstep().run().expect("run starts");
+    let run = toy_network("push_sum")
+        .lockstep()
+        .run()
+        .expect("run starts");
     assert_push_sum_ran(&run, kind);
     run.assert_clean();
     assert_eq!(run.sorted_tick_lines(), sim.sorted_tick_lines());
@@ -154,7 +166,10 @@ fn another_program_does_not_know_the_toys_parts() {
     let set = ["consensus.protocol=\"push_sum\"".to_string()];
     let own = cqnet_testkit::App::new().vocabulary().unwrap();
     let refused = fusion_graph::Scenario::from_toml_in(own, text, "d", &set).unwrap_err();
-    assert!(refused.to_string().contains("consensus.protocol"), "{refused}");
+    assert!(
+        refused.to_string().contains("consensus.protocol"),
+        "{refused}"
+    );
     let toy = fusion_graph::Scenario::from_toml_in(vocabulary(), text, "d", &set).unwrap();
     assert_eq!(toy.consensus.protocol.name(), "push_sum");
     assert!(own.payloads().of::<PushSumValue>().is_none());
@@ -224,7 +239,11 @@ fn tracker_network() -> Network {
 #[test]
 fn a_tracker_of_our_own_runs_in_sim_and_as_processes_alike() {
     let _one_network_at_a_time = cqnet_testkit::exclusive();
-    let kind = vocabulary().payloads().of::<PosteriorShare>().unwrap().kind();
+    let kind = vocabulary()
+        .payloads()
+        .of::<PosteriorShare>()
+        .unwrap()
+        .kind();
     let sim = tracker_network().sim().expect("sim starts");
     assert_gossip_tracker_ran(&sim, kind);
     let run = tracker_network().lockstep().run().expect("run starts");

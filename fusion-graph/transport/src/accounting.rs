@@ -2,11 +2,11 @@
 
 use std::collections::BTreeMap;
 
-pub use crate::counters::{Counters, LinkKey};
 use crate::counters::{kind_or_malformed, Links, Pair};
+pub use crate::counters::{Counters, LinkKey};
 use crate::ledger::{Ledger, LedgerCounts, LedgerError};
-use wire::ActorId;
 use wire::payloads::Payloads;
+use wire::ActorId;
 use wire::MessageKind;
 
 /// Counters per directed link and kind. An actor of a real network mirrors
@@ -334,16 +334,26 @@ mod tests {
             203
         );
         assert_eq!(b.by_kind()[&MessageKind::Malformed].malformed_messages, 1);
-        assert_eq!(Accounting::from_csv(&b.to_csv(), Payloads::NONE).unwrap(), b);
+        assert_eq!(
+            Accounting::from_csv(&b.to_csv(), Payloads::NONE).unwrap(),
+            b
+        );
         // The failed reads of the world travel only on the agents' form.
         b.record_world_miss();
         b.merge(&b.clone());
         assert_eq!(b.world_misses(), 2);
-        assert_eq!(Accounting::from_csv(&b.to_csv(), Payloads::NONE).unwrap().world_misses(), 0);
+        assert_eq!(
+            Accounting::from_csv(&b.to_csv(), Payloads::NONE)
+                .unwrap()
+                .world_misses(),
+            0
+        );
         assert_eq!(
             Accounting::from_csv(&b.to_csv_with_world_misses(), Payloads::NONE).unwrap(),
             b
         );
-        assert!(Accounting::from_csv(&(b.to_csv() + "# world_misses,x\n"), Payloads::NONE).is_none());
+        assert!(
+            Accounting::from_csv(&(b.to_csv() + "# world_misses,x\n"), Payloads::NONE).is_none()
+        );
     }
 }

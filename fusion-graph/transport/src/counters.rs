@@ -6,8 +6,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use wire::ActorId;
 use wire::payloads::Payloads;
+use wire::ActorId;
 use wire::MessageKind;
 
 /// Messages and encoded bytes on one directed link, of one kind.

@@ -232,7 +232,8 @@ impl IceoryxTransport {
             .count()
             + 1;
         let capacity = self.topology.peers(self.me) * 2 * kinds;
-        let ledger = Ledger::open_or_create(path, capacity, self.format.payloads).map_err(|e| setup("ledger", e))?;
+        let ledger = Ledger::open_or_create(path, capacity, self.format.payloads)
+            .map_err(|e| setup("ledger", e))?;
         self.accounting = Accounting::backed_by(ledger);
         Ok(())
     }

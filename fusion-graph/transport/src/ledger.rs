@@ -33,8 +33,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use memmap2::MmapMut;
 
 use crate::counters::{kind_or_malformed, Counters, LinkKey, Links, Pair};
-use wire::ActorId;
 use wire::payloads::Payloads;
+use wire::ActorId;
 
 const MAGIC: u64 = u64::from_le_bytes(*b"CQLEDG02");
 const HEADER_WORDS: usize = 8;
@@ -385,7 +385,10 @@ mod tests {
         ] {
             let k = (ActorId::Launcher, ActorId::Node(u16::MAX), kind);
             assert_eq!(decode_key(encode_key(k), Payloads::NONE), Some(k));
-            assert_eq!(decode_key(encode_key(key(kind)), Payloads::NONE), Some(key(kind)));
+            assert_eq!(
+                decode_key(encode_key(key(kind)), Payloads::NONE),
+                Some(key(kind))
+            );
         }
         assert_eq!(decode_key(0, Payloads::NONE), None);
     }

@@ -10,8 +10,8 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::hosts::Placement;
+use fusion_graph::vocabulary::Vocabulary;
 use fusion_graph::RunId;
 use fusion_graph::{ActorId, Scenario, Topology};
 use transport::accounting::read_ledger;

@@ -131,7 +131,10 @@ pub fn traffic_poller(hub: Arc<Hub>, topology: Topology, out: PathBuf) -> crate:
             }
         }
         let from_hosts = std::fs::read_to_string(hosts_traffic_path(&out)).ok();
-        if let Some(acc) = from_hosts.as_deref().and_then(|csv| Accounting::from_csv(csv, topology.payloads)) {
+        if let Some(acc) = from_hosts
+            .as_deref()
+            .and_then(|csv| Accounting::from_csv(csv, topology.payloads))
+        {
             accounting.merge(&acc);
         }
         let steps = hub.latest_step().max(1) as f64;

@@ -17,8 +17,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use fusion_graph::hosts::Placement;
-use fusion_graph::vocabulary::Shape;
 use fusion_graph::scenario::{ClockMode, Scenario};
+use fusion_graph::vocabulary::Shape;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use tokio::sync::mpsc::UnboundedSender;
 use transport::iceoryx::{remove_run_resources, sweep_abandoned_runs, RunLease};

@@ -187,7 +187,11 @@ impl NodeCore {
         v.extend(self.own_sensors().iter().map(|s| Channel::Observation(*s)));
         v.extend(self.neighbours().iter().map(|m| Channel::Consensus(*m)));
         if self.pairs {
-            v.extend(self.neighbours().iter().map(|&m| Channel::Pair { from: m, to: me }));
+            v.extend(
+                self.neighbours()
+                    .iter()
+                    .map(|&m| Channel::Pair { from: m, to: me }),
+            );
         }
         v
     }
@@ -200,7 +204,11 @@ impl NodeCore {
         let mut v: Vec<Channel> = self.topology.activation_channels(me).collect();
         v.push(Channel::Consensus(me));
         if self.pairs {
-            v.extend(self.neighbours().iter().map(|&to| Channel::Pair { from: me, to }));
+            v.extend(
+                self.neighbours()
+                    .iter()
+                    .map(|&to| Channel::Pair { from: me, to }),
+            );
         }
         v.push(Channel::Telemetry(me));
         v

@@ -199,7 +199,12 @@ impl Parts {
         let shape = Shape::Rounds {
             pairs: factory.needs().pairs,
         };
-        self.add(Role::Protocol, name, shape, Builder::Protocol(Box::new(factory)))
+        self.add(
+            Role::Protocol,
+            name,
+            shape,
+            Builder::Protocol(Box::new(factory)),
+        )
     }
 
     /// A node of a kind of its own (a tracker, a locator), chosen by
@@ -214,7 +219,12 @@ impl Parts {
             };
             return self.fail(error);
         }
-        self.add(Role::Protocol, name, shape, Builder::Node(Box::new(factory)))
+        self.add(
+            Role::Protocol,
+            name,
+            shape,
+            Builder::Node(Box::new(factory)),
+        )
     }
 
     /// A sensor manager, chosen by `sensors.manager = "name"`.
@@ -562,7 +572,10 @@ mod tests {
         assert!(scenario_in(one, &["consensus.protocol=\"mine\""]).is_ok());
         assert!(scenario_in(two, &["consensus.protocol=\"mine\""]).is_err());
         assert!(matches!(
-            Parts::new().protocol("mine", alone).protocol("mine", alone).vocabulary(),
+            Parts::new()
+                .protocol("mine", alone)
+                .protocol("mine", alone)
+                .vocabulary(),
             Err(PartsError::Taken { .. })
         ));
         assert!(matches!(
@@ -590,7 +603,10 @@ mod tests {
             NodeError::Param(e) => e.key,
             e => panic!("{e}"),
         };
-        assert_eq!(key(check(&s, &topology).unwrap_err()), "consensus.params.rounds");
+        assert_eq!(
+            key(check(&s, &topology).unwrap_err()),
+            "consensus.params.rounds"
+        );
         let s = scenario(&["sensors.manager_params.k=3"]).unwrap();
         assert_eq!(
             key(check(&s, &topology).unwrap_err()),

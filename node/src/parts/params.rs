@@ -104,7 +104,6 @@ impl<'a> Params<'a> {
     }
 }
 
-
 impl<'a> Setup<'a> {
     /// `consensus.rounds`: the rounds a step every protocol of rounds runs
     /// (a part's own parameters are for what only it has).

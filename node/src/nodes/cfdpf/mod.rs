@@ -15,8 +15,8 @@
 use std::time::Duration;
 
 use bounds::State;
-use fusion_graph::vocabulary::Shape;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
+use fusion_graph::vocabulary::Shape;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use fusion_graph::{Channel, Wiring};
 use wire::{Message, Payload, Stage, StateTransfer};

@@ -46,7 +46,6 @@ impl Cooperation for ExchangeCooperation {
         true
     }
 
-
     /// Swaps the posterior of the step before, while the measurements of
     /// this one come in.
     fn begin(
