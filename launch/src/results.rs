@@ -649,25 +649,12 @@ mod tests {
             node: format!("node-{node}"),
             truth: [0.0; 4],
             telemetry: Telemetry {
-                estimate: [1.0, 0.0, 0.0, 0.0],
                 bound: Some(1.0),
-                local_bound: None,
-                aux_bound: None,
                 rounds_completed: 3,
                 live_neighbours: 1,
-                missed_neighbours: 0,
                 observations: 3,
-                gated: 0,
-                lagged: 0,
-                deadline_missed: false,
-                late_messages: 0,
                 stage_micros: [10, 10, 40, 50, 0, 0],
-                unanswered_sensors: 0,
-                first_unanswered: None,
-                spread: None,
-                active: Vec::new(),
-                design: Vec::new(),
-                without_choice: false,
+                ..Telemetry::of_estimate([1.0, 0.0, 0.0, 0.0])
             },
         }
     }
