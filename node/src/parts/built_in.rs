@@ -1,10 +1,9 @@
 //! cqnet's own parts, listed through the same methods a program uses for
 //! its own ([`Parts::new`](super::Parts::new)).
 
-use fusion_graph::vocabulary::Shape;
 use fusion_graph::Scenario;
 
-use super::{Carries, ParamError, Parts, ProtocolFactory, Setup};
+use super::{BuildNode, Carries, ParamError, Parts, ProtocolFactory, Setup};
 use crate::fusion::{average_consensus, InformationFusion};
 use crate::location::{LocationConfig, ThresholdDesign};
 use crate::nodes::trackers::{ExchangeCooperation, KlCooperation, TrackerNode};
@@ -12,25 +11,30 @@ use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, Unifo
 use crate::{AnyNode, LocatorNode, NodeError, Start};
 
 /// Adds cqnet's own parts to `parts`, in the order the scenario format's
-/// vocabulary lists them.
+/// vocabulary lists them, under the names and shapes it gives them (so
+/// that neither is written twice).
 pub(super) fn add(parts: Parts) -> Parts {
+    use fusion_graph::scenario::{ConsensusProtocol as P, SensorManagerKind as M};
+    let mut parts = parts
+        .protocol(P::AVERAGE.name(), Average)
+        .exact_sums(P::EXACT.name());
+    let nodes: [(P, BuildNode); 5] = [
+        (P::RANDOM_EXCHANGE, random_exchange),
+        (P::KL_CONSENSUS, kl_consensus),
+        (P::KL_DIFFUSION, kl_diffusion),
+        (P::KL_ITERATIVE, kl_iterative),
+        (P::ML_LOCATION, locator),
+    ];
+    for (p, build) in nodes {
+        parts = parts.node(p.name(), (p.shape(), build));
+    }
     parts
-        .protocol("average", Average)
-        .exact_sums("exact")
-        .node("random_exchange", (PAIRED_TRACKER, random_exchange))
-        .node("kl_consensus", (TRACKER, kl_consensus))
-        .node("kl_diffusion", (TRACKER, kl_diffusion))
-        .node("kl_iterative", (TRACKER, kl_iterative))
-        .node("ml_location", (Shape::Locator, locator))
-        .manager("random", random)
-        .manager("closest", closest)
-        .manager("pcrlb", pcrlb)
-        .manager("pcrlb_at_estimate", pcrlb_at_estimate)
-        .manager("pcrlb_offline", pcrlb_offline)
+        .manager(M::RANDOM.name(), random)
+        .manager(M::CLOSEST.name(), closest)
+        .manager(M::PCRLB.name(), pcrlb)
+        .manager(M::PCRLB_AT_ESTIMATE.name(), pcrlb_at_estimate)
+        .manager(M::PCRLB_OFFLINE.name(), pcrlb_offline)
 }
-
-const TRACKER: Shape = Shape::Tracker { pairs: false };
-const PAIRED_TRACKER: Shape = Shape::Tracker { pairs: true };
 
 // The built-in parts take no parameters of their own, but the locator.
 
