@@ -17,7 +17,7 @@ use node::fusion::{KlFused, NaturalGaussian, RoundEngine, RoundsDone};
 use node::nodes::trackers::KlCooperation;
 use node::parts::{BuildNode, Setup};
 use node::{AnyNode, NodeError, Start, TrackerNode};
-use wire::payloads::ProtocolPayload;
+use wire::payloads::{finite_numbers, put_numbers, ProtocolPayload};
 use wire::{pack_mat4, unpack_mat4};
 
 use crate::push_sum::{Gossip, Mass};
@@ -36,19 +36,14 @@ impl ProtocolPayload for PosteriorShare {
     const LEN: usize = 15 * 8;
 
     fn encode(&self, out: &mut Vec<u8>) {
-        for x in self.eta.iter().chain(&self.lambda).chain([&self.weight]) {
-            out.extend_from_slice(&x.to_le_bytes());
-        }
+        put_numbers(
+            self.eta.iter().chain(&self.lambda).chain([&self.weight]),
+            out,
+        );
     }
 
     fn decode(body: &[u8]) -> Result<Self, WireError> {
-        let mut n = [0.0; 15];
-        for (x, bytes) in n.iter_mut().zip(body.chunks_exact(8)) {
-            *x = f64::from_le_bytes(bytes.try_into().map_err(|_| WireError::Truncated)?);
-            if !x.is_finite() {
-                return Err(WireError::NonFinite);
-            }
-        }
+        let n: [f64; 15] = finite_numbers(body)?;
         if n[14] <= 0.0 {
             return Err(WireError::NonFinite);
         }

@@ -11,7 +11,7 @@ use node::fusion::{
     At, Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone,
 };
 use node::parts::{ParamError, Setup};
-use wire::payloads::{PayloadKind, ProtocolPayload};
+use wire::payloads::{finite_numbers, put_numbers, PayloadKind, ProtocolPayload};
 use wire::{Packed, Payload};
 
 /// One round's value on the wire: δη, δΛ and ΔL (24 numbers).
@@ -29,24 +29,15 @@ impl ProtocolPayload for NeighbourhoodValue {
     const BOUND_BYTES: usize = 10 * 8;
 
     fn encode(&self, out: &mut Vec<u8>) {
-        let numbers = self
-            .delta_eta
-            .iter()
-            .chain(&self.delta_lambda)
-            .chain(&self.delta_l);
-        for v in numbers {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
+        let v = self;
+        put_numbers(
+            v.delta_eta.iter().chain(&v.delta_lambda).chain(&v.delta_l),
+            out,
+        );
     }
 
     fn decode(body: &[u8]) -> Result<Self, WireError> {
-        let mut numbers = [0.0; 24];
-        for (v, bytes) in numbers.iter_mut().zip(body.chunks_exact(8)) {
-            *v = f64::from_le_bytes(bytes.try_into().map_err(|_| WireError::Truncated)?);
-            if !v.is_finite() {
-                return Err(WireError::NonFinite);
-            }
-        }
+        let numbers: [f64; 24] = finite_numbers(body)?;
         Ok(Self {
             delta_eta: numbers[..4].try_into().expect("4"),
             delta_lambda: numbers[4..14].try_into().expect("10"),

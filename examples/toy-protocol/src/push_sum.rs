@@ -20,7 +20,7 @@ use node::fusion::{
     At, Fused, InformationFusion, InformationVector, RoundEngine, RoundRule, RoundsDone, To,
 };
 use node::parts::{Needs, ParamError, ProtocolFactory, Setup};
-use wire::payloads::{PayloadKind, ProtocolPayload};
+use wire::payloads::{finite_numbers, put_numbers, PayloadKind, ProtocolPayload};
 use wire::Payload;
 
 /// Half a node's value and weight, on its way to one neighbour: δη, δΛ,
@@ -40,19 +40,11 @@ impl ProtocolPayload for PushSumValue {
     fn encode(&self, out: &mut Vec<u8>) {
         let v = &self.value;
         let numbers = v.delta_eta.iter().chain(&v.delta_lambda).chain(&v.delta_l);
-        for x in numbers.chain([&self.weight]) {
-            out.extend_from_slice(&x.to_le_bytes());
-        }
+        put_numbers(numbers.chain([&self.weight]), out);
     }
 
     fn decode(body: &[u8]) -> Result<Self, WireError> {
-        let mut n = [0.0; 25];
-        for (x, bytes) in n.iter_mut().zip(body.chunks_exact(8)) {
-            *x = f64::from_le_bytes(bytes.try_into().map_err(|_| WireError::Truncated)?);
-            if !x.is_finite() {
-                return Err(WireError::NonFinite);
-            }
-        }
+        let n: [f64; 25] = finite_numbers(body)?;
         if n[24] <= 0.0 {
             // A weight is a share of a node's 1: never zero or less.
             return Err(WireError::NonFinite);

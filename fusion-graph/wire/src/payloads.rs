@@ -50,6 +50,34 @@ pub trait ProtocolPayload: Sized + 'static {
     fn decode(body: &[u8]) -> Result<Self, WireError>;
 }
 
+/// Appends `numbers` as little-endian f64s: the encoding most payloads
+/// need.
+pub fn put_numbers<'a>(numbers: impl IntoIterator<Item = &'a f64>, out: &mut Vec<u8>) {
+    for x in numbers {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+}
+
+/// `N` little-endian f64s from `body` (exactly `8 N` bytes, which the
+/// codec has checked against the payload's `LEN`), refused unless every
+/// one is finite.
+pub fn finite_numbers<const N: usize>(body: &[u8]) -> Result<[f64; N], WireError> {
+    if body.len() != 8 * N {
+        return Err(WireError::Length {
+            expected: 8 * N,
+            got: body.len(),
+        });
+    }
+    let mut numbers = [0.0; N];
+    for (x, bytes) in numbers.iter_mut().zip(body.chunks_exact(8)) {
+        *x = f64::from_le_bytes(bytes.try_into().expect("8 bytes"));
+        if !x.is_finite() {
+            return Err(WireError::NonFinite);
+        }
+    }
+    Ok(numbers)
+}
+
 /// One payload a program declared: its kind byte, name, sizes and check.
 #[derive(Clone)]
 pub struct PayloadEntry {
@@ -521,5 +549,21 @@ mod tests {
         ));
         entries.clear();
         assert_eq!(Payloads::new(entries).kinds().count(), 0);
+    }
+
+    #[test]
+    fn numbers_round_trip_and_a_bad_one_is_refused() {
+        let mut out = Vec::new();
+        put_numbers(&[1.5, -2.0, 0.0], &mut out);
+        assert_eq!(finite_numbers::<3>(&out), Ok([1.5, -2.0, 0.0]));
+        assert!(matches!(
+            finite_numbers::<2>(&out),
+            Err(WireError::Length {
+                expected: 16,
+                got: 24
+            })
+        ));
+        out[8..16].copy_from_slice(&f64::NAN.to_le_bytes());
+        assert_eq!(finite_numbers::<3>(&out), Err(WireError::NonFinite));
     }
 }
