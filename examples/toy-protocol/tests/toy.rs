@@ -4,7 +4,7 @@
 //! protocol's own kind, counted like any other message, and the manager's
 //! choice shows in which sensors send.
 
-use cqnet_testkit::{default_scenario, ActorId, MessageKind, Network, Run, Vocabulary};
+use cqnet_testkit::{default_scenario, ActorId, MessageKind, Network, Run, Scenario, Vocabulary};
 use fusion_graph::Topology;
 use node::fusion::At;
 use toy_protocol::{gossip_target, NeighbourhoodValue, PosteriorShare, PushSumValue};
@@ -106,25 +106,38 @@ fn the_toy_protocol_and_manager_run_in_sim_and_as_processes_alike() {
     assert_eq!(run.sorted_tick_lines(), sim.sorted_tick_lines());
 }
 
+/// Every directed link carried `kind` exactly in the rounds its sender's
+/// gossip drew its receiver, `message_bytes` each; the messages in all.
+fn assert_gossip_links(
+    run: &Run,
+    kind: MessageKind,
+    scenario: &Scenario,
+    topology: &Topology,
+    message_bytes: u64,
+) -> u64 {
+    let mut total = 0;
+    for (a, neighbours) in topology.neighbours.iter().enumerate() {
+        for &b in neighbours {
+            let expected = (1..=STEPS)
+                .flat_map(|step| (1..=ROUNDS as u16).map(move |round| At { step, round }))
+                .filter(|&at| gossip_target(topology, scenario.seed, a as u16, at) == b)
+                .count() as u64;
+            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b));
+            assert_eq!(run.messages(from, to, kind), expected, "{from} → {to}");
+            assert_eq!(run.bytes(from, to, kind), expected * message_bytes);
+            total += expected;
+        }
+    }
+    total
+}
+
 /// What push-sum must show under both drivers: each round's half crosses
 /// exactly the link to the neighbour drawn, and nothing else.
 fn assert_push_sum_ran(run: &Run, kind: MessageKind) {
     run.assert_success();
     let scenario = default_scenario();
     let topology = Topology::from_scenario(&scenario, "default").unwrap();
-    let mut total = 0;
-    for (a, neighbours) in topology.neighbours.iter().enumerate() {
-        for &b in neighbours {
-            let expected = (1..=STEPS)
-                .flat_map(|step| (1..=ROUNDS as u16).map(move |round| At { step, round }))
-                .filter(|&at| gossip_target(&topology, scenario.seed, a as u16, at) == b)
-                .count() as u64;
-            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b));
-            assert_eq!(run.messages(from, to, kind), expected, "{from} → {to}");
-            assert_eq!(run.bytes(from, to, kind), expected * (13 + 25 * 8));
-            total += expected;
-        }
-    }
+    let total = assert_gossip_links(run, kind, &scenario, &topology, 13 + 25 * 8);
     // One message a node a round: nothing broadcast, nothing lost.
     assert_eq!(total, u64::from(STEPS * ROUNDS) * topology.nodes() as u64);
     assert_eq!(run.counters(kind).sent_messages, total);
@@ -201,19 +214,7 @@ fn assert_gossip_tracker_ran(run: &Run, kind: MessageKind) {
     run.assert_success();
     let scenario = cqnet_testkit::random_exchange_scenario();
     let topology = Topology::from_scenario(&scenario, "random-exchange").unwrap();
-    let mut total = 0;
-    for (a, neighbours) in topology.neighbours.iter().enumerate() {
-        for &b in neighbours {
-            let expected = (1..=STEPS)
-                .flat_map(|step| (1..=ROUNDS as u16).map(move |round| At { step, round }))
-                .filter(|&at| gossip_target(&topology, scenario.seed, a as u16, at) == b)
-                .count() as u64;
-            let (from, to) = (ActorId::Node(a as u16), ActorId::Node(b));
-            assert_eq!(run.messages(from, to, kind), expected, "{from} → {to}");
-            assert_eq!(run.bytes(from, to, kind), expected * (13 + 15 * 8));
-            total += expected;
-        }
-    }
+    let total = assert_gossip_links(run, kind, &scenario, &topology, 13 + 15 * 8);
     assert_eq!(total, u64::from(STEPS * ROUNDS) * topology.nodes() as u64);
     assert_eq!(run.unaccounted(kind), 0);
     assert_eq!(run.counters(MessageKind::KlConsensus).sent_messages, 0);
