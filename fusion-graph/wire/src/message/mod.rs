@@ -11,17 +11,18 @@
 //! flipped bit in a cell index or a consensus value would otherwise be
 //! believed.
 
-mod bodies;
+pub mod bodies;
+mod codec;
 mod crc;
 mod examples;
 mod kind;
 
 pub use bodies::*;
+use codec::{config, put, put_mask};
 use crc::crc16;
 pub use examples::examples;
 pub use kind::MessageKind;
 
-use bincode::config::{Configuration, Fixint, Limit, LittleEndian};
 use serde::{Deserialize, Serialize};
 
 use crate::actor::ActorId;
@@ -39,15 +40,6 @@ const CHECKSUM_AT: std::ops::Range<usize> = 11..13;
 const STEP_AT: std::ops::Range<usize> = 5..9;
 /// No message is larger than this; it bounds every allocation in decoding.
 pub const MAX_MESSAGE_BYTES: usize = 1024;
-
-type Config = Configuration<LittleEndian, Fixint, Limit<MAX_MESSAGE_BYTES>>;
-
-fn config() -> Config {
-    bincode::config::standard()
-        .with_little_endian()
-        .with_fixed_int_encoding()
-        .with_limit::<MAX_MESSAGE_BYTES>()
-}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 struct WireHeader {
@@ -125,88 +117,32 @@ impl Message {
                 mask,
                 estimate,
                 covariance,
-            } => {
-                put_mask(mask, format, out);
-                put(estimate, out);
-                if let Some(c) = covariance {
-                    put(c, out);
-                }
-            }
+            } => sensing::encode_feedback(mask, estimate, covariance.as_ref(), format, out),
             Payload::Observation { cell } => {
                 out.extend_from_slice(&cell.to_le_bytes()[..format.cell_bytes])
             }
             Payload::RawObservation { value } => put(value, out),
-            Payload::Consensus(v) => {
-                put(v, out);
-                if let Some(late) = &v.delta_l_late {
-                    put(late, out);
-                }
+            Payload::ActivateThresholds { mask, thresholds } => {
+                sensing::encode_thresholds(mask, thresholds, format, out)
             }
-            Payload::ConsensusAux { s_obs } => put(s_obs, out),
             Payload::Control(c) => put(c, out),
             Payload::Telemetry(t) => put(t, out),
+            Payload::Consensus(v) => cfdpf::encode_consensus(v, out),
+            Payload::ConsensusAux { s_obs } => put(s_obs, out),
             Payload::StateTransfer(s) => put(s, out),
             Payload::KlConsensus(g) => put(g, out),
             Payload::ExchangeRequest => {}
             Payload::ExchangeReply { accepted } => out.push(u8::from(*accepted)),
             Payload::ExchangePosterior(g) => put(g, out),
-            Payload::NeighbourObservation { sensor, value } => {
-                put(sensor, out);
-                put(value, out);
-            }
-            Payload::ActivateThresholds { mask, thresholds } => {
-                put_mask(mask, format, out);
-                out.push(thresholds.len() as u8);
-                for t in thresholds {
-                    put(t, out);
-                }
-            }
+            Payload::NeighbourObservation { sensor, value } => put(&(sensor, value), out),
             Payload::LocationConsensus { chunk, values } => {
-                put(chunk, out);
-                for v in values {
-                    put(v, out);
-                }
+                locator::encode_piece(*chunk, values, out)
             }
-            Payload::ActivateSlots { slots, columns } => {
-                out.push(*slots);
-                put(&(columns.len() as u16), out);
-                for c in columns {
-                    put(&c.sensor, out);
-                    put(&c.slots, out);
-                    put(&c.negative, out);
-                }
-            }
-            Payload::SlotValues { slots, values } => {
-                put(slots, out);
-                for v in values {
-                    put(v, out);
-                }
-            }
-            Payload::MacOutput { values } => {
-                out.push(values.len() as u8);
-                for v in values {
-                    put(v, out);
-                }
-            }
-            Payload::SelectionReport(r) => {
-                for v in [r.to, r.part, r.parts, r.node, r.first] {
-                    put(&v, out);
-                }
-                out.push(r.information.len() as u8);
-                for v in r.information.iter().flatten() {
-                    put(v, out);
-                }
-            }
-            Payload::SelectionChoice(c) => {
-                for v in [c.part, c.parts, c.total] {
-                    put(&v, out);
-                }
-                put(&c.sum, out);
-                out.push(c.sensors.len() as u8);
-                for v in &c.sensors {
-                    put(v, out);
-                }
-            }
+            Payload::ActivateSlots { slots, columns } => mac::encode_schedule(*slots, columns, out),
+            Payload::SlotValues { slots, values } => mac::encode_transmissions(*slots, values, out),
+            Payload::MacOutput { values } => mac::encode_output(values, out),
+            Payload::SelectionReport(r) => selection::encode_report(r, out),
+            Payload::SelectionChoice(c) => selection::encode_choice(c, out),
             Payload::Protocol(body) => out.extend_from_slice(&body.bytes),
         }
     }
@@ -242,191 +178,30 @@ impl Message {
             })?;
         let body = &bytes[used..];
         let payload = match kind {
-            MessageKind::Activate => {
-                exact_len(body, format.activation_bytes)?;
-                Payload::Activate {
-                    mask: BitMask::from_bytes(body.to_vec()),
-                }
-            }
+            MessageKind::Activate => sensing::decode_activate(body, format)?,
             MessageKind::ActivateFeedback | MessageKind::ActivateFeedbackCovariance => {
-                let with_covariance = kind == MessageKind::ActivateFeedbackCovariance;
-                let mask_len = format.activation_bytes;
-                exact_len(body, mask_len + 32 + if with_covariance { 80 } else { 0 })?;
-                let estimate: [f64; 4] = finite(take(&body[mask_len..mask_len + 32])?)?;
-                let covariance = if with_covariance {
-                    Some(finite(take(&body[mask_len + 32..])?)?)
-                } else {
-                    None
-                };
-                Payload::ActivateWithFeedback {
-                    mask: BitMask::from_bytes(body[..mask_len].to_vec()),
-                    estimate,
-                    covariance,
-                }
+                sensing::decode_feedback(body, kind, format)?
             }
-            MessageKind::Observation => {
-                exact_len(body, format.cell_bytes)?;
-                let mut le = [0u8; 4];
-                le[..body.len()].copy_from_slice(body);
-                Payload::Observation {
-                    cell: u32::from_le_bytes(le),
-                }
-            }
-            MessageKind::RawObservation => {
-                let v: f64 = take(body)?;
-                Payload::RawObservation {
-                    value: finite([v])?[0],
-                }
-            }
-            MessageKind::Consensus => Payload::Consensus(consensus_values(body)?),
-            MessageKind::ConsensusLate => {
-                let split = CONSENSUS_BYTES.min(body.len());
-                let mut v = consensus_values(&body[..split])?;
-                v.delta_l_late = Some(finite(take(&body[split..])?)?);
-                Payload::Consensus(v)
-            }
-            MessageKind::ConsensusAux => Payload::ConsensusAux {
-                s_obs: finite(take(body)?)?,
-            },
-            MessageKind::Control => Payload::Control(take(body)?),
-            MessageKind::Telemetry => {
-                let t: Telemetry = take(body)?;
-                finite(t.estimate)?;
-                for v in [t.bound, t.local_bound, t.aux_bound, t.spread]
-                    .into_iter()
-                    .flatten()
-                {
-                    finite([v])?;
-                }
-                for len in [t.active.len(), t.design.len()] {
-                    if len > MAX_REPORTED_ACTIVE {
-                        return Err(WireError::Length {
-                            expected: MAX_REPORTED_ACTIVE,
-                            got: len,
-                        });
-                    }
-                }
-                if t.design.iter().any(|p| *p > 10_000) {
-                    return Err(WireError::Length {
-                        expected: 10_000,
-                        got: t.design.iter().copied().max().unwrap_or(0) as usize,
-                    });
-                }
-                Payload::Telemetry(t)
-            }
-            MessageKind::StateTransfer => {
-                let s: StateTransfer = take(body)?;
-                finite(s.mean)?;
-                finite(s.covariance)?;
-                finite(s.information)?;
-                finite(s.aux_information)?;
-                Payload::StateTransfer(s)
-            }
-            MessageKind::KlConsensus => {
-                let g: GaussianInformation = take(body)?;
-                finite(g.eta)?;
-                finite(g.lambda)?;
-                Payload::KlConsensus(g)
-            }
-            MessageKind::ExchangeRequest => {
-                exact_len(body, 0)?;
-                Payload::ExchangeRequest
-            }
-            MessageKind::ExchangeReply => {
-                exact_len(body, 1)?;
-                Payload::ExchangeReply {
-                    accepted: match body[0] {
-                        0 => false,
-                        1 => true,
-                        got => return Err(WireError::Flag { got }),
-                    },
-                }
-            }
-            MessageKind::ExchangePosterior => {
-                let g: GaussianMoments = take(body)?;
-                finite(g.mean)?;
-                finite(g.covariance)?;
-                Payload::ExchangePosterior(g)
-            }
-            MessageKind::NeighbourObservation => {
-                let (sensor, value): (u16, f64) = take(body)?;
-                Payload::NeighbourObservation {
-                    sensor,
-                    value: finite([value])?[0],
-                }
-            }
-            MessageKind::ActivateThresholds => {
-                let mask_len = format.activation_bytes;
-                let count = *body.get(mask_len).ok_or(WireError::Truncated)? as usize;
-                if count == 0 || count > MAX_THRESHOLDS {
-                    return Err(WireError::Length {
-                        expected: MAX_THRESHOLDS,
-                        got: count,
-                    });
-                }
-                exact_len(body, mask_len + 1 + 8 * count)?;
-                let thresholds: Vec<f64> = body[mask_len + 1..]
-                    .chunks_exact(8)
-                    .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-                    .collect();
-                for t in &thresholds {
-                    finite([*t])?;
-                }
-                if thresholds.windows(2).any(|w| w[0] >= w[1]) {
-                    return Err(WireError::Unordered);
-                }
-                Payload::ActivateThresholds {
-                    mask: BitMask::from_bytes(body[..mask_len].to_vec()),
-                    thresholds,
-                }
-            }
-            MessageKind::LocationConsensus => {
-                exact_len(body, 2 + 8 * LOCATION_CHUNK)?;
-                let chunk = u16::from_le_bytes([body[0], body[1]]);
-                let mut values = [0.0; LOCATION_CHUNK];
-                for (v, b) in values.iter_mut().zip(body[2..].chunks_exact(8)) {
-                    *v = f64::from_le_bytes(b.try_into().expect("8 bytes"));
-                }
-                Payload::LocationConsensus {
-                    chunk,
-                    values: finite(values)?,
-                }
-            }
-            MessageKind::ActivateSlots => activate_slots(body)?,
-            MessageKind::SelectionReport => selection_report(body)?,
-            MessageKind::SelectionChoice => selection_choice(body)?,
-            MessageKind::SlotValues => {
-                let slots = u32::from_le_bytes(
-                    body.get(..4)
-                        .ok_or(WireError::Truncated)?
-                        .try_into()
-                        .expect("4 bytes"),
-                );
-                if slots == 0 {
-                    return Err(WireError::Length {
-                        expected: 1,
-                        got: 0,
-                    });
-                }
-                exact_len(body, 4 + 8 * slots.count_ones() as usize)?;
-                Payload::SlotValues {
-                    slots,
-                    values: finite_values(&body[4..])?,
-                }
-            }
-            MessageKind::MacOutput => {
-                let count = *body.first().ok_or(WireError::Truncated)? as usize;
-                if count == 0 || count > MAX_SLOTS {
-                    return Err(WireError::Length {
-                        expected: MAX_SLOTS,
-                        got: count,
-                    });
-                }
-                exact_len(body, 1 + 8 * count)?;
-                Payload::MacOutput {
-                    values: finite_values(&body[1..])?,
-                }
-            }
+            MessageKind::Observation => sensing::decode_observation(body, format)?,
+            MessageKind::RawObservation => sensing::decode_raw(body)?,
+            MessageKind::ActivateThresholds => sensing::decode_thresholds(body, format)?,
+            MessageKind::Control => Payload::Control(codec::take(body)?),
+            MessageKind::Telemetry => launcher::decode_telemetry(body)?,
+            MessageKind::Consensus => cfdpf::decode_consensus(body, false)?,
+            MessageKind::ConsensusLate => cfdpf::decode_consensus(body, true)?,
+            MessageKind::ConsensusAux => cfdpf::decode_aux(body)?,
+            MessageKind::StateTransfer => cfdpf::decode_state_transfer(body)?,
+            MessageKind::KlConsensus => trackers::decode_kl(body)?,
+            MessageKind::ExchangeRequest => trackers::decode_request(body)?,
+            MessageKind::ExchangeReply => trackers::decode_reply(body)?,
+            MessageKind::ExchangePosterior => trackers::decode_posterior(body)?,
+            MessageKind::NeighbourObservation => trackers::decode_relay(body)?,
+            MessageKind::LocationConsensus => locator::decode_piece(body)?,
+            MessageKind::ActivateSlots => mac::decode_schedule(body)?,
+            MessageKind::SlotValues => mac::decode_transmissions(body)?,
+            MessageKind::MacOutput => mac::decode_output(body)?,
+            MessageKind::SelectionReport => selection::decode_report(body)?,
+            MessageKind::SelectionChoice => selection::decode_choice(body)?,
             MessageKind::Protocol(k) => {
                 k.check_body(body)?;
                 Payload::Protocol(ProtocolBody {
@@ -448,137 +223,6 @@ impl Message {
     }
 }
 
-/// The most slots of a multiple-access channel: a column is a 32-bit mask.
-pub const MAX_SLOTS: usize = 32;
-
-/// An [`ActivateSlots`](Payload::ActivateSlots) body: slots between 1 and
-/// [`MAX_SLOTS`], columns of sensors in increasing order, each in some
-/// slot and no other than the step's.
-fn activate_slots(body: &[u8]) -> Result<Payload, WireError> {
-    let slots = *body.first().ok_or(WireError::Truncated)?;
-    if slots == 0 || slots as usize > MAX_SLOTS {
-        return Err(WireError::Length {
-            expected: MAX_SLOTS,
-            got: slots as usize,
-        });
-    }
-    let count = u16::from_le_bytes([
-        *body.get(1).ok_or(WireError::Truncated)?,
-        *body.get(2).ok_or(WireError::Truncated)?,
-    ]) as usize;
-    exact_len(body, 3 + SLOT_COLUMN_BYTES * count)?;
-    let allowed = if slots as usize == MAX_SLOTS {
-        u32::MAX
-    } else {
-        (1u32 << slots) - 1
-    };
-    let mut columns: Vec<SlotColumn> = Vec::with_capacity(count);
-    for b in body[3..].chunks_exact(SLOT_COLUMN_BYTES) {
-        let c = SlotColumn {
-            sensor: u16::from_le_bytes([b[0], b[1]]),
-            slots: u32::from_le_bytes(b[2..6].try_into().expect("4 bytes")),
-            negative: u32::from_le_bytes(b[6..10].try_into().expect("4 bytes")),
-        };
-        let in_order = columns.last().is_none_or(|l| l.sensor < c.sensor);
-        if c.slots == 0 || c.slots & !allowed != 0 || c.negative & !c.slots != 0 || !in_order {
-            return Err(WireError::Unordered);
-        }
-        columns.push(c);
-    }
-    Ok(Payload::ActivateSlots { slots, columns })
-}
-
-fn u16_at(body: &[u8], at: usize) -> Result<u16, WireError> {
-    let b = body.get(at..at + 2).ok_or(WireError::Truncated)?;
-    Ok(u16::from_le_bytes([b[0], b[1]]))
-}
-
-/// A [`SelectionReport`](Payload::SelectionReport) body: at most
-/// [`MAX_REPORTED_CANDIDATES`] finite blocks, each with non-negative
-/// diagonal (a Fisher information is positive semi-definite).
-fn selection_report(body: &[u8]) -> Result<Payload, WireError> {
-    let (to, part, parts) = (u16_at(body, 0)?, u16_at(body, 2)?, u16_at(body, 4)?);
-    let (node, first) = (u16_at(body, 6)?, u16_at(body, 8)?);
-    // The last piece says the count; earlier pieces say 0.
-    if parts != 0 && part >= parts {
-        return Err(WireError::Unordered);
-    }
-    let count = *body.get(10).ok_or(WireError::Truncated)? as usize;
-    if count > MAX_REPORTED_CANDIDATES {
-        return Err(WireError::Length {
-            expected: MAX_REPORTED_CANDIDATES,
-            got: count,
-        });
-    }
-    exact_len(body, 11 + 24 * count)?;
-    let values = finite_values(&body[11..])?;
-    let information: Vec<[f64; 3]> = values.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect();
-    if information.iter().any(|[xx, _, yy]| *xx < 0.0 || *yy < 0.0) {
-        return Err(WireError::NegativeInformation);
-    }
-    Ok(Payload::SelectionReport(CandidateReport {
-        to,
-        part,
-        parts,
-        node,
-        first,
-        information,
-    }))
-}
-
-/// A [`SelectionChoice`](Payload::SelectionChoice) body: every piece
-/// with its count of pieces, at most
-/// [`MAX_CHOSEN_PER_PIECE`] sensors, increasing, no more than the total.
-fn selection_choice(body: &[u8]) -> Result<Payload, WireError> {
-    let (part, parts, total) = (u16_at(body, 0)?, u16_at(body, 2)?, u16_at(body, 4)?);
-    // Every piece of a choice says the count: it is known before any is sent.
-    if part >= parts {
-        return Err(WireError::Unordered);
-    }
-    let sum: [f64; 3] = finite(take(body.get(6..30).ok_or(WireError::Truncated)?)?)?;
-    let count = *body.get(30).ok_or(WireError::Truncated)? as usize;
-    if count > MAX_CHOSEN_PER_PIECE || count > total as usize {
-        return Err(WireError::Length {
-            expected: MAX_CHOSEN_PER_PIECE.min(total as usize),
-            got: count,
-        });
-    }
-    exact_len(body, 31 + 2 * count)?;
-    let sensors: Vec<u16> = body[31..]
-        .chunks_exact(2)
-        .map(|b| u16::from_le_bytes([b[0], b[1]]))
-        .collect();
-    if sensors.windows(2).any(|w| w[0] >= w[1]) {
-        return Err(WireError::Unordered);
-    }
-    Ok(Payload::SelectionChoice(ChosenSensors {
-        part,
-        parts,
-        total,
-        sum,
-        sensors,
-    }))
-}
-
-/// Little-endian f64s, every one finite.
-fn finite_values(body: &[u8]) -> Result<Vec<f64>, WireError> {
-    let values: Vec<f64> = body
-        .chunks_exact(8)
-        .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-        .collect();
-    for v in &values {
-        finite([*v])?;
-    }
-    Ok(values)
-}
-
-fn put_mask(mask: &BitMask, format: &WireFormat, out: &mut Vec<u8>) {
-    let bytes = mask.as_bytes();
-    let n = bytes.len().min(format.activation_bytes);
-    out.extend_from_slice(&bytes[..n]);
-    out.resize(out.len() + format.activation_bytes - n, 0);
-}
-
 /// Encoded size of a message of a fixed-size kind, for predicting traffic.
 pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
     Some(
@@ -589,8 +233,8 @@ pub fn encoded_len(kind: MessageKind, format: &WireFormat) -> Option<usize> {
                 MessageKind::ActivateFeedbackCovariance => format.activation_bytes + 32 + 80,
                 MessageKind::Observation => format.cell_bytes,
                 MessageKind::RawObservation => 8,
-                MessageKind::Consensus => CONSENSUS_BYTES,
-                MessageKind::ConsensusLate => CONSENSUS_BYTES + 8 * 10,
+                MessageKind::Consensus => cfdpf::CONSENSUS_BYTES,
+                MessageKind::ConsensusLate => cfdpf::CONSENSUS_BYTES + 8 * 10,
                 MessageKind::ConsensusAux => 8 * 10,
                 MessageKind::StateTransfer => 8 * 34,
                 MessageKind::KlConsensus => 8 * 14,
@@ -639,58 +283,12 @@ pub fn seal(message: &mut [u8]) {
     }
 }
 
-/// The body of a [`MessageKind::Consensus`]: δη, δΛ, ΔL.
-const CONSENSUS_BYTES: usize = 8 * 24;
-
-/// δη, δΛ and ΔL, each finite.
-fn consensus_values(body: &[u8]) -> Result<ConsensusValues, WireError> {
-    let v: ConsensusValues = take(body)?;
-    finite(v.delta_eta)?;
-    finite(v.delta_lambda)?;
-    finite(v.delta_l)?;
-    Ok(v)
-}
-
-fn put<T: Serialize>(v: &T, out: &mut Vec<u8>) {
-    bincode::serde::encode_into_std_write(v, out, config()).expect("writing to a Vec cannot fail");
-}
-
-/// Decodes a whole body as one value; trailing bytes are an error.
-fn take<T: for<'de> Deserialize<'de>>(body: &[u8]) -> Result<T, WireError> {
-    let (v, used) =
-        bincode::serde::decode_from_slice(body, config()).map_err(|_| WireError::Truncated)?;
-    if used != body.len() {
-        return Err(WireError::TrailingBytes {
-            extra: body.len() - used,
-        });
-    }
-    Ok(v)
-}
-
-fn exact_len(body: &[u8], expected: usize) -> Result<(), WireError> {
-    if body.len() != expected {
-        return Err(WireError::Length {
-            expected,
-            got: body.len(),
-        });
-    }
-    Ok(())
-}
-
-fn finite<const N: usize>(v: [f64; N]) -> Result<[f64; N], WireError> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(v)
-    } else {
-        Err(WireError::NonFinite)
-    }
-}
-
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const FORMAT: WireFormat = WireFormat {
+    pub(crate) const FORMAT: WireFormat = WireFormat {
         cell_bytes: 1,
         activation_bytes: 4,
         payloads: crate::payloads::Payloads::NONE,
@@ -821,120 +419,6 @@ mod tests {
                 got: 2
             })
         ));
-    }
-
-    /// The selection's pieces: counts within their limits, pieces within
-    /// their count, sensors increasing, information with a non-negative
-    /// diagonal; and the largest report fits the consensus channel.
-    #[test]
-    fn selection_pieces_are_checked() {
-        let decode = |payload: Payload| {
-            Message::decode(
-                &Message::new(ActorId::Node(1), 2, 1, payload).to_bytes(&FORMAT),
-                &FORMAT,
-            )
-        };
-        let report = CandidateReport {
-            to: 0,
-            part: 0,
-            parts: 0,
-            node: 1,
-            first: 12,
-            information: vec![[1.0, -0.5, 2.0]; MAX_REPORTED_CANDIDATES],
-        };
-        let full = Message::new(
-            ActorId::Node(1),
-            2,
-            1,
-            Payload::SelectionReport(report.clone()),
-        );
-        assert_eq!(full.to_bytes(&FORMAT).len(), HEADER_BYTES + 11 + 24 * 12);
-        assert!(full.to_bytes(&FORMAT).len() <= HEADER_BYTES + 300);
-        assert!(decode(Payload::SelectionReport(report.clone())).is_ok());
-        let mut too_many = report.clone();
-        too_many.information.push([1.0, 0.0, 1.0]);
-        assert!(matches!(
-            decode(Payload::SelectionReport(too_many)),
-            Err(WireError::Length {
-                expected: 12,
-                got: 13
-            })
-        ));
-        let past_count = CandidateReport {
-            part: 3,
-            parts: 3,
-            ..report.clone()
-        };
-        assert_eq!(
-            decode(Payload::SelectionReport(past_count)),
-            Err(WireError::Unordered)
-        );
-        let negative = CandidateReport {
-            information: vec![[-1.0, 0.0, 1.0]],
-            ..report.clone()
-        };
-        assert_eq!(
-            decode(Payload::SelectionReport(negative)),
-            Err(WireError::NegativeInformation)
-        );
-        let nan = CandidateReport {
-            information: vec![[1.0, f64::NAN, 1.0]],
-            ..report
-        };
-        assert_eq!(
-            decode(Payload::SelectionReport(nan)),
-            Err(WireError::NonFinite)
-        );
-
-        let choice = ChosenSensors {
-            part: 0,
-            parts: 1,
-            total: 3,
-            sum: [1.0, 0.0, 1.0],
-            sensors: vec![2, 9, 40],
-        };
-        assert!(decode(Payload::SelectionChoice(choice.clone())).is_ok());
-        for bad in [
-            ChosenSensors {
-                sensors: vec![9, 2, 40],
-                ..choice.clone()
-            },
-            ChosenSensors {
-                sensors: vec![2, 2, 40],
-                ..choice.clone()
-            },
-            ChosenSensors {
-                part: 1,
-                ..choice.clone()
-            },
-            ChosenSensors {
-                parts: 0,
-                ..choice.clone()
-            },
-        ] {
-            assert_eq!(
-                decode(Payload::SelectionChoice(bad)),
-                Err(WireError::Unordered)
-            );
-        }
-        let more_than_total = ChosenSensors { total: 2, ..choice };
-        assert!(matches!(
-            decode(Payload::SelectionChoice(more_than_total)),
-            Err(WireError::Length { .. })
-        ));
-    }
-
-    #[test]
-    fn bit_masks_hold_exactly_their_indices() {
-        let m = BitMask::from_indices([0, 3, 9]);
-        assert_eq!(m.as_bytes(), &[0b1001, 0b10]);
-        assert_eq!(m.to_bools(11).iter().filter(|b| **b).count(), 3);
-        assert!(m.contains(9) && !m.contains(8) && !m.contains(100));
-        let v = [
-            true, false, false, true, true, false, false, false, false, true,
-        ];
-        assert_eq!(BitMask::from_bools(&v).to_bools(10), v);
-        assert_eq!(BitMask::from_bools(&[false; 9]).as_bytes(), &[0, 0]);
     }
 
     #[test]
