@@ -16,7 +16,9 @@ use fusion_graph::vocabulary::Shape;
 use fusion_graph::Actor;
 use fusion_graph::{link_fault_seed, ActorId, Topology};
 use node::fusion::{ExactSumOracle, ExactSums};
-use node::{processing_node, AnyNode, CentralizedReference, CfDpfNode, Outgoing, Start};
+use node::{
+    processing_node, AnyNode, CentralizedReference, CfDpfNode, Outgoing, ProcessingNode, Start,
+};
 use sensor::mac::MacActor;
 use sensor::{SensorActor, SensorInWorld};
 use transport::accounting::Accounting;
@@ -212,7 +214,7 @@ impl InProcessNetwork {
                     Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3),
                 )),
             )
-            .map(|n| Box::new(n.starting(start)) as AnyNode),
+            .map(|n| Box::new(ProcessingNode::new(n.starting(start))) as AnyNode),
         }
         .with_context(|| format!("node-{i}"))?;
         let transport = MemoryTransport::new(

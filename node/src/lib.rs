@@ -52,7 +52,7 @@ pub use nodes::cfdpf::CfDpfNode;
 pub use nodes::locator::LocatorNode;
 pub use nodes::mac_centre::MacCentre;
 pub use nodes::trackers::TrackerNode;
-pub use nodes::{processing_node, AnyNode, Node, Start};
+pub use nodes::{processing_node, AnyNode, Node, NodeKind, ProcessingNode, Start};
 pub use work::Work;
 
 pub use fusion_graph::actor::{Actor, Outgoing};

@@ -8,7 +8,7 @@ use bounds::State;
 use fusion_graph::{stream_rng, ActorId, Scenario, Stream, Topology};
 use node::fusion::{Fused, FusionProtocol, Handled, InformationVector, RoundStats};
 use node::sensor_manager::{SelectionContext, SensorManager};
-use node::{Actor, CfDpfNode, Node, Outgoing, SensingModel};
+use node::{Actor, CfDpfNode, Node, Outgoing, ProcessingNode, SensingModel};
 use wire::{Control, Message, Payload};
 
 /// A sensor manager: always the node's first `k` sensors.
@@ -70,14 +70,16 @@ impl FusionProtocol for Alone {
 fn a_node_runs_a_step_with_a_toy_manager_and_a_toy_protocol() {
     let scenario = Scenario::default_scenario();
     let topology = Topology::from_scenario(&scenario, "default").unwrap();
-    let mut node = CfDpfNode::with_parts(
-        &scenario,
-        &topology,
-        8,
-        Box::new(FirstK(2)),
-        Box::new(Alone::default()),
-    )
-    .unwrap();
+    let mut node = ProcessingNode::new(
+        CfDpfNode::with_parts(
+            &scenario,
+            &topology,
+            8,
+            Box::new(FirstK(2)),
+            Box::new(Alone::default()),
+        )
+        .unwrap(),
+    );
     let now = Duration::ZERO;
     let mut out = Vec::new();
     let begin = Message::new(

@@ -16,7 +16,7 @@ use fusion_graph::WireError;
 use node::fusion::{KlFused, NaturalGaussian, RoundEngine, RoundsDone};
 use node::nodes::trackers::KlCooperation;
 use node::parts::{BuildNode, Setup};
-use node::{AnyNode, NodeError, Start, TrackerNode};
+use node::{AnyNode, NodeError, ProcessingNode, Start, TrackerNode};
 use wire::payloads::{finite_numbers, put_numbers, ProtocolPayload};
 use wire::{pack_mat4, unpack_mat4};
 
@@ -121,7 +121,12 @@ fn build(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
         setup.rounds(),
         setup.round_timeout(),
     );
-    let cooperation = KlCooperation::with_protocol(rounds, true);
-    let node = TrackerNode::new(setup.scenario, setup.topology, setup.node, cooperation)?;
-    Ok(Box::new(node))
+    let node = TrackerNode::new(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        KlCooperation::new(true),
+        rounds,
+    )?;
+    Ok(Box::new(ProcessingNode::new(node)))
 }

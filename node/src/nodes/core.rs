@@ -24,12 +24,15 @@ use super::report::Report;
 /// alike: the step that passed the step guard, its sensors' observations,
 /// a new membership view; the rest of its messages are its own.
 pub trait NodeKind {
-    fn core(&self) -> &NodeCore;
+    /// The core the kind holds.
+    fn core(&mut self) -> &mut NodeCore;
 
-    fn core_mut(&mut self) -> &mut NodeCore;
-
-    /// Between steps: nothing collected, fused or waiting.
-    fn is_idle(&self) -> bool;
+    /// Between steps: nothing collected, fused or waiting. By default, the
+    /// last step begun has been reported; a kind that can end a step
+    /// without a report says otherwise.
+    fn is_idle(&mut self) -> bool {
+        !self.core().in_step()
+    }
 
     /// The step before is still running when the next begins: finish it at
     /// once with what it has (its report says it overran).
@@ -50,6 +53,35 @@ pub trait NodeKind {
     /// Any other message: the kind's protocol's, a neighbour's.
     fn take(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>);
 
+    /// What the node reads, publishes and wakes: by default the core's
+    /// (its sensors, its neighbours, the launcher). Asked once, when the
+    /// node is made an actor ([`ProcessingNode::new`]).
+    fn wiring(&mut self) -> Wiring {
+        self.core().wiring()
+    }
+
+    /// When [`handle_timeout`](Self::handle_timeout) should next be
+    /// called, if a stage waits ([`Actor::poll_timeout`]).
+    fn poll_timeout(&self) -> Option<Duration>;
+
+    /// The time from [`poll_timeout`](Self::poll_timeout) has come.
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// The heavy stage waiting to run, if any ([`Actor::poll_work`]).
+    fn poll_work(&self) -> Option<Work>;
+
+    /// Runs `work`, with no I/O and no clock.
+    fn run_work(&mut self, work: Work);
+
+    /// `work` finished at `now` after `elapsed`.
+    fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>);
+
+    /// Whether a driver sharing cores should give its core away before
+    /// `work` ([`Actor::gives_way_before`]).
+    fn gives_way_before(&self, _work: Work) -> bool {
+        false
+    }
+
     /// Hands one message to the kind by what it is: the one dispatch of
     /// every node kind's [`Actor::handle`].
     fn dispatch(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
@@ -58,15 +90,15 @@ pub trait NodeKind {
             (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                 if self.core().is_next_step(step) {
                     if !self.is_idle() {
-                        self.core_mut().overran();
+                        self.core().overran();
                         self.finish_overrun(now, out);
                     }
-                    let missed = self.core_mut().enter_step(step);
+                    let missed = self.core().enter_step(step);
                     self.begin_step(step, missed, now, out)
                 }
             }
             (Payload::Control(Control::Membership { alive }), ActorId::Launcher) => {
-                let before = self.core_mut().take_view(alive);
+                let before = self.core().take_view(alive);
                 self.view_changed(&before, out)
             }
             (Payload::Observation { cell }, ActorId::Sensor(s)) => {
@@ -80,9 +112,69 @@ pub trait NodeKind {
     }
 }
 
-impl<K: NodeKind + Actor<Work = Work>> Node for K {
-    fn is_idle(&self) -> bool {
-        NodeKind::is_idle(self)
+/// A node kind as an actor of the network: the wiring the kind gave when
+/// it was made one, the one dispatch of its messages
+/// ([`NodeKind::dispatch`]), and the kind's own stages. Every node kind is
+/// driven through it, so that the [`Actor`] of a processing node is
+/// written once.
+pub struct ProcessingNode<K> {
+    wiring: Wiring,
+    kind: K,
+}
+
+impl<K: NodeKind> ProcessingNode<K> {
+    pub fn new(mut kind: K) -> Self {
+        Self {
+            wiring: kind.wiring(),
+            kind,
+        }
+    }
+
+    /// The node's kind, with its algorithm's state.
+    pub fn kind(&self) -> &K {
+        &self.kind
+    }
+}
+
+impl<K: NodeKind> Actor for ProcessingNode<K> {
+    type Work = Work;
+
+    fn wiring(&self) -> Wiring {
+        self.wiring.clone()
+    }
+
+    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
+        self.kind.dispatch(message, now, out)
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.kind.poll_timeout()
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        self.kind.handle_timeout(now, out)
+    }
+
+    fn poll_work(&self) -> Option<Work> {
+        self.kind.poll_work()
+    }
+
+    fn run_work(&mut self, work: Work) {
+        self.kind.run_work(work)
+    }
+
+    fn work_done(&mut self, work: Work, elapsed: Duration, now: Duration, out: &mut Vec<Outgoing>) {
+        self.kind.work_done(work, elapsed, now, out)
+    }
+
+    fn gives_way_before(&self, work: Work) -> bool {
+        self.kind.gives_way_before(work)
+    }
+}
+
+impl<K: NodeKind> Node for ProcessingNode<K> {
+    fn is_idle(&mut self) -> bool {
+        self.kind.is_idle()
     }
 }
 
@@ -94,6 +186,8 @@ pub struct NodeCore {
     /// The scenario's last step: a step beyond it is not of this run.
     steps: u32,
     last_step: Option<u32>,
+    /// The last step begun is not reported yet.
+    in_step: bool,
     late_messages: u64,
     /// `late_messages` as of the last report.
     late_reported: u64,
@@ -124,6 +218,7 @@ impl NodeCore {
             view: topology.all_alive(),
             steps: scenario.steps,
             last_step: None,
+            in_step: false,
             late_messages: 0,
             late_reported: 0,
             deadline_missed: false,
@@ -245,7 +340,13 @@ impl NodeCore {
     fn enter_step(&mut self, step: u32) -> u32 {
         let missed = self.last_step.map_or(0, |l| step.saturating_sub(l + 1));
         self.last_step = Some(step);
+        self.in_step = true;
         missed
+    }
+
+    /// The last step begun has not been reported yet.
+    pub fn in_step(&self) -> bool {
+        self.in_step
     }
 
     /// The step before overran: its report says so.
@@ -382,6 +483,9 @@ impl NodeCore {
         );
         self.deadline_missed = false;
         self.late_reported = self.late_messages;
+        if Some(step) == self.last_step {
+            self.in_step = false;
+        }
         Outgoing {
             channel: Channel::Telemetry(self.index),
             message: Message::new(self.id(), step, 0, Payload::Telemetry(telemetry)),

@@ -25,7 +25,6 @@ use std::time::Duration;
 
 use bounds::{Quantizer, State};
 use fusion_graph::scenario::Scenario;
-use fusion_graph::Wiring;
 use fusion_graph::{ActorId, Topology};
 use wire::{Message, Payload, Stage};
 
@@ -34,7 +33,7 @@ use crate::estimator::ObservedValue;
 use crate::fusion::{vector_sum, FusionProtocol, Handled, RoundStats, Summed, VectorSum};
 use crate::location::{position_bound, sensor_quantizer, Grid, LocalEvidence, LocationConfig};
 use crate::sensor_manager::{SensorManager, UniformRandom};
-use crate::{Actor, NodeError, Outgoing, Work};
+use crate::{NodeError, Outgoing, Work};
 
 use super::core::mask;
 use super::{NodeCore, NodeKind, Report};
@@ -196,16 +195,8 @@ impl LocatorNode {
 }
 
 impl NodeKind for LocatorNode {
-    fn core(&self) -> &NodeCore {
-        &self.core
-    }
-
-    fn core_mut(&mut self) -> &mut NodeCore {
+    fn core(&mut self) -> &mut NodeCore {
         &mut self.core
-    }
-
-    fn is_idle(&self) -> bool {
-        self.stepping.is_none()
     }
 
     /// Ends an overrun step at once with what it has: no more waiting for
@@ -295,18 +286,6 @@ impl NodeKind for LocatorNode {
                 self.core.taken(Handled::NotMine, message);
             }
         }
-    }
-}
-
-impl Actor for LocatorNode {
-    type Work = Work;
-
-    fn wiring(&self) -> Wiring {
-        self.core.wiring()
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        self.dispatch(message, now, out)
     }
 
     fn poll_timeout(&self) -> Option<Duration> {

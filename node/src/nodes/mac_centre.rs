@@ -37,7 +37,7 @@ use wire::{Message, Payload, SlotColumn, Stage};
 
 use crate::filter::ParticleFilter;
 use crate::fusion::Handled;
-use crate::{Actor, NodeError, ObservedValue, Outgoing, Work};
+use crate::{NodeError, ObservedValue, Outgoing, Work};
 
 use super::{NodeCore, NodeKind, Report};
 
@@ -218,16 +218,8 @@ impl MacCentre {
 }
 
 impl NodeKind for MacCentre {
-    fn core(&self) -> &NodeCore {
-        &self.core
-    }
-
-    fn core_mut(&mut self) -> &mut NodeCore {
+    fn core(&mut self) -> &mut NodeCore {
         &mut self.core
-    }
-
-    fn is_idle(&self) -> bool {
-        self.stepping.is_none()
     }
 
     /// Reported with what it has: its prediction, if nothing was weighed.
@@ -285,16 +277,12 @@ impl NodeKind for MacCentre {
             }
         }
     }
-}
-
-impl Actor for MacCentre {
-    type Work = Work;
 
     /// It reads its control and its channel's deliveries, publishes an
     /// activation channel to each of its sensors and to its channel, and
     /// its telemetry, and wakes its sensors and its channel (the schedule)
     /// and the launcher.
-    fn wiring(&self) -> Wiring {
+    fn wiring(&mut self) -> Wiring {
         let mut wakes: Vec<ActorId> = self.own.iter().map(|s| ActorId::Sensor(*s)).collect();
         wakes.push(ActorId::Mac(self.index));
         wakes.push(ActorId::Launcher);
@@ -307,10 +295,6 @@ impl Actor for MacCentre {
             publishes: self.publications.clone(),
             wakes,
         }
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        self.dispatch(message, now, out)
     }
 
     fn poll_timeout(&self) -> Option<Duration> {

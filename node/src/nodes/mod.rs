@@ -5,8 +5,9 @@
 //! when the scenario has one. What every kind shares (the step guard, the
 //! membership view, late and overrun bookkeeping, activation and
 //! collection, the report) is the [`NodeCore`] each holds; a kind holds
-//! only its algorithm beside it. Every kind is an [`Actor`] and a [`Node`],
-//! so the drivers hold any of them as an [`AnyNode`].
+//! only its algorithm beside it. A kind is a [`NodeKind`]; made a
+//! [`ProcessingNode`], it is an [`Actor`] and a [`Node`], and the drivers
+//! hold any of them as an [`AnyNode`].
 
 pub mod cfdpf;
 pub mod core;
@@ -15,7 +16,7 @@ pub mod mac_centre;
 pub mod report;
 pub mod trackers;
 
-pub use self::core::{NodeCore, NodeKind};
+pub use self::core::{NodeCore, NodeKind, ProcessingNode};
 pub use report::Report;
 
 use std::time::Duration;
@@ -28,7 +29,7 @@ use crate::{Actor, CfDpfNode, MacCentre, NodeError, Work};
 /// [`NodeKind`] is one).
 pub trait Node: Actor<Work = Work> {
     /// Between steps: nothing collected, fused or waiting.
-    fn is_idle(&self) -> bool;
+    fn is_idle(&mut self) -> bool;
 }
 
 /// A processing node of any kind.
@@ -55,11 +56,12 @@ pub fn processing_node(
     start: Start,
 ) -> Result<AnyNode, NodeError> {
     if scenario.channel.is_some() {
-        return Ok(Box::new(MacCentre::new(scenario, topology, index)?));
+        let centre = MacCentre::new(scenario, topology, index)?;
+        return Ok(Box::new(ProcessingNode::new(centre)));
     }
     if let Some(node) = crate::parts::node_of_its_own(scenario, topology, index, start)? {
         return Ok(node);
     }
     let node = CfDpfNode::new(scenario, topology, index)?;
-    Ok(Box::new(node.starting(start)))
+    Ok(Box::new(ProcessingNode::new(node.starting(start))))
 }

@@ -4,11 +4,13 @@
 use fusion_graph::Scenario;
 
 use super::{BuildNode, Carries, ParamError, Parts, ProtocolFactory, Setup};
-use crate::fusion::{average_consensus, InformationFusion};
+use crate::fusion::{average_consensus, InformationFusion, RandomExchange};
 use crate::location::{LocationConfig, ThresholdDesign};
-use crate::nodes::trackers::{ExchangeCooperation, KlCooperation, TrackerNode};
+use crate::nodes::trackers::{
+    kl_fusion_rounds, Cooperation, ExchangeCooperation, KlCooperation, TrackerNode,
+};
 use crate::sensor_manager::{self, Closest, Manager, OfflinePcrlb, Scoring, UniformRandom};
-use crate::{AnyNode, LocatorNode, NodeError, Start};
+use crate::{AnyNode, LocatorNode, NodeError, ProcessingNode, Start};
 
 /// Adds cqnet's own parts to `parts`, in the order the scenario format's
 /// vocabulary lists them, under the names and shapes it gives them (so
@@ -66,8 +68,13 @@ impl ProtocolFactory for Average {
 
 fn random_exchange(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
     setup.params.only(&[])?;
-    let cooperation = ExchangeCooperation::new(setup.scenario, setup.topology, setup.node);
-    tracker(setup, cooperation)
+    let exchange = RandomExchange::new(
+        setup.node,
+        setup.topology,
+        setup.round_timeout(),
+        setup.scenario.seed,
+    );
+    tracker(setup, ExchangeCooperation::default(), exchange)
 }
 
 fn kl_consensus(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
@@ -84,28 +91,29 @@ fn kl_iterative(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
 
 fn kl(setup: &Setup<'_>, rounds: u32, neighbourhood: bool) -> Result<AnyNode, NodeError> {
     setup.params.only(&[])?;
-    let cooperation = KlCooperation::new(
+    let fusion = kl_fusion_rounds(setup.scenario, setup.topology, setup.node, rounds);
+    tracker(setup, KlCooperation::new(neighbourhood), fusion)
+}
+
+fn tracker<C: Cooperation + 'static>(
+    setup: &Setup<'_>,
+    cooperation: C,
+    protocol: C::Protocol,
+) -> Result<AnyNode, NodeError> {
+    let node = TrackerNode::new(
         setup.scenario,
         setup.topology,
         setup.node,
-        rounds,
-        neighbourhood,
-    );
-    tracker(setup, cooperation)
-}
-
-fn tracker<C: crate::nodes::trackers::Cooperation + 'static>(
-    setup: &Setup<'_>,
-    cooperation: C,
-) -> Result<AnyNode, NodeError> {
-    let node = TrackerNode::new(setup.scenario, setup.topology, setup.node, cooperation)?;
-    Ok(Box::new(node))
+        cooperation,
+        protocol,
+    )?;
+    Ok(Box::new(ProcessingNode::new(node)))
 }
 
 fn locator(setup: &Setup<'_>, _: Start) -> Result<AnyNode, NodeError> {
     let config = location_config(setup.scenario)?;
     let node = LocatorNode::new(setup.scenario, setup.topology, setup.node, config)?;
-    Ok(Box::new(node))
+    Ok(Box::new(ProcessingNode::new(node)))
 }
 
 /// `consensus.params` of `ml_location`: `grid_x`, `grid_y` (5 to 61

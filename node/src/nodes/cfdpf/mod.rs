@@ -17,8 +17,8 @@ use std::time::Duration;
 use bounds::State;
 use fusion_graph::scenario::{CensoringPolicy, Scenario};
 use fusion_graph::vocabulary::Shape;
+use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
-use fusion_graph::{Channel, Wiring};
 use wire::{Message, Payload, Stage, StateTransfer};
 
 use crate::censoring::NodeCensoring;
@@ -31,7 +31,7 @@ use crate::filter::Gaussian;
 use crate::fusion::information::{pack_matrix, unpack_matrix};
 use crate::fusion::{Fused, Handled, InformationFusion, InformationVector};
 use crate::sensor_manager::Manager;
-use crate::{Actor, NodeError, Outgoing, Work};
+use crate::{NodeError, Outgoing, Work};
 
 use super::core::mask;
 use super::{NodeCore, NodeKind, Report};
@@ -406,15 +406,12 @@ impl CfDpfNode {
 }
 
 impl NodeKind for CfDpfNode {
-    fn core(&self) -> &NodeCore {
-        &self.core
-    }
-
-    fn core_mut(&mut self) -> &mut NodeCore {
+    fn core(&mut self) -> &mut NodeCore {
         &mut self.core
     }
 
-    fn is_idle(&self) -> bool {
+    /// A step whose local filter left nothing to fuse ends unreported.
+    fn is_idle(&mut self) -> bool {
         matches!(self.phase, Phase::Idle)
     }
 
@@ -570,24 +567,12 @@ impl NodeKind for CfDpfNode {
             }
         }
     }
-}
-
-impl Actor for CfDpfNode {
-    type Work = Work;
 
     /// Its neighbours may still be in their last rounds, which every node
     /// waits for; the fusion filter (tens of microseconds) is on this
     /// node's report alone.
     fn gives_way_before(&self, work: Work) -> bool {
         work == Work::FusionFilter
-    }
-
-    fn wiring(&self) -> Wiring {
-        self.core.wiring()
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        self.dispatch(message, now, out)
     }
 
     /// When [`handle_timeout`](Self::handle_timeout) should next be called.
@@ -755,7 +740,7 @@ mod tests {
     //! The node on the virtual-clock harness: three nodes in a line.
     use super::*;
     use crate::harness::{Fate, Net};
-    use crate::Start;
+    use crate::{ProcessingNode, Start};
     use wire::Control;
 
     const ALL: [bool; 3] = [true; 3];
@@ -1082,7 +1067,7 @@ mod tests {
         }
         let mut fresh = CfDpfNode::new(&net.scenario, &net.topology, 2).unwrap();
         fresh.expect_rejoin();
-        net.nodes[2] = Some(Box::new(fresh));
+        net.nodes[2] = Some(Box::new(ProcessingNode::new(fresh)));
         net.begin_step(7, &ALL);
         net.run(LONG);
         assert!(

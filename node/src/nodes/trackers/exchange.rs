@@ -6,42 +6,24 @@
 
 use std::time::Duration;
 
-use fusion_graph::{Scenario, Topology};
-
 use crate::estimator::Observation;
 use crate::fusion::{Exchanged, FusionProtocol, RandomExchange, RoundStats};
 use crate::{Outgoing, Work};
 
-use super::{round_timeout, Cooperation, Next, TrackerFilter};
+use super::{Cooperation, StepAt, TrackerFilter};
 
+/// RndEx-PF's part of a tracker's step, over a [`RandomExchange`].
+#[derive(Debug, Default)]
 pub struct ExchangeCooperation {
-    exchange: RandomExchange,
     /// The exchange's result this step.
     exchanged: Option<Exchanged>,
     weighed: bool,
 }
 
-impl ExchangeCooperation {
-    pub fn new(scenario: &Scenario, topology: &Topology, index: u16) -> Self {
-        Self {
-            exchange: RandomExchange::new(index, topology, round_timeout(scenario), scenario.seed),
-            exchanged: None,
-            weighed: false,
-        }
-    }
-}
-
 impl Cooperation for ExchangeCooperation {
     type Protocol = RandomExchange;
 
-    fn protocol(&mut self) -> &mut RandomExchange {
-        &mut self.exchange
-    }
-
-    fn protocol_ref(&self) -> &RandomExchange {
-        &self.exchange
-    }
-
+    /// A node weighs its closed neighbourhood's measurements.
     fn uses_neighbourhood(&self) -> bool {
         true
     }
@@ -50,21 +32,19 @@ impl Cooperation for ExchangeCooperation {
     /// this one come in.
     fn begin(
         &mut self,
-        step: u32,
+        exchange: &mut RandomExchange,
         filter: &TrackerFilter,
-        view: &[bool],
-        now: Duration,
+        at: StepAt<'_>,
         out: &mut Vec<Outgoing>,
     ) {
         self.exchanged = None;
         self.weighed = false;
-        self.exchange
-            .start(step, filter.tracker.summary(), view, now, out);
-        self.poll();
+        exchange.start(at.step, filter.tracker.summary(), at.view, at.now, out);
+        self.poll(exchange);
     }
 
-    fn poll(&mut self) {
-        if let Some(e) = self.exchange.poll_result() {
+    fn poll(&mut self, exchange: &mut RandomExchange) {
+        if let Some(e) = exchange.poll_result() {
             self.exchanged = Some(e);
         }
     }
@@ -86,37 +66,15 @@ impl Cooperation for ExchangeCooperation {
         let from = self
             .exchanged
             .map_or_else(|| filter.tracker.summary(), |e| e.posterior);
-        let TrackerFilter {
-            tracker,
-            model,
-            rng,
-            node,
-        } = filter;
-        if let Err(e) = tracker.assimilate_from(&from, model, observations, rng) {
-            tracing::error!(node = *node, error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
-            tracker.local_posterior(model, observations, rng);
-        }
+        filter.assimilate_from(&from, observations);
         self.weighed = true;
-    }
-
-    fn done(
-        &mut self,
-        _: Work,
-        _: Duration,
-        _: u32,
-        _: &[bool],
-        _: Duration,
-        _: &mut Vec<Outgoing>,
-    ) -> Next {
-        Next::Report {
-            adopt_time: Duration::ZERO,
-        }
     }
 
     /// An exchange still running ends with what it has, or with the node's
     /// own posterior (no partner).
     fn finish_now(
         &mut self,
+        exchange: &mut RandomExchange,
         filter: &TrackerFilter,
         now: Duration,
         out: &mut Vec<Outgoing>,
@@ -129,7 +87,7 @@ impl Cooperation for ExchangeCooperation {
             partner: None,
             stats: RoundStats::default(),
         };
-        self.exchanged = Some(self.exchange.finish_now(now, out).unwrap_or(stayed));
+        self.exchanged = Some(exchange.finish_now(now, out).unwrap_or(stayed));
         true
     }
 }

@@ -5,10 +5,10 @@
 //! node redraws its particles from the fused Gaussian.
 //!
 //! The fusion of the posteriors is a protocol of its own: KL fusion's
-//! Metropolis rounds by default, or a program's
-//! ([`KlCooperation::with_protocol`]), which then has a tracker of its own
-//! with the weighing and the adoption for free.
+//! Metropolis rounds ([`kl_fusion_rounds`]), or a program's, which then
+//! has a tracker of its own with the weighing and the adoption for free.
 
+use std::marker::PhantomData;
 use std::time::Duration;
 
 use fusion_graph::{Scenario, Topology};
@@ -17,15 +17,27 @@ use crate::estimator::Observation;
 use crate::fusion::{kl_fusion, FusionProtocol, KlFused, KlFusion, NaturalGaussian, RoundStats};
 use crate::{Outgoing, Work};
 
-use super::{round_timeout, Cooperation, Next, TrackerFilter};
+use super::{round_timeout, Cooperation, Next, StepAt, TrackerFilter};
 
 /// Any protocol that fuses the nodes' posteriors in natural parameters.
 pub trait PosteriorFusion: FusionProtocol<Value = NaturalGaussian, Output = KlFused> {}
 
 impl<P: FusionProtocol<Value = NaturalGaussian, Output = KlFused>> PosteriorFusion for P {}
 
+/// KL fusion's Metropolis rounds for node `index`: `rounds` a step, a
+/// neighbour silent for two rounds presumed gone.
+pub fn kl_fusion_rounds(
+    scenario: &Scenario,
+    topology: &Topology,
+    index: u16,
+    rounds: u32,
+) -> KlFusion {
+    kl_fusion(index, topology, rounds as u16, round_timeout(scenario)).presume_gone_after(2)
+}
+
+/// The KL trackers' part of a step: weigh, fuse the posteriors over a
+/// [`PosteriorFusion`] `P`, adopt the fused one.
 pub struct KlCooperation<P: PosteriorFusion = KlFusion> {
-    fusion: P,
     /// Weigh the closed neighbourhood's measurements before fusing (the
     /// modified forms) rather than the node's own only (consensus KL).
     neighbourhood: bool,
@@ -37,37 +49,21 @@ pub struct KlCooperation<P: PosteriorFusion = KlFusion> {
     fusing: bool,
     weighed: bool,
     stats: RoundStats,
-}
-
-impl KlCooperation {
-    /// KL fusion of the posteriors over `rounds` rounds, after weighing the
-    /// closed neighbourhood's measurements (`neighbourhood`) or the node's
-    /// own only.
-    pub fn new(
-        scenario: &Scenario,
-        topology: &Topology,
-        index: u16,
-        rounds: u32,
-        neighbourhood: bool,
-    ) -> Self {
-        let fusion = kl_fusion(index, topology, rounds as u16, round_timeout(scenario))
-            .presume_gone_after(2);
-        Self::with_protocol(fusion, neighbourhood)
-    }
+    fusion: PhantomData<fn() -> P>,
 }
 
 impl<P: PosteriorFusion> KlCooperation<P> {
-    /// The posteriors fused by `fusion`, after weighing the closed
-    /// neighbourhood's measurements (`neighbourhood`) or the node's own.
-    pub fn with_protocol(fusion: P, neighbourhood: bool) -> Self {
+    /// The posteriors fused after weighing the closed neighbourhood's
+    /// measurements (`neighbourhood`) or the node's own only.
+    pub fn new(neighbourhood: bool) -> Self {
         Self {
-            fusion,
             neighbourhood,
             local: None,
             fused: None,
             fusing: false,
             weighed: false,
             stats: RoundStats::default(),
+            fusion: PhantomData,
         }
     }
 }
@@ -75,19 +71,11 @@ impl<P: PosteriorFusion> KlCooperation<P> {
 impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
     type Protocol = P;
 
-    fn protocol(&mut self) -> &mut P {
-        &mut self.fusion
-    }
-
-    fn protocol_ref(&self) -> &P {
-        &self.fusion
-    }
-
     fn uses_neighbourhood(&self) -> bool {
         self.neighbourhood
     }
 
-    fn begin(&mut self, _: u32, _: &TrackerFilter, _: &[bool], _: Duration, _: &mut Vec<Outgoing>) {
+    fn begin(&mut self, _: &mut P, _: &TrackerFilter, _: StepAt<'_>, _: &mut Vec<Outgoing>) {
         self.local = None;
         self.fused = None;
         self.fusing = false;
@@ -95,9 +83,9 @@ impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
         self.stats = RoundStats::default();
     }
 
-    fn poll(&mut self) {
+    fn poll(&mut self, fusion: &mut P) {
         if self.fusing {
-            if let Some(f) = self.fusion.poll_result() {
+            if let Some(f) = fusion.poll_result() {
                 self.fusing = false;
                 self.fused = Some(f);
             }
@@ -121,19 +109,13 @@ impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
     /// [`Work::Weigh`]: the local posterior, in natural parameters;
     /// [`Work::Adopt`]: the particles redrawn from the fused Gaussian.
     fn run(&mut self, work: Work, filter: &mut TrackerFilter, observations: &[Observation]) {
-        let TrackerFilter {
-            tracker,
-            model,
-            rng,
-            node,
-        } = filter;
         match work {
             Work::Weigh => {
-                let local = tracker.local_posterior(model, observations, rng);
+                let local = filter.local_posterior(observations);
                 self.local = NaturalGaussian::from_moments(&local);
                 if self.local.is_none() {
                     tracing::error!(
-                        node = *node,
+                        node = filter.node,
                         "the local posterior is degenerate; not fusing this step"
                     );
                 }
@@ -145,13 +127,9 @@ impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
                 };
                 self.stats = fused.stats;
                 match fused.fused.to_moments() {
-                    Some(g) => {
-                        if let Err(e) = tracker.adopt(&g, rng) {
-                            tracing::error!(node = *node, error = %e, "keeping the local particles");
-                        }
-                    }
+                    Some(g) => filter.adopt(&g),
                     None => tracing::error!(
-                        node = *node,
+                        node = filter.node,
                         "the fused information is not positive definite; keeping the local particles"
                     ),
                 }
@@ -164,19 +142,18 @@ impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
     /// is reported as it is); after the adoption the step is done.
     fn done(
         &mut self,
+        fusion: &mut P,
         work: Work,
         elapsed: Duration,
-        step: u32,
-        view: &[bool],
-        now: Duration,
+        at: StepAt<'_>,
         out: &mut Vec<Outgoing>,
     ) -> Next {
         match work {
             Work::Weigh => match self.local.take() {
                 Some(local) => {
                     self.fusing = true;
-                    self.fusion.start(step, local, view, now, out);
-                    self.poll();
+                    fusion.start(at.step, local, at.view, at.now, out);
+                    self.poll(fusion);
                     Next::Wait
                 }
                 None => Next::Report {
@@ -191,12 +168,18 @@ impl<P: PosteriorFusion> Cooperation for KlCooperation<P> {
     }
 
     /// A fusion still running ends with what it has.
-    fn finish_now(&mut self, _: &TrackerFilter, now: Duration, out: &mut Vec<Outgoing>) -> bool {
+    fn finish_now(
+        &mut self,
+        fusion: &mut P,
+        _: &TrackerFilter,
+        now: Duration,
+        out: &mut Vec<Outgoing>,
+    ) -> bool {
         if !self.fusing {
             return false;
         }
         self.fusing = false;
-        self.fused = self.fusion.finish_now(now, out);
+        self.fused = fusion.finish_now(now, out);
         self.fused.is_some()
     }
 }

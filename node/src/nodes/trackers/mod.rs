@@ -18,17 +18,18 @@
 use std::time::Duration;
 
 use fusion_graph::scenario::Scenario;
+use fusion_graph::Channel;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
-use fusion_graph::{Channel, Wiring};
 use rand_chacha::ChaCha8Rng;
 use wire::{Message, Payload, Stage};
 
 use crate::collector::{Collector, Offer};
 use crate::diffusion::DiffusionTracker;
 use crate::estimator::{Observation, ObservedValue, SensingModel};
+use crate::filter::Gaussian;
 use crate::fusion::{FusionProtocol, RoundStats};
 use crate::sensor_manager::{SensorManager, UniformRandom};
-use crate::{Actor, NodeError, Outgoing, Work};
+use crate::{NodeError, Outgoing, Work};
 
 use super::core::mask;
 use super::{NodeCore, NodeKind, Report};
@@ -37,20 +38,20 @@ mod exchange;
 mod kl;
 
 pub use exchange::ExchangeCooperation;
-pub use kl::{KlCooperation, PosteriorFusion};
+pub use kl::{kl_fusion_rounds, KlCooperation, PosteriorFusion};
 
 /// How a tracker node cooperates with its neighbours, beside the step
 /// every tracker shares (its sensors, its neighbours' relays, its
-/// report): RndEx-PF's exchange ([`ExchangeCooperation`]) or KL fusion
+/// report): when its protocol runs and what the node makes of its result.
+/// RndEx-PF's exchange ([`ExchangeCooperation`]) or KL fusion
 /// ([`KlCooperation`]), or a program's own: a node factory
-/// ([`crate::parts::NodeFactory`]) builds a [`TrackerNode`] around one.
+/// ([`crate::parts::NodeFactory`]) builds a [`TrackerNode`] around one
+/// and its protocol. The node holds the protocol and hands it its
+/// messages and timeouts; the cooperation starts it, takes its result and
+/// ends it.
 pub trait Cooperation {
     /// The fusion protocol it runs with the neighbours.
     type Protocol: FusionProtocol;
-
-    fn protocol(&mut self) -> &mut Self::Protocol;
-
-    fn protocol_ref(&self) -> &Self::Protocol;
 
     /// Whether the node relays its measurements and weighs its
     /// neighbours'.
@@ -59,15 +60,14 @@ pub trait Cooperation {
     /// The step begins, its measurements still to come.
     fn begin(
         &mut self,
-        step: u32,
+        protocol: &mut Self::Protocol,
         filter: &TrackerFilter,
-        view: &[bool],
-        now: Duration,
+        at: StepAt<'_>,
         out: &mut Vec<Outgoing>,
     );
 
     /// Takes the protocol's result, if it has one.
-    fn poll(&mut self);
+    fn poll(&mut self, protocol: &mut Self::Protocol);
 
     /// The step's rounds, for its report.
     fn stats(&self) -> RoundStats;
@@ -79,26 +79,40 @@ pub trait Cooperation {
     /// Runs `work` on the node's filter with the step's measurements.
     fn run(&mut self, work: Work, filter: &mut TrackerFilter, observations: &[Observation]);
 
-    /// `work` is done, at `now` after `elapsed`: what comes next.
-    #[allow(clippy::too_many_arguments)]
+    /// `work` is done, after `elapsed`: what comes next. By default the
+    /// step is reported: a cooperation whose protocol ran before the
+    /// weighing (an exchange) has nothing left to do.
     fn done(
         &mut self,
-        work: Work,
-        elapsed: Duration,
-        step: u32,
-        view: &[bool],
-        now: Duration,
-        out: &mut Vec<Outgoing>,
-    ) -> Next;
+        _protocol: &mut Self::Protocol,
+        _work: Work,
+        _elapsed: Duration,
+        _at: StepAt<'_>,
+        _out: &mut Vec<Outgoing>,
+    ) -> Next {
+        Next::Report {
+            adopt_time: Duration::ZERO,
+        }
+    }
 
     /// Ends what the protocol still waits for, with what it has; false if
     /// nothing was left that could finish the step.
     fn finish_now(
         &mut self,
+        protocol: &mut Self::Protocol,
         filter: &TrackerFilter,
         now: Duration,
         out: &mut Vec<Outgoing>,
     ) -> bool;
+}
+
+/// Where a tracker's step stands when its cooperation is told of it.
+#[derive(Debug, Clone, Copy)]
+pub struct StepAt<'a> {
+    pub step: u32,
+    /// The live nodes the node can reach.
+    pub view: &'a [bool],
+    pub now: Duration,
 }
 
 /// What a tracker's step does after a stage.
@@ -119,6 +133,34 @@ pub struct TrackerFilter {
     pub node: u16,
 }
 
+impl TrackerFilter {
+    /// The particles weighed with `observations`: the node's local
+    /// posterior, summarized.
+    pub fn local_posterior(&mut self, observations: &[Observation]) -> Gaussian {
+        self.tracker
+            .local_posterior(&self.model, observations, &mut self.rng)
+    }
+
+    /// Predicts from `from` (a neighbour's posterior, say) and weighs with
+    /// `observations`; the node's own particles instead, with an error in
+    /// the log, if `from` cannot be drawn from.
+    pub fn assimilate_from(&mut self, from: &Gaussian, observations: &[Observation]) {
+        let (model, rng) = (&self.model, &mut self.rng);
+        if let Err(e) = self.tracker.assimilate_from(from, model, observations, rng) {
+            tracing::error!(node = self.node, error = %e, "cannot draw from the exchanged posterior; weighing the node's own particles");
+            self.tracker.local_posterior(model, observations, rng);
+        }
+    }
+
+    /// The particles redrawn from `fused`; kept, with an error in the log,
+    /// if it cannot be drawn from.
+    pub fn adopt(&mut self, fused: &Gaussian) {
+        if let Err(e) = self.tracker.adopt(fused, &mut self.rng) {
+            tracing::error!(node = self.node, error = %e, "keeping the local particles");
+        }
+    }
+}
+
 /// One step, from `BeginStep` to its telemetry.
 struct Stepping {
     step: u32,
@@ -133,11 +175,12 @@ struct Stepping {
     weigh_time: Duration,
 }
 
-pub struct TrackerNode<C> {
+pub struct TrackerNode<C: Cooperation> {
     core: NodeCore,
     filter: TrackerFilter,
     manager: UniformRandom,
     cooperation: C,
+    protocol: C::Protocol,
     /// Sensors each node activates per step: how many relays to expect.
     active_per_node: usize,
     listen: Duration,
@@ -147,17 +190,19 @@ pub struct TrackerNode<C> {
     relayed: Vec<(u32, u16, Observation)>,
 }
 
-fn round_timeout(scenario: &Scenario) -> Duration {
+pub(crate) fn round_timeout(scenario: &Scenario) -> Duration {
     Duration::from_secs_f64(scenario.consensus.round_timeout_ms / 1e3)
 }
 
 impl<C: Cooperation> TrackerNode<C> {
-    /// Node `index` of a tracker network, cooperating as `cooperation` says.
+    /// Node `index` of a tracker network, cooperating with its neighbours
+    /// over `protocol` as `cooperation` says.
     pub fn new(
         scenario: &Scenario,
         topology: &Topology,
         index: u16,
         cooperation: C,
+        protocol: C::Protocol,
     ) -> Result<Self, NodeError> {
         let models = scenario.models()?;
         let model = SensingModel::new(&models, topology);
@@ -179,6 +224,7 @@ impl<C: Cooperation> TrackerNode<C> {
             },
             manager: UniformRandom::for_scenario(scenario),
             cooperation,
+            protocol,
             active_per_node: scenario.sensors.active_per_node as usize,
             listen: round_timeout(scenario),
             stepping: None,
@@ -336,7 +382,7 @@ impl<C: Cooperation> TrackerNode<C> {
     /// Takes the protocol's result, if it has one, while a step runs.
     fn poll_protocol(&mut self) {
         if self.stepping.is_some() {
-            self.cooperation.poll();
+            self.cooperation.poll(&mut self.protocol);
         }
     }
 
@@ -356,16 +402,8 @@ impl<C: Cooperation> TrackerNode<C> {
 }
 
 impl<C: Cooperation> NodeKind for TrackerNode<C> {
-    fn core(&self) -> &NodeCore {
-        &self.core
-    }
-
-    fn core_mut(&mut self) -> &mut NodeCore {
+    fn core(&mut self) -> &mut NodeCore {
         &mut self.core
-    }
-
-    fn is_idle(&self) -> bool {
-        self.stepping.is_none()
     }
 
     /// Ends an overrun step at once with what it has: no more waiting for
@@ -388,7 +426,10 @@ impl<C: Cooperation> NodeKind for TrackerNode<C> {
                 continue;
             }
             // Nothing left that could finish the step: report it as is.
-            if !self.cooperation.finish_now(&self.filter, now, out) {
+            if !self
+                .cooperation
+                .finish_now(&mut self.protocol, &self.filter, now, out)
+            {
                 self.report(Duration::ZERO, out);
             }
         }
@@ -400,7 +441,7 @@ impl<C: Cooperation> NodeKind for TrackerNode<C> {
             f.tracker.coast(&f.model, &mut f.rng);
         }
         self.relayed.retain(|(s, _, _)| *s >= step);
-        self.cooperation.protocol().expect_step(step);
+        self.protocol.expect_step(step);
         let picks = self
             .manager
             .choose(&self.core.selection_context(step, None));
@@ -420,8 +461,13 @@ impl<C: Cooperation> NodeKind for TrackerNode<C> {
             relay_deadline: now + 2 * self.listen,
             weigh_time: Duration::ZERO,
         }));
+        let at = StepAt {
+            step,
+            view: self.core.view(),
+            now,
+        };
         self.cooperation
-            .begin(step, &self.filter, self.core.view(), now, out);
+            .begin(&mut self.protocol, &self.filter, at, out);
         // A step with no active sensor has nothing to wait for.
         if self.collecting().is_some_and(Collector::is_complete) {
             self.close_own(out);
@@ -442,24 +488,12 @@ impl<C: Cooperation> NodeKind for TrackerNode<C> {
                 self.take_relay(message.header.step, m, *sensor, *value)
             }
             _ => {
-                let handled = self.cooperation.protocol().handle(message, now, out);
+                let handled = self.protocol.handle(message, now, out);
                 if self.core.taken(handled, message) {
                     self.poll_protocol()
                 }
             }
         }
-    }
-}
-
-impl<C: Cooperation> Actor for TrackerNode<C> {
-    type Work = Work;
-
-    fn wiring(&self) -> Wiring {
-        self.core.wiring()
-    }
-
-    fn handle(&mut self, message: &Message, now: Duration, out: &mut Vec<Outgoing>) {
-        self.dispatch(message, now, out)
     }
 
     fn poll_timeout(&self) -> Option<Duration> {
@@ -469,7 +503,7 @@ impl<C: Cooperation> Actor for TrackerNode<C> {
             None if !s.relays_closed => Some(s.relay_deadline),
             None => None,
         };
-        let protocol = self.cooperation.protocol_ref().poll_timeout();
+        let protocol = self.protocol.poll_timeout();
         [listening, protocol].into_iter().flatten().min()
     }
 
@@ -488,7 +522,7 @@ impl<C: Cooperation> Actor for TrackerNode<C> {
         {
             self.close_relays();
         }
-        self.cooperation.protocol().handle_timeout(now, out);
+        self.protocol.handle_timeout(now, out);
         self.poll_protocol();
     }
 
@@ -517,8 +551,15 @@ impl<C: Cooperation> Actor for TrackerNode<C> {
         if work == Work::Weigh {
             s.weigh_time = elapsed;
         }
-        let view = self.core.view();
-        match self.cooperation.done(work, elapsed, s.step, view, now, out) {
+        let at = StepAt {
+            step: s.step,
+            view: self.core.view(),
+            now,
+        };
+        match self
+            .cooperation
+            .done(&mut self.protocol, work, elapsed, at, out)
+        {
             Next::Wait => {}
             Next::Report { adopt_time } => self.report(adopt_time, out),
         }
