@@ -157,7 +157,7 @@ impl Placement {
             hosts: s.hosts.clone(),
             node_host,
             sensor_host,
-            pairs: s.consensus.protocol.shape().pairs(),
+            pairs: s.talks_in_pairs(),
             centralized,
         }))
     }

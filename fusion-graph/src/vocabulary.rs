@@ -85,7 +85,9 @@ pub type Build = &'static (dyn Any + Send + Sync);
 pub struct Part {
     pub role: Role,
     pub name: &'static str,
-    /// A protocol's shape; a manager's is [`Shape::ROUNDS`], unused.
+    /// What the part needs of the network: a protocol's shape; a
+    /// manager's is [`Shape::Rounds`], with `pairs` if it sends to one
+    /// chosen neighbour at a time.
     pub shape: Shape,
     /// What builds it; `None` in [`Vocabulary::BUILT_IN`], whose parts the
     /// `node` crate builds itself.

@@ -95,7 +95,7 @@ pub fn check(scenario: &Scenario, topology: &Topology, centralized: bool) -> any
 /// What the run's iceoryx2 services and shared tables will take of the
 /// machine (`transport::limits`).
 pub fn footprint(scenario: &Scenario, topology: &Topology, centralized: bool) -> Footprint {
-    let pairs = scenario.consensus.protocol.shape().pairs();
+    let pairs = scenario.talks_in_pairs();
     let tables = bounds::table_memory::shared_table_bytes() as u64;
     Footprint::of(topology, pairs, centralized, tables)
 }

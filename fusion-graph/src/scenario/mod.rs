@@ -557,6 +557,13 @@ impl Default for ReferenceConfig {
 }
 
 impl Scenario {
+    /// Whether a part the scenario names (its protocol, or its sensor
+    /// manager) sends to one chosen neighbour at a time: the network then
+    /// opens a channel for each pair of neighbours.
+    pub fn talks_in_pairs(&self) -> bool {
+        self.consensus.protocol.shape().pairs() || self.sensors.manager.part().shape.pairs()
+    }
+
     /// The built-in default scenario.
     pub fn default_scenario() -> Self {
         Self::from_toml(DEFAULT_SCENARIO, "<built-in default>", &[])

@@ -224,7 +224,7 @@ impl NodeCore {
             deadline_missed: false,
             answers: SensorAnswers::new(&topology.node_sensors[index as usize]),
             cells,
-            pairs: scenario.consensus.protocol.shape().pairs(),
+            pairs: scenario.talks_in_pairs(),
         }
     }
 

@@ -38,7 +38,8 @@ use crate::fusion::{Fused, FusionProtocol, Handled, InformationFusion, Informati
 use crate::sensor_manager::Manager;
 use crate::{AnyNode, NodeError, Start};
 
-/// What a protocol needs of the network beyond rounds to every neighbour.
+/// What a protocol or a negotiated sensor manager needs of the network
+/// beyond messages to every neighbour.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Needs {
     /// Sends to one chosen neighbour at a time: the network opens a
@@ -127,6 +128,14 @@ where
 /// Builds a node's sensor manager. A function `Fn(&Setup) ->
 /// Result<Manager, ParamError>` is one.
 pub trait ManagerFactory: Send + Sync + 'static {
+    /// What the manager needs of the network: a negotiated manager that
+    /// sends to one chosen neighbour at a time (its parent in a tree, say)
+    /// rather than to every neighbour asks for
+    /// [`Needs::POINT_TO_POINT`].
+    fn needs(&self) -> Needs {
+        Needs::BROADCAST
+    }
+
     fn build(&self, setup: &Setup<'_>) -> Result<Manager, ParamError>;
 }
 
@@ -229,8 +238,11 @@ impl Parts {
 
     /// A sensor manager, chosen by `sensors.manager = "name"`.
     pub fn manager(self, name: &'static str, factory: impl ManagerFactory) -> Self {
+        let shape = Shape::Rounds {
+            pairs: factory.needs().pairs,
+        };
         let builder = Builder::Manager(Box::new(factory));
-        self.add(Role::Manager, name, Shape::ROUNDS, builder)
+        self.add(Role::Manager, name, shape, builder)
     }
 
     /// A payload a protocol sends: the program gives it the next kind
@@ -586,6 +598,49 @@ mod tests {
             Parts::new().protocol("Bad-Name", alone).vocabulary(),
             Err(PartsError::BadName { .. })
         ));
+    }
+
+    /// A manager that sends to one chosen neighbour at a time gets a
+    /// channel for each pair of neighbours, as a protocol does.
+    #[test]
+    fn a_manager_that_talks_in_pairs_gets_the_pairs_channels() {
+        struct InPairs;
+        impl ManagerFactory for InPairs {
+            fn needs(&self) -> Needs {
+                Needs::POINT_TO_POINT
+            }
+
+            fn build(&self, setup: &Setup<'_>) -> Result<Manager, ParamError> {
+                let scoring = crate::sensor_manager::Scoring::Conditional;
+                let m = crate::sensor_manager::negotiated(
+                    setup.scenario,
+                    setup.topology,
+                    setup.node,
+                    scoring,
+                );
+                Ok(m)
+            }
+        }
+        let vocabulary = Parts::new()
+            .manager("in_pairs", InPairs)
+            .vocabulary()
+            .unwrap();
+        let plain = scenario(&[]).unwrap();
+        let s = scenario_in(vocabulary, &["sensors.manager=\"in_pairs\""]).unwrap();
+        assert!(!plain.talks_in_pairs() && s.talks_in_pairs());
+        let topology = Topology::from_scenario(&s, "d").unwrap();
+        let pair_reads = |scenario: &Scenario| {
+            let mut node =
+                crate::processing_node(scenario, &topology, 4, Start::default()).unwrap();
+            let wiring = crate::Actor::wiring(&mut node);
+            wiring
+                .reads
+                .iter()
+                .filter(|c| matches!(c, fusion_graph::Channel::Pair { to: 4, .. }))
+                .count()
+        };
+        assert_eq!(pair_reads(&plain), 0);
+        assert_eq!(pair_reads(&s), topology.neighbours[4].len());
     }
 
     /// cqnet's own parts are the scenario format's vocabulary, name for
