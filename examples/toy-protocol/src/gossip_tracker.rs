@@ -8,7 +8,7 @@
 //! the natural parameters, the same point KL fusion's consensus reaches,
 //! but each round a node sends to one neighbour only, over the pair's
 //! channel. The weighing and the adoption of the fused Gaussian are
-//! cqnet's ([`KlCooperation::with_protocol`]); the fusion is ours, the
+//! cqnet's ([`KlCooperation`] around our protocol); the fusion is ours, the
 //! same push-sum rule as the CF/DPF's ([`Gossip`]) on another [`Mass`].
 
 use fusion_graph::vocabulary::Shape;

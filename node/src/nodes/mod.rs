@@ -1,6 +1,6 @@
 //! The processing nodes, by kind: the CF/DPF node ([`CfDpfNode`]), the
 //! random-exchange paper's trackers ([`TrackerNode`](trackers::TrackerNode)), a static target's
-//! locator ([`LocatorNode`]), as the scenario's `consensus.protocol` says,
+//! locator ([`LocatorNode`](locator::LocatorNode)), as the scenario's `consensus.protocol` says,
 //! or a fusion centre behind a multiple-access channel ([`MacCentre`]),
 //! when the scenario has one. What every kind shares (the step guard, the
 //! membership view, late and overrun bookkeeping, activation and
