@@ -630,9 +630,8 @@ mod tests {
         assert!(!plain.talks_in_pairs() && s.talks_in_pairs());
         let topology = Topology::from_scenario(&s, "d").unwrap();
         let pair_reads = |scenario: &Scenario| {
-            let mut node =
-                crate::processing_node(scenario, &topology, 4, Start::default()).unwrap();
-            let wiring = crate::Actor::wiring(&mut node);
+            let node = crate::processing_node(scenario, &topology, 4, Start::default()).unwrap();
+            let wiring = crate::Actor::wiring(&node);
             wiring
                 .reads
                 .iter()
