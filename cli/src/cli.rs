@@ -227,7 +227,26 @@ pub fn load_scenario(
         ),
     };
     let topology = Topology::from_scenario(&scenario, &source)?;
+    say_how_far_consensus_gets(&scenario, &topology);
     Ok((scenario, topology))
+}
+
+/// Before a run: the rounds `"auto"` chose, or a warning when the
+/// scenario's rounds leave more of the disagreement than its
+/// `consensus.accuracy` (both for the graph with every node alive).
+fn say_how_far_consensus_gets(scenario: &Scenario, topology: &Topology) {
+    if let Some(c) = scenario.consensus.chosen {
+        eprintln!(
+            "consensus.rounds = \"auto\": {} rounds, leaving at most {:.1} % of the nodes' \
+             disagreement on this fusion graph (λ₂ = {:.4}; consensus.accuracy = {})",
+            c.rounds,
+            100.0 * c.left,
+            c.slem,
+            scenario.consensus.accuracy
+        );
+    } else if let Some(advice) = scenario.rounds_advice(topology) {
+        eprintln!("warning: {advice}");
+    }
 }
 
 pub fn builtin_scenario(

@@ -23,7 +23,7 @@ pub use actor::{Actor, Outgoing, Wiring};
 pub use channel::{Channel, RunId};
 pub use scenario::Scenario;
 pub use shaper::{LinkRule, LinkShaper};
-pub use topology::{MetropolisWeights, SpanningTree, Topology};
+pub use topology::{MetropolisWeights, Mixing, SpanningTree, Topology};
 pub use wire::{ActorId, BitMask, Message, MessageKind, Payload, WireError, WireFormat};
 
 pub use models::{link_fault_seed, stream_rng, stream_seed, Models, Stream};

@@ -114,6 +114,7 @@ const fn built_in(role: Role, name: &'static str, shape: Shape) -> Part {
 const BUILT_IN_PARTS: &[Part] = &[
     built_in(Role::Protocol, "average", Shape::ROUNDS),
     built_in(Role::Protocol, "exact", Shape::ExactSums),
+    built_in(Role::Protocol, "short_memory", Shape::ROUNDS),
     built_in(
         Role::Protocol,
         "random_exchange",

@@ -85,6 +85,9 @@ pub struct NodeEstimate {
     pub estimate: [f64; 2],
     pub error: f64,
     pub bound: Option<f64>,
+    /// How far the node still was from its neighbours after its last
+    /// consensus round, as a share.
+    pub disagreement: Option<f64>,
 }
 
 impl NodeEstimate {
@@ -94,6 +97,7 @@ impl NodeEstimate {
             estimate: [row.telemetry.estimate[0], row.telemetry.estimate[1]],
             error: row.error(),
             bound: row.telemetry.bound,
+            disagreement: row.telemetry.disagreement,
         }
     }
 }

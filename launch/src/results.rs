@@ -35,7 +35,7 @@ impl TickRow {
     }
 }
 
-const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active,design\n";
+const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active,design,disagreement\n";
 
 /// A row of `ticks.csv` as read back (the live view's replay and the
 /// testkit read it; [`ResultsWriter`] writes it): a node's (or the
@@ -73,6 +73,9 @@ pub struct Tick {
     /// A fusion centre's transmission probability for each of its sensors
     /// (empty for other nodes).
     pub design: Vec<f64>,
+    /// How far the node still was from its neighbours after its last
+    /// consensus round, as a share (the protocol's measure).
+    pub disagreement: Option<f64>,
     /// The row as written.
     pub line: String,
 }
@@ -117,6 +120,7 @@ impl Tick {
                     .collect::<Option<_>>()?,
                 None => Vec::new(),
             },
+            disagreement: num(17),
             line: line.to_string(),
         })
     }
@@ -161,7 +165,7 @@ impl ResultsWriter {
             let t = &r.telemetry;
             writeln!(
                 self.ticks,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.step,
                 r.node,
                 r.truth[0],
@@ -186,7 +190,8 @@ impl ResultsWriter {
                     .iter()
                     .map(|p| format!("{}", f64::from(*p) / 1e4))
                     .collect::<Vec<_>>()
-                    .join(";")
+                    .join(";"),
+                opt(t.disagreement)
             )?;
         }
         self.ticks.flush()?;
@@ -289,6 +294,7 @@ struct StepSums {
     aux_bound: (f64, u64),
     central_sq_error: (f64, u64),
     central_bound: (f64, u64),
+    largest_disagreement: Option<f64>,
 }
 
 impl StepSeries {
@@ -306,6 +312,7 @@ impl StepSeries {
             add(&mut s.sq_error, e2);
             add(&mut s.bound, r.telemetry.bound);
             add(&mut s.aux_bound, r.telemetry.aux_bound);
+            s.largest_disagreement = larger(s.largest_disagreement, r.telemetry.disagreement);
         }
     }
 
@@ -324,6 +331,7 @@ impl StepSeries {
             sum(&mut a.aux_bound, b.aux_bound);
             sum(&mut a.central_sq_error, b.central_sq_error);
             sum(&mut a.central_bound, b.central_bound);
+            a.largest_disagreement = larger(a.largest_disagreement, b.largest_disagreement);
         }
     }
 
@@ -339,8 +347,16 @@ impl StepSeries {
                 aux_bound: mean(s.aux_bound),
                 centralized_rmse: mean(s.central_sq_error).map(f64::sqrt),
                 centralized_bound: mean(s.central_bound),
+                largest_disagreement: s.largest_disagreement,
             })
             .collect()
+    }
+}
+
+fn larger(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.max(b)),
+        (a, b) => a.or(b),
     }
 }
 
@@ -578,6 +594,7 @@ impl<'w> Recorder<'w> {
                 .collect(),
             fault_cost: self.cost,
             timing_dependent,
+            disagreement: crate::summary::Disagreement::of_steps(&means),
             wall_seconds: facts.wall_seconds,
             steps_per_second: facts.steps_per_second,
             stage_micros: self.stages.means(),

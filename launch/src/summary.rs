@@ -127,6 +127,10 @@ pub struct Summary {
     /// lockstep run of this scenario is `sim`'s to the bit.
     #[serde(default)]
     pub timing_dependent: Vec<String>,
+    /// How far consensus got, step by step; `None` if no node's protocol
+    /// measures it.
+    #[serde(default)]
+    pub disagreement: Option<Disagreement>,
     pub wall_seconds: f64,
     pub steps_per_second: f64,
     /// Mean microseconds per node-step: local filter (with local bound),
@@ -412,6 +416,18 @@ pub fn print_table(s: &Summary) {
             format!("{:.0}/{:.0}", st.selection, st.scoring)
         );
     }
+    if let Some(d) = &s.disagreement {
+        println!(
+            "  {:<34} {:>12}",
+            "disagreement after consensus",
+            format!(
+                "{:.1} %/{:.1} %",
+                100.0 * d.mean_of_step_largest,
+                100.0 * d.largest
+            )
+        );
+        println!("  {:<34}", "  (largest per step: mean/worst)");
+    }
     if let Some(p) = &s.round_latency_micros {
         println!(
             "  {:<34} {:>12}",
@@ -453,6 +469,35 @@ pub struct StepMeans {
     pub aux_bound: Option<f64>,
     pub centralized_rmse: Option<f64>,
     pub centralized_bound: Option<f64>,
+    /// The largest disagreement any node reported after its last round.
+    pub largest_disagreement: Option<f64>,
+}
+
+/// How far consensus got: the disagreement the nodes reported after their
+/// last round (each the largest relative difference from a neighbour
+/// heard, in its protocol's measure).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Disagreement {
+    /// The largest over every node and step.
+    pub largest: f64,
+    /// The mean over steps of each step's largest.
+    pub mean_of_step_largest: f64,
+    /// Each step's largest, from step 1 (`null`: no node said).
+    pub by_step: Vec<Option<f64>>,
+}
+
+impl Disagreement {
+    /// From each step's largest; `None` if no node ever said.
+    pub fn of_steps(means: &[StepMeans]) -> Option<Self> {
+        let by_step: Vec<Option<f64>> = means.iter().map(|m| m.largest_disagreement).collect();
+        let said: Vec<f64> = by_step.iter().flatten().copied().collect();
+        let largest = said.iter().copied().reduce(f64::max)?;
+        Some(Self {
+            largest,
+            mean_of_step_largest: said.iter().sum::<f64>() / said.len() as f64,
+            by_step,
+        })
+    }
 }
 
 /// Accuracy figures, averaged over nodes and steps from `from_step` on.

@@ -33,7 +33,10 @@ class Results:
       consensus ``rounds``, ``live_neighbours``, ``observations``,
       ``deadline_missed``, ``spread``, the ``active`` sensors and, for a
       fusion centre behind a multiple-access channel, the ``design``: each
-      sensor's transmission probability, ``;``-separated.
+      sensor's transmission probability, ``;``-separated; and the
+      ``disagreement``: how far the node still was from its neighbours
+      after its last consensus round, as a share (empty where its
+      protocol does not measure it).
     - ``links``: per directed link (``from``, ``to``) and message ``kind``,
       messages and bytes sent, received, dropped, malformed and duplicated.
     - ``summary``: ``summary.json`` as a dict, with its ``estimates``

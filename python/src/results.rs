@@ -28,7 +28,7 @@ fn kind_of(column: &str) -> Option<Kind> {
         "step" | "rounds" | "live_neighbours" | "observations" | "deadline_missed" => Kind::Count,
         c if c.ends_with("_messages") || c.ends_with("_bytes") => Kind::Count,
         "true_x" | "true_y" | "est_x" | "est_y" | "error" | "bound" | "local_bound"
-        | "aux_bound" | "spread" => Kind::Float,
+        | "aux_bound" | "spread" | "disagreement" => Kind::Float,
         _ => return None,
     })
 }

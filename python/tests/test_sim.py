@@ -109,3 +109,13 @@ def test_the_gil_is_free_while_a_sim_works(tmp_out):
     # About 4·10⁶ a second here while the sim works; a C call holding the
     # GIL lets it reach 10⁵.
     assert counted / elapsed > 500_000, (counted, elapsed)
+
+
+def test_the_disagreement_after_consensus_is_a_column(tmp_out):
+    r = cqnet.sim(small_scenario(steps=5), out=tmp_out / "python")
+    ticks = r.arrays("ticks")
+    nodes = [i for i, n in enumerate(ticks["node"]) if n != "central"]
+    values = [ticks["disagreement"][i] for i in nodes]
+    assert all(0.0 <= v <= 2.0 for v in values), values
+    assert any(v > 0.0 for v in values), "ten rounds leave some disagreement"
+    assert r.summary["disagreement"]["largest"] == max(values)

@@ -78,6 +78,7 @@ fn parse_ticks(text: &str) -> anyhow::Result<Steps> {
             estimate: tick.estimate,
             error: tick.error,
             bound: tick.bound,
+            disagreement: tick.disagreement,
         });
     }
     Ok(steps)

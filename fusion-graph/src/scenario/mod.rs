@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::vocabulary::{Part, Role, Shape, Vocabulary};
 use crate::ScenarioError;
 
+mod consensus;
 mod mac;
 mod overrides;
 mod validate;
@@ -16,6 +17,8 @@ pub use crate::faults::{
     is_wildcard, BurstLoss, Corrupt, Delay, Duplicate, Fault, FaultySensors, Kill, LinkSelector,
     Loss, Partition, Reorder, SensorMode, Signal,
 };
+use consensus::default_accuracy;
+pub use consensus::{RoundsAdvice, RoundsChoice, MAX_AUTO_ROUNDS};
 pub use mac::{MacConfig, MacDesign, MAX_SLOTS as MAX_MAC_SLOTS};
 pub use overrides::apply_override;
 
@@ -500,6 +503,10 @@ impl ConsensusProtocol {
     /// Iterative KL with local cooperation: the closed neighbourhood's
     /// measurements, then `rounds` rounds (K_max).
     pub const KL_ITERATIVE: Self = Self::built_in("kl_iterative");
+    /// Average consensus with one round of memory (second-order):
+    /// `x(t+1) = (1 + α) W x(t) − α x(t−1)`, α from the graph's λ₂, the
+    /// same messages as `average`, fewer of them for the same accuracy.
+    pub const SHORT_MEMORY: Self = Self::built_in("short_memory");
 
     /// What the protocol needs of the network.
     pub fn shape(self) -> Shape {
@@ -519,7 +526,18 @@ impl ConsensusProtocol {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ConsensusConfig {
+    /// Rounds a step; `"auto"` in a file: the fewest that leave at most
+    /// `accuracy` of the disagreement on this fusion graph
+    /// ([`Scenario::choose_rounds`]), written back as a number.
     pub rounds: u32,
+    /// The share of the initial disagreement that the rounds may leave:
+    /// what `rounds = "auto"` aims at, and above which `sim` and `run`
+    /// warn that the rounds are too few.
+    #[serde(default = "default_accuracy")]
+    pub accuracy: f64,
+    /// How the rounds were chosen, when they were chosen (`"auto"`).
+    #[serde(skip)]
+    pub chosen: Option<RoundsChoice>,
     pub protocol: ConsensusProtocol,
     /// The protocol's own parameters, which it checks (`node::parts`).
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
@@ -615,14 +633,12 @@ impl Scenario {
         for o in overrides {
             apply_override(&mut value, o)?;
         }
-        let text = toml::to_string(&value).map_err(|e| ScenarioError::Parse {
-            file: source.into(),
-            message: e.to_string(),
-        })?;
         let parse_error = |message: String| ScenarioError::Parse {
             file: source.into(),
             message,
         };
+        let auto_rounds = consensus::take_auto_rounds(&mut value);
+        let text = toml::to_string(&value).map_err(|e| parse_error(e.to_string()))?;
         // The path of the value that failed, so that `--set
         // filter.particles=-5` is told `filter.particles`, not only a line
         // of the merged document.
@@ -636,6 +652,9 @@ impl Scenario {
             })?;
         scenario.vocabulary = vocabulary;
         scenario.validate(source)?;
+        if auto_rounds {
+            scenario.choose_rounds(source)?;
+        }
         Ok(scenario)
     }
 

@@ -69,6 +69,7 @@ pub(super) fn is_optional_key(key: &str) -> bool {
             | "max_active_total"
             | "allow_disconnected"
             | "auxiliary_fim"
+            | "accuracy"
             | "raw"
             | "min_speed"
             | "centralized"

@@ -230,6 +230,14 @@ impl Scenario {
         if self.consensus.rounds == 0 {
             return bad("consensus.rounds", "at least 1", "0".into());
         }
+        let accuracy = self.consensus.accuracy;
+        if !(accuracy > 0.0 && accuracy < 1.0) {
+            return bad(
+                "consensus.accuracy",
+                "a share of the disagreement, between 0 and 1",
+                accuracy.to_string(),
+            );
+        }
         check.positive(
             "consensus.round_timeout_ms",
             self.consensus.round_timeout_ms,

@@ -5,6 +5,9 @@
 use std::collections::VecDeque;
 
 mod layout;
+mod mixing;
+
+pub use mixing::Mixing;
 
 use crate::channel::Channel;
 #[cfg(test)]

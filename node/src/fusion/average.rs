@@ -58,6 +58,10 @@ impl RoundRule for Metropolis {
             stats: done.stats,
         }
     }
+
+    fn disagreement(&self, own: &InformationVector, heard: &InformationVector) -> Option<f64> {
+        Some(own.disagreement(heard))
+    }
 }
 
 /// N_c rounds of average consensus on the information vector.

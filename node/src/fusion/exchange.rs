@@ -143,7 +143,7 @@ impl RandomExchange {
                 neighbours_heard: u16::from(partner.is_some()),
                 neighbours_expected: u16::from(matched),
                 total: now.saturating_sub(r.started),
-                later_rounds: Duration::ZERO,
+                ..RoundStats::default()
             },
         });
     }

@@ -34,6 +34,16 @@ fn add_scaled<const N: usize>(acc: &mut [f64; N], w: f64, v: &[f64; N]) {
     }
 }
 
+/// `‖a − b‖ / max(‖a‖, ‖b‖)`, 0 where both are zero.
+pub fn relative_distance(a: &[f64], b: &[f64]) -> f64 {
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    let size = norm(&mut a.iter().copied()).max(norm(&mut b.iter().copied()));
+    if size == 0.0 {
+        return 0.0;
+    }
+    norm(&mut a.iter().zip(b).map(|(x, y)| x - y)) / size
+}
+
 impl InformationVector {
     /// The estimate's parts and the bound's ΔL, with no late information
     /// and no `S_obs`: what a protocol that carries only those rebuilds
@@ -90,6 +100,16 @@ impl InformationVector {
         if let (Some(a), Some(b)) = (self.s_obs.as_mut(), other.s_obs.as_ref()) {
             add_scaled(a, w, b);
         }
+    }
+
+    /// How far `other` is from `self`: the largest, over δη, δΛ and ΔL,
+    /// of the parts' distance as a share of the larger part's size
+    /// (`‖a − b‖ / max(‖a‖, ‖b‖)`, 0 where both are zero). Unitless, so
+    /// that the estimate's parts and the bound's weigh alike; at most 2.
+    pub fn disagreement(&self, other: &Self) -> f64 {
+        relative_distance(&self.delta_eta, &other.delta_eta)
+            .max(relative_distance(&self.delta_lambda, &other.delta_lambda))
+            .max(relative_distance(&self.delta_l, &other.delta_l))
     }
 
     /// The payloads one round of it travels in: the consensus message

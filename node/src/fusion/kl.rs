@@ -16,6 +16,7 @@ use bounds::{Gaussian, Mat4, State};
 use fusion_graph::{MetropolisWeights, Topology};
 use wire::{pack_mat4, unpack_mat4, GaussianInformation, Payload};
 
+use super::information::relative_distance;
 use super::rounds::{weighted, At};
 use super::{RoundEngine, RoundRule, RoundStats, RoundsDone};
 
@@ -124,6 +125,13 @@ impl RoundRule for KlRule {
             fused: done.value,
             stats: done.stats,
         }
+    }
+
+    /// The larger of η's and Λ's relative distances.
+    fn disagreement(&self, own: &NaturalGaussian, heard: &NaturalGaussian) -> Option<f64> {
+        let eta = relative_distance(own.eta.as_slice(), heard.eta.as_slice());
+        let lambda = relative_distance(own.lambda.as_slice(), heard.lambda.as_slice());
+        Some(eta.max(lambda))
     }
 }
 

@@ -29,6 +29,7 @@ mod exchange;
 pub(crate) mod information;
 mod kl;
 mod rounds;
+mod short_memory;
 #[cfg(test)]
 pub(crate) mod testing;
 mod vector_sum;
@@ -39,6 +40,7 @@ pub use exchange::{Exchanged, RandomExchange};
 pub use information::InformationVector;
 pub use kl::{kl_fusion, KlFused, KlFusion, KlRule, NaturalGaussian};
 pub use rounds::{At, RoundEngine, RoundRule, RoundsDone, To};
+pub use short_memory::{short_memory_consensus, Remembered, ShortMemory, ShortMemoryConsensus};
 pub use vector_sum::{vector_sum, Summed, VectorSum, VectorSumRule};
 
 use std::time::Duration;
@@ -60,7 +62,7 @@ pub enum Handled {
 }
 
 /// How a step's fusion went, for telemetry.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct RoundStats {
     pub rounds_completed: u16,
     /// Neighbours heard in the last round.
@@ -76,6 +78,12 @@ pub struct RoundStats {
     /// every neighbour is exchanging (round 1 also waits for the slowest
     /// neighbour's local filter).
     pub later_rounds: Duration,
+    /// How far the node still was from the neighbours it heard in the last
+    /// round: the largest relative difference of their values from its
+    /// own ([`RoundRule::disagreement`](rounds::RoundRule::disagreement)),
+    /// from values it holds anyway; `None` if the protocol does not say or
+    /// it heard nobody.
+    pub disagreement: Option<f64>,
 }
 
 /// What an information-fusion protocol yields for a step.

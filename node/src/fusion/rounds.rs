@@ -88,6 +88,15 @@ pub trait RoundRule {
 
     /// The protocol's result from its last round.
     fn finish(&self, done: RoundsDone<Self::Value>) -> Self::Output;
+
+    /// How far a neighbour's value `heard` is from the node's `own`, as a
+    /// share of their size: what the step's report says of the last
+    /// round, the largest over the neighbours heard. `None` (the default)
+    /// if the rule has no measure.
+    fn disagreement(&self, own: &Self::Value, heard: &Self::Value) -> Option<f64> {
+        let _ = (own, heard);
+        None
+    }
 }
 
 /// Each heard neighbour's value with its Metropolis weight: what
@@ -430,6 +439,12 @@ impl<R: RoundRule> RoundEngine<R> {
             }
         }
         let weights = self.topology.metropolis_weights(self.node, &present);
+        let last = r.round >= self.rounds;
+        let disagreement = if last {
+            self.disagreement(&r.value, &values)
+        } else {
+            None
+        };
         r.value = self.rule.combine(&r.value, &values, &weights);
         let wire_round = r.offset + r.round;
         self.heard
@@ -460,10 +475,20 @@ impl<R: RoundRule> RoundEngine<R> {
                     later_rounds: r
                         .first_round_done
                         .map_or(Duration::ZERO, |t| now.saturating_sub(t)),
+                    disagreement,
                 },
                 value: r.value,
             });
         }
+    }
+
+    /// The largest of the rule's disagreements between the node's value
+    /// and each heard neighbour's, in the same round.
+    fn disagreement(&self, own: &R::Value, heard: &[(u16, R::Value)]) -> Option<f64> {
+        heard
+            .iter()
+            .filter_map(|(_, v)| self.rule.disagreement(own, v))
+            .reduce(f64::max)
     }
 
     /// The last run's rounds, once, with the neighbours that fell silent;

@@ -54,14 +54,16 @@ impl Report {
         self
     }
 
-    /// The step's consensus: its rounds and neighbours heard, and the time
-    /// of its later rounds and of the whole.
+    /// The step's consensus: its rounds and neighbours heard, how far the
+    /// node still was from them, and the time of its later rounds and of
+    /// the whole.
     pub fn rounds(mut self, stats: &RoundStats) -> Self {
         self.telemetry.rounds_completed = stats.rounds_completed;
         self.telemetry.live_neighbours = stats.neighbours_heard;
         self.telemetry.missed_neighbours = stats
             .neighbours_expected
             .saturating_sub(stats.neighbours_heard);
+        self.telemetry.disagreement = stats.disagreement.filter(|d| d.is_finite());
         self.stage(Stage::LaterRounds, stats.later_rounds)
             .stage(Stage::Consensus, stats.total)
     }

@@ -4,7 +4,7 @@
 use fusion_graph::Scenario;
 
 use super::{BuildNode, Carries, ParamError, Parts, ProtocolFactory, Setup};
-use crate::fusion::{average_consensus, InformationFusion, RandomExchange};
+use crate::fusion::{average_consensus, short_memory_consensus, InformationFusion, RandomExchange};
 use crate::location::{LocationConfig, ThresholdDesign};
 use crate::nodes::trackers::{
     kl_fusion_rounds, Cooperation, ExchangeCooperation, KlCooperation, TrackerNode,
@@ -19,7 +19,8 @@ pub(super) fn add(parts: Parts) -> Parts {
     use fusion_graph::scenario::{ConsensusProtocol as P, SensorManagerKind as M};
     let mut parts = parts
         .protocol(P::AVERAGE.name(), Average)
-        .exact_sums(P::EXACT.name());
+        .exact_sums(P::EXACT.name())
+        .protocol(P::SHORT_MEMORY.name(), ShortMemory);
     let nodes: [(P, BuildNode); 5] = [
         (P::RANDOM_EXCHANGE, random_exchange),
         (P::KL_CONSENSUS, kl_consensus),
@@ -59,6 +60,42 @@ impl ProtocolFactory for Average {
                 setup.topology,
                 setup.rounds(),
                 setup.round_timeout(),
+                setup.scenario.consensus.auxiliary_fim,
+            )
+            .stop_awaiting_the_late(),
+        ))
+    }
+}
+
+/// Short-memory consensus: average consensus's messages, with one round
+/// of memory. Its weight α is `consensus.params.alpha` if given, else the
+/// fusion graph's (every node alive), which every node computes alike.
+struct ShortMemory;
+
+impl ProtocolFactory for ShortMemory {
+    fn carries(&self) -> Carries {
+        Carries {
+            late: true,
+            s_obs: true,
+        }
+    }
+
+    fn build(&self, setup: &Setup<'_>) -> Result<InformationFusion, ParamError> {
+        setup.params.only(&["alpha"])?;
+        let alpha = match setup.params.number_if_given("alpha", 0.0..=0.99)? {
+            Some(alpha) => alpha,
+            None => {
+                let t = setup.topology;
+                t.mixing(&t.all_alive()).memory_weight()
+            }
+        };
+        Ok(Box::new(
+            short_memory_consensus(
+                setup.node,
+                setup.topology,
+                setup.rounds(),
+                setup.round_timeout(),
+                alpha,
                 setup.scenario.consensus.auxiliary_fim,
             )
             .stop_awaiting_the_late(),

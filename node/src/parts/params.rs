@@ -89,15 +89,25 @@ impl<'a> Params<'a> {
         range: std::ops::RangeInclusive<f64>,
         default: f64,
     ) -> Result<f64, ParamError> {
+        Ok(self.number_if_given(name, range)?.unwrap_or(default))
+    }
+
+    /// A finite number in `range`, or `None` when absent (a default the
+    /// part works out itself).
+    pub fn number_if_given(
+        &self,
+        name: &str,
+        range: std::ops::RangeInclusive<f64>,
+    ) -> Result<Option<f64>, ParamError> {
         let expected = || format!("a number in {}..={}", range.start(), range.end());
         let v = match self.table.get(name) {
-            None => return Ok(default),
+            None => return Ok(None),
             Some(toml::Value::Float(v)) => *v,
             Some(toml::Value::Integer(v)) => *v as f64,
             Some(v) => return Err(self.error(name, &expected(), v)),
         };
         if v.is_finite() && range.contains(&v) {
-            Ok(v)
+            Ok(Some(v))
         } else {
             Err(self.error(name, &expected(), v))
         }

@@ -31,6 +31,7 @@ pub fn examples() -> Vec<Message> {
         active: vec![3, 17],
         design: vec![6840, 3160, 0],
         without_choice: true,
+        disagreement: Some(0.03),
     };
     vec![
         Message::new(

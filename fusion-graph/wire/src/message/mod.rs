@@ -30,7 +30,7 @@ use crate::payloads::{Payloads, ProtocolBody};
 use crate::WireError;
 
 /// Bumped whenever the encoding changes.
-pub const WIRE_VERSION: u8 = 2;
+pub const WIRE_VERSION: u8 = 3;
 /// Encoded size of [`Header`].
 pub const HEADER_BYTES: usize = 13;
 /// Where the checksum sits in the header.

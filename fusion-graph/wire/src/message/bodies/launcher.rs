@@ -79,6 +79,11 @@ pub struct Telemetry {
     /// step (its root was lost, or the step's deadline came first), so it
     /// activated none of its sensors.
     pub without_choice: bool,
+    /// How far the node still was from the neighbours it heard in its
+    /// consensus's last round: the largest relative difference of their
+    /// values from its own (0: agreed; the protocol's measure). `None` if
+    /// its protocol has none or it heard nobody.
+    pub disagreement: Option<f64>,
 }
 
 impl Telemetry {
@@ -105,6 +110,7 @@ impl Telemetry {
             active: Vec::new(),
             design: Vec::new(),
             without_choice: false,
+            disagreement: None,
         }
     }
 }
@@ -127,9 +133,15 @@ pub enum Control {
 pub(in crate::message) fn decode_telemetry(body: &[u8]) -> Result<Payload, WireError> {
     let t: Telemetry = take(body)?;
     finite(t.estimate)?;
-    for v in [t.bound, t.local_bound, t.aux_bound, t.spread]
-        .into_iter()
-        .flatten()
+    for v in [
+        t.bound,
+        t.local_bound,
+        t.aux_bound,
+        t.spread,
+        t.disagreement,
+    ]
+    .into_iter()
+    .flatten()
     {
         finite([v])?;
     }
