@@ -51,6 +51,7 @@ fn matrix() -> Vec<(&'static str, &'static str, &'static str)> {
             m.push((scenario, tracker, "random"));
         }
     }
+    m.push(("default", "short_memory", "random"));
     m.push(("location", "ml_location", "random"));
     m.push(("compressive", "average", "random"));
     m
@@ -76,7 +77,7 @@ fn network(i: usize, scenario: &str, protocol: &str, manager: &str) -> Network {
 fn every_built_in_scenario_protocol_and_manager_runs_in_lockstep_as_sim_does() {
     let _guard = exclusive();
     let combinations = matrix();
-    assert_eq!(combinations.len(), 25);
+    assert_eq!(combinations.len(), 26);
     for (i, (scenario, protocol, manager)) in combinations.into_iter().enumerate() {
         let what = format!("{scenario} with {protocol} and {manager}");
         let n = network(i, scenario, protocol, manager);
