@@ -10,8 +10,8 @@ use launch::results::write_atomically;
 use crate::claims::{claims_csv, Check};
 use crate::runner::Options;
 use crate::{
-    allocation, bit_depth, censoring, location, random_exchange_bounds, random_exchange_trackers,
-    ungm,
+    allocation, bit_depth, censoring, consensus_at_scale, location, random_exchange_bounds,
+    random_exchange_trackers, ungm,
 };
 
 /// An experiment computed from a paper's formulas rather than run on a
@@ -68,6 +68,7 @@ pub fn computed_catalogue() -> Vec<Computed> {
     all.extend(random_exchange_trackers::experiments());
     all.extend(location::experiments());
     all.extend(ungm::experiments());
+    all.extend(consensus_at_scale::experiments());
     all
 }
 

@@ -102,13 +102,14 @@ impl InformationVector {
         }
     }
 
-    /// How far `other` is from `self`: the largest, over δη, δΛ and ΔL,
-    /// of the parts' distance as a share of the larger part's size
+    /// How far `other` is from `self`: the larger, over δΛ and ΔL, of the
+    /// parts' distance as a share of the larger part's size
     /// (`‖a − b‖ / max(‖a‖, ‖b‖)`, 0 where both are zero). Unitless, so
-    /// that the estimate's parts and the bound's weigh alike; at most 2.
+    /// that the estimate's information and the bound's weigh alike; at
+    /// most 2. δη is left out: an innovation, it can sum to nearly zero
+    /// over the network, and has no size to be a share of.
     pub fn disagreement(&self, other: &Self) -> f64 {
-        relative_distance(&self.delta_eta, &other.delta_eta)
-            .max(relative_distance(&self.delta_lambda, &other.delta_lambda))
+        relative_distance(&self.delta_lambda, &other.delta_lambda)
             .max(relative_distance(&self.delta_l, &other.delta_l))
     }
 

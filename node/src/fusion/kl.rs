@@ -127,11 +127,13 @@ impl RoundRule for KlRule {
         }
     }
 
-    /// The larger of η's and Λ's relative distances.
+    /// Λ's relative distance (as the information vector's, the
+    /// information and not its mean).
     fn disagreement(&self, own: &NaturalGaussian, heard: &NaturalGaussian) -> Option<f64> {
-        let eta = relative_distance(own.eta.as_slice(), heard.eta.as_slice());
-        let lambda = relative_distance(own.lambda.as_slice(), heard.lambda.as_slice());
-        Some(eta.max(lambda))
+        Some(relative_distance(
+            own.lambda.as_slice(),
+            heard.lambda.as_slice(),
+        ))
     }
 }
 

@@ -236,8 +236,15 @@ mod tests {
             messages[1] += 1;
             Fate::Deliver(Duration::from_millis(1))
         });
-        assert!(fast < slow, "25 rounds with memory {fast}, 100 without {slow}");
-        assert_eq!(messages[0] * 100, messages[1] * 25, "a message a round a link");
+        assert!(
+            fast < slow,
+            "25 rounds with memory {fast}, 100 without {slow}"
+        );
+        assert_eq!(
+            messages[0] * 100,
+            messages[1] * 25,
+            "a message a round a link"
+        );
         let (exact, fused) = error(short(200), n, on_time);
         assert!(exact < 1e-9, "{exact}");
         let d = fused[0].stats.disagreement.unwrap();
@@ -276,7 +283,10 @@ mod tests {
                 .collect();
             let (with_memory, fused) = error(short, n, lossy());
             let (without, _) = error(plain, n, lossy());
-            assert!(with_memory.is_finite() && with_memory < 1.0, "{rounds}: {with_memory}");
+            assert!(
+                with_memory.is_finite() && with_memory < 1.0,
+                "{rounds}: {with_memory}"
+            );
             assert!(
                 with_memory <= without * 1.5,
                 "{rounds} rounds: {with_memory} with memory, {without} without"
