@@ -893,3 +893,48 @@ fn a_former_scenario_flag_is_refused_naming_the_new_one() {
         assert!(out.status.success(), "`cqnet scenario {now}` failed");
     }
 }
+
+/// Before a run, `sim` says when the scenario's rounds are too few for its
+/// fusion graph, naming λ₂ and the rounds that would do; `"auto"` says
+/// what it chose; the default scenario's ten rounds pass in silence.
+#[test]
+fn too_few_consensus_rounds_are_warned_of_before_the_run() {
+    let dir = std::env::temp_dir().join(format!("cqnet-tests/rounds-{}", std::process::id()));
+    let sim = |sets: &[&str]| {
+        let mut args = vec!["sim".to_string(), "--no-central".into(), "--out".into()];
+        args.push(dir.display().to_string());
+        for s in ["steps=1"].iter().chain(sets) {
+            args.push("--set".into());
+            args.push(s.to_string());
+        }
+        let out = std::process::Command::new(CQNET)
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let ten = [
+        "nodes.grid=[10,10]",
+        "region.width=5000",
+        "region.height=5000",
+    ];
+    let warned = sim(&ten);
+    assert!(
+        warned.contains("warning: consensus.rounds = 10 leaves 81 %")
+            && warned.contains("λ₂ = 0.979")
+            && warned.contains("34 rounds would"),
+        "{warned}"
+    );
+    let auto = sim(&[&ten[..], &["consensus.rounds=\"auto\""]].concat());
+    assert!(
+        auto.contains("consensus.rounds = \"auto\": 34 rounds"),
+        "{auto}"
+    );
+    assert!(!sim(&[]).contains("warning: consensus.rounds"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

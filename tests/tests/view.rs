@@ -277,6 +277,15 @@ fn the_live_view_of_a_real_run_shows_the_nodes_and_a_growing_track() {
         Duration::from_secs(10),
         |v| v.as_u64().is_some_and(|n| n >= 2 * 10),
     );
+    // The status line says how far consensus got in the step drawn.
+    page.wait_until(
+        "document.getElementById('status').textContent",
+        Duration::from_secs(20),
+        |v| {
+            v.as_str()
+                .is_some_and(|s| s.contains("disagreement after consensus"))
+        },
+    );
     page.call(
         "Emulation.setDeviceMetricsOverride",
         json!({"width": 1400, "height": 820, "deviceScaleFactor": 1, "mobile": false}),
