@@ -112,33 +112,45 @@ impl Topology {
         if n <= 1 {
             return 0.0;
         }
-        let w = self.component_weights(component, alive);
+        let rows = self.component_rows(component, alive);
         let extreme = if n <= dense_up_to {
+            let w = DMatrix::from_fn(n, n, |i, j| {
+                rows[i]
+                    .iter()
+                    .find(|(k, _)| *k == j)
+                    .map_or(0.0, |(_, w)| *w)
+            });
             SymmetricEigen::new(w).eigenvalues.iter().copied().collect()
         } else {
-            lanczos_ritz_values(&w, LANCZOS_STEPS.min(n - 1))
+            lanczos_ritz_values(&rows, LANCZOS_STEPS.min(n - 1))
         };
         // The consensus eigenvalue 1 (eigenvector 1) is removed once; every
         // other is a mode of the disagreement.
         slem_without_one(extreme, n <= dense_up_to)
     }
 
-    /// The component's Metropolis matrix, its nodes in `component` order.
-    fn component_weights(&self, component: &[u16], alive: &[bool]) -> DMatrix<f64> {
-        let n = component.len();
+    /// The component's Metropolis matrix by rows, its nodes in `component`
+    /// order: each row's `(column, weight)`, the diagonal among them.
+    fn component_rows(&self, component: &[u16], alive: &[bool]) -> Vec<Vec<(usize, f64)>> {
         let mut at = vec![usize::MAX; self.nodes()];
         for (i, &node) in component.iter().enumerate() {
             at[node as usize] = i;
         }
-        let mut w = DMatrix::zeros(n, n);
-        for (i, &node) in component.iter().enumerate() {
-            let weights = self.metropolis_weights(node, alive);
-            w[(i, i)] = weights.own;
-            for (m, wm) in weights.neighbours {
-                w[(i, at[m as usize])] = wm;
-            }
-        }
-        w
+        component
+            .iter()
+            .enumerate()
+            .map(|(i, &node)| {
+                let weights = self.metropolis_weights(node, alive);
+                std::iter::once((i, weights.own))
+                    .chain(
+                        weights
+                            .neighbours
+                            .iter()
+                            .map(|(m, w)| (at[*m as usize], *w)),
+                    )
+                    .collect()
+            })
+            .collect()
     }
 }
 
@@ -161,8 +173,10 @@ fn slem_without_one(mut values: Vec<f64>, all: bool) -> f64 {
 /// Ritz values of `W` restricted to the complement of `1`, by `steps`
 /// Lanczos steps with full reorthogonalization from a fixed start (so that
 /// every process computes the same figure).
-fn lanczos_ritz_values(w: &DMatrix<f64>, steps: usize) -> Vec<f64> {
-    let n = w.nrows();
+fn lanczos_ritz_values(rows: &[Vec<(usize, f64)>], steps: usize) -> Vec<f64> {
+    let n = rows.len();
+    let apply =
+        |q: &DVector<f64>| DVector::from_fn(n, |i, _| rows[i].iter().map(|(j, w)| w * q[*j]).sum());
     let ones = DVector::from_element(n, 1.0 / (n as f64).sqrt());
     let deflate = |v: &mut DVector<f64>| {
         let along = ones.dot(v);
@@ -177,7 +191,7 @@ fn lanczos_ritz_values(w: &DMatrix<f64>, steps: usize) -> Vec<f64> {
     let mut basis: Vec<DVector<f64>> = Vec::with_capacity(steps);
     let (mut alphas, mut betas) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
     for _ in 0..steps {
-        let mut v = w * &q;
+        let mut v = apply(&q);
         deflate(&mut v);
         let alpha = q.dot(&v);
         v.axpy(-alpha, &q, 1.0);
@@ -279,8 +293,8 @@ mod tests {
         let all = t.all_alive();
         let nodes: Vec<u16> = (0..t.nodes() as u16).collect();
         let dense = t.component_slem(&nodes, &all, usize::MAX);
-        let w = t.component_weights(&nodes, &all);
-        let lanczos = slem_without_one(lanczos_ritz_values(&w, 60), false);
+        let rows = t.component_rows(&nodes, &all);
+        let lanczos = slem_without_one(lanczos_ritz_values(&rows, 60), false);
         assert!((dense - lanczos).abs() < 1e-9, "{dense} against {lanczos}");
     }
 
@@ -312,7 +326,13 @@ mod tests {
         let t = grid(10, 5000.0);
         let all = t.all_alive();
         let nodes: Vec<u16> = (0..t.nodes() as u16).collect();
-        let w = t.component_weights(&nodes, &all);
+        let rows = t.component_rows(&nodes, &all);
+        let w = DMatrix::from_fn(100, 100, |i, j| {
+            rows[i]
+                .iter()
+                .find(|(k, _)| *k == j)
+                .map_or(0.0, |(_, w)| *w)
+        });
         let m = t.mixing(&all);
         let alpha = m.memory_weight();
         let start = DVector::from_fn(100, |i, _| ((i * 37 % 101) as f64) / 101.0);
