@@ -41,6 +41,33 @@ struct Point {
     /// The rounds it ran (the chosen ones, for `"auto"`).
     ran: u32,
     mc: MonteCarloSummary,
+    /// Node tracks, over every run, whose error at the last step was over
+    /// [`LOST`]: nodes that lost the target and did not find it again.
+    lost: usize,
+}
+
+/// An error at the run's last step that means a node has lost the target:
+/// ten times the bound on the grids measured.
+const LOST: f64 = 20.0;
+
+/// The node tracks in the runs under `dir` whose error at their last
+/// step is over [`LOST`].
+fn lost_tracks(dir: &Path) -> anyhow::Result<usize> {
+    let mut lost = 0;
+    for run in std::fs::read_dir(dir)? {
+        let ticks = std::fs::read_to_string(run?.path().join("ticks.csv"))?;
+        let rows: Vec<launch::results::Tick> = ticks
+            .lines()
+            .skip(1)
+            .filter_map(launch::results::Tick::parse)
+            .collect();
+        let last = rows.iter().map(|t| t.step).max().unwrap_or(0);
+        lost += rows
+            .iter()
+            .filter(|t| t.is_node() && t.step == last && t.error > LOST)
+            .count();
+    }
+    Ok(lost)
 }
 
 impl Point {
@@ -115,11 +142,13 @@ fn measure(
     let topology = Topology::from_scenario(&scenario, "consensus-at-scale")?;
     let ran = scenario.consensus.rounds;
     let tag = rounds.map_or("auto".to_string(), |r| r.to_string());
+    let runs_dir = dir
+        .join("runs")
+        .join(format!("{side}x{side}-{protocol}-{tag}"));
     let mc = run_monte_carlo_until(
         &scenario,
         &topology,
-        &dir.join("runs")
-            .join(format!("{side}x{side}-{protocol}-{tag}")),
+        &runs_dir,
         options.runs,
         options.threads,
         centralized,
@@ -137,6 +166,7 @@ fn measure(
         rounds,
         ran,
         mc,
+        lost: lost_tracks(&runs_dir)?,
     })
 }
 
@@ -287,6 +317,17 @@ fn check(points: &[Point], matrices: &[super::Outcome; 2]) -> Check {
         &short.bound_runs(),
         &forty.bound_runs(),
     ));
+    let twenty = find(points, 10, "short_memory", Some(20));
+    claims.push(no_worse(
+        "10 × 10: short memory at 20 rounds tracks no worse than average consensus at 40, within 10 % (RMSE, paired)".into(),
+        &twenty.rmse_runs(),
+        &forty.rmse_runs(),
+    ));
+    claims.push(no_worse(
+        "10 × 10: short memory at 20 rounds has a CQ/dPCRLB no worse than average consensus at 40, within 10 %".into(),
+        &twenty.bound_runs(),
+        &forty.bound_runs(),
+    ));
     let auto = find(points, 10, "average", None);
     claims.push(no_worse(
         format!(
@@ -359,14 +400,14 @@ fn check(points: &[Point], matrices: &[super::Outcome; 2]) -> Check {
 
 fn points_csv(points: &[Point]) -> String {
     let mut out = String::from(
-        "grid,protocol,rounds,auto,runs,rmse,bound,centralized_bound,disagreement,consensus_bytes_per_step,consensus_bytes_per_round\n",
+        "grid,protocol,rounds,auto,runs,rmse,bound,centralized_bound,disagreement,lost_tracks,consensus_bytes_per_step,consensus_bytes_per_round\n",
     );
     let v = |x: Option<f64>| x.map_or(String::new(), |x| format!("{x}"));
     for p in points {
         let bytes = p.consensus_bytes_per_step();
         let _ = writeln!(
             out,
-            "{0}x{0},{1},{2},{3},{4},{5},{6},{7},{8},{9},{10}",
+            "{0}x{0},{1},{2},{3},{4},{5},{6},{7},{8},{9},{10},{11}",
             p.side,
             p.protocol,
             p.ran,
@@ -376,6 +417,7 @@ fn points_csv(points: &[Point]) -> String {
             v(p.mc.estimates.mean_bound),
             v(p.mc.estimates.mean_centralized_bound),
             v(p.disagreement()),
+            p.lost,
             bytes,
             bytes / f64::from(p.ran)
         );
@@ -425,13 +467,13 @@ fn cells_csv(matrices: &[super::Outcome; 2]) -> String {
 
 fn print(points: &[Point]) -> String {
     let mut out = String::from(
-        "grid    protocol      rounds   RMSE, m   CQ/dPCRLB, m   centralized, m   disagreement   consensus B/step\n",
+        "grid    protocol      rounds   RMSE, m   CQ/dPCRLB, m   centralized, m   disagreement   lost   consensus B/step\n",
     );
     let v = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{x:.3}"));
     for p in points {
         let _ = writeln!(
             out,
-            "{:<7} {:<13} {:>6}{} {:>9} {:>14} {:>16} {:>13} {:>18.0}",
+            "{:<7} {:<13} {:>6}{} {:>9} {:>14} {:>16} {:>13} {:>6} {:>18.0}",
             format!("{0}x{0}", p.side),
             p.protocol,
             p.ran,
@@ -441,10 +483,15 @@ fn print(points: &[Point]) -> String {
             v(p.mc.estimates.mean_centralized_bound),
             p.disagreement()
                 .map_or("-".to_string(), |d| format!("{:.1} %", 100.0 * d)),
+            p.lost,
             p.consensus_bytes_per_step()
         );
     }
     out.push_str("* rounds = \"auto\" at the default consensus.accuracy\n");
+    let _ = writeln!(
+        out,
+        "lost: node tracks, over the runs, more than {LOST} m off at the last step"
+    );
     out
 }
 
