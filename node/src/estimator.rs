@@ -532,18 +532,22 @@ impl FusionFilter {
         self.filter.regularize(&posterior, &mut self.rng);
 
         let q_inv = model.dynamics.q_inv();
+        let delta_l = positive_part(&sums.delta_l);
         let aux_bound = match self.aux.as_mut() {
             Some(j_aux) => {
                 // L_aux(k+1) uses J_AUX(k); then J_AUX advances with S_obs.
-                let baseline =
-                    information_update(j_aux.information(), &terms, q_inv, &sums.delta_l)?;
-                j_aux.advance(&terms, q_inv, &sums.s_obs)?;
+                let baseline = information_update(j_aux.information(), &terms, q_inv, &delta_l)?;
+                j_aux.advance(&terms, q_inv, &positive_part(&sums.s_obs))?;
                 bounds::position_bound(&baseline.updated)
             }
             None => None,
         };
-        self.bound
-            .advance_with_late(&terms, q_inv, &sums.delta_l_late, &sums.delta_l)?;
+        self.bound.advance_with_late(
+            &terms,
+            q_inv,
+            &positive_part(&sums.delta_l_late),
+            &delta_l,
+        )?;
         Ok(FusionUpdate {
             estimate: posterior.mean,
             spread: (predicted.cov[(0, 0)] + predicted.cov[(1, 1)]).sqrt(),
@@ -559,6 +563,24 @@ impl FusionFilter {
     pub fn coast(&mut self, model: &SensingModel) -> Result<(), BoundError> {
         self.step(model, &Contribution::zero()).map(|_| ())
     }
+}
+
+/// A consensus estimate of an information matrix (ΣΔL, S_obs), which in
+/// truth is positive semi-definite: as it is, bit for bit, unless it has
+/// an eigenvalue below −1e-9 of its largest, when its negative
+/// eigenvalues are set to zero. Average consensus mixes such matrices
+/// with positive weights and never gets there; a protocol with memory
+/// extrapolates, and before it has converged can overshoot into an
+/// indefinite matrix, which would make the bound's recursion fail.
+pub fn positive_part(m: &Mat4) -> Mat4 {
+    let sym = (m + m.transpose()) * 0.5;
+    let eig = SymmetricEigen::new(sym);
+    let largest = eig.eigenvalues.abs().max();
+    if eig.eigenvalues.iter().all(|v| *v >= -1e-9 * largest) {
+        return *m;
+    }
+    let v = &eig.eigenvectors;
+    v * Mat4::from_diagonal(&eig.eigenvalues.map(|x| x.max(0.0))) * v.transpose()
 }
 
 /// Sets the negative eigenvalues of ΣδΛ to zero (it may be indefinite after
@@ -586,6 +608,23 @@ pub fn clip_negative_eigenvalues(lambda: &Mat4, eta: &State) -> (Mat4, State) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A positive semi-definite matrix (a singular one too) passes bit for
+    /// bit; an indefinite one keeps its eigenvectors and loses its
+    /// negative eigenvalues.
+    #[test]
+    fn only_an_indefinite_information_matrix_is_projected() {
+        let psd = Mat4::from_diagonal(&State::new(2.0, 1.0, 0.0, 1e-20));
+        let rotation = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.7);
+        let mut r = Mat4::identity();
+        r.fixed_view_mut::<3, 3>(0, 0).copy_from(rotation.matrix());
+        let psd = r * psd * r.transpose();
+        assert_eq!(positive_part(&psd), psd);
+        let indefinite = r * Mat4::from_diagonal(&State::new(2.0, -0.5, 1.0, 0.0)) * r.transpose();
+        let projected = positive_part(&indefinite);
+        let want = r * Mat4::from_diagonal(&State::new(2.0, 0.0, 1.0, 0.0)) * r.transpose();
+        assert!((projected - want).abs().max() < 1e-12, "{projected}");
+    }
     use bounds::Measurement;
     use fusion_graph::{Scenario, Topology};
     use std::f64::consts::PI;

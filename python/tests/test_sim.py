@@ -112,7 +112,8 @@ def test_the_gil_is_free_while_a_sim_works(tmp_out):
 
 
 def test_the_disagreement_after_consensus_is_a_column(tmp_out):
-    r = cqnet.sim(small_scenario(steps=5), out=tmp_out / "python")
+    # Nine nodes: two would agree after one round.
+    r = cqnet.sim(cqnet.Scenario.default().update({"steps": 3}), out=tmp_out / "python")
     ticks = r.arrays("ticks")
     nodes = [i for i, n in enumerate(ticks["node"]) if n != "central"]
     values = [ticks["disagreement"][i] for i in nodes]

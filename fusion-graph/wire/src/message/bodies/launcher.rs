@@ -82,7 +82,10 @@ pub struct Telemetry {
     /// How far the node still was from the neighbours it heard in its
     /// consensus's last round: the largest relative difference of their
     /// values from its own (0: agreed; the protocol's measure). `None` if
-    /// its protocol has none or it heard nobody.
+    /// its protocol has none or it heard nobody. Eight bytes either way
+    /// ([`fixed_width`]), so that the report's size does not depend on
+    /// what a round heard.
+    #[serde(with = "fixed_width")]
     pub disagreement: Option<f64>,
 }
 
@@ -160,4 +163,48 @@ pub(in crate::message) fn decode_telemetry(body: &[u8]) -> Result<Payload, WireE
         });
     }
     Ok(Payload::Telemetry(t))
+}
+
+/// An optional number in a fixed eight bytes: `None` as NaN, which no
+/// report's number may be, so that a message's size depends on its kind
+/// alone.
+mod fixed_width {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(v.unwrap_or(f64::NAN))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+        let v = f64::deserialize(d)?;
+        Ok((!v.is_nan()).then_some(v))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{ActorId, Message, Payload};
+
+    /// A report is as long whether its node measured a disagreement or
+    /// not, and reads back as it was.
+    #[test]
+    fn a_report_has_one_size_whatever_its_disagreement() {
+        let format = crate::message::tests::FORMAT;
+        let with = |d: Option<f64>| {
+            let mut t = Telemetry::of_estimate([1.0, 2.0, 3.0, 4.0]);
+            t.disagreement = d;
+            Message::new(ActorId::Node(3), 5, 0, Payload::Telemetry(t))
+        };
+        let (none, some) = (with(None), with(Some(0.25)));
+        let (a, b) = (none.to_bytes(&format), some.to_bytes(&format));
+        assert_eq!(a.len(), b.len());
+        assert_eq!(Message::decode(&a, &format).unwrap(), none);
+        assert_eq!(Message::decode(&b, &format).unwrap(), some);
+        let infinite = with(Some(f64::INFINITY)).to_bytes(&format);
+        assert_eq!(
+            Message::decode(&infinite, &format),
+            Err(crate::WireError::NonFinite)
+        );
+    }
 }
