@@ -11,11 +11,11 @@ use std::path::Path;
 
 use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO};
 use fusion_graph::Topology;
-use launch::montecarlo::{run_monte_carlo_until, MonteCarloSummary};
+use launch::montecarlo::MonteCarloSummary;
 use launch::results::write_atomically;
 use plotters::prelude::*;
 
-use super::faults::{GATE, MATRIX};
+use super::faults::{MATRIX, MATRIX_BASE};
 use super::paired::Paired;
 use super::{Check, Claim, Computed, ComputedReport, Experiment, Figure, Options, Verdict};
 
@@ -145,16 +145,7 @@ fn measure(
     let runs_dir = dir
         .join("runs")
         .join(format!("{side}x{side}-{protocol}-{tag}"));
-    let mc = run_monte_carlo_until(
-        &scenario,
-        &topology,
-        &runs_dir,
-        options.runs,
-        options.threads,
-        centralized,
-        &|_| {},
-        &options.stop,
-    )?;
+    let mc = options.monte_carlo(&scenario, &topology, &runs_dir, centralized)?;
     eprintln!(
         "  {side}×{side} {protocol:<12} {ran:>3} rounds: RMSE {:.3} m, CQ/dPCRLB {:.3} m",
         mc.estimates.rmse.unwrap_or(f64::NAN),
@@ -176,19 +167,21 @@ fn fault_matrix(
     dir: &Path,
     protocol: &'static str,
 ) -> anyhow::Result<super::Outcome> {
+    const AVERAGE: [&str; 4] = [
+        MATRIX_BASE[0],
+        MATRIX_BASE[1],
+        MATRIX_BASE[2],
+        "consensus.protocol=\"average\"",
+    ];
+    const SHORT_MEMORY: [&str; 4] = [
+        MATRIX_BASE[0],
+        MATRIX_BASE[1],
+        MATRIX_BASE[2],
+        "consensus.protocol=\"short_memory\"",
+    ];
     let base: &'static [&'static str] = match protocol {
-        "average" => &[
-            "reference.centralized=false",
-            "steps=60",
-            GATE,
-            "consensus.protocol=\"average\"",
-        ],
-        _ => &[
-            "reference.centralized=false",
-            "steps=60",
-            GATE,
-            "consensus.protocol=\"short_memory\"",
-        ],
+        "average" => &AVERAGE,
+        _ => &SHORT_MEMORY,
     };
     let experiment = Experiment {
         name: if protocol == "average" {

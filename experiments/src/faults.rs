@@ -20,6 +20,10 @@ pub const STEPS: u32 = 60;
 /// whose ν²/S exceeds it is left out.
 pub const GATE: &str = "filter.gate=10.83";
 
+/// What every arm of the fault matrix shares: no centralized reference,
+/// 60 steps, the innovation gate.
+pub const MATRIX_BASE: [&str; 3] = ["reference.centralized=false", "steps=60", GATE];
+
 /// `faults=[{…}]` with the window filled in.
 macro_rules! fault {
     ($body:literal) => {
@@ -239,7 +243,7 @@ pub fn experiments() -> Vec<Experiment> {
             // With the innovation gate, reference arm included: without it
             // the CF/DPF does not recover from 30% stuck or Byzantine
             // sensors within the run (the `byzantine` experiment shows how).
-            base: &["reference.centralized=false", "steps=60", GATE],
+            base: &MATRIX_BASE,
             arms: &MATRIX,
             figure: Figure::Panels {
                 y_label: "position RMSE and bound, m",

@@ -19,7 +19,6 @@ use super::diagnostics::run_ticks;
 use super::paired::{Order, Paired};
 use super::random_exchange_bounds::{draw_lines, Curves};
 use super::{Check, Claim, Computed, ComputedReport, Options, Verdict};
-use launch::montecarlo::run_monte_carlo_until;
 use launch::results::AVERAGE_FROM_STEP;
 
 pub fn experiments() -> Vec<Computed> {
@@ -146,16 +145,7 @@ fn fig1_in(
         let centralized = i == 0;
         eprintln!("{name}: {} ({} runs)", tracker.label, options.runs);
         let runs_dir = dir.join("runs").join(name).join(tracker.protocol);
-        let mc = run_monte_carlo_until(
-            &scenario,
-            &topology,
-            &runs_dir,
-            options.runs,
-            options.threads,
-            centralized,
-            &|_| {},
-            &options.stop,
-        )?;
+        let mc = options.monte_carlo(&scenario, &topology, &runs_dir, centralized)?;
         let means = mc.series.means();
         per_run.push(mc.per_run.iter().map(|r| r.estimates.rmse).collect());
         bands.push(crate::rmse_bands_of(&mc.per_run_series, |m| m.rmse));

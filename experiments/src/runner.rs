@@ -32,6 +32,31 @@ pub struct Options {
     pub stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
+impl Options {
+    /// `--runs` seeds of `scenario` over the worker threads, into
+    /// `runs_dir`, with the centralized reference if asked, stopped by
+    /// [`stop`](Self::stop): an experiment's arm without a progress bar
+    /// of its own.
+    pub fn monte_carlo(
+        &self,
+        scenario: &fusion_graph::Scenario,
+        topology: &fusion_graph::Topology,
+        runs_dir: &std::path::Path,
+        centralized: bool,
+    ) -> anyhow::Result<launch::montecarlo::MonteCarloSummary> {
+        launch::montecarlo::run_monte_carlo_until(
+            scenario,
+            topology,
+            runs_dir,
+            self.runs,
+            self.threads,
+            centralized,
+            &|_| {},
+            &self.stop,
+        )
+    }
+}
+
 /// What `run` wrote.
 pub struct Report {
     pub outcome: Outcome,
