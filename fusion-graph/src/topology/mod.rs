@@ -66,6 +66,12 @@ pub struct MetropolisWeights {
     pub own: f64,
     /// `(neighbour, W_lm)`.
     pub neighbours: Vec<(u16, f64)>,
+    /// Live neighbours whose value did not come in time for the round, so
+    /// that their weight went to `own`. Such a neighbour may well have
+    /// heard this node: the network's matrix that round is then not
+    /// symmetric and the round does not keep the network's average.
+    /// [`Topology::metropolis_weights`] leaves it 0; a round engine says.
+    pub unheard: usize,
 }
 
 impl Topology {
@@ -341,7 +347,11 @@ impl Topology {
             .map(|&m| (m, 1.0 / (1.0 + own_degree.max(degree(m)) as f64)))
             .collect();
         let own = 1.0 - neighbours.iter().map(|(_, w)| w).sum::<f64>();
-        MetropolisWeights { own, neighbours }
+        MetropolisWeights {
+            own,
+            neighbours,
+            unheard: 0,
+        }
     }
 }
 

@@ -408,6 +408,7 @@ impl<R: RoundRule> RoundEngine<R> {
         let mut values = Vec::new();
         let at = Self::at(&r);
         let live: Vec<u16> = self.live_neighbours(&r.view).collect();
+        let mut unheard = 0;
         for m in live {
             let expected = self.rule.expects(at, m);
             match self.heard_value(&r, m) {
@@ -423,6 +424,7 @@ impl<R: RoundRule> RoundEngine<R> {
                 None if !expected => present[m as usize] = false,
                 None => {
                     present[m as usize] = false;
+                    unheard += 1;
                     self.misses[m as usize] += 1;
                     let s = &mut self.standing[m as usize];
                     *s = match *s {
@@ -438,7 +440,8 @@ impl<R: RoundRule> RoundEngine<R> {
                 r.view[m as usize] = false;
             }
         }
-        let weights = self.topology.metropolis_weights(self.node, &present);
+        let mut weights = self.topology.metropolis_weights(self.node, &present);
+        weights.unheard = unheard;
         let last = r.round >= self.rounds;
         let disagreement = if last {
             self.disagreement(&r.value, &values)

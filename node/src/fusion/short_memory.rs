@@ -13,12 +13,17 @@
 //! so the sums at the end are N_f times the average, as for average
 //! consensus.
 //!
-//! The memory holds only while the round's weights are the last round's:
-//! a round that heard a different number of neighbours (a message lost,
-//! a neighbour gone quiet) is a plain round, and so is the next, after
-//! which the memory is valid again. A step starts without memory, so a
-//! restarted node or a new view costs nothing more than average
-//! consensus would.
+//! The memory holds only while every live neighbour is heard, round after
+//! round, with the same weights. A round that misses a live neighbour (a
+//! message lost or late, a neighbour gone quiet) need not keep the
+//! network's average, since that neighbour may have heard this node. Plain
+//! consensus carries such a loss e on as it is; the extrapolation would
+//! carry on e / (1 − α), for the average's own recursion is
+//! `m(t+1) = m(t) + α (m(t) − m(t−1))`. So that round is plain, and so is
+//! the next, after which the memory is valid again. A neighbour presumed
+//! gone is not live, and the memory holds without it. A step starts
+//! without memory, so a restarted node or a new view costs nothing more
+//! than average consensus would.
 
 use std::time::Duration;
 
@@ -33,9 +38,10 @@ use super::{Fused, InformationVector, RoundEngine, RoundRule, RoundsDone};
 #[derive(Debug, Clone, PartialEq)]
 pub struct Remembered {
     pub now: InformationVector,
-    /// The value of the round before, and how many neighbours that round
-    /// heard; `None` in the first round.
-    before: Option<(InformationVector, usize)>,
+    /// The value of the round before, and the neighbours that round heard;
+    /// `None` in the first round and after a round that missed a live
+    /// neighbour.
+    before: Option<(InformationVector, Vec<u16>)>,
 }
 
 impl Remembered {
@@ -93,18 +99,22 @@ impl RoundRule for ShortMemory {
         for (w, v) in weighted(heard, weights) {
             mixed.add_scaled(w, &v.now);
         }
+        let ids: Vec<u16> = heard.iter().map(|(m, _)| *m).collect();
+        let whole = weights.unheard == 0;
         let now = match &own.before {
-            Some((before, count)) if *count == heard.len() => {
+            Some((before, last)) if whole && *last == ids => {
                 let mut next = mixed.scaled(1.0 + self.alpha);
                 next.add_scaled(-self.alpha, before);
                 next
             }
-            // The weights changed: the memory is of another matrix.
+            // The weights changed, so the memory is of another matrix; or
+            // a neighbour went unheard, so this round may not have kept the
+            // network's average, and extrapolating would amplify the loss.
             _ => mixed,
         };
         Remembered {
             now,
-            before: Some((own.now, heard.len())),
+            before: whole.then(|| (own.now, ids)),
         }
     }
 
@@ -297,9 +307,9 @@ mod tests {
         }
     }
 
-    /// The memory is the node's own: the first round is plain, and a node
-    /// that heard a different number of neighbours than the round before
-    /// runs a plain round.
+    /// The memory is the node's own: the first round is plain; a node that
+    /// heard other neighbours than the round before, or missed a live one,
+    /// runs a plain round, and so does the round after a miss.
     #[test]
     fn memory_holds_only_while_the_weights_do() {
         let rule = ShortMemory::new(0.5, false);
@@ -308,6 +318,7 @@ mod tests {
         let weights = MetropolisWeights {
             own: 0.5,
             neighbours: vec![(2, 0.5)],
+            unheard: 0,
         };
         let plain = |own: &InformationVector| {
             let mut v = own.scaled(0.5);
@@ -323,8 +334,22 @@ mod tests {
         let alone = MetropolisWeights {
             own: 1.0,
             neighbours: vec![],
+            unheard: 0,
         };
         let changed = rule.combine(&second, &[], &alone);
         assert_eq!(changed.now, second.now, "a plain round with nobody heard");
+
+        let missed = MetropolisWeights {
+            unheard: 1,
+            ..weights.clone()
+        };
+        let short = rule.combine(&second, &heard, &missed);
+        assert_eq!(short.now, plain(&second.now), "a round that missed one");
+        let after = rule.combine(&short, &heard, &weights);
+        assert_eq!(after.now, plain(&short.now), "and the round after it");
+        let again = rule.combine(&after, &heard, &weights);
+        let mut want = plain(&after.now).scaled(1.5);
+        want.add_scaled(-0.5, &short.now);
+        assert_eq!(again.now, want, "then the memory holds again");
     }
 }
