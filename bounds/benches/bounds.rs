@@ -1,5 +1,6 @@
 //! `J_Y` for one particle, and one local bound update for 1000 particles and
-//! 3 sensors, with the default scenario's 8-bit bearing quantizer.
+//! 3 sensors, with the default scenario's 8-bit bearing quantizer; the
+//! compressive channel's two designs of one step; the random generators.
 
 use std::f64::consts::PI;
 use std::hint::black_box;
@@ -123,5 +124,42 @@ fn generators(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench, generators);
+/// One step's design for the compressive scenario's 25 amplitude sensors
+/// (20 m field, n = 2, r = 1, ε = 0.1) over M = 6 slots at E = 6, the
+/// target at (7, 9): eq. 4.19's design and the one that counts a sensor
+/// once (its sample matrices included). The channel's step is 500 ms.
+fn designs(c: &mut Criterion) {
+    use bounds::compressive::{
+        counted_once_probabilities, optimal_probabilities, DesignProblem, PositionBlock, SAMPLES,
+    };
+    let target = [7.0, 9.0];
+    // ∇a for a = sqrt(P0 / (1 + d²)), P0 = 1000, at the target.
+    let blocks: Vec<PositionBlock> = (0..25)
+        .map(|j| {
+            let s = [2.0 + 4.0 * f64::from(j % 5), 2.0 + 4.0 * f64::from(j / 5)];
+            let (dx, dy) = (target[0] - s[0], target[1] - s[1]);
+            let d2 = dx * dx + dy * dy;
+            let k = -(1000.0f64).sqrt() * (1.0 + d2).powf(-1.5);
+            let g = [k * dx, k * dy];
+            [g[0] * g[0], g[0] * g[1], g[1] * g[1]]
+        })
+        .collect();
+    let problem = DesignProblem {
+        predicted: Mat4::from_diagonal(&State::new(0.5, 0.5, 1.0, 1.0)),
+        blocks: &blocks,
+        slots: 6,
+        energy: 6.0,
+        r: 1.0,
+        epsilon: 0.1,
+    };
+    c.bench_function("compressive design, eq. 4.19, 25 sensors, M = 6", |b| {
+        b.iter(|| optimal_probabilities(black_box(&problem)))
+    });
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    c.bench_function("compressive design, counted once, 25 sensors, M = 6", |b| {
+        b.iter(|| counted_once_probabilities(black_box(&problem), SAMPLES, &mut rng))
+    });
+}
+
+criterion_group!(benches, bench, designs, generators);
 criterion_main!(benches);

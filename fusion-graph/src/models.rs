@@ -199,6 +199,8 @@ pub enum Stream {
     SensingMatrix = 10,
     /// A multiple-access channel's receiver noise.
     ReceiverNoise = 11,
+    /// The sensing matrices a fusion centre draws to weigh a design.
+    DesignSamples = 12,
 }
 
 /// The seed of `stream` for `actor` at `step`: splitmix64 over the four.

@@ -28,6 +28,12 @@
 //! [`optimal_probabilities`] climbs it by projected gradient over the
 //! capped simplex and searches s by golden section.
 
+mod counted_once;
+
+pub use counted_once::{
+    counted_once_probabilities, diagonal_information, CountedOnce, DrawnMatrices, SAMPLES,
+};
+
 use nalgebra::{Cholesky, Matrix2};
 use rand::Rng;
 

@@ -16,6 +16,13 @@ pub enum MacDesign {
     /// Transmission probabilities that maximize `det J` under the energy
     /// budget, and a sensing matrix drawn from them (eqs. 4.7, 4.25).
     Compressive,
+    /// As `compressive`, but with the expected information of the drawn
+    /// matrix, which counts a sensor heard in several slots once, in
+    /// place of eq. 4.19's average.
+    CountedOnce,
+    /// Every sensor with the same probability `E / (M N)`, the matrix
+    /// drawn as for `compressive`: random sensors sharing M slots.
+    Uniform,
     /// `energy` sensors drawn uniformly, each in a slot of its own.
     Random,
     /// Every sensor in a slot of its own: parallel channels.
@@ -26,8 +33,8 @@ pub enum MacDesign {
 #[serde(deny_unknown_fields)]
 pub struct MacConfig {
     pub design: MacDesign,
-    /// M, the slots of a step (`compressive`; the other designs use one
-    /// slot per transmitting sensor).
+    /// M, the slots of a step (`compressive`, `counted_once`, `uniform`;
+    /// the other designs use one slot per transmitting sensor).
     #[serde(default = "one_slot")]
     pub slots: u32,
     /// E, the transmissions a step may spend on average (`M Σp ≤ E`); with
@@ -57,7 +64,9 @@ impl MacConfig {
     /// The slots every step of this design has, given the centre's sensors.
     pub fn slots_for(&self, sensors: usize) -> usize {
         match self.design {
-            MacDesign::Compressive => self.slots as usize,
+            MacDesign::Compressive | MacDesign::CountedOnce | MacDesign::Uniform => {
+                self.slots as usize
+            }
             MacDesign::Random => self.energy as usize,
             MacDesign::All => sensors,
         }
@@ -74,7 +83,9 @@ impl Scenario {
         let check = Check::root(file);
         let with = "with a [channel]";
         match mac.design {
-            MacDesign::Compressive if !(1..=MAX_SLOTS).contains(&mac.slots) => {
+            MacDesign::Compressive | MacDesign::CountedOnce | MacDesign::Uniform
+                if !(1..=MAX_SLOTS).contains(&mac.slots) =>
+            {
                 return Err(check.fail(
                     "channel.slots",
                     format!("1 to {MAX_SLOTS} slots"),

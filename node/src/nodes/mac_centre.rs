@@ -6,14 +6,19 @@
 //! particle filter's prediction, each sensor's `G_j = E[∇a_j ∇a_jᵀ]` over
 //! the predicted particles, and the design of the step's slots (the
 //! transmission probabilities that maximize `det J`, and a sensing matrix
-//! drawn from them; or random sensors; or all) → the schedule
+//! drawn from them, by eq. 4.19's approximation or by the expected
+//! information of the drawn matrix; or every sensor alike; or random
+//! sensors; or all) → the schedule
 //! (`activate_slots`) to the sensors and the channel → the channel's
 //! delivery `z`, until it arrives or the listening deadline →
 //! [`Work::WeighDelivery`]: the particles weighed by `N(z; Φa(x), rΦΦᵀ + εI)`
 //! (eq. 4.13) → telemetry with the estimate, the design, and two bounds
 //! from the recursion of eq. 4.8: the PCRLB given the drawn Φ (eq. 4.14,
-//! carried to the next step) and, as the auxiliary bound, the one eq.
-//! 4.19's approximation promised the design.
+//! carried to the next step) and, as the auxiliary bound, the one the
+//! design promised: eq. 4.19's for `compressive`, the drawn matrix's
+//! expected information (estimated from sample matrices) for
+//! `counted_once` and `uniform`, and the exact one for `random` and
+//! `all`.
 //!
 //! The centre does not know who was heard. A sensor that misses its slot
 //! is absent from a sum the centre weighs as if it were there; a delivery
@@ -23,9 +28,9 @@
 use std::time::Duration;
 
 use bounds::compressive::{
-    expected_outer_product, gamma_weights, optimal_probabilities, predicted_information,
-    random_selection, with_observations, DesignProblem, MacLikelihood, PositionBlock,
-    SensingMatrix,
+    counted_once_probabilities, expected_outer_product, gamma_weights, optimal_probabilities,
+    predicted_information, random_selection, with_observations, DesignProblem, DrawnMatrices,
+    MacLikelihood, PositionBlock, SensingMatrix, SAMPLES,
 };
 use bounds::{Mat4, ObservationModel, State};
 use fusion_graph::scenario::{MacConfig, MacDesign, Scenario};
@@ -62,7 +67,7 @@ struct Design {
     /// Each sensor's transmission probability.
     probabilities: Vec<f64>,
     /// `J` before the step's observations; with those of the drawn Φ
-    /// (eq. 4.14 given Φ); and with those eq. 4.19 promised the design.
+    /// (eq. 4.14 given Φ); and with those the design promised.
     predicted: Mat4,
     information: Mat4,
     promised: Mat4,
@@ -175,20 +180,42 @@ impl MacCentre {
             Stream::SensingMatrix,
         );
         let parallel = 1.0 / (self.r + epsilon);
+        let slots = self.mac.slots as usize;
+        let problem = DesignProblem {
+            predicted,
+            blocks: &self.blocks,
+            slots,
+            energy: self.mac.energy,
+            r: self.r,
+            epsilon,
+        };
+        let mut samples = stream_rng(
+            self.seed,
+            ActorId::Node(self.index),
+            s.step,
+            Stream::DesignSamples,
+        );
         let (phi, probabilities, gains) = match self.mac.design {
             MacDesign::Compressive => {
-                let problem = DesignProblem {
-                    predicted,
-                    blocks: &self.blocks,
-                    slots: self.mac.slots as usize,
-                    energy: self.mac.energy,
-                    r: self.r,
-                    epsilon,
-                };
                 let p = optimal_probabilities(&problem).unwrap_or_else(|| vec![0.0; n]);
-                let phi = SensingMatrix::draw(&p, self.mac.slots as usize, &mut rng);
-                let gains = gamma_weights(&p, self.mac.slots as usize, self.r, epsilon);
+                let phi = SensingMatrix::draw(&p, slots, &mut rng);
+                let gains = gamma_weights(&p, slots, self.r, epsilon);
                 (phi, p, gains)
+            }
+            MacDesign::CountedOnce => {
+                let (p, gains) = counted_once_probabilities(&problem, SAMPLES, &mut samples)
+                    .map_or_else(
+                        || (vec![0.0; n], vec![0.0; n]),
+                        |d| (d.probabilities, d.weights),
+                    );
+                (SensingMatrix::draw(&p, slots, &mut rng), p, gains)
+            }
+            MacDesign::Uniform => {
+                let p = vec![(problem.largest_total() / n as f64).min(1.0); n];
+                let mut gains = vec![0.0; n];
+                DrawnMatrices::draw(&p, slots, self.r, epsilon, SAMPLES, &mut samples)
+                    .counted_once(&p, &mut gains);
+                (SensingMatrix::draw(&p, slots, &mut rng), p, gains)
             }
             MacDesign::Random => {
                 let chosen = random_selection(self.mac.energy as usize, n, &mut rng);
