@@ -10,8 +10,8 @@ use launch::results::write_atomically;
 use crate::claims::{claims_csv, Check};
 use crate::runner::Options;
 use crate::{
-    allocation, bit_depth, censoring, consensus_at_scale, location, random_exchange_bounds,
-    random_exchange_trackers, ungm,
+    allocation, bit_depth, censoring, compressive_sweep, consensus_at_scale, location,
+    random_exchange_bounds, random_exchange_trackers, ungm,
 };
 
 /// An experiment computed from a paper's formulas rather than run on a
@@ -69,6 +69,7 @@ pub fn computed_catalogue() -> Vec<Computed> {
     all.extend(location::experiments());
     all.extend(ungm::experiments());
     all.extend(consensus_at_scale::experiments());
+    all.extend(compressive_sweep::experiments());
     all
 }
 

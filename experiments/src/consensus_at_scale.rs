@@ -370,6 +370,24 @@ fn check(points: &[Point], matrices: &[super::Outcome; 2]) -> Check {
         interval: String::new(),
         verdict: Verdict::all(cells.iter().map(|(_, v)| *v)),
     });
+    // Worse beyond the paired interval: its whole interval above zero.
+    let beyond: Vec<&str> = matrices[1]
+        .arms
+        .iter()
+        .zip(&matrices[0].arms)
+        .filter(|(a, b)| {
+            Paired::of(&a.per_run_rmse, &b.per_run_rmse)
+                .is_none_or(|p| p.order() == super::paired::Order::Higher)
+        })
+        .map(|(a, _)| a.label.as_str())
+        .collect();
+    claims.push(Claim::exact(
+        format!(
+            "in no fault-matrix arm is short memory's RMSE worse than average consensus's beyond the paired interval{}",
+            if beyond.is_empty() { String::new() } else { format!(" (worse in: {})", beyond.join("; ")) }
+        ),
+        beyond.is_empty(),
+    ));
     let complete = memory
         .arms
         .iter()

@@ -169,13 +169,13 @@ pub fn svg(experiment: &Experiment, outcome: &Outcome, path: &Path) -> anyhow::R
 
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
 
-/// `<name>-design.csv` (every run's probabilities at `steps`, a row per
+/// `<stem>.csv` (every run's probabilities at `steps`, a row per
 /// run and step) and
-/// `<name>-design.svg` (the first run's, one panel a step): each sensor a
+/// `<stem>.svg` (the first run's, one panel a step): each sensor a
 /// circle whose area is its transmission probability, the truth a cross.
 pub fn design(
     dir: &Path,
-    name: &str,
+    stem: &str,
     arm: &ArmOutcome,
     steps: &[u32],
     sensors: &[[f64; 2]],
@@ -204,8 +204,8 @@ pub fn design(
         }
         csv.push('\n');
     }
-    crate::write_atomically(&dir.join(format!("{name}-design.csv")), csv.as_bytes())?;
-    let path = dir.join(format!("{name}-design.svg"));
+    crate::write_atomically(&dir.join(format!("{stem}.csv")), csv.as_bytes())?;
+    let path = dir.join(format!("{stem}.svg"));
     let first: Vec<_> = records.iter().filter(|d| d.run == 0).collect();
     let root = SVGBackend::new(&path, (440 * steps.len().max(1) as u32, 480)).into_drawing_area();
     let drawn = (|| -> DrawResult {
@@ -220,7 +220,7 @@ pub fn design(
         for (area, step) in root.split_evenly((1, steps.len().max(1))).iter().zip(steps) {
             let mut chart = ChartBuilder::on(area)
                 .caption(
-                    format!("{name}: probabilities at step {step}, run 0"),
+                    format!("{stem}: probabilities at step {step}, run 0"),
                     ("sans-serif", 16),
                 )
                 .margin(12)

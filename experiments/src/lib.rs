@@ -11,6 +11,7 @@ mod allocation;
 mod bit_depth;
 mod censoring;
 mod compressive;
+mod compressive_sweep;
 mod consensus_at_scale;
 pub mod diagnostics;
 mod distributed_bound;

@@ -37,13 +37,14 @@ pub enum Figure {
         y_label: &'static str,
         curves: &'static [Curve],
     },
-    /// Curves over time as [`Figure::OverTime`], and a second figure,
-    /// `<name>-design.svg` with its CSV: a fusion centre's transmission
-    /// probabilities over the field at `steps`, in arm `arm`'s first run.
+    /// Curves over time as [`Figure::OverTime`], and for each `(arm,
+    /// suffix)` of `designs` a figure `<name>-<suffix>.svg` with its CSV:
+    /// a fusion centre's transmission probabilities over the field at
+    /// `steps`, in that arm's first run.
     OverTimeAndDesign {
         y_label: &'static str,
         curves: &'static [Curve],
-        arm: usize,
+        designs: &'static [(usize, &'static str)],
         steps: &'static [u32],
     },
     /// One bar per (arm, metric).

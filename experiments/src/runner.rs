@@ -182,15 +182,17 @@ pub fn run(
     let svg = dir.join(format!("{}.svg", experiment.name));
     write_atomically(&csv, figure::csv(experiment, &outcome).as_bytes())?;
     figure::svg(experiment, &outcome, &svg)?;
-    if let Figure::OverTimeAndDesign { arm, steps, .. } = experiment.figure {
-        let (_, topology) = arm_scenario(experiment, &experiment.arms[arm], options.steps)?;
-        figure::design(
-            &dir,
-            experiment.name,
-            &outcome.arms[arm],
-            steps,
-            &topology.sensor_positions,
-        )?;
+    if let Figure::OverTimeAndDesign { designs, steps, .. } = experiment.figure {
+        for &(arm, suffix) in designs {
+            let (_, topology) = arm_scenario(experiment, &experiment.arms[arm], options.steps)?;
+            figure::design(
+                &dir,
+                &format!("{}-{suffix}", experiment.name),
+                &outcome.arms[arm],
+                steps,
+                &topology.sensor_positions,
+            )?;
+        }
     }
     if matches!(experiment.figure, Figure::Panels { .. }) {
         write_atomically(

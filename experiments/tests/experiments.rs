@@ -56,33 +56,30 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
             Figure::Bars { bars, .. } => assert_eq!(lines.len(), 1 + bars.len(), "{}", e.name),
             Figure::Panels { .. } => unreachable!("left out above"),
         }
-        if let Figure::OverTimeAndDesign { steps, .. } = &e.figure {
+        if let Figure::OverTimeAndDesign { steps, designs, .. } = &e.figure {
             // Both runs' probabilities at each of the figure's steps, a row
-            // each with a column per sensor, and the first run's drawn.
+            // each with a column per sensor, and the first run's drawn;
+            // for each design drawn.
             let dir = out.join(e.name);
-            let design =
-                std::fs::read_to_string(dir.join(format!("{}-design.csv", e.name))).unwrap();
-            let mut lines = design.lines();
-            let columns = lines.next().unwrap().split(',').count();
-            let rows: Vec<&str> = lines.collect();
-            assert_eq!(
-                rows.len(),
-                2 * steps.len(),
-                "{}: {} rows",
-                e.name,
-                rows.len()
-            );
-            for row in &rows {
-                let cells: Vec<&str> = row.split(',').collect();
-                assert_eq!(cells.len(), columns, "{}: {row}", e.name);
-                assert!(columns > 4, "{}: no sensor columns", e.name);
-                for cell in &cells[4..] {
-                    let p: f64 = cell.parse().unwrap();
-                    assert!((0.0..=1.0).contains(&p), "{}: {row}", e.name);
+            for (_, suffix) in designs.iter() {
+                let stem = format!("{}-{suffix}", e.name);
+                let design = std::fs::read_to_string(dir.join(format!("{stem}.csv"))).unwrap();
+                let mut lines = design.lines();
+                let columns = lines.next().unwrap().split(',').count();
+                let rows: Vec<&str> = lines.collect();
+                assert_eq!(rows.len(), 2 * steps.len(), "{stem}: {} rows", rows.len());
+                for row in &rows {
+                    let cells: Vec<&str> = row.split(',').collect();
+                    assert_eq!(cells.len(), columns, "{stem}: {row}");
+                    assert!(columns > 4, "{stem}: no sensor columns");
+                    for cell in &cells[4..] {
+                        let p: f64 = cell.parse().unwrap();
+                        assert!((0.0..=1.0).contains(&p), "{stem}: {row}");
+                    }
                 }
+                let svg = std::fs::read_to_string(dir.join(format!("{stem}.svg"))).unwrap();
+                assert!(svg.contains("<circle"), "{stem}: no sensors drawn");
             }
-            let svg = std::fs::read_to_string(dir.join(format!("{}-design.svg", e.name))).unwrap();
-            assert!(svg.contains("<circle"), "{}: no sensors drawn", e.name);
         }
         let svg = std::fs::read_to_string(&report.svg).unwrap();
         assert!(

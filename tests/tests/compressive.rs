@@ -5,8 +5,9 @@
 //!
 //! - As real processes (centre, channel, 25 sensors, launcher), in
 //!   lockstep: `sim`'s ticks bit for bit, and the bytes and energy the
-//!   slots used predict, with the compressive design and with random
-//!   sensors.
+//!   slots used predict, with each design: the chapter's, the one that
+//!   counts a repeated sensor once, every sensor alike, random sensors,
+//!   all.
 //! - Under `sim`, the faults: a sensor that misses its slot leaves the
 //!   sum without it and the centre goes on; a delivery lost on the way to
 //!   the centre is a lost step, reported with no observation.
@@ -114,6 +115,27 @@ fn as_processes_the_compressive_design_is_sims_and_spends_the_predicted_bytes_an
         "the design keeps M Σp within E = 6: {mean}"
     );
     r.assert_clean();
+}
+
+/// The design that counts a repeated sensor once, and every sensor alike
+/// in the same slots: as processes, `sim`'s ticks bit for bit (the
+/// sample matrices a design draws are the step's own stream), and the
+/// bytes the slots predict.
+#[test]
+fn as_processes_the_counted_once_and_uniform_designs_are_sims() {
+    let _guard = exclusive();
+    for design in ["counted_once", "uniform"] {
+        let n = network(&format!("cs-{design}"), scenario(""))
+            .set("channel.design", format!("\"{design}\""));
+        let r = n.clone().run().unwrap();
+        r.assert_success();
+        let sim = n.sim().unwrap();
+        sim.assert_success();
+        assert_eq!(r.sorted_tick_lines(), sim.sorted_tick_lines(), "{design}");
+        assert_eq!(r.summary().energy, sim.summary().energy, "{design}");
+        assert_predicted_bytes(&r, 6);
+        r.assert_clean();
+    }
 }
 
 #[test]

@@ -287,9 +287,8 @@ fn ascend(
     let (mut ascent, mut trial, mut trial_tau) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
     let mut step = 0.1;
     for _ in 0..300 {
-        // The weights of the current p are the sampler's last: evaluate it
-        // again (a rejected trial overwrote them).
-        value(&p, &mut tau, drawn);
+        // The sampler's weights are p's: the last evaluation was p's, the
+        // first or an accepted trial.
         let Some(inv) = weighted_sum(*k, problem.blocks, &tau, 1.0).try_inverse() else {
             break;
         };
@@ -314,8 +313,9 @@ fn ascend(
                     .zip(&p)
                     .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
                 std::mem::swap(&mut p, &mut trial);
+                std::mem::swap(&mut tau, &mut trial_tau);
                 current = v;
-                moved = change > 1e-9;
+                moved = change > 1e-7;
                 step = (step * 2.0).min(1.0);
                 break;
             }
