@@ -401,7 +401,7 @@ mod tests {
         for (phi, prob) in every_matrix(&p, 2) {
             let l = super::super::MacLikelihood::new(phi.clone(), r, eps).unwrap();
             let mut d = vec![0.0; 3];
-            diagonal_information(&phi, r, eps, &mut vec![0.0; 4], &mut d);
+            diagonal_information(&phi, r, eps, &mut [0.0; 4], &mut d);
             // Sensor 0's gradient along x, sensor 1's along y.
             let block = l.information(&[State::zeros()], &[1.0], |j, _| match j {
                 0 => State::new(1.0, 0.0, 0.0, 0.0),

@@ -114,7 +114,7 @@ impl RoundRule for ShortMemory {
         };
         Remembered {
             now,
-            before: whole.then(|| (own.now, ids)),
+            before: whole.then_some((own.now, ids)),
         }
     }
 
