@@ -344,7 +344,7 @@ fn within_budget(y: &[f64], total: f64, out: &mut [f64]) {
 mod tests {
     use super::*;
     use crate::compressive::PositionBlock;
-    use crate::{Mat4, State};
+    use crate::State;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
@@ -466,16 +466,7 @@ mod tests {
         }
     }
 
-    fn problem(blocks: &[PositionBlock], slots: usize, energy: f64) -> DesignProblem<'_> {
-        DesignProblem {
-            predicted: Mat4::from_diagonal(&State::new(0.3, 0.2, 1.0, 1.0)),
-            blocks,
-            slots,
-            energy,
-            r: 1.0,
-            epsilon: 0.1,
-        }
-    }
+    use super::super::tests::small_problem as problem;
 
     /// On three sensors over two slots, against every p on a grid of 0.05
     /// under the budget, each scored by the exact sum over every matrix:

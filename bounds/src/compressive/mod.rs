@@ -688,7 +688,11 @@ mod tests {
         assert_eq!(ones as usize, phi.transmissions());
     }
 
-    fn small_problem(blocks: &[PositionBlock], slots: usize, energy: f64) -> DesignProblem<'_> {
+    pub(super) fn small_problem(
+        blocks: &[PositionBlock],
+        slots: usize,
+        energy: f64,
+    ) -> DesignProblem<'_> {
         let predicted = Mat4::from_diagonal(&State::new(0.3, 0.2, 1.0, 1.0));
         DesignProblem {
             predicted,
