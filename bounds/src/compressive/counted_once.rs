@@ -18,7 +18,7 @@
 //! it transmits.
 //!
 //! `τ(p)` has no closed form; approximations that replace the other
-//! sensors' interference by its mean miss by 20 to 40 % (the interference
+//! sensors' interference by its mean miss by 20 to 43 % (the interference
 //! is sparse, and one strong sensor's is rank one and largely projected
 //! out). So the design uses a sample-average approximation: S matrices
 //! drawn from a reference design `p⁰`, each weighed by its likelihood ratio
