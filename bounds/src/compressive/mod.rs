@@ -449,44 +449,119 @@ fn weighted_sum(
 /// search takes thousands of steps a design.
 fn best_for_total(problem: &DesignProblem, k: &Matrix2<f64>, s: f64) -> Vec<f64> {
     let n = problem.blocks.len();
-    // On this total the weights' scale M/(rs + ε) is fixed.
-    let scale = problem.slots as f64 / (problem.r * s + problem.epsilon);
-    let value = |p: &[f64]| weighted_sum(*k, problem.blocks, p, scale);
-    let mut p = project_capped_simplex(&vec![s / n as f64; n], s);
-    let mut current = log_det2(&value(&p));
-    let mut step = 1.0;
+    let start = project_capped_simplex(&vec![s / n as f64; n], s);
+    let mut fixed = FixedTotal {
+        problem,
+        k: *k,
+        total: s,
+        // On this total the weights' scale M/(rs + ε) is fixed.
+        scale: problem.slots as f64 / (problem.r * s + problem.epsilon),
+    };
+    climb(
+        &mut fixed,
+        start,
+        Steps {
+            first: 1.0,
+            largest: f64::INFINITY,
+            smallest: 1e-14,
+            moved: 1e-12,
+            iterations: 2000,
+        },
+    )
+}
+
+/// Eq. 4.19's objective on one total, for [`climb`].
+struct FixedTotal<'a> {
+    problem: &'a DesignProblem<'a>,
+    k: Matrix2<f64>,
+    total: f64,
+    scale: f64,
+}
+
+impl Climb for FixedTotal<'_> {
+    fn value(&mut self, p: &[f64]) -> f64 {
+        log_det2(&weighted_sum(self.k, self.problem.blocks, p, self.scale))
+    }
+
+    fn gradient(&mut self, p: &[f64], out: &mut [f64]) -> bool {
+        let Some(inv) = weighted_sum(self.k, self.problem.blocks, p, self.scale).try_inverse()
+        else {
+            return false;
+        };
+        for (d, g) in out.iter_mut().zip(self.problem.blocks) {
+            // ∂/∂p_j log det(K + B) = scale · tr((K + B)⁻¹ G_j)
+            *d = self.scale * (inv[(0, 0)] * g[0] + 2.0 * inv[(0, 1)] * g[1] + inv[(1, 1)] * g[2]);
+        }
+        true
+    }
+
+    fn project(&self, y: &[f64], out: &mut [f64]) {
+        project_into(y, self.total, out);
+    }
+}
+
+/// An objective the designs climb: its value at a trial point, its
+/// gradient at the accepted one, and the projection onto its feasible set.
+pub(crate) trait Climb {
+    /// The objective at `p`, a trial until [`accept`](Self::accept).
+    fn value(&mut self, p: &[f64]) -> f64;
+    /// The trial last valued is the new point.
+    fn accept(&mut self) {}
+    /// The gradient at the accepted point `p` into `out`; false if there
+    /// is none.
+    fn gradient(&mut self, p: &[f64], out: &mut [f64]) -> bool;
+    fn project(&self, y: &[f64], out: &mut [f64]);
+}
+
+/// How [`climb`] steps.
+pub(crate) struct Steps {
+    pub first: f64,
+    /// The most a step may grow to.
+    pub largest: f64,
+    /// Backtracking below this ends the climb.
+    pub smallest: f64,
+    /// A move smaller than this (largest coordinate) ends the climb.
+    pub moved: f64,
+    pub iterations: usize,
+}
+
+/// Projected gradient ascent from `start`, which must be feasible: a
+/// scale-free step along the gradient (the gradient's size varies by
+/// orders of magnitude with the target's distance from the sensors),
+/// halved until the projected point is better, doubled after it is.
+pub(crate) fn climb(objective: &mut impl Climb, start: Vec<f64>, steps: Steps) -> Vec<f64> {
+    let n = start.len();
+    let mut p = start;
+    let mut current = objective.value(&p);
+    objective.accept();
+    let mut step = steps.first;
     let mut gradient = vec![0.0; n];
     let (mut ascent, mut trial) = (vec![0.0; n], vec![0.0; n]);
-    for _ in 0..2000 {
-        let Some(inv) = value(&p).try_inverse() else {
+    for _ in 0..steps.iterations {
+        if !objective.gradient(&p, &mut gradient) {
             break;
-        };
-        for (d, g) in gradient.iter_mut().zip(problem.blocks) {
-            // ∂/∂p_j log det(K + B) = scale · tr((K + B)⁻¹ G_j)
-            *d = scale * (inv[(0, 0)] * g[0] + 2.0 * inv[(0, 1)] * g[1] + inv[(1, 1)] * g[2]);
         }
-        // Scale-free steps: the gradient's size varies by orders of
-        // magnitude with the target's distance from the sensors.
         let norm = gradient.iter().fold(0.0f64, |m, d| m.max(d.abs()));
         if norm == 0.0 || !norm.is_finite() {
             break;
         }
         let mut moved = false;
-        while step > 1e-14 {
+        while step > steps.smallest {
             for ((a, pj), d) in ascent.iter_mut().zip(&p).zip(&gradient) {
                 *a = pj + step * d / norm;
             }
-            project_into(&ascent, s, &mut trial);
-            let v = log_det2(&value(&trial));
+            objective.project(&ascent, &mut trial);
+            let v = objective.value(&trial);
             if v > current {
                 let change = trial
                     .iter()
                     .zip(&p)
                     .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
                 std::mem::swap(&mut p, &mut trial);
+                objective.accept();
                 current = v;
-                moved = change > 1e-12;
-                step *= 2.0;
+                moved = change > steps.moved;
+                step = (step * 2.0).min(steps.largest);
                 break;
             }
             step /= 2.0;
