@@ -67,6 +67,8 @@ pub struct DrawnMatrices {
     diagonal: Vec<f64>,
     /// The normalized weights of the last evaluation.
     weights: Vec<f64>,
+    /// `logit(p_j) − logit(p⁰_j)`, a buffer of the evaluation's.
+    shift: Vec<f64>,
 }
 
 impl DrawnMatrices {
@@ -101,6 +103,7 @@ impl DrawnMatrices {
             counts,
             diagonal,
             weights: vec![0.0; samples],
+            shift: vec![0.0; n],
         }
     }
 
@@ -111,17 +114,15 @@ impl DrawnMatrices {
     /// `τ(p)` into `tau`, estimated from the drawn matrices; returns the
     /// weights' effective sample size `1 / Σ w̄²`.
     pub fn counted_once(&mut self, p: &[f64], tau: &mut [f64]) -> f64 {
-        let shift: Vec<f64> = p
-            .iter()
-            .zip(&self.reference_logit)
-            .map(|(p, r)| logit(*p) - r)
-            .collect();
-        let n = self.sensors;
+        for ((c, p), r) in self.shift.iter_mut().zip(p).zip(&self.reference_logit) {
+            *c = logit(*p) - r;
+        }
+        let (n, shift) = (self.sensors, &self.shift);
         let mut largest = f64::NEG_INFINITY;
         for (s, w) in self.weights.iter_mut().enumerate() {
             let k = &self.counts[s * n..(s + 1) * n];
             // The ratio's log, up to a constant of p alone.
-            *w = k.iter().zip(&shift).map(|(k, c)| f64::from(*k) * c).sum();
+            *w = k.iter().zip(shift).map(|(k, c)| f64::from(*k) * c).sum();
             largest = largest.max(*w);
         }
         let mut total = 0.0;
