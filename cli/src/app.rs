@@ -316,6 +316,17 @@ fn run(cli: Cli, vocabulary: Vocabulary) -> anyhow::Result<()> {
         Command::Actor(args) => launch::actor_process::run_actor(&args, vocabulary),
         #[cfg(feature = "zenoh")]
         Command::Agent(args) => launch::hosts::agent::run_agent(&args, vocabulary),
+        #[cfg(feature = "zenoh")]
+        Command::Hosts(crate::cli::HostsCommand::Keys { dir, hosts }) => {
+            let written = launch::hosts::trust::make_keys(&dir, &hosts)?;
+            for f in &written {
+                println!("wrote {}", f.display());
+            }
+            if written.is_empty() {
+                println!("{} already holds keys for every host named", dir.display());
+            }
+            Ok(())
+        }
     }
     .context("cqnet")
 }

@@ -67,6 +67,27 @@ pub enum Command {
     /// this host's actors and bridge when a launcher asks.
     #[cfg(feature = "zenoh")]
     Agent(launch::hosts::agent::AgentArgs),
+    /// What several hosts need to trust each other.
+    #[cfg(feature = "zenoh")]
+    #[command(subcommand)]
+    Hosts(HostsCommand),
+}
+
+/// `cqnet hosts …`.
+#[cfg(feature = "zenoh")]
+#[derive(Debug, Subcommand)]
+pub enum HostsCommand {
+    /// Make an authority (unless DIR has one) and, signed by it, a key and
+    /// certificate for each host named and for the launcher. Every file is
+    /// its owner's only. Give each host `authority.pem` and its own pair;
+    /// keep `authority.key` to add hosts later.
+    Keys {
+        /// The keys folder (a scenario's `[trust] keys`).
+        dir: PathBuf,
+        /// The hosts' names, as in the scenario's `[[hosts]]`.
+        #[arg(required = true)]
+        hosts: Vec<String>,
+    },
 }
 
 #[derive(Debug, Args, Clone)]

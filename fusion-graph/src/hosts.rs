@@ -21,7 +21,7 @@ use crate::topology::Topology;
 use crate::ScenarioError;
 use wire::ActorId;
 
-pub use crate::scenario::{HostConfig, HostLink};
+pub use crate::scenario::{HostConfig, HostLink, TrustConfig};
 
 const MAX_HOST_NAME: usize = 8;
 
@@ -29,6 +29,7 @@ const MAX_HOST_NAME: usize = 8;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Placement {
     hosts: Vec<HostConfig>,
+    trust: TrustConfig,
     node_host: Vec<usize>,
     sensor_host: Vec<usize>,
     /// Whether random exchange's pair channels exist.
@@ -66,6 +67,32 @@ fn check_link(l: &HostLink, steps: u32) -> Result<(), (&'static str, &'static st
             "none".into(),
         )),
         _ => Ok(()),
+    }
+}
+
+/// Host `h`'s endpoint speaks what the scenario's `[trust]` allows: TLS,
+/// or plain TCP only where `plain_tcp = true` says so; every host the same.
+fn check_protocol(s: &Scenario, h: usize) -> Result<(), (String, &'static str, String)> {
+    let endpoint = &s.hosts[h].endpoint;
+    let protocol = endpoint.split('/').next().unwrap_or_default();
+    let plain = s.trust.as_ref().is_some_and(|t| t.plain_tcp);
+    let key = format!("hosts[{h}].endpoint");
+    match protocol {
+        "tls" if plain => Err((
+            "trust.plain_tcp".into(),
+            "false with `tls/` endpoints",
+            "true".into(),
+        )),
+        "tcp" if !plain => Err((
+            key,
+            "a `tls/` endpoint (keys from `cqnet hosts keys`); plain TCP, unauthenticated and unencrypted, only with `[trust] plain_tcp = true`",
+            format!("{endpoint:?}"),
+        )),
+        "tls" | "tcp" if h > 0 && !s.hosts[0].endpoint.starts_with(&format!("{protocol}/")) => {
+            Err((key, "the protocol of hosts[0].endpoint", format!("{endpoint:?}")))
+        }
+        "tls" | "tcp" => Ok(()),
+        _ => Err((key, "a `tls/` (or `tcp/`) endpoint", format!("{endpoint:?}"))),
     }
 }
 
@@ -114,10 +141,11 @@ impl Placement {
             {
                 return Err(bad(
                     format!("hosts[{h}].endpoint"),
-                    "a Zenoh endpoint (`tcp/<address>:<port>`) no other host has",
+                    "a Zenoh endpoint (`tls/<address>:<port>`) no other host has",
                     format!("{:?}", host.endpoint),
                 ));
             }
+            check_protocol(s, h).map_err(|(key, expected, got)| bad(key, expected, got))?;
             if let Some(link) = &host.link {
                 check_link(link, s.steps).map_err(|(key, expected, got)| {
                     bad(format!("hosts[{h}].link.{key}"), expected, got)
@@ -155,6 +183,7 @@ impl Placement {
             .collect();
         Ok(Some(Self {
             hosts: s.hosts.clone(),
+            trust: s.trust.clone().unwrap_or_default(),
             node_host,
             sensor_host,
             pairs: s.talks_in_pairs(),
@@ -164,6 +193,16 @@ impl Placement {
 
     pub fn hosts(&self) -> &[HostConfig] {
         &self.hosts
+    }
+
+    /// How the hosts know each other (checked against their endpoints).
+    pub fn trust(&self) -> &TrustConfig {
+        &self.trust
+    }
+
+    /// Whether the hosts speak plain TCP (the scenario asked for it).
+    pub fn plain_tcp(&self) -> bool {
+        self.trust.plain_tcp
     }
 
     /// The index of the host named `name`.
@@ -337,6 +376,9 @@ pub struct BridgeCounts {
     /// Batches that did not decode, and frames this host does not take.
     pub malformed_batches: u64,
     pub refused_frames: u64,
+    /// Commands the agent refused: for another run, for an actor it does
+    /// not run, or a setup it was not started for.
+    pub refused_commands: u64,
     pub tcp_bytes_acked: u64,
     pub tcp_bytes_received: u64,
     pub tcp_segments_out: u64,
@@ -355,6 +397,7 @@ impl BridgeCounts {
         self.batch_bytes_received += o.batch_bytes_received;
         self.malformed_batches += o.malformed_batches;
         self.refused_frames += o.refused_frames;
+        self.refused_commands += o.refused_commands;
         self.tcp_bytes_acked += o.tcp_bytes_acked;
         self.tcp_bytes_received += o.tcp_bytes_received;
         self.tcp_segments_out += o.tcp_segments_out;
@@ -374,7 +417,7 @@ mod tests {
                 link: None,
                 name: format!("h{h}"),
                 nodes: (0..n).filter(|i| i % 3 == h).collect(),
-                endpoint: format!("tcp/127.0.0.1:{}", 17000 + h),
+                endpoint: format!("tls/127.0.0.1:{}", 17000 + h),
             })
             .collect();
         (s, t)
@@ -441,6 +484,40 @@ mod tests {
             "hosts[1].endpoint",
         );
         check(&|s| s.hosts[0].nodes.push(1), "hosts[1].nodes");
+        // Plain TCP only in so many words; one protocol for every host.
+        let tcp = |s: &mut Scenario| {
+            for h in &mut s.hosts {
+                h.endpoint = h.endpoint.replace("tls/", "tcp/");
+            }
+        };
+        check(&tcp, "hosts[0].endpoint");
+        check(
+            &|s| s.hosts[2].endpoint = "udp/127.0.0.1:1".into(),
+            "hosts[2].endpoint",
+        );
+        check(
+            &|s| s.hosts[1].endpoint = "tcp/127.0.0.1:1".into(),
+            "hosts[1].endpoint",
+        );
+        check(
+            &|s| {
+                s.trust = Some(TrustConfig {
+                    keys: None,
+                    plain_tcp: true,
+                })
+            },
+            "trust.plain_tcp",
+        );
+        let mut plain = s.clone();
+        tcp(&mut plain);
+        plain.trust = Some(TrustConfig {
+            keys: None,
+            plain_tcp: true,
+        });
+        assert!(Placement::from_scenario(&plain, &t, "x", false)
+            .unwrap()
+            .unwrap()
+            .plain_tcp());
         check(&|s| s.hosts[0].nodes.push(999), "hosts[0].nodes");
         check(
             &|s| {

@@ -133,7 +133,8 @@ impl SeparateHosts {
     /// [`AGENT_PORT`]. Its hosts must be those this was created with.
     pub fn place(&self, scenario: &mut Scenario) {
         for h in &mut scenario.hosts {
-            h.endpoint = format!("tcp/{}:{AGENT_PORT}", self.address(&h.name));
+            let protocol = h.endpoint.split('/').next().unwrap_or("tls").to_string();
+            h.endpoint = format!("{protocol}/{}:{AGENT_PORT}", self.address(&h.name));
         }
     }
 

@@ -42,7 +42,7 @@ fn three_hosts(steps: u32) -> Scenario {
         .map(|(h, port)| HostConfig {
             name: ["a", "b", "c"][h].into(),
             nodes: (3 * h as u16..3 * h as u16 + 3).collect(),
-            endpoint: format!("tcp/127.0.0.1:{port}"),
+            endpoint: format!("tls/127.0.0.1:{port}"),
             link: None,
         })
         .collect();

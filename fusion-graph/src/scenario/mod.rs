@@ -171,6 +171,10 @@ pub struct Scenario {
     /// sensors, each runs. Empty: one host.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub hosts: Vec<HostConfig>,
+    /// How the hosts know each other: the keys of their TLS links, or
+    /// plain TCP where asked for in so many words.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trust: Option<TrustConfig>,
     /// A multiple-access channel between the fusion centre's sensors and
     /// the centre (compressive sensor management); none by default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -281,11 +285,25 @@ pub struct HostConfig {
     /// part of the host's iceoryx2 run id.
     pub name: String,
     pub nodes: Vec<u16>,
-    /// A Zenoh endpoint, such as `tcp/127.0.0.1:17447`.
+    /// A Zenoh endpoint, such as `tls/127.0.0.1:17447`.
     pub endpoint: String,
     /// What the network does to this host's link to the others.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub link: Option<HostLink>,
+}
+
+/// How the hosts of a run know each other. With `tls/` endpoints, `keys`
+/// names a folder made by `cqnet hosts keys` (relative to the scenario
+/// file): the authority's certificate and each host's key and certificate.
+/// `tcp/` endpoints (no authentication, no encryption) need
+/// `plain_tcp = true`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrustConfig {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keys: Option<String>,
+    #[serde(default)]
+    pub plain_tcp: bool,
 }
 
 /// What the network does to a host's link, both ways, done by the kernel
@@ -605,7 +623,15 @@ impl Scenario {
             file: file.clone(),
             message: e.to_string(),
         })?;
-        Self::from_toml_in(vocabulary, &text, &file, overrides)
+        let mut scenario = Self::from_toml_in(vocabulary, &text, &file, overrides)?;
+        // The keys are where the file says, wherever the program runs.
+        if let Some(keys) = scenario.trust.as_mut().and_then(|t| t.keys.as_mut()) {
+            if Path::new(keys.as_str()).is_relative() {
+                let base = path.parent().unwrap_or(Path::new("."));
+                *keys = base.join(keys.as_str()).display().to_string();
+            }
+        }
+        Ok(scenario)
     }
 
     /// Parses and validates scenario text in cqnet's own vocabulary;

@@ -28,12 +28,14 @@ use super::wake::{open_bridge_wake, open_wake, WakeIds};
 fn bridge_node(run: &RunId, side: &str) -> Result<Node<futex::Service>, SetupError> {
     let config = run.config(DeadNodeSweep::On)?;
     let name = NodeName::new(&format!("bridge-{side}")).map_err(|e| setup("node name", e))?;
-    NodeBuilder::new()
+    let node = NodeBuilder::new()
         .config(&config)
         .name(&name)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<futex::Service>()
-        .map_err(|e| setup("node", e))
+        .map_err(|e| setup("node", e))?;
+    crate::resources::keep_global_segment_private(run);
+    Ok(node)
 }
 
 /// The iceoryx2 side of what leaves a host through its bridge: it reads

@@ -135,6 +135,7 @@ impl IceoryxTransport {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<futex::Service>()
             .map_err(|e| setup("node", e))?;
+        crate::resources::keep_global_segment_private(run);
         let mut t = Self {
             me,
             run: run.clone(),

@@ -27,6 +27,7 @@
 
 use std::collections::HashMap;
 use std::fs::OpenOptions;
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -91,6 +92,7 @@ impl Ledger {
             .write(true)
             .create(true)
             .truncate(false)
+            .mode(crate::resources::OWNER_ONLY)
             .open(path)
             .map_err(io)?;
         let fresh = file.metadata().map_err(io)?.len() == 0;

@@ -2,6 +2,7 @@
 //! named (every one under the prefix `cqnet_<run>_`), the lease a launcher
 //! holds on them, and the sweeps that remove what a killed launcher left.
 
+use std::os::unix::fs::OpenOptionsExt;
 use std::time::Duration;
 
 use iceoryx2::prelude::*;
@@ -77,6 +78,7 @@ pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<me
         .write(true)
         .create(true)
         .truncate(false)
+        .mode(OWNER_ONLY)
         .open(&path)?;
     // Growing a file to the length it has already changes nothing, so two
     // processes that both find it short cannot undo each other's rows.
@@ -86,6 +88,39 @@ pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<me
     // SAFETY: the file belongs to this run and only its processes map it;
     // none shrinks it (all grow it to the same length, at most).
     unsafe { memmap2::MmapOptions::new().len(len).map_mut(&file) }
+}
+
+/// What a run's files may be: its owner's, read and write, no one else's.
+pub(crate) const OWNER_ONLY: u32 = 0o600;
+/// The name iceoryx2 (0.10.0) gives a domain's one global segment, after
+/// the domain's prefix. A test checks that it is there.
+const GLOBAL_SEGMENT: &str = "node.0_10_0.global_mgmt";
+
+/// iceoryx2 makes a domain's global segment (its node counter) readable
+/// and writable by every user of the machine; a run's is its owner's
+/// only. Each process calls this once its node is made (the segment then
+/// exists): cheaper than having one process wait for it.
+pub(crate) fn keep_global_segment_private(run: &RunId) {
+    let path =
+        std::path::Path::new(SHARED_MEMORY).join(format!("{}{GLOBAL_SEGMENT}", run.prefix()));
+    keep_private(&path);
+}
+
+/// This process's effective user.
+fn euid() -> u32 {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// Takes group's and others' rights off `path`, if this process owns it.
+fn keep_private(path: &std::path::Path) {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let Ok(m) = std::fs::metadata(path) else {
+        return;
+    };
+    if m.uid() == euid() && m.mode() & 0o077 != 0 {
+        let _ = std::fs::set_permissions(path, std::fs::Permissions::from_mode(OWNER_ONLY));
+    }
 }
 
 /// The file of run `run`'s shared memory called `name`; it goes with the
@@ -109,11 +144,23 @@ pub struct RunLease {
 impl RunLease {
     /// Registers `run` as this process's.
     pub fn acquire(run: &RunId) -> std::io::Result<Self> {
-        std::fs::create_dir_all(RUN_REGISTRY)?;
+        use std::io::Write;
+        use std::os::unix::fs::PermissionsExt;
+        if !std::path::Path::new(RUN_REGISTRY).is_dir() {
+            std::fs::create_dir_all(RUN_REGISTRY)?;
+            // Like /tmp: every user registers runs, none removes another's.
+            std::fs::set_permissions(RUN_REGISTRY, std::fs::Permissions::from_mode(0o1777))?;
+        }
         let pid = std::process::id();
         let started = process_start_time(pid).unwrap_or_default();
         let path = std::path::Path::new(RUN_REGISTRY).join(run.as_str());
-        std::fs::write(&path, format!("{pid} {started}\n"))?;
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .mode(OWNER_ONLY)
+            .open(&path)?;
+        f.write_all(format!("{pid} {started}\n").as_bytes())?;
         Ok(Self { path })
     }
 }
@@ -138,6 +185,13 @@ pub fn sweep_abandoned_runs() -> std::io::Result<Vec<RunId>> {
         let Ok(run) = RunId::new(&entry.file_name().to_string_lossy()) else {
             continue;
         };
+        // Another user's run is theirs to sweep (and its lease unreadable).
+        let mine = entry
+            .metadata()
+            .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == euid());
+        if !mine {
+            continue;
+        }
         let lease = std::fs::read_to_string(entry.path()).unwrap_or_default();
         let mut fields = lease.split_whitespace();
         let pid = fields.next().and_then(|p| p.parse::<u32>().ok());

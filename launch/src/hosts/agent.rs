@@ -20,8 +20,10 @@ use transport::iceoryx::remove_run_resources;
 use zenoh::Wait;
 
 use super::bridge::{Bridge, HostWorld, Setting};
+use super::trust::Role;
 use super::{
-    command_key, decode, encode, event_key, liveliness_key, open_session, put, FromAgent, ToAgent,
+    command_key, decode, encode, event_key, liveliness_key, open_session, put, FromAgent, Order,
+    Security, ToAgent,
 };
 use crate::actor_process::{cpu_path, ledger_path, memory_path};
 use crate::supervisor::{supervise, ChildSpec, Command, Event, HostFiles};
@@ -40,6 +42,9 @@ pub struct AgentArgs {
     /// Serve one run and exit (as `cqnet run --local-agents` starts them).
     #[arg(long)]
     pub once: bool,
+    /// Serve only the run with this id: a setup for any other is refused.
+    #[arg(long)]
+    pub run: Option<String>,
 }
 
 /// How often the agent looks at both its command subscription and its
@@ -60,13 +65,14 @@ pub fn run_agent(args: &AgentArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
         .host_named(&args.host)
         .with_context(|| format!("no host named {:?} in the scenario", args.host))?;
     let hosts = placement.hosts();
-    let others: Vec<String> = hosts
-        .iter()
-        .enumerate()
-        .filter(|(g, _)| *g != me)
-        .map(|(_, h)| h.endpoint.clone())
-        .collect();
-    let session = open_session(Some(&hosts[me].endpoint), &others)?;
+    // Each pair of agents has one connection, made by the later host: two
+    // made at once are one too many, and over TLS the one closed takes
+    // what was already written on it.
+    let others: Vec<String> = hosts[..me].iter().map(|h| h.endpoint.clone()).collect();
+    let security = Security::for_role(&placement, Role::Agent(&args.host))?;
+    let shaping = super::relay_shaping(&placement, me);
+    let linked = open_session(Some(&hosts[me].endpoint), &others, None, &security, shaping)?;
+    let session = &linked.session;
     let commands = session
         .declare_subscriber(command_key(&args.host))
         .wait()
@@ -78,32 +84,56 @@ pub fn run_agent(args: &AgentArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
         .wait()
         .map_err(|e| anyhow::anyhow!("declaring liveliness: {e}"))?;
     println!("agent {} listening on {}", args.host, hosts[me].endpoint);
-    let agent = Agent {
-        session: &session,
+    let mut agent = Agent {
+        session,
         host: &args.host,
         dir: &args.dir,
         vocabulary,
+        hosts: hosts.to_vec(),
+        refused: 0,
     };
     loop {
         let setup = loop {
-            match commands.recv_timeout(Duration::from_secs(1)) {
-                Ok(Some(sample)) => match decode::<ToAgent>(&sample.payload().to_bytes()) {
-                    Some(ToAgent::Setup {
-                        run,
-                        scenario,
-                        centralized,
-                        ..
-                    }) => break (run, scenario, centralized),
-                    Some(other) => tracing::debug!(?other, "no run set up; ignored"),
-                    None => tracing::warn!("a command that did not decode; dropped"),
-                },
-                Ok(None) => {}
+            let sample = match commands.recv_timeout(Duration::from_secs(1)) {
+                Ok(Some(sample)) => sample,
+                Ok(None) => continue,
                 Err(e) => bail!("the command subscription ended: {e}"),
+            };
+            let Some(order) = decode::<Order>(&sample.payload().to_bytes()) else {
+                agent.refuse("-", "a command that did not decode");
+                continue;
+            };
+            match &order.command {
+                ToAgent::Setup {
+                    run,
+                    scenario,
+                    centralized,
+                    ..
+                } => {
+                    if *run != order.run || args.run.as_ref().is_some_and(|r| r != run) {
+                        agent.refuse(
+                            &order.sender,
+                            &format!(
+                                "a setup of run {run:?}, which this agent was not started for"
+                            ),
+                        );
+                    } else {
+                        break (run.clone(), scenario.clone(), *centralized);
+                    }
+                }
+                other => agent.refuse(
+                    &order.sender,
+                    &format!("{} with no run set up", other.name()),
+                ),
             }
         };
         match agent.serve(&setup.0, &setup.1, setup.2, &commands) {
             Ok(Served::Finished) => {}
             Ok(Served::Interrupted) => return Ok(()),
+            Ok(Served::Refused(why)) => {
+                agent.refuse("-", &why);
+                continue;
+            }
             Err(e) => {
                 agent.tell(&FromAgent::Failed {
                     message: format!("{e:#}"),
@@ -122,26 +152,47 @@ struct Agent<'a> {
     host: &'a str,
     dir: &'a Path,
     vocabulary: Vocabulary,
+    /// The hosts of the agent's own scenario: a run's must be the same.
+    hosts: Vec<fusion_graph::hosts::HostConfig>,
+    /// Commands refused so far and not yet reported in a run's counts.
+    refused: u64,
 }
 
 enum Served {
     Finished,
     Interrupted,
+    /// The setup was not for this agent: why.
+    Refused(String),
 }
 
 type Commands =
     zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
 
 impl Agent<'_> {
+    /// Counts and logs a command not taken, with who sent it.
+    fn refuse(&mut self, sender: &str, what: &str) {
+        self.refused += 1;
+        tracing::warn!(sender, refused = self.refused, "refused: {what}");
+    }
+
     fn tell(&self, event: &FromAgent) {
         if let Err(e) = put(self.session, &event_key(self.host), encode(event)) {
             tracing::warn!(error = %e, "could not tell the launcher");
         }
     }
 
+    /// The bridge's counts with the commands refused so far.
+    fn with_refused(
+        &self,
+        mut counts: fusion_graph::hosts::BridgeCounts,
+    ) -> fusion_graph::hosts::BridgeCounts {
+        counts.refused_commands += self.refused;
+        counts
+    }
+
     /// One run, from its setup to its shutdown.
     fn serve(
-        &self,
+        &mut self,
         run: &str,
         scenario_text: &str,
         centralized: bool,
@@ -160,6 +211,24 @@ impl Agent<'_> {
         let host = placement
             .host_named(self.host)
             .with_context(|| format!("the launcher's scenario has no host {:?}", self.host))?;
+        // A run's hosts are the ones this agent was started with: a setup
+        // cannot point its bridge at peers of the sender's choosing.
+        let same = |a: &fusion_graph::hosts::HostConfig, b: &fusion_graph::hosts::HostConfig| {
+            a.name == b.name && a.nodes == b.nodes && a.endpoint == b.endpoint
+        };
+        if placement.hosts().len() != self.hosts.len()
+            || !placement
+                .hosts()
+                .iter()
+                .zip(&self.hosts)
+                .all(|(a, b)| same(a, b))
+        {
+            return Ok(Served::Refused(format!(
+                "a setup of run {run:?} whose hosts are not this agent's scenario's"
+            )));
+        }
+        // The actors a command may name: this run's, on this host.
+        let mine: HashSet<ActorId> = placement.actors_on(host, &topology).into_iter().collect();
         // What a predecessor killed with its actors left in the domain is
         // swept as the bridge's nodes and the rejoining actors start (they
         // sweep dead nodes); the domain itself is not removed, for on the
@@ -265,11 +334,31 @@ impl Agent<'_> {
                 Ok(None) => continue,
                 Err(e) => bail!("the command subscription ended: {e}"),
             };
-            let Some(command) = decode::<ToAgent>(&sample.payload().to_bytes()) else {
-                tracing::warn!("a command that did not decode; dropped");
+            let Some(order) = decode::<Order>(&sample.payload().to_bytes()) else {
+                self.refuse("-", "a command that did not decode");
                 continue;
             };
-            let to_supervisor = match command {
+            if order.run != run {
+                self.refuse(
+                    &order.sender,
+                    &format!(
+                        "{} for run {:?} while serving {run:?}",
+                        order.command.name(),
+                        order.run
+                    ),
+                );
+                continue;
+            }
+            if let Some(actor) = order.command.actor() {
+                if !mine.contains(&actor) {
+                    self.refuse(
+                        &order.sender,
+                        &format!("{} of {actor}, not on this host", order.command.name()),
+                    );
+                    continue;
+                }
+            }
+            let to_supervisor = match order.command {
                 ToAgent::Setup {
                     run: again,
                     after_loss: true,
@@ -308,7 +397,7 @@ impl Agent<'_> {
                     self.tell(&FromAgent::Counts {
                         accounting_csv: host_accounting(&dir, &placement, host, &topology)
                             .to_csv_with_world_misses(),
-                        bridge: bridge.counts(),
+                        bridge: self.with_refused(bridge.counts()),
                         home: host_files(&dir, &placement, host, &topology),
                     });
                     None
@@ -322,7 +411,7 @@ impl Agent<'_> {
                     self.tell(&FromAgent::Progress {
                         accounting_csv: host_accounting(&dir, &placement, host, &topology)
                             .to_csv_with_world_misses(),
-                        bridge: bridge.counts(),
+                        bridge: self.with_refused(bridge.counts()),
                         home,
                     });
                     None

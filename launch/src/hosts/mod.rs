@@ -25,7 +25,9 @@
 
 pub mod agent;
 pub mod bridge;
+pub mod relay;
 pub mod remote;
+pub mod trust;
 
 use anyhow::Context;
 use fusion_graph::scenario::Signal;
@@ -75,6 +77,44 @@ pub enum ToAgent {
     Shutdown,
 }
 
+/// A command as it travels on an agent's key: the run it is for and who
+/// sent it. The sender is the sending session's Zenoh id as it says; what
+/// vouches for it is the access control (only the launcher's certificate
+/// may put on an agent's command key), and the id goes into the agent's
+/// log of what it refused.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Order {
+    pub run: String,
+    pub sender: String,
+    pub command: ToAgent,
+}
+
+impl ToAgent {
+    /// The command's name, for logs.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Setup { .. } => "Setup",
+            Self::Spawn { .. } => "Spawn",
+            Self::Signal { .. } => "Signal",
+            Self::Continue { .. } => "Continue",
+            Self::Collect => "Collect",
+            Self::Traffic => "Traffic",
+            Self::Progress => "Progress",
+            Self::Shutdown => "Shutdown",
+        }
+    }
+
+    /// The actor the command is about, if it is about one.
+    pub fn actor(&self) -> Option<ActorId> {
+        match self {
+            Self::Spawn { actor, .. } | Self::Signal { actor, .. } | Self::Continue { actor } => {
+                Some(*actor)
+            }
+            _ => None,
+        }
+    }
+}
+
 /// What an agent tells the launcher.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub enum FromAgent {
@@ -114,7 +154,7 @@ pub enum FromAgent {
     Finished,
 }
 
-fn command_key(host: &str) -> String {
+pub fn command_key(host: &str) -> String {
     format!("cqnet/agent/{host}/command")
 }
 
@@ -132,10 +172,158 @@ fn bridge_key(run: &str, host: &str) -> String {
     format!("cqnet/run/{run}/bridge/{host}")
 }
 
+/// How a session proves who it is and whom it lets in.
+#[derive(Debug, Clone)]
+pub enum Security {
+    /// Mutually authenticated TLS with the run's keys, and access control
+    /// by certificate name (`trust.rs`).
+    Tls {
+        keys: trust::Keys,
+        identity: String,
+        access_control: serde_json::Value,
+    },
+    /// Plain TCP: anyone who reaches the port is in. Only where the
+    /// scenario asks for it.
+    PlainTcp,
+}
+
+impl Security {
+    /// What the scenario's `[trust]` asks of `role`'s session; plain TCP
+    /// warned of on stderr.
+    pub fn for_role(
+        placement: &fusion_graph::hosts::Placement,
+        role: trust::Role<'_>,
+    ) -> anyhow::Result<Self> {
+        let who = match role {
+            trust::Role::Launcher => "launcher".to_string(),
+            trust::Role::Agent(h) => format!("agent {h}"),
+        };
+        if placement.plain_tcp() {
+            eprintln!(
+                "warning: {who}: plain TCP between hosts (`[trust] plain_tcp = true`): whoever reaches these ports can join the run, read it and command its agents"
+            );
+            return Ok(Self::PlainTcp);
+        }
+        let dir = placement.trust().keys.as_deref().context(
+            "`tls/` endpoints need `[trust] keys = \"<folder>\"`, made by `cqnet hosts keys <folder> <host>…`",
+        )?;
+        let keys = trust::Keys::open(std::path::Path::new(dir))?;
+        let identity = match role {
+            trust::Role::Launcher => trust::LAUNCHER.to_string(),
+            trust::Role::Agent(h) => h.to_string(),
+        };
+        keys.identity(&identity)?;
+        let names: Vec<String> = placement.hosts().iter().map(|h| h.name.clone()).collect();
+        Ok(Self::Tls {
+            keys,
+            identity,
+            access_control: trust::access_control(role, &names),
+        })
+    }
+}
+
+/// What host `h`'s own relays do to its link: its `link`'s delay, jitter
+/// and rate, unless a harness shapes the link in the kernel
+/// ([`HOST_LINKS_APPLIED`](crate::network::HOST_LINKS_APPLIED)). A loss
+/// the relay cannot stand for is warned of.
+pub fn relay_shaping(
+    placement: &fusion_graph::hosts::Placement,
+    h: usize,
+) -> Option<relay::Shaping> {
+    if std::env::var_os(crate::network::HOST_LINKS_APPLIED).is_some() {
+        return None;
+    }
+    let host = &placement.hosts()[h];
+    let link = host.link.as_ref()?;
+    if link.loss > 0.0 {
+        eprintln!(
+            "warning: host {}: link.loss = {} is not applied: a relay carries a TCP stream and cannot drop packets (the kernel's netem can)",
+            host.name, link.loss
+        );
+    }
+    relay::Shaping::from_link(link)
+}
+
+/// A Zenoh session and the relays that shape its links (kept as long as it).
+pub struct HostSession {
+    pub session: zenoh::Session,
+    _relays: Vec<relay::Relay>,
+}
+
 /// Opens a Zenoh peer session listening on `listen` (if any) and connecting
 /// to `connect`. Multicast scouting is off: the scenario names every
 /// endpoint, and a test on one machine must not find another test's peers.
-fn open_session(listen: Option<&str>, connect: &[String]) -> anyhow::Result<zenoh::Session> {
+/// With `shaping`, every link but the one to `local` (this host's own
+/// endpoint, for the launcher) passes a relay of this process.
+pub fn open_session(
+    listen: Option<&str>,
+    connect: &[String],
+    local: Option<&str>,
+    security: &Security,
+    shaping: Option<relay::Shaping>,
+) -> anyhow::Result<HostSession> {
+    let mut relays = Vec::new();
+    let (listen, connect) = match shaping {
+        None => (listen.map(str::to_string), connect.to_vec()),
+        Some(shaping) => {
+            let listen = listen
+                .map(|e| {
+                    let (protocol, outside) = endpoint_address(e)?;
+                    // Zenoh listens inside; the relay on the endpoint.
+                    let inside = free_loopback_port()?;
+                    relays.push(relay::Relay::start(outside, inside, shaping)?);
+                    anyhow::Ok(format!("{protocol}/{inside}"))
+                })
+                .transpose()?;
+            let mut through = Vec::new();
+            for e in connect {
+                if Some(e.as_str()) == local {
+                    through.push(e.clone());
+                    continue;
+                }
+                let (protocol, far) = endpoint_address(e)?;
+                let r = relay::Relay::start("127.0.0.1:0".parse()?, far, shaping)?;
+                through.push(format!("{protocol}/{}", r.local()));
+                relays.push(r);
+            }
+            (listen, through)
+        }
+    };
+    let session = open_zenoh(listen.as_deref(), &connect, security, !relays.is_empty())?;
+    Ok(HostSession {
+        session,
+        _relays: relays,
+    })
+}
+
+/// `tls/10.0.0.2:17447` → (`tls`, its socket address).
+fn endpoint_address(endpoint: &str) -> anyhow::Result<(String, std::net::SocketAddr)> {
+    use std::net::ToSocketAddrs;
+    let (protocol, rest) = endpoint
+        .split_once('/')
+        .with_context(|| format!("{endpoint:?} is not a Zenoh endpoint"))?;
+    let address = rest.split('#').next().unwrap_or(rest);
+    let addr = address
+        .to_socket_addrs()
+        .with_context(|| format!("resolving {address:?}"))?
+        .next()
+        .with_context(|| format!("{address:?} resolves to no address"))?;
+    Ok((protocol.to_string(), addr))
+}
+
+/// A port on 127.0.0.1 that was free a moment ago.
+fn free_loopback_port() -> std::io::Result<std::net::SocketAddr> {
+    std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()
+}
+
+/// The session itself. Behind relays, gossip is off: a peer must not learn
+/// the address a relay hides and connect around it.
+fn open_zenoh(
+    listen: Option<&str>,
+    connect: &[String],
+    security: &Security,
+    behind_relays: bool,
+) -> anyhow::Result<zenoh::Session> {
     let mut config = zenoh::Config::default();
     let set = |config: &mut zenoh::Config, key: &str, value: String| {
         config
@@ -144,6 +332,9 @@ fn open_session(listen: Option<&str>, connect: &[String]) -> anyhow::Result<zeno
     };
     set(&mut config, "mode", "\"peer\"".into())?;
     set(&mut config, "scouting/multicast/enabled", "false".into())?;
+    if behind_relays {
+        set(&mut config, "scouting/gossip/enabled", "false".into())?;
+    }
     let listen: Vec<&str> = listen.into_iter().collect();
     set(
         &mut config,
@@ -155,6 +346,40 @@ fn open_session(listen: Option<&str>, connect: &[String]) -> anyhow::Result<zeno
         "connect/endpoints",
         serde_json::to_string(connect)?,
     )?;
+    if let Security::Tls {
+        keys,
+        identity,
+        access_control,
+    } = security
+    {
+        let (cert, key) = keys.identity(identity)?;
+        let path = |p: &std::path::Path| serde_json::to_string(&p.display().to_string());
+        let tls = "transport/link/tls";
+        set(
+            &mut config,
+            &format!("{tls}/root_ca_certificate"),
+            path(&keys.authority())?,
+        )?;
+        for end in ["listen", "connect"] {
+            set(
+                &mut config,
+                &format!("{tls}/{end}_certificate"),
+                path(&cert)?,
+            )?;
+            set(
+                &mut config,
+                &format!("{tls}/{end}_private_key"),
+                path(&key)?,
+            )?;
+        }
+        set(&mut config, &format!("{tls}/enable_mtls"), "true".into())?;
+        set(
+            &mut config,
+            &format!("{tls}/verify_name_on_connect"),
+            "false".into(),
+        )?;
+        set(&mut config, "access_control", access_control.to_string())?;
+    }
     zenoh::open(config)
         .wait()
         .map_err(|e| anyhow::anyhow!("{e}"))
@@ -162,8 +387,9 @@ fn open_session(listen: Option<&str>, connect: &[String]) -> anyhow::Result<zeno
 }
 
 /// The agent protocol's encoding: bincode, bounded so that a forged length
-/// cannot ask for gigabytes.
-fn encode<T: Serialize>(value: &T) -> Vec<u8> {
+/// cannot ask for gigabytes. Public so that a test can speak it as a peer
+/// that should not be heard.
+pub fn encode<T: Serialize>(value: &T) -> Vec<u8> {
     bincode::serde::encode_to_vec(value, config()).expect("encoding to a Vec cannot fail")
 }
 

@@ -20,7 +20,10 @@ use tokio::sync::mpsc::UnboundedReceiver;
 use transport::accounting::Accounting;
 use zenoh::Wait;
 
-use super::{command_key, decode, encode, event_key, open_session, put, FromAgent, ToAgent};
+use super::trust::Role;
+use super::{
+    command_key, decode, encode, event_key, open_session, put, FromAgent, Order, Security, ToAgent,
+};
 use crate::supervisor::{Command, Event};
 
 /// How often a set-up is repeated until the agent answers.
@@ -97,7 +100,18 @@ pub fn supervise_hosts(
     let started = Instant::now();
     let hosts = setup.placement.hosts().to_vec();
     let endpoints: Vec<String> = hosts.iter().map(|h| h.endpoint.clone()).collect();
-    let session = open_session(None, &endpoints)?;
+    let security = Security::for_role(&setup.placement, Role::Launcher)?;
+    let launcher_host = setup.placement.host_of(fusion_graph::ActorId::Launcher);
+    let shaping = super::relay_shaping(&setup.placement, launcher_host);
+    let linked = open_session(
+        None,
+        &endpoints,
+        Some(&hosts[launcher_host].endpoint),
+        &security,
+        shaping,
+    )?;
+    let session = &linked.session;
+    let sender = session.zid().to_string();
     let (tx, rx) = mpsc::channel::<Incoming>();
     forward_commands(commands, tx.clone());
     forward_interrupts(events.clone());
@@ -139,7 +153,12 @@ pub fn supervise_hosts(
     let mut progress_asked = Instant::now();
     let mut traffic: Vec<Option<Accounting>> = hosts.iter().map(|_| None).collect();
     let send = |h: usize, c: &ToAgent| {
-        if let Err(e) = put(&session, &command_key(&hosts[h].name), encode(c)) {
+        let order = Order {
+            run: setup.run.clone(),
+            sender: sender.clone(),
+            command: c.clone(),
+        };
+        if let Err(e) = put(session, &command_key(&hosts[h].name), encode(&order)) {
             tracing::warn!(host = %hosts[h].name, error = %e, "could not reach the agent");
         }
     };
@@ -446,7 +465,12 @@ pub struct LocalAgents {
 }
 
 impl LocalAgents {
-    pub fn start(placement: &Placement, scenario_file: &Path, out: &Path) -> anyhow::Result<Self> {
+    pub fn start(
+        placement: &Placement,
+        scenario_file: &Path,
+        out: &Path,
+        run: &str,
+    ) -> anyhow::Result<Self> {
         let exe = std::env::current_exe().context("finding the cqnet executable")?;
         let mut children = Vec::new();
         for host in placement.hosts() {
@@ -460,6 +484,8 @@ impl LocalAgents {
                 .arg("--dir")
                 .arg(agent_dir(out, &host.name))
                 .arg("--once")
+                .arg("--run")
+                .arg(run)
                 .stdin(std::process::Stdio::null())
                 .stdout(log.try_clone()?)
                 .stderr(log);

@@ -53,6 +53,8 @@ pub fn run_network(
     crate::preflight::check(scenario, topology, options.centralized)?;
     // The children read the clock's mode from the scenario they are given.
     let scenario = &clocked(scenario, options.lockstep);
+    #[cfg(feature = "zenoh")]
+    let scenario = &with_run_keys(scenario, &options)?;
     // Runs whose launcher was SIGKILLed left their shared memory behind:
     // clear those (and only those) before adding ours.
     match sweep_abandoned_runs() {
@@ -163,7 +165,12 @@ pub fn run_network(
             };
             let agents = options_local_agents
                 .then(|| {
-                    crate::hosts::remote::LocalAgents::start(placement, &spec.scenario_file, &out)
+                    crate::hosts::remote::LocalAgents::start(
+                        placement,
+                        &spec.scenario_file,
+                        &out,
+                        run_id.as_str(),
+                    )
                 })
                 .transpose()?;
             let supervised =
@@ -246,6 +253,23 @@ impl Drop for StopWatch {
 
 /// The scenario as the run keeps time: `--lockstep` written into it, so
 /// that the children, and `scenario.toml` in the results, say so.
+/// `--local-agents` on `tls/` endpoints without keys: the run makes its
+/// own authority and keys (in `out/keys`, its owner's only), since this
+/// launcher starts every agent and hands each its scenario.
+#[cfg(feature = "zenoh")]
+fn with_run_keys(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<Scenario> {
+    let mut s = scenario.clone();
+    let trust = s.trust.get_or_insert_with(Default::default);
+    if !options.local_agents || s.hosts.is_empty() || trust.plain_tcp || trust.keys.is_some() {
+        return Ok(scenario.clone());
+    }
+    let dir = std::path::absolute(options.out.join("keys"))?;
+    let names: Vec<String> = s.hosts.iter().map(|h| h.name.clone()).collect();
+    crate::hosts::trust::make_keys(&dir, &names).context("making the run's keys")?;
+    trust.keys = Some(dir.display().to_string());
+    Ok(s)
+}
+
 fn clocked(scenario: &Scenario, lockstep: bool) -> Scenario {
     let mut s = scenario.clone();
     if lockstep {
