@@ -133,7 +133,10 @@ impl SeparateHosts {
     /// [`AGENT_PORT`]. Its hosts must be those this was created with.
     pub fn place(&self, scenario: &mut Scenario) {
         for h in &mut scenario.hosts {
-            let protocol = h.endpoint.split('/').next().unwrap_or("tls").to_string();
+            let protocol = match h.endpoint.split_once('/') {
+                Some(("tcp", _)) => "tcp",
+                _ => "tls",
+            };
             h.endpoint = format!("{protocol}/{}:{AGENT_PORT}", self.address(&h.name));
         }
     }

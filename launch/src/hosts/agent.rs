@@ -68,7 +68,14 @@ pub fn run_agent(args: &AgentArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
     // Each pair of agents has one connection, made by the later host: two
     // made at once are one too many, and over TLS the one closed takes
     // what was already written on it.
-    let others: Vec<String> = hosts[..me].iter().map(|h| h.endpoint.clone()).collect();
+    // Over plain TCP every agent connects to every other, which rejoins
+    // fastest after a cut.
+    let others: Vec<String> = hosts
+        .iter()
+        .enumerate()
+        .filter(|(g, _)| *g < me || (placement.plain_tcp() && *g != me))
+        .map(|(_, h)| h.endpoint.clone())
+        .collect();
     let security = Security::for_role(&placement, Role::Agent(&args.host))?;
     let shaping = super::relay_shaping(&placement, me);
     let linked = open_session(Some(&hosts[me].endpoint), &others, None, &security, shaping)?;
