@@ -258,7 +258,9 @@ impl Network {
                 std::fs::create_dir_all(out).map_err(write_err)?;
                 #[cfg(feature = "zenoh")]
                 if self.separate.is_some() {
-                    add_run_keys(&mut scenario, out)?;
+                    // As `--local-agents` makes them for its own agents.
+                    launch::hosts::trust::add_run_keys(&mut scenario, &out.join("keys"))
+                        .map_err(|e| Error::Host(format!("{e:#}")))?;
                 }
                 let path = out.with_extension("toml");
                 std::fs::write(&path, scenario.to_toml()).map_err(write_err)?;
@@ -358,23 +360,6 @@ fn built_cqnet() -> Option<PathBuf> {
         .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
         .max()
         .map(|(_, p)| p)
-}
-
-/// Hosts in namespaces of their own on `tls/` endpoints without keys: the
-/// run's own authority and keys (in `out/keys`), for the agents this
-/// test starts, as `--local-agents` makes them for its own.
-#[cfg(feature = "zenoh")]
-fn add_run_keys(scenario: &mut Scenario, out: &Path) -> Result<(), Error> {
-    let trust = scenario.trust.get_or_insert_with(Default::default);
-    if scenario.hosts.is_empty() || trust.plain_tcp || trust.keys.is_some() {
-        return Ok(());
-    }
-    let dir = out.join("keys");
-    let names: Vec<String> = scenario.hosts.iter().map(|h| h.name.clone()).collect();
-    launch::hosts::trust::make_keys(&dir, &names)
-        .map_err(|e| Error::Host(format!("making the run's keys: {e:#}")))?;
-    trust.keys = Some(dir.display().to_string());
-    Ok(())
 }
 
 /// The launcher's command moved into the first host's namespace, with that

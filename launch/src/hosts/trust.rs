@@ -153,6 +153,21 @@ pub fn make_keys(dir: &Path, names: &[String]) -> anyhow::Result<Vec<PathBuf>> {
     Ok(written)
 }
 
+/// A scenario of hosts on `tls/` endpoints without keys gets the run's
+/// own (authority and all), made in `dir`; others are left as they are.
+/// For a launcher or harness that starts every agent itself.
+pub fn add_run_keys(scenario: &mut fusion_graph::Scenario, dir: &Path) -> anyhow::Result<()> {
+    let trust = scenario.trust.get_or_insert_with(Default::default);
+    if scenario.hosts.is_empty() || trust.plain_tcp || trust.keys.is_some() {
+        return Ok(());
+    }
+    let dir = std::path::absolute(dir)?;
+    let names: Vec<String> = scenario.hosts.iter().map(|h| h.name.clone()).collect();
+    make_keys(&dir, &names).context("making the run's keys")?;
+    trust.keys = Some(dir.display().to_string());
+    Ok(())
+}
+
 fn authority_params() -> rcgen::CertificateParams {
     let mut p = rcgen::CertificateParams::default();
     p.distinguished_name

@@ -259,14 +259,9 @@ impl Drop for StopWatch {
 #[cfg(feature = "zenoh")]
 fn with_run_keys(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<Scenario> {
     let mut s = scenario.clone();
-    let trust = s.trust.get_or_insert_with(Default::default);
-    if !options.local_agents || s.hosts.is_empty() || trust.plain_tcp || trust.keys.is_some() {
-        return Ok(scenario.clone());
+    if options.local_agents {
+        crate::hosts::trust::add_run_keys(&mut s, &options.out.join("keys"))?;
     }
-    let dir = std::path::absolute(options.out.join("keys"))?;
-    let names: Vec<String> = s.hosts.iter().map(|h| h.name.clone()).collect();
-    crate::hosts::trust::make_keys(&dir, &names).context("making the run's keys")?;
-    trust.keys = Some(dir.display().to_string());
     Ok(s)
 }
 
