@@ -403,6 +403,8 @@ fn on_separate_hosts(
         let agent = hosts
             .command(name, &exe)
             .args(agent_args(name))
+            // The kernel shapes these hosts' links (`apply_links`): no relay.
+            .env(launch::network::HOST_LINKS_APPLIED, "1")
             .stdin(Stdio::null())
             .stdout(stdout)
             .stderr(stderr)

@@ -135,7 +135,7 @@ impl SeparateHosts {
         for h in &mut scenario.hosts {
             let protocol = match h.endpoint.split_once('/') {
                 Some(("tcp", _)) => "tcp",
-                _ => "tls",
+                _ => "quic",
             };
             h.endpoint = format!("{protocol}/{}:{AGENT_PORT}", self.address(&h.name));
         }

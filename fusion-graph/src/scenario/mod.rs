@@ -285,14 +285,14 @@ pub struct HostConfig {
     /// part of the host's iceoryx2 run id.
     pub name: String,
     pub nodes: Vec<u16>,
-    /// A Zenoh endpoint, such as `tls/127.0.0.1:17447`.
+    /// A Zenoh endpoint, such as `quic/127.0.0.1:17447`.
     pub endpoint: String,
     /// What the network does to this host's link to the others.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub link: Option<HostLink>,
 }
 
-/// How the hosts of a run know each other. With `tls/` endpoints, `keys`
+/// How the hosts of a run know each other. With `quic/` endpoints, `keys`
 /// names a folder made by `cqnet hosts keys` (relative to the scenario
 /// file): the authority's certificate and each host's key and certificate.
 /// `tcp/` endpoints (no authentication, no encryption) need

@@ -66,8 +66,8 @@ pub fn run_agent(args: &AgentArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
         .with_context(|| format!("no host named {:?} in the scenario", args.host))?;
     let hosts = placement.hosts();
     // Each pair of agents has one connection, made by the later host: two
-    // made at once are one too many, and over TLS the one closed takes
-    // what was already written on it.
+    // made at once are one too many, and Zenoh closes one of them, with
+    // whatever was already written on it.
     // Over plain TCP every agent connects to every other, which rejoins
     // fastest after a cut.
     let others: Vec<String> = hosts
@@ -87,7 +87,7 @@ pub fn run_agent(args: &AgentArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
     // Declared last: the launcher sends its first command when it sees it.
     let _token = session
         .liveliness()
-        .declare_token(liveliness_key(&args.host))
+        .declare_token(liveliness_key(&args.host, &session.zid().to_string()))
         .wait()
         .map_err(|e| anyhow::anyhow!("declaring liveliness: {e}"))?;
     println!("agent {} listening on {}", args.host, hosts[me].endpoint);

@@ -162,9 +162,12 @@ fn event_key(host: &str) -> String {
     format!("cqnet/agent/{host}/event")
 }
 
-/// The key an agent's liveliness token holds while it lives.
-fn liveliness_key(host: &str) -> String {
-    format!("cqnet/agent/{host}/alive")
+/// The key an agent's liveliness token holds while it lives: its host,
+/// and the session's own id, so that an agent started again is told from
+/// the one it replaces before the old one's lease runs out (a killed
+/// agent's QUIC peers hear nothing until then).
+fn liveliness_key(host: &str, instance: &str) -> String {
+    format!("cqnet/agent/{host}/alive/{instance}")
 }
 
 /// The key a host's bridge reads what other hosts send it on.
@@ -172,11 +175,15 @@ fn bridge_key(run: &str, host: &str) -> String {
     format!("cqnet/run/{run}/bridge/{host}")
 }
 
+/// How long a host's Zenoh peers wait without a word from it before they
+/// count it gone (four keep-alives a lease).
+pub const HOST_LEASE: std::time::Duration = std::time::Duration::from_secs(3);
+
 /// How a session proves who it is and whom it lets in.
 #[derive(Debug, Clone)]
 pub enum Security {
-    /// Mutually authenticated TLS with the run's keys, and access control
-    /// by certificate name (`trust.rs`).
+    /// QUIC, whose TLS 1.3 authenticates both ends with the run's keys,
+    /// and access control by certificate name (`trust.rs`).
     Tls {
         keys: trust::Keys,
         identity: String,
@@ -205,7 +212,7 @@ impl Security {
             return Ok(Self::PlainTcp);
         }
         let dir = placement.trust().keys.as_deref().context(
-            "`tls/` endpoints need `[trust] keys = \"<folder>\"`, made by `cqnet hosts keys <folder> <host>…`",
+            "`quic/` endpoints need `[trust] keys = \"<folder>\"`, made by `cqnet hosts keys <folder> <host>…`",
         )?;
         let keys = trust::Keys::open(std::path::Path::new(dir))?;
         let identity = match role {
@@ -225,7 +232,7 @@ impl Security {
 /// What host `h`'s own relays do to its link: its `link`'s delay, jitter
 /// and rate, unless a harness shapes the link in the kernel
 /// ([`HOST_LINKS_APPLIED`](crate::network::HOST_LINKS_APPLIED)). A loss
-/// the relay cannot stand for is warned of.
+/// the relay cannot stand for (on a `tcp/` stream) is warned of.
 pub fn relay_shaping(
     placement: &fusion_graph::hosts::Placement,
     h: usize,
@@ -235,7 +242,7 @@ pub fn relay_shaping(
     }
     let host = &placement.hosts()[h];
     let link = host.link.as_ref()?;
-    if link.loss > 0.0 {
+    if link.loss > 0.0 && placement.plain_tcp() {
         eprintln!(
             "warning: host {}: link.loss = {} is not applied: a relay carries a TCP stream and cannot drop packets (the kernel's netem can)",
             host.name, link.loss
@@ -270,8 +277,9 @@ pub fn open_session(
                 .map(|e| {
                     let (protocol, outside) = endpoint_address(e)?;
                     // Zenoh listens inside; the relay on the endpoint.
-                    let inside = free_loopback_port()?;
-                    relays.push(relay::Relay::start(outside, inside, shaping)?);
+                    let carrying = relay::Carrying::for_protocol(&protocol);
+                    let inside = free_loopback_port(carrying)?;
+                    relays.push(relay::Relay::start(carrying, outside, inside, shaping)?);
                     anyhow::Ok(format!("{protocol}/{inside}"))
                 })
                 .transpose()?;
@@ -282,7 +290,8 @@ pub fn open_session(
                     continue;
                 }
                 let (protocol, far) = endpoint_address(e)?;
-                let r = relay::Relay::start("127.0.0.1:0".parse()?, far, shaping)?;
+                let carrying = relay::Carrying::for_protocol(&protocol);
+                let r = relay::Relay::start(carrying, "127.0.0.1:0".parse()?, far, shaping)?;
                 through.push(format!("{protocol}/{}", r.local()));
                 relays.push(r);
             }
@@ -296,7 +305,7 @@ pub fn open_session(
     })
 }
 
-/// `tls/10.0.0.2:17447` → (`tls`, its socket address).
+/// `quic/10.0.0.2:17447` → (`quic`, its socket address).
 fn endpoint_address(endpoint: &str) -> anyhow::Result<(String, std::net::SocketAddr)> {
     use std::net::ToSocketAddrs;
     let (protocol, rest) = endpoint
@@ -312,8 +321,11 @@ fn endpoint_address(endpoint: &str) -> anyhow::Result<(String, std::net::SocketA
 }
 
 /// A port on 127.0.0.1 that was free a moment ago.
-fn free_loopback_port() -> std::io::Result<std::net::SocketAddr> {
-    std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()
+fn free_loopback_port(carrying: relay::Carrying) -> std::io::Result<std::net::SocketAddr> {
+    match carrying {
+        relay::Carrying::Stream => std::net::TcpListener::bind("127.0.0.1:0")?.local_addr(),
+        relay::Carrying::Datagrams => std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr(),
+    }
 }
 
 /// The session itself. Behind relays, gossip is off: a peer must not learn
@@ -335,6 +347,14 @@ fn open_zenoh(
     if behind_relays {
         set(&mut config, "scouting/gossip/enabled", "false".into())?;
     }
+    // A peer silent this long is gone. Zenoh's default is 10 s; over QUIC,
+    // where a killed process sends no reset, that is how long a host's
+    // loss (and the start of its replacement's link) would wait.
+    set(
+        &mut config,
+        "transport/link/tx/lease",
+        HOST_LEASE.as_millis().to_string(),
+    )?;
     let listen: Vec<&str> = listen.into_iter().collect();
     set(
         &mut config,

@@ -1,21 +1,30 @@
-//! A host's link shaped in user space: every TCP connection of a host's
-//! Zenoh session, in and out, passes through a relay of its own process
-//! that holds each chunk of bytes for the link's delay (with its jitter)
-//! and lets it go no faster than the link's rate. So `hosts[].link` works
-//! where the kernel has no netem, on real machines as in namespaces.
+//! A host's link shaped in user space: every connection of a host's Zenoh
+//! session, in and out, passes through a relay of its own process that
+//! holds what it carries for the link's delay (with its jitter) and lets
+//! it go no faster than the link's rate. So `hosts[].link` works where the
+//! kernel has no netem, on real machines as in namespaces.
 //!
 //! A connection between hosts `g` and `h` passes `g`'s relay and `h`'s, as
 //! a packet between them passes both hosts' links: the delays add, as
 //! they do with netem on both links.
 //!
-//! What a relay cannot stand for: **loss**. It sits on a TCP stream, whose
-//! bytes all arrive; a lost packet's cost (a retransmission, a stalled
-//! window) only the kernel can show. A link with `loss` needs netem. Its
-//! jitter never reorders bytes (a stream has one order), so large jitter
-//! on a relay delays more than on netem, where later packets may overtake.
+//! Two kinds, after the endpoint's transport:
+//!
+//! - **Datagrams** (`quic/`, the secured default): each UDP datagram is
+//!   one packet, so the relay also drops a share `loss` of them, and QUIC
+//!   pays for the loss as it would on a real link (retransmission,
+//!   congestion window). This is netem's model, packet for packet.
+//! - **A stream** (`tcp/`): the relay sits on a TCP stream, whose bytes
+//!   all arrive, so it cannot stand for **loss**: a lost packet's cost
+//!   only the kernel can show, and such a link needs netem.
+//!
+//! Neither reorders: a chunk never leaves before the one read before it,
+//! so large jitter delays a little more than on netem, where later packets
+//! may overtake.
 
+use std::collections::HashMap;
 use std::io::{Read, Write};
-use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
@@ -30,6 +39,8 @@ pub struct Shaping {
     pub jitter: Duration,
     /// Bits per second; 0: no limit.
     pub rate_bits_per_s: f64,
+    /// Share of datagrams dropped, 0 to 1 (a stream relay drops nothing).
+    pub loss: f64,
 }
 
 impl Shaping {
@@ -40,8 +51,12 @@ impl Shaping {
             delay: Duration::from_secs_f64(link.delay_ms / 1e3),
             jitter: Duration::from_secs_f64(link.jitter_ms / 1e3),
             rate_bits_per_s: link.rate_mbit * 1e6,
+            loss: link.loss,
         };
-        (s.delay > Duration::ZERO || s.jitter > Duration::ZERO || s.rate_bits_per_s > 0.0)
+        (s.delay > Duration::ZERO
+            || s.jitter > Duration::ZERO
+            || s.rate_bits_per_s > 0.0
+            || s.loss > 0.0)
             .then_some(s)
     }
 }
@@ -82,7 +97,12 @@ impl Schedule {
         release
     }
 
-    /// Uniform on [0, 1): xorshift64*, enough for jitter.
+    /// Whether the next datagram is lost.
+    pub fn lost(&mut self) -> bool {
+        self.shaping.loss > 0.0 && self.uniform() < self.shaping.loss
+    }
+
+    /// Uniform on [0, 1): xorshift64*, enough for jitter and loss.
     fn uniform(&mut self) -> f64 {
         self.rng ^= self.rng >> 12;
         self.rng ^= self.rng << 25;
@@ -91,9 +111,29 @@ impl Schedule {
     }
 }
 
-/// A relay: listens on [`Relay::local`] and carries each connection to its
-/// upstream, shaped both ways. Stops accepting when dropped; connections
-/// already carried go on until either end closes.
+/// What a relay carries: the transport of the endpoint it stands in front of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Carrying {
+    /// TCP connections (`tcp/`).
+    Stream,
+    /// UDP datagrams (`quic/`).
+    Datagrams,
+}
+
+impl Carrying {
+    /// The relay an endpoint's protocol needs.
+    pub fn for_protocol(protocol: &str) -> Self {
+        match protocol {
+            "quic" | "udp" => Self::Datagrams,
+            _ => Self::Stream,
+        }
+    }
+}
+
+/// A relay: listens on [`Relay::local`] and carries each connection (or
+/// each peer's datagrams) to its upstream, shaped both ways. Stops
+/// accepting when dropped; TCP connections already carried go on until
+/// either end closes, datagram sessions end with it.
 pub struct Relay {
     local: SocketAddr,
     stop: Arc<AtomicBool>,
@@ -102,38 +142,16 @@ pub struct Relay {
 impl Relay {
     /// Listens on `listen` (port 0: any) and relays to `upstream`.
     pub fn start(
+        carrying: Carrying,
         listen: SocketAddr,
         upstream: SocketAddr,
         shaping: Shaping,
     ) -> std::io::Result<Self> {
-        let listener = TcpListener::bind(listen)?;
-        let local = listener.local_addr()?;
-        // Accepts are polled, so that a dropped relay's thread ends.
-        listener.set_nonblocking(true)?;
         let stop = Arc::new(AtomicBool::new(false));
-        let stopped = stop.clone();
-        std::thread::Builder::new()
-            .name(format!("relay-{local}"))
-            .spawn(move || {
-                let mut seed = 0x9e37_79b9_7f4a_7c15u64 ^ u64::from(local.port());
-                while !stopped.load(Ordering::Relaxed) {
-                    match listener.accept() {
-                        Ok((inbound, _)) => {
-                            seed = seed.wrapping_add(0x9e37_79b9);
-                            if let Err(e) = carry(inbound, upstream, shaping, seed) {
-                                tracing::debug!(%upstream, error = %e, "relay: connection not carried");
-                            }
-                        }
-                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                            std::thread::sleep(Duration::from_millis(5));
-                        }
-                        Err(e) => {
-                            tracing::warn!(%local, error = %e, "relay: accept failed");
-                            std::thread::sleep(Duration::from_millis(50));
-                        }
-                    }
-                }
-            })?;
+        let local = match carrying {
+            Carrying::Stream => start_stream(listen, upstream, shaping, stop.clone())?,
+            Carrying::Datagrams => start_datagrams(listen, upstream, shaping, stop.clone())?,
+        };
         Ok(Self { local, stop })
     }
 
@@ -147,6 +165,191 @@ impl Drop for Relay {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
     }
+}
+
+fn start_stream(
+    listen: SocketAddr,
+    upstream: SocketAddr,
+    shaping: Shaping,
+    stopped: Arc<AtomicBool>,
+) -> std::io::Result<SocketAddr> {
+    let listener = TcpListener::bind(listen)?;
+    let local = listener.local_addr()?;
+    // Accepts are polled, so that a dropped relay's thread ends.
+    listener.set_nonblocking(true)?;
+    std::thread::Builder::new()
+        .name(format!("relay-{local}"))
+        .spawn(move || {
+            let mut seed = 0x9e37_79b9_7f4a_7c15u64 ^ u64::from(local.port());
+            while !stopped.load(Ordering::Relaxed) {
+                match listener.accept() {
+                    Ok((inbound, _)) => {
+                        seed = seed.wrapping_add(0x9e37_79b9);
+                        if let Err(e) = carry(inbound, upstream, shaping, seed) {
+                            tracing::debug!(%upstream, error = %e, "relay: connection not carried");
+                        }
+                    }
+                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                        std::thread::sleep(Duration::from_millis(5));
+                    }
+                    Err(e) => {
+                        tracing::warn!(%local, error = %e, "relay: accept failed");
+                        std::thread::sleep(Duration::from_millis(50));
+                    }
+                }
+            }
+        })?;
+    Ok(local)
+}
+
+/// How often a datagram relay's readers look whether the relay was dropped.
+const DATAGRAM_POLL: Duration = Duration::from_millis(50);
+
+/// A datagram relay: one front socket on `listen`; for each peer that
+/// sends to it, a socket of its own towards `upstream`, so that the
+/// upstream's answers find their way back to that peer.
+fn start_datagrams(
+    listen: SocketAddr,
+    upstream: SocketAddr,
+    shaping: Shaping,
+    stopped: Arc<AtomicBool>,
+) -> std::io::Result<SocketAddr> {
+    let front = Arc::new(UdpSocket::bind(listen)?);
+    let local = front.local_addr()?;
+    front.set_read_timeout(Some(DATAGRAM_POLL))?;
+    std::thread::Builder::new()
+        .name(format!("relay-{local}"))
+        .spawn(move || {
+            let mut peers: HashMap<SocketAddr, Peer> = HashMap::new();
+            let mut seed = 0x9e37_79b9_7f4a_7c15u64 ^ u64::from(local.port());
+            let mut buf = vec![0u8; 64 << 10];
+            while !stopped.load(Ordering::Relaxed) {
+                let (n, from) = match front.recv_from(&mut buf) {
+                    Ok(got) => got,
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        ) =>
+                    {
+                        continue
+                    }
+                    Err(e) => {
+                        tracing::debug!(%local, error = %e, "relay: receive failed");
+                        continue;
+                    }
+                };
+                if !peers.contains_key(&from) {
+                    seed = seed.wrapping_add(0x9e37_79b9);
+                    match Peer::open(&front, from, upstream, shaping, seed, stopped.clone()) {
+                        Ok(p) => {
+                            peers.insert(from, p);
+                        }
+                        Err(e) => {
+                            tracing::debug!(%upstream, error = %e, "relay: peer not carried");
+                            continue;
+                        }
+                    }
+                }
+                peers
+                    .get_mut(&from)
+                    .expect("inserted above")
+                    .forward(&buf[..n]);
+            }
+        })?;
+    Ok(local)
+}
+
+/// One peer of a datagram relay: its datagrams go upstream from a socket
+/// of its own, and what comes back on that socket goes to it.
+struct Peer {
+    schedule: Schedule,
+    upstream: mpsc::Sender<(Instant, Vec<u8>)>,
+}
+
+impl Peer {
+    fn open(
+        front: &Arc<UdpSocket>,
+        peer: SocketAddr,
+        upstream: SocketAddr,
+        shaping: Shaping,
+        seed: u64,
+        stopped: Arc<AtomicBool>,
+    ) -> std::io::Result<Self> {
+        let any: SocketAddr = if upstream.is_ipv4() {
+            "0.0.0.0:0".parse().expect("an address")
+        } else {
+            "[::]:0".parse().expect("an address")
+        };
+        let back = Arc::new(UdpSocket::bind(any)?);
+        back.connect(upstream)?;
+        back.set_read_timeout(Some(DATAGRAM_POLL))?;
+        let to_upstream = {
+            let back = back.clone();
+            send_at_release(move |bytes| back.send(bytes).map(|_| ()))?
+        };
+        let to_peer = {
+            let front = front.clone();
+            send_at_release(move |bytes| front.send_to(bytes, peer).map(|_| ()))?
+        };
+        let mut schedule = Schedule::new(shaping, seed.rotate_left(17));
+        std::thread::Builder::new()
+            .name("relay-back".into())
+            .spawn(move || {
+                let mut buf = vec![0u8; 64 << 10];
+                while !stopped.load(Ordering::Relaxed) {
+                    match back.recv(&mut buf) {
+                        Ok(n) => {
+                            if schedule.lost() {
+                                continue;
+                            }
+                            let at = schedule.release(Instant::now(), n);
+                            if to_peer.send((at, buf[..n].to_vec())).is_err() {
+                                break;
+                            }
+                        }
+                        // A timeout, or an ICMP refusal from an upstream
+                        // not listening yet: keep going.
+                        Err(_) => continue,
+                    }
+                }
+            })?;
+        Ok(Self {
+            schedule: Schedule::new(shaping, seed),
+            upstream: to_upstream,
+        })
+    }
+
+    /// Sends one datagram of the peer's upstream, unless the link loses it.
+    fn forward(&mut self, bytes: &[u8]) {
+        if self.schedule.lost() {
+            return;
+        }
+        let at = self.schedule.release(Instant::now(), bytes.len());
+        let _ = self.upstream.send((at, bytes.to_vec()));
+    }
+}
+
+/// A thread that sends each datagram given it at its release time; it
+/// ends when the sender is dropped.
+fn send_at_release(
+    mut send: impl FnMut(&[u8]) -> std::io::Result<()> + Send + 'static,
+) -> std::io::Result<mpsc::Sender<(Instant, Vec<u8>)>> {
+    let (tx, rx) = mpsc::channel::<(Instant, Vec<u8>)>();
+    std::thread::Builder::new()
+        .name("relay-send".into())
+        .spawn(move || {
+            for (at, bytes) in rx {
+                let now = Instant::now();
+                if at > now {
+                    std::thread::sleep(at - now);
+                }
+                if let Err(e) = send(&bytes) {
+                    tracing::debug!(error = %e, "relay: datagram not sent");
+                }
+            }
+        })?;
+    Ok(tx)
 }
 
 /// Connects `inbound` to `upstream`, a shaped pump each way.
@@ -221,6 +424,7 @@ mod tests {
             delay: Duration::from_millis(delay_ms),
             jitter: Duration::from_millis(jitter_ms),
             rate_bits_per_s: rate,
+            loss: 0.0,
         }
     }
 
@@ -281,6 +485,7 @@ mod tests {
             }
         });
         let relay = Relay::start(
+            Carrying::Stream,
             "127.0.0.1:0".parse().unwrap(),
             upstream,
             shaping(20, 0, 0.0),
@@ -297,5 +502,72 @@ mod tests {
         c.read_exact(&mut got).unwrap();
         assert!(started.elapsed() >= Duration::from_millis(40));
         assert_eq!(got, sent);
+    }
+
+    /// Datagrams through a relay come back whole, after twice its delay,
+    /// and a lossy relay drops about its share of them each way.
+    #[test]
+    fn a_datagram_relay_delays_and_drops_its_share() {
+        let echo = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let upstream = echo.local_addr().unwrap();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 2048];
+            while let Ok((n, from)) = echo.recv_from(&mut buf) {
+                echo.send_to(&buf[..n], from).unwrap();
+            }
+        });
+        let relay = Relay::start(
+            Carrying::Datagrams,
+            "127.0.0.1:0".parse().unwrap(),
+            upstream,
+            shaping(20, 0, 0.0),
+        )
+        .unwrap();
+        let c = UdpSocket::bind("127.0.0.1:0").unwrap();
+        c.connect(relay.local()).unwrap();
+        c.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+        let started = Instant::now();
+        c.send(b"one datagram").unwrap();
+        let mut buf = [0u8; 64];
+        let n = c.recv(&mut buf).unwrap();
+        assert_eq!(&buf[..n], b"one datagram");
+        assert!(started.elapsed() >= Duration::from_millis(40));
+
+        // 20 % each way: about 64 % of round trips come back. With 2000
+        // sent, the count's standard deviation is about 21.
+        let lossy = Relay::start(
+            Carrying::Datagrams,
+            "127.0.0.1:0".parse().unwrap(),
+            upstream,
+            Shaping {
+                loss: 0.2,
+                ..shaping(0, 0, 0.0)
+            },
+        )
+        .unwrap();
+        let c = UdpSocket::bind("127.0.0.1:0").unwrap();
+        c.connect(lossy.local()).unwrap();
+        // Read as they come, so that no kernel buffer overflows and loses
+        // what the relay did not.
+        c.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+        let reader = c.try_clone().unwrap();
+        let counting = std::thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            let mut back = 0u32;
+            while reader.recv(&mut buf).is_ok() {
+                back += 1;
+            }
+            back
+        });
+        let sent = 2000u32;
+        for i in 0..sent {
+            c.send(&i.to_le_bytes()).unwrap();
+            // Paced, so that no kernel buffer on the way overflows.
+            if i % 50 == 49 {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+        let back = counting.join().unwrap();
+        assert!((1140..=1420).contains(&back), "{back} of {sent} came back");
     }
 }

@@ -2,9 +2,10 @@
 //! talks to, speaking to the agents over Zenoh instead of to processes.
 //! Same commands in, same events out, so the world does not ask where its
 //! actors run; three more things happen here:
-//! - an agent's liveliness token going away is its host lost: each of its
-//!   actors is reported exited, so the world drops them from membership
-//!   and records the fault, and a spawn for it fails at once;
+//! - an agent's liveliness token going away, or a new agent of the same
+//!   host appearing, is its host lost: each of its actors is reported
+//!   exited, so the world drops them from membership and records the
+//!   fault, and a spawn for it fails at once;
 //! - an agent that comes back is set up again and reported as
 //!   [`Event::HostBack`], for the world to start its actors rejoining;
 //! - [`Command::Collect`] gathers every host's byte counts.
@@ -65,6 +66,8 @@ enum Incoming {
     Command(Option<Command>),
     Alive {
         host: usize,
+        /// The agent's session, which its token names.
+        instance: String,
         up: bool,
     },
     Agent {
@@ -76,6 +79,8 @@ enum Incoming {
 #[derive(Default)]
 struct HostState {
     up: bool,
+    /// The session of the agent last seen up.
+    instance: Option<String>,
     set_up: bool,
     /// Lost at least once: its next set-up is a return.
     lost: bool,
@@ -132,14 +137,16 @@ pub fn supervise_hosts(
     let alive_tx = tx.clone();
     let _liveliness = session
         .liveliness()
-        .declare_subscriber("cqnet/agent/*/alive")
+        .declare_subscriber("cqnet/agent/*/alive/*")
         .history(true)
         .callback(move |sample| {
             let key = sample.key_expr().as_str();
-            let name = key.split('/').nth(2).unwrap_or_default();
+            let mut parts = key.split('/').skip(2);
+            let name = parts.next().unwrap_or_default();
+            let instance = parts.nth(1).unwrap_or_default().to_string();
             if let Some(host) = names.iter().position(|n| n == name) {
                 let up = sample.kind() == zenoh::sample::SampleKind::Put;
-                let _ = alive_tx.send(Incoming::Alive { host, up });
+                let _ = alive_tx.send(Incoming::Alive { host, instance, up });
             }
         })
         .wait()
@@ -169,6 +176,23 @@ pub fn supervise_hosts(
         after_loss,
     };
     let actors_on = |h: usize| setup.placement.actors_on(h, &setup.topology);
+    let mut lose_host = |s: &mut HostState, host: usize| {
+        s.up = false;
+        s.set_up = false;
+        s.lost = true;
+        s.pending.clear();
+        report
+            .lost
+            .push((hosts[host].name.clone(), started.elapsed().as_secs_f64()));
+        tracing::warn!(host = %hosts[host].name, "host lost");
+        for actor in actors_on(host) {
+            let _ = events.send(Event::Exited {
+                actor,
+                status: format!("lost with host {}", hosts[host].name),
+                stderr_tail: String::new(),
+            });
+        }
+    };
     loop {
         let incoming = rx.recv_timeout(Duration::from_millis(100));
         for (h, s) in state.iter_mut().enumerate() {
@@ -200,36 +224,38 @@ pub fn supervise_hosts(
         match incoming {
             Err(mpsc::RecvTimeoutError::Timeout) => {}
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
-            Ok(Incoming::Alive { host, up: true }) => {
+            Ok(Incoming::Alive {
+                host,
+                instance,
+                up: true,
+            }) => {
                 let s = &mut state[host];
-                if !s.up {
+                let new = s.instance.as_ref() != Some(&instance);
+                if new || !s.up {
+                    if new && s.up && !s.finished {
+                        // Started again before its old session's lease ran out.
+                        lose_host(s, host);
+                    }
+                    s.instance = Some(instance);
                     s.up = true;
                     s.set_up = false;
                     s.last_setup = None;
                     s.finished = false;
                 }
             }
-            Ok(Incoming::Alive { host, up: false }) => {
+            Ok(Incoming::Alive {
+                host,
+                instance,
+                up: false,
+            }) => {
                 let s = &mut state[host];
-                if s.up && s.finished {
+                if s.instance.as_ref() != Some(&instance) {
+                    // An agent already replaced.
+                } else if s.up && s.finished {
                     // An agent leaving after its run finished (`--once`).
                     s.up = false;
                 } else if s.up {
-                    s.up = false;
-                    s.set_up = false;
-                    s.lost = true;
-                    s.pending.clear();
-                    report
-                        .lost
-                        .push((hosts[host].name.clone(), started.elapsed().as_secs_f64()));
-                    tracing::warn!(host = %hosts[host].name, "host lost");
-                    for actor in actors_on(host) {
-                        let _ = events.send(Event::Exited {
-                            actor,
-                            status: format!("lost with host {}", hosts[host].name),
-                            stderr_tail: String::new(),
-                        });
-                    }
+                    lose_host(s, host);
                 }
             }
             Ok(Incoming::Agent { host, said: None }) => {

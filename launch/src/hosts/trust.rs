@@ -1,13 +1,18 @@
 //! Who may take part in a run across hosts: an authority of the user's,
 //! a key and certificate per host (and one for the launcher), all made by
 //! `cqnet hosts keys`, and the Zenoh configuration that makes the hosts'
-//! sessions mutually authenticated TLS with access control by name.
+//! sessions QUIC, mutually authenticated by its TLS 1.3, with access
+//! control by name.
 //!
 //! Three layers keep a stranger out of a run:
 //!
-//! 1. **TLS with mutual authentication.** A peer without a certificate from
-//!    the authority gets no session at all: the handshake fails before any
-//!    Zenoh message passes, and everything after it is encrypted.
+//! 1. **TLS with mutual authentication**, in QUIC (`quic/` endpoints). A
+//!    peer without a certificate from the authority gets no session at
+//!    all: the handshake fails before any Zenoh message passes, and
+//!    everything after it is encrypted. Zenoh's `tls/` link would do the
+//!    same over TCP, but it reads and writes one TLS connection from two
+//!    tasks at once, which rustls does not support, and under load it
+//!    loses messages; QUIC keeps the two directions apart.
 //! 2. **Access control by certificate name** (Zenoh's ACL, default deny).
 //!    An agent takes commands only from the launcher's certificate and
 //!    bridge traffic only from its scenario's hosts, each on its own keys,
@@ -153,7 +158,7 @@ pub fn make_keys(dir: &Path, names: &[String]) -> anyhow::Result<Vec<PathBuf>> {
     Ok(written)
 }
 
-/// A scenario of hosts on `tls/` endpoints without keys gets the run's
+/// A scenario of hosts on `quic/` endpoints without keys gets the run's
 /// own (authority and all), made in `dir`; others are left as they are.
 /// For a launcher or harness that starts every agent itself.
 pub fn add_run_keys(scenario: &mut fusion_graph::Scenario, dir: &Path) -> anyhow::Result<()> {
@@ -185,7 +190,7 @@ fn authority_params() -> rcgen::CertificateParams {
 
 /// A host's (or the launcher's) certificate: its name as the common name,
 /// which Zenoh's access control matches, and as a DNS name; good for both
-/// ends of a TLS link, since a peer both listens and connects.
+/// ends of a QUIC link, since a peer both listens and connects.
 fn member_params(name: &str) -> anyhow::Result<rcgen::CertificateParams> {
     let mut p = rcgen::CertificateParams::new(vec![name.to_string()])?;
     p.distinguished_name.push(rcgen::DnType::CommonName, name);

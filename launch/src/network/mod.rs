@@ -253,7 +253,7 @@ impl Drop for StopWatch {
 
 /// The scenario as the run keeps time: `--lockstep` written into it, so
 /// that the children, and `scenario.toml` in the results, say so.
-/// `--local-agents` on `tls/` endpoints without keys: the run makes its
+/// `--local-agents` on `quic/` endpoints without keys: the run makes its
 /// own authority and keys (in `out/keys`, its owner's only), since this
 /// launcher starts every agent and hands each its scenario.
 #[cfg(feature = "zenoh")]
