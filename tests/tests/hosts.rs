@@ -462,3 +462,130 @@ fn wait_bounded(child: &mut std::process::Child, bound: Duration) -> std::proces
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// Who may speak to a run's agents. While a run over three hosts goes on:
+///
+/// - a stranger, with certificates for the run's host names and for the
+///   launcher from an authority of its own, connects to every agent,
+///   listens to everything and orders every node killed: it gets no
+///   session, so it hears nothing and its orders go nowhere;
+/// - a peer holding the run's own launcher certificate (a second run under
+///   a shared authority, say) orders the same kills for another run: every
+///   agent refuses them and counts each.
+///
+/// The run is untouched: every node reports every step, nothing is
+/// lost or killed.
+#[test]
+fn a_stranger_is_not_heard_and_another_runs_orders_are_refused() {
+    use launch::hosts::trust::{self, Role};
+    use launch::hosts::{command_key, encode, open_session, Order, Security, ToAgent};
+    use zenoh::Wait;
+
+    let _guard = exclusive();
+    let steps = 40;
+    let scenario = three_hosts(steps);
+    let endpoints: Vec<String> = scenario.hosts.iter().map(|h| h.endpoint.clone()).collect();
+    let names: Vec<String> = scenario.hosts.iter().map(|h| h.name.clone()).collect();
+    let mut running = Network::new(scenario.clone())
+        .executable(CQNET)
+        .tag("hosts-trust")
+        .set("clock.step_period_ms", 250)
+        .arg("--local-agents")
+        .start()
+        .unwrap();
+    assert!(
+        running.wait_for_step(2, Duration::from_secs(60)),
+        "the run did not reach step 2"
+    );
+    let security = |keys: &std::path::Path| {
+        let mut s = scenario.clone();
+        s.trust.get_or_insert_with(Default::default).keys = Some(keys.display().to_string());
+        let (placement, _) = placement(&s);
+        Security::for_role(&placement, Role::Launcher).unwrap()
+    };
+    let kill_every_node = |session: &zenoh::Session, run: &str| {
+        for (h, name) in names.iter().enumerate() {
+            for i in 3 * h as u16..3 * h as u16 + 3 {
+                let order = Order {
+                    run: run.into(),
+                    sender: "test".into(),
+                    command: ToAgent::Signal {
+                        actor: ActorId::Node(i),
+                        signal: fusion_graph::scenario::Signal::Kill,
+                    },
+                };
+                session
+                    .put(command_key(name), encode(&order))
+                    .wait()
+                    .unwrap();
+            }
+        }
+    };
+
+    // The stranger: an authority of its own, every name the run uses.
+    let own = std::env::temp_dir().join(format!("cqnet-stranger-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&own);
+    let mut all = names.clone();
+    all.push(trust::LAUNCHER.into());
+    trust::make_keys(&own, &all).unwrap();
+    let stranger = open_session(None, &endpoints, None, &security(&own), None).unwrap();
+    let heard = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counter = heard.clone();
+    let _listening = stranger
+        .session
+        .declare_subscriber("**")
+        // Not its own orders: only what comes from the run's peers.
+        .allowed_origin(zenoh::sample::Locality::Remote)
+        .callback(move |_| {
+            counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        })
+        .wait()
+        .unwrap();
+    kill_every_node(&stranger.session, running.run_id());
+
+    // The insider of another run: the run's own launcher certificate.
+    let insider = open_session(
+        None,
+        &endpoints,
+        None,
+        &security(&running.out_dir().join("keys")),
+        None,
+    )
+    .unwrap();
+    // Its session is up once it hears an agent's liveliness.
+    let until = std::time::Instant::now() + Duration::from_secs(30);
+    while insider
+        .session
+        .liveliness()
+        .get("cqnet/agent/*/alive/*")
+        .wait()
+        .unwrap()
+        .iter()
+        .count()
+        < names.len()
+    {
+        assert!(std::time::Instant::now() < until, "the insider never joined");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    kill_every_node(&insider.session, "another-run");
+
+    let r = running.wait().unwrap();
+    let _ = std::fs::remove_dir_all(&own);
+    r.assert_success();
+    assert_eq!(heard.load(std::sync::atomic::Ordering::Relaxed), 0);
+    assert!(r.faults().is_empty(), "{:?}", r.faults());
+    for node in 0..9 {
+        let seen = r.ticks_of(&format!("node-{node}")).count();
+        assert_eq!(seen, steps as usize, "node-{node}");
+    }
+    let text = std::fs::read_to_string(r.out_dir().join("hosts.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for bridge in json["bridges"].as_array().unwrap() {
+        assert_eq!(
+            bridge["counts"]["refused_commands"].as_u64(),
+            Some(3),
+            "{bridge}"
+        );
+    }
+    r.assert_clean();
+}
