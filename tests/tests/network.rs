@@ -938,3 +938,93 @@ fn too_few_consensus_rounds_are_warned_of_before_the_run() {
     assert!(!sim(&[]).contains("warning: consensus.rounds"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A run's files are its owner's alone. While a small network runs, every
+/// file of its shared memory (iceoryx2's services and nodes, the tables,
+/// the world), its ledgers and its entry in the run registry has no bit
+/// for group or others, and a process of another user (`nobody`, switched
+/// to by the test, which needs root for it) can open none of them to read
+/// or write.
+#[test]
+fn another_user_cannot_open_a_runs_files() {
+    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::process::CommandExt;
+    let _guard = exclusive();
+    let mut running = small(network("owner-only", 40))
+        .set("clock.step_period_ms", 250)
+        .start()
+        .unwrap();
+    assert!(running.wait_for_step(3, REACH), "the run did not reach step 3");
+    let prefix = format!("cqnet_{}", running.run_id().replace('-', "_"));
+    let mut files = Vec::new();
+    collect_files(std::path::Path::new("/dev/shm"), &mut |p| {
+        if p.file_name()
+            .is_some_and(|n| n.to_string_lossy().contains(&prefix))
+        {
+            files.push(p.to_path_buf());
+        }
+    });
+    let shared = files.len();
+    collect_files(&running.out_dir().join("accounting"), &mut |p| {
+        files.push(p.to_path_buf())
+    });
+    let ledgers = files.len() - shared;
+    files.push(std::path::Path::new("/tmp/cqnet-runs").join(running.run_id()));
+    // Looked at while the run holds them: every file still there.
+    let modes: Vec<(std::path::PathBuf, u32)> = files
+        .iter()
+        .filter_map(|f| Some((f.clone(), std::fs::metadata(f).ok()?.permissions().mode())))
+        .collect();
+    let is_root = std::fs::read_to_string("/proc/self/status").is_ok_and(|s| {
+        s.lines()
+            .find(|l| l.starts_with("Uid:"))
+            .and_then(|l| l.split_whitespace().nth(1))
+            == Some("0")
+    });
+    let opened = is_root.then(|| {
+        let out = std::process::Command::new("/bin/sh")
+            .arg("-c")
+            .arg(r#"for f; do if [ -r "$f" ] || [ -w "$f" ] || cat "$f" >/dev/null 2>&1; then echo "$f"; fi; done"#)
+            .arg("sh")
+            .args(&files)
+            .uid(65534)
+            .gid(65534)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    });
+    let r = running.wait().unwrap();
+    r.assert_success();
+    // What a run of 91 processes holds: hundreds of iceoryx2 files, the
+    // tables and the world, and a ledger per actor.
+    assert!(shared > 100, "only {shared} shared-memory files found");
+    assert!(ledgers >= 90, "only {ledgers} ledgers found");
+    assert_eq!(modes.len(), files.len(), "files gone while the run held them");
+    let open_to_others: Vec<String> = modes
+        .iter()
+        .filter(|(_, mode)| mode & 0o077 != 0)
+        .map(|(f, mode)| format!("{} {:o}", f.display(), mode & 0o777))
+        .collect();
+    assert!(open_to_others.is_empty(), "{open_to_others:#?}");
+    match opened {
+        Some(opened) => assert!(opened.is_empty(), "nobody opened:\n{opened}"),
+        None => eprintln!("not root: no other user to try the files as"),
+    }
+    r.assert_clean();
+}
+
+/// Every file under `dir` (none if it cannot be read).
+fn collect_files(dir: &std::path::Path, found: &mut dyn FnMut(&std::path::Path)) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let p = e.path();
+        match e.file_type() {
+            Ok(t) if t.is_dir() => collect_files(&p, found),
+            Ok(t) if t.is_file() => found(&p),
+            _ => {}
+        }
+    }
+}

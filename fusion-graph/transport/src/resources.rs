@@ -92,18 +92,30 @@ pub fn map_run_memory(run: &RunId, name: &str, len: usize) -> std::io::Result<me
 
 /// What a run's files may be: its owner's, read and write, no one else's.
 pub(crate) const OWNER_ONLY: u32 = 0o600;
-/// The name iceoryx2 (0.10.0) gives a domain's one global segment, after
-/// the domain's prefix. A test checks that it is there.
+/// How the name iceoryx2 (0.10.0) gives a domain's one global segment
+/// ends. Between the domain's prefix and this, its storage puts a hash of
+/// the segment's type, which this code does not compute.
 const GLOBAL_SEGMENT: &str = "node.0_10_0.global_mgmt";
 
 /// iceoryx2 makes a domain's global segment (its node counter) readable
 /// and writable by every user of the machine; a run's is its owner's
 /// only. Each process calls this once its node is made (the segment then
-/// exists): cheaper than having one process wait for it.
+/// exists): cheaper than having one process wait for it. Whoever made it,
+/// its owner's processes each try, so the first to run fixes it.
 pub(crate) fn keep_global_segment_private(run: &RunId) {
-    let path =
-        std::path::Path::new(SHARED_MEMORY).join(format!("{}{GLOBAL_SEGMENT}", run.prefix()));
-    keep_private(&path);
+    let prefix = run.prefix();
+    let Ok(entries) = std::fs::read_dir(SHARED_MEMORY) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let name = name.to_string_lossy();
+        // Every match: a run over hosts on one machine has one domain per
+        // host, whose prefixes all begin with the run's.
+        if name.starts_with(&prefix) && name.ends_with(GLOBAL_SEGMENT) {
+            keep_private(&e.path());
+        }
+    }
 }
 
 /// This process's effective user.
