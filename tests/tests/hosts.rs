@@ -564,7 +564,10 @@ fn a_stranger_is_not_heard_and_another_runs_orders_are_refused() {
         .count()
         < names.len()
     {
-        assert!(std::time::Instant::now() < until, "the insider never joined");
+        assert!(
+            std::time::Instant::now() < until,
+            "the insider never joined"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     kill_every_node(&insider.session, "another-run");
@@ -588,4 +591,35 @@ fn a_stranger_is_not_heard_and_another_runs_orders_are_refused() {
         );
     }
     r.assert_clean();
+}
+
+/// Host b's `link` delays by 5 ms where the kernel has no say (over
+/// 127.0.0.1, through its relay): in lockstep, the answer is `sim`'s bit
+/// for bit, and the median consensus round, which waits for a neighbour
+/// across b's link, takes the 5 ms more (at least, since a relay never
+/// releases early; at most 5 ms above that, for a loaded machine).
+#[test]
+fn a_relays_delay_shows_in_the_round_latency() {
+    let _guard = exclusive();
+    let run = |delay_ms: f64, tag: &str| {
+        let mut s = three_hosts(20);
+        s.hosts[1].link = Some(HostLink {
+            delay_ms,
+            ..Default::default()
+        });
+        let n = patient(Network::new(s).tag(tag)).arg("--local-agents");
+        let r = n.run().unwrap();
+        r.assert_success();
+        let p50 = r.summary().round_latency_micros.as_ref().unwrap().p50;
+        (r, p50)
+    };
+    let (plain, base) = run(0.0, "relay-none");
+    let (delayed, p50) = run(5.0, "relay-5ms");
+    assert_eq!(plain.sorted_tick_lines(), delayed.sorted_tick_lines());
+    assert!(
+        p50 >= 5000.0 && p50 <= base + 10_000.0,
+        "round p50 {p50} µs through a 5 ms relay, {base} µs without"
+    );
+    plain.assert_clean();
+    delayed.assert_clean();
 }

@@ -954,7 +954,10 @@ fn another_user_cannot_open_a_runs_files() {
         .set("clock.step_period_ms", 250)
         .start()
         .unwrap();
-    assert!(running.wait_for_step(3, REACH), "the run did not reach step 3");
+    assert!(
+        running.wait_for_step(3, REACH),
+        "the run did not reach step 3"
+    );
     let prefix = format!("cqnet_{}", running.run_id().replace('-', "_"));
     let mut files = Vec::new();
     collect_files(std::path::Path::new("/dev/shm"), &mut |p| {
@@ -1000,7 +1003,11 @@ fn another_user_cannot_open_a_runs_files() {
     // tables and the world, and a ledger per actor.
     assert!(shared > 100, "only {shared} shared-memory files found");
     assert!(ledgers >= 90, "only {ledgers} ledgers found");
-    assert_eq!(modes.len(), files.len(), "files gone while the run held them");
+    assert_eq!(
+        modes.len(),
+        files.len(),
+        "files gone while the run held them"
+    );
     let open_to_others: Vec<String> = modes
         .iter()
         .filter(|(_, mode)| mode & 0o077 != 0)
