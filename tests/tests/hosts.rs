@@ -467,11 +467,12 @@ fn wait_bounded(child: &mut std::process::Child, bound: Duration) -> std::proces
 ///
 /// - a stranger, with certificates for the run's host names and for the
 ///   launcher from an authority of its own, connects to every agent,
-///   listens to everything and orders every node killed: it gets no
-///   session, so it hears nothing and its orders go nowhere;
+///   listens to everything and orders every node killed and spawned
+///   again: it gets no session, so it hears nothing and its orders go
+///   nowhere;
 /// - a peer holding the run's own launcher certificate (a second run under
-///   a shared authority, say) orders the same kills for another run: every
-///   agent refuses them and counts each.
+///   a shared authority, say) gives the same orders for another run:
+///   every agent refuses them and counts each.
 ///
 /// The run is untouched: every node reports every step, nothing is
 /// lost or killed.
@@ -506,18 +507,27 @@ fn a_stranger_is_not_heard_and_another_runs_orders_are_refused() {
     let kill_every_node = |session: &zenoh::Session, run: &str| {
         for (h, name) in names.iter().enumerate() {
             for i in 3 * h as u16..3 * h as u16 + 3 {
-                let order = Order {
-                    run: run.into(),
-                    sender: "test".into(),
-                    command: ToAgent::Signal {
-                        actor: ActorId::Node(i),
-                        signal: fusion_graph::scenario::Signal::Kill,
-                    },
+                let actor = ActorId::Node(i);
+                let kill = ToAgent::Signal {
+                    actor,
+                    signal: fusion_graph::scenario::Signal::Kill,
                 };
-                session
-                    .put(command_key(name), encode(&order))
-                    .wait()
-                    .unwrap();
+                // A second node-i beside the first, were it obeyed.
+                let spawn = ToAgent::Spawn {
+                    actor,
+                    rejoin: true,
+                };
+                for command in [kill, spawn] {
+                    let order = Order {
+                        run: run.into(),
+                        sender: "test".into(),
+                        command,
+                    };
+                    session
+                        .put(command_key(name), encode(&order))
+                        .wait()
+                        .unwrap();
+                }
             }
         }
     };
@@ -586,7 +596,7 @@ fn a_stranger_is_not_heard_and_another_runs_orders_are_refused() {
     for bridge in json["bridges"].as_array().unwrap() {
         assert_eq!(
             bridge["counts"]["refused_commands"].as_u64(),
-            Some(3),
+            Some(6),
             "{bridge}"
         );
     }

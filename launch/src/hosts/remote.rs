@@ -254,6 +254,11 @@ pub fn supervise_hosts(
                 } else if s.up && s.finished {
                     // An agent leaving after its run finished (`--once`).
                     s.up = false;
+                } else if s.up && shutting.is_some() {
+                    // Leaving as the run ends, its `Finished` overtaken by
+                    // the end of its token: not a loss.
+                    s.up = false;
+                    s.set_up = false;
                 } else if s.up {
                     lose_host(s, host);
                 }
