@@ -239,22 +239,20 @@ fn start_datagrams(
                         continue;
                     }
                 };
-                if !peers.contains_key(&from) {
-                    seed = seed.wrapping_add(0x9e37_79b9);
-                    match Peer::open(&front, from, upstream, shaping, seed, stopped.clone()) {
-                        Ok(p) => {
-                            peers.insert(from, p);
-                        }
-                        Err(e) => {
-                            tracing::debug!(%upstream, error = %e, "relay: peer not carried");
-                            continue;
+                let peer = match peers.entry(from) {
+                    std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                    std::collections::hash_map::Entry::Vacant(e) => {
+                        seed = seed.wrapping_add(0x9e37_79b9);
+                        match Peer::open(&front, from, upstream, shaping, seed, stopped.clone()) {
+                            Ok(p) => e.insert(p),
+                            Err(err) => {
+                                tracing::debug!(%upstream, error = %err, "relay: peer not carried");
+                                continue;
+                            }
                         }
                     }
-                }
-                peers
-                    .get_mut(&from)
-                    .expect("inserted above")
-                    .forward(&buf[..n]);
+                };
+                peer.forward(&buf[..n]);
             }
         })?;
     Ok(local)
