@@ -284,11 +284,11 @@ impl Peer {
         back.set_read_timeout(Some(DATAGRAM_POLL))?;
         let to_upstream = {
             let back = back.clone();
-            send_at_release(move |bytes| back.send(bytes).map(|_| ()))?
+            send_at_release(move |bytes| sent(back.send(bytes)), || {})?
         };
         let to_peer = {
             let front = front.clone();
-            send_at_release(move |bytes| front.send_to(bytes, peer).map(|_| ()))?
+            send_at_release(move |bytes| sent(front.send_to(bytes, peer)), || {})?
         };
         let mut schedule = Schedule::new(shaping, seed.rotate_left(17));
         std::thread::Builder::new()
@@ -328,10 +328,12 @@ impl Peer {
     }
 }
 
-/// A thread that sends each datagram given it at its release time; it
-/// ends when the sender is dropped.
+/// A thread that sends each chunk given it at its release time, while
+/// `send` says to go on, and then calls `end`. It ends when the sender is
+/// dropped. Both relays' sending sides.
 fn send_at_release(
-    mut send: impl FnMut(&[u8]) -> std::io::Result<()> + Send + 'static,
+    mut send: impl FnMut(&[u8]) -> bool + Send + 'static,
+    end: impl FnOnce() + Send + 'static,
 ) -> std::io::Result<mpsc::Sender<(Instant, Vec<u8>)>> {
     let (tx, rx) = mpsc::channel::<(Instant, Vec<u8>)>();
     std::thread::Builder::new()
@@ -342,12 +344,21 @@ fn send_at_release(
                 if at > now {
                     std::thread::sleep(at - now);
                 }
-                if let Err(e) = send(&bytes) {
-                    tracing::debug!(error = %e, "relay: datagram not sent");
+                if !send(&bytes) {
+                    break;
                 }
             }
+            end();
         })?;
     Ok(tx)
+}
+
+/// Sends a datagram; a datagram not sent is as lost, and the next may go.
+fn sent(result: std::io::Result<usize>) -> bool {
+    if let Err(e) = result {
+        tracing::debug!(error = %e, "relay: datagram not sent");
+    }
+    true
 }
 
 /// Connects `inbound` to `upstream`, a shaped pump each way.
@@ -378,8 +389,14 @@ fn carry(
 /// Reads `from` on one thread and writes to `to` on another, each chunk
 /// at its release time. At the end of `from`, the chunks still held are
 /// written, then `to`'s sending side is shut.
-fn pump(mut from: TcpStream, mut to: TcpStream, mut schedule: Schedule) -> std::io::Result<()> {
-    let (tx, rx) = mpsc::channel::<(Instant, Vec<u8>)>();
+fn pump(mut from: TcpStream, to: TcpStream, mut schedule: Schedule) -> std::io::Result<()> {
+    let ending = to.try_clone()?;
+    let tx = send_at_release(
+        move |bytes| (&to).write_all(bytes).is_ok(),
+        move || {
+            let _ = ending.shutdown(Shutdown::Write);
+        },
+    )?;
     std::thread::Builder::new()
         .name("relay-read".into())
         .spawn(move || {
@@ -395,20 +412,6 @@ fn pump(mut from: TcpStream, mut to: TcpStream, mut schedule: Schedule) -> std::
                     }
                 }
             }
-        })?;
-    std::thread::Builder::new()
-        .name("relay-write".into())
-        .spawn(move || {
-            for (at, bytes) in rx {
-                let now = Instant::now();
-                if at > now {
-                    std::thread::sleep(at - now);
-                }
-                if to.write_all(&bytes).is_err() {
-                    break;
-                }
-            }
-            let _ = to.shutdown(Shutdown::Write);
         })?;
     Ok(())
 }
