@@ -390,7 +390,7 @@ mod tests {
             h: [0.0, 1.0, 0.0, 0.0],
             r: 9.0,
         };
-        let models = [models[0], law_y.at([0.0, 0.0])];
+        let models = [models[0].clone(), law_y.at([0.0, 0.0])];
         let isolated = vec![vec![], vec![]];
         let (mean, cov) = prior();
         let d = dynamics();

@@ -1,7 +1,20 @@
-//! Target dynamics: the clockwise coordinated turn whose turn rate depends on
-//! speed (seeds 000/001), with constant velocity as its `a_m = 0` case.
+//! Target dynamics: how the state moves from one step to the next.
+//!
+//! A motion model is a trait, [`MotionModel`]: the transition `f`, its
+//! Jacobian `F̃` and the process noise `Q`, which is all the predictor and
+//! the bound's D terms need. cqnet's own is the clockwise coordinated turn
+//! whose turn rate depends on speed, with constant velocity as its
+//! `a_m = 0` case; a program's gives `f` and `Q`, and its Jacobian, or
+//! gives `f` generically ([`DifferentiableMotion`]) and gets `F̃` by
+//! automatic differentiation. [`Dynamics`] is a model with what every step
+//! needs of it computed once: `Q⁻¹` and a factor of `Q`.
+
+use std::any::Any;
+use std::fmt;
+use std::sync::Arc;
 
 use nalgebra::{Cholesky, Matrix2};
+use num_dual::DualSVec64;
 use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
@@ -48,17 +61,198 @@ pub enum ProcessNoise {
     Discrete,
 }
 
+/// How the target's state moves over one period: `x(k) = f(x(k−1)) + ξ`,
+/// `ξ ~ N(0, Q)`.
+///
+/// The predictor and the bound call
+/// [`transition_batch`](Self::transition_batch) once per batch of
+/// particles, so a model's cost per particle is its arithmetic.
+pub trait MotionModel: Any + fmt::Debug + Send + Sync {
+    /// `f(x)`.
+    fn transition(&self, x: &State) -> State;
+
+    /// `F̃(x) = ∂f/∂x`.
+    fn jacobian(&self, x: &State) -> Mat4;
+
+    /// `f(x)` and `F̃(x)` together, for a model that shares work between
+    /// them.
+    fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
+        (self.transition(x), self.jacobian(x))
+    }
+
+    /// `Q`, the covariance of the process noise over one period; positive
+    /// definite, since the bound's recursion needs `Q⁻¹`.
+    fn process_noise(&self) -> Mat4;
+
+    /// [`transition_and_jacobian`](Self::transition_and_jacobian) at a
+    /// batch of states, bit for bit.
+    fn transition_batch(&self, x: &StateLanes, out: &mut TransitionBatch) {
+        for i in 0..CHUNK {
+            let lane = State::new(x.c[0][i], x.c[1][i], x.c[2][i], x.c[3][i]);
+            let (next, f) = self.transition_and_jacobian(&lane);
+            out.set_general(i, &next, &f);
+        }
+    }
+}
+
+/// A motion model given as `f` alone, generic over the number it is
+/// computed in ([`crate::observation::Real`]). Wrapped in
+/// [`AutodiffMotion`], it is a [`MotionModel`] whose Jacobian is exact.
+pub trait DifferentiableMotion: fmt::Debug + Send + Sync + 'static {
+    /// `f(x)`.
+    fn transition<D: crate::observation::Real>(&self, x: [D; 4]) -> [D; 4];
+
+    /// `Q`.
+    fn process_noise(&self) -> Mat4;
+}
+
+/// A [`DifferentiableMotion`] with its Jacobian by automatic differentiation.
+#[derive(Debug, Clone, Copy)]
+pub struct AutodiffMotion<M>(pub M);
+
+impl<M: DifferentiableMotion> MotionModel for AutodiffMotion<M> {
+    fn transition(&self, x: &State) -> State {
+        State::from(self.0.transition([x[0], x[1], x[2], x[3]]))
+    }
+
+    fn jacobian(&self, x: &State) -> Mat4 {
+        self.transition_and_jacobian(x).1
+    }
+
+    fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
+        let lane = |k: usize| DualSVec64::<4>::from_re(x[k]).derivative(k);
+        let out = self.0.transition([lane(0), lane(1), lane(2), lane(3)]);
+        let mut f = Mat4::zeros();
+        for (row, y) in out.iter().enumerate() {
+            if let Some(d) = &y.eps.0 {
+                for col in 0..4 {
+                    f[(row, col)] = d[col];
+                }
+            }
+        }
+        (State::from_fn(|k, _| out[k].re), f)
+    }
+
+    fn process_noise(&self) -> Mat4 {
+        self.0.process_noise()
+    }
+}
+
+/// A motion model as a scenario holds it: its name and its implementation,
+/// shared. The coordinated turn is held as itself, so that its batch runs
+/// inlined and vectorised; a program's model is one call through a
+/// pointer per batch.
+#[derive(Clone)]
+pub struct Motion {
+    name: &'static str,
+    imp: MotionImp,
+}
+
+#[derive(Clone)]
+enum MotionImp {
+    Turn(CoordinatedTurn),
+    Other(Arc<dyn MotionModel>),
+}
+
+macro_rules! with_model {
+    ($self:expr, $m:ident => $body:expr) => {
+        match &$self.imp {
+            MotionImp::Turn($m) => $body,
+            MotionImp::Other(other) => {
+                let $m = &**other;
+                $body
+            }
+        }
+    };
+}
+
+impl Motion {
+    /// A program's model, called `name` in scenarios.
+    pub fn new(name: &'static str, model: impl MotionModel) -> Self {
+        Self {
+            name,
+            imp: MotionImp::Other(Arc::new(model)),
+        }
+    }
+
+    /// The name scenarios call it by.
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    /// The model itself, if it is a `T`.
+    pub fn downcast_ref<T: MotionModel>(&self) -> Option<&T> {
+        with_model!(self, m => (m as &dyn Any).downcast_ref::<T>())
+    }
+}
+
+impl From<CoordinatedTurn> for Motion {
+    fn from(model: CoordinatedTurn) -> Self {
+        Self {
+            name: CoordinatedTurn::KIND,
+            imp: MotionImp::Turn(model),
+        }
+    }
+}
+
+impl MotionModel for Motion {
+    #[inline]
+    fn transition(&self, x: &State) -> State {
+        with_model!(self, m => m.transition(x))
+    }
+
+    #[inline]
+    fn jacobian(&self, x: &State) -> Mat4 {
+        with_model!(self, m => m.jacobian(x))
+    }
+
+    #[inline]
+    fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
+        with_model!(self, m => m.transition_and_jacobian(x))
+    }
+
+    fn process_noise(&self) -> Mat4 {
+        with_model!(self, m => MotionModel::process_noise(m))
+    }
+
+    #[inline(always)]
+    fn transition_batch(&self, x: &StateLanes, out: &mut TransitionBatch) {
+        with_model!(self, m => m.transition_batch(x, out))
+    }
+}
+
+impl fmt::Debug for Motion {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        with_model!(self, m => fmt::Debug::fmt(m, f))
+    }
+}
+
+impl PartialEq for Motion {
+    /// The coordinated turn by its parameters; a program's model when it
+    /// is the same value.
+    fn eq(&self, other: &Self) -> bool {
+        match (&self.imp, &other.imp) {
+            (MotionImp::Turn(a), MotionImp::Turn(b)) => a == b,
+            (MotionImp::Other(a), MotionImp::Other(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
+}
+
 /// Everything about one transition that the filters and bounds need, computed
 /// once: `Q`, `Q⁻¹` and the Cholesky factor used to sample `ξ`.
 #[derive(Debug, Clone)]
 pub struct Dynamics {
-    pub model: CoordinatedTurn,
+    pub model: Motion,
     q: Mat4,
     q_inv: Mat4,
     q_chol: Mat4,
 }
 
 impl CoordinatedTurn {
+    /// What scenarios call it (`[dynamics] kind`).
+    pub const KIND: &'static str = "coordinated_turn";
+
     pub fn constant_velocity(period: f64, sigma_v: f64) -> Self {
         Self {
             period,
@@ -102,7 +296,8 @@ impl CoordinatedTurn {
     /// batch of states, bit for bit, vectorised ([`crate::batch`]): f(x)
     /// and the two blocks of F̃ that vary, `F̃ = [[I, A], [0, B]]`.
     #[inline(always)]
-    pub fn transition_batch(&self, x: &StateLanes, out: &mut TurnBatch) {
+    pub fn transition_batch(&self, x: &StateLanes, out: &mut TransitionBatch) {
+        out.carried = true;
         let (mut omega, mut wt) = ([0.0; CHUNK], [0.0; CHUNK]);
         for i in 0..CHUNK {
             omega[i] = self.turn_rate_of(x.c[2][i], x.c[3][i]);
@@ -230,10 +425,11 @@ impl CoordinatedTurn {
     }
 }
 
-impl Dynamics {
-    /// The model's parameters checked: T, σ_v and v_min positive, a_m ≥ 0
-    /// (which makes Q positive definite).
-    pub fn new(model: CoordinatedTurn) -> Result<Self, ParameterError> {
+impl CoordinatedTurn {
+    /// The parameters checked: T, σ_v and v_min positive, a_m ≥ 0, and
+    /// the continuous noise model (which makes Q positive definite).
+    pub fn validate(&self) -> Result<(), ParameterError> {
+        let model = self;
         let check = |parameter, value: f64, expected| {
             let ok = value.is_finite()
                 && if expected == POSITIVE {
@@ -265,12 +461,52 @@ impl Dynamics {
                 value: model.sigma_v,
             });
         }
-        let q = model.process_noise();
-        let chol = Cholesky::new(q).ok_or(ParameterError {
+        Ok(())
+    }
+}
+
+impl MotionModel for CoordinatedTurn {
+    #[inline]
+    fn transition(&self, x: &State) -> State {
+        CoordinatedTurn::transition(self, x)
+    }
+
+    #[inline]
+    fn jacobian(&self, x: &State) -> Mat4 {
+        CoordinatedTurn::jacobian(self, x)
+    }
+
+    #[inline]
+    fn transition_and_jacobian(&self, x: &State) -> (State, Mat4) {
+        CoordinatedTurn::transition_and_jacobian(self, x)
+    }
+
+    fn process_noise(&self) -> Mat4 {
+        CoordinatedTurn::process_noise(self)
+    }
+
+    #[inline(always)]
+    fn transition_batch(&self, x: &StateLanes, out: &mut TransitionBatch) {
+        CoordinatedTurn::transition_batch(self, x, out)
+    }
+}
+
+impl Dynamics {
+    /// The coordinated turn, its parameters checked
+    /// ([`CoordinatedTurn::validate`]).
+    pub fn new(model: CoordinatedTurn) -> Result<Self, ParameterError> {
+        model.validate()?;
+        Self::of(model.into()).map_err(|_| ParameterError {
             parameter: "sigma_v",
             expected: "a value that makes Q positive definite",
             value: model.sigma_v,
-        })?;
+        })
+    }
+
+    /// Any motion model, whose `Q` must be positive definite.
+    pub fn of(model: Motion) -> Result<Self, NotPositiveDefinite> {
+        let q = model.process_noise();
+        let chol = Cholesky::new(q).ok_or(NotPositiveDefinite)?;
         let q_inv = chol.inverse();
         Ok(Self {
             model,
@@ -297,9 +533,9 @@ impl Dynamics {
         self.model.jacobian(x)
     }
 
-    /// [`CoordinatedTurn::transition_batch`].
+    /// [`MotionModel::transition_batch`].
     #[inline(always)]
-    pub fn transition_batch(&self, x: &StateLanes, out: &mut TurnBatch) {
+    pub fn transition_batch(&self, x: &StateLanes, out: &mut TransitionBatch) {
         self.model.transition_batch(x, out)
     }
 
@@ -320,23 +556,71 @@ impl Dynamics {
     }
 }
 
-/// f(x) and the varying blocks of `F̃(x) = [[I, A], [0, B]]` at a batch of
-/// states, as arrays: `next[k][i]` is component k of lane i's f(x), and
-/// `a`, `b` the blocks row by row (`a[0]`, `a[1]` its first row).
+/// A motion model's `Q` that is not positive definite.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the process noise Q is not positive definite")]
+pub struct NotPositiveDefinite;
+
+/// f(x) and `F̃(x)` at a batch of states, as arrays: `next[k][i]` is
+/// component k of lane i's f(x). `F̃ = [[C, A], [D, B]]` in 2×2 blocks,
+/// each row by row (`a[0]`, `a[1]` its first row). Most motion models
+/// carry the position by the velocity, `C = I` and `D = 0`, and then say
+/// so (`carried`) and leave `c` and `d` unwritten: the bound's sums take
+/// a shorter way for them.
 #[derive(Debug, Clone, Copy)]
-pub struct TurnBatch {
+pub struct TransitionBatch {
     pub next: [[f64; CHUNK]; 4],
     pub a: [[f64; CHUNK]; 4],
     pub b: [[f64; CHUNK]; 4],
+    pub c: [[f64; CHUNK]; 4],
+    pub d: [[f64; CHUNK]; 4],
+    /// `C = I` and `D = 0` in every lane.
+    pub carried: bool,
 }
 
-impl Default for TurnBatch {
+impl Default for TransitionBatch {
     fn default() -> Self {
         Self {
             next: [[0.0; CHUNK]; 4],
             a: [[0.0; CHUNK]; 4],
             b: [[0.0; CHUNK]; 4],
+            c: [[0.0; CHUNK]; 4],
+            d: [[0.0; CHUNK]; 4],
+            carried: false,
         }
+    }
+}
+
+impl TransitionBatch {
+    /// Lane `i` from its f(x) and a Jacobian of any form; the batch is
+    /// then not `carried`.
+    pub fn set_general(&mut self, i: usize, next: &State, f: &Mat4) {
+        self.carried = false;
+        for k in 0..4 {
+            self.next[k][i] = next[k];
+            let (row, col) = (k / 2, k % 2);
+            self.c[k][i] = f[(row, col)];
+            self.a[k][i] = f[(row, col + 2)];
+            self.d[k][i] = f[(row + 2, col)];
+            self.b[k][i] = f[(row + 2, col + 2)];
+        }
+    }
+
+    /// Lane `i`'s Jacobian.
+    pub fn jacobian(&self, i: usize) -> Mat4 {
+        let (a, b) = (&self.a, &self.b);
+        let (c, d) = if self.carried {
+            ([1.0, 0.0, 0.0, 1.0], [0.0; 4])
+        } else {
+            let (c, d) = (&self.c, &self.d);
+            ([c[0][i], c[1][i], c[2][i], c[3][i]], [d[0][i], d[1][i], d[2][i], d[3][i]])
+        };
+        Mat4::new(
+            c[0], c[1], a[0][i], a[1][i], //
+            c[2], c[3], a[2][i], a[3][i], //
+            d[0], d[1], b[0][i], b[1][i], //
+            d[2], d[3], b[2][i], b[3][i],
+        )
     }
 }
 
@@ -432,7 +716,7 @@ mod tests {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn batch_avx2(model: &CoordinatedTurn, x: &StateLanes, out: &mut TurnBatch) {
+    fn batch_avx2(model: &CoordinatedTurn, x: &StateLanes, out: &mut TransitionBatch) {
         model.transition_batch(x, out)
     }
 
@@ -467,9 +751,9 @@ mod tests {
                     .collect();
                 states[0] = State::new(1.0, 2.0, 0.0, 0.0);
                 let lanes = StateLanes::of(&states);
-                let mut plain = TurnBatch::default();
+                let mut plain = TransitionBatch::default();
                 model.transition_batch(&lanes, &mut plain);
-                let mut wide = TurnBatch::default();
+                let mut wide = TransitionBatch::default();
                 if crate::batch::has_avx2() {
                     // SAFETY: the CPU has AVX2.
                     unsafe { batch_avx2(&model, &lanes, &mut wide) };

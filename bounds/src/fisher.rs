@@ -248,7 +248,7 @@ mod tests {
                 x[0] = 700.0 + (n as f64 % 7.0 - 3.0) * 0.3;
                 x[1] = 300.0 - 50.0 - n as f64 * 0.05;
             }
-            for (model, q) in [(bearing(), &q8), (bearing(), &q3), (rss, &qr)] {
+            for (model, q) in [(bearing(), &q8), (bearing(), &q3), (rss.clone(), &qr)] {
                 let e = model.evaluate(&x);
                 // The cells that matter: the one holding g and its neighbours.
                 let centre = q.encode(e.g) as i64;

@@ -56,9 +56,9 @@ mod ziggurat_tables;
 #[cfg(test)]
 mod testing;
 
-pub use dynamics::{CoordinatedTurn, Dynamics, ProcessNoise};
+pub use dynamics::{CoordinatedTurn, Dynamics, Motion, MotionModel, ProcessNoise};
 pub use fisher::{expected_information, observed_information, Measurement};
-pub use observation::{wrap_angle, ObservationModel, SensorLaw};
+pub use observation::{wrap_angle, Law, ObservationLaw, ObservationModel, SensorLaw};
 pub use pcrlb::{position_bound, ConditionalBound, DynamicsTerms, InformationStep, SensorTerm};
 pub use quantizer::{quantized_fisher_information, try_quantized_fisher_information, Quantizer};
 

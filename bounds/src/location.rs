@@ -43,20 +43,17 @@ pub struct AmplitudeLaw {
 }
 
 impl AmplitudeLaw {
-    pub fn of(law: &crate::SensorLaw) -> Option<Self> {
-        match *law {
-            crate::SensorLaw::Amplitude {
-                p0,
-                alpha,
-                exponent,
-                sigma,
-            } => Some(Self {
-                law: DecayLaw::PowerLaw { p0, exponent },
-                alpha,
-                sigma,
-            }),
-            _ => None,
-        }
+    /// The amplitude law's, if `law` is one.
+    pub fn of(law: &crate::Law) -> Option<Self> {
+        let a = law.downcast_ref::<crate::observation::Amplitude>()?;
+        Some(Self {
+            law: DecayLaw::PowerLaw {
+                p0: a.p0,
+                exponent: a.exponent,
+            },
+            alpha: a.alpha,
+            sigma: a.sigma,
+        })
     }
 
     /// `α^{1/n}`: the law at distance d is the unit power law at

@@ -20,7 +20,7 @@ use rand::Rng;
 use crate::batch::{has_avx2, Positions, StateLanes, CHUNK};
 use crate::cell_sums::FisherScalars;
 pub use crate::cell_sums::ScalarBatch;
-use crate::dynamics::{Dynamics, TurnBatch};
+use crate::dynamics::{Dynamics, TransitionBatch};
 use crate::fisher::{assemble, position_entries, Measurement};
 use crate::observation::{Evaluations, ObservationModel};
 use crate::quantizer::TableReads;
@@ -79,7 +79,7 @@ fn add_batches(
     weights: &[f64],
     sum: &mut DynamicsTermsSum,
 ) {
-    let mut batch = TurnBatch::default();
+    let mut batch = TransitionBatch::default();
     for (states, ws) in particles.chunks(CHUNK).zip(weights.chunks(CHUNK)) {
         dynamics.transition_batch(&StateLanes::of(states), &mut batch);
         sum.add_batch(&batch, ws);
@@ -143,7 +143,13 @@ impl<'q> DynamicsTermsSum<'q> {
     /// [`add`](Self::add) of the first `weights.len()` Jacobians of a
     /// batch ([`Dynamics::transition_batch`]), in order, with their weights.
     #[inline(always)]
-    pub fn add_batch(&mut self, batch: &TurnBatch, weights: &[f64]) {
+    pub fn add_batch(&mut self, batch: &TransitionBatch, weights: &[f64]) {
+        if !batch.carried {
+            for (i, &weight) in weights.iter().enumerate() {
+                self.add(&batch.jacobian(i), weight);
+            }
+            return;
+        }
         let (a, b) = (&batch.a, &batch.b);
         for (i, &weight) in weights.iter().enumerate() {
             let block_a = Matrix2::new(a[0][i], a[1][i], a[2][i], a[3][i]);
@@ -662,9 +668,9 @@ mod tests {
         let f = dynamics.jacobian(&State::new(0.0, 0.0, 1.0, 1.0));
         let mut hrh = Mat4::zeros();
         for m in models {
-            if let SensorLaw::Linear { h, r } = m.law {
-                let h = State::from(h);
-                hrh += h * h.transpose() / r;
+            if let Some(l) = m.law.downcast_ref::<crate::observation::Linear>() {
+                let h = State::from(l.h);
+                hrh += h * h.transpose() / l.r;
             }
         }
         let mut j = prior_cov().try_inverse().unwrap();
@@ -689,9 +695,9 @@ mod tests {
     fn late_information_joins_the_state_it_was_taken_at() {
         let dynamics = Dynamics::new(CoordinatedTurn::constant_velocity(1.0, 0.5)).unwrap();
         let models = position_sensors();
-        let info = |m: &ObservationModel| match m.law {
-            SensorLaw::Linear { h, r } => State::from(h) * State::from(h).transpose() / r,
-            _ => unreachable!(),
+        let info = |m: &ObservationModel| {
+            let l = m.law.downcast_ref::<crate::observation::Linear>().unwrap();
+            State::from(l.h) * State::from(l.h).transpose() / l.r
         };
         let (x_info, y_info) = (info(&models[0]), info(&models[1]));
         // (on time, late) information of each step.
@@ -866,7 +872,7 @@ mod tests {
             one_by_one.add(&dynamics.jacobian(x), weight);
         }
         let mut batched = DynamicsTermsSum::new(&dynamics);
-        let mut batch = TurnBatch::default();
+        let mut batch = TransitionBatch::default();
         for chunk in particles.chunks(CHUNK) {
             dynamics.transition_batch(&crate::batch::StateLanes::of(chunk), &mut batch);
             batched.add_batch(&batch, &vec![weight; chunk.len()]);

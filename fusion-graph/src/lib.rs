@@ -13,6 +13,7 @@ pub mod check;
 pub mod faults;
 pub mod hosts;
 pub mod models;
+pub mod params;
 pub mod scenario;
 pub mod shaper;
 pub mod topology;

@@ -6,7 +6,8 @@
 
 use std::f64::consts::PI;
 
-use bounds::{CoordinatedTurn, Dynamics, Gaussian, Mat4, ParameterError, Quantizer, State};
+use bounds::observation::ObservationLaw;
+use bounds::{Dynamics, Gaussian, Mat4, ParameterError, Quantizer, State};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -21,7 +22,7 @@ use wire::WireFormat;
 #[derive(Debug, Clone)]
 pub struct Models {
     pub dynamics: Dynamics,
-    pub law: bounds::SensorLaw,
+    pub law: bounds::Law,
     /// `None` when sensors send raw values.
     pub quantizer: Option<Quantizer>,
     /// `P_0`.
@@ -45,18 +46,21 @@ impl Scenario {
             expected: e.expected.into(),
             got: e.value.to_string(),
         };
-        let d = &self.dynamics;
-        let dynamics = Dynamics::new(CoordinatedTurn {
-            period: d.period,
-            maneuver_accel: d.maneuver_accel,
-            min_speed: d.min_speed,
-            sigma_v: d.sigma_v,
-            process_noise: d.process_noise,
-        })
-        .map_err(|e| invalid("dynamics", e))?;
-        self.observation
-            .validate()
-            .map_err(|e| invalid("observation", e))?;
+        let dynamics = match self.dynamics.turn() {
+            Some(turn) => Dynamics::new(*turn).map_err(|e| invalid("dynamics", e))?,
+            None => Dynamics::of(self.dynamics.motion().clone()).map_err(|e| {
+                ScenarioError::Invalid {
+                    file: file.into(),
+                    key: "dynamics".into(),
+                    expected: format!("a model whose process noise is usable: {e}"),
+                    got: format!("kind = \"{}\"", self.dynamics.kind()),
+                }
+            })?,
+        };
+        // A program's law checked its parameters as it was built.
+        if let Some(law) = self.observation.built_in() {
+            law.validate().map_err(|e| invalid("observation", e))?;
+        }
         let quantizer = self.quantizer_model(file)?;
         let sd = self.filter.prior_std;
         for (i, s) in sd.iter().enumerate() {
@@ -72,7 +76,7 @@ impl Scenario {
         let prior_cov = Mat4::from_diagonal(&State::from(sd.map(|s| s * s)));
         Ok(Models {
             dynamics,
-            law: self.observation,
+            law: self.observation.law().clone(),
             quantizer,
             prior_cov,
         })
@@ -80,8 +84,8 @@ impl Scenario {
 
     fn quantizer_model(&self, file: &str) -> Result<Option<Quantizer>, ScenarioError> {
         let q = &self.quantizer;
-        let bearing = matches!(self.observation, bounds::SensorLaw::Bearing { .. });
-        let built = if bearing {
+        // An angle's cells wrap at ±π whatever the file says.
+        let built = if self.observation.law().is_angular() {
             Quantizer::uniform_wrapped(q.bits, -PI, PI)
         } else {
             match (q.lo, q.hi) {
@@ -283,7 +287,9 @@ mod tests {
         let e = s.models().unwrap_err().to_string();
         assert!(e.contains("quantizer.bits") && e.contains("1 to 16"), "{e}");
         s.quantizer.bits = 8;
-        s.dynamics.maneuver_accel = -1.0;
+        let mut turn = *s.dynamics.turn().unwrap();
+        turn.maneuver_accel = -1.0;
+        s.dynamics = turn.into();
         let e = s.models().unwrap_err().to_string();
         assert!(e.contains("dynamics.maneuver_accel"), "{e}");
     }

@@ -19,7 +19,11 @@ use std::any::Any;
 use std::cell::Cell;
 use std::fmt;
 
+use bounds::dynamics::Motion;
+use bounds::observation::Law;
 use wire::payloads::Payloads;
+
+use crate::params::{ParamError, Params};
 
 /// Which vocabulary a name belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -143,11 +147,60 @@ const BUILT_IN_PARTS: &[Part] = &[
     built_in(Role::Manager, "pcrlb_offline", Shape::ROUNDS),
 ];
 
+/// Builds a program's observation law from its parameters, the keys of
+/// `[observation]` but `kind`. A function `Fn(&Params) -> Result<Law,
+/// ParamError>` is one.
+pub trait LawFactory: Send + Sync + 'static {
+    fn build(&self, params: &Params<'_>) -> Result<Law, ParamError>;
+}
+
+impl<F> LawFactory for F
+where
+    F: Fn(&Params<'_>) -> Result<Law, ParamError> + Send + Sync + 'static,
+{
+    fn build(&self, params: &Params<'_>) -> Result<Law, ParamError> {
+        self(params)
+    }
+}
+
+/// Builds a program's motion model from the sampling period
+/// (`dynamics.period`, which every model has) and its own parameters, the
+/// keys of `[dynamics]` but `kind` and `period`. A function `Fn(f64,
+/// &Params) -> Result<Motion, ParamError>` is one.
+pub trait MotionFactory: Send + Sync + 'static {
+    fn build(&self, period: f64, params: &Params<'_>) -> Result<Motion, ParamError>;
+}
+
+impl<F> MotionFactory for F
+where
+    F: Fn(f64, &Params<'_>) -> Result<Motion, ParamError> + Send + Sync + 'static,
+{
+    fn build(&self, period: f64, params: &Params<'_>) -> Result<Motion, ParamError> {
+        self(period, params)
+    }
+}
+
+/// A program's observation law, by the name `[observation] kind` gives it.
+#[derive(Clone, Copy)]
+pub struct LawPart {
+    pub name: &'static str,
+    pub build: &'static dyn LawFactory,
+}
+
+/// A program's motion model, by the name `[dynamics] kind` gives it.
+#[derive(Clone, Copy)]
+pub struct MotionPart {
+    pub name: &'static str,
+    pub build: &'static dyn MotionFactory,
+}
+
 /// The parts a scenario may name and the payloads their messages carry.
 #[derive(Clone, Copy)]
 pub struct Vocabulary {
     parts: &'static [Part],
     payloads: Payloads,
+    laws: &'static [LawPart],
+    motions: &'static [MotionPart],
 }
 
 impl Vocabulary {
@@ -155,15 +208,46 @@ impl Vocabulary {
     pub const BUILT_IN: Self = Self {
         parts: BUILT_IN_PARTS,
         payloads: Payloads::NONE,
+        laws: &[],
+        motions: &[],
     };
 
     /// The vocabulary of `parts` (which a program lists with cqnet's own
-    /// first) and `payloads`, kept for the rest of the program.
-    pub fn new(parts: Vec<Part>, payloads: Payloads) -> Self {
+    /// first), `payloads`, and the program's own observation laws and
+    /// motion models (cqnet's own are the scenario format's), kept for the
+    /// rest of the program.
+    pub fn new(
+        parts: Vec<Part>,
+        payloads: Payloads,
+        laws: Vec<LawPart>,
+        motions: Vec<MotionPart>,
+    ) -> Self {
         Self {
             parts: Box::leak(parts.into_boxed_slice()),
             payloads,
+            laws: Box::leak(laws.into_boxed_slice()),
+            motions: Box::leak(motions.into_boxed_slice()),
         }
+    }
+
+    /// The program's observation law called `name`.
+    pub fn law(self, name: &str) -> Option<&'static LawPart> {
+        self.laws.iter().find(|l| l.name == name)
+    }
+
+    /// The program's motion model called `name`.
+    pub fn motion(self, name: &str) -> Option<&'static MotionPart> {
+        self.motions.iter().find(|m| m.name == name)
+    }
+
+    /// The names of the program's observation laws, in the order listed.
+    pub fn law_names(self) -> impl Iterator<Item = &'static str> {
+        self.laws.iter().map(|l| l.name)
+    }
+
+    /// The names of the program's motion models, in the order listed.
+    pub fn motion_names(self) -> impl Iterator<Item = &'static str> {
+        self.motions.iter().map(|m| m.name)
     }
 
     /// The built-in parts, for a program to list first.
@@ -232,7 +316,8 @@ impl PartialEq for Vocabulary {
                 .map(|p| (p.role, p.name, p.shape))
                 .collect::<Vec<_>>()
         };
-        names(self) == names(other) && self.payloads == other.payloads
+        let models = |v: &Self| (v.law_names().collect::<Vec<_>>(), v.motion_names().collect::<Vec<_>>());
+        names(self) == names(other) && self.payloads == other.payloads && models(self) == models(other)
     }
 }
 
@@ -241,6 +326,8 @@ impl fmt::Debug for Vocabulary {
         f.debug_struct("Vocabulary")
             .field("parts", &self.parts)
             .field("payloads", &self.payloads)
+            .field("laws", &self.law_names().collect::<Vec<_>>())
+            .field("motions", &self.motion_names().collect::<Vec<_>>())
             .finish()
     }
 }

@@ -25,7 +25,8 @@ impl CentralizedReference {
         Ok(Self {
             model: SensingModel::new(&models, topology),
             filter: LocalFilter::new(scenario.filter.particles as usize, &prior, rng)
-                .map_err(NodeError::Reference)?,
+                .map_err(NodeError::Reference)?
+                .with_resampling(scenario.filter.resampler),
             step: 0,
             received: Vec::new(),
         })

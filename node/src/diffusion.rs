@@ -43,6 +43,12 @@ impl DiffusionTracker {
         })
     }
 
+    /// The tracker, resampling by `scheme` (`filter.resampler`).
+    pub fn with_resampling(mut self, scheme: fusion_graph::scenario::Resampling) -> Self {
+        self.filter = self.filter.with_resampling(scheme);
+        self
+    }
+
     /// `p̃(x)`: the Gaussian the node sends to its exchange partner or into
     /// KL fusion.
     pub fn summary(&self) -> Gaussian {

@@ -137,6 +137,12 @@ impl LocalFilter {
         })
     }
 
+    /// The filter, resampling by `scheme` (`filter.resampler`).
+    pub fn with_resampling(mut self, scheme: fusion_graph::scenario::Resampling) -> Self {
+        self.filter = self.filter.with_resampling(scheme);
+        self
+    }
+
     /// Restarts from a Gaussian posterior and information matrix (rejoin).
     pub fn reset(&mut self, posterior: &Gaussian, information: Mat4) {
         self.prediction.clear();
@@ -409,6 +415,12 @@ impl FusionFilter {
             rng,
             prediction: PendingPrediction::default(),
         })
+    }
+
+    /// The filter, resampling by `scheme` (`filter.resampler`).
+    pub fn with_resampling(mut self, scheme: fusion_graph::scenario::Resampling) -> Self {
+        self.filter = self.filter.with_resampling(scheme);
+        self
     }
 
     pub fn information(&self) -> &Mat4 {

@@ -1,12 +1,14 @@
 //! A bootstrap particle filter: predictor (the transition prior), updater
-//! (log-likelihood weights), systematic resampler, and Gaussian summaries.
+//! (log-likelihood weights), resampler ([`crate::resampler`]), and Gaussian
+//! summaries.
 //! Buffers are allocated once; a step allocates nothing.
 
 use bounds::batch::{has_avx2, StateLanes, CHUNK};
-use bounds::dynamics::TurnBatch;
+use bounds::dynamics::TransitionBatch;
 use bounds::pcrlb::DynamicsTermsSum;
 pub use bounds::Gaussian;
 use bounds::{BoundError, Dynamics, DynamicsTerms, Mat4, State};
+use fusion_graph::scenario::Resampling;
 use nalgebra::Cholesky;
 use rand::Rng;
 use rand_distr::StandardNormal;
@@ -27,6 +29,7 @@ pub struct ParticleFilter {
     /// The posterior as the predicted particles weighted by the whole
     /// likelihood (before any tempering stage moved them), with its ESS.
     importance_posterior: Option<(Gaussian, f64)>,
+    resampling: Resampling,
 }
 
 /// The tempered updater never lets the effective sample size fall below
@@ -52,6 +55,7 @@ impl ParticleFilter {
             scratch_previous: vec![State::zeros(); n],
             ln_likelihood: vec![0.0; n],
             importance_posterior: None,
+            resampling: Resampling::Systematic,
         };
         f.reset_gaussian(g, rng)?;
         Some(f)
@@ -67,6 +71,13 @@ impl ParticleFilter {
         self.previous.copy_from_slice(&self.particles);
         self.weights.copy_from_slice(&self.uniform);
         Some(())
+    }
+
+    /// The filter, resampling by `scheme` from now on (systematic
+    /// unless told).
+    pub fn with_resampling(mut self, scheme: Resampling) -> Self {
+        self.resampling = scheme;
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -109,13 +120,13 @@ impl ParticleFilter {
         &mut self,
         dynamics: &Dynamics,
         rng: &mut R,
-        mut each_batch: impl FnMut(&TurnBatch, usize),
+        mut each_batch: impl FnMut(&TransitionBatch, usize),
     ) {
         // The particles become the previous states by a swap, not a copy
         // (32 KB at 1000 particles, four times a node-step); every particle
         // is then written from its previous state.
         std::mem::swap(&mut self.previous, &mut self.particles);
-        let mut batch = TurnBatch::default();
+        let mut batch = TransitionBatch::default();
         for (chunk, before) in self
             .particles
             .chunks_mut(CHUNK)
@@ -390,11 +401,13 @@ impl ParticleFilter {
         summarize(&self.particles, &self.weights)
     }
 
-    /// Systematic resampling: one uniform draw, N evenly spaced pointers.
+    /// The resampler: each particle copied `N w` times in expectation, by
+    /// the filter's scheme ([`with_resampling`](Self::with_resampling));
+    /// weights become uniform.
     pub fn resample<R: Rng + ?Sized>(&mut self, rng: &mut R) {
         let (particles, previous) = (&self.particles, &self.previous);
         let (scratch, scratch_previous) = (&mut self.scratch, &mut self.scratch_previous);
-        systematic_resample(&self.weights, rng, |slot, i| {
+        crate::resampler::resample(self.resampling, &self.weights, rng, |slot, i| {
             scratch[slot] = particles[i];
             scratch_previous[slot] = previous[i];
         });
@@ -447,7 +460,7 @@ fn kernel_bandwidth_squared(n: usize) -> f64 {
 /// [`Dynamics::sample_noise`] takes.
 fn add_process_noise<R: Rng + ?Sized>(
     dynamics: &Dynamics,
-    batch: &TurnBatch,
+    batch: &TransitionBatch,
     chunk: &mut [State],
     rng: &mut R,
 ) {
@@ -514,11 +527,11 @@ fn exp_batch(x: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
 
 /// [`Dynamics::transition_batch`], compiled for AVX2 where the CPU has it
 /// (the same result either way, [`bounds::batch`]).
-fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
+fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TransitionBatch) {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2")]
-        fn with_avx2(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
+        fn with_avx2(dynamics: &Dynamics, x: &StateLanes, out: &mut TransitionBatch) {
             dynamics.transition_batch(x, out)
         }
         if has_avx2() {
@@ -529,28 +542,13 @@ fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TurnBatch) {
     dynamics.transition_batch(x, out)
 }
 
-/// The systematic resampler: one uniform draw places `n` evenly spaced
-/// points on the weights' cumulative sum; `take(slot, ancestor)` is called
-/// for each of the `n` new particles in order, with the old particle it
-/// copies. Allocates nothing.
+/// The systematic resampler ([`crate::resampler::systematic`]).
 pub fn systematic_resample<R: Rng + ?Sized>(
     weights: &[f64],
     rng: &mut R,
-    mut take: impl FnMut(usize, usize),
+    take: impl FnMut(usize, usize),
 ) {
-    let n = weights.len();
-    let step = 1.0 / n as f64;
-    let mut u = rng.random::<f64>() * step;
-    let mut cumulative = weights[0];
-    let mut i = 0;
-    for slot in 0..n {
-        while u > cumulative && i + 1 < n {
-            i += 1;
-            cumulative += weights[i];
-        }
-        take(slot, i);
-        u += step;
-    }
+    crate::resampler::systematic(weights, rng, take)
 }
 
 /// Weighted mean and covariance.

@@ -36,6 +36,7 @@ pub mod gate;
 pub mod location;
 pub mod nodes;
 pub mod parts;
+pub mod resampler;
 pub mod sensing;
 pub mod sensor_manager;
 mod work;

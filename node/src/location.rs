@@ -136,7 +136,7 @@ pub fn sensor_quantizer(scenario: &Scenario, design: ThresholdDesign) -> Option<
         .models()
         .expect("a loaded scenario's models build")
         .quantizer;
-    match (design, AmplitudeLaw::of(&scenario.observation)) {
+    match (design, AmplitudeLaw::of(scenario.observation.law())) {
         (ThresholdDesign::Designed, Some(amplitude)) => {
             // g = √(P₀/(1 + α dⁿ)) is the unit power law at distance
             // α^{1/n} d, and the closed form over radius R of the first is
@@ -205,6 +205,7 @@ impl LocalEvidence {
             .map(|s| {
                 scenario
                     .observation
+                    .law()
                     .at(topology.sensor_positions[*s as usize])
             })
             .collect();
@@ -331,7 +332,7 @@ mod tests {
         t: &Topology,
         own: &[u16],
     ) -> (DecayLaw, f64, Vec<[f64; 2]>) {
-        let a = AmplitudeLaw::of(&s.observation).expect("amplitude sensors");
+        let a = AmplitudeLaw::of(s.observation.law()).expect("amplitude sensors");
         assert_eq!(a.alpha, 1.0);
         let positions = own
             .iter()

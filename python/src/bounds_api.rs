@@ -5,7 +5,8 @@
 
 use bounds::pcrlb::{dynamics_terms as terms_over, information_update, observation_information};
 use bounds::selection::{greedy, selection_cost as cost_of, Candidate};
-use bounds::{Dynamics, Mat4, Measurement, ObservationModel, Quantizer, SensorLaw, State};
+use bounds::{Dynamics, Mat4, Measurement, ObservationModel, Quantizer, State};
+use fusion_graph::scenario::ObservationConfig;
 use numpy::ndarray::ArrayViewD;
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
@@ -294,12 +295,18 @@ impl PyQuantizer {
 #[derive(Clone)]
 pub struct PySensor {
     model: ObservationModel,
+    /// The law's table, as given.
+    law: toml::Table,
     quantizer: Option<Quantizer>,
 }
 
 impl PySensor {
-    pub fn new(model: ObservationModel, quantizer: Option<Quantizer>) -> Self {
-        Self { model, quantizer }
+    pub fn new(law: &ObservationConfig, position: [f64; 2], quantizer: Option<Quantizer>) -> Self {
+        Self {
+            model: law.law().at(position),
+            law: law.table().clone(),
+            quantizer,
+        }
     }
 
     fn measurement(&self) -> Measurement<'_> {
@@ -319,17 +326,14 @@ impl PySensor {
         position: (f64, f64),
         quantizer: Option<PyRef<'_, PyQuantizer>>,
     ) -> PyResult<Self> {
-        let law: SensorLaw = to_toml(law)?
-            .try_into()
-            .map_err(|e: toml::de::Error| value_error(format!("law: {}", e.message())))?;
-        law.validate().map_err(|e| {
-            value_error(format!(
-                "law: `{}` must be {}, got {}",
-                e.parameter, e.expected, e.value
-            ))
-        })?;
+        let toml::Value::Table(table) = to_toml(law)? else {
+            return Err(value_error("law: expected a dict with a \"kind\""));
+        };
+        let law = ObservationConfig::read(table, crate::vocabulary())
+            .map_err(|e| value_error(format!("law: {e}")))?;
         Ok(Self::new(
-            law.at([position.0, position.1]),
+            &law,
+            [position.0, position.1],
             quantizer.map(|q| q.quantizer.clone()),
         ))
     }
@@ -341,8 +345,7 @@ impl PySensor {
 
     #[getter]
     fn law<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let value = toml::Value::try_from(self.model.law).map_err(value_error)?;
-        to_python(py, &value)
+        to_python(py, &toml::Value::Table(self.law.clone()))
     }
 
     #[getter]

@@ -49,6 +49,13 @@ pub(crate) fn scenario_error(e: &fusion_graph::ScenarioError) -> PyErr {
     err
 }
 
+/// The parts the package's scenarios and bounds are read in: cqnet's own
+/// (the laws `bearing`, `rss`, `amplitude`, `linear`, and the motion model
+/// `coordinated_turn`).
+pub(crate) fn vocabulary() -> fusion_graph::vocabulary::Vocabulary {
+    fusion_graph::vocabulary::Vocabulary::BUILT_IN
+}
+
 #[pymodule]
 fn _cqnet(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("CqnetError", m.py().get_type::<CqnetError>())?;

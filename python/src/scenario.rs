@@ -278,7 +278,7 @@ impl PyScenario {
         let t = self.topology()?;
         Ok(t.sensor_positions
             .iter()
-            .map(|p| PySensor::new(models.law.at(*p), models.quantizer.clone()))
+            .map(|p| PySensor::new(&self.scenario.observation, *p, models.quantizer.clone()))
             .collect())
     }
 

@@ -83,7 +83,7 @@ fn every_report(s: &Scenario, t: &Topology, steps: u32) -> Vec<([f64; 2], u32)> 
 
 /// The power law of the scenario's amplitude sensors (α = 1).
 fn law(s: &Scenario) -> (DecayLaw, f64) {
-    let a = AmplitudeLaw::of(&s.observation).expect("amplitude sensors");
+    let a = AmplitudeLaw::of(s.observation.law()).expect("amplitude sensors");
     assert_eq!(a.alpha, 1.0);
     (a.law, a.sigma)
 }

@@ -147,17 +147,12 @@ impl Scenario {
                 "false",
             ));
         }
-        if !matches!(
-            self.observation,
-            bounds::SensorLaw::Amplitude { .. } | bounds::SensorLaw::Rss { .. }
-        ) {
+        let law = self.observation.law();
+        if !(law.is::<bounds::observation::Amplitude>() || law.is::<bounds::observation::Rss>()) {
             return Err(check.fail(
                 "observation.kind",
                 format!("\"amplitude\" or \"rss\" {with}: a sum of bearings means nothing"),
-                format!("{:?}", self.observation)
-                    .split_whitespace()
-                    .next()
-                    .unwrap_or(""),
+                format!("\"{}\"", law.name()),
             ));
         }
         if self.consensus.protocol != super::ConsensusProtocol::AVERAGE {
@@ -167,12 +162,23 @@ impl Scenario {
                 format!("\"{}\"", self.consensus.protocol.name()),
             ));
         }
-        if self.dynamics.maneuver_accel != 0.0 {
-            return Err(check.fail(
-                "dynamics.maneuver_accel",
-                format!("0 {with}: the centre's recursion (eq. 4.8) takes a linear, constant-velocity transition"),
-                self.dynamics.maneuver_accel,
-            ));
+        let linear = "the centre's recursion (eq. 4.8) takes a linear, constant-velocity transition";
+        match self.dynamics.turn() {
+            None => {
+                return Err(check.fail(
+                    "dynamics.kind",
+                    format!("\"coordinated_turn\" {with}: {linear}"),
+                    format!("\"{}\"", self.dynamics.kind()),
+                ))
+            }
+            Some(turn) if turn.maneuver_accel != 0.0 => {
+                return Err(check.fail(
+                    "dynamics.maneuver_accel",
+                    format!("0 {with}: {linear}"),
+                    turn.maneuver_accel,
+                ));
+            }
+            Some(_) => {}
         }
         if self.target.motion != Motion::Moving {
             return Err(check.fail("target.motion", format!("\"moving\" {with}"), "\"static\""));

@@ -9,6 +9,7 @@ use crate::vocabulary::{Part, Role, Shape, Vocabulary};
 use crate::ScenarioError;
 
 mod consensus;
+mod law_and_motion;
 mod mac;
 mod overrides;
 mod validate;
@@ -18,6 +19,7 @@ pub use crate::faults::{
     Loss, Partition, Reorder, SensorMode, Signal,
 };
 use consensus::default_accuracy;
+pub use law_and_motion::{DynamicsConfig, ObservationConfig};
 pub use consensus::{RoundsAdvice, RoundsChoice, MAX_AUTO_ROUNDS};
 pub use mac::{MacConfig, MacDesign, MAX_SLOTS as MAX_MAC_SLOTS};
 pub use overrides::apply_override;
@@ -153,8 +155,9 @@ pub struct Scenario {
     pub target: TargetConfig,
     pub dynamics: DynamicsConfig,
     /// What every sensor measures (`kind = "bearing"`, `"rss"`,
-    /// `"amplitude"` or `"linear"`); the topology says where each stands.
-    pub observation: bounds::SensorLaw,
+    /// `"amplitude"`, `"linear"`, or a law of the program's); the topology
+    /// says where each stands.
+    pub observation: ObservationConfig,
     pub quantizer: QuantizerConfig,
     pub filter: FilterConfig,
     pub consensus: ConsensusConfig,
@@ -457,24 +460,6 @@ impl TargetConfig {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DynamicsConfig {
-    pub period: f64,
-    pub maneuver_accel: f64,
-    #[serde(default = "default_min_speed")]
-    pub min_speed: f64,
-    pub sigma_v: f64,
-    /// "continuous" (seeds 000/001) or "discrete" (dissertation ch. 3).
-    /// The runtime refuses "discrete": its Q is singular and the PCRLB needs
-    /// Q⁻¹. `bounds` and the dissertation's experiments use it.
-    #[serde(default)]
-    pub process_noise: bounds::dynamics::ProcessNoise,
-}
-
-fn default_min_speed() -> f64 {
-    0.1
-}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -496,6 +481,30 @@ pub struct FilterConfig {
     /// 1 in 1000); 0: off, every observation is used.
     #[serde(default)]
     pub gate: f64,
+    /// How a filter draws its particles anew from their weights.
+    #[serde(default, skip_serializing_if = "is_systematic")]
+    pub resampler: Resampling,
+}
+
+/// The resampling schemes a filter may use (`filter.resampler`). Each
+/// copies particle i `N w_i` times in expectation; they differ in the
+/// variance of the copies (Douc, Cappé and Moulines 2005).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Resampling {
+    /// One uniform draw, N evenly spaced pointers.
+    #[default]
+    Systematic,
+    /// One uniform draw within each of N equal strata.
+    Stratified,
+    /// `⌊N w_i⌋` copies each, the rest drawn multinomially from what is left.
+    Residual,
+    /// N independent draws from the weights.
+    Multinomial,
+}
+
+fn is_systematic(r: &Resampling) -> bool {
+    *r == Resampling::Systematic
 }
 
 named_part!(
@@ -701,7 +710,7 @@ mod tests {
         assert_eq!(d.filter.particles, 1000);
         let s =
             Scenario::from_toml(SENSOR_SELECTION_SCENARIO, "sensor-selection.toml", &[]).unwrap();
-        assert_eq!(s.dynamics.sigma_v, 0.16);
+        assert_eq!(s.dynamics.turn().unwrap().sigma_v, 0.16);
         assert_eq!(s.sensors.max_active_total, Some(18));
         // Round trip through TOML.
         assert_eq!(Scenario::from_toml(&d.to_toml(), "x", &[]).unwrap(), d);

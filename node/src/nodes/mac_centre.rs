@@ -120,7 +120,8 @@ impl MacCentre {
             ParticleFilter::from_gaussian(scenario.filter.particles as usize, &prior, &mut rng)
                 .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite(
                     "the prior covariance",
-                )))?;
+                )))?
+                .with_resampling(scenario.filter.resampler);
         let information = Cholesky::new(prior.cov)
             .ok_or(filter_error(bounds::BoundError::NotPositiveDefinite(
                 "the prior covariance",

@@ -15,7 +15,10 @@
 //!   pair of neighbours for sends to one chosen neighbour;
 //! - a node of a kind of its own ([`NodeFactory`]): a tracker or a
 //!   locator, with its own step, built around the node core;
-//! - a sensor manager ([`ManagerFactory`]).
+//! - a sensor manager ([`ManagerFactory`]);
+//! - an observation law ([`LawFactory`]), chosen by `[observation] kind`,
+//!   and a motion model ([`MotionFactory`]), chosen by `[dynamics] kind`:
+//!   built as the scenario is read, from their own keys of those tables.
 //!
 //! Every part reads its parameters the same way: what every protocol has
 //! (`consensus.rounds`, `consensus.round_timeout_ms`,
@@ -30,7 +33,8 @@ pub use params::{ParamError, Params, Setup};
 
 use std::sync::OnceLock;
 
-use fusion_graph::vocabulary::{Part, Role, Shape, Vocabulary};
+pub use fusion_graph::vocabulary::{LawFactory, MotionFactory};
+use fusion_graph::vocabulary::{LawPart, MotionPart, Part, Role, Shape, Vocabulary};
 use fusion_graph::{Scenario, Topology};
 use wire::payloads::{PayloadEntry, Payloads, ProtocolPayload, RegisterError};
 
@@ -174,6 +178,9 @@ pub enum PartsError {
     Payload(#[from] RegisterError),
 }
 
+/// The kinds cqnet's own motion models go by.
+const BUILT_IN_MOTIONS: [&str; 1] = [bounds::CoordinatedTurn::KIND];
+
 /// A program's parts: cqnet's own, then those it adds, and the payloads
 /// its protocols send. Built by chaining; a mistake (a name taken twice,
 /// a payload that does not fit) is kept and reported by
@@ -181,6 +188,8 @@ pub enum PartsError {
 pub struct Parts {
     parts: Vec<Part>,
     payloads: Vec<PayloadEntry>,
+    laws: Vec<LawPart>,
+    motions: Vec<MotionPart>,
     error: Option<PartsError>,
     vocabulary: OnceLock<Vocabulary>,
 }
@@ -197,6 +206,8 @@ impl Parts {
         built_in::add(Self {
             parts: Vec::new(),
             payloads: Vec::new(),
+            laws: Vec::new(),
+            motions: Vec::new(),
             error: None,
             vocabulary: OnceLock::new(),
         })
@@ -258,19 +269,42 @@ impl Parts {
         }
     }
 
+    /// An observation law, chosen by `[observation] kind = "name"` and
+    /// built from the table's other keys.
+    pub fn law(mut self, name: &'static str, factory: impl LawFactory) -> Self {
+        const ROLE: &str = "observation law";
+        let taken = bounds::SensorLaw::KINDS.contains(&name) || self.laws.iter().any(|l| l.name == name);
+        if let Err(e) = check_name(ROLE, name, taken) {
+            return self.fail(e);
+        }
+        let build: &'static dyn LawFactory = Box::leak(Box::new(factory));
+        self.laws.push(LawPart { name, build });
+        self.vocabulary = OnceLock::new();
+        self
+    }
+
+    /// A motion model, chosen by `[dynamics] kind = "name"` and built
+    /// from `dynamics.period` and the table's other keys.
+    pub fn motion(mut self, name: &'static str, factory: impl MotionFactory) -> Self {
+        const ROLE: &str = "motion model";
+        let taken = BUILT_IN_MOTIONS.contains(&name) || self.motions.iter().any(|m| m.name == name);
+        if let Err(e) = check_name(ROLE, name, taken) {
+            return self.fail(e);
+        }
+        let build: &'static dyn MotionFactory = Box::leak(Box::new(factory));
+        self.motions.push(MotionPart { name, build });
+        self.vocabulary = OnceLock::new();
+        self
+    }
+
     fn exact_sums(self, name: &'static str) -> Self {
         self.add(Role::Protocol, name, Shape::ExactSums, Builder::ExactSums)
     }
 
     fn add(mut self, role: Role, name: &'static str, shape: Shape, builder: Builder) -> Self {
-        let what = role.what();
-        if !valid_name(name) {
-            let name = name.into();
-            return self.fail(PartsError::BadName { role: what, name });
-        }
-        if self.parts.iter().any(|p| p.role == role && p.name == name) {
-            let name = name.into();
-            return self.fail(PartsError::Taken { role: what, name });
+        let taken = self.parts.iter().any(|p| p.role == role && p.name == name);
+        if let Err(e) = check_name(role.what(), name, taken) {
+            return self.fail(e);
         }
         // Kept as long as the program: the vocabulary lends it to every
         // scenario read in it.
@@ -298,9 +332,26 @@ impl Parts {
         }
         Ok(*self.vocabulary.get_or_init(|| {
             let payloads = Payloads::new(self.payloads.clone());
-            Vocabulary::new(self.parts.clone(), payloads)
+            Vocabulary::new(
+                self.parts.clone(),
+                payloads,
+                self.laws.clone(),
+                self.motions.clone(),
+            )
         }))
     }
+}
+
+fn check_name(role: &'static str, name: &'static str, taken: bool) -> Result<(), PartsError> {
+    if !valid_name(name) {
+        let name = name.into();
+        return Err(PartsError::BadName { role, name });
+    }
+    if taken {
+        let name = name.into();
+        return Err(PartsError::Taken { role, name });
+    }
+    Ok(())
 }
 
 fn valid_name(name: &str) -> bool {

@@ -162,14 +162,16 @@ impl CfDpfNode {
             &prior,
             stream_rng(scenario.seed, id, 0, Stream::LocalFilter),
         )
-        .map_err(filter_error)?;
+        .map_err(filter_error)?
+        .with_resampling(scenario.filter.resampler);
         let fusion = FusionFilter::new(
             n,
             &prior,
             scenario.consensus.auxiliary_fim,
             stream_rng(scenario.seed, id, 0, Stream::FusionFilter),
         )
-        .map_err(filter_error)?;
+        .map_err(filter_error)?
+        .with_resampling(scenario.filter.resampler);
         Ok(Self {
             core: NodeCore::new(scenario, topology, index, models.quantizer.as_ref()),
             with_aux: scenario.consensus.auxiliary_fim,

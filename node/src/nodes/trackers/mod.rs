@@ -213,7 +213,8 @@ impl<C: Cooperation> TrackerNode<C> {
             .map_err(|_| NodeError::Filter {
             node: index,
             source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
-        })?;
+        })?
+        .with_resampling(scenario.filter.resampler);
         Ok(Self {
             core: NodeCore::new(scenario, topology, index, models.quantizer.as_ref()),
             filter: TrackerFilter {

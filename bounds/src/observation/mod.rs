@@ -1,9 +1,27 @@
 //! Sensor observation models: `z = g(x) + v`, `v ~ N(0, R(x))`.
 //!
-//! Every model gives g, ∇g, R and ∇R analytically in one evaluation, since the
-//! Fisher information of a quantized observation needs all four at once.
+//! What a sensor measures is a law, [`ObservationLaw`]: g, ∇g, R and ∇R
+//! at a state, for a sensor standing at a position. The Fisher
+//! information of a quantized observation, its likelihood, the censoring
+//! window and every bound follow from these four, so nothing downstream
+//! knows which law it serves. cqnet's own laws (bearing, RSS, amplitude,
+//! linear) are in [`laws`] with their gradients written out; a law of a
+//! program's own implements the trait, or gives g and R alone
+//! ([`DifferentiableLaw`]) and gets its gradients by automatic
+//! differentiation ([`Autodiff`]). [`check_gradients`] checks any law's
+//! against central differences.
+//!
+//! A scenario's law is a [`Law`]: a name and an implementation, cheap to
+//! clone and shared by every sensor.
 
-use std::f64::consts::{LN_10, PI};
+mod autodiff;
+mod check;
+pub mod laws;
+
+use std::any::Any;
+use std::f64::consts::PI;
+use std::fmt;
+use std::sync::Arc;
 
 use rand::Rng;
 use rand_distr::StandardNormal;
@@ -11,6 +29,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::batch::{Positions, CHUNK};
 use crate::{ParameterError, State};
+
+pub use autodiff::{Autodiff, DifferentiableLaw, Real};
+pub use check::{check_gradients, GradientMismatch};
+pub use laws::{Amplitude, Bearing, Linear, Rss};
 
 /// g, ∇g, R and ∇R at one state.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -22,7 +44,7 @@ pub struct Evaluation {
 }
 
 /// [`Evaluation`]s of one sensor at a batch of states, as arrays, for a
-/// model that depends on the position only: `∇g = (gx, gy, 0, 0)`,
+/// law that depends on the position only: `∇g = (gx, gy, 0, 0)`,
 /// `∇R = (rx, ry, 0, 0)`.
 #[derive(Debug, Clone, Copy)]
 pub struct Evaluations {
@@ -51,51 +73,237 @@ impl Default for Evaluations {
 /// sensor gives large but finite gradients instead of NaN.
 pub const MIN_DISTANCE: f64 = 1e-3;
 
-/// What a sensor measures and how noisily, wherever it stands: the part of
-/// an observation model a scenario states once for every sensor.
+/// What a sensor measures and how noisily: the mean `g` and variance `R`
+/// of a scalar measurement of state `x` by a sensor at `sensor`, with
+/// their gradients in the state.
+///
+/// The filters call [`evaluate_batch`](Self::evaluate_batch) once per
+/// batch of particles, so a law's cost per particle is its arithmetic,
+/// not a call through a pointer; a law gains by overriding it with
+/// arithmetic over the batch's arrays, as the bearing does.
+pub trait ObservationLaw: Any + fmt::Debug + Send + Sync {
+    /// g, ∇g, R and ∇R at `x`.
+    fn evaluate(&self, sensor: [f64; 2], x: &State) -> Evaluation;
+
+    /// g and R at `x`, without the gradients: what a likelihood needs.
+    /// The same values as [`evaluate`](Self::evaluate)'s, bit for bit.
+    #[inline]
+    fn mean_and_variance(&self, sensor: [f64; 2], x: &State) -> (f64, f64) {
+        let e = self.evaluate(sensor, x);
+        (e.g, e.r)
+    }
+
+    /// [`evaluate`](Self::evaluate) at a batch of states (`states`, whose
+    /// positions are `at`), bit for bit, for a law whose g and R depend
+    /// on the position only: the gradients' velocity entries are zero
+    /// and not written.
+    #[inline]
+    fn evaluate_batch(
+        &self,
+        sensor: [f64; 2],
+        states: &[State],
+        _at: &Positions,
+        out: &mut Evaluations,
+    ) {
+        for (i, x) in states.iter().enumerate() {
+            let e = self.evaluate(sensor, x);
+            out.g[i] = e.g;
+            out.r[i] = e.r;
+            (out.gx[i], out.gy[i]) = (e.grad_g[0], e.grad_g[1]);
+            (out.rx[i], out.ry[i]) = (e.grad_r[0], e.grad_r[1]);
+        }
+    }
+
+    /// Whether g is an angle, so observations and quantizer cells wrap at
+    /// ±π.
+    fn is_angular(&self) -> bool {
+        false
+    }
+
+    /// Whether g and R depend on the position only (not on the velocity).
+    fn depends_on_position_only(&self) -> bool {
+        true
+    }
+
+    /// Whether where the sensor stands matters to what it measures.
+    fn is_placed(&self) -> bool {
+        true
+    }
+}
+
+/// An observation law as a scenario holds it: its name and its
+/// implementation, shared.
+///
+/// cqnet's own laws are held as themselves rather than behind a pointer,
+/// so that a batch of particles runs their arithmetic inlined (and
+/// vectorised, for the bearing) as before they were a trait's; a
+/// program's law is one call through a pointer per batch.
+#[derive(Clone)]
+pub struct Law {
+    name: &'static str,
+    imp: Imp,
+}
+
+#[derive(Clone)]
+enum Imp {
+    Bearing(Bearing),
+    Rss(Rss),
+    Amplitude(Amplitude),
+    Linear(Linear),
+    Other(Arc<dyn ObservationLaw>),
+}
+
+/// Runs `$body` with `$law` bound to the law itself, statically for
+/// cqnet's own.
+macro_rules! with_law {
+    ($self:expr, $law:ident => $body:expr) => {
+        match &$self.imp {
+            Imp::Bearing($law) => $body,
+            Imp::Rss($law) => $body,
+            Imp::Amplitude($law) => $body,
+            Imp::Linear($law) => $body,
+            Imp::Other(other) => {
+                let $law = &**other;
+                $body
+            }
+        }
+    };
+}
+
+impl Law {
+    /// A program's law, called `name` in scenarios.
+    pub fn new(name: &'static str, law: impl ObservationLaw) -> Self {
+        Self {
+            name,
+            imp: Imp::Other(Arc::new(law)),
+        }
+    }
+
+    /// The name scenarios call it by.
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    /// The law itself, if it is a `T`: for the few methods that hold only
+    /// for one law (the amplitude sensors' closed-form location bound).
+    pub fn downcast_ref<T: ObservationLaw>(&self) -> Option<&T> {
+        with_law!(self, law => (law as &dyn Any).downcast_ref::<T>())
+    }
+
+    /// Whether the law is a `T`.
+    pub fn is<T: ObservationLaw>(&self) -> bool {
+        self.downcast_ref::<T>().is_some()
+    }
+
+    /// This law at the sensor position `sensor`.
+    pub fn at(&self, sensor: [f64; 2]) -> ObservationModel {
+        ObservationModel {
+            sensor,
+            law: self.clone(),
+        }
+    }
+}
+
+impl ObservationLaw for Law {
+    #[inline]
+    fn evaluate(&self, sensor: [f64; 2], x: &State) -> Evaluation {
+        with_law!(self, law => law.evaluate(sensor, x))
+    }
+
+    #[inline]
+    fn mean_and_variance(&self, sensor: [f64; 2], x: &State) -> (f64, f64) {
+        with_law!(self, law => law.mean_and_variance(sensor, x))
+    }
+
+    #[inline(always)]
+    fn evaluate_batch(
+        &self,
+        sensor: [f64; 2],
+        states: &[State],
+        at: &Positions,
+        out: &mut Evaluations,
+    ) {
+        with_law!(self, law => law.evaluate_batch(sensor, states, at, out))
+    }
+
+    fn is_angular(&self) -> bool {
+        with_law!(self, law => law.is_angular())
+    }
+
+    fn depends_on_position_only(&self) -> bool {
+        with_law!(self, law => law.depends_on_position_only())
+    }
+
+    fn is_placed(&self) -> bool {
+        with_law!(self, law => law.is_placed())
+    }
+}
+
+impl fmt::Debug for Law {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        with_law!(self, law => fmt::Debug::fmt(law, f))
+    }
+}
+
+impl PartialEq for Law {
+    /// cqnet's own laws are equal when their parameters are; a program's
+    /// when they are the same value.
+    fn eq(&self, other: &Self) -> bool {
+        match (&self.imp, &other.imp) {
+            (Imp::Bearing(a), Imp::Bearing(b)) => a == b,
+            (Imp::Rss(a), Imp::Rss(b)) => a == b,
+            (Imp::Amplitude(a), Imp::Amplitude(b)) => a == b,
+            (Imp::Linear(a), Imp::Linear(b)) => a == b,
+            (Imp::Other(a), Imp::Other(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
+}
+
+/// cqnet's own laws as a scenario file spells them: `kind` and the law's
+/// parameters, every one checked.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum SensorLaw {
-    /// `g = atan2(p_x − X_s, p_y − Y_s)` (from north, clockwise), wrapped to
-    /// (−π, π]; `R = σ_θ² (1 + (d/d_0)²)`, with d no nearer than the near
-    /// field ([`SensorLaw::bearing_near_field`]) in `∇g` and `R`, so that the
-    /// information `≈ 1/(σ_θ² d²)` stops growing there.
+    /// [`Bearing`]: `g = atan2(p_x − X_s, p_y − Y_s)`,
+    /// `R = σ_θ² (1 + (d/d_0)²)`.
     Bearing {
         sigma_theta: f64,
         d0: f64,
-        /// Metres; [`MIN_DISTANCE`] when not given.
+        /// Metres; [`MIN_DISTANCE`] when not given
+        /// ([`SensorLaw::bearing_near_field`]).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         near_field: Option<f64>,
     },
-    /// Received signal strength in dBm: `g = P_0 − 5 ζ log10((d² + h²)/d_0²)`,
-    /// `R = σ_r²`, with `h` the near field ([`SensorLaw::rss_near_field`]):
-    /// the sensor's antenna stands `h` off the plane the target moves in,
-    /// so the distance it sees is never below `h`, and a target passing
-    /// over it gives the log-distance law's largest but finite information,
-    /// `(10ζ/ln10)² / (4 h² σ²)` at `d = h`, rather than one growing as 1/d².
+    /// [`Rss`]: `g = P_0 − 5 ζ log10((d² + h²)/d_0²)`, `R = σ_r²`, with a
+    /// target passing over the sensor giving the log-distance law's
+    /// largest but finite information, `(10ζ/ln10)² / (4 h² σ²)` at
+    /// `d = h`, rather than one growing as 1/d².
     Rss {
         p0: f64,
         zeta: f64,
         d0: f64,
         sigma: f64,
-        /// `h`, metres; the reference distance `d_0` when not given.
+        /// `h`, metres; the reference distance `d_0` when not given
+        /// ([`SensorLaw::rss_near_field`]).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         near_field: Option<f64>,
     },
-    /// Amplitude, power law: `g = sqrt(P_0 / (1 + α dⁿ))`, `R = σ²`.
+    /// [`Amplitude`]: `g = sqrt(P_0 / (1 + α dⁿ))`, `R = σ²`.
     Amplitude {
         p0: f64,
         alpha: f64,
         exponent: f64,
         sigma: f64,
     },
-    /// Linear Gaussian: `g = hᵀx`, `R = r`; the sensor's position plays no
-    /// part. The limiting case in which the PCRLB must reproduce the Kalman
-    /// filter's information matrix.
+    /// [`Linear`]: `g = hᵀx`, `R = r`.
     Linear { h: [f64; 4], r: f64 },
 }
 
 impl SensorLaw {
+    /// The names of cqnet's own laws, as `kind` spells them.
+    pub const KINDS: [&'static str; 4] = ["bearing", "rss", "amplitude", "linear"];
+
     /// The RSS law's near field `h`: as given, or the reference distance
     /// `d_0`, inside which the log-distance law (a far-field law, fitted
     /// from `d_0` outwards) is not the sensor's physics.
@@ -116,7 +324,7 @@ impl SensorLaw {
 
     /// This law at the sensor position `sensor`.
     pub fn at(self, sensor: [f64; 2]) -> ObservationModel {
-        ObservationModel { sensor, law: self }
+        Law::from(self).at(sensor)
     }
 
     /// Every parameter in its range: noise and distances positive, levels finite.
@@ -185,172 +393,99 @@ impl SensorLaw {
     }
 }
 
-/// A sensor's observation model: its law at its position (X_s, Y_s).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ObservationModel {
-    pub sensor: [f64; 2],
-    pub law: SensorLaw,
-}
-
-impl ObservationModel {
-    /// Whether g is an angle, so observations and quantizer cells wrap at ±π.
-    pub fn is_angular(&self) -> bool {
-        matches!(self.law, SensorLaw::Bearing { .. })
-    }
-
-    /// Whether g and R depend on the position only (not on the velocity).
-    pub fn depends_on_position_only(&self) -> bool {
-        match self.law {
-            SensorLaw::Linear { h, .. } => h[2] == 0.0 && h[3] == 0.0,
-            _ => true,
-        }
-    }
-
-    /// Where the sensor stands, when its law depends on it.
-    pub fn sensor_position(&self) -> Option<[f64; 2]> {
-        match self.law {
-            SensorLaw::Linear { .. } => None,
-            _ => Some(self.sensor),
-        }
-    }
-
-    /// g, ∇g, R and ∇R at `x`.
-    #[inline]
-    pub fn evaluate(&self, x: &State) -> Evaluation {
-        let sensor = self.sensor;
-        match self.law {
+impl From<SensorLaw> for Law {
+    fn from(law: SensorLaw) -> Self {
+        let (name, imp) = match law {
             SensorLaw::Bearing {
                 sigma_theta,
                 d0,
                 near_field,
-            } => {
-                let (dx, dy, d2) = offset(x, sensor);
-                let d2 = d2.max(SensorLaw::bearing_near_field(near_field).powi(2));
-                let s2 = sigma_theta * sigma_theta;
-                Evaluation {
-                    g: bearing(dx, dy),
-                    grad_g: State::new(dy / d2, -dx / d2, 0.0, 0.0),
-                    r: bearing_variance(sigma_theta, d0, d2),
-                    grad_r: State::new(
-                        2.0 * s2 * dx / (d0 * d0),
-                        2.0 * s2 * dy / (d0 * d0),
-                        0.0,
-                        0.0,
-                    ),
-                }
-            }
+            } => (
+                "bearing",
+                Imp::Bearing(Bearing {
+                    sigma_theta,
+                    d0,
+                    near_field: SensorLaw::bearing_near_field(near_field),
+                }),
+            ),
             SensorLaw::Rss {
                 p0,
                 zeta,
                 d0,
                 sigma,
                 near_field,
-            } => {
-                let (dx, dy, _) = offset(x, sensor);
-                let h = SensorLaw::rss_near_field(near_field, d0);
-                let d2 = dx * dx + dy * dy + h * h;
-                // g = P0 − 5ζ log10((d² + h²)/d0²); ∂g/∂p = −10ζ/ln10 · (p − X)/(d² + h²)
-                let k = -10.0 * zeta / LN_10 / d2;
-                Evaluation {
-                    g: p0 - 5.0 * zeta * (d2 / (d0 * d0)).log10(),
-                    grad_g: State::new(k * dx, k * dy, 0.0, 0.0),
-                    r: sigma * sigma,
-                    grad_r: State::zeros(),
-                }
-            }
+            } => (
+                "rss",
+                Imp::Rss(Rss {
+                    p0,
+                    zeta,
+                    d0,
+                    sigma,
+                    near_field: SensorLaw::rss_near_field(near_field, d0),
+                }),
+            ),
             SensorLaw::Amplitude {
                 p0,
                 alpha,
                 exponent,
                 sigma,
-            } => {
-                let (dx, dy, d2) = offset(x, sensor);
-                let d = d2.sqrt();
-                let dn = d.powf(exponent);
-                let denom = 1.0 + alpha * dn;
-                let g = (p0 / denom).sqrt();
-                // ∂g/∂d = −g α n d^{n−1} / (2 (1 + α dⁿ)); ∂d/∂p = (p − X)/d
-                let dg_dd = -g * alpha * exponent * dn / d / (2.0 * denom);
-                Evaluation {
-                    g,
-                    grad_g: State::new(dg_dd * dx / d, dg_dd * dy / d, 0.0, 0.0),
-                    r: sigma * sigma,
-                    grad_r: State::zeros(),
-                }
-            }
-            SensorLaw::Linear { h, r } => Evaluation {
-                g: h[0] * x[0] + h[1] * x[1] + h[2] * x[2] + h[3] * x[3],
-                grad_g: State::from(h),
-                r,
-                grad_r: State::zeros(),
-            },
-        }
+            } => (
+                "amplitude",
+                Imp::Amplitude(Amplitude {
+                    p0,
+                    alpha,
+                    exponent,
+                    sigma,
+                }),
+            ),
+            SensorLaw::Linear { h, r } => ("linear", Imp::Linear(Linear { h, r })),
+        };
+        Self { name, imp }
+    }
+}
+
+/// A sensor's observation model: its law at its position (X_s, Y_s).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObservationModel {
+    pub sensor: [f64; 2],
+    pub law: Law,
+}
+
+impl ObservationModel {
+    /// Whether g is an angle, so observations and quantizer cells wrap at ±π.
+    pub fn is_angular(&self) -> bool {
+        self.law.is_angular()
     }
 
-    /// [`evaluate`](Self::evaluate) at a batch of states (`states`, whose
-    /// positions are `at`), bit for bit, for a model whose g and R depend
-    /// on the position only ([`depends_on_position_only`](Self::depends_on_position_only)):
-    /// its gradients' velocity entries are zero and not written. The
-    /// bearing law is vectorised ([`crate::batch`]); the others are
-    /// evaluated state by state.
+    /// Whether g and R depend on the position only (not on the velocity).
+    pub fn depends_on_position_only(&self) -> bool {
+        self.law.depends_on_position_only()
+    }
+
+    /// Where the sensor stands, when its law depends on it.
+    pub fn sensor_position(&self) -> Option<[f64; 2]> {
+        self.law.is_placed().then_some(self.sensor)
+    }
+
+    /// g, ∇g, R and ∇R at `x`.
+    #[inline]
+    pub fn evaluate(&self, x: &State) -> Evaluation {
+        self.law.evaluate(self.sensor, x)
+    }
+
+    /// [`ObservationLaw::evaluate_batch`] for this sensor, for a law of
+    /// the position only ([`depends_on_position_only`](Self::depends_on_position_only)).
     #[inline(always)]
     pub fn evaluate_batch(&self, states: &[State], at: &Positions, out: &mut Evaluations) {
         debug_assert!(self.depends_on_position_only() && states.len() <= CHUNK);
-        let sensor = self.sensor;
-        match self.law {
-            SensorLaw::Bearing {
-                sigma_theta,
-                d0,
-                near_field,
-            } => {
-                let (mut dx, mut dy, mut d2) = ([0.0; CHUNK], [0.0; CHUNK], [0.0; CHUNK]);
-                let h = SensorLaw::bearing_near_field(near_field);
-                for i in 0..CHUNK {
-                    dx[i] = at.x[i] - sensor[0];
-                    dy[i] = at.y[i] - sensor[1];
-                    d2[i] = (dx[i] * dx[i] + dy[i] * dy[i]).max(h * h);
-                }
-                crate::batch::atan2(&dx, &dy, &mut out.g);
-                let s2 = sigma_theta * sigma_theta;
-                for i in 0..CHUNK {
-                    out.gx[i] = dy[i] / d2[i];
-                    out.gy[i] = -dx[i] / d2[i];
-                    out.r[i] = bearing_variance(sigma_theta, d0, d2[i]);
-                    out.rx[i] = 2.0 * s2 * dx[i] / (d0 * d0);
-                    out.ry[i] = 2.0 * s2 * dy[i] / (d0 * d0);
-                }
-            }
-            _ => {
-                for (i, x) in states.iter().enumerate() {
-                    let e = self.evaluate(x);
-                    out.g[i] = e.g;
-                    out.r[i] = e.r;
-                    (out.gx[i], out.gy[i]) = (e.grad_g[0], e.grad_g[1]);
-                    (out.rx[i], out.ry[i]) = (e.grad_r[0], e.grad_r[1]);
-                }
-            }
-        }
+        self.law.evaluate_batch(self.sensor, states, at, out)
     }
 
     /// g and R at `x`, without the gradients: what a likelihood needs.
     /// The same values as [`evaluate`](Self::evaluate)'s, bit for bit.
     #[inline]
     pub fn mean_and_variance(&self, x: &State) -> (f64, f64) {
-        match self.law {
-            SensorLaw::Bearing {
-                sigma_theta,
-                d0,
-                near_field,
-            } => {
-                let (dx, dy, d2) = offset(x, self.sensor);
-                let d2 = d2.max(SensorLaw::bearing_near_field(near_field).powi(2));
-                (bearing(dx, dy), bearing_variance(sigma_theta, d0, d2))
-            }
-            _ => {
-                let e = self.evaluate(x);
-                (e.g, e.r)
-            }
-        }
+        self.law.mean_and_variance(self.sensor, x)
     }
 
     /// One noisy, unquantized measurement of the true state (angles wrapped).
@@ -363,28 +498,6 @@ impl ObservationModel {
             z
         }
     }
-}
-
-/// The bearing from north, clockwise, of the offset `(dx, dy)`: fdlibm's
-/// atan2 (the `libm` crate), within an ulp as glibc's is, and a third
-/// fewer instructions (callgrind).
-#[inline]
-fn bearing(dx: f64, dy: f64) -> f64 {
-    libm::atan2(dx, dy)
-}
-
-/// `R(d) = σ_θ² (1 + d²/d_0²)`.
-#[inline]
-fn bearing_variance(sigma_theta: f64, d0: f64, d2: f64) -> f64 {
-    sigma_theta * sigma_theta * (1.0 + d2 / (d0 * d0))
-}
-
-/// `(p_x − X, p_y − Y, d²)` with d floored at [`MIN_DISTANCE`].
-#[inline]
-fn offset(x: &State, sensor: [f64; 2]) -> (f64, f64, f64) {
-    let dx = x[0] - sensor[0];
-    let dy = x[1] - sensor[1];
-    (dx, dy, (dx * dx + dy * dy).max(MIN_DISTANCE * MIN_DISTANCE))
 }
 
 /// Wraps an angle into (−π, π].
@@ -400,6 +513,7 @@ pub fn wrap_angle(a: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::LN_10;
     use crate::testing::{central_gradient, random_state};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
