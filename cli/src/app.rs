@@ -20,7 +20,9 @@ use launch::network::RunProgress;
 use launch::progress::{step_message, Progress};
 use launch::results::{write_atomically, ResultsWriter};
 use launch::summary::print_table;
-use node::parts::{ManagerFactory, NodeFactory, Parts, PartsError, ProtocolFactory};
+use node::parts::{
+    LawFactory, ManagerFactory, MotionFactory, NodeFactory, Parts, PartsError, ProtocolFactory,
+};
 use wire::payloads::ProtocolPayload;
 
 pub use fusion_graph::vocabulary::Vocabulary;
@@ -35,6 +37,8 @@ pub use fusion_graph::vocabulary::Vocabulary;
 ///         // .payload::<MyValue>()
 ///         // .protocol("my_protocol", my_protocol::build)
 ///         // .manager("my_manager", my_manager::build)
+///         // .law("range", my_laws::range)
+///         // .motion("ornstein_uhlenbeck", my_models::ou)
 ///         .main()
 /// }
 /// ```
@@ -72,6 +76,22 @@ impl App {
     pub fn manager(self, name: &'static str, factory: impl ManagerFactory) -> Self {
         Self {
             parts: self.parts.manager(name, factory),
+        }
+    }
+
+    /// An observation law, chosen by `[observation] kind = "name"` (see
+    /// [`node::parts::LawFactory`]).
+    pub fn law(self, name: &'static str, factory: impl LawFactory) -> Self {
+        Self {
+            parts: self.parts.law(name, factory),
+        }
+    }
+
+    /// A motion model, chosen by `[dynamics] kind = "name"` (see
+    /// [`node::parts::MotionFactory`]).
+    pub fn motion(self, name: &'static str, factory: impl MotionFactory) -> Self {
+        Self {
+            parts: self.parts.motion(name, factory),
         }
     }
 

@@ -12,6 +12,17 @@ step from the posterior particles at k:
 
 over the predicted particles, and the position bound is
 sqrt(tr[L⁻¹]_pos) metres, comparable with an RMSE.
+
+A ``Sensor`` names its law by ``kind`` with the law's parameters, as a
+scenario's ``[observation]`` table does, and ``Dynamics.of`` a motion
+model by its ``[dynamics]`` table; ``observation_laws()`` and
+``motion_models()`` list the kinds the package knows:
+
+    laws     bearing (sigma_theta, d0, near_field), rss (p0, zeta, d0,
+             sigma, near_field), amplitude (p0, alpha, exponent, sigma),
+             linear (h, r)
+    models   coordinated_turn (period, maneuver_accel, min_speed,
+             sigma_v, process_noise)
 """
 
 from typing import Any, Optional
@@ -24,6 +35,8 @@ from ._cqnet import (
     dynamics_terms,
     expected_information,
     greedy_selection,
+    motion_models,
+    observation_laws,
     position_bound,
     quantized_fisher_information,
     selection_cost,
@@ -38,6 +51,8 @@ __all__ = [
     "dynamics_terms",
     "expected_information",
     "greedy_selection",
+    "motion_models",
+    "observation_laws",
     "position_bound",
     "quantized_fisher_information",
     "selection_cost",

@@ -459,6 +459,20 @@ impl PyDynamics {
         Ok(Self { dynamics })
     }
 
+    /// Any motion model the package knows, by its table as a scenario's
+    /// `[dynamics]` gives it: `{"kind": "coordinated_turn", "period": 1.0,
+    /// "maneuver_accel": 0.1, "sigma_v": 0.05}` (a table without `kind` is
+    /// the coordinated turn). `motion_models()` lists the kinds.
+    #[staticmethod]
+    fn of(model: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let toml::Value::Table(table) = to_toml(model)? else {
+            return Err(value_error("model: expected a dict"));
+        };
+        let (_, dynamics) = fusion_graph::scenario::DynamicsConfig::read(table, crate::vocabulary())
+            .map_err(|e| value_error(format!("model: {e}")))?;
+        Ok(Self { dynamics })
+    }
+
     /// Q, 4×4.
     #[getter]
     fn q<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray2<f64>> {
@@ -655,7 +669,27 @@ fn quantized_fisher_information<'py>(
     PyQuantizer::from_thresholds(thresholds)?.fisher_information(py, mean, sigma)
 }
 
+/// The observation laws a `Sensor`'s `law` may name by `kind`.
+#[pyfunction]
+fn observation_laws() -> Vec<&'static str> {
+    bounds::SensorLaw::KINDS
+        .into_iter()
+        .chain(crate::vocabulary().law_names())
+        .collect()
+}
+
+/// The motion models `Dynamics.of` may name by `kind`.
+#[pyfunction]
+fn motion_models() -> Vec<&'static str> {
+    [bounds::CoordinatedTurn::KIND]
+        .into_iter()
+        .chain(crate::vocabulary().motion_names())
+        .collect()
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(observation_laws, m)?)?;
+    m.add_function(wrap_pyfunction!(motion_models, m)?)?;
     m.add_class::<PyQuantizer>()?;
     m.add_class::<PySensor>()?;
     m.add_class::<PyDynamics>()?;

@@ -156,3 +156,21 @@ def test_bad_arrays_are_value_errors():
         bounds.Sensor({"kind": "bearing", "sigma_theta": -1.0, "d0": 1.0})
     with pytest.raises(ValueError):
         bounds.Quantizer.from_thresholds([1.0, 0.0])
+
+
+def test_laws_and_models_are_named_by_kind_and_listed():
+    assert bounds.observation_laws()[:4] == ["bearing", "rss", "amplitude", "linear"]
+    assert "coordinated_turn" in bounds.motion_models()
+    table = {"kind": "coordinated_turn", "period": 1.0, "maneuver_accel": 0.0,
+             "min_speed": 1.0, "sigma_v": 0.5}
+    of = bounds.Dynamics.of(table)
+    direct = bounds.Dynamics(period=1.0, sigma_v=0.5)
+    np.testing.assert_array_equal(of.q, direct.q)
+    with pytest.raises(ValueError, match="dynamics.kind"):
+        bounds.Dynamics.of({"kind": "brownian", "period": 1.0})
+    with pytest.raises(ValueError, match="dynamics.sigma_v"):
+        bounds.Dynamics.of(dict(table, sigma_v=-1.0))
+    with pytest.raises(ValueError, match="observation.kind"):
+        bounds.Sensor({"kind": "sonar"})
+    with pytest.raises(ValueError, match="observation.sigma_theta"):
+        bounds.Sensor({"kind": "bearing", "sigma_theta": -1.0, "d0": 10.0})

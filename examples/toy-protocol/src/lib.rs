@@ -9,7 +9,11 @@
 //! - a tracker of our own (`gossip_tracker`): the tracker node's particle
 //!   filter, its posteriors fused by push-sum on their natural parameters
 //!   over pair channels ([`PosteriorShare`]);
-//! - [`FirstK`]: a node always activates its first `k` sensors.
+//! - [`FirstK`]: a node always activates its first `k` sensors;
+//! - a sensor of our own, [`Range`] (`range`): range-only, quantized, its
+//!   gradients by automatic differentiation;
+//! - a motion model of our own, [`OrnsteinUhlenbeck`]
+//!   (`ornstein_uhlenbeck`): a velocity that forgets its heading.
 //!
 //! A scenario chooses them by name:
 //!
@@ -21,17 +25,31 @@
 //! [sensors]
 //! manager = "first_k"
 //! manager_params = { k = 2 }
+//!
+//! [observation]
+//! kind = "range"
+//! sigma = 5.0
+//! d0 = 1000.0
+//!
+//! [dynamics]
+//! kind = "ornstein_uhlenbeck"
+//! period = 1.0
+//! sigma = 0.05
 //! ```
 
+mod drift;
 mod first_k;
 mod gossip_tracker;
 mod neighbourhood_mean;
 mod push_sum;
+mod range;
 
+pub use drift::OrnsteinUhlenbeck;
 pub use first_k::FirstK;
 pub use gossip_tracker::PosteriorShare;
 pub use neighbourhood_mean::{NeighbourhoodMean, NeighbourhoodValue};
 pub use push_sum::{gossip_target, Gossip, Mass, PushSum, PushSumValue};
+pub use range::Range;
 
 use cqnet::App;
 
@@ -46,4 +64,6 @@ pub fn app() -> App {
         .protocol("push_sum", PushSum)
         .node("gossip_tracker", gossip_tracker::factory())
         .manager("first_k", first_k::build)
+        .law("range", range::build)
+        .motion("ornstein_uhlenbeck", drift::build)
 }
