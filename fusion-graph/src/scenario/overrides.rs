@@ -84,5 +84,7 @@ pub(super) fn is_optional_key(key: &str) -> bool {
             | "gate"
             | "start"
             | "near_field"
+            | "kind"
+            | "resampler"
     )
 }
