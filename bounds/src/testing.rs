@@ -28,22 +28,7 @@ pub fn central_jacobian(f: impl Fn(&State) -> State, x: &State, rel_step: f64) -
     jac
 }
 
-/// Central-difference gradient of a scalar function; for an angle, the
-/// difference is wrapped so that crossing ±π does not look like a jump of 2π.
-pub fn central_gradient(f: impl Fn(&State) -> f64, x: &State, step: f64, angular: bool) -> State {
-    let mut g = State::zeros();
-    for k in 0..4 {
-        let (mut up, mut down) = (*x, *x);
-        up[k] += step;
-        down[k] -= step;
-        let mut diff = f(&up) - f(&down);
-        if angular {
-            diff = crate::wrap_angle(diff);
-        }
-        g[k] = diff / (2.0 * step);
-    }
-    g
-}
+pub(crate) use crate::observation::central_gradient;
 
 /// Zeroed memory aligned to a cache line, that lives as long as the test
 /// process, as a mapping of the shared tables does.

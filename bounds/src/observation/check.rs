@@ -52,7 +52,9 @@ pub fn check_gradients(
     Ok(())
 }
 
-fn central(f: impl Fn(&State) -> f64, x: &State, step: f64, angular: bool) -> State {
+/// Central-difference gradient of a scalar function; for an angle, the
+/// difference is wrapped so that crossing ±π does not look like a jump of 2π.
+pub(crate) fn central(f: impl Fn(&State) -> f64, x: &State, step: f64, angular: bool) -> State {
     let mut g = State::zeros();
     for k in 0..4 {
         let (mut up, mut down) = (*x, *x);

@@ -32,6 +32,8 @@ use crate::{ParameterError, State};
 
 pub use autodiff::{Autodiff, DifferentiableLaw, Real};
 pub use check::{check_gradients, GradientMismatch};
+#[cfg(test)]
+pub(crate) use check::central as central_gradient;
 pub use laws::{Amplitude, Bearing, Linear, Rss};
 
 /// g, ∇g, R and ∇R at one state.
@@ -514,7 +516,7 @@ pub fn wrap_angle(a: f64) -> f64 {
 mod tests {
     use super::*;
     use std::f64::consts::LN_10;
-    use crate::testing::{central_gradient, random_state};
+    use crate::testing::random_state;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
@@ -736,28 +738,56 @@ mod tests {
         v
     }
 
+    /// The built-in bearing's arithmetic as a program's law would give
+    /// it, g and R alone: its automatic gradients must be the written-out
+    /// ones, to rounding.
+    #[derive(Debug)]
+    struct BearingByHand;
+
+    impl DifferentiableLaw for BearingByHand {
+        fn mean<D: Real>(&self, sensor: [f64; 2], x: [D; 4]) -> D {
+            (x[0] - sensor[0]).atan2(x[1] - sensor[1])
+        }
+
+        fn variance<D: Real>(&self, sensor: [f64; 2], x: [D; 4]) -> D {
+            let (dx, dy) = (x[0] - sensor[0], x[1] - sensor[1]);
+            (dx * dx + dy * dy) * (0.02 * 0.02 / (500.0 * 500.0)) + 0.02 * 0.02
+        }
+
+        fn is_angular(&self) -> bool {
+            true
+        }
+    }
+
+    /// Every law's gradients, the built-ins' written out and a program's
+    /// automatic, agree with central differences ([`check_gradients`]).
     #[test]
     fn gradients_match_central_differences() {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let xs = states(&mut rng);
-        for m in models() {
-            for x in &xs {
-                let e = m.evaluate(x);
-                let d = x.xy_distance(m.sensor_position());
-                let h = 1e-4 * d.clamp(1.0, 100.0);
-                let num_g = central_gradient(|y| m.evaluate(y).g, x, h, m.is_angular());
-                let num_r = central_gradient(|y| m.evaluate(y).r, x, h, false);
-                let scale_g = e.grad_g.abs().max().max(1e-12);
-                let scale_r = e.grad_r.abs().max().max(1e-12);
-                assert!(
-                    (num_g - e.grad_g).abs().max() / scale_g < 1e-5,
-                    "{m:?} ∇g at {x:?}: {num_g:?} vs {:?}",
-                    e.grad_g
-                );
-                assert!(
-                    (num_r - e.grad_r).abs().max() / scale_r < 1e-5,
-                    "{m:?} ∇R at {x:?}"
-                );
+        let mut laws = models();
+        laws.push(Law::new("bearing_by_hand", Autodiff(BearingByHand)).at([250.0, 750.0]));
+        for m in laws {
+            if let Err(e) = check_gradients(&m.law, m.sensor, &xs) {
+                panic!("{:?}: {e}", m.law);
+            }
+        }
+    }
+
+    /// Automatic gradients are the closed form's to rounding: the built-in
+    /// bearing against the same law given without its gradients.
+    #[test]
+    fn automatic_gradients_are_the_closed_forms_to_rounding() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let built_in = models().remove(0);
+        let by_hand = Law::new("bearing_by_hand", Autodiff(BearingByHand)).at(built_in.sensor);
+        for x in states(&mut rng) {
+            let (a, b) = (built_in.evaluate(&x), by_hand.evaluate(&x));
+            let close = |p: f64, q: f64| (p - q).abs() <= 1e-12 * p.abs().max(q.abs()).max(1e-300);
+            assert!(close(a.g, b.g) && close(a.r, b.r), "{x:?}");
+            for k in 0..4 {
+                assert!(close(a.grad_g[k], b.grad_g[k]), "∇g at {x:?}: {a:?} vs {b:?}");
+                assert!(close(a.grad_r[k], b.grad_r[k]), "∇R at {x:?}: {a:?} vs {b:?}");
             }
         }
     }
@@ -801,12 +831,4 @@ mod tests {
         }
     }
 
-    trait Distance {
-        fn xy_distance(&self, s: Option<[f64; 2]>) -> f64;
-    }
-    impl Distance for State {
-        fn xy_distance(&self, s: Option<[f64; 2]>) -> f64 {
-            s.map_or(100.0, |s| (self[0] - s[0]).hypot(self[1] - s[1]))
-        }
-    }
 }
