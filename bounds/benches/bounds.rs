@@ -7,8 +7,8 @@
 use std::f64::consts::PI;
 use std::hint::black_box;
 
-use bounds::pcrlb::{dynamics_terms, observation_information};
 use bounds::observation::{Autodiff, DifferentiableLaw, Real};
+use bounds::pcrlb::{dynamics_terms, observation_information};
 use bounds::{
     expected_information, ConditionalBound, CoordinatedTurn, Dynamics, Law, Mat4, Measurement,
     ProcessNoise, Quantizer, SensorLaw, SensorTerm, State,
@@ -73,7 +73,10 @@ fn bench(c: &mut Criterion) {
             d0: 500.0,
         }),
     );
-    for (name, law) in [("built-in bearing", bearing), ("a user's bearing, automatic gradients", user)] {
+    for (name, law) in [
+        ("built-in bearing", bearing),
+        ("a user's bearing, automatic gradients", user),
+    ] {
         local_bound_update(c, &q, x, &law, name);
     }
 }

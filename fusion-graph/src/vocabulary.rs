@@ -316,8 +316,15 @@ impl PartialEq for Vocabulary {
                 .map(|p| (p.role, p.name, p.shape))
                 .collect::<Vec<_>>()
         };
-        let models = |v: &Self| (v.law_names().collect::<Vec<_>>(), v.motion_names().collect::<Vec<_>>());
-        names(self) == names(other) && self.payloads == other.payloads && models(self) == models(other)
+        let models = |v: &Self| {
+            (
+                v.law_names().collect::<Vec<_>>(),
+                v.motion_names().collect::<Vec<_>>(),
+            )
+        };
+        names(self) == names(other)
+            && self.payloads == other.payloads
+            && models(self) == models(other)
     }
 }
 

@@ -28,7 +28,11 @@ pub fn resample<R: Rng + ?Sized>(
 
 /// One uniform draw places `n` evenly spaced points on the weights'
 /// cumulative sum.
-pub fn systematic<R: Rng + ?Sized>(weights: &[f64], rng: &mut R, mut take: impl FnMut(usize, usize)) {
+pub fn systematic<R: Rng + ?Sized>(
+    weights: &[f64],
+    rng: &mut R,
+    mut take: impl FnMut(usize, usize),
+) {
     let n = weights.len();
     let step = 1.0 / n as f64;
     let mut u = rng.random::<f64>() * step;
@@ -45,7 +49,11 @@ pub fn systematic<R: Rng + ?Sized>(weights: &[f64], rng: &mut R, mut take: impl 
 }
 
 /// One uniform point in each of `n` equal strata of the cumulative sum.
-pub fn stratified<R: Rng + ?Sized>(weights: &[f64], rng: &mut R, mut take: impl FnMut(usize, usize)) {
+pub fn stratified<R: Rng + ?Sized>(
+    weights: &[f64],
+    rng: &mut R,
+    mut take: impl FnMut(usize, usize),
+) {
     let n = weights.len();
     let step = 1.0 / n as f64;
     let mut cumulative = weights[0];
@@ -216,7 +224,11 @@ mod tests {
         let binomial = n as f64 * 0.3 * 0.7;
         let m = variance(Resampling::Multinomial, &mut rng);
         assert!((m / binomial - 1.0).abs() < 0.05, "{m} against {binomial}");
-        for scheme in [Resampling::Systematic, Resampling::Stratified, Resampling::Residual] {
+        for scheme in [
+            Resampling::Systematic,
+            Resampling::Stratified,
+            Resampling::Residual,
+        ] {
             let v = variance(scheme, &mut rng);
             assert!(v < 0.8 * binomial, "{scheme:?}: {v} against {binomial}");
         }

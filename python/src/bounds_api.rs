@@ -468,8 +468,9 @@ impl PyDynamics {
         let toml::Value::Table(table) = to_toml(model)? else {
             return Err(value_error("model: expected a dict"));
         };
-        let (_, dynamics) = fusion_graph::scenario::DynamicsConfig::read(table, crate::vocabulary())
-            .map_err(|e| value_error(format!("model: {e}")))?;
+        let (_, dynamics) =
+            fusion_graph::scenario::DynamicsConfig::read(table, crate::vocabulary())
+                .map_err(|e| value_error(format!("model: {e}")))?;
         Ok(Self { dynamics })
     }
 

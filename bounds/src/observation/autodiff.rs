@@ -100,7 +100,9 @@ impl<L: DifferentiableLaw> Autodiff<L> {
 /// A dual number's derivative part as a state-sized gradient; a part
 /// with no derivative (a constant) is zero.
 #[inline]
-fn gradient<const N: usize>(eps: &num_dual::Derivative<f64, nalgebra::Const<N>, nalgebra::U1>) -> State {
+fn gradient<const N: usize>(
+    eps: &num_dual::Derivative<f64, nalgebra::Const<N>, nalgebra::U1>,
+) -> State {
     let mut out = State::zeros();
     if let Some(v) = &eps.0 {
         for k in 0..N {

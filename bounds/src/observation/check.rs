@@ -39,7 +39,8 @@ pub fn check_gradients(
         let num_r = central(|y| law.evaluate(sensor, y).r, x, h, false);
         for (what, given, numeric) in [("g", e.grad_g, num_g), ("R", e.grad_r, num_r)] {
             let scale = given.abs().max().max(1e-12);
-            if (numeric - given).abs().max() / scale >= 1e-5 || !given.iter().all(|v| v.is_finite()) {
+            if (numeric - given).abs().max() / scale >= 1e-5 || !given.iter().all(|v| v.is_finite())
+            {
                 return Err(GradientMismatch {
                     what,
                     state: (*x).into(),

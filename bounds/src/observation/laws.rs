@@ -61,7 +61,12 @@ impl ObservationLaw for Bearing {
             g: bearing(dx, dy),
             grad_g: State::new(dy / d2, -dx / d2, 0.0, 0.0),
             r: bearing_variance(self.sigma_theta, d0, d2),
-            grad_r: State::new(2.0 * s2 * dx / (d0 * d0), 2.0 * s2 * dy / (d0 * d0), 0.0, 0.0),
+            grad_r: State::new(
+                2.0 * s2 * dx / (d0 * d0),
+                2.0 * s2 * dy / (d0 * d0),
+                0.0,
+                0.0,
+            ),
         }
     }
 
@@ -69,7 +74,10 @@ impl ObservationLaw for Bearing {
     fn mean_and_variance(&self, sensor: [f64; 2], x: &State) -> (f64, f64) {
         let (dx, dy, d2) = offset(x, sensor);
         let d2 = d2.max(self.near_field.powi(2));
-        (bearing(dx, dy), bearing_variance(self.sigma_theta, self.d0, d2))
+        (
+            bearing(dx, dy),
+            bearing_variance(self.sigma_theta, self.d0, d2),
+        )
     }
 
     /// Vectorised ([`crate::batch::atan2`]), bit for bit `evaluate`'s.

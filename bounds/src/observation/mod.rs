@@ -31,9 +31,9 @@ use crate::batch::{Positions, CHUNK};
 use crate::{ParameterError, State};
 
 pub use autodiff::{Autodiff, DifferentiableLaw, Real};
-pub use check::{check_gradients, GradientMismatch};
 #[cfg(test)]
 pub(crate) use check::central as central_gradient;
+pub use check::{check_gradients, GradientMismatch};
 pub use laws::{Amplitude, Bearing, Linear, Rss};
 
 /// g, ∇g, R and ∇R at one state.
@@ -515,10 +515,10 @@ pub fn wrap_angle(a: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::f64::consts::LN_10;
     use crate::testing::random_state;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
+    use std::f64::consts::LN_10;
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
@@ -786,8 +786,14 @@ mod tests {
             let close = |p: f64, q: f64| (p - q).abs() <= 1e-12 * p.abs().max(q.abs()).max(1e-300);
             assert!(close(a.g, b.g) && close(a.r, b.r), "{x:?}");
             for k in 0..4 {
-                assert!(close(a.grad_g[k], b.grad_g[k]), "∇g at {x:?}: {a:?} vs {b:?}");
-                assert!(close(a.grad_r[k], b.grad_r[k]), "∇R at {x:?}: {a:?} vs {b:?}");
+                assert!(
+                    close(a.grad_g[k], b.grad_g[k]),
+                    "∇g at {x:?}: {a:?} vs {b:?}"
+                );
+                assert!(
+                    close(a.grad_r[k], b.grad_r[k]),
+                    "∇R at {x:?}: {a:?} vs {b:?}"
+                );
             }
         }
     }
@@ -830,5 +836,4 @@ mod tests {
             );
         }
     }
-
 }

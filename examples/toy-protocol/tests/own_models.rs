@@ -7,7 +7,7 @@ use bounds::dynamics::{DifferentiableMotion, Dynamics, MotionModel};
 use bounds::observation::check_gradients;
 use bounds::pcrlb::{dynamics_terms, observation_information, SensorTerm};
 use bounds::{ConditionalBound, Law, Mat4, Measurement, Quantizer, State};
-use cqnet_testkit::{default_scenario, Network, Run, Scenario, Vocabulary};
+use cqnet_testkit::{default_scenario, Network, Scenario, Vocabulary};
 use fusion_graph::params::Params;
 use rand::{Rng, SeedableRng};
 use toy_protocol::OrnsteinUhlenbeck;
@@ -20,14 +20,20 @@ const LO: f64 = 0.0;
 const HI: f64 = 2200.0;
 
 fn vocabulary() -> Vocabulary {
-    toy_protocol::app().vocabulary().expect("the toy parts list")
+    toy_protocol::app()
+        .vocabulary()
+        .expect("the toy parts list")
 }
 
 /// The law as the program builds it from a scenario's table.
 fn range_law() -> Law {
     let table: toml::Table = toml::from_str(&format!("sigma = {SIGMA}\nd0 = {D0}")).unwrap();
-    let part = vocabulary().law("range").expect("the program lists `range`");
-    part.build.build(&Params::new("observation", &table)).unwrap()
+    let part = vocabulary()
+        .law("range")
+        .expect("the program lists `range`");
+    part.build
+        .build(&Params::new("observation", &table))
+        .unwrap()
 }
 
 fn ou() -> OrnsteinUhlenbeck {
@@ -41,7 +47,10 @@ fn ou() -> OrnsteinUhlenbeck {
 /// The range law written out in plain arithmetic, apart from the crate's.
 fn g_and_r(sensor: [f64; 2], x: &State) -> (f64, f64) {
     let d2 = (x[0] - sensor[0]).powi(2) + (x[1] - sensor[1]).powi(2);
-    ((d2 + HEIGHT * HEIGHT).sqrt(), SIGMA * SIGMA * (1.0 + d2 / (D0 * D0)))
+    (
+        (d2 + HEIGHT * HEIGHT).sqrt(),
+        SIGMA * SIGMA * (1.0 + d2 / (D0 * D0)),
+    )
 }
 
 /// The OU transition written out.
@@ -136,7 +145,10 @@ fn the_automatic_gradients_agree_with_central_differences() {
     for x in &states {
         let (next, jac) = model.transition_and_jacobian(x);
         assert!((next - f(x)).abs().max() < 1e-9);
-        assert!(relative_error(&jac, &central_jacobian(x)) < 1e-7, "{jac} at {x:?}");
+        assert!(
+            relative_error(&jac, &central_jacobian(x)) < 1e-7,
+            "{jac} at {x:?}"
+        );
     }
 }
 
@@ -177,7 +189,10 @@ fn the_bound_under_the_range_law_is_the_one_computed_from_first_principles() {
                 )
         })
         .collect();
-    let predicted: Vec<State> = posterior.iter().map(|p| dynamics.propagate(p, &mut rng)).collect();
+    let predicted: Vec<State> = posterior
+        .iter()
+        .map(|p| dynamics.propagate(p, &mut rng))
+        .collect();
     let weights = vec![1.0 / n as f64; n];
     let prior = Mat4::from_diagonal(&State::new(2500.0, 2500.0, 4.0, 4.0));
 
@@ -186,7 +201,9 @@ fn the_bound_under_the_range_law_is_the_one_computed_from_first_principles() {
     let obs = observation_information(&terms, &predicted, &weights).unwrap();
     bound.advance(&b, dynamics.q_inv(), &obs).unwrap();
 
-    let q_inv = DifferentiableMotion::process_noise(&ou()).try_inverse().unwrap();
+    let q_inv = DifferentiableMotion::process_noise(&ou())
+        .try_inverse()
+        .unwrap();
     let (mut d11, mut mean_f, mut j_y) = (Mat4::zeros(), Mat4::zeros(), Mat4::zeros());
     for (x, w) in posterior.iter().zip(&weights) {
         let jac = central_jacobian(x);
@@ -219,7 +236,10 @@ fn own_models_network(steps: u32) -> Network {
     Network::new(scenario)
         .executable(env!("CARGO_BIN_EXE_toy-protocol"))
         .parts(vocabulary())
-        .set("observation", format!("{{ kind = \"range\", sigma = {SIGMA}, d0 = {D0} }}"))
+        .set(
+            "observation",
+            format!("{{ kind = \"range\", sigma = {SIGMA}, d0 = {D0} }}"),
+        )
         .set("quantizer.lo", LO)
         .set("quantizer.hi", HI)
         .set(
@@ -309,20 +329,33 @@ fn a_bad_parameter_of_a_law_or_a_model_is_refused_by_its_full_key() {
         assert!(e.contains(&format!("`{key}`")), "{extra}: {e}");
     }
     let e = read(&["observation.kind=\"sonar\"".into()]).unwrap_err();
-    assert!(e.contains("`observation.kind`") && e.contains("`range`"), "{e}");
-    let ou = |extra: &str| vec![format!("dynamics={{ kind = \"ornstein_uhlenbeck\"{extra} }}")];
+    assert!(
+        e.contains("`observation.kind`") && e.contains("`range`"),
+        "{e}"
+    );
+    let ou = |extra: &str| {
+        vec![format!(
+            "dynamics={{ kind = \"ornstein_uhlenbeck\"{extra} }}"
+        )]
+    };
     read(&ou(", period = 1.0, sigma = 0.05")).unwrap();
     for (extra, key) in [
         (", sigma = 0.05", "dynamics.period"),
         (", period = 1.0", "dynamics.sigma"),
         (", period = 1.0, sigma = 0.05, tau = 0", "dynamics.tau"),
-        (", period = 1.0, sigma = 0.05, maneuver_accel = 0.1", "dynamics.maneuver_accel"),
+        (
+            ", period = 1.0, sigma = 0.05, maneuver_accel = 0.1",
+            "dynamics.maneuver_accel",
+        ),
     ] {
         let e = read(&ou(extra)).unwrap_err();
         assert!(e.contains(&format!("`{key}`")), "{extra}: {e}");
     }
     let e = read(&["dynamics.kind=\"brownian\"".into()]).unwrap_err();
-    assert!(e.contains("`dynamics.kind`") && e.contains("`ornstein_uhlenbeck`"), "{e}");
+    assert!(
+        e.contains("`dynamics.kind`") && e.contains("`ornstein_uhlenbeck`"),
+        "{e}"
+    );
     // Another program does not know them.
     let other = Scenario::from_toml(
         fusion_graph::scenario::DEFAULT_SCENARIO,
@@ -333,4 +366,3 @@ fn a_bad_parameter_of_a_law_or_a_model_is_refused_by_its_full_key() {
     .to_string();
     assert!(other.contains("`observation.kind`"), "{other}");
 }
-

@@ -38,7 +38,10 @@ impl ObservationConfig {
         let config = resolve_observation(spec, vocabulary)?;
         if let Some(law) = config.built_in() {
             law.validate().map_err(|e| {
-                format!("`observation.{}`: expected {}, got {}", e.parameter, e.expected, e.value)
+                format!(
+                    "`observation.{}`: expected {}, got {}",
+                    e.parameter, e.expected, e.value
+                )
             })?;
         }
         Ok(config)
@@ -89,7 +92,10 @@ impl DynamicsConfig {
         let config = resolve_dynamics(spec, vocabulary)?;
         let dynamics = match config.turn() {
             Some(turn) => bounds::Dynamics::new(*turn).map_err(|e| {
-                format!("`dynamics.{}`: expected {}, got {}", e.parameter, e.expected, e.value)
+                format!(
+                    "`dynamics.{}`: expected {}, got {}",
+                    e.parameter, e.expected, e.value
+                )
             })?,
             None => bounds::Dynamics::of(config.motion.clone())
                 .map_err(|e| format!("`dynamics`: {e}"))?,
@@ -167,11 +173,17 @@ impl From<CoordinatedTurn> for TurnFile {
 
 /// The names a `kind` could have been, for an error.
 fn one_of(names: impl Iterator<Item = &'static str>) -> String {
-    names.map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", ")
+    names
+        .map(|n| format!("`{n}`"))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// `kind`, and the rest of the table.
-fn split_kind(mut table: toml::Table, section: &str) -> Result<(Option<String>, toml::Table), String> {
+fn split_kind(
+    mut table: toml::Table,
+    section: &str,
+) -> Result<(Option<String>, toml::Table), String> {
     match table.remove("kind") {
         None => Ok((None, table)),
         Some(toml::Value::String(kind)) => Ok((Some(kind), table)),
@@ -179,7 +191,10 @@ fn split_kind(mut table: toml::Table, section: &str) -> Result<(Option<String>, 
     }
 }
 
-fn resolve_observation(spec: toml::Table, vocabulary: Vocabulary) -> Result<ObservationConfig, String> {
+fn resolve_observation(
+    spec: toml::Table,
+    vocabulary: Vocabulary,
+) -> Result<ObservationConfig, String> {
     let (kind, params) = split_kind(spec.clone(), "observation")?;
     let Some(kind) = kind else {
         return Err("`observation.kind`: missing".into());
@@ -227,7 +242,9 @@ fn resolve_dynamics(spec: toml::Table, vocabulary: Vocabulary) -> Result<Dynamic
         }
         Some(kind) => {
             let Some(part) = vocabulary.motion(kind) else {
-                let names = [CoordinatedTurn::KIND].into_iter().chain(vocabulary.motion_names());
+                let names = [CoordinatedTurn::KIND]
+                    .into_iter()
+                    .chain(vocabulary.motion_names());
                 return Err(format!(
                     "`dynamics.kind`: unknown motion model `{kind}`, expected one of {}",
                     one_of(names)
@@ -237,7 +254,9 @@ fn resolve_dynamics(spec: toml::Table, vocabulary: Vocabulary) -> Result<Dynamic
                 Some(toml::Value::Float(p)) if p.is_finite() && p > 0.0 => p,
                 Some(toml::Value::Integer(p)) if p > 0 => p as f64,
                 Some(other) => {
-                    return Err(format!("`dynamics.period`: expected a finite number > 0, got {other}"))
+                    return Err(format!(
+                        "`dynamics.period`: expected a finite number > 0, got {other}"
+                    ))
                 }
                 None => return Err("`dynamics.period`: missing".into()),
             };

@@ -162,7 +162,8 @@ impl Scenario {
                 format!("\"{}\"", self.consensus.protocol.name()),
             ));
         }
-        let linear = "the centre's recursion (eq. 4.8) takes a linear, constant-velocity transition";
+        let linear =
+            "the centre's recursion (eq. 4.8) takes a linear, constant-velocity transition";
         match self.dynamics.turn() {
             None => {
                 return Err(check.fail(

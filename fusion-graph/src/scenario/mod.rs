@@ -19,8 +19,8 @@ pub use crate::faults::{
     Loss, Partition, Reorder, SensorMode, Signal,
 };
 use consensus::default_accuracy;
-pub use law_and_motion::{DynamicsConfig, ObservationConfig};
 pub use consensus::{RoundsAdvice, RoundsChoice, MAX_AUTO_ROUNDS};
+pub use law_and_motion::{DynamicsConfig, ObservationConfig};
 pub use mac::{MacConfig, MacDesign, MAX_SLOTS as MAX_MAC_SLOTS};
 pub use overrides::apply_override;
 
@@ -459,7 +459,6 @@ impl TargetConfig {
         ]
     }
 }
-
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -160,7 +160,10 @@ pub fn location_config(scenario: &Scenario) -> Result<LocationConfig, ParamError
     let params = super::protocol_params(scenario);
     params.only(&["grid_x", "grid_y", "refinements", "thresholds"])?;
     let axis = |name| params.integer(name, 5..=61, 21).map(|v| v as usize);
-    let amplitude = scenario.observation.law().is::<bounds::observation::Amplitude>();
+    let amplitude = scenario
+        .observation
+        .law()
+        .is::<bounds::observation::Amplitude>();
     let default = if amplitude { "designed" } else { "uniform" };
     let thresholds = match params.text("thresholds", default)? {
         "designed" if amplitude || scenario.quantizer.raw => ThresholdDesign::Designed,

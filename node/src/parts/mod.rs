@@ -273,7 +273,8 @@ impl Parts {
     /// built from the table's other keys.
     pub fn law(mut self, name: &'static str, factory: impl LawFactory) -> Self {
         const ROLE: &str = "observation law";
-        let taken = bounds::SensorLaw::KINDS.contains(&name) || self.laws.iter().any(|l| l.name == name);
+        let taken =
+            bounds::SensorLaw::KINDS.contains(&name) || self.laws.iter().any(|l| l.name == name);
         if let Err(e) = check_name(ROLE, name, taken) {
             return self.fail(e);
         }
@@ -691,6 +692,31 @@ mod tests {
         };
         assert_eq!(pair_reads(&plain), 0);
         assert_eq!(pair_reads(&s), topology.neighbours[4].len());
+    }
+
+    /// A law or a motion model takes a name of its own: not a built-in
+    /// kind, not one listed already, and a name a scenario can spell.
+    #[test]
+    fn a_law_or_a_model_takes_a_name_of_its_own() {
+        let law = |_: &Params<'_>| -> Result<bounds::Law, ParamError> { unreachable!() };
+        let motion =
+            |_: f64, _: &Params<'_>| -> Result<bounds::Motion, ParamError> { unreachable!() };
+        let taken = |parts: Parts| matches!(parts.vocabulary(), Err(PartsError::Taken { .. }));
+        assert!(taken(Parts::new().law("bearing", law)));
+        assert!(taken(Parts::new().law("range", law).law("range", law)));
+        assert!(taken(Parts::new().motion("coordinated_turn", motion)));
+        assert!(matches!(
+            Parts::new().law("Range", law).vocabulary(),
+            Err(PartsError::BadName { .. })
+        ));
+        let v = Parts::new()
+            .law("range", law)
+            .motion("ou", motion)
+            .vocabulary()
+            .unwrap();
+        assert_eq!(v.law_names().collect::<Vec<_>>(), ["range"]);
+        assert_eq!(v.motion_names().collect::<Vec<_>>(), ["ou"]);
+        assert_ne!(v, Vocabulary::BUILT_IN);
     }
 
     /// cqnet's own parts are the scenario format's vocabulary, name for

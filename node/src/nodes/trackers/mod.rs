@@ -211,10 +211,10 @@ impl<C: Cooperation> TrackerNode<C> {
         let mut rng = stream_rng(scenario.seed, id, 0, Stream::LocalFilter);
         let tracker = DiffusionTracker::new(scenario.filter.particles as usize, &prior, &mut rng)
             .map_err(|_| NodeError::Filter {
-            node: index,
-            source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
-        })?
-        .with_resampling(scenario.filter.resampler);
+                node: index,
+                source: bounds::BoundError::NotPositiveDefinite("the prior covariance"),
+            })?
+            .with_resampling(scenario.filter.resampler);
         Ok(Self {
             core: NodeCore::new(scenario, topology, index, models.quantizer.as_ref()),
             filter: TrackerFilter {
