@@ -29,9 +29,26 @@ pub struct Workload {
 
 impl Workload {
     pub fn new() -> Self {
+        Self::measuring_by(None)
+    }
+
+    /// The same workload with every sensor measuring by `law` instead of
+    /// the scenario's (a program's law against the built-in one). The
+    /// bench uses it; the instruction-counting example does not.
+    #[allow(dead_code)]
+    pub fn with_law(law: bounds::Law) -> Self {
+        Self::measuring_by(Some(law))
+    }
+
+    fn measuring_by(law: Option<bounds::Law>) -> Self {
         let scenario = Scenario::default_scenario();
         let topology = Topology::from_scenario(&scenario, "default").unwrap();
-        let model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+        let mut model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+        if let Some(law) = law {
+            for sensor in &mut model.sensors {
+                sensor.law = law.clone();
+            }
+        }
         let prior = scenario.network_prior(&scenario.models().unwrap());
         let truth = State::from(scenario.target.initial_state());
         let quantizer = model.quantizer.as_ref().unwrap();
