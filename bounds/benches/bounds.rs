@@ -68,7 +68,14 @@ fn bench(c: &mut Criterion) {
     .into();
     let user = Law::new(
         "user_bearing",
-        Autodiff(UserBearing {
+        Autodiff(UserBearing::<false> {
+            sigma_theta: 0.02,
+            d0: 500.0,
+        }),
+    );
+    let helped = Law::new(
+        "user_bearing_atan2",
+        Autodiff(UserBearing::<true> {
             sigma_theta: 0.02,
             d0: 500.0,
         }),
@@ -76,6 +83,10 @@ fn bench(c: &mut Criterion) {
     for (name, law) in [
         ("built-in bearing", bearing),
         ("a user's bearing, automatic gradients", user),
+        (
+            "a user's bearing, automatic gradients, one-call atan2",
+            helped,
+        ),
     ] {
         local_bound_update(c, &q, x, &law, name);
     }
@@ -84,15 +95,22 @@ fn bench(c: &mut Criterion) {
 /// The built-in bearing's arithmetic as a program would write it, g and R
 /// alone, its gradients by automatic differentiation: what a law of one's
 /// own costs against the built-in one.
+/// `ONE_CALL`: its arctangent through `bounds::observation::atan2` rather
+/// than the number's own.
 #[derive(Debug)]
-struct UserBearing {
+struct UserBearing<const ONE_CALL: bool> {
     sigma_theta: f64,
     d0: f64,
 }
 
-impl DifferentiableLaw for UserBearing {
+impl<const ONE_CALL: bool> DifferentiableLaw for UserBearing<ONE_CALL> {
     fn mean<D: Real>(&self, sensor: [f64; 2], x: [D; 4]) -> D {
-        (x[0] - sensor[0]).atan2(x[1] - sensor[1])
+        let (dx, dy) = (x[0] - sensor[0], x[1] - sensor[1]);
+        if ONE_CALL {
+            bounds::observation::atan2(dx, dy)
+        } else {
+            dx.atan2(dy)
+        }
     }
 
     fn variance<D: Real>(&self, sensor: [f64; 2], x: [D; 4]) -> D {

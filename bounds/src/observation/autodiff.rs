@@ -7,7 +7,7 @@
 //! A likelihood, which needs g and R only, evaluates the same arithmetic on
 //! plain `f64`, at the cost of the law itself.
 
-use num_dual::{DualNum, DualSVec64};
+use num_dual::{DualNum, DualSVec64, DualStruct};
 
 use crate::State;
 
@@ -19,6 +19,18 @@ use super::{Evaluation, ObservationLaw};
 pub trait Real: DualNum<Primitive = f64> + Copy {}
 
 impl<T: DualNum<Primitive = f64> + Copy> Real for T {}
+
+/// `atan2(y, x)` with its derivative `(x ∇y − y ∇x)/(x² + y²)` at the cost
+/// of one library call: `num-dual`'s own `atan2` also takes the
+/// arctangent of the ratio for its derivative. The value is `f64::atan2`'s
+/// exactly (the added term is `(y·x₀ − x·y₀)/r₀²`, whose value is an exact
+/// zero), so a law may use it on plain numbers and on duals alike.
+#[inline]
+pub fn atan2<D: Real>(y: D, x: D) -> D {
+    let (y0, x0) = (y.re(), x.re());
+    let r2 = y0 * y0 + x0 * x0;
+    (y * x0 - x * y0) / r2 + y0.atan2(x0)
+}
 
 /// An observation law given as g and R alone, generic over the number
 /// they are computed in. Wrapped in [`Autodiff`], it is an

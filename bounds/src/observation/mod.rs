@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use crate::batch::{Positions, CHUNK};
 use crate::{ParameterError, State};
 
-pub use autodiff::{Autodiff, DifferentiableLaw, Real};
+pub use autodiff::{atan2, Autodiff, DifferentiableLaw, Real};
 #[cfg(test)]
 pub(crate) use check::central as central_gradient;
 pub use check::{check_gradients, GradientMismatch};
@@ -770,6 +770,47 @@ mod tests {
         for m in laws {
             if let Err(e) = check_gradients(&m.law, m.sensor, &xs) {
                 panic!("{:?}: {e}", m.law);
+            }
+        }
+    }
+
+    /// The same law through [`atan2`], the one-call dual arctangent.
+    #[derive(Debug)]
+    struct BearingByHelper;
+
+    impl DifferentiableLaw for BearingByHelper {
+        fn mean<D: Real>(&self, sensor: [f64; 2], x: [D; 4]) -> D {
+            atan2(x[0] - sensor[0], x[1] - sensor[1])
+        }
+
+        fn variance<D: Real>(&self, sensor: [f64; 2], x: [D; 4]) -> D {
+            BearingByHand.variance(sensor, x)
+        }
+
+        fn is_angular(&self) -> bool {
+            true
+        }
+    }
+
+    /// [`atan2`] on plain numbers is `f64::atan2` bit for bit, and on duals
+    /// it gives the gradient `num-dual`'s own gives, to rounding.
+    #[test]
+    fn the_one_call_arctangent_is_the_arctangent() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let sensor = [250.0, 750.0];
+        let plain = Law::new("by_hand", Autodiff(BearingByHand)).at(sensor);
+        let helped = Law::new("by_helper", Autodiff(BearingByHelper)).at(sensor);
+        for x in states(&mut rng) {
+            let (dx, dy) = (x[0] - sensor[0], x[1] - sensor[1]);
+            assert_eq!(atan2(dx, dy).to_bits(), dx.atan2(dy).to_bits());
+            let (a, b) = (plain.evaluate(&x), helped.evaluate(&x));
+            assert_eq!(a.g.to_bits(), b.g.to_bits());
+            for k in 0..4 {
+                let (p, q) = (a.grad_g[k], b.grad_g[k]);
+                assert!(
+                    (p - q).abs() <= 1e-12 * p.abs().max(q.abs()),
+                    "{x:?}: {a:?} vs {b:?}"
+                );
             }
         }
     }
