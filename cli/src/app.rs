@@ -138,10 +138,6 @@ where
     T: Into<std::ffi::OsString> + Clone,
 {
     let args: Vec<std::ffi::OsString> = args.into_iter().map(Into::into).collect();
-    if let Some(refused) = former_scenario_flag(&args) {
-        eprintln!("cqnet: error: {refused}");
-        return std::process::ExitCode::FAILURE;
-    }
     let cli = Cli::parse_from(args);
     let actor_name = match &cli.command {
         Command::Actor(a) => Some(a.actor.clone()),
@@ -158,19 +154,6 @@ where
             std::process::ExitCode::FAILURE
         }
     }
-}
-
-/// `cqnet scenario --<former name>`: refused, naming the flag that replaced
-/// it (see `fusion_graph::scenario::FORMER_BUILT_IN_NAMES`).
-fn former_scenario_flag(args: &[std::ffi::OsString]) -> Option<String> {
-    if args.get(1).is_none_or(|a| a != "scenario") {
-        return None;
-    }
-    args.iter().skip(2).find_map(|a| {
-        let flag = a.to_str()?.strip_prefix("--")?;
-        let now = fusion_graph::scenario::renamed_built_in(flag)?;
-        Some(format!("`--{flag}` is now called `--{now}`"))
-    })
 }
 
 fn init_logging(actor: Option<&str>, quiet: bool) {

@@ -14,7 +14,6 @@ pub enum Entry {
 /// The network experiment or computed one of that name, or an error that
 /// lists every name.
 pub fn find_entry(name: &str) -> anyhow::Result<Entry> {
-    refuse_former_name(name)?;
     if let Some(c) = computed_catalogue().into_iter().find(|c| c.name == name) {
         return Ok(Entry::Computed(c));
     }
@@ -31,27 +30,8 @@ pub fn catalogue() -> Vec<Experiment> {
     all
 }
 
-/// Names experiments once went by, a paper's number and figure, each with
-/// the name that says what it is.
-const FORMER_NAMES: [(&str, &str); 4] = [
-    ("seed000-fig1b", "bound-aux-fim"),
-    ("seed000-fig1c", "bound-against-bits"),
-    ("seed001-fig2", "sensor-selection"),
-    ("seed004-fig1", "random-exchange-trackers"),
-];
-
-/// A former name is refused rather than followed, so that scripts move to
-/// the name that says what the experiment is; the error names it.
-fn refuse_former_name(name: &str) -> anyhow::Result<()> {
-    match FORMER_NAMES.iter().find(|(former, _)| *former == name) {
-        Some((former, now)) => anyhow::bail!("the experiment `{former}` is now called `{now}`"),
-        None => Ok(()),
-    }
-}
-
 /// The experiment of that name, or an error that lists the names.
 pub fn find(name: &str) -> anyhow::Result<Experiment> {
-    refuse_former_name(name)?;
     let mut all = catalogue();
     match all.iter().position(|e| e.name == name) {
         Some(i) => Ok(all.swap_remove(i)),

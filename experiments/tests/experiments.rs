@@ -111,17 +111,3 @@ fn an_unknown_experiment_is_a_clear_error_naming_the_known_ones() {
         "{err}"
     );
 }
-
-#[test]
-fn a_former_name_is_refused_with_the_name_that_replaced_it() {
-    for (former, now) in [
-        ("seed001-fig2", "sensor-selection"),
-        ("seed004-fig1", "random-exchange-trackers"),
-    ] {
-        let err = match experiment::find_entry(former) {
-            Ok(_) => panic!("`{former}` was followed, not refused"),
-            Err(e) => e.to_string(),
-        };
-        assert!(err.contains(former) && err.contains(now), "{err}");
-    }
-}

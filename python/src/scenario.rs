@@ -112,11 +112,6 @@ impl PyScenario {
     /// multiple-access channel).
     #[staticmethod]
     fn builtin(name: &str) -> PyResult<Self> {
-        if let Some(now) = fusion_graph::scenario::renamed_built_in(name) {
-            return Err(PyValueError::new_err(format!(
-                "the built-in scenario `{name}` is now called `{now}`"
-            )));
-        }
         match BUILTIN.iter().find(|(n, _, _)| *n == name) {
             Some((_, source, text)) => Self::parse(text, source, &[]),
             None => Err(PyValueError::new_err(format!(

@@ -15,12 +15,6 @@ def test_builtins_load_and_round_trip_through_toml():
         cqnet.Scenario.builtin("no-such-scenario")
 
 
-def test_a_former_builtin_name_is_refused_naming_the_new_one():
-    for former, now in [("seed001", "sensor-selection"), ("seed004", "random-exchange")]:
-        with pytest.raises(ValueError, match=f"`{former}` is now called `{now}`"):
-            cqnet.Scenario.builtin(former)
-
-
 def test_set_changes_a_value_and_chains():
     s = cqnet.Scenario.default().set("filter.particles", 500).set("quantizer.bits", 4)
     assert s.get("filter.particles") == 500

@@ -873,27 +873,6 @@ fn a_node_killed_during_pcrlb_selection_does_not_stall_the_step() {
     r.assert_clean();
 }
 
-#[test]
-fn a_former_scenario_flag_is_refused_naming_the_new_one() {
-    for (former, now) in [
-        ("--seed001", "--sensor-selection"),
-        ("--seed004", "--random-exchange"),
-    ] {
-        let out = std::process::Command::new(CQNET)
-            .args(["scenario", former])
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(!out.status.success(), "`cqnet scenario {former}` succeeded");
-        assert!(stderr.contains(former) && stderr.contains(now), "{stderr}");
-        let out = std::process::Command::new(CQNET)
-            .args(["scenario", now])
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "`cqnet scenario {now}` failed");
-    }
-}
-
 /// Before a run, `sim` says when the scenario's rounds are too few for its
 /// fusion graph, naming λ₂ and the rounds that would do; `"auto"` says
 /// what it chose; the default scenario's ten rounds pass in silence.

@@ -7,7 +7,7 @@
 //! A likelihood, which needs g and R only, evaluates the same arithmetic on
 //! plain `f64`, at the cost of the law itself.
 
-use num_dual::{DualNum, DualSVec64, DualStruct};
+use num_dual::{DualNum, DualSVec64};
 
 use crate::State;
 

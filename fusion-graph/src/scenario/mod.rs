@@ -122,21 +122,6 @@ pub const RANDOM_EXCHANGE_SCENARIO: &str = include_str!("../../scenarios/random-
 /// A static target located from quantized amplitudes (ML over a shared grid).
 pub const LOCATION_SCENARIO: &str = include_str!("../../scenarios/location.toml");
 
-/// Names two built-in scenarios once went by, a numbering a user could not
-/// decode, each with the name that says what it is. The command line and
-/// the Python package refuse an old one, naming the new one.
-pub const FORMER_BUILT_IN_NAMES: [(&str, &str); 2] = [
-    ("seed001", "sensor-selection"),
-    ("seed004", "random-exchange"),
-];
-
-/// The name that replaced a built-in scenario's former `name`, if it is one.
-pub fn renamed_built_in(name: &str) -> Option<&'static str> {
-    FORMER_BUILT_IN_NAMES
-        .iter()
-        .find(|(former, _)| *former == name)
-        .map(|(_, now)| *now)
-}
 /// A fusion centre that hears 25 amplitude sensors through a
 /// multiple-access channel and designs who transmits (compressive sensor
 /// management).
