@@ -30,13 +30,19 @@ const NON_NEGATIVE: &str = "a finite number >= 0";
 const SMALL_TURN: f64 = 1e-4;
 
 /// `x(k) = F(Ω(x)) x(k−1) + ξ`, `Ω(x) = −a_m / max(‖v‖, v_min)`, `ξ ~ N(0, Q)`.
+///
+/// Its serde form is the scenario file's `[dynamics]` keys, every one
+/// checked.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CoordinatedTurn {
     /// Sampling period T, seconds.
     pub period: f64,
     /// Manoeuvre acceleration a_m ≥ 0, m/s². Zero gives constant velocity.
     pub maneuver_accel: f64,
-    /// Speed floor v_min > 0 that keeps the turn rate finite, m/s.
+    /// Speed floor v_min > 0 that keeps the turn rate finite, m/s; 0.1
+    /// when a file leaves it out.
+    #[serde(default = "default_min_speed")]
     pub min_speed: f64,
     /// Process-noise intensity: σ_v in m s^-3/2 for the continuous model,
     /// σ in m/s² for the discrete one.
@@ -44,6 +50,10 @@ pub struct CoordinatedTurn {
     /// Which white-noise acceleration model gives Q.
     #[serde(default)]
     pub process_noise: ProcessNoise,
+}
+
+fn default_min_speed() -> f64 {
+    0.1
 }
 
 /// The two white-noise acceleration models of the literature (Bar-Shalom,

@@ -542,15 +542,6 @@ fn transition_batch(dynamics: &Dynamics, x: &StateLanes, out: &mut TransitionBat
     dynamics.transition_batch(x, out)
 }
 
-/// The systematic resampler ([`crate::resampler::systematic`]).
-pub fn systematic_resample<R: Rng + ?Sized>(
-    weights: &[f64],
-    rng: &mut R,
-    take: impl FnMut(usize, usize),
-) {
-    crate::resampler::systematic(weights, rng, take)
-}
-
 /// Weighted mean and covariance.
 pub fn summarize(particles: &[State], weights: &[f64]) -> Gaussian {
     let mut mean = State::zeros();

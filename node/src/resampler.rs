@@ -28,38 +28,44 @@ pub fn resample<R: Rng + ?Sized>(
 
 /// One uniform draw places `n` evenly spaced points on the weights'
 /// cumulative sum.
-pub fn systematic<R: Rng + ?Sized>(
-    weights: &[f64],
-    rng: &mut R,
-    mut take: impl FnMut(usize, usize),
-) {
-    let n = weights.len();
-    let step = 1.0 / n as f64;
+pub fn systematic<R: Rng + ?Sized>(weights: &[f64], rng: &mut R, take: impl FnMut(usize, usize)) {
+    let step = 1.0 / weights.len() as f64;
     let mut u = rng.random::<f64>() * step;
-    let mut cumulative = weights[0];
-    let mut i = 0;
-    for slot in 0..n {
-        while u > cumulative && i + 1 < n {
-            i += 1;
-            cumulative += weights[i];
-        }
-        take(slot, i);
-        u += step;
-    }
+    ascending_points(
+        weights,
+        |_| {
+            let point = u;
+            u += step;
+            point
+        },
+        take,
+    );
 }
 
 /// One uniform point in each of `n` equal strata of the cumulative sum.
-pub fn stratified<R: Rng + ?Sized>(
+pub fn stratified<R: Rng + ?Sized>(weights: &[f64], rng: &mut R, take: impl FnMut(usize, usize)) {
+    let step = 1.0 / weights.len() as f64;
+    ascending_points(
+        weights,
+        |slot| (slot as f64 + rng.random::<f64>()) * step,
+        take,
+    );
+}
+
+/// Slot `s` copies the particle under `point(s)` on the weights'
+/// cumulative sum, for points that never decrease from slot to slot, so
+/// that one walk up the sum serves them all.
+#[inline(always)]
+fn ascending_points(
     weights: &[f64],
-    rng: &mut R,
+    mut point: impl FnMut(usize) -> f64,
     mut take: impl FnMut(usize, usize),
 ) {
     let n = weights.len();
-    let step = 1.0 / n as f64;
     let mut cumulative = weights[0];
     let mut i = 0;
     for slot in 0..n {
-        let u = (slot as f64 + rng.random::<f64>()) * step;
+        let u = point(slot);
         while u > cumulative && i + 1 < n {
             i += 1;
             cumulative += weights[i];

@@ -3,7 +3,7 @@
 //! brought (`kind = "range"`), beside the kind's own parameters; the kind
 //! reads and checks them, naming the full key of a bad one.
 
-use bounds::dynamics::{CoordinatedTurn, Motion, ProcessNoise};
+use bounds::dynamics::{CoordinatedTurn, Motion};
 use bounds::observation::{Law, SensorLaw};
 use serde::{Deserialize, Serialize};
 
@@ -17,6 +17,10 @@ pub struct ObservationConfig {
     /// The table as read, `kind` included: what the scenario writes back.
     spec: toml::Table,
     law: Law,
+    /// cqnet's own law as the file spells it, whose parameters the
+    /// scenario's validation checks; `None` for a program's, which
+    /// checked its own as it was built.
+    built_in: Option<SensorLaw>,
 }
 
 /// `[dynamics]`: the target's motion model, as the file gave it and as
@@ -65,20 +69,7 @@ impl ObservationConfig {
     /// cqnet's own law as the file spells it, to check its parameters;
     /// `None` for a program's, which checked its own as it was built.
     pub(crate) fn built_in(&self) -> Option<SensorLaw> {
-        SensorLaw::deserialize(toml::Value::Table(self.spec.clone())).ok()
-    }
-}
-
-impl From<SensorLaw> for ObservationConfig {
-    fn from(law: SensorLaw) -> Self {
-        let spec = match toml::Value::try_from(law) {
-            Ok(toml::Value::Table(t)) => t,
-            _ => unreachable!("a built-in law serializes to a table"),
-        };
-        Self {
-            spec,
-            law: law.into(),
-        }
+        self.built_in
     }
 }
 
@@ -127,7 +118,7 @@ impl DynamicsConfig {
 
 impl From<CoordinatedTurn> for DynamicsConfig {
     fn from(turn: CoordinatedTurn) -> Self {
-        let spec = match toml::Value::try_from(TurnFile::from(turn)) {
+        let spec = match toml::Value::try_from(turn) {
             Ok(toml::Value::Table(t)) => t,
             _ => unreachable!("the coordinated turn serializes to a table"),
         };
@@ -135,38 +126,6 @@ impl From<CoordinatedTurn> for DynamicsConfig {
             spec,
             period: turn.period,
             motion: turn.into(),
-        }
-    }
-}
-
-/// The coordinated turn's keys in `[dynamics]`.
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TurnFile {
-    period: f64,
-    maneuver_accel: f64,
-    #[serde(default = "default_min_speed")]
-    min_speed: f64,
-    sigma_v: f64,
-    /// "continuous" or "discrete" (dissertation ch. 3). The runtime
-    /// refuses "discrete": its Q is singular and the PCRLB needs Q⁻¹.
-    /// `bounds` and the dissertation's experiments use it.
-    #[serde(default)]
-    process_noise: ProcessNoise,
-}
-
-fn default_min_speed() -> f64 {
-    0.1
-}
-
-impl From<CoordinatedTurn> for TurnFile {
-    fn from(t: CoordinatedTurn) -> Self {
-        Self {
-            period: t.period,
-            maneuver_accel: t.maneuver_accel,
-            min_speed: t.min_speed,
-            sigma_v: t.sigma_v,
-            process_noise: t.process_noise,
         }
     }
 }
@@ -205,6 +164,7 @@ fn resolve_observation(
         return Ok(ObservationConfig {
             spec,
             law: law.into(),
+            built_in: Some(law),
         });
     }
     let Some(part) = vocabulary.law(&kind) else {
@@ -218,22 +178,19 @@ fn resolve_observation(
         .build
         .build(&Params::new("observation", &params))
         .map_err(|e| e.to_string())?;
-    Ok(ObservationConfig { spec, law })
+    Ok(ObservationConfig {
+        spec,
+        law,
+        built_in: None,
+    })
 }
 
 fn resolve_dynamics(spec: toml::Table, vocabulary: Vocabulary) -> Result<DynamicsConfig, String> {
     let (kind, mut params) = split_kind(spec.clone(), "dynamics")?;
     match kind.as_deref() {
         None | Some(CoordinatedTurn::KIND) => {
-            let t = TurnFile::deserialize(toml::Value::Table(params))
+            let turn = CoordinatedTurn::deserialize(toml::Value::Table(params))
                 .map_err(|e| format!("`dynamics`: {}", e.message()))?;
-            let turn = CoordinatedTurn {
-                period: t.period,
-                maneuver_accel: t.maneuver_accel,
-                min_speed: t.min_speed,
-                sigma_v: t.sigma_v,
-                process_noise: t.process_noise,
-            };
             Ok(DynamicsConfig {
                 spec,
                 period: turn.period,
