@@ -28,7 +28,7 @@ use crate::shared_rows::{LazyRows, PlainRow, SharedRows};
 use crate::width_axis::{self, lagrange_weights, Stencil};
 
 /// Grid points over the cell fraction u ∈ [0, 1) (periodic).
-const U_POINTS: usize = 128;
+pub(crate) const U_POINTS: usize = 128;
 /// The table covers `S_MIN < σ/Δ < S_MAX`. Below it the exact sums are
 /// used (few cells when σ ≪ Δ); above it, the fine-cell expansion
 /// (`fine_cell_sums`).

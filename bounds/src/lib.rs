@@ -51,6 +51,7 @@ pub mod speb;
 pub mod table_memory;
 pub mod ungm;
 pub mod width_axis;
+pub mod wrapped_table;
 mod ziggurat_tables;
 
 #[cfg(test)]

@@ -1,6 +1,9 @@
 //! The quantizer itself: its cells, built uniform, wrapped or from
 //! thresholds, and the encoding of a value to a cell index and bytes.
 
+use std::ops::RangeInclusive;
+
+use crate::cell_sums::WINDOW_SIGMAS;
 use crate::QuantizerError;
 
 /// Largest supported bit depth (2^16 cells): the most any experiment sweeps
@@ -217,12 +220,31 @@ impl Quantizer {
         )
     }
 
-    pub(super) fn shifts(&self) -> &'static [f64] {
-        if self.wrapped {
-            &[-1.0, 0.0, 1.0]
-        } else {
-            &[0.0]
+    /// The turns of the circle whose copies of cell `index` a probability
+    /// sums: for a wrapped quantizer, the copy either side of the first
+    /// period while the window of ±[`WINDOW_SIGMAS`] σ is narrower than
+    /// the circle (the mean lies within the first period, so those hold
+    /// every copy within reach), and every copy within the window once it
+    /// is not (a far bearing's noise goes round the circle several times).
+    #[inline]
+    pub(super) fn copies(&self, index: usize, mean: f64, sigma: f64) -> RangeInclusive<i64> {
+        if !self.wrapped {
+            return 0..=0;
         }
+        let period = self.period();
+        let reach = WINDOW_SIGMAS * sigma;
+        if 2.0 * reach < period {
+            return -1..=1;
+        }
+        let first = ((mean - reach - self.edges[index + 1]) / period).ceil();
+        let last = ((mean + reach - self.edges[index]) / period).floor();
+        first as i64..=last as i64
+    }
+
+    /// Whether the window of ±[`WINDOW_SIGMAS`] σ is at least the circle.
+    #[inline]
+    pub(super) fn wraps_round(&self, sigma: f64) -> bool {
+        self.wrapped && 2.0 * WINDOW_SIGMAS * sigma >= self.period()
     }
 }
 

@@ -27,8 +27,8 @@ impl Quantizer {
             d_mean: 0.0,
             d_variance: 0.0,
         };
-        for &j in self.shifts() {
-            let (a, b) = self.standardized(index as usize, j, mean, sigma);
+        for j in self.copies(index as usize, mean, sigma) {
+            let (a, b) = self.standardized(index as usize, j as f64, mean, sigma);
             s.probability += interval_mass(a, b);
             s.d_mean += (normal::pdf(a) - normal::pdf(b)) / sigma;
             s.d_variance += (normal::x_pdf(a) - normal::x_pdf(b)) / (2.0 * variance);
@@ -56,8 +56,8 @@ impl Quantizer {
             }
         };
         let (mut d_mean, mut d_variance) = (0.0, 0.0);
-        for &j in self.shifts() {
-            let (a, b) = self.standardized(index as usize, j, mean, sigma);
+        for j in self.copies(index as usize, mean, sigma) {
+            let (a, b) = self.standardized(index as usize, j as f64, mean, sigma);
             let ((pa, xa), (pb, xb)) = (ratio(a), ratio(b));
             d_mean += (pa - pb) / sigma;
             d_variance += (xa - xb) / (2.0 * variance);
@@ -91,9 +91,41 @@ impl Quantizer {
         spread: &Spread,
     ) -> Option<FisherScalars> {
         if !Self::window_tabled(cells, mean, spread.sigma) {
-            return None;
+            return Self::wrapped_read(cells, mean, spread);
         }
         Self::fisher_read(cells, mean, spread)
+    }
+
+    /// The scalars of a wrapped quantizer whose window spans the circle,
+    /// off its own table ([`crate::wrapped_table`]), where σ is a cell or
+    /// more; `None` otherwise (an unwrapped quantizer, or σ narrower than
+    /// a cell, whose window holds fewer than 18 cells to sum exactly).
+    #[inline]
+    pub(super) fn wrapped_read(
+        cells: &UniformCells,
+        mean: f64,
+        spread: &Spread,
+    ) -> Option<FisherScalars> {
+        if !cells.wrapped || spread.s < 1.0 {
+            return None;
+        }
+        let (t, u) = (
+            spread.sigma * cells.per_period,
+            (mean - cells.lo) * cells.per_width,
+        );
+        let sums = crate::wrapped_table::table(cells.cells).lookup(t, u);
+        Some(Self::scalars_of(sums, spread))
+    }
+
+    /// `scalars_from_sums`, by multiplications.
+    #[inline(always)]
+    fn scalars_of(sums: [f64; 3], spread: &Spread) -> FisherScalars {
+        let per_variance = spread.per_sigma * spread.per_sigma;
+        FisherScalars {
+            gg: sums[0] * per_variance,
+            gr: sums[1] * (0.5 * per_variance * spread.per_sigma),
+            rr: sums[2] * (0.25 * per_variance * per_variance),
+        }
     }
 
     /// Whether the cells within [`WINDOW_SIGMAS`] of the mean are all of the
@@ -118,20 +150,14 @@ impl Quantizer {
     ) -> Option<FisherScalars> {
         let u = (mean - cells.lo) * cells.per_width;
         let sums = crate::fisher_table::table().lookup_at(u, spread.s, spread.rows.as_ref())?;
-        // The same as `scalars_from_sums`, by multiplications.
-        let per_variance = spread.per_sigma * spread.per_sigma;
-        Some(FisherScalars {
-            gg: sums[0] * per_variance,
-            gr: sums[1] * (0.5 * per_variance * spread.per_sigma),
-            rr: sums[2] * (0.25 * per_variance * per_variance),
-        })
+        Some(Self::scalars_of(sums, spread))
     }
 
     /// Fisher scalars summed exactly over the cells within [`WINDOW_SIGMAS`]
     /// of the mean.
     pub fn fisher_scalars_exact(&self, mean: f64, variance: f64) -> FisherScalars {
         let sigma = variance.sqrt();
-        if self.wrapped && 2.0 * WINDOW_SIGMAS * sigma >= self.period() {
+        if self.wraps_round(sigma) {
             return self.fisher_scalars_all_cells(mean, variance);
         }
         let (first, last) = (
@@ -142,8 +168,10 @@ impl Quantizer {
         scalars_from_sums(sums, variance)
     }
 
-    /// Fisher scalars summed over every cell (and every wrap shift). The
-    /// reference that the window is tested against.
+    /// Fisher scalars summed over every cell (and, for a wrapped
+    /// quantizer, each cell's copies within the window, or the copy
+    /// either side). The reference that the window and the tables are
+    /// tested against.
     pub fn fisher_scalars_all_cells(&self, mean: f64, variance: f64) -> FisherScalars {
         let sigma = variance.sqrt();
         let mut sums = [0.0; 3];

@@ -11,10 +11,9 @@ impl Quantizer {
     /// `h_i = P(Y = i)` for `Z ~ N(mean, variance)`.
     pub fn probability(&self, index: u32, mean: f64, variance: f64) -> f64 {
         let sigma = variance.sqrt();
-        self.shifts()
-            .iter()
-            .map(|&j| {
-                let (a, b) = self.standardized(index as usize, j, mean, sigma);
+        self.copies(index as usize, mean, sigma)
+            .map(|j| {
+                let (a, b) = self.standardized(index as usize, j as f64, mean, sigma);
                 interval_mass(a, b)
             })
             .sum()
@@ -27,6 +26,11 @@ impl Quantizer {
         if !self.wrapped {
             let (a, b) = self.standardized(index as usize, 0.0, mean, sigma);
             return ln_interval_mass(a, b);
+        }
+        if self.wraps_round(sigma) {
+            // Every copy within the window counts, and none underflows:
+            // each cell holds at least the mass 9 σ out.
+            return self.probability(index, mean, variance).ln();
         }
         // Of the three shifted copies of the cell, the nearest to the mean
         // dominates; a copy whose nearest edge is 10σ farther contributes
@@ -43,7 +47,7 @@ impl Quantizer {
         let nearest = d[0].min(d[1]).min(d[2]);
         let mut terms = [f64::NEG_INFINITY; 3];
         let mut summed = 0;
-        for (k, &j) in self.shifts().iter().enumerate() {
+        for (k, j) in [-1.0, 0.0, 1.0].into_iter().enumerate() {
             if d[k] <= nearest + 10.0 {
                 let (a, b) = self.standardized(index as usize, j, mean, sigma);
                 terms[k] = ln_interval_mass(a, b);
@@ -292,7 +296,7 @@ impl Quantizer {
         let tabled = if reads.window_tabled[i] {
             Self::fisher_read(cells, mean[i], spread)
         } else {
-            None
+            Self::wrapped_read(cells, mean[i], spread)
         };
         tabled.unwrap_or_else(|| self.fisher_scalars_exact(mean[i], variance[i]))
     }

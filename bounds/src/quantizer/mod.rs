@@ -291,16 +291,23 @@ mod tests {
     fn fisher_window_drops_less_than_tolerance() {
         let bearing = Quantizer::uniform_wrapped(8, -PI, PI).unwrap();
         let rss = Quantizer::uniform(8, -100.0, 0.0).unwrap();
+        let coarse = Quantizer::uniform_wrapped(2, -PI, PI).unwrap();
         let cases: Vec<(&Quantizer, f64, f64)> = vec![
             (&bearing, 0.1, 0.02),
             (&bearing, 3.13, 0.05),        // window crosses +π
             (&bearing, -PI + 0.002, 0.09), // window crosses −π
             (&bearing, 1.0, 0.004),        // far narrower than a cell
             (&rss, -50.0, 2.0),
-            (&rss, -99.0, 3.0),   // window reaches the unbounded cell
-            (&rss, 20.0, 1.0),    // mean beyond the last edge
-            (&rss, -50.0, 0.3),   // table: interior, σ ≈ 0.8 cells
-            (&bearing, 2.0, 0.5), // table: σ ≈ 20 cells
+            (&rss, -99.0, 3.0), // window reaches the unbounded cell
+            (&rss, 20.0, 1.0),  // mean beyond the last edge
+            (&rss, -50.0, 0.3), // table: interior, σ ≈ 0.8 cells
+            // The window spans the circle: the wrapped table.
+            (&bearing, 2.0, 0.5),  // σ ≈ 20 cells
+            (&bearing, 0.3, 0.36), // just past the span
+            (&bearing, -3.0, 1.5), // several turns in the window
+            (&bearing, 1.0, 9.0),  // past where the table reads zero
+            (&coarse, 0.7, 0.9),   // 4 cells, over u too
+            (&coarse, 0.7, 0.3),   // narrower than a cell: exact
         ];
         for (q, mean, sigma) in cases {
             let v = sigma * sigma;
