@@ -119,11 +119,11 @@ pub fn setup_event(scenario: &Scenario, topology: &Topology, mode: &'static str)
         mode,
         region: [scenario.region.width, scenario.region.height],
         steps: scenario.steps,
-        nodes: topology.node_positions.clone(),
+        nodes: topology.node_positions.to_vec(),
         sensors: topology
             .sensor_positions
             .iter()
-            .zip(&topology.sensor_owner)
+            .zip(topology.sensor_owner.iter())
             .map(|(p, &o)| [p[0], p[1], o as f64])
             .collect(),
         links: fusion_links(topology),

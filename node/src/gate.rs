@@ -108,7 +108,7 @@ mod tests {
         let models = Scenario::default_scenario().models().unwrap();
         SensingModel {
             dynamics: models.dynamics,
-            sensors: vec![law.at([250.0, 250.0])],
+            sensors: vec![law.at([250.0, 250.0])].into(),
             quantizer: quantized.then_some(models.quantizer.unwrap()),
         }
     }

@@ -249,7 +249,10 @@ impl PyScenario {
 
     /// Each sensor's processing node, an (S,) array of node indices.
     fn sensor_owners<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u16>>> {
-        Ok(PyArray1::from_vec(py, self.topology()?.sensor_owner))
+        Ok(PyArray1::from_vec(
+            py,
+            self.topology()?.sensor_owner.to_vec(),
+        ))
     }
 
     /// The fusion graph's edges, as (node, node) pairs with the smaller first.

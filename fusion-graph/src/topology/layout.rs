@@ -21,7 +21,7 @@ impl Topology {
             node_sensors[*owner as usize].push(i as u16);
         }
         let r2 = s.fusion_graph.radius * s.fusion_graph.radius;
-        let neighbours = (0..node_positions.len())
+        let neighbours: Vec<Vec<u16>> = (0..node_positions.len())
             .map(|a| {
                 (0..node_positions.len())
                     .filter(|&b| b != a && dist2(node_positions[a], node_positions[b]) <= r2)
@@ -30,11 +30,11 @@ impl Topology {
             })
             .collect();
         let topology = Self {
-            node_positions,
-            sensor_positions,
-            sensor_owner,
-            node_sensors,
-            neighbours,
+            node_positions: node_positions.into(),
+            sensor_positions: sensor_positions.into(),
+            sensor_owner: sensor_owner.into(),
+            node_sensors: node_sensors.into(),
+            neighbours: neighbours.into(),
             macs: s.channel.is_some(),
             payloads: s.vocabulary.payloads(),
         };

@@ -245,7 +245,7 @@ mod tests {
             t.neighbours = (0..n as u16)
                 .map(|i| vec![(i + 1) % n as u16, (i + n as u16 - 1) % n as u16])
                 .collect();
-            t.node_positions.resize(n, [0.0, 0.0]);
+            t.node_positions = vec![[0.0, 0.0]; n].into();
             if n == 3 {
                 // Three nodes in a ring are complete: weights 1/3 everywhere.
                 assert!(t.mixing(&vec![true; n]).slem < 1e-12);

@@ -3,6 +3,7 @@
 //! scenario lays it out ([`Topology::from_scenario`]) is `layout.rs`.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 
 mod layout;
 mod mixing;
@@ -14,16 +15,20 @@ use crate::channel::Channel;
 use crate::scenario::Scenario;
 use wire::ActorId;
 
+/// The layout's lists are shared, not copied, by every clone: each node
+/// keeps the topology (its protocol, its rounds, its exchange), and in
+/// `sim` a copy of every list per node and holder grew a network's memory
+/// as the square of its nodes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Topology {
-    pub node_positions: Vec<[f64; 2]>,
-    pub sensor_positions: Vec<[f64; 2]>,
+    pub node_positions: Arc<[[f64; 2]]>,
+    pub sensor_positions: Arc<[[f64; 2]]>,
     /// The node each sensor reports to.
-    pub sensor_owner: Vec<u16>,
+    pub sensor_owner: Arc<[u16]>,
     /// Each node's sensors, in increasing order.
-    pub node_sensors: Vec<Vec<u16>>,
+    pub node_sensors: Arc<[Vec<u16>]>,
     /// Fusion-graph neighbours of each node, in increasing order.
-    pub neighbours: Vec<Vec<u16>>,
+    pub neighbours: Arc<[Vec<u16>]>,
     /// Whether each node hears its sensors through a multiple-access
     /// channel, an actor of its own (`mac-<i>` for node i).
     pub macs: bool,
@@ -169,7 +174,7 @@ impl Topology {
     /// `active_per_node` of its own sensors uniformly at random.
     pub fn activation_probabilities(&self, active_per_node: u32) -> Vec<f64> {
         let mut p = vec![0.0; self.sensors()];
-        for own in &self.node_sensors {
+        for own in self.node_sensors.iter() {
             let share = (active_per_node as f64 / own.len().max(1) as f64).min(1.0);
             for s in own {
                 p[*s as usize] = share;

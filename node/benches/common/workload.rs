@@ -45,9 +45,7 @@ impl Workload {
         let topology = Topology::from_scenario(&scenario, "default").unwrap();
         let mut model = SensingModel::from_scenario(&scenario, &topology).unwrap();
         if let Some(law) = law {
-            for sensor in &mut model.sensors {
-                sensor.law = law.clone();
-            }
+            model.sensors = model.sensors.iter().map(|s| law.at(s.sensor)).collect();
         }
         let prior = scenario.network_prior(&scenario.models().unwrap());
         let truth = State::from(scenario.target.initial_state());
