@@ -135,7 +135,11 @@ impl IceoryxTransport {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<futex::Service>()
             .map_err(|e| setup("node", e))?;
-        crate::resources::keep_global_segment_private(run);
+        if me == ActorId::Launcher {
+            // The launcher's node is its domain's first: the segment is
+            // made private before any actor exists (see the function).
+            crate::resources::keep_global_segment_private(run);
+        }
         let mut t = Self {
             me,
             run: run.clone(),

@@ -99,9 +99,12 @@ const GLOBAL_SEGMENT: &str = "node.0_10_0.global_mgmt";
 
 /// iceoryx2 makes a domain's global segment (its node counter) readable
 /// and writable by every user of the machine; a run's is its owner's
-/// only. Each process calls this once its node is made (the segment then
-/// exists): cheaper than having one process wait for it. Whoever made it,
-/// its owner's processes each try, so the first to run fixes it.
+/// only. The domain's first process calls this once its node is made (the
+/// segment then exists): the launcher, or on a host of several, that
+/// host's bridge, each before it spawns an actor. The actors do not: this
+/// reads the whole of `/dev/shm`, which holds thousands of a large run's
+/// files, and with every actor reading it, start-up grew as the square of
+/// the network.
 pub(crate) fn keep_global_segment_private(run: &RunId) {
     let prefix = run.prefix();
     let Ok(entries) = std::fs::read_dir(SHARED_MEMORY) else {
