@@ -131,6 +131,7 @@ pub fn run_network(
     let world = std::thread::Builder::new()
         .name("world".into())
         .spawn(move || {
+            keep_descriptors_to_this_thread();
             let result = world_thread(
                 &world_scenario,
                 &world_topology,
@@ -271,6 +272,36 @@ fn clocked(scenario: &Scenario, lockstep: bool) -> Scenario {
         s.clock.mode = ClockMode::Lockstep;
     }
     s
+}
+
+/// Gives the calling thread (the world thread) a descriptor table of its
+/// own, so that the iceoryx2 files it opens stay out of the table the
+/// supervisor spawns children from.
+///
+/// Why: the launcher's ports hold two or three descriptors per actor
+/// (every actor's wake-up service, the lifecycle channel's connection to
+/// every sensor), over 8,000 at 2,601 processes. Every spawn copies the
+/// spawning thread's table into the child, and the child closes it again
+/// (at exec, and in `close_inherited_descriptors`): per child, the whole
+/// table twice, so start-up grew as the square of the network. A quarter
+/// of a 2,601-process start-up's CPU was that closing (`perf record -a`:
+/// `dnotify_flush`, `filp_flush`, `dup_fd`). The supervisor's table keeps
+/// only its own: a pipe and a pidfd per child.
+///
+/// The two threads share nothing through descriptors: the world thread
+/// talks to the supervisor by channels, and the descriptors it was given
+/// at the split (standard streams, the runtime's wake-up) are the same
+/// open files in both tables. Where the kernel refuses, the thread keeps
+/// the shared table and start-up is only slower.
+fn keep_descriptors_to_this_thread() {
+    // SAFETY: unshare(CLONE_FILES) copies the calling thread's descriptor
+    // table; every descriptor stays valid in both copies.
+    if unsafe { libc::unshare(libc::CLONE_FILES) } != 0 {
+        tracing::debug!(
+            error = %std::io::Error::last_os_error(),
+            "the world thread shares the supervisor's descriptor table"
+        );
+    }
 }
 
 /// Waits until an event matches, or the timeout passes.
