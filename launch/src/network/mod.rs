@@ -131,7 +131,9 @@ pub fn run_network(
     let world = std::thread::Builder::new()
         .name("world".into())
         .spawn(move || {
-            keep_descriptors_to_this_thread();
+            if world_placement.is_none() {
+                keep_descriptors_to_this_thread();
+            }
             let result = world_thread(
                 &world_scenario,
                 &world_topology,
@@ -288,12 +290,23 @@ fn clocked(scenario: &Scenario, lockstep: bool) -> Scenario {
 /// `dnotify_flush`, `filp_flush`, `dup_fd`). The supervisor's table keeps
 /// only its own: a pipe and a pidfd per child.
 ///
-/// The two threads share nothing through descriptors: the world thread
-/// talks to the supervisor by channels, and the descriptors it was given
-/// at the split (standard streams, the runtime's wake-up) are the same
-/// open files in both tables. Where the kernel refuses, the thread keeps
-/// the shared table and start-up is only slower.
+/// What makes the split safe: a descriptor the supervisor opens after it
+/// is not in this thread's table, so this thread must never write to one
+/// by number. It talks to the supervisor by channels whose wake-up (the
+/// runtime's eventfd) exists before the split, the same open file in both
+/// tables. A signal handler (tokio's, Python's) writes to a descriptor of
+/// its own, made when the supervisor listens, after the split: so this
+/// thread blocks every signal first, and the kernel hands them to a thread
+/// of the supervisor's table. A run on several hosts keeps one table: its
+/// supervisor makes Zenoh's runtime, whose wake-ups come after the split.
+/// Where the kernel refuses, the thread keeps the shared table and
+/// start-up is only slower.
 fn keep_descriptors_to_this_thread() {
+    use nix::sys::signal::{pthread_sigmask, SigSet, SigmaskHow};
+    if let Err(e) = pthread_sigmask(SigmaskHow::SIG_BLOCK, Some(&SigSet::all()), None) {
+        tracing::debug!(error = %e, "the world thread could not block signals; it shares the supervisor's descriptor table");
+        return;
+    }
     // SAFETY: unshare(CLONE_FILES) copies the calling thread's descriptor
     // table; every descriptor stays valid in both copies.
     if unsafe { libc::unshare(libc::CLONE_FILES) } != 0 {
