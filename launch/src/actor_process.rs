@@ -22,6 +22,7 @@ use wire::{Control, Message, Payload};
 
 use crate::drive::{deliver, time_passes};
 use crate::results::write_atomically;
+use crate::usage::Usage;
 
 /// Longest sleep between checks that the launcher is still there.
 const IDLE_WAIT: Duration = Duration::from_millis(100);
@@ -202,21 +203,35 @@ fn launcher_gone() -> bool {
     nix::unistd::getppid() == nix::unistd::Pid::from_raw(1)
 }
 
-/// On the launcher's Stop: the memory used. Measured only here: reading
-/// `smaps_rollup` walks every mapping (about 0.3 ms), too much to do every
-/// few steps in 234 processes. (Byte counts need no last write: the ledger
-/// holds them as they happen.)
-fn write_memory(me: ActorId, out: &Path) -> anyhow::Result<()> {
+/// On the launcher's Stop: the memory used, and the CPU time and context
+/// switches from `ready` on (`since_ready`: what the run's steps cost,
+/// start-up left out). Measured only here: reading `smaps_rollup` walks
+/// every mapping (about 0.3 ms), too much to do every few steps in 234
+/// processes. (Byte counts need no last write: the ledger holds them as
+/// they happen.)
+fn write_memory(me: ActorId, out: &Path, since_ready: Option<Usage>) -> anyhow::Result<()> {
     if let (Some(peak), Some(pss)) = (
         crate::usage::peak_memory_kb(),
         crate::usage::proportional_memory_kb(),
     ) {
-        write_atomically(&memory_path(out, me), format!("{peak} {pss}").as_bytes())?;
+        let mut line = format!("{peak} {pss}");
+        if let Some(u) = since_ready.zip(Usage::own()).map(|(r, now)| now.since(&r)) {
+            line += &format!(
+                " {} {} {} {}",
+                u.user.as_micros(),
+                u.system.as_micros(),
+                u.voluntary_switches,
+                u.involuntary_switches
+            );
+        }
+        write_atomically(&memory_path(out, me), line.as_bytes())?;
     }
     Ok(())
 }
 
-/// Where an actor writes `<peak RSS kB> <PSS kB>`.
+/// Where an actor writes `<peak RSS kB> <PSS kB>`, then, over the run
+/// from its `ready` to the Stop, `<user CPU µs> <system CPU µs>
+/// <voluntary context switches> <involuntary ones>`.
 pub fn memory_path(out: &Path, actor: ActorId) -> PathBuf {
     out.join("accounting").join(format!("{actor}.memory"))
 }
@@ -323,6 +338,7 @@ fn actor_loop<A: Actor, T: Transport>(
         t.notify(p)?;
     }
     announce_ready();
+    let ready = Usage::own();
     let give_way = || {
         for _ in 0..pace.give_way {
             std::thread::yield_now();
@@ -344,7 +360,7 @@ fn actor_loop<A: Actor, T: Transport>(
             match (&m.payload, m.header.sender) {
                 (Payload::Control(Control::Stop), ActorId::Launcher) => {
                     cpu.write(t.me(), out)?;
-                    return write_memory(t.me(), out);
+                    return write_memory(t.me(), out, ready);
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     cpu.step_begun();

@@ -423,6 +423,7 @@ pub struct RunFacts {
     /// `run`: seconds from the launcher's start to every actor's `ready`.
     pub startup_seconds: Option<f64>,
     pub children_memory_kb: Option<crate::summary::ChildrenMemory>,
+    pub children_cpu: Option<crate::summary::ChildrenCpu>,
     /// Whether the consensus round latency means anything: in `sim` the
     /// rounds run on the virtual clock.
     pub real_time_rounds: bool,
@@ -608,6 +609,7 @@ impl<'w> Recorder<'w> {
             peak_memory_kb: crate::usage::peak_memory_kb(),
             cpu_seconds: crate::usage::own_cpu_seconds(),
             children_memory_kb: facts.children_memory_kb,
+            children_cpu: facts.children_cpu,
         };
         self.writer.write_summary(&summary)?;
         Ok(summary)
@@ -710,6 +712,7 @@ mod tests {
             processes: 1,
             startup_seconds: None,
             children_memory_kb: None,
+            children_cpu: None,
             real_time_rounds: true,
             unscheduled_faults: vec![],
         };

@@ -522,6 +522,7 @@ pub fn run_in_process_until(
             processes: 1,
             startup_seconds: None,
             children_memory_kb: None,
+            children_cpu: None,
             real_time_rounds: false,
             unscheduled_faults: Vec::new(),
         },

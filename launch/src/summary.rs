@@ -152,6 +152,10 @@ pub struct Summary {
     pub cpu_seconds: Option<f64>,
     /// `run`: the children's memory, kB.
     pub children_memory_kb: Option<ChildrenMemory>,
+    /// `run`: the children's CPU time and context switches from their
+    /// `ready` to the Stop (start-up left out).
+    #[serde(default)]
+    pub children_cpu: Option<ChildrenCpu>,
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
@@ -179,6 +183,21 @@ pub struct ChildrenMemory {
     /// The children's proportional set sizes, summed: their joint footprint
     /// (shared pages counted once), as of each child's last flush.
     pub total_pss: u64,
+}
+
+/// What a run's children spent from their `ready` to the Stop, summed over
+/// those that reported it (an actor killed on the way does not).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ChildrenCpu {
+    /// How many children reported.
+    pub actors: usize,
+    pub user_seconds: f64,
+    /// In the kernel, on the children's behalf.
+    pub system_seconds: f64,
+    /// Switches away to wait (a sleep).
+    pub voluntary_switches: u64,
+    /// Switches away while runnable (preempted, or yielded).
+    pub involuntary_switches: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -446,6 +465,23 @@ pub fn print_table(s: &Summary) {
     }
     if let Some(seconds) = s.startup_seconds {
         println!("  {:<34} {:>12.1}", "start-up, s", seconds);
+    }
+    if let Some(c) = &s.children_cpu {
+        println!(
+            "  {:<34} {:>12}",
+            "children from ready: user/kernel s",
+            format!("{:.1}/{:.1}", c.user_seconds, c.system_seconds)
+        );
+        let steps = s.steps.max(1) as f64;
+        println!(
+            "  {:<34} {:>12}",
+            "  context switches/step: vol/invol",
+            format!(
+                "{:.0}/{:.0}",
+                c.voluntary_switches as f64 / steps,
+                c.involuntary_switches as f64 / steps
+            )
+        );
     }
     if let Some(m) = &s.children_memory_kb {
         println!(

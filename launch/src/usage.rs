@@ -44,3 +44,45 @@ pub fn children_cpu_seconds() -> Option<f64> {
     let seconds = |t: nix::sys::time::TimeVal| t.tv_sec() as f64 + t.tv_usec() as f64 / 1e6;
     Some(seconds(u.user_time()) + seconds(u.system_time()))
 }
+
+/// CPU time and context switches of this process so far (`getrusage`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Usage {
+    pub user: std::time::Duration,
+    pub system: std::time::Duration,
+    /// Switches away because the process waited (a sleep, a blocking call).
+    pub voluntary_switches: u64,
+    /// Switches away while it could have run on: preempted, or yielded.
+    pub involuntary_switches: u64,
+}
+
+impl Usage {
+    /// This process's, so far.
+    pub fn own() -> Option<Self> {
+        use nix::sys::resource::{getrusage, UsageWho};
+        let u = getrusage(UsageWho::RUSAGE_SELF).ok()?;
+        let time = |t: nix::sys::time::TimeVal| {
+            std::time::Duration::new(t.tv_sec().max(0) as u64, t.tv_usec().max(0) as u32 * 1000)
+        };
+        Some(Self {
+            user: time(u.user_time()),
+            system: time(u.system_time()),
+            voluntary_switches: u.voluntary_context_switches().max(0) as u64,
+            involuntary_switches: u.involuntary_context_switches().max(0) as u64,
+        })
+    }
+
+    /// What was used between `earlier` and `self`.
+    pub fn since(&self, earlier: &Self) -> Self {
+        Self {
+            user: self.user.saturating_sub(earlier.user),
+            system: self.system.saturating_sub(earlier.system),
+            voluntary_switches: self
+                .voluntary_switches
+                .saturating_sub(earlier.voluntary_switches),
+            involuntary_switches: self
+                .involuntary_switches
+                .saturating_sub(earlier.involuntary_switches),
+        }
+    }
+}

@@ -15,7 +15,7 @@ use transport::ledger::LedgerError;
 use crate::actor_process::{ledger_path, memory_path};
 use crate::feed::{link_bytes_per_step, Hub, ViewEvent};
 use crate::results::write_atomically;
-use crate::summary::ChildrenMemory;
+use crate::summary::{ChildrenCpu, ChildrenMemory};
 use crate::supervisor::HostFiles;
 
 /// `hosts.json`: the bytes of cqnet's messages between hosts, by pair of
@@ -78,18 +78,36 @@ pub(super) fn bring_home(out: &Path, homes: &[(String, HostFiles)]) {
     }
 }
 
-/// The children's memory, as each last wrote it.
-pub(super) fn children_memory(out: &Path, topology: &Topology) -> Option<ChildrenMemory> {
-    let read = |a| -> Option<(u64, u64)> {
+/// The children's memory, as each last wrote it, and what their CPU and
+/// context switches were over the run, summed (see
+/// [`memory_path`](crate::actor_process::memory_path)).
+pub(super) fn children_usage(
+    out: &Path,
+    topology: &Topology,
+) -> (Option<ChildrenMemory>, Option<ChildrenCpu>) {
+    let read = |a| -> Option<Vec<u64>> {
         let text = std::fs::read_to_string(memory_path(out, a)).ok()?;
-        let mut f = text.split_whitespace().map(|v| v.parse::<u64>().ok());
-        Some((f.next()??, f.next()??))
+        text.split_whitespace().map(|v| v.parse().ok()).collect()
     };
-    let all: Vec<(u64, u64)> = topology.actors().filter_map(read).collect();
-    (!all.is_empty()).then(|| ChildrenMemory {
-        largest_peak_rss: all.iter().map(|m| m.0).max().unwrap_or(0),
-        total_pss: all.iter().map(|m| m.1).sum(),
-    })
+    let all: Vec<Vec<u64>> = topology
+        .actors()
+        .filter_map(read)
+        .filter(|f| f.len() >= 2)
+        .collect();
+    let memory = (!all.is_empty()).then(|| ChildrenMemory {
+        largest_peak_rss: all.iter().map(|m| m[0]).max().unwrap_or(0),
+        total_pss: all.iter().map(|m| m[1]).sum(),
+    });
+    let cpu: Vec<&[u64]> = all.iter().filter_map(|f| f.get(2..6)).collect();
+    let sum = |i: usize| cpu.iter().map(|c| c[i]).sum::<u64>();
+    let cpu = (!cpu.is_empty()).then(|| ChildrenCpu {
+        actors: cpu.len(),
+        user_seconds: sum(0) as f64 / 1e6,
+        system_seconds: sum(1) as f64 / 1e6,
+        voluntary_switches: sum(2),
+        involuntary_switches: sum(3),
+    });
+    (memory, cpu)
 }
 
 /// Every actor's byte counts, from the ledgers they leave (whatever ended
@@ -189,6 +207,35 @@ mod tests {
             written += std::fs::read_dir(out.join(dir)).unwrap().count();
         }
         assert_eq!(written, 2);
+        let _ = std::fs::remove_dir_all(&out);
+    }
+
+    /// Memory is read from every child that wrote it; CPU and context
+    /// switches are summed over those that wrote them too, and a child
+    /// that wrote half a line is left out rather than misread.
+    #[test]
+    fn the_childrens_usage_sums_what_each_wrote() {
+        let out = std::env::temp_dir().join(format!("cqnet-usage-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(out.join("accounting")).unwrap();
+        let topology =
+            Topology::from_scenario(&fusion_graph::Scenario::default_scenario(), "d").unwrap();
+        let write = |a: ActorId, line: &str| {
+            std::fs::write(memory_path(&out, a), line).unwrap();
+        };
+        write(ActorId::Node(0), "2000 1000 1500000 250000 10 20");
+        write(ActorId::Node(1), "3000 500 500000 750000 5 7");
+        write(ActorId::Sensor(0), "1000 100");
+        write(ActorId::Sensor(1), "1000 100 12");
+        let (memory, cpu) = children_usage(&out, &topology);
+        let memory = memory.unwrap();
+        assert_eq!(memory.largest_peak_rss, 3000);
+        assert_eq!(memory.total_pss, 1700);
+        let cpu = cpu.unwrap();
+        assert_eq!(cpu.actors, 2);
+        assert!((cpu.user_seconds - 2.0).abs() < 1e-12);
+        assert!((cpu.system_seconds - 1.0).abs() < 1e-12);
+        assert_eq!((cpu.voluntary_switches, cpu.involuntary_switches), (15, 27));
         let _ = std::fs::remove_dir_all(&out);
     }
 }

@@ -32,7 +32,7 @@ use crate::supervisor::{supervise, ChildSpec, Command, Event};
 
 pub use gather::traffic_poller;
 use gather::{
-    bring_home, children_memory, hosts_traffic_path, merge_accounting, write_hosts_report,
+    bring_home, children_usage, hosts_traffic_path, merge_accounting, write_hosts_report,
 };
 pub use options::{RunOptions, RunProgress};
 use processes::{crash_fault, Processes};
@@ -380,6 +380,7 @@ fn world_thread(
         bring_home(&options.out, &hosts.homes);
         write_hosts_report(&options.out, p, &accounting, &hosts.bridges, &hosts.homes)?;
     }
+    let (children_memory_kb, children_cpu) = children_usage(&options.out, topology);
     let summary = recorder.finish(
         &accounting,
         RunFacts {
@@ -394,7 +395,8 @@ fn world_thread(
             steps_per_second: steps_done as f64 / wall_steps,
             processes: topology.actors().count() + 1,
             startup_seconds: Some(startup_seconds),
-            children_memory_kb: children_memory(&options.out, topology),
+            children_memory_kb,
+            children_cpu,
             real_time_rounds: true,
             unscheduled_faults: w
                 .crashed

@@ -349,7 +349,11 @@ impl<R: RoundRule> RoundEngine<R> {
         };
         let mut payloads = Vec::with_capacity(2);
         self.rule.payloads(Self::at(r), &r.value, &mut payloads);
-        for payload in payloads {
+        // Only the last payload wakes: a neighbour woken by the first
+        // would find the value still in pieces.
+        let last = payloads.len().saturating_sub(1);
+        for (i, payload) in payloads.into_iter().enumerate() {
+            let wake = if i == last { wake.clone() } else { Vec::new() };
             out.push(Outgoing {
                 channel,
                 message: Message::new(
@@ -359,7 +363,7 @@ impl<R: RoundRule> RoundEngine<R> {
                     payload,
                 ),
                 receivers: receivers.clone(),
-                wake: Some(wake.clone()),
+                wake: Some(wake),
             });
         }
     }
@@ -691,6 +695,35 @@ mod tests {
                 *took > TIMEOUT * 4,
                 "node-{n} took only {took:?} waiting every round"
             );
+        }
+    }
+
+    /// A value in two payloads wakes its receivers once, with the last:
+    /// woken by the first, a neighbour would find the value in pieces.
+    #[test]
+    fn only_a_values_last_payload_wakes() {
+        let t = grid();
+        // With the auxiliary-FIM baseline a value is two payloads.
+        let value = InformationVector {
+            delta_eta: [1.0; 4],
+            delta_lambda: [1.0; 10],
+            delta_l: [1.0; 10],
+            delta_l_late: [0.0; 10],
+            s_obs: Some([1.0; 10]),
+        };
+        let mut e = average_consensus(SLOW, &t, 3, TIMEOUT, true);
+        let mut sent = Vec::new();
+        e.expect_step(1);
+        e.start(1, value, &[true; 16], Duration::ZERO, &mut sent);
+        assert_eq!(sent.len(), 2, "a value and its auxiliary part");
+        assert_eq!(
+            sent[0].wake.as_deref(),
+            Some(&[][..]),
+            "the first wakes no one"
+        );
+        let woken = sent[1].wake.as_ref().unwrap();
+        for m in &t.neighbours[SLOW as usize] {
+            assert!(woken.contains(&ActorId::Node(*m)), "node-{m} not woken");
         }
     }
 
