@@ -20,7 +20,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use anyhow::Context;
-use fusion_graph::hosts::{BridgeCounts, Placement};
+use fusion_graph::hosts::{BridgeCounts, HostConfig, Placement};
 use fusion_graph::{ActorId, Topology};
 use serde::{Deserialize, Serialize};
 use transport::world_memory::TruthRing;
@@ -275,6 +275,7 @@ fn run_out(
             })?;
         publishers.insert(g, p);
     }
+    await_far_subscribers(&publishers, hosts);
     let _ = ready.send(Ok(()));
     let mut woken = Vec::new();
     let mut batches: Vec<Vec<Frame>> = vec![Vec::new(); hosts.len()];
@@ -318,6 +319,33 @@ fn run_out(
             .add(&std::mem::take(&mut sent));
     }
     Ok(())
+}
+
+/// How long a bridge waits for the other hosts' bridges to be heard
+/// subscribing before it says it is ready all the same.
+const FAR_SUBSCRIBERS_AT_MOST: Duration = Duration::from_secs(10);
+
+/// Waits until every other host's bridge is known to subscribe to what
+/// this one publishes, or [`FAR_SUBSCRIBERS_AT_MOST`] has passed. Zenoh
+/// drops a put that no subscriber it knows of matches, and another host's
+/// subscription reaches this session only after its link's delay: a bridge
+/// that said it was ready at once lost the first messages to a host behind
+/// a slow link (the step's `BeginStep`, so that host's nodes coasted
+/// through the step and every figure after it differed).
+fn await_far_subscribers(
+    publishers: &HashMap<usize, zenoh::pubsub::Publisher<'_>>,
+    hosts: &[HostConfig],
+) {
+    let until = std::time::Instant::now() + FAR_SUBSCRIBERS_AT_MOST;
+    for (g, p) in publishers {
+        while !p.matching_status().wait().is_ok_and(|m| m.matching()) {
+            if std::time::Instant::now() >= until {
+                tracing::warn!(host = %hosts[*g].name, "no bridge heard subscribing there; going on");
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
 }
 
 fn run_in(
