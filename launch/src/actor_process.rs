@@ -209,7 +209,7 @@ fn launcher_gone() -> bool {
 /// every mapping (about 0.3 ms), too much to do every few steps in 234
 /// processes. (Byte counts need no last write: the ledger holds them as
 /// they happen.)
-fn write_memory(me: ActorId, out: &Path, since_ready: Option<Usage>) -> anyhow::Result<()> {
+fn write_usage(me: ActorId, out: &Path, since_ready: Option<Usage>) -> anyhow::Result<()> {
     if let (Some(peak), Some(pss)) = (
         crate::usage::peak_memory_kb(),
         crate::usage::proportional_memory_kb(),
@@ -245,7 +245,7 @@ pub fn cpu_path(out: &Path, actor: ActorId) -> PathBuf {
 
 /// This process's user and system CPU time so far.
 fn process_cpu_time() -> Duration {
-    Duration::from_secs_f64(crate::usage::own_cpu_seconds().unwrap_or(0.0))
+    Usage::own().map_or(Duration::ZERO, |u| u.user + u.system)
 }
 
 /// A node's CPU time over the steps, as [`cpu_path`] describes.
@@ -360,7 +360,7 @@ fn actor_loop<A: Actor, T: Transport>(
             match (&m.payload, m.header.sender) {
                 (Payload::Control(Control::Stop), ActorId::Launcher) => {
                     cpu.write(t.me(), out)?;
-                    return write_memory(t.me(), out, ready);
+                    return write_usage(t.me(), out, ready);
                 }
                 (Payload::Control(Control::BeginStep), ActorId::Launcher) => {
                     cpu.step_begun();

@@ -30,19 +30,13 @@ pub fn peak_memory_kb() -> Option<u64> {
 /// CPU time this process has used, user and system, in seconds (its own
 /// threads, not its children).
 pub fn own_cpu_seconds() -> Option<f64> {
-    use nix::sys::resource::{getrusage, UsageWho};
-    let u = getrusage(UsageWho::RUSAGE_SELF).ok()?;
-    let seconds = |t: nix::sys::time::TimeVal| t.tv_sec() as f64 + t.tv_usec() as f64 / 1e6;
-    Some(seconds(u.user_time()) + seconds(u.system_time()))
+    Usage::own().map(|u| u.cpu_seconds())
 }
 
 /// CPU time the children this process has reaped used, user and system,
 /// in seconds.
 pub fn children_cpu_seconds() -> Option<f64> {
-    use nix::sys::resource::{getrusage, UsageWho};
-    let u = getrusage(UsageWho::RUSAGE_CHILDREN).ok()?;
-    let seconds = |t: nix::sys::time::TimeVal| t.tv_sec() as f64 + t.tv_usec() as f64 / 1e6;
-    Some(seconds(u.user_time()) + seconds(u.system_time()))
+    Usage::of(nix::sys::resource::UsageWho::RUSAGE_CHILDREN).map(|u| u.cpu_seconds())
 }
 
 /// CPU time and context switches of this process so far (`getrusage`).
@@ -59,8 +53,12 @@ pub struct Usage {
 impl Usage {
     /// This process's, so far.
     pub fn own() -> Option<Self> {
-        use nix::sys::resource::{getrusage, UsageWho};
-        let u = getrusage(UsageWho::RUSAGE_SELF).ok()?;
+        Self::of(nix::sys::resource::UsageWho::RUSAGE_SELF)
+    }
+
+    /// `getrusage(who)`.
+    fn of(who: nix::sys::resource::UsageWho) -> Option<Self> {
+        let u = nix::sys::resource::getrusage(who).ok()?;
         let time = |t: nix::sys::time::TimeVal| {
             std::time::Duration::new(t.tv_sec().max(0) as u64, t.tv_usec().max(0) as u32 * 1000)
         };
@@ -70,6 +68,11 @@ impl Usage {
             voluntary_switches: u.voluntary_context_switches().max(0) as u64,
             involuntary_switches: u.involuntary_context_switches().max(0) as u64,
         })
+    }
+
+    /// User and system CPU, in seconds.
+    pub fn cpu_seconds(&self) -> f64 {
+        (self.user + self.system).as_secs_f64()
     }
 
     /// What was used between `earlier` and `self`.
