@@ -213,7 +213,10 @@ pub fn smeared_gaussian_information(step: f64, spread: f64) -> f64 {
 
 /// The received values of one draw: each sensor's observation quantized by
 /// its `bᵢ`-bit quantizer (cell centres, saturating at the range's ends),
-/// plus the injected noise. Silent sensors give `None`.
+/// plus the injected noise. Silent sensors give `None`. Every sensor
+/// takes its two draws, its observation noise and its injected noise, in
+/// order, silent or not: allocations compared over the same stream then
+/// see the same noise, sensor by sensor.
 pub fn receive<R: Rng + ?Sized>(
     problem: &Problem,
     allocation: &Allocation,
@@ -227,12 +230,13 @@ pub fn receive<R: Rng + ?Sized>(
         .enumerate()
         .zip(&allocation.designs)
         .map(|((i, sensor), design)| {
+            let (n, injected): (f64, f64) = (unit.sample(rng), unit.sample(rng));
             design.map(|d| {
-                let z = theta + sensor.noise_std * unit.sample(rng);
+                let z = theta + sensor.noise_std * n;
                 let cells = 2f64.powi(d.bits as i32);
                 let low = -problem.range(i) / 2.0;
                 let cell = ((z - low) / d.step).floor().clamp(0.0, cells - 1.0);
-                low + (cell + 0.5) * d.step + d.injected_std * unit.sample(rng)
+                low + (cell + 0.5) * d.step + d.injected_std * injected
             })
         })
         .collect()
@@ -315,15 +319,31 @@ pub fn estimator_mses<R: Rng + ?Sized>(
     runs: usize,
     rng: &mut R,
 ) -> (f64, f64) {
-    let prior = Normal::new(0.0, problem.prior_var.sqrt()).expect("positive prior variance");
     let (mut mmse, mut lmmse) = (0.0, 0.0);
     for _ in 0..runs {
-        let theta = prior.sample(rng);
-        let received = receive(problem, allocation, theta, rng);
-        mmse += (mmse_estimate(problem, allocation, &received, 481) - theta).powi(2);
-        lmmse += (lmmse_estimate(problem, allocation, &received) - theta).powi(2);
+        let (a, b) = estimator_squared_errors(problem, allocation, rng);
+        mmse += a;
+        lmmse += b;
     }
     (mmse / runs as f64, lmmse / runs as f64)
+}
+
+/// One draw of θ from its prior and of every sensor's noise: the squared
+/// errors of the MMSE and the LMMSE estimates. A stream seeded per draw
+/// gives every allocation the same θ and noise, so their MSEs compare
+/// draw by draw.
+pub fn estimator_squared_errors<R: Rng + ?Sized>(
+    problem: &Problem,
+    allocation: &Allocation,
+    rng: &mut R,
+) -> (f64, f64) {
+    let prior = Normal::new(0.0, problem.prior_var.sqrt()).expect("positive prior variance");
+    let theta = prior.sample(rng);
+    let received = receive(problem, allocation, theta, rng);
+    (
+        (mmse_estimate(problem, allocation, &received, 481) - theta).powi(2),
+        (lmmse_estimate(problem, allocation, &received) - theta).powi(2),
+    )
 }
 
 /// Experiment 2 of §5.5: `σθ² = 4` (Experiment 1's; the tables' (0, R) rows,
@@ -482,6 +502,23 @@ mod tests {
                 (got - expected).abs() < 1e-6,
                 "y = {y}: {got} against {expected}"
             );
+        }
+    }
+
+    #[test]
+    fn a_silent_sensor_takes_its_draws_so_the_others_see_the_same_noise() {
+        let problem = dissertation_problem();
+        let silent = problem.evaluate(&[0, 8]).expect("feasible");
+        let active = problem.evaluate(&[6, 8]).expect("feasible");
+        for seed in 0..20 {
+            let draw = |a: &Allocation| {
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                receive(&problem, a, 0.7, &mut rng)
+            };
+            let (s, a) = (draw(&silent), draw(&active));
+            assert_eq!(s[0], None);
+            assert!(a[0].is_some());
+            assert_eq!(s[1], a[1], "seed {seed}: sensor 2 saw other noise");
         }
     }
 

@@ -24,6 +24,7 @@ mod catalogue;
 mod claims;
 mod computed;
 mod model;
+mod parallel;
 mod random_exchange_bounds;
 mod random_exchange_trackers;
 mod runner;

@@ -1,6 +1,8 @@
-//! The dissertation's ch. 7 (Figs. 7.1, 7.2): the conditional bounds on the
-//! univariate non-stationary growth model against the conditional MSE,
-//! in its highly and weakly nonlinear cases.
+//! The dissertation's ch. 7 (Figs. 7.1, 7.2, §7.4): the conditional bounds
+//! on the univariate non-stationary growth model against the conditional
+//! MSE, in its highly and weakly nonlinear cases; one run's truth and
+//! particle-filter estimate (Fig. 7.1(a)); and what each bound costs a
+//! step, counted and timed (§7.4).
 //!
 //! Each run tracks one true trajectory with a bootstrap particle filter
 //! (1000 particles, resampled every step). At every step k it computes,
@@ -17,26 +19,35 @@
 //!   the prediction and of z(k+1) from it, each weighed by the filter's
 //!   predicted particles, as section 7.5 describes;
 //!
-//! and, once per case, the offline PCRLB over 10⁴ trajectories. The
+//! and, once per case, the offline PCRLB over 10⁴ trajectories.
+//!
+//! §7.4 counts flops per step: the A-CPCRLB needs the B terms alone, the
+//! CPCRLB the B terms and the S terms of its auxiliary FIM, each a pass
+//! over the particles of the same form (`bounds::ungm::step_terms`). Here
+//! each run counts the per-particle evaluations of f′ and of the
+//! measurement information each bound makes, and times them. The
 //! D-CPCRLB of the chapter's reference [103] is not computed: the chapter
 //! does not define it. The chapter does not give the prior either: here
 //! x(0) ~ N(0, 1).
 
 use std::fmt::Write as _;
 use std::path::Path;
+use std::time::Instant;
 
 use bounds::ungm::{offline_pcrlb, step_terms, Ungm};
+use plotters::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::paired::{Order, Paired};
 use super::random_exchange_bounds::draw_lines;
 use super::{Check, Claim, Computed, ComputedReport, Options};
+use launch::results::write_atomically;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
         name: "ungm-bounds",
-        source: "dissertation ch. 7, Figs. 7.1 and 7.2",
+        source: "dissertation ch. 7, Figs. 7.1 and 7.2, section 7.4",
         about: "the A-CPCRLB, the CPCRLB with its auxiliary FIM (smoothed and filtered) and the offline PCRLB against the conditional MSE on the univariate non-stationary growth model, highly and weakly nonlinear",
         run,
     }]
@@ -63,6 +74,23 @@ struct RunSeries {
     cpcrlb_smoothed: Vec<f64>,
     cpcrlb_filtered: Vec<f64>,
     squared_error: Vec<f64>,
+    /// The true state and the filter's estimate after each step's update.
+    truth: Vec<f64>,
+    estimate: Vec<f64>,
+    /// Seconds spent on each bound's terms over the run: the A-CPCRLB's B
+    /// terms; the CPCRLB's B terms and the S terms of its auxiliary FIM.
+    a_cpcrlb_seconds: f64,
+    cpcrlb_seconds: f64,
+    /// Per-particle evaluations (of f′ or of the measurement information)
+    /// each bound made over the run.
+    a_cpcrlb_evaluations: usize,
+    cpcrlb_evaluations: usize,
+}
+
+/// One pass of `step_terms` evaluates f′ twice (for B11 and B12) over the
+/// `from` particles and the measurement information once over `to`.
+fn evaluations(from: usize, to: usize) -> usize {
+    2 * from + to
 }
 
 /// Systematic resampling: the indices of the particles drawn.
@@ -123,10 +151,14 @@ fn one_run(model: &Ungm, rng: &mut ChaCha8Rng) -> RunSeries {
     let mut out = RunSeries::default();
     for k in 0..STEPS {
         // The auxiliary FIM at k, from the pair (x(k−1), x(k)).
+        let mut s_seconds = 0.0;
         if let Some(prev) = &previous {
+            let started = Instant::now();
             let smoothed = step_terms(model, &ancestors, &w, &x, &w);
-            let filtered = step_terms(model, prev, &previous_w, &x, &w);
             aux_smoothed = smoothed.advance(aux_smoothed);
+            s_seconds = started.elapsed().as_secs_f64();
+            out.cpcrlb_evaluations += evaluations(ancestors.len(), x.len());
+            let filtered = step_terms(model, prev, &previous_w, &x, &w);
             aux_filtered = filtered.advance(aux_filtered);
         }
         // The prediction: resample, then move each particle.
@@ -136,8 +168,15 @@ fn one_run(model: &Ungm, rng: &mut ChaCha8Rng) -> RunSeries {
             .iter()
             .map(|p| model.propagate(*p, k, rng))
             .collect();
+        let started = Instant::now();
         let terms = step_terms(model, &x, &w, &predicted, &uniform);
         l_a = terms.advance(l_a);
+        let b_seconds = started.elapsed().as_secs_f64();
+        out.a_cpcrlb_seconds += b_seconds;
+        out.cpcrlb_seconds += b_seconds + s_seconds;
+        let b = evaluations(x.len(), predicted.len());
+        out.a_cpcrlb_evaluations += b;
+        out.cpcrlb_evaluations += b;
         out.a_cpcrlb.push(1.0 / l_a);
         out.cpcrlb_smoothed.push(1.0 / terms.advance(aux_smoothed));
         out.cpcrlb_filtered.push(1.0 / terms.advance(aux_filtered));
@@ -168,6 +207,8 @@ fn one_run(model: &Ungm, rng: &mut ChaCha8Rng) -> RunSeries {
         ancestors = parents;
         let estimate: f64 = w.iter().zip(&x).map(|(w, p)| w * p).sum();
         out.squared_error.push((estimate - truth).powi(2));
+        out.truth.push(truth);
+        out.estimate.push(estimate);
     }
     out
 }
@@ -198,6 +239,12 @@ fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         .collect();
     let weak = dir.join("ungm-bounds-weakly-nonlinear.svg");
     draw(&weak, &cases[1]).map_err(|e| anyhow::anyhow!("{e}"))?;
+    draw_tracking(&dir.join("ungm-bounds-tracking.svg"), &cases[0])
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    write_atomically(
+        &dir.join("ungm-bounds-cost.csv"),
+        cost_csv(&cases).as_bytes(),
+    )?;
     ComputedReport::write(
         dir,
         "ungm-bounds",
@@ -253,6 +300,22 @@ fn check(cases: &[Case]) -> Check {
             |p| p.verdict_within(-(1.05f64.ln()), 1.05f64.ln()),
             |p| format!("{:.2e} ± {:.2e} over {} runs", p.mean, p.half_width, p.runs),
         ));
+        // §7.4: the A-CPCRLB spares the auxiliary FIM's pass. Timed per
+        // run, compared by the ratio of the two times in the same run.
+        claims.push(Claim::judged(
+            format!("{}: the A-CPCRLB costs less time a step than the CPCRLB with its auxiliary FIM (§7.4)", case.name),
+            Paired::of_values(&per_run(&|r| (r.a_cpcrlb_seconds / r.cpcrlb_seconds).ln())),
+            |p| p.verdict(Order::Lower),
+            |p| {
+                format!(
+                    "A-CPCRLB/CPCRLB time ×{:.2} (95 %: ×{:.2} to ×{:.2}) over {} runs",
+                    p.mean.exp(),
+                    (p.mean - p.half_width).exp(),
+                    (p.mean + p.half_width).exp(),
+                    p.runs
+                )
+            },
+        ));
         let [mse, a, smoothed, filtered, offline, _] = columns(case);
         figures.push(format!(
             "{}: over steps, conditional MSE {:.3}, A-CPCRLB {:.3}, CPCRLB {:.3} (filtered {:.3}), offline PCRLB {:.3} (means)",
@@ -269,6 +332,80 @@ fn check(cases: &[Case]) -> Check {
 
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// §7.4's comparison per case: evaluations and time per step of each
+/// bound, means over runs.
+fn cost_csv(cases: &[Case]) -> String {
+    let mut s = String::from("case,particles,a_cpcrlb_evaluations_per_step,cpcrlb_evaluations_per_step,a_cpcrlb_microseconds_per_step,cpcrlb_microseconds_per_step\n");
+    for case in cases {
+        let per_step = |f: &dyn Fn(&RunSeries) -> f64| {
+            case.runs.iter().map(f).sum::<f64>() / (case.runs.len() as f64 * STEPS as f64)
+        };
+        let _ = writeln!(
+            s,
+            "{},{PARTICLES},{},{},{:.2},{:.2}",
+            case.name,
+            per_step(&|r| r.a_cpcrlb_evaluations as f64),
+            per_step(&|r| r.cpcrlb_evaluations as f64),
+            1e6 * per_step(&|r| r.a_cpcrlb_seconds),
+            1e6 * per_step(&|r| r.cpcrlb_seconds),
+        );
+    }
+    s
+}
+
+/// Fig. 7.1(a): the true state and the particle filter's estimate over
+/// one run.
+fn draw_tracking(path: &Path, case: &Case) -> Result<(), Box<dyn std::error::Error>> {
+    let run = &case.runs[0];
+    let root = SVGBackend::new(path, (900, 480)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let reach = run
+        .truth
+        .iter()
+        .chain(&run.estimate)
+        .fold(1.0f64, |m, v| m.max(v.abs()))
+        * 1.1;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "ungm-bounds: {}, the true state and its estimate (Fig. 7.1(a))",
+                case.name
+            ),
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(1..STEPS, -reach..reach)?;
+    chart
+        .configure_mesh()
+        .x_desc("step k")
+        .y_desc("x(k)")
+        .draw()?;
+    for (i, (name, values)) in [
+        ("true state", &run.truth),
+        ("particle filter's estimate", &run.estimate),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let colour = Palette99::pick(i).to_rgba();
+        let points: Vec<(u32, f64)> = (1..=STEPS).zip(values.iter().copied()).collect();
+        chart
+            .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+        chart.draw_series(points.iter().map(|p| Circle::new(*p, 3, colour.filled())))?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
 }
 
 /// A case's curves at steps 1..=STEPS, in the CSV's order: the
@@ -304,6 +441,15 @@ fn csv(cases: &[Case]) -> String {
 
 fn table(cases: &[Case]) -> String {
     let mut s = String::new();
+    let _ = writeln!(s, "cost a step (§7.4; means over runs):");
+    for line in cost_csv(cases).lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let _ = writeln!(
+            s,
+            "  {}: {} particles; evaluations A-CPCRLB {}, CPCRLB {}; time A-CPCRLB {} µs, CPCRLB {} µs",
+            f[0], f[1], f[2], f[3], f[4], f[5]
+        );
+    }
     for case in cases {
         let _ = writeln!(s, "{} (means over {RUNS} runs): step, conditional MSE, A-CPCRLB, CPCRLB smoothed, filtered, offline PCRLB", case.name);
         let cols = columns(case);

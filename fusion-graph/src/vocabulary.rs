@@ -144,6 +144,7 @@ const BUILT_IN_PARTS: &[Part] = &[
     built_in(Role::Manager, "closest", Shape::ROUNDS),
     built_in(Role::Manager, "pcrlb", Shape::ROUNDS),
     built_in(Role::Manager, "pcrlb_at_estimate", Shape::ROUNDS),
+    built_in(Role::Manager, "pcrlb_aux", Shape::ROUNDS),
     built_in(Role::Manager, "pcrlb_offline", Shape::ROUNDS),
 ];
 

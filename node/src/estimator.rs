@@ -492,16 +492,33 @@ impl FusionFilter {
     /// predicted information, D over this filter's posterior particles at k
     /// (predicting now if it has not). Sensor selection scores on it.
     pub fn predicted_information(&mut self, model: &SensingModel) -> Result<Mat4, BoundError> {
+        let information = *self.bound.information();
+        self.predicted_from(model, &information)
+    }
+
+    /// The same with the auxiliary FIM `J_AUX(k)` in place of `L_G(k)`, as
+    /// the selection paper's eq. 32 has it; `None` when the filter carries
+    /// no auxiliary FIM (`consensus.auxiliary_fim = false`).
+    pub fn predicted_aux_information(
+        &mut self,
+        model: &SensingModel,
+    ) -> Result<Option<Mat4>, BoundError> {
+        let Some(aux) = self.aux_information().copied() else {
+            return Ok(None);
+        };
+        self.predicted_from(model, &aux).map(Some)
+    }
+
+    /// `Q⁻¹ − D21 (information + D11)⁻¹ D12`, D over the posterior at k.
+    fn predicted_from(
+        &mut self,
+        model: &SensingModel,
+        information: &Mat4,
+    ) -> Result<Mat4, BoundError> {
         self.predict(model)?;
         let (terms, _) = self.prediction.0.as_ref().expect("predicted above");
         let zero = Mat4::zeros();
-        Ok(information_update(
-            self.bound.information(),
-            terms,
-            model.dynamics.q_inv(),
-            &zero,
-        )?
-        .predicted)
+        Ok(information_update(information, terms, model.dynamics.q_inv(), &zero)?.predicted)
     }
 
     /// Each of `sensors`' expected information over this step's predicted

@@ -51,6 +51,8 @@ fn matrix() -> Vec<(&'static str, &'static str, &'static str)> {
             m.push((scenario, tracker, "random"));
         }
     }
+    // Scored by the auxiliary FIM, which only this manager needs carried.
+    m.push(("sensor-selection", "average", "pcrlb_aux"));
     m.push(("default", "short_memory", "random"));
     m.push(("location", "ml_location", "random"));
     m.push(("compressive", "average", "random"));
@@ -58,7 +60,13 @@ fn matrix() -> Vec<(&'static str, &'static str, &'static str)> {
 }
 
 fn network(i: usize, scenario: &str, protocol: &str, manager: &str) -> Network {
-    Network::from_file(scenario_file(scenario))
+    let network = Network::from_file(scenario_file(scenario));
+    let network = if manager == "pcrlb_aux" {
+        network.set("consensus.auxiliary_fim", true)
+    } else {
+        network
+    };
+    network
         .executable(CQNET)
         .tag(&format!("matrix{i}"))
         .lockstep()
@@ -77,7 +85,7 @@ fn network(i: usize, scenario: &str, protocol: &str, manager: &str) -> Network {
 fn every_built_in_scenario_protocol_and_manager_runs_in_lockstep_as_sim_does() {
     let _guard = exclusive();
     let combinations = matrix();
-    assert_eq!(combinations.len(), 26);
+    assert_eq!(combinations.len(), 27);
     for (i, (scenario, protocol, manager)) in combinations.into_iter().enumerate() {
         let what = format!("{scenario} with {protocol} and {manager}");
         let n = network(i, scenario, protocol, manager);

@@ -365,6 +365,10 @@ impl SensorManagerKind {
     /// The same greedy selection scored by Tichavsky's recursion run at
     /// the fusion filter's estimates (data enter through x̂).
     pub const PCRLB_AT_ESTIMATE: Self = Self::built_in("pcrlb_at_estimate");
+    /// The same greedy selection scored as the selection paper's eq. 32
+    /// prints it: the prediction from the auxiliary FIM `J_AUX(k)` instead
+    /// of `L_G(k)`. Needs `consensus.auxiliary_fim = true`.
+    pub const PCRLB_AUX: Self = Self::built_in("pcrlb_aux");
     /// The conventional PCRLB manager: greedy on the offline
     /// (non-conditional) bound, averaged over trajectories from the prior,
     /// a schedule every node computes alike before the run; no messages.

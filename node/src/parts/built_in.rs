@@ -36,6 +36,7 @@ pub(super) fn add(parts: Parts) -> Parts {
         .manager(M::CLOSEST.name(), closest)
         .manager(M::PCRLB.name(), pcrlb)
         .manager(M::PCRLB_AT_ESTIMATE.name(), pcrlb_at_estimate)
+        .manager(M::PCRLB_AUX.name(), pcrlb_aux)
         .manager(M::PCRLB_OFFLINE.name(), pcrlb_offline)
 }
 
@@ -221,6 +222,23 @@ fn pcrlb_at_estimate(setup: &Setup<'_>) -> Result<Manager, ParamError> {
         setup.topology,
         setup.node,
         Scoring::AtEstimate,
+    ))
+}
+
+fn pcrlb_aux(setup: &Setup<'_>) -> Result<Manager, ParamError> {
+    setup.params.only(&[])?;
+    if !setup.scenario.consensus.auxiliary_fim {
+        return Err(ParamError {
+            key: "consensus.auxiliary_fim".into(),
+            expected: "true: sensors.manager = \"pcrlb_aux\" scores by the auxiliary FIM".into(),
+            got: "false".into(),
+        });
+    }
+    Ok(sensor_manager::negotiated(
+        setup.scenario,
+        setup.topology,
+        setup.node,
+        Scoring::Auxiliary,
     ))
 }
 

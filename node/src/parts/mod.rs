@@ -745,4 +745,24 @@ mod tests {
         );
         check(&scenario(&[]).unwrap(), &topology).unwrap();
     }
+
+    #[test]
+    fn scoring_by_the_auxiliary_fim_needs_the_auxiliary_fim() {
+        let s = scenario(&["sensors.manager=pcrlb_aux", "sensors.max_active_total=4"]).unwrap();
+        let topology = Topology::from_scenario(&s, "d").unwrap();
+        match check(&s, &topology).unwrap_err() {
+            NodeError::Param(e) => {
+                assert_eq!(e.key, "consensus.auxiliary_fim");
+                assert!(e.expected.contains("pcrlb_aux"), "{}", e.expected);
+            }
+            e => panic!("{e}"),
+        }
+        let s = scenario(&[
+            "sensors.manager=pcrlb_aux",
+            "sensors.max_active_total=4",
+            "consensus.auxiliary_fim=true",
+        ])
+        .unwrap();
+        check(&s, &topology).unwrap();
+    }
 }

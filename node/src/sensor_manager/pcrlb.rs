@@ -61,6 +61,10 @@ pub enum Scoring {
     /// It conditions on the data through x̂, so it is not the conventional
     /// (offline) PCRLB; that is [`super::OfflinePcrlb`].
     AtEstimate,
+    /// The selection paper's eq. 32 as printed: `J̄` as for `Conditional`,
+    /// the prediction from the auxiliary FIM `J_AUX(k)` rather than from
+    /// `L_G(k)`. Needs `consensus.auxiliary_fim`.
+    Auxiliary,
 }
 
 /// What a node brings to a step's selection.
@@ -544,6 +548,13 @@ impl super::NegotiatedManager for PcrlbSelection {
                 let estimate = fusion.posterior().mean;
                 self.nonconditional_inputs(model, &estimate)
             }
+            Scoring::Auxiliary => Ok(SelectionInputs {
+                // Refused at configuration without it (`pcrlb_aux`).
+                predicted: fusion
+                    .predicted_aux_information(model)?
+                    .expect("the auxiliary FIM is carried when scoring by it"),
+                own: fusion.expected_information(model, own)?,
+            }),
         }
     }
 }

@@ -778,11 +778,16 @@ mod tests {
     /// back: each end node's 3 candidates in one report, one choice.
     #[test]
     fn the_pcrlb_manager_activates_n_max_within_the_caps_every_step() {
-        for manager in ["pcrlb", "pcrlb_at_estimate"] {
+        for (manager, aux) in [
+            ("pcrlb", false),
+            ("pcrlb_at_estimate", false),
+            ("pcrlb_aux", true),
+        ] {
             let mut net = Net::line_with(&[
                 &format!("sensors.manager={manager}"),
                 "sensors.active_per_node=2",
                 "sensors.max_active_total=4",
+                &format!("consensus.auxiliary_fim={aux}"),
             ]);
             for step in 1..=3 {
                 net.begin_step(step, &ALL);
