@@ -139,8 +139,9 @@ const ML_CLAIM_TRIALS: usize = 400;
 const ML_SIDE: f64 = 18.0;
 const ML_STEP: f64 = 0.5;
 const ML_STARTS: usize = 3;
-/// The depths at which the ML estimate's bias gradient is measured: one
-/// where its MSE falls below the CRLB, one where it meets it.
+/// The depths at which the ML estimate's bias gradient is measured (with
+/// the optimal thresholds): one where its MSE misses the CRLB, one where
+/// it meets it.
 const BIAS_BITS: [u8; 2] = [2, 4];
 const SEED: u64 = 6;
 
@@ -277,6 +278,24 @@ struct ThresholdRow {
     optimal: Vec<f64>,
     sub_optimal: Vec<f64>,
     uniform: Vec<f64>,
+    /// Sensors a deployment has within 2σ of a threshold, on average: the
+    /// optimal design's over its deployments, the others' over all.
+    ring: [f64; 3],
+}
+
+/// How many of a deployment's sensors have a noiseless amplitude within 2σ
+/// of one of the quantizer's thresholds: the sensors whose reports tell
+/// about the target (one far from every threshold reports the same cell
+/// wherever the target is near).
+fn near_a_threshold(model: &Model, q: &Quantizer, sensors: &[[f64; 2]]) -> usize {
+    let thresholds: Vec<f64> = (1..q.cells()).map(|i| q.cell_edges(i as u32).0).collect();
+    sensors
+        .iter()
+        .filter(|s| {
+            let a = model.law.amplitude(s[0].hypot(s[1]));
+            thresholds.iter().any(|t| (a - t).abs() < 2.0 * SIGMA)
+        })
+        .count()
 }
 
 /// The thresholds part, and the optimal quantizer of its first deployment
@@ -307,14 +326,15 @@ fn threshold_part(
     let found = indexed(tasks.len(), threads, |t| {
         let (b, i) = tasks[t];
         let q = optimal(model, &designed[b], &deployments[i]);
-        (of(&q, &deployments[i]), q)
+        let near = near_a_threshold(model, &q, &deployments[i]);
+        (of(&q, &deployments[i]), q, near)
     });
     let mut first = Vec::new();
     let rows = BITS
         .iter()
         .enumerate()
         .map(|(b, &bits)| {
-            let mine: Vec<&(f64, Quantizer)> = tasks
+            let mine: Vec<&(f64, Quantizer, usize)> = tasks
                 .iter()
                 .zip(&found)
                 .filter(|((tb, _), _)| *tb == b)
@@ -324,11 +344,23 @@ fn threshold_part(
             let uni = uniform_quantizer(bits, model.law, SIGMA);
             let cheap =
                 |q: &Quantizer| indexed(deployments.len(), threads, |i| of(q, &deployments[i]));
+            let ring = |q: &Quantizer| {
+                deployments
+                    .iter()
+                    .map(|d| near_a_threshold(model, q, d) as f64)
+                    .sum::<f64>()
+                    / deployments.len() as f64
+            };
             ThresholdRow {
                 bits,
                 optimal: mine.iter().map(|f| f.0).collect(),
                 sub_optimal: cheap(&designed[b]),
                 uniform: cheap(&uni),
+                ring: [
+                    mine.iter().map(|f| f.2 as f64).sum::<f64>() / mine.len() as f64,
+                    ring(&designed[b]),
+                    ring(&uni),
+                ],
             }
         })
         .collect();
@@ -826,14 +858,14 @@ impl ThresholdRow {
 
 fn thresholds_csv(o: &Outcome) -> String {
     let mut s = String::from(
-        "model,lambda,bits,optimal_deployments,optimal,sub_optimal,uniform,deployments,sub_optimal_all,uniform_all,sub_optimal_singular,uniform_singular\n",
+        "model,lambda,bits,optimal_deployments,optimal,sub_optimal,uniform,deployments,sub_optimal_all,uniform_all,sub_optimal_singular,uniform_singular,near_a_threshold_optimal,near_a_threshold_sub_optimal,near_a_threshold_uniform\n",
     );
     for (m, model) in MODELS.iter().enumerate() {
         for r in &o.thresholds[m] {
             let [opt, sub, uni] = r.paired_means();
             let _ = writeln!(
                 s,
-                "{},{},{},{},{opt},{sub},{uni},{},{},{},{},{}",
+                "{},{},{},{},{opt},{sub},{uni},{},{},{},{},{},{},{},{}",
                 model.name,
                 model.density,
                 r.bits,
@@ -842,7 +874,10 @@ fn thresholds_csv(o: &Outcome) -> String {
                 geometric_mean(&r.sub_optimal),
                 geometric_mean(&r.uniform),
                 singular(&r.sub_optimal),
-                singular(&r.uniform)
+                singular(&r.uniform),
+                r.ring[0],
+                r.ring[1],
+                r.ring[2]
             );
         }
     }
@@ -930,13 +965,16 @@ fn table(o: &Outcome) -> String {
             let [opt, sub, uni] = r.paired_means();
             let _ = writeln!(
                 s,
-                "    {} bit(s), {} deployments: optimal {opt:.4e}, sub-optimal {sub:.4e}, uniform {uni:.4e}; over all: sub-optimal {:.4e} ({} singular), uniform {:.4e} ({} singular)",
+                "    {} bit(s), {} deployments: optimal {opt:.4e}, sub-optimal {sub:.4e}, uniform {uni:.4e}; over all: sub-optimal {:.4e} ({} singular), uniform {:.4e} ({} singular); sensors within 2σ of a threshold: optimal {:.1}, sub-optimal {:.1}, uniform {:.1}",
                 r.bits,
                 r.optimal.len(),
                 geometric_mean(&r.sub_optimal),
                 singular(&r.sub_optimal),
                 geometric_mean(&r.uniform),
-                singular(&r.uniform)
+                singular(&r.uniform),
+                r.ring[0],
+                r.ring[1],
+                r.ring[2]
             );
         }
         let _ = writeln!(
