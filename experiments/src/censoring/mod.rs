@@ -24,7 +24,7 @@ use crate::{Computed, ComputedReport, Options};
 pub use network::network_experiments;
 use report::{check, draw, print, table_csv, Row};
 use setups::{name, setups, SCHEMES};
-use trial::{measure, Measured};
+use trial::measure;
 
 pub fn experiments() -> Vec<Computed> {
     vec![Computed {
@@ -42,16 +42,16 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         for &(l, cfwmd, cfwmd2) in setup.theirs {
             let rule =
                 CensoringRule::for_budget(l, setup.sensors.len(), setup.sensors[0].len() as u32)?;
-            let mut ours = [Measured::default(); 2];
-            for (slot, scheme) in SCHEMES.iter().enumerate() {
-                ours[slot] = measure(&setup, &rule, *scheme, threads);
+            let ours = SCHEMES.map(|scheme| {
+                let measured = measure(&setup, &rule, scheme, threads);
                 eprintln!(
                     "  table {} l = {l}: {} l̄ = {:.4}",
                     setup.table,
-                    name(*scheme),
-                    ours[slot].mean
+                    name(scheme),
+                    measured.mean
                 );
-            }
+                measured
+            });
             rows.push(Row {
                 table: setup.table,
                 l,

@@ -8,6 +8,7 @@ use plotters::prelude::*;
 
 use super::setups::{name, setups, SCHEMES};
 use super::trial::Measured;
+use crate::paired::{Order, Paired};
 use crate::{Check, Claim, Verdict};
 
 /// One (setup, l) row: our l̄ for each scheme beside the dissertation's.
@@ -95,6 +96,27 @@ pub(super) fn check(rows: &[Row]) -> Check {
                 unresolved
             },
         });
+    }
+    // Figs. 3.2, 3.5 and 3.10: with the covariance fed back (CFwMD2) the
+    // RMSE is lower than without (CFwMD), for each l. Per-trial MSEs pair,
+    // the schemes' trials sharing their trajectories and noise.
+    for r in rows {
+        let mse = |slot: usize| -> Vec<Option<f64>> {
+            r.ours[slot]
+                .per_trial_mse
+                .iter()
+                .map(|m| Some(*m))
+                .collect()
+        };
+        claims.push(Claim::judged(
+            format!(
+                "table {} l = {}: CFwMD2 (covariance fed back) tracks better than CFwMD (Figs. 3.2, 3.5, 3.10)",
+                r.table, r.l
+            ),
+            Paired::of(&mse(1), &mse(0)),
+            |p| p.verdict(Order::Lower),
+            |p| format!("MSE {} m² over {} trials", p.text(3), p.runs),
+        ));
     }
     let statement = claims
         .iter()

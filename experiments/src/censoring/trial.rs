@@ -13,11 +13,14 @@ use rand_distr::StandardNormal;
 
 use super::setups::{table_key, Feedback, Setup, SEED, SILENCE_DRAWS};
 
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct Measured {
     pub(super) mean: f64,
     pub(super) stderr: f64,
     pub(super) rmse: f64,
+    /// Each trial's position MSE over its steps, in trial order: the two
+    /// schemes' trials share their trajectories and noise, so they pair.
+    pub(super) per_trial_mse: Vec<f64>,
 }
 
 /// The trials of one row, spread over threads; each trial's randomness
@@ -71,6 +74,10 @@ pub(super) fn measure(
         mean,
         stderr: (var / n).sqrt(),
         rmse: (squared / (n * setup.steps as f64)).sqrt(),
+        per_trial_mse: trials
+            .iter()
+            .map(|t| t.squared_error / setup.steps as f64)
+            .collect(),
     }
 }
 
