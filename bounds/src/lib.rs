@@ -157,6 +157,8 @@ pub enum BoundError {
         sensors: usize,
         probabilities: usize,
     },
+    #[error("scoring by the auxiliary FIM, but the filter carries none (consensus.auxiliary_fim = false)")]
+    NoAuxiliaryFim,
 }
 
 #[cfg(test)]

@@ -549,10 +549,11 @@ impl super::NegotiatedManager for PcrlbSelection {
                 self.nonconditional_inputs(model, &estimate)
             }
             Scoring::Auxiliary => Ok(SelectionInputs {
-                // Refused at configuration without it (`pcrlb_aux`).
+                // The built-in `pcrlb_aux` is refused at configuration
+                // without it; a program's own manager gets the error.
                 predicted: fusion
                     .predicted_aux_information(model)?
-                    .expect("the auxiliary FIM is carried when scoring by it"),
+                    .ok_or(BoundError::NoAuxiliaryFim)?,
                 own: fusion.expected_information(model, own)?,
             }),
         }
