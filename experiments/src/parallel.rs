@@ -10,21 +10,34 @@ pub(crate) fn indexed<T: Send>(
     threads: usize,
     f: impl Fn(usize) -> T + Sync,
 ) -> Vec<T> {
+    indexed_with(count, threads, || (), |_, i| f(i))
+}
+
+/// The same, each thread with a workspace of its own made by `init` and
+/// handed to every `f` it runs (a filter reused over trials, say, so that
+/// a trial allocates little). What `f` returns must not depend on what
+/// the workspace held before.
+pub(crate) fn indexed_with<S, T: Send>(
+    count: usize,
+    threads: usize,
+    init: impl Fn() -> S + Sync,
+    f: impl Fn(&mut S, usize) -> T + Sync,
+) -> Vec<T> {
     let next = AtomicUsize::new(0);
-    let f = &f;
-    let next = &next;
+    let (f, init, next) = (&f, &init, &next);
     let workers = threads.clamp(1, count.max(1));
     let mut done: Vec<(usize, T)> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..workers)
             .map(|_| {
                 scope.spawn(move || {
+                    let mut workspace = init();
                     let mut mine = Vec::new();
                     loop {
                         let i = next.fetch_add(1, Ordering::Relaxed);
                         if i >= count {
                             break mine;
                         }
-                        mine.push((i, f(i)));
+                        mine.push((i, f(&mut workspace, i)));
                     }
                 })
             })

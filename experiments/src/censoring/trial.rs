@@ -1,8 +1,6 @@
 //! The fusion centre of the censoring tables: the node's particle filter
 //! weighing what each sensor sent, or its silence, over many trials.
 
-use std::sync::atomic::{AtomicU32, Ordering};
-
 use bounds::censoring::{CensoringRule, VectorSilence};
 use bounds::{Mat4, ObservationModel, State};
 use nalgebra::{Matrix2, SMatrix, Vector2};
@@ -12,6 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use super::setups::{table_key, Feedback, Setup, SEED, SILENCE_DRAWS};
+use crate::parallel::indexed_with;
 
 #[derive(Debug, Clone, Default)]
 pub(super) struct Measured {
@@ -35,31 +34,12 @@ pub(super) fn measure(
     scheme: Feedback,
     threads: usize,
 ) -> Measured {
-    let next = AtomicU32::new(0);
-    let results: Vec<Vec<(u32, Trial)>> = std::thread::scope(|scope| {
-        let workers: Vec<_> = (0..threads)
-            .map(|_| {
-                scope.spawn(|| {
-                    let mut filter = TrialFilter::new(setup);
-                    let mut done = Vec::new();
-                    loop {
-                        let trial = next.fetch_add(1, Ordering::Relaxed);
-                        if trial >= setup.trials {
-                            break done;
-                        }
-                        done.push((trial, filter.run(setup, rule, scheme, trial)));
-                    }
-                })
-            })
-            .collect();
-        workers
-            .into_iter()
-            .map(|w| w.join().expect("a trial panicked"))
-            .collect()
-    });
-    let mut indexed: Vec<(u32, Trial)> = results.into_iter().flatten().collect();
-    indexed.sort_by_key(|(trial, _)| *trial);
-    let trials: Vec<Trial> = indexed.into_iter().map(|(_, t)| t).collect();
+    let trials: Vec<Trial> = indexed_with(
+        setup.trials as usize,
+        threads,
+        || TrialFilter::new(setup),
+        |filter, trial| filter.run(setup, rule, scheme, trial as u32),
+    );
     let n = trials.len() as f64;
     // l̄ per trial (the mean over its steps) as the sample, so the standard
     // error respects the correlation between a trial's steps.
