@@ -1228,29 +1228,12 @@ fn draw_relative(path: &Path, model: &Model, rows: &[DensityRow]) -> Figure {
     let root = SVGBackend::new(path, (1200, 520)).into_drawing_area();
     root.fill(&WHITE)?;
     let (left, right) = root.split_horizontally(600);
-    for (area, name, centre, pick, sd_of) in [
-        (&left, "J11/c", 1.0, 0usize, 0usize),
-        (&right, "J12/c", 0.0, 1, 1),
-    ] {
-        let value = |r: &DensityRow| {
-            let v = if pick == 0 { r.j11[0] } else { r.j12[0] };
-            v / r.closed
-        };
-        let predicted = |r: &DensityRow| {
-            if sd_of == 0 {
-                r.predicted_sd.0
-            } else {
-                r.predicted_sd.1
-            }
-        };
-        let measured = |r: &DensityRow| {
-            let (a, b) = r.measured_sd();
-            if sd_of == 0 {
-                a
-            } else {
-                b
-            }
-        };
+    // J₁₁/c about 1 and J₁₂/c about 0: element k of each pair.
+    for (area, name, centre, k) in [(&left, "J11/c", 1.0, 0), (&right, "J12/c", 0.0, 1)] {
+        let pick = |pair: (f64, f64)| if k == 0 { pair.0 } else { pair.1 };
+        let value = |r: &DensityRow| pick((r.j11[0], r.j12[0])) / r.closed;
+        let predicted = |r: &DensityRow| pick(r.predicted_sd);
+        let measured = |r: &DensityRow| pick(r.measured_sd());
         let at = |f: &dyn Fn(&DensityRow) -> f64| rows.iter().map(|r| (r.density, f(r))).collect();
         semilog_on(
             area,

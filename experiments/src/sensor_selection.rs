@@ -108,6 +108,22 @@ pub fn experiments() -> Vec<Experiment> {
     ]
 }
 
+/// `arm`'s per-run RMSE against each of `others`', paired, with the claim
+/// in words (`who` names `arm` in it); none when an arm has fewer than two
+/// runs with an RMSE.
+fn against(o: &Outcome, who: &str, arm: &Arm, others: &[Arm]) -> Option<Vec<(String, Paired)>> {
+    let runs = &o.arm(arm.label).per_run_rmse;
+    others
+        .iter()
+        .map(|m| {
+            Some((
+                format!("{who} RMSE is below {}'s", m.label),
+                Paired::of(runs, &o.arm(m.label).per_run_rmse)?,
+            ))
+        })
+        .collect()
+}
+
 /// "The conditional PCRLB-based approach gives the lowest RMSE": the
 /// conditional manager's per-run RMSE (from step 10) against each other
 /// manager's in the same run, for cqnet's (L_G) against every other and
@@ -117,30 +133,23 @@ pub fn experiments() -> Vec<Experiment> {
 /// the intervals, every manager's mean RMSE and its bytes per step,
 /// whatever the verdict.
 fn check_fig2(o: &Outcome) -> Check {
-    let rmse = |m: &Arm| &o.arm(m.label).per_run_rmse;
-    let conditional = rmse(&MANAGERS[0]);
-    let auxiliary = rmse(&MANAGERS[1]);
-    let pairs: Option<Vec<(String, Paired)>> = MANAGERS[1..]
-        .iter()
-        .map(|m| {
-            Some((
-                format!(
-                    "the conditional PCRLB manager's RMSE is below {}'s",
-                    m.label
-                ),
-                Paired::of(conditional, rmse(m))?,
-            ))
-        })
-        .chain(MANAGERS[2..].iter().map(|m| {
-            Some((
-                format!(
-                    "the auxiliary-FIM manager's (eq. 32's) RMSE is below {}'s",
-                    m.label
-                ),
-                Paired::of(auxiliary, rmse(m))?,
-            ))
-        }))
-        .collect();
+    let pairs: Option<Vec<(String, Paired)>> = [
+        against(
+            o,
+            "the conditional PCRLB manager's",
+            &MANAGERS[0],
+            &MANAGERS[1..],
+        ),
+        against(
+            o,
+            "the auxiliary-FIM manager's (eq. 32's)",
+            &MANAGERS[1],
+            &MANAGERS[2..],
+        ),
+    ]
+    .into_iter()
+    .collect::<Option<Vec<_>>>()
+    .map(|v| v.concat());
     let Some(pairs) = pairs else {
         return Check {
             verdict: Verdict::of(false),
