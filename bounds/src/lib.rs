@@ -18,6 +18,10 @@
 //!   `det J` (dissertation ch. 4);
 //! - [`censoring`]: the NIS censoring rule at a sensor and the likelihood
 //!   of its silence (dissertation ch. 3);
+//! - [`local_predictions`]: censoring without feedback: the joint law of
+//!   the state and the sensors' own Kalman predictions, the likelihood of
+//!   silences under it, and the divergence metric of the information
+//!   rule (dissertation ch. 3);
 //! - [`bit_allocation`]: quantized data fused with injected noise, and the
 //!   allocation of a budget of bits over sensors (dissertation ch. 5);
 //! - [`speb`]: the bit-depth paper's squared position error bound, information
@@ -39,6 +43,7 @@ pub mod diffusion;
 pub mod dynamics;
 pub mod fisher;
 pub mod fisher_table;
+pub mod local_predictions;
 pub mod location;
 pub mod mass_table;
 pub mod normal;
