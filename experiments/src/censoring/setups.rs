@@ -7,6 +7,9 @@ use bounds::{Mat4, ObservationModel, SensorLaw, State};
 /// What the node feeds back to its sensors at the start of a step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Feedback {
+    /// Nothing: each sensor runs its own Kalman filter on its own
+    /// measurements and censors against its own prediction (Props. 3.3, 3.8).
+    None,
     /// CFwMD: the predicted estimate; each sensor normalizes by its own
     /// Kalman covariance.
     Estimate,
@@ -14,10 +17,73 @@ pub(super) enum Feedback {
     EstimateAndCovariance,
 }
 
-pub(super) const SCHEMES: [Feedback; 2] = [Feedback::Estimate, Feedback::EstimateAndCovariance];
+/// How the centre reads a sensor that did not send.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Silence {
+    /// CFoMD: as if the sensor did not exist this step.
+    Ignored,
+    /// CFwMD: as a measurement, its likelihood the probability of silence.
+    Weighed,
+    /// Without feedback, weighed as if the centre knew each sensor's own
+    /// prediction: an oracle no centre has, the most a silence can say.
+    WeighedKnowingPredictions,
+}
+
+/// What a censoring sensor thresholds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Rule {
+    /// Its normalized innovation squared, `νᵀ S⁻¹ ν ≥ η` (eq. 3.4).
+    Nis,
+    /// The divergence of its Kalman update from prior to posterior
+    /// (eq. 3.29), or its symmetric sum (eq. 3.35), thresholded at its
+    /// value on the NIS boundary: the same budget.
+    Divergence { symmetric: bool },
+}
+
+/// One arm of the chapter's comparisons: how the sensors choose what to
+/// send, and how the centre reads what did not come.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Arm {
+    /// Every sensor sends every step.
+    AllSend,
+    /// Each sensor sends with probability l/N whatever it measured, so
+    /// what is missing is missing at random and the centre ignores it.
+    Random,
+    /// Each sensor censors its measurement.
+    Censored {
+        feedback: Feedback,
+        silence: Silence,
+        rule: Rule,
+    },
+}
+
+impl Arm {
+    pub(super) const fn cfwmd(feedback: Feedback) -> Self {
+        Arm::Censored {
+            feedback,
+            silence: Silence::Weighed,
+            rule: Rule::Nis,
+        }
+    }
+
+    pub(super) const fn cfomd(feedback: Feedback) -> Self {
+        Arm::Censored {
+            feedback,
+            silence: Silence::Ignored,
+            rule: Rule::Nis,
+        }
+    }
+}
+
+/// The tables' two schemes: CFwMD and CFwMD2.
+pub(super) const SCHEMES: [Arm; 2] = [
+    Arm::cfwmd(Feedback::Estimate),
+    Arm::cfwmd(Feedback::EstimateAndCovariance),
+];
 
 /// One of the dissertation's setups. States are cqnet's `[p_x, p_y, v_x, v_y]`;
 /// the one-dimensional setups leave y unobserved.
+#[derive(Clone)]
 pub(super) struct Setup {
     pub(super) table: &'static str,
     pub(super) title: &'static str,
@@ -40,6 +106,8 @@ pub(super) struct Setup {
 
 /// Draws per step for the two-dimensional silence probability (Table 3.2).
 pub(super) const SILENCE_DRAWS: usize = 100;
+/// Draws per step for the joint silence of sensors without feedback.
+pub(super) const JOINT_SILENCE_DRAWS: usize = 200;
 pub(super) const SEED: u64 = 3;
 
 pub(super) fn setups() -> Vec<Setup> {
@@ -134,6 +202,16 @@ pub(super) fn setups() -> Vec<Setup> {
 }
 
 impl Setup {
+    /// The state's components that move: `[p_x, v_x]` on the line, all
+    /// four in the plane.
+    pub(super) fn active(&self) -> &'static [usize] {
+        if self.axes == 1 {
+            &[0, 2]
+        } else {
+            &[0, 1, 2, 3]
+        }
+    }
+
     /// Q and its factor, without the y axis's noise when the target moves
     /// along x only.
     pub(super) fn process_noise(&self) -> (Mat4, Mat4) {
@@ -152,10 +230,27 @@ impl Setup {
     }
 }
 
-pub(super) fn name(scheme: Feedback) -> &'static str {
-    match scheme {
-        Feedback::Estimate => "CFwMD",
-        Feedback::EstimateAndCovariance => "CFwMD2",
+/// The arm's name as the chapter spells it.
+pub(super) fn name(arm: Arm) -> &'static str {
+    use {Feedback as F, Rule as R, Silence as S};
+    match arm {
+        Arm::AllSend => "all-send",
+        Arm::Random => "random selection",
+        Arm::Censored {
+            feedback,
+            silence,
+            rule,
+        } => match (feedback, silence, rule) {
+            (F::Estimate, S::Weighed, R::Nis) => "CFwMD",
+            (F::EstimateAndCovariance, S::Weighed, R::Nis) => "CFwMD2",
+            (F::None, S::Weighed, R::Nis) => "CFwMD without feedback",
+            (F::Estimate, S::Ignored, R::Nis) => "CFoMD",
+            (F::EstimateAndCovariance, S::Ignored, R::Nis) => "CFoMD, covariance fed back",
+            (F::None, S::Ignored, R::Nis) => "CFoMD without feedback",
+            (_, S::WeighedKnowingPredictions, R::Nis) => "CFwMD knowing the sensors' predictions",
+            (_, _, R::Divergence { symmetric: false }) => "CFwMD by divergence",
+            (_, _, R::Divergence { symmetric: true }) => "CFwMD by symmetric divergence",
+        },
     }
 }
 
