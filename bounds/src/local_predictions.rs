@@ -99,7 +99,9 @@ impl LocalPredictions {
         let (d, blocks) = (self.d, self.sensors.len() + 1);
         let mut transition = DMatrix::zeros(d * blocks, d * blocks);
         for b in 0..blocks {
-            transition.view_mut((b * d, b * d), (d, d)).copy_from(&self.f);
+            transition
+                .view_mut((b * d, b * d), (d, d))
+                .copy_from(&self.f);
         }
         self.mean = &transition * &self.mean;
         self.cov = &transition * &self.cov * transition.transpose();
@@ -584,7 +586,9 @@ mod tests {
         let rule = CensoringRule::for_budget(1.0, 2, 1).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         for silent in [vec![0], vec![0, 1]] {
-            let printed = law.silence_as_printed(&silent, &rule, 500, &mut rng).unwrap();
+            let printed = law
+                .silence_as_printed(&silent, &rule, 500, &mut rng)
+                .unwrap();
             let exact = law.silence(&silent, &rule, 500, &mut rng).unwrap();
             let at = |s: &JointSilence, x: f64| s.ln_probability(&[x, 10.0]);
             assert!((at(&printed, -30.0) - at(&printed, 40.0)).abs() < 1e-12);

@@ -558,8 +558,9 @@ fn mean_costs(per_run: &[[Cost; 4]]) -> Vec<Cost> {
                 tx_broadcast: sum(|c| c.tx_broadcast),
                 duty: sum(|c| c.duty),
                 cpu_ms_per_step: sum(|c| c.cpu_ms_per_step),
-                rmse: (!rmses.is_empty())
-                    .then(|| (rmses.iter().map(|r| r * r).sum::<f64>() / rmses.len() as f64).sqrt()),
+                rmse: (!rmses.is_empty()).then(|| {
+                    (rmses.iter().map(|r| r * r).sum::<f64>() / rmses.len() as f64).sqrt()
+                }),
             }
         })
         .collect()
@@ -614,8 +615,17 @@ fn table_csv(mean: &[Cost], per_run: &[[Cost; 4]]) -> String {
     let rows = per_run
         .iter()
         .enumerate()
-        .flat_map(|(r, costs)| costs.iter().enumerate().map(move |(t, c)| (r.to_string(), t, *c)))
-        .chain(mean.iter().enumerate().map(|(t, c)| ("mean".to_string(), t, *c)));
+        .flat_map(|(r, costs)| {
+            costs
+                .iter()
+                .enumerate()
+                .map(move |(t, c)| (r.to_string(), t, *c))
+        })
+        .chain(
+            mean.iter()
+                .enumerate()
+                .map(|(t, c)| ("mean".to_string(), t, *c)),
+        );
     for (run, t, c) in rows {
         let tracker = &TRACKERS[t];
         let _ = writeln!(
@@ -697,10 +707,16 @@ fn table_check(per_run: &[[Cost; 4]]) -> Check {
             )
         }
     };
-    let (rx, tx, cpu): (fn(&Cost) -> f64, fn(&Cost) -> f64, fn(&Cost) -> f64) =
+    type Figure = fn(&Cost) -> f64;
+    let (rx, tx, cpu): (Figure, Figure, Figure) =
         (|c| c.rx, |c| c.tx_broadcast, |c| c.cpu_ms_per_step);
     let order = |claim: &str, f, a, b, expected| {
-        Claim::judged(claim, ln_ratio(f, a, b, 1.0), move |p| p.verdict(expected), ratio_text(1.0))
+        Claim::judged(
+            claim,
+            ln_ratio(f, a, b, 1.0),
+            move |p| p.verdict(expected),
+            ratio_text(1.0),
+        )
     };
     // Within ±25 % of the paper's ratio.
     let near = |claim: &str, f, a, b, ratio: f64| {
@@ -712,21 +728,75 @@ fn table_check(per_run: &[[Cost; 4]]) -> Check {
         )
     };
     let claims = vec![
-        order("RX: RndEx-PF below non-iterative KL (the paper: half)", rx, RNDEX, NON_ITERATIVE, Order::Lower),
-        order("RX: non-iterative KL below iterative KL", rx, NON_ITERATIVE, ITERATIVE, Order::Lower),
+        order(
+            "RX: RndEx-PF below non-iterative KL (the paper: half)",
+            rx,
+            RNDEX,
+            NON_ITERATIVE,
+            Order::Lower,
+        ),
+        order(
+            "RX: non-iterative KL below iterative KL",
+            rx,
+            NON_ITERATIVE,
+            ITERATIVE,
+            Order::Lower,
+        ),
         Claim::judged(
             "RX: consensus KL at least 5x RndEx-PF (the paper: an order of magnitude)",
             ln_ratio(rx, CONSENSUS, RNDEX, 5.0),
             |p| p.verdict(Order::Higher),
             ratio_text(5.0),
         ),
-        order("TX (broadcast): non-iterative KL below RndEx-PF", tx, NON_ITERATIVE, RNDEX, Order::Lower),
-        order("TX (broadcast): RndEx-PF below consensus KL", tx, RNDEX, CONSENSUS, Order::Lower),
-        order("TX (broadcast): consensus KL slightly below iterative KL", tx, CONSENSUS, ITERATIVE, Order::Lower),
-        order("processing: consensus KL below RndEx-PF", cpu, CONSENSUS, RNDEX, Order::Lower),
-        near("processing: consensus KL about a third of RndEx-PF (ratio 1/3, ±25 %)", cpu, CONSENSUS, RNDEX, 1.0 / 3.0),
-        near("processing: iterative KL 170 % above consensus KL (ratio 2.7, ±25 %)", cpu, ITERATIVE, CONSENSUS, 2.7),
-        near("processing: non-iterative KL similar to RndEx-PF (ratio 1, ±25 %)", cpu, NON_ITERATIVE, RNDEX, 1.0),
+        order(
+            "TX (broadcast): non-iterative KL below RndEx-PF",
+            tx,
+            NON_ITERATIVE,
+            RNDEX,
+            Order::Lower,
+        ),
+        order(
+            "TX (broadcast): RndEx-PF below consensus KL",
+            tx,
+            RNDEX,
+            CONSENSUS,
+            Order::Lower,
+        ),
+        order(
+            "TX (broadcast): consensus KL slightly below iterative KL",
+            tx,
+            CONSENSUS,
+            ITERATIVE,
+            Order::Lower,
+        ),
+        order(
+            "processing: consensus KL below RndEx-PF",
+            cpu,
+            CONSENSUS,
+            RNDEX,
+            Order::Lower,
+        ),
+        near(
+            "processing: consensus KL about a third of RndEx-PF (ratio 1/3, ±25 %)",
+            cpu,
+            CONSENSUS,
+            RNDEX,
+            1.0 / 3.0,
+        ),
+        near(
+            "processing: iterative KL 170 % above consensus KL (ratio 2.7, ±25 %)",
+            cpu,
+            ITERATIVE,
+            CONSENSUS,
+            2.7,
+        ),
+        near(
+            "processing: non-iterative KL similar to RndEx-PF (ratio 1, ±25 %)",
+            cpu,
+            NON_ITERATIVE,
+            RNDEX,
+            1.0,
+        ),
     ];
     let mean = mean_costs(per_run);
     let figures: Vec<String> = TRACKERS

@@ -65,7 +65,12 @@ pub(super) fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedRepor
             go(part, setup, arm, 1.0);
         }
     }
-    go("nonlinear", &nonlinear, Arm::AllSend, nonlinear.sensors.len() as f64);
+    go(
+        "nonlinear",
+        &nonlinear,
+        Arm::AllSend,
+        nonlinear.sensors.len() as f64,
+    );
     for l in NONLINEAR_BUDGETS {
         for arm in [
             Arm::Random,
@@ -148,7 +153,9 @@ fn check(runs: &[Run]) -> Check {
                 of(Arm::cfomd(feedback)),
             ));
             claims.push(better(
-                format!("Fig. {figure} ({part}, {words}): CFoMD tracks better than random selection"),
+                format!(
+                    "Fig. {figure} ({part}, {words}): CFoMD tracks better than random selection"
+                ),
                 of(Arm::cfomd(feedback)),
                 of(Arm::Random),
             ));
@@ -184,14 +191,19 @@ fn check(runs: &[Run]) -> Check {
         ));
     }
     let of = |arm, l| find(runs, "nonlinear", arm, l);
-    let (cfwmd, cfomd) = (Arm::cfwmd(Feedback::Estimate), Arm::cfomd(Feedback::Estimate));
+    let (cfwmd, cfomd) = (
+        Arm::cfwmd(Feedback::Estimate),
+        Arm::cfomd(Feedback::Estimate),
+    );
     claims.push(better(
         format!("Fig. 3.8 (nonlinear, l = {NONLINEAR_L}): CFwMD tracks better than CFoMD"),
         of(cfwmd, NONLINEAR_L),
         of(cfomd, NONLINEAR_L),
     ));
     claims.push(better(
-        format!("Fig. 3.8 (nonlinear, l = {NONLINEAR_L}): CFwMD tracks better than random selection"),
+        format!(
+            "Fig. 3.8 (nonlinear, l = {NONLINEAR_L}): CFwMD tracks better than random selection"
+        ),
         of(cfwmd, NONLINEAR_L),
         of(Arm::Random, NONLINEAR_L),
     ));
@@ -212,7 +224,10 @@ fn check(runs: &[Run]) -> Check {
             .map(|(o, w)| o - w)
             .collect()
     };
-    let (small, large) = (NONLINEAR_BUDGETS[0], NONLINEAR_BUDGETS[NONLINEAR_BUDGETS.len() - 1]);
+    let (small, large) = (
+        NONLINEAR_BUDGETS[0],
+        NONLINEAR_BUDGETS[NONLINEAR_BUDGETS.len() - 1],
+    );
     let shrink: Vec<Option<f64>> = lead(small)
         .iter()
         .zip(lead(large))
@@ -280,7 +295,12 @@ fn table(runs: &[Run]) -> String {
 fn draw_all(dir: &Path, runs: &[Run], nonlinear: &Setup) -> anyhow::Result<()> {
     let curves = |part: &str, arms: &[Arm], l: f64| -> Vec<(String, Vec<StepError>)> {
         arms.iter()
-            .map(|&arm| (name(arm).to_string(), find(runs, part, arm, l).steps.clone()))
+            .map(|&arm| {
+                (
+                    name(arm).to_string(),
+                    find(runs, part, arm, l).steps.clone(),
+                )
+            })
             .collect()
     };
     let four = |feedback| {
@@ -292,10 +312,34 @@ fn draw_all(dir: &Path, runs: &[Run], nonlinear: &Setup) -> anyhow::Result<()> {
         ]
     };
     let figures = [
-        ("censoring-arms-feedback-scalar", "Fig. 3.1: feedback, scalar, N = 2, l = 1", "scalar", Feedback::Estimate, false),
-        ("censoring-arms-no-feedback-scalar", "Fig. 3.3: no feedback, scalar, N = 2, l = 1", "scalar", Feedback::None, false),
-        ("censoring-arms-feedback-vector", "Fig. 3.4: feedback, H = I, N = 2, l = 1", "vector", Feedback::Estimate, true),
-        ("censoring-arms-no-feedback-vector", "Fig. 3.6: no feedback, H = I, N = 2, l = 1", "vector", Feedback::None, true),
+        (
+            "censoring-arms-feedback-scalar",
+            "Fig. 3.1: feedback, scalar, N = 2, l = 1",
+            "scalar",
+            Feedback::Estimate,
+            false,
+        ),
+        (
+            "censoring-arms-no-feedback-scalar",
+            "Fig. 3.3: no feedback, scalar, N = 2, l = 1",
+            "scalar",
+            Feedback::None,
+            false,
+        ),
+        (
+            "censoring-arms-feedback-vector",
+            "Fig. 3.4: feedback, H = I, N = 2, l = 1",
+            "vector",
+            Feedback::Estimate,
+            true,
+        ),
+        (
+            "censoring-arms-no-feedback-vector",
+            "Fig. 3.6: no feedback, H = I, N = 2, l = 1",
+            "vector",
+            Feedback::None,
+            true,
+        ),
     ];
     for (file, title, part, feedback, velocity) in figures {
         draw_curves(
@@ -359,7 +403,11 @@ pub(super) fn draw_curves(
         chart
             .configure_mesh()
             .x_desc("time step")
-            .y_desc(if p == 0 { "position RMSE (m)" } else { "velocity RMSE (m/s)" })
+            .y_desc(if p == 0 {
+                "position RMSE (m)"
+            } else {
+                "velocity RMSE (m/s)"
+            })
             .draw()?;
         for (i, (label, steps)) in series.iter().enumerate() {
             let colour = Palette99::pick(i).to_rgba();
@@ -386,7 +434,9 @@ pub(super) fn draw_curves(
                     colour.stroke_width(2),
                 ))?
                 .label(label.clone())
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
         }
         chart
             .configure_series_labels()
@@ -405,7 +455,9 @@ fn draw_against_transmissions(path: &Path, runs: &[Run]) -> Result<(), Box<dyn s
     let root = SVGBackend::new(path, (850, 540)).into_drawing_area();
     root.fill(&WHITE)?;
     let of: Vec<&Run> = runs.iter().filter(|r| r.part == "nonlinear").collect();
-    let interval = |m: &Measured| crate::paired::rmse_interval(&m.per_trial_mse.iter().map(|v| v.sqrt()).collect::<Vec<_>>());
+    let interval = |m: &Measured| {
+        crate::paired::rmse_interval(&m.per_trial_mse.iter().map(|v| v.sqrt()).collect::<Vec<_>>())
+    };
     let top = of
         .iter()
         .filter_map(|r| interval(&r.measured).map(|(_, hi)| hi))
@@ -441,10 +493,17 @@ fn draw_against_transmissions(path: &Path, runs: &[Run]) -> Result<(), Box<dyn s
             ))?
             .label(name(*arm))
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
-        chart.draw_series(points.iter().map(|r| Circle::new((r.measured.mean, r.measured.rmse), 4, colour.filled())))?;
+        chart.draw_series(
+            points
+                .iter()
+                .map(|r| Circle::new((r.measured.mean, r.measured.rmse), 4, colour.filled())),
+        )?;
         chart.draw_series(points.iter().filter_map(|r| {
             interval(&r.measured).map(|(lo, hi)| {
-                PathElement::new([(r.measured.mean, lo), (r.measured.mean, hi)], colour.stroke_width(1))
+                PathElement::new(
+                    [(r.measured.mean, lo), (r.measured.mean, hi)],
+                    colour.stroke_width(1),
+                )
             })
         }))?;
     }
@@ -459,7 +518,11 @@ fn draw_against_transmissions(path: &Path, runs: &[Run]) -> Result<(), Box<dyn s
 }
 
 /// Fig. 3.7: the nonlinear setup's nine sensors and one true track.
-fn draw_field(path: &Path, setup: &Setup, track: &[[f64; 2]]) -> Result<(), Box<dyn std::error::Error>> {
+fn draw_field(
+    path: &Path,
+    setup: &Setup,
+    track: &[[f64; 2]],
+) -> Result<(), Box<dyn std::error::Error>> {
     let root = SVGBackend::new(path, (620, 600)).into_drawing_area();
     root.fill(&WHITE)?;
     let span = track
@@ -468,12 +531,19 @@ fn draw_field(path: &Path, setup: &Setup, track: &[[f64; 2]]) -> Result<(), Box<
         .fold(12.0_f64, f64::max)
         + 1.0;
     let mut chart = ChartBuilder::on(&root)
-        .caption("censoring-arms: the nonlinear setup (Fig. 3.7)", ("sans-serif", 18))
+        .caption(
+            "censoring-arms: the nonlinear setup (Fig. 3.7)",
+            ("sans-serif", 18),
+        )
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
         .build_cartesian_2d(-span..span, -span..span)?;
-    chart.configure_mesh().x_desc("x (m)").y_desc("y (m)").draw()?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .draw()?;
     chart
         .draw_series(
             setup
@@ -490,7 +560,11 @@ fn draw_field(path: &Path, setup: &Setup, track: &[[f64; 2]]) -> Result<(), Box<
         ))?
         .label("a true track (first trial)")
         .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED.stroke_width(2)));
-    chart.draw_series(track.first().map(|p| Circle::new((p[0], p[1]), 4, RED.filled())))?;
+    chart.draw_series(
+        track
+            .first()
+            .map(|p| Circle::new((p[0], p[1]), 4, RED.filled())),
+    )?;
     chart
         .configure_series_labels()
         .background_style(WHITE.mix(0.85))

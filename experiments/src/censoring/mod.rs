@@ -146,20 +146,34 @@ fn sensitivity_text(variants: &[(&str, [Measured; 2])]) -> String {
 /// table, from the tables' own trials.
 fn draw_covariance_feedback(dir: &Path, rows: &[Row]) -> anyhow::Result<()> {
     for (table, file, title, velocity) in [
-        ("3.1", "scalar", "Fig. 3.2: CFwMD (estimate fed back) and CFwMD2 (and its covariance), scalar, N = 4", false),
-        ("3.2", "vector", "Fig. 3.5: CFwMD and CFwMD2, H = I, N = 4", true),
-        ("3.3", "nonlinear", "Fig. 3.10: CFwMD and CFwMD2, nonlinear, N = 9", false),
+        (
+            "3.1",
+            "scalar",
+            "Fig. 3.2: CFwMD (estimate fed back) and CFwMD2 (and its covariance), scalar, N = 4",
+            false,
+        ),
+        (
+            "3.2",
+            "vector",
+            "Fig. 3.5: CFwMD and CFwMD2, H = I, N = 4",
+            true,
+        ),
+        (
+            "3.3",
+            "nonlinear",
+            "Fig. 3.10: CFwMD and CFwMD2, nonlinear, N = 9",
+            false,
+        ),
     ] {
-        let series: Vec<_> = rows
-            .iter()
-            .filter(|r| r.table == table)
-            .flat_map(|r| {
-                SCHEMES
-                    .iter()
-                    .zip(&r.ours)
-                    .map(move |(arm, m)| (format!("{}, l = {}", name(*arm), r.l), m.steps.clone()))
-            })
-            .collect();
+        let series: Vec<_> =
+            rows.iter()
+                .filter(|r| r.table == table)
+                .flat_map(|r| {
+                    SCHEMES.iter().zip(&r.ours).map(move |(arm, m)| {
+                        (format!("{}, l = {}", name(*arm), r.l), m.steps.clone())
+                    })
+                })
+                .collect();
         let path = dir.join(format!("censoring-covariance-feedback-{file}.svg"));
         arms::draw_curves(&path, title, &series, velocity)
             .map_err(|e| anyhow::anyhow!("drawing {}: {e}", path.display()))?;
@@ -218,7 +232,11 @@ mod tests {
             assert_eq!(by_divergence.per_trial_mse, nis.per_trial_mse);
         }
         let random = measure(&setup, 1.0, Arm::Random, 2);
-        assert!((random.mean - 1.0).abs() < 4.0 * random.stderr.max(0.05), "{}", random.mean);
+        assert!(
+            (random.mean - 1.0).abs() < 4.0 * random.stderr.max(0.05),
+            "{}",
+            random.mean
+        );
         for arm in [
             Arm::AllSend,
             Arm::cfomd(Feedback::None),
@@ -230,7 +248,12 @@ mod tests {
             },
         ] {
             let m = measure(&setup, 1.0, arm, 2);
-            assert!(m.rmse.is_finite() && m.rmse < 5.0, "{}: {}", name(arm), m.rmse);
+            assert!(
+                m.rmse.is_finite() && m.rmse < 5.0,
+                "{}: {}",
+                name(arm),
+                m.rmse
+            );
             assert_eq!(m.steps.len(), setup.steps as usize);
         }
     }

@@ -116,9 +116,24 @@ pub(super) fn check(rows: &[Row]) -> Check {
                     "CFwMD2 (covariance fed back) tracks better than CFwMD"
                 }
             ),
-            Paired::of(&values(&r.ours[1].per_trial_mse), &values(&r.ours[0].per_trial_mse)),
-            |p| p.verdict(if reversed { Order::Higher } else { Order::Lower }),
-            |p| format!("MSE of CFwMD2 minus CFwMD {} m² over {} trials", p.text(3), p.runs),
+            Paired::of(
+                &values(&r.ours[1].per_trial_mse),
+                &values(&r.ours[0].per_trial_mse),
+            ),
+            |p| {
+                p.verdict(if reversed {
+                    Order::Higher
+                } else {
+                    Order::Lower
+                })
+            },
+            |p| {
+                format!(
+                    "MSE of CFwMD2 minus CFwMD {} m² over {} trials",
+                    p.text(3),
+                    p.runs
+                )
+            },
         ));
         if r.l == 1.0 {
             claims.push(Claim::judged(

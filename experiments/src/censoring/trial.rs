@@ -311,8 +311,16 @@ impl TrialFilter {
                     Arm::Censored { .. } => match divergence {
                         None => rule.sends(nis),
                         Some(symmetric) => {
-                            let by_divergence =
-                                divergence_sends(setup, sensor, &centre, &cov, rule, s[(0, 0)], z[0], symmetric);
+                            let by_divergence = divergence_sends(
+                                setup,
+                                sensor,
+                                &centre,
+                                &cov,
+                                rule,
+                                s[(0, 0)],
+                                z[0],
+                                symmetric,
+                            );
                             out.disagreements += u32::from(by_divergence != rule.sends(nis));
                             by_divergence
                         }
@@ -402,7 +410,8 @@ impl TrialFilter {
 /// constant).
 fn local_law(setup: &Setup) -> LocalPredictions {
     let active = setup.active();
-    let pick = |m: &Mat4| DMatrix::from_fn(active.len(), active.len(), |i, j| m[(active[i], active[j])]);
+    let pick =
+        |m: &Mat4| DMatrix::from_fn(active.len(), active.len(), |i, j| m[(active[i], active[j])]);
     let f = setup.dynamics.jacobian(&State::zeros());
     let (q, _) = setup.process_noise();
     let sensors = setup
@@ -439,11 +448,17 @@ fn divergence_sends(
     z: f64,
     symmetric: bool,
 ) -> bool {
-    assert_eq!(sensor.len(), 1, "the divergence rule is built for scalar sensors");
+    assert_eq!(
+        sensor.len(),
+        1,
+        "the divergence rule is built for scalar sensors"
+    );
     let active = setup.active();
     let (gain, g, r) = linearize(sensor, centre);
     let m = DVector::from_iterator(active.len(), active.iter().map(|&c| centre[c]));
-    let p = DMatrix::from_fn(active.len(), active.len(), |i, j| cov[(active[i], active[j])]);
+    let p = DMatrix::from_fn(active.len(), active.len(), |i, j| {
+        cov[(active[i], active[j])]
+    });
     let h = DMatrix::from_fn(1, active.len(), |_, j| gain[(0, active[j])]);
     let r = DMatrix::from_element(1, 1, r[(0, 0)]);
     let divergence = |value: f64| {
@@ -488,7 +503,12 @@ fn linearize(
 
 /// A Kalman step of a linear sensor's own filter: the prediction
 /// `(m, P)` updated with its measurement.
-fn kalman_step(m: &State, p: &Mat4, sensor: &[ObservationModel], z: &Vector2<f64>) -> (State, Mat4) {
+fn kalman_step(
+    m: &State,
+    p: &Mat4,
+    sensor: &[ObservationModel],
+    z: &Vector2<f64>,
+) -> (State, Mat4) {
     let (gain, g, r) = linearize(sensor, m);
     let rows = sensor.len();
     let gain = gain.rows(0, rows).into_owned();
