@@ -533,6 +533,7 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         out: args.out.clone(),
         trajectories: args.trajectories as usize,
         stop: Default::default(),
+        small: false,
     };
     let mut failed = Vec::new();
     let mut open = Vec::new();

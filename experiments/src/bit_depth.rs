@@ -64,6 +64,9 @@ const SEED: u64 = 3;
 const MEASURED_RATES: [f64; 3] = [0.0, 2400.0, 1000.0];
 /// Monte Carlo runs per (rate, depth): 48 points of 100 steps.
 const MEASURED_RUNS: u32 = 5;
+/// Run small, a point is two runs of this many steps (its RMSE is from
+/// step 10).
+const SMALL_STEPS: u32 = 12;
 
 /// The RMSE measured over one link rate, by depth.
 struct Measured {
@@ -130,6 +133,9 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                         format!("quantizer.bits={bits}"),
                         "reference.centralized=false".to_string(),
                     ];
+                    if options.small {
+                        overrides.push(format!("steps={SMALL_STEPS}"));
+                    }
                     if rate > 0.0 {
                         overrides.push(format!(
                             "faults=[{{kind=\"delay\", links=[{{from=\"sensor-*\", to=\"node-*\"}}], at_step=1, latency_ms={}, rate_bps={rate}}}]",
@@ -144,7 +150,7 @@ fn measure(options: &Options, dir: &Path) -> anyhow::Result<Vec<Measured>> {
                         &scenario,
                         &topology,
                         &dir.join("runs").join(format!("rate-{rate}")).join(format!("bits-{bits}")),
-                        MEASURED_RUNS,
+                        options.sized(MEASURED_RUNS, 2),
                         options.threads,
                         false,
                         &|_| {},

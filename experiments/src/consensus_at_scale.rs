@@ -216,6 +216,7 @@ fn fault_matrix(
         out: dir.to_path_buf(),
         trajectories: options.trajectories,
         stop: options.stop.clone(),
+        small: options.small,
     };
     eprintln!("  the fault matrix with {protocol}");
     Ok(super::runner::run(&experiment, &sub, &|_, _| {})?.outcome)

@@ -139,6 +139,58 @@ const ML_CLAIM_TRIALS: usize = 400;
 const ML_SIDE: f64 = 18.0;
 const ML_STEP: f64 = 0.5;
 const ML_STARTS: usize = 3;
+
+/// How much of each part to compute, and on how many threads: the full
+/// sizes above, or a few of each when the experiment is run small.
+#[derive(Debug, Clone, Copy)]
+struct Work {
+    threads: usize,
+    deployments: usize,
+    cheap_deployments: usize,
+    ml_trials: usize,
+    ml_claim_trials: usize,
+    /// At most this many deployments for the optimal search at a depth.
+    optimal_limit: usize,
+    /// Whether the designs are searched for (the sub-optimal design of
+    /// eq. 6.46 and the optimal one); run small, the uniform thresholds
+    /// stand in for both.
+    search: bool,
+}
+
+impl Work {
+    /// The optimal thresholds for `sensors`, searched from `start`.
+    fn optimal(&self, model: &Model, start: &Quantizer, sensors: &[[f64; 2]]) -> Quantizer {
+        if self.search {
+            optimal(model, start, sensors)
+        } else {
+            start.clone()
+        }
+    }
+
+    fn of(options: &Options) -> Self {
+        let full = Self {
+            threads: options.threads.max(1),
+            deployments: DEPLOYMENTS,
+            cheap_deployments: CHEAP_DEPLOYMENTS,
+            ml_trials: ML_TRIALS,
+            ml_claim_trials: ML_CLAIM_TRIALS,
+            optimal_limit: usize::MAX,
+            search: true,
+        };
+        options.sized(
+            full,
+            Self {
+                deployments: 20,
+                cheap_deployments: 8,
+                ml_trials: 3,
+                ml_claim_trials: 4,
+                optimal_limit: 1,
+                search: false,
+                ..full
+            },
+        )
+    }
+}
 /// The depths at which the ML estimate's bias gradient is measured (with
 /// the optimal thresholds): one where its MSE misses the CRLB, one where
 /// it meets it.
@@ -239,7 +291,7 @@ struct DensityRow {
     predicted_sd: (f64, f64),
 }
 
-fn density_part(m: usize, q: &Quantizer, threads: usize) -> Vec<DensityRow> {
+fn density_part(m: usize, q: &Quantizer, work: &Work) -> Vec<DensityRow> {
     let model = &MODELS[m];
     let report = Measurement::Quantized(q);
     let radius = model.side / 2.0;
@@ -247,7 +299,7 @@ fn density_part(m: usize, q: &Quantizer, threads: usize) -> Vec<DensityRow> {
         .iter()
         .enumerate()
         .map(|(d, &density)| {
-            let js = indexed(DEPLOYMENTS, threads, |i| {
+            let js = indexed(work.deployments, work.threads, |i| {
                 let sensors = deploy(&mut rng(Stream::Density(d), m, i), model.side, density);
                 information(model, report, &sensors)
             });
@@ -303,10 +355,10 @@ fn near_a_threshold(model: &Model, q: &Quantizer, sensors: &[[f64; 2]]) -> usize
 fn threshold_part(
     m: usize,
     designed: &[Quantizer],
-    threads: usize,
+    work: &Work,
 ) -> (Vec<ThresholdRow>, Vec<Quantizer>) {
     let model = &MODELS[m];
-    let deployments: Vec<Vec<[f64; 2]>> = (0..CHEAP_DEPLOYMENTS)
+    let deployments: Vec<Vec<[f64; 2]>> = (0..work.cheap_deployments)
         .map(|i| {
             deploy(
                 &mut rng(Stream::Thresholds, m, i),
@@ -321,11 +373,13 @@ fn threshold_part(
     // Every (depth, deployment) search as one task, the costly ones first.
     let tasks: Vec<(usize, usize)> = (0..BITS.len())
         .rev()
-        .flat_map(|b| (0..optimal_deployments(BITS[b])).map(move |i| (b, i)))
+        .flat_map(|b| {
+            (0..optimal_deployments(BITS[b]).min(work.optimal_limit)).map(move |i| (b, i))
+        })
         .collect();
-    let found = indexed(tasks.len(), threads, |t| {
+    let found = indexed(tasks.len(), work.threads, |t| {
         let (b, i) = tasks[t];
-        let q = optimal(model, &designed[b], &deployments[i]);
+        let q = work.optimal(model, &designed[b], &deployments[i]);
         let near = near_a_threshold(model, &q, &deployments[i]);
         (of(&q, &deployments[i]), q, near)
     });
@@ -342,8 +396,9 @@ fn threshold_part(
                 .collect();
             first.push(mine[0].1.clone());
             let uni = uniform_quantizer(bits, model.law, SIGMA);
-            let cheap =
-                |q: &Quantizer| indexed(deployments.len(), threads, |i| of(q, &deployments[i]));
+            let cheap = |q: &Quantizer| {
+                indexed(deployments.len(), work.threads, |i| of(q, &deployments[i]))
+            };
             let ring = |q: &Quantizer| {
                 deployments
                     .iter()
@@ -433,7 +488,7 @@ impl Design {
 /// the CRLB.
 const SUB_OPTIMAL_ML_BITS: u8 = 2;
 
-fn ml_part(m: usize, designed: &[Quantizer], threads: usize) -> Vec<MlRow> {
+fn ml_part(m: usize, designed: &[Quantizer], work: &Work) -> Vec<MlRow> {
     let model = &MODELS[m];
     let sensors = deploy(&mut rng(Stream::MlDeployment, m, 0), ML_SIDE, ML_DENSITY);
     let analog = trace_of(model, Measurement::Raw, &sensors).unwrap_or(f64::NAN);
@@ -441,8 +496,8 @@ fn ml_part(m: usize, designed: &[Quantizer], threads: usize) -> Vec<MlRow> {
         .iter()
         .zip(designed)
         .map(|(&bits, start)| {
-            let q = optimal(model, start, &sensors);
-            ml_row(m, &sensors, &q, bits, Design::Optimal, analog, threads)
+            let q = work.optimal(model, start, &sensors);
+            ml_row(m, &sensors, &q, bits, Design::Optimal, analog, work)
         })
         .collect();
     let b = BITS
@@ -456,7 +511,7 @@ fn ml_part(m: usize, designed: &[Quantizer], threads: usize) -> Vec<MlRow> {
         SUB_OPTIMAL_ML_BITS,
         Design::SubOptimal,
         analog,
-        threads,
+        work,
     ));
     rows
 }
@@ -469,21 +524,21 @@ fn ml_row(
     bits: u8,
     design: Design,
     analog: f64,
-    threads: usize,
+    work: &Work,
 ) -> MlRow {
     let model = &MODELS[m];
     let j = information(model, Measurement::Quantized(q), sensors);
     let inverse = j.try_inverse().unwrap_or(Matrix2::from_element(f64::NAN));
     let crlb = inverse[(0, 0)] + inverse[(1, 1)];
     let trials = if design == Design::Optimal && bits == ML_CLAIM_BITS {
-        ML_CLAIM_TRIALS
+        work.ml_claim_trials
     } else {
-        ML_TRIALS
+        work.ml_trials
     };
     let bias = design == Design::SubOptimal || BIAS_BITS.contains(&bits);
     // A shift of half the bound's per-coordinate standard deviation.
     let delta = 0.5 * (crlb / 2.0).sqrt();
-    let results = indexed(trials, threads, |t| {
+    let results = indexed(trials, work.threads, |t| {
         // The same draws at every depth and design: they compare trial
         // by trial.
         let mut r = rng(Stream::MlTrial, m, t);
@@ -493,7 +548,7 @@ fn ml_row(
         let offset = r.random_range(0.0..ML_STEP);
         let at = |target| ml_trial(model, q, sensors, &noise, offset, target);
         let e = at([0.0, 0.0]);
-        let slopes = (bias && t < ML_TRIALS).then(|| {
+        let slopes = (bias && t < work.ml_trials).then(|| {
             [
                 (at([delta, 0.0])[0] - at([-delta, 0.0])[0]) / (2.0 * delta),
                 (at([0.0, delta])[1] - at([0.0, -delta])[1]) / (2.0 * delta),
@@ -558,14 +613,17 @@ fn singular(v: &[f64]) -> usize {
 }
 
 struct Outcome {
+    work: Work,
     density: Vec<Vec<DensityRow>>,
     thresholds: Vec<Vec<ThresholdRow>>,
     ml: Vec<Vec<MlRow>>,
 }
 
 fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
-    let threads = options.threads.max(1);
+    let work = Work::of(options);
+    let threads = work.threads;
     let mut outcome = Outcome {
+        work,
         density: Vec::new(),
         thresholds: Vec::new(),
         ml: Vec::new(),
@@ -575,9 +633,17 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
             "location-crlb: {} decay, sub-optimal thresholds",
             model.name
         );
-        let designed = indexed(BITS.len(), threads, |b| sub_optimal(model, BITS[b]));
+        // Run small, the uniform thresholds stand in for eq. 6.46's, whose
+        // search takes a minute.
+        let designed = indexed(BITS.len(), threads, |b| {
+            if work.search {
+                sub_optimal(model, BITS[b])
+            } else {
+                uniform_quantizer(BITS[b], model.law, SIGMA)
+            }
+        });
         eprintln!("location-crlb: {} decay, optimal thresholds", model.name);
-        let (rows, first) = threshold_part(m, &designed, threads);
+        let (rows, first) = threshold_part(m, &designed, &work);
         outcome.thresholds.push(rows);
         let q = &first[BITS
             .iter()
@@ -587,9 +653,9 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
             "location-crlb: {} decay, density against closed form",
             model.name
         );
-        outcome.density.push(density_part(m, q, threads));
+        outcome.density.push(density_part(m, q, &work));
         eprintln!("location-crlb: {} decay, ML estimates", model.name);
-        outcome.ml.push(ml_part(m, &designed, threads));
+        outcome.ml.push(ml_part(m, &designed, &work));
     }
     write_atomically(
         &dir.join("location-thresholds.csv"),
@@ -938,7 +1004,7 @@ fn table(o: &Outcome) -> String {
         let _ = writeln!(
             s,
             "{} decay, {} bit(s): exact (mean of {} deployments) against closed-form FIM",
-            model.name, model.bits, DEPLOYMENTS
+            model.name, model.bits, o.work.deployments
         );
         let _ = writeln!(
             s,
@@ -960,7 +1026,7 @@ fn table(o: &Outcome) -> String {
                 r.predicted_sd.1
             );
         }
-        let _ = writeln!(s, "  thresholds at λ = {} (geometric mean of the CRLB trace over the deployments the optimal design was searched on; over all {CHEAP_DEPLOYMENTS}, with how many had a singular J):", model.density);
+        let _ = writeln!(s, "  thresholds at λ = {} (geometric mean of the CRLB trace over the deployments the optimal design was searched on; over all {}, with how many had a singular J):", model.density, o.work.cheap_deployments);
         for r in &o.thresholds[m] {
             let [opt, sub, uni] = r.paired_means();
             let _ = writeln!(
@@ -979,7 +1045,8 @@ fn table(o: &Outcome) -> String {
         }
         let _ = writeln!(
             s,
-            "  ML at λ = {ML_DENSITY}: RMSE against √CRLB ({ML_TRIALS} trials, {ML_CLAIM_TRIALS} at {ML_CLAIM_BITS} bits)"
+            "  ML at λ = {ML_DENSITY}: RMSE against √CRLB ({} trials, {} at {ML_CLAIM_BITS} bits)",
+            o.work.ml_trials, o.work.ml_claim_trials
         );
         for r in &o.ml[m] {
             let bias = r.biased_bound().map_or(String::new(), |([x, y], b)| {
@@ -1149,7 +1216,10 @@ fn draw_density(path: &Path, o: &Outcome) -> Figure {
         ));
         series.push((
             (
-                format!("{}: exact tr J⁻¹, mean of {}", model.name, DEPLOYMENTS),
+                format!(
+                    "{}: exact tr J⁻¹, mean of {}",
+                    model.name, o.work.deployments
+                ),
                 rows.iter()
                     .map(|r| (r.density, finite_mean(&r.trace)))
                     .collect(),
@@ -1193,7 +1263,7 @@ fn draw_elements(path: &Path, model: &Model, rows: &[DensityRow]) -> Figure {
             (("J22, one deployment".into(), at(&|r| r.j22[0])), false),
             (
                 (
-                    format!("J11, mean of {}", DEPLOYMENTS),
+                    format!("J11, mean of {}", rows[0].j11.len()),
                     at(&|r| mean(&r.j11)),
                 ),
                 false,
@@ -1210,7 +1280,7 @@ fn draw_elements(path: &Path, model: &Model, rows: &[DensityRow]) -> Figure {
             (("ρ, one deployment".into(), at(&|r| r.rho[0])), false),
             (
                 (
-                    format!("|ρ|, mean of {}", DEPLOYMENTS),
+                    format!("|ρ|, mean of {}", rows[0].j11.len()),
                     at(&|r| mean(&r.rho.iter().map(|x| x.abs()).collect::<Vec<_>>())),
                 ),
                 false,
@@ -1255,7 +1325,7 @@ fn draw_relative(path: &Path, model: &Model, rows: &[DensityRow]) -> Figure {
                 (("".into(), at(&|r| centre - predicted(r))), true),
                 (
                     (
-                        format!("measured ±1σ over {}", DEPLOYMENTS),
+                        format!("measured ±1σ over {}", rows[0].j11.len()),
                         at(&|r| centre + measured(r)),
                     ),
                     false,

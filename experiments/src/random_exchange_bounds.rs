@@ -52,14 +52,28 @@ const SIZES: [MonteCarloSize; 5] = [
     },
 ];
 const SEED: u64 = 4;
+
+/// A size run small: a few trajectories and paths, enough to exercise the
+/// computation.
+pub(super) fn small(size: MonteCarloSize) -> MonteCarloSize {
+    MonteCarloSize {
+        trajectories: size.trajectories.min(100),
+        paths: size.paths.min(10),
+    }
+}
 /// Steps printed in the table.
 const SHOWN: [usize; 6] = [1, 5, 10, 25, 50, 100];
 
-fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
-    let scenario = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "random-exchange.toml", &[])?;
+fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+    let steps: Vec<String> = options
+        .steps
+        .filter(|_| options.small)
+        .map(|s| vec![format!("steps={s}")])
+        .unwrap_or_default();
+    let scenario = Scenario::from_toml(RANDOM_EXCHANGE_SCENARIO, "random-exchange.toml", &steps)?;
     let curves: Vec<Curves> = SIZES
         .iter()
-        .map(|&size| Curves::compute(&scenario, size))
+        .map(|&size| Curves::compute(&scenario, options.sized(size, small(size))))
         .collect::<anyhow::Result<_>>()?;
     ComputedReport::write(
         dir,
@@ -169,7 +183,7 @@ fn print(curves: &[Curves]) -> String {
         let _ = write!(out, "  {:>20}", format!("RndEx {}", label(size)));
     }
     out.push('\n');
-    for &n in &SHOWN {
+    for &n in SHOWN.iter().filter(|&&n| n < curves[0].centralized.len()) {
         let _ = write!(
             out,
             "  {n:>4}  {:>11.3}  {:>9.3}",

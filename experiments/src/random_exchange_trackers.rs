@@ -168,10 +168,16 @@ fn fig1_in(
     let (scenario, _) = scenario_of(&TRACKERS[0], &steps)?;
     // The paper's sizes: a few seconds, and smaller N_T is far off
     // (random-exchange-bounds).
-    let size = MonteCarloSize {
-        trajectories: 10_000,
-        paths: 1000,
-    };
+    let size = options.sized(
+        MonteCarloSize {
+            trajectories: 10_000,
+            paths: 1000,
+        },
+        super::random_exchange_bounds::small(MonteCarloSize {
+            trajectories: 10_000,
+            paths: 1000,
+        }),
+    );
     bands.push(centralized_band);
     let fig = Fig1 {
         name,
@@ -498,6 +504,11 @@ fn traffic(accounting: &Accounting, topology: &Topology, seconds: f64) -> (f64, 
     (rx / per, tx / per, broadcast / per)
 }
 
+/// The paper's step, or a tenth of it when the experiment is run small.
+fn period_ms(options: &Options) -> f64 {
+    options.sized(TABLE_PERIOD_MS, TABLE_PERIOD_MS / 10.0)
+}
+
 /// Each run of Table I is the four trackers one after the other in real
 /// time, so a run is a quarter of `--runs` (5 at the default 20).
 fn table_runs(options: &Options) -> u32 {
@@ -516,7 +527,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         for tracker in &TRACKERS {
             let extra = vec![
                 format!("steps={steps}"),
-                format!("clock.step_period_ms={TABLE_PERIOD_MS}"),
+                format!("clock.step_period_ms={}", period_ms(options)),
                 "clock.mode=\"realtime\"".to_string(),
                 "reference.centralized=false".to_string(),
                 format!("seed={}", 1 + run),
@@ -528,7 +539,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
                 run + 1,
                 tracker.label,
                 topology.actors().count(),
-                TABLE_PERIOD_MS / 1e3
+                period_ms(options) / 1e3
             );
             costs.push(measure(&scenario, &topology, &out)?);
         }
@@ -541,7 +552,7 @@ fn table(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         &table_csv(&mean, &per_run),
         |svg| draw_table(svg, &mean),
         table_check(&per_run),
-        table_text(&mean, steps, runs),
+        table_text(&mean, steps, runs, period_ms(options)),
     )
 }
 
@@ -646,10 +657,10 @@ fn table_csv(mean: &[Cost], per_run: &[[Cost; 4]]) -> String {
     out
 }
 
-fn table_text(costs: &[Cost], steps: u32, runs: u32) -> String {
+fn table_text(costs: &[Cost], steps: u32, runs: u32, period_ms: f64) -> String {
     let mut out = format!(
         "the random-exchange paper's Table I: {runs} runs of {steps} steps of {} s per tracker, 25 node processes and 25 sensor processes; per node, between nodes, mean over the runs\n  {:<18} {:>9} {:>11} {:>11} {:>7} {:>10} {:>7}   paper: {:>8} {:>8} {:>6}\n",
-        TABLE_PERIOD_MS / 1e3,
+        period_ms / 1e3,
         "tracker",
         "RX B/s",
         "TX B/s",

@@ -30,9 +30,21 @@ pub struct Options {
     /// Set by the caller to stop the experiment: each Monte Carlo stops
     /// between steps and the experiment fails saying so.
     pub stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    /// Computed experiments at a size that only exercises their machinery
+    /// in seconds (the test suite's); their claims need the full size.
+    pub small: bool,
 }
 
 impl Options {
+    /// `full`, or `small` when the experiment is run small.
+    pub fn sized<T>(&self, full: T, small: T) -> T {
+        if self.small {
+            small
+        } else {
+            full
+        }
+    }
+
     /// `--runs` seeds of `scenario` over the worker threads, into
     /// `runs_dir`, with the centralized reference if asked, stopped by
     /// [`stop`](Self::stop): an experiment's arm without a progress bar

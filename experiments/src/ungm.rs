@@ -219,20 +219,21 @@ struct Case {
     offline: Vec<f64>,
 }
 
-fn run(_options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
+fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+    let (runs, trajectories) = options.sized((RUNS, TRAJECTORIES), (2, 200));
     let cases: Vec<Case> = CASES
         .iter()
         .map(|(name, model)| {
-            eprintln!("ungm-bounds: {name}, {RUNS} runs");
-            let offline = offline_pcrlb(model, 0.0, PRIOR_VARIANCE, STEPS, TRAJECTORIES, &mut rng)
+            eprintln!("ungm-bounds: {name}, {runs} runs");
+            let offline = offline_pcrlb(model, 0.0, PRIOR_VARIANCE, STEPS, trajectories, &mut rng)
                 .iter()
                 .skip(1)
                 .map(|j| 1.0 / j)
                 .collect();
             Case {
                 name,
-                runs: (0..RUNS).map(|_| one_run(model, &mut rng)).collect(),
+                runs: (0..runs).map(|_| one_run(model, &mut rng)).collect(),
                 offline,
             }
         })
@@ -451,7 +452,7 @@ fn table(cases: &[Case]) -> String {
         );
     }
     for case in cases {
-        let _ = writeln!(s, "{} (means over {RUNS} runs): step, conditional MSE, A-CPCRLB, CPCRLB smoothed, filtered, offline PCRLB", case.name);
+        let _ = writeln!(s, "{} (means over {} runs): step, conditional MSE, A-CPCRLB, CPCRLB smoothed, filtered, offline PCRLB", case.name, case.runs.len());
         let cols = columns(case);
         for k in [0usize, 4, 9, 19, 29, 39, 49] {
             let _ = writeln!(

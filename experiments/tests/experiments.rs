@@ -16,6 +16,7 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
         out: out.clone(),
         trajectories: 50,
         stop: Default::default(),
+        small: true,
     };
     let catalogue = experiment::catalogue();
     assert!(
@@ -96,6 +97,59 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
             "{}: {check}",
             e.name
         );
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Every experiment computed from a paper's formulas, run small: a few
+/// trials, deployments and draws each, so that its parts, its CSV, SVG,
+/// tables and claims cannot rot. Its verdicts need the full size.
+#[test]
+fn every_computed_experiment_runs_small_and_writes_its_files() {
+    let out = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("computed-{}", std::process::id()));
+    let options = Options {
+        runs: 2,
+        steps: Some(12),
+        threads: 2,
+        out: out.clone(),
+        trajectories: 50,
+        stop: Default::default(),
+        small: true,
+    };
+    let catalogue = experiment::computed_catalogue();
+    assert!(
+        catalogue.len() >= 10,
+        "{} computed experiments",
+        catalogue.len()
+    );
+    // random-exchange-cost runs real processes, which this test binary
+    // cannot be; `tests/tests/random_exchange.rs` runs each of its
+    // trackers as a real network and checks its bytes.
+    for c in catalogue
+        .iter()
+        .filter(|c| c.name != "random-exchange-cost")
+    {
+        let report =
+            experiment::run_computed(c, &options).unwrap_or_else(|e| panic!("{}: {e:#}", c.name));
+        let csv = std::fs::read_to_string(&report.csv).unwrap();
+        assert!(csv.lines().count() > 1, "{}: a header and rows", c.name);
+        let svg = std::fs::read_to_string(&report.svg).unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.contains("</svg>"),
+            "{}",
+            c.name
+        );
+        let dir = out.join(c.name);
+        let check = std::fs::read_to_string(dir.join("check.txt")).unwrap();
+        assert!(
+            check.starts_with(c.name) && check.contains(report.check.verdict.words().as_str()),
+            "{}: {check}",
+            c.name
+        );
+        let claims = std::fs::read_to_string(dir.join("claims.csv")).unwrap();
+        assert!(claims.starts_with("claim,"), "{}", c.name);
+        assert!(!report.table.is_empty(), "{}: its tables", c.name);
     }
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -23,6 +23,7 @@ fn run(name: &str, runs: u32) -> experiment::Report {
         out: out.clone(),
         trajectories: 0,
         stop: Default::default(),
+        small: false,
     };
     let report = experiment::run(&experiment::find(name).unwrap(), &options, &|_, _| {}).unwrap();
     assert!(std::fs::read_to_string(&report.svg)

@@ -87,6 +87,7 @@ fn start_experiment(
             out: folder,
             trajectories,
             stop: shared.stop.clone(),
+            small: false,
         };
         run_entry(entry, &options, shared)
     })

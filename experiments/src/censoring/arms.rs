@@ -10,7 +10,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::setups::{name, setups, Arm, Feedback, Rule, Setup, Silence};
+use super::setups::{name, sized_setups, Arm, Feedback, Rule, Setup, Silence};
 use super::trial::{measure, Measured, StepError};
 use crate::paired::{Order, Paired};
 use crate::{Check, Claim, ComputedReport, Options};
@@ -26,7 +26,7 @@ struct Run {
 /// The linear parts: N = 2 sensors, a budget of one transmission a step.
 const LINEAR_SENSORS: usize = 2;
 const SCALAR_TRIALS: u32 = 2000;
-const VECTOR_TRIALS: u32 = 500;
+const VECTOR_TRIALS: u32 = 2000;
 /// Fig. 3.9's budgets on the nonlinear setup's nine sensors.
 const NONLINEAR_BUDGETS: [f64; 5] = [1.0, 2.0, 4.0, 6.0, 8.0];
 /// Fig. 3.8's budget.
@@ -34,11 +34,11 @@ const NONLINEAR_L: f64 = 2.0;
 
 pub(super) fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let threads = options.threads.max(1);
-    let all = setups();
+    let all = sized_setups(options);
     let linear = |table: &str, trials: u32| -> Setup {
         let mut s = all.iter().find(|s| s.table == table).unwrap().clone();
         s.sensors.truncate(LINEAR_SENSORS);
-        s.trials = trials;
+        s.trials = options.sized(trials, s.trials);
         s
     };
     let scalar = linear("3.1", SCALAR_TRIALS);

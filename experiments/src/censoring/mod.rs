@@ -25,7 +25,7 @@ use trial::Measured;
 use crate::{Computed, ComputedReport, Options};
 pub use network::network_experiments;
 use report::{check, draw, print, table_csv, Row};
-use setups::{name, setups, SCHEMES};
+use setups::{name, sized_setups, Setup, SCHEMES};
 use trial::measure;
 
 pub fn experiments() -> Vec<Computed> {
@@ -46,7 +46,8 @@ pub fn experiments() -> Vec<Computed> {
 fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let threads = options.threads.max(1);
     let mut rows = Vec::new();
-    for setup in setups() {
+    let all = sized_setups(options);
+    for setup in all.iter().cloned() {
         for &(l, cfwmd, cfwmd2) in setup.theirs {
             let ours = SCHEMES.map(|scheme| {
                 let measured = measure(&setup, l, scheme, threads);
@@ -69,7 +70,7 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         }
     }
     draw_covariance_feedback(dir, &rows)?;
-    let variants = sensitivity(threads);
+    let variants = sensitivity(&all[0], threads);
     launch::results::write_atomically(
         &dir.join("censoring-tables-sensitivity.csv"),
         sensitivity_csv(&variants).as_bytes(),
@@ -80,7 +81,7 @@ fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
         &table_csv(&rows),
         |svg| draw(svg, &rows),
         check(&rows),
-        print(&rows) + &sensitivity_text(&variants),
+        print(&rows, &all) + &sensitivity_text(&variants),
     )
 }
 
@@ -98,14 +99,13 @@ const VARIANTS: [(&str, f64, usize); 5] = [
 
 /// Table 3.1 at l = 1, CFwMD and CFwMD2, under each variant (the truth
 /// still starts at x₀).
-fn sensitivity(threads: usize) -> Vec<(&'static str, [Measured; 2])> {
-    let base = setups().remove(0);
+fn sensitivity(base: &Setup, threads: usize) -> Vec<(&'static str, [Measured; 2])> {
     VARIANTS
         .iter()
         .map(|&(label, variance, particles)| {
             let mut setup = base.clone();
             setup.prior_cov = Mat4::from_diagonal(&State::new(variance, 1e-9, variance, 1e-9));
-            setup.particles = particles;
+            setup.particles = particles.min(base.particles * 4);
             let measured = SCHEMES.map(|arm| measure(&setup, 1.0, arm, threads));
             eprintln!(
                 "  table 3.1 l = 1, {label}: l̄ CFwMD {:.4}, CFwMD2 {:.4}",
@@ -216,7 +216,7 @@ mod tests {
     #[test]
     fn the_chapters_arms_run_and_the_divergence_rule_is_nis() {
         use super::setups::{Feedback, Rule, Silence};
-        let mut setup = setups().remove(0);
+        let mut setup = super::setups::setups().remove(0);
         setup.sensors.truncate(2);
         setup.trials = 12;
         setup.particles = 400;
@@ -264,7 +264,7 @@ mod tests {
     /// sensor of r = 1/4 (four of r = 1).
     #[test]
     fn with_every_sensor_sending_the_filter_is_the_kalman_filter() {
-        let mut setup = setups().remove(0);
+        let mut setup = super::setups::setups().remove(0);
         setup.trials = 40;
         setup.particles = 2000;
         let m = measure(&setup, 4.0, Arm::AllSend, 2);

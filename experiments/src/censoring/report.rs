@@ -6,7 +6,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::setups::{name, setups, SCHEMES};
+use super::setups::{name, Setup, SCHEMES};
 use super::trial::Measured;
 use crate::paired::{Order, Paired};
 use crate::{Check, Claim, Verdict};
@@ -186,9 +186,9 @@ pub(super) fn table_csv(rows: &[Row]) -> String {
     out
 }
 
-pub(super) fn print(rows: &[Row]) -> String {
+pub(super) fn print(rows: &[Row], setups: &[Setup]) -> String {
     let mut out = String::new();
-    for setup in setups() {
+    for setup in setups {
         let _ = writeln!(
             out,
             "Table {}: {} ({} trials, {} particles, {} steps)",

@@ -191,7 +191,7 @@ pub(super) fn setups() -> Vec<Setup> {
             axes: 2,
             steps: 20,
             particles: 10_000,
-            trials: 100,
+            trials: 200,
             theirs: &[
                 (2.0, 1.5978, 1.8970),
                 (4.0, 3.3480, 3.8775),
@@ -199,6 +199,19 @@ pub(super) fn setups() -> Vec<Setup> {
             ],
         },
     ]
+}
+
+/// The setups at the experiment's size: run small, a few trials of a few
+/// hundred particles each.
+pub(super) fn sized_setups(options: &crate::Options) -> Vec<Setup> {
+    let mut all = setups();
+    if options.small {
+        for s in &mut all {
+            s.trials = 4;
+            s.particles = s.particles.min(300);
+        }
+    }
+    all
 }
 
 impl Setup {
