@@ -191,7 +191,7 @@ pub(super) fn setups() -> Vec<Setup> {
             axes: 2,
             steps: 20,
             particles: 10_000,
-            trials: 200,
+            trials: 600,
             theirs: &[
                 (2.0, 1.5978, 1.8970),
                 (4.0, 3.3480, 3.8775),
