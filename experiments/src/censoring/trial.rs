@@ -305,27 +305,26 @@ impl TrialFilter {
                     .try_inverse()
                     .expect("S = G P Gᵀ + R is positive definite");
                 let nis = nu.dot(&(s_inv * nu));
-                let sends = match arm {
-                    Arm::AllSend => true,
-                    Arm::Random => selection_rng.random::<f64>() < budget.send_probability,
-                    Arm::Censored { .. } => match divergence {
-                        None => rule.sends(nis),
-                        Some(symmetric) => {
-                            let by_divergence = divergence_sends(
-                                setup,
-                                sensor,
-                                &centre,
-                                &cov,
-                                rule,
-                                s[(0, 0)],
-                                z[0],
-                                symmetric,
-                            );
-                            out.disagreements += u32::from(by_divergence != rule.sends(nis));
-                            by_divergence
-                        }
+                let (sends, disagreed) = decide(
+                    arm,
+                    budget,
+                    divergence,
+                    nis,
+                    &mut selection_rng,
+                    |symmetric| {
+                        divergence_sends(
+                            setup,
+                            sensor,
+                            &centre,
+                            &cov,
+                            rule,
+                            s[(0, 0)],
+                            z[0],
+                            symmetric,
+                        )
                     },
-                };
+                );
+                out.disagreements += u32::from(disagreed);
                 // The sensor's own filter takes its measurement, sent or not.
                 match feedback {
                     Feedback::None => {
@@ -338,23 +337,15 @@ impl TrialFilter {
                     self.reports.push(Report::Received { sensor: i, z });
                     continue;
                 }
-                match (silence, feedback) {
-                    (Silence::Ignored, _) => {}
-                    (Silence::Weighed, Feedback::None) => self.silent.push(i),
-                    (Silence::Weighed | Silence::WeighedKnowingPredictions, _) => {
-                        let vector = (sensor.len() > 1).then(|| {
-                            VectorSilence::new(rule, &s, &r, SILENCE_DRAWS, &mut silence_rng)
-                                .expect("S and R are positive definite")
-                        });
-                        self.reports.push(Report::Silent {
-                            sensor: i,
-                            g,
-                            s,
-                            r,
-                            vector,
-                        });
-                    }
-                }
+                self.hear_silence(
+                    i,
+                    sensor,
+                    silence,
+                    feedback,
+                    rule,
+                    (g, s, r),
+                    &mut silence_rng,
+                );
             }
             let silent_now = out.sent == sent_before;
             out.silent_runs += u32::from(silent_now && silent_before);
@@ -402,6 +393,70 @@ impl TrialFilter {
             self.filter.resample(&mut rng);
         }
         out
+    }
+}
+
+/// Whether a sensor with this NIS sends under the arm, and whether a
+/// divergence rule (`by_divergence(symmetric)`) decided otherwise than NIS
+/// would have.
+fn decide(
+    arm: Arm,
+    budget: &Budget,
+    divergence: Option<bool>,
+    nis: f64,
+    selection_rng: &mut ChaCha8Rng,
+    by_divergence: impl FnOnce(bool) -> bool,
+) -> (bool, bool) {
+    match arm {
+        Arm::AllSend => (true, false),
+        Arm::Random => (
+            selection_rng.random::<f64>() < budget.send_probability,
+            false,
+        ),
+        Arm::Censored { .. } => match divergence {
+            None => (budget.rule.sends(nis), false),
+            Some(symmetric) => {
+                let sends = by_divergence(symmetric);
+                (sends, sends != budget.rule.sends(nis))
+            }
+        },
+    }
+}
+
+impl TrialFilter {
+    /// What the centre makes of a sensor that did not send: nothing
+    /// (CFoMD), a silence to weigh alone (with feedback, or knowing the
+    /// sensor's prediction), or one of the step's silences weighed together
+    /// (without feedback). `(g, s, r)`: the prediction the sensor measured
+    /// against, the covariance it normalized by, and its noise.
+    #[allow(clippy::too_many_arguments)]
+    fn hear_silence(
+        &mut self,
+        i: usize,
+        sensor: &[ObservationModel],
+        silence: Silence,
+        feedback: Feedback,
+        rule: &CensoringRule,
+        (g, s, r): (Vector2<f64>, Matrix2<f64>, Matrix2<f64>),
+        silence_rng: &mut ChaCha8Rng,
+    ) {
+        match (silence, feedback) {
+            (Silence::Ignored, _) => {}
+            (Silence::Weighed, Feedback::None) => self.silent.push(i),
+            (Silence::Weighed | Silence::WeighedKnowingPredictions, _) => {
+                let vector = (sensor.len() > 1).then(|| {
+                    VectorSilence::new(rule, &s, &r, SILENCE_DRAWS, silence_rng)
+                        .expect("S and R are positive definite")
+                });
+                self.reports.push(Report::Silent {
+                    sensor: i,
+                    g,
+                    s,
+                    r,
+                    vector,
+                });
+            }
+        }
     }
 }
 
