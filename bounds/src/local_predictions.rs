@@ -11,7 +11,7 @@
 //! The dissertation takes `p(x̂¹…x̂ᴺ | x) = N(x ⊗ 1, Σ)` with Σ the
 //! predictions' error covariances (eqs. 3.26–3.28). Read literally that
 //! makes the integral the same at every x: with `x̂ʲ = x − eʲ` and `e`
-//! independent of x, the innovation `νʲ = Hʲ eʲ + nʼ` does not involve x,
+//! independent of x, the innovation `νʲ = Hʲ eʲ + nʲ` does not involve x,
 //! so silence would carry no information and the scheme would weigh the
 //! particles as if the silence were ignored. [`LocalPredictions::silence_as_printed`]
 //! builds that factor, to show it.
