@@ -213,11 +213,8 @@ impl LocalPredictions {
     ) -> Option<JointSilence> {
         let d = self.d;
         let m = silent.len();
-        let mut gain = DMatrix::zeros(m * d, d);
         let mut errors = DMatrix::zeros(m * d, m * d);
         for (a, &i) in silent.iter().enumerate() {
-            gain.view_mut((a * d, 0), (d, d))
-                .copy_from(&DMatrix::identity(d, d));
             for (b, &j) in silent.iter().enumerate() {
                 errors
                     .view_mut((a * d, b * d), (d, d))
@@ -227,7 +224,7 @@ impl LocalPredictions {
         self.joint_silence(
             silent,
             rule,
-            &gain,
+            &stacked_identities(m, d),
             &DVector::zeros(m * d),
             &errors,
             draws,
@@ -270,13 +267,7 @@ impl LocalPredictions {
             });
             row += k;
         }
-        let mut stacked = DMatrix::zeros(silent.len() * d, d);
-        for a in 0..silent.len() {
-            stacked
-                .view_mut((a * d, 0), (d, d))
-                .copy_from(&DMatrix::identity(d, d));
-        }
-        let a = &h * (stacked - gain);
+        let a = &h * (stacked_identities(silent.len(), d) - gain);
         let b = &h * offset;
         let t = &h * conditional * h.transpose() + r;
         let t = 0.5 * (&t + t.transpose());
@@ -301,6 +292,11 @@ impl LocalPredictions {
             rows,
         })
     }
+}
+
+/// `1 ⊗ I`: m identities of size d, one above the other.
+fn stacked_identities(m: usize, d: usize) -> DMatrix<f64> {
+    DMatrix::from_fn(m * d, d, |i, j| if i % d == j { 1.0 } else { 0.0 })
 }
 
 /// The most innovation components one joint silence handles (four silent

@@ -5,10 +5,11 @@
 
 use experiments::{self as experiment, Figure, Options};
 
-#[test]
-fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
+/// A folder of this test process's own, and the options that run every
+/// experiment small into it: 2 runs of 12 steps, few trials and draws.
+fn small(name: &str) -> (std::path::PathBuf, Options) {
     let out = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("experiments-{}", std::process::id()));
+        .join(format!("{name}-{}", std::process::id()));
     let options = Options {
         runs: 2,
         steps: Some(12),
@@ -18,6 +19,12 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
         stop: Default::default(),
         small: true,
     };
+    (out, options)
+}
+
+#[test]
+fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
+    let (out, options) = small("experiments");
     let catalogue = experiment::catalogue();
     assert!(
         catalogue.len() >= 4,
@@ -106,17 +113,7 @@ fn every_experiment_runs_small_and_writes_its_csv_svg_and_check() {
 /// tables and claims cannot rot. Its verdicts need the full size.
 #[test]
 fn every_computed_experiment_runs_small_and_writes_its_files() {
-    let out = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("computed-{}", std::process::id()));
-    let options = Options {
-        runs: 2,
-        steps: Some(12),
-        threads: 2,
-        out: out.clone(),
-        trajectories: 50,
-        stop: Default::default(),
-        small: true,
-    };
+    let (out, options) = small("computed");
     let catalogue = experiment::computed_catalogue();
     assert!(
         catalogue.len() >= 10,

@@ -578,14 +578,8 @@ fn kalman_step(
 /// The sensor's own Kalman (EKF) covariance update, linearized at the fed
 /// back prediction, as if it used its measurement every step.
 pub(super) fn kalman_update(predicted_cov: &Mat4, sensor: &[ObservationModel], at: &State) -> Mat4 {
-    let (gain, _, r) = linearize(sensor, at);
-    let rows = sensor.len();
-    let gain = gain.rows(0, rows).into_owned();
-    let r = r.view((0, 0), (rows, rows)).into_owned();
-    let s = &gain * predicted_cov * gain.transpose() + r;
-    let k = predicted_cov * gain.transpose() * s.try_inverse().expect("S > 0");
-    let updated = predicted_cov - &k * &gain * predicted_cov;
-    0.5 * (updated + updated.transpose())
+    // The covariance does not depend on the measurement.
+    kalman_step(at, predicted_cov, sensor, &Vector2::zeros()).1
 }
 
 fn measure_sensor(
