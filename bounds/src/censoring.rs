@@ -356,8 +356,16 @@ const MAX_COAST: u32 = 1000;
 pub struct VectorSilence {
     threshold: f64,
     s_inv: Matrix2<f64>,
-    /// `L n_j`, with `L Lᵀ = R`.
-    draws: Vec<Vector2<f64>>,
+    /// Per draw `L n_j` (`L Lᵀ = R`), what its NIS `(m + d)ᵀ S⁻¹ (m + d)`
+    /// needs beside `mᵀ S⁻¹ m`: `2 S⁻¹ d` and `dᵀ S⁻¹ d`. Every particle
+    /// of a step asks about the same draws, so each is worked out once.
+    draws: Vec<Draw>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Draw {
+    twice_s_inv_d: Vector2<f64>,
+    d_s_inv_d: f64,
 }
 
 impl VectorSilence {
@@ -371,7 +379,14 @@ impl VectorSilence {
         let s_inv = s.try_inverse()?;
         let l = r.cholesky()?.l();
         let draws = (0..samples)
-            .map(|_| l * Vector2::new(rng.sample(StandardNormal), rng.sample(StandardNormal)))
+            .map(|_| {
+                let d = l * Vector2::new(rng.sample(StandardNormal), rng.sample(StandardNormal));
+                let s_inv_d = s_inv * d;
+                Draw {
+                    twice_s_inv_d: 2.0 * s_inv_d,
+                    d_s_inv_d: d.dot(&s_inv_d),
+                }
+            })
             .collect();
         Some(Self {
             threshold: rule.threshold,
@@ -382,13 +397,11 @@ impl VectorSilence {
 
     /// The fraction of draws whose innovation `m + L n_j` stays inside.
     pub fn probability(&self, m: &Vector2<f64>) -> f64 {
+        let m_s_inv_m = m.dot(&(self.s_inv * m));
         let inside = self
             .draws
             .iter()
-            .filter(|d| {
-                let nu = m + *d;
-                (nu.transpose() * self.s_inv * nu)[0] < self.threshold
-            })
+            .filter(|d| m_s_inv_m + m.dot(&d.twice_s_inv_d) + d.d_s_inv_d < self.threshold)
             .count();
         inside as f64 / self.draws.len() as f64
     }

@@ -537,7 +537,9 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
     };
     let mut failed = Vec::new();
     let mut open = Vec::new();
+    let all_started = std::time::Instant::now();
     for entry in &chosen {
+        let started = std::time::Instant::now();
         let (name, verdict) = match entry {
             Entry::Network(e) => {
                 let bar = ExperimentProgress::new(e, args.runs);
@@ -560,11 +562,15 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
                 (c.name, report.check.verdict)
             }
         };
+        println!("  {name} took {}", elapsed(started));
         match verdict {
             Verdict::Holds => {}
             Verdict::DoesNotHold => failed.push(name),
             Verdict::NotResolved { .. } => open.push(name),
         }
+    }
+    if chosen.len() > 1 {
+        println!("{} experiments took {}", chosen.len(), elapsed(all_started));
     }
     if !failed.is_empty() {
         println!("the papers' result did not hold in: {}", failed.join(", "));
@@ -576,6 +582,12 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Wall time since `started`, as minutes and seconds.
+fn elapsed(started: std::time::Instant) -> String {
+    let s = started.elapsed().as_secs();
+    format!("{} min {:02} s", s / 60, s % 60)
 }
 
 /// A bar over every run of every arm, saying which arm is running.

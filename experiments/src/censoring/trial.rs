@@ -159,8 +159,8 @@ impl Report {
                 .iter()
                 .enumerate()
                 .map(|(c, model)| {
-                    let e = model.evaluate(x);
-                    -0.5 * (z[c] - e.g).powi(2) / e.r
+                    let (g, r) = model.mean_and_variance(x);
+                    -0.5 * (z[c] - g).powi(2) / r
                 })
                 .sum(),
             Report::Silent {
@@ -170,7 +170,7 @@ impl Report {
                 r,
                 vector: None,
             } => {
-                let mu = sensors[*sensor][0].evaluate(x).g - g[0];
+                let mu = sensors[*sensor][0].mean_and_variance(x).0 - g[0];
                 rule.ln_silence_probability(mu, s[(0, 0)], r[(0, 0)])
             }
             Report::Silent {
@@ -181,8 +181,8 @@ impl Report {
             } => {
                 let sensor = &sensors[*sensor];
                 let m = Vector2::new(
-                    sensor[0].evaluate(x).g - g[0],
-                    sensor[1].evaluate(x).g - g[1],
+                    sensor[0].mean_and_variance(x).0 - g[0],
+                    sensor[1].mean_and_variance(x).0 - g[1],
                 );
                 // Half a draw keeps a particle no draw supports from a weight
                 // of zero, which one silent sensor could otherwise give them all.
