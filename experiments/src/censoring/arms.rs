@@ -148,7 +148,12 @@ fn better(claim: String, a: &Measured, b: &Measured) -> Claim {
 /// the MSE, which is what the figures draw, this asks the question a few
 /// lost tracks cannot swamp.
 fn better_typically(claim: String, a: &Measured, b: &Measured) -> Claim {
-    let values = |m: &Measured| m.per_trial_mse.iter().map(|v| Some(v.sqrt())).collect::<Vec<_>>();
+    let values = |m: &Measured| {
+        m.per_trial_mse
+            .iter()
+            .map(|v| Some(v.sqrt()))
+            .collect::<Vec<_>>()
+    };
     Claim::judged(
         claim,
         Paired::of(&values(a), &values(b)),

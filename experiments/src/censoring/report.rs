@@ -138,7 +138,8 @@ pub(super) fn check(rows: &[Row]) -> Check {
         // The nonlinear table's per-trial MSEs are heavy-tailed: beside
         // them, the typical trial's RMSE (see `arms::better_typically`).
         if r.table == "3.3" {
-            let rmse = |v: &[f64]| -> Vec<Option<f64>> { v.iter().map(|m| Some(m.sqrt())).collect() };
+            let rmse =
+                |v: &[f64]| -> Vec<Option<f64>> { v.iter().map(|m| Some(m.sqrt())).collect() };
             claims.push(Claim::judged(
                 format!(
                     "table {} l = {}, on the typical trial: CFwMD2 tracks better than CFwMD (Fig. 3.10)",
