@@ -138,16 +138,14 @@ pub(super) fn check(rows: &[Row]) -> Check {
         // The nonlinear table's per-trial MSEs are heavy-tailed: beside
         // them, the typical trial's RMSE (see `arms::better_typically`).
         if r.table == "3.3" {
-            let rmse =
-                |v: &[f64]| -> Vec<Option<f64>> { v.iter().map(|m| Some(m.sqrt())).collect() };
-            claims.push(Claim::judged(
+            claims.push(super::arms::better_typically(
                 format!(
                     "table {} l = {}, on the typical trial: CFwMD2 tracks better than CFwMD (Fig. 3.10)",
                     r.table, r.l
                 ),
-                Paired::of(&rmse(&r.ours[1].per_trial_mse), &rmse(&r.ours[0].per_trial_mse)),
-                |p| p.verdict(Order::Lower),
-                |p| format!("per-trial RMSE of CFwMD2 minus CFwMD {} m over {} trials", p.text(3), p.runs),
+                &r.ours[1],
+                &r.ours[0],
+                "per-trial RMSE of CFwMD2 minus CFwMD",
             ));
         }
         if r.l == 1.0 {

@@ -94,6 +94,13 @@ pub(super) fn measure(setup: &Setup, l: f64, arm: Arm, threads: usize) -> Measur
     }
 }
 
+impl Measured {
+    /// Each trial's own position RMSE over its steps, in trial order.
+    pub(super) fn per_trial_rmse(&self) -> Vec<f64> {
+        self.per_trial_mse.iter().map(|v| v.sqrt()).collect()
+    }
+}
+
 fn mean_and_stderr(values: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
     let n = values.clone().count() as f64;
     let mean = values.clone().sum::<f64>() / n;
