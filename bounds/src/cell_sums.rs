@@ -88,10 +88,12 @@ impl Edge {
         } else {
             normal::cdf(t)
         };
+        // `normal::x_pdf` is `t · φ(t)` (zero at ±∞): φ once, not twice.
+        let pdf = normal::pdf(t);
         Self {
             t,
-            pdf: normal::pdf(t),
-            x_pdf: normal::x_pdf(t),
+            pdf,
+            x_pdf: if t.is_infinite() { 0.0 } else { t * pdf },
             tail,
         }
     }

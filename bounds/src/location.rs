@@ -24,6 +24,12 @@ use nalgebra::Matrix2;
 use crate::fisher::Measurement;
 use crate::quantizer::Quantizer;
 
+mod thresholds;
+pub use thresholds::{
+    optimize_thresholds, optimize_thresholds_from, optimize_weighed_thresholds,
+    uniform_quantizer, WeighedAmplitudes, MAX_SWEEPS,
+};
+
 /// How the target's signal amplitude falls with distance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum DecayLaw {
@@ -78,6 +84,26 @@ impl DecayLaw {
         match *self {
             DecayLaw::Gaussian { p0, alpha } => p0.sqrt() * (-alpha * d * d / 2.0).exp(),
             DecayLaw::PowerLaw { p0, exponent } => (p0 / (1.0 + d.powf(exponent))).sqrt(),
+        }
+    }
+
+    /// `g` at the squared distance `d²`: [`amplitude`](Self::amplitude)
+    /// without the `hypot` a distance costs and, for the power law's
+    /// n = 4 and 2, without a `powf`. It agrees with `amplitude` to a few
+    /// units in the last place; the ML search calls it a billion times.
+    pub fn amplitude_at_squared_distance(&self, d2: f64) -> f64 {
+        match *self {
+            DecayLaw::Gaussian { p0, alpha } => p0.sqrt() * (-alpha * d2 / 2.0).exp(),
+            DecayLaw::PowerLaw { p0, exponent } => {
+                let dn = if exponent == 4.0 {
+                    d2 * d2
+                } else if exponent == 2.0 {
+                    d2
+                } else {
+                    d2.powf(exponent / 2.0)
+                };
+                (p0 / (1.0 + dn)).sqrt()
+            }
         }
     }
 
@@ -137,6 +163,22 @@ pub fn exact_information(
 /// comes within 2·10⁻⁹ relative of the raw Gaussian law's exact value
 /// (a test checks it), ample beside a deployment's spread around it.
 const SIMPSON_INTERVALS: usize = 1000;
+
+/// Simpson's nodes over [0, R] and their weights: `∫₀^R f ≈ Σ w f(r)`.
+fn simpson_nodes(radius: f64) -> impl Iterator<Item = (f64, f64)> {
+    let n = SIMPSON_INTERVALS;
+    let h = radius / n as f64;
+    (0..=n).map(move |k| {
+        let r = if k == n { radius } else { k as f64 * h };
+        let coefficient = match k {
+            0 => 1.0,
+            _ if k == n => 1.0,
+            _ if k % 2 == 1 => 4.0,
+            _ => 2.0,
+        };
+        (r, coefficient * h / 3.0)
+    })
+}
 
 /// `∫₀^R f(r) dr` by Simpson's rule.
 fn integrate(radius: f64, f: impl Fn(f64) -> f64) -> f64 {
@@ -201,109 +243,6 @@ pub fn correlation(j: &Matrix2<f64>) -> f64 {
     j[(0, 1)] / (j[(0, 0)] * j[(1, 1)]).sqrt()
 }
 
-/// The uniform quantizer of section 6.7.1: `2^bits` cells dividing
-/// `[−4σ, √P₀ + 4σ]` equally, the outer two open.
-pub fn uniform_quantizer(bits: u8, law: DecayLaw, sigma: f64) -> Quantizer {
-    Quantizer::uniform(bits, -4.0 * sigma, law.p0().sqrt() + 4.0 * sigma)
-        .expect("a valid range and bits 1 to the quantizer's maximum")
-}
-
-/// The most sweeps [`optimize_thresholds`] makes.
-pub const MAX_SWEEPS: usize = 12;
-
-/// Thresholds that maximize `objective` (larger is better), in `(lo, hi)`:
-/// coordinate ascent from the uniform quantizer's thresholds, each
-/// threshold searched between its neighbours on a grid (512 points over
-/// all thresholds, at least 64 each, on the first sweep; 32 after) and
-/// refined by golden section, sweeping until a sweep gains less than 10⁻⁹
-/// relative (at most [`MAX_SWEEPS`]). The chapter finds its optimal thresholds
-/// with a local optimizer from several starts; this is deterministic, and
-/// its 1-bit result is checked against a brute-force search.
-pub fn optimize_thresholds(
-    bits: u8,
-    lo: f64,
-    hi: f64,
-    objective: impl FnMut(&Quantizer) -> f64,
-) -> Quantizer {
-    let start = Quantizer::uniform(bits, lo, hi).expect("valid bits and range");
-    optimize_thresholds_from(&start, lo, hi, objective)
-}
-
-/// [`optimize_thresholds`] from `start`'s thresholds rather than the
-/// uniform ones: a design already near the optimum (the closed form's, for
-/// one deployment's) spares the sweeps that would walk there, which at
-/// 64 cells cost most of the search. `start`'s thresholds must lie in
-/// `(lo, hi)`.
-pub fn optimize_thresholds_from(
-    start: &Quantizer,
-    lo: f64,
-    hi: f64,
-    mut objective: impl FnMut(&Quantizer) -> f64,
-) -> Quantizer {
-    let mut t: Vec<f64> = (1..start.cells())
-        .map(|i| start.cell_edges(i as u32).0)
-        .collect();
-    debug_assert!(t.iter().all(|&x| x > lo && x < hi), "start within (lo, hi)");
-    let mut value_of = |t: &[f64]| match Quantizer::from_thresholds(t) {
-        Ok(q) => objective(&q),
-        Err(_) => f64::NEG_INFINITY,
-    };
-    let mut best = value_of(&t);
-    for sweep in 0..MAX_SWEEPS {
-        // The objective has local maxima as narrow as a few grid steps of
-        // 32: the first sweep looks finer, over 512 points in all.
-        let grid = if sweep == 0 {
-            (512 / t.len()).max(64)
-        } else {
-            32
-        };
-        let before = best;
-        for k in 0..t.len() {
-            let left = if k == 0 { lo } else { t[k - 1] };
-            let right = if k + 1 == t.len() { hi } else { t[k + 1] };
-            let mut at = |x: f64, t: &mut Vec<f64>| {
-                t[k] = x;
-                value_of(t)
-            };
-            let current = t[k];
-            let (mut x_best, mut v_best) = (current, best);
-            let step = (right - left) / (grid + 1) as f64;
-            for g in 1..=grid {
-                let x = left + step * g as f64;
-                let v = at(x, &mut t);
-                if v > v_best {
-                    (x_best, v_best) = (x, v);
-                }
-            }
-            // Golden section within a grid step either side.
-            let (mut a, mut b) = (
-                (x_best - step).max(left + 1e-12),
-                (x_best + step).min(right - 1e-12),
-            );
-            let ratio = (5f64.sqrt() - 1.0) / 2.0;
-            for _ in 0..40 {
-                let (c, d) = (b - ratio * (b - a), a + ratio * (b - a));
-                if at(c, &mut t) > at(d, &mut t) {
-                    b = d;
-                } else {
-                    a = c;
-                }
-            }
-            let mid = 0.5 * (a + b);
-            let v_mid = at(mid, &mut t);
-            if v_mid > v_best {
-                (x_best, v_best) = (mid, v_mid);
-            }
-            t[k] = x_best;
-            best = v_best;
-        }
-        if best - before <= 1e-9 * best.abs() {
-            break;
-        }
-    }
-    Quantizer::from_thresholds(&t).expect("the search keeps the thresholds increasing")
-}
-
 /// `ln p(D | θ)` (eq. 6.11): the reports' cells' log-probabilities at a
 /// candidate position.
 pub fn log_likelihood(
@@ -318,8 +257,9 @@ pub fn log_likelihood(
         .iter()
         .zip(cells)
         .map(|(s, &cell)| {
-            let d = (s[0] - theta[0]).hypot(s[1] - theta[1]);
-            quantizer.ln_probability(cell, law.amplitude(d), sigma * sigma)
+            let (dx, dy) = (s[0] - theta[0], s[1] - theta[1]);
+            let a = law.amplitude_at_squared_distance(dx * dx + dy * dy);
+            quantizer.ln_probability(cell, a, sigma * sigma)
         })
         .sum()
 }
@@ -410,6 +350,23 @@ mod tests {
                 );
             }
             assert!((law.amplitude(law.reach(1e-6)).powi(2) / law.p0() - 1e-6).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn the_amplitude_at_the_squared_distance_is_the_amplitude() {
+        let cube = DecayLaw::PowerLaw {
+            p0: 1e4,
+            exponent: 3.0,
+        };
+        for law in [GAUSSIAN, POWER, cube] {
+            for d in [0.0, 0.01, 0.3, 1.0, 1.7, 3.1, 9.0, 40.0] {
+                let (want, got) = (law.amplitude(d), law.amplitude_at_squared_distance(d * d));
+                assert!(
+                    (got - want).abs() <= 1e-14 * want,
+                    "{law:?} at {d}: {got} against {want}"
+                );
+            }
         }
     }
 

@@ -37,8 +37,8 @@ use std::path::Path;
 use bounds::fisher::Measurement;
 use bounds::location::{
     closed_form_information, correlation, crlb_trace, exact_information, log_likelihood,
-    ml_estimate, optimize_thresholds, optimize_thresholds_from, relative_information_variance,
-    uniform_quantizer, DecayLaw,
+    ml_estimate, optimize_weighed_thresholds, relative_information_variance, uniform_quantizer,
+    DecayLaw, WeighedAmplitudes,
 };
 use bounds::Quantizer;
 use nalgebra::Matrix2;
@@ -238,15 +238,9 @@ fn range(model: &Model) -> (f64, f64) {
 /// form, which needs no sensor's position (and not λ, which scales it).
 fn sub_optimal(model: &Model, bits: u8) -> Quantizer {
     let (lo, hi) = range(model);
-    optimize_thresholds(bits, lo, hi, |q| {
-        closed_form_information(
-            model.law,
-            Measurement::Quantized(q),
-            SIGMA,
-            1.0,
-            model.side / 2.0,
-        )
-    })
+    let start = Quantizer::uniform(bits, lo, hi).expect("valid bits and range");
+    let nodes = WeighedAmplitudes::of_closed_form(model.law, 1.0, model.side / 2.0);
+    optimize_weighed_thresholds(&start, lo, hi, &nodes, SIGMA, |j| j[(0, 0)])
 }
 
 /// The optimal thresholds of one deployment: those minimizing its exact
@@ -258,15 +252,9 @@ fn optimal(model: &Model, start: &Quantizer, sensors: &[[f64; 2]]) -> Quantizer 
         .filter(|s| s[0].hypot(s[1]) < model.informative)
         .collect();
     let (lo, hi) = range(model);
-    optimize_thresholds_from(start, lo, hi, |q| {
-        crlb_trace(&exact_information(
-            model.law,
-            Measurement::Quantized(q),
-            SIGMA,
-            &near,
-            [0.0, 0.0],
-        ))
-        .map_or(f64::NEG_INFINITY, |t| -t)
+    let points = WeighedAmplitudes::of_deployment(model.law, &near, [0.0, 0.0]);
+    optimize_weighed_thresholds(start, lo, hi, &points, SIGMA, |j| {
+        crlb_trace(j).map_or(f64::NEG_INFINITY, |t| -t)
     })
 }
 
