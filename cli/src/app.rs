@@ -535,6 +535,7 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         stop: Default::default(),
         small: false,
     };
+    stop_on_interrupt(options.stop.clone());
     let mut failed = Vec::new();
     let mut open = Vec::new();
     let all_started = std::time::Instant::now();
@@ -582,6 +583,59 @@ fn run_experiments(args: &ExperimentArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// How long an interrupted experiment has to stop by itself: a Monte Carlo
+/// stops at its next step and a network within the supervisor's grace, but
+/// a computed experiment may not look at `stop` at all.
+const INTERRUPT_GRACE: std::time::Duration = std::time::Duration::from_secs(20);
+
+/// Ctrl-C, SIGTERM and SIGHUP stop the experiments: the first sets `stop`,
+/// which ends the running Monte Carlo between steps (and a network run
+/// stops and reaps its processes, hearing the same signal), and ends the
+/// process if the experiment has not stopped within [`INTERRUPT_GRACE`];
+/// a second ends it at once. Listening here, rather than leaving the
+/// signals' default, keeps them working after a network experiment: its
+/// supervisor's listener, once dropped, would otherwise leave them
+/// swallowed for the rest of the process.
+fn stop_on_interrupt(stop: Arc<std::sync::atomic::AtomicBool>) {
+    use tokio::signal::unix::{signal, SignalKind};
+    let listen = move || -> std::io::Result<()> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        runtime.block_on(async {
+            let mut terminate = signal(SignalKind::terminate())?;
+            let mut hangup = signal(SignalKind::hangup())?;
+            let mut heard = 0;
+            loop {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = terminate.recv() => {}
+                    _ = hangup.recv() => {}
+                }
+                heard += 1;
+                if heard > 1 {
+                    std::process::exit(130);
+                }
+                eprintln!(
+                    "interrupted: stopping the experiment (at its next step, or in {} s); interrupt again to end now",
+                    INTERRUPT_GRACE.as_secs()
+                );
+                stop.store(true, std::sync::atomic::Ordering::SeqCst);
+                std::thread::spawn(|| {
+                    std::thread::sleep(INTERRUPT_GRACE);
+                    eprintln!("the experiment did not stop in time: ending it");
+                    std::process::exit(130);
+                });
+            }
+        })
+    };
+    std::thread::spawn(move || {
+        if let Err(e) = listen() {
+            tracing::warn!("cannot listen for interrupts: {e}");
+        }
+    });
 }
 
 /// Wall time since `started`, as minutes and seconds.
