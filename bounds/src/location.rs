@@ -26,8 +26,8 @@ use crate::quantizer::Quantizer;
 
 mod thresholds;
 pub use thresholds::{
-    optimize_thresholds, optimize_thresholds_from, optimize_weighed_thresholds,
-    uniform_quantizer, WeighedAmplitudes, MAX_SWEEPS,
+    optimize_thresholds, optimize_thresholds_from, optimize_weighed_thresholds, uniform_quantizer,
+    WeighedAmplitudes, MAX_SWEEPS,
 };
 
 /// How the target's signal amplitude falls with distance.

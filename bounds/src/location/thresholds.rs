@@ -104,7 +104,10 @@ impl WeighedAmplitudes {
             let (dx, dy) = (s[0] - target[0], s[1] - target[1]);
             let d = dx.hypot(dy);
             let slope = law.slope_over_distance_squared(d);
-            points.push(law.amplitude(d), [slope * dx * dx, slope * dx * dy, slope * dy * dy]);
+            points.push(
+                law.amplitude(d),
+                [slope * dx * dx, slope * dx * dy, slope * dy * dy],
+            );
         }
         points
     }
@@ -388,13 +391,17 @@ mod tests {
             let sensors = deploy(3, 12.0, 150);
             let target = [0.4, -0.7];
             let exact = exact_information(law, Measurement::Quantized(&q), 1.0, &sensors, target);
-            let weighed = WeighedAmplitudes::of_deployment(law, &sensors, target).information(&q, 1.0);
+            let weighed =
+                WeighedAmplitudes::of_deployment(law, &sensors, target).information(&q, 1.0);
             for (a, b) in weighed.iter().zip(exact.iter()) {
                 assert!(relative(*a, *b) < 1e-12, "{law:?}: {a} against {b}");
             }
             let closed = closed_form_information(law, Measurement::Quantized(&q), 1.0, 2.0, 6.0);
             let weighed = WeighedAmplitudes::of_closed_form(law, 2.0, 6.0).information(&q, 1.0);
-            assert!(relative(weighed[(0, 0)], closed) < 1e-12, "{weighed} against {closed}");
+            assert!(
+                relative(weighed[(0, 0)], closed) < 1e-12,
+                "{weighed} against {closed}"
+            );
             assert_eq!(weighed[(0, 1)], 0.0);
         }
     }
@@ -420,7 +427,10 @@ mod tests {
             for k in [0, t.len() / 2, t.len() - 1] {
                 held.hold(k, &t);
                 let left = if k == 0 { -4.0 * sigma } else { t[k - 1] };
-                let right = t.get(k + 1).copied().unwrap_or(law.p0().sqrt() + 4.0 * sigma);
+                let right = t
+                    .get(k + 1)
+                    .copied()
+                    .unwrap_or(law.p0().sqrt() + 4.0 * sigma);
                 for _ in 0..5 {
                     let x = rng.random_range(left..right);
                     let got = held.value(k, x, &mut t);
@@ -457,8 +467,7 @@ mod tests {
                 ))
             });
             let points = WeighedAmplitudes::of_deployment(GAUSSIAN, &sensors, [0.0, 0.0]);
-            let weighed =
-                optimize_weighed_thresholds(&start, lo, hi, &points, 1.0, negative_trace);
+            let weighed = optimize_weighed_thresholds(&start, lo, hi, &points, 1.0, negative_trace);
             let value = |q: &Quantizer| negative_trace(&points.information(q, 1.0));
             assert!(
                 relative(value(&weighed), value(&whole)) < 1e-9,
@@ -469,4 +478,3 @@ mod tests {
         }
     }
 }
-
