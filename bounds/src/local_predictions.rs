@@ -260,10 +260,11 @@ impl LocalPredictions {
             let k = s.h.nrows();
             h.view_mut((row, a * d), (k, d)).copy_from(&s.h);
             r.view_mut((row, row), (k, k)).copy_from(&s.r);
+            let s_inv = self.innovation_covariance(i).try_inverse()?;
             regions.push(Region {
                 first: row,
                 rows: k,
-                s_inv: self.innovation_covariance(i).try_inverse()?,
+                s_inv: s_inv.as_slice().to_vec(),
             });
             row += k;
         }
@@ -308,7 +309,36 @@ pub const MAX_ROWS: usize = 8;
 struct Region {
     first: usize,
     rows: usize,
-    s_inv: DMatrix<f64>,
+    /// `S⁻¹` column by column (`S⁻¹[i, j]` at `i + j·rows`), as a slice:
+    /// every particle asks about every draw, and a matrix's indexing
+    /// costs more than the arithmetic.
+    s_inv: Vec<f64>,
+}
+
+impl Region {
+    /// Whether `ν = μ + w` (this region's rows of them) is inside:
+    /// `Σ_i Σ_j ν_i S⁻¹[i, j] ν_j < η`, summed in that order.
+    #[inline]
+    fn inside(&self, mu: &[f64], w: &[f64], threshold: f64) -> bool {
+        let (f, s) = (self.first, &self.s_inv[..]);
+        let mut q = 0.0;
+        if self.rows == 2 {
+            let (n0, n1) = (mu[f] + w[f], mu[f + 1] + w[f + 1]);
+            q += n0 * s[0] * n0;
+            q += n0 * s[2] * n1;
+            q += n1 * s[1] * n0;
+            q += n1 * s[3] * n1;
+            return q < threshold;
+        }
+        let n = self.rows;
+        for i in 0..n {
+            let nu_i = mu[f + i] + w[f + i];
+            for j in 0..n {
+                q += nu_i * s[i + j * n] * (mu[f + j] + w[f + j]);
+            }
+        }
+        q < threshold
+    }
 }
 
 /// `P(every silent sensor stays silent | x)`, the silent sensors'
@@ -337,7 +367,7 @@ impl JointSilence {
         }
         if self.rows == 1 {
             let region = &self.regions[0];
-            let half = (self.threshold / region.s_inv[(0, 0)]).sqrt();
+            let half = (self.threshold / region.s_inv[0]).sqrt();
             let sd = self.noise_sd;
             return normal::ln_interval_mass((-half - mu[0]) / sd, (half - mu[0]) / sd);
         }
@@ -345,16 +375,9 @@ impl JointSilence {
             .draws
             .chunks_exact(self.rows)
             .filter(|w| {
-                self.regions.iter().all(|region| {
-                    let nu = |k: usize| mu[region.first + k] + w[region.first + k];
-                    let mut q = 0.0;
-                    for i in 0..region.rows {
-                        for j in 0..region.rows {
-                            q += nu(i) * region.s_inv[(i, j)] * nu(j);
-                        }
-                    }
-                    q < self.threshold
-                })
+                self.regions
+                    .iter()
+                    .all(|region| region.inside(&mu, w, self.threshold))
             })
             .count();
         // Half a draw keeps a state no draw supports from a weight of zero.

@@ -82,7 +82,10 @@ pub fn run_monte_carlo_until(
     let done = AtomicU32::new(0);
     let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> =
         Mutex::new((0..runs).map(|_| None).collect());
-    let series = Mutex::new(StepSeries::default());
+    // Each run's sums, merged in run order once all are done: merged as
+    // they finished, the sums' rounding (and a mean's last digit) would
+    // change from one invocation to the next.
+    let run_sums: Mutex<Vec<Option<StepSeries>>> = Mutex::new(vec![None; runs as usize]);
     let run_means: Mutex<Vec<Vec<StepMeans>>> = Mutex::new(vec![Vec::new(); runs as usize]);
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1).min(runs as usize) {
@@ -106,14 +109,14 @@ pub fn run_monte_carlo_until(
                         )
                     });
                 if result.is_ok() {
-                    series
-                        .lock()
-                        .expect("no worker panics while holding the lock")
-                        .merge(&run_series);
                     run_means
                         .lock()
                         .expect("no worker panics while holding the lock")[i as usize] =
                         run_series.means();
+                    run_sums
+                        .lock()
+                        .expect("no worker panics while holding the lock")[i as usize] =
+                        Some(run_series);
                 }
                 results
                     .lock()
@@ -127,6 +130,15 @@ pub fn run_monte_carlo_until(
             "interrupted; the runs' results so far are in {}",
             out.display()
         );
+    }
+    let mut series = StepSeries::default();
+    for run in run_sums
+        .into_inner()
+        .expect("workers finished")
+        .iter()
+        .flatten()
+    {
+        series.merge(run);
     }
     let per_run: Vec<Summary> = results
         .into_inner()
@@ -161,7 +173,7 @@ pub fn run_monte_carlo_until(
             / runs as f64,
         wall_seconds: started.elapsed().as_secs_f64(),
         per_run,
-        series: series.into_inner().expect("workers finished"),
+        series,
         per_run_series: run_means.into_inner().expect("workers finished"),
     })
 }
