@@ -27,8 +27,8 @@ struct Run {
 const LINEAR_SENSORS: usize = 2;
 const SCALAR_TRIALS: u32 = 2000;
 /// At 2000, Fig. 3.6 (CFwMD against CFoMD without feedback) projected about
-/// 9000 to settle; at 10,000 it is a tie. These arms take about 12 of the
-/// experiment's 18 minutes on two cores.
+/// 9000 to settle; at 10,000 it is a tie. These arms take under 3 of the
+/// experiment's 7 minutes on two cores.
 const VECTOR_TRIALS: u32 = 10_000;
 /// Trials of each nonlinear arm: 16 arms of 10⁴ particles each.
 const NONLINEAR_TRIALS: u32 = 300;
