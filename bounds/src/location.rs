@@ -315,16 +315,17 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    const GAUSSIAN: DecayLaw = DecayLaw::Gaussian {
+    pub(super) const GAUSSIAN: DecayLaw = DecayLaw::Gaussian {
         p0: 1e4,
         alpha: 1.0,
     };
-    const POWER: DecayLaw = DecayLaw::PowerLaw {
+    pub(super) const POWER: DecayLaw = DecayLaw::PowerLaw {
         p0: 1e4,
         exponent: 4.0,
     };
 
-    fn deploy(rng: &mut ChaCha8Rng, side: f64, density: f64) -> Vec<[f64; 2]> {
+    /// Sensors uniform over a square of `side` centred on the origin.
+    pub(super) fn deploy(rng: &mut ChaCha8Rng, side: f64, density: f64) -> Vec<[f64; 2]> {
         let n = (density * side * side).round() as usize;
         (0..n)
             .map(|_| {

@@ -363,21 +363,12 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    const GAUSSIAN: DecayLaw = DecayLaw::Gaussian {
-        p0: 1e4,
-        alpha: 1.0,
-    };
-    const POWER: DecayLaw = DecayLaw::PowerLaw {
-        p0: 1e4,
-        exponent: 4.0,
-    };
+    use crate::location::tests::{GAUSSIAN, POWER};
 
+    /// `count` sensors over a square of `side`, from `seed`.
     fn deploy(seed: u64, side: f64, count: usize) -> Vec<[f64; 2]> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let h = side / 2.0;
-        (0..count)
-            .map(|_| [rng.random_range(-h..h), rng.random_range(-h..h)])
-            .collect()
+        let density = count as f64 / (side * side);
+        crate::location::tests::deploy(&mut ChaCha8Rng::seed_from_u64(seed), side, density)
     }
 
     fn relative(a: f64, b: f64) -> f64 {
