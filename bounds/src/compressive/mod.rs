@@ -590,10 +590,17 @@ fn project_into(y: &[f64], s: f64, out: &mut [f64]) {
     );
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
+        // Once the midpoint is an end, this step's update is the last
+        // that changes anything (later steps repeat it): stop there, with
+        // the ends 200 steps would have left, after some 60.
+        let settled = mid == lo || mid == hi;
         if total(mid) > s {
             lo = mid;
         } else {
             hi = mid;
+        }
+        if settled {
+            break;
         }
     }
     let tau = 0.5 * (lo + hi);
