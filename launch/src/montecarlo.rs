@@ -177,3 +177,41 @@ pub fn run_monte_carlo_until(
         per_run_series: run_means.into_inner().expect("workers finished"),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two threads finish their runs in whatever order the machine lets
+    /// them; the summary and the per-step series must be the ones a single
+    /// thread gives, to the bit.
+    #[test]
+    fn the_summary_does_not_depend_on_the_threads() {
+        let sets = ["steps=6".to_string(), "sensors.per_cell=[2, 2]".to_string()];
+        let scenario =
+            Scenario::from_toml(fusion_graph::scenario::DEFAULT_SCENARIO, "default", &sets)
+                .unwrap();
+        let topology = Topology::from_scenario(&scenario, "default").unwrap();
+        let dir = std::env::temp_dir().join(format!("cqnet-montecarlo-{}", std::process::id()));
+        let run = |threads: usize| {
+            let out = dir.join(format!("threads-{threads}"));
+            let stop = AtomicBool::new(false);
+            run_monte_carlo_until(
+                &scenario,
+                &topology,
+                &out,
+                12,
+                threads,
+                true,
+                &|_| {},
+                &stop,
+            )
+            .unwrap()
+        };
+        let (one, two) = (run(1), run(2));
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(one.series, two.series);
+        assert_eq!(one.per_run_series, two.per_run_series);
+        assert_eq!(one.estimates, two.estimates);
+    }
+}

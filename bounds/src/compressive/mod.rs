@@ -641,6 +641,43 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
+    /// The bisection that stops once its midpoint is an end leaves the
+    /// projection all 200 steps would, bit for bit.
+    #[test]
+    fn the_projection_stops_where_two_hundred_steps_would_end() {
+        let all_steps = |y: &[f64], s: f64| -> Vec<f64> {
+            let total = |tau: f64| y.iter().map(|v| (v - tau).clamp(0.0, 1.0)).sum::<f64>();
+            let (mut lo, mut hi) = (
+                y.iter().fold(f64::INFINITY, |m, v| m.min(*v)) - 1.0,
+                y.iter().fold(f64::NEG_INFINITY, |m, v| m.max(*v)),
+            );
+            for _ in 0..200 {
+                let mid = 0.5 * (lo + hi);
+                if total(mid) > s {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            let tau = 0.5 * (lo + hi);
+            y.iter().map(|v| (v - tau).clamp(0.0, 1.0)).collect()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        for n in [1, 2, 5, 25, 100] {
+            for _ in 0..200 {
+                let scale = 10f64.powi(rng.random_range(-3..4));
+                let y: Vec<f64> = (0..n)
+                    .map(|_| scale * rng.random_range(-1.0..2.0))
+                    .collect();
+                let s = rng.random_range(0.0..n as f64);
+                let got = project_capped_simplex(&y, s);
+                let want = all_steps(&y, s);
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "n = {n}, s = {s}, y = {y:?}");
+            }
+        }
+    }
+
     /// Eq. 4.13 against the density written out with a dense inverse and
     /// determinant.
     #[test]
