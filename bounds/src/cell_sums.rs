@@ -88,12 +88,11 @@ impl Edge {
         } else {
             normal::cdf(t)
         };
-        // `normal::x_pdf` is `t · φ(t)` (zero at ±∞): φ once, not twice.
-        let pdf = normal::pdf(t);
+        let (pdf, x_pdf) = normal::pdf_and_x_pdf(t);
         Self {
             t,
             pdf,
-            x_pdf: if t.is_infinite() { 0.0 } else { t * pdf },
+            x_pdf,
             tail,
         }
     }

@@ -164,31 +164,21 @@ pub fn exact_information(
 /// (a test checks it), ample beside a deployment's spread around it.
 const SIMPSON_INTERVALS: usize = 1000;
 
-/// Simpson's nodes over [0, R] and their weights: `∫₀^R f ≈ Σ w f(r)`.
-fn simpson_nodes(radius: f64) -> impl Iterator<Item = (f64, f64)> {
+/// Simpson's rule over [0, R]: the step h and the nodes with their
+/// coefficients (1, 4, 2, …, 4, 1), ends first, so that `∫₀^R f ≈
+/// (h/3) Σ c f(r)` summed in this order is [`integrate`]'s sum.
+fn simpson_nodes(radius: f64) -> (f64, impl Iterator<Item = (f64, f64)>) {
     let n = SIMPSON_INTERVALS;
     let h = radius / n as f64;
-    (0..=n).map(move |k| {
-        let r = if k == n { radius } else { k as f64 * h };
-        let coefficient = match k {
-            0 => 1.0,
-            _ if k == n => 1.0,
-            _ if k % 2 == 1 => 4.0,
-            _ => 2.0,
-        };
-        (r, coefficient * h / 3.0)
-    })
+    let ends = [(0.0, 1.0), (radius, 1.0)];
+    let inner = (1..n).map(move |k| (k as f64 * h, if k % 2 == 1 { 4.0 } else { 2.0 }));
+    (h, ends.into_iter().chain(inner))
 }
 
 /// `∫₀^R f(r) dr` by Simpson's rule.
 fn integrate(radius: f64, f: impl Fn(f64) -> f64) -> f64 {
-    let n = SIMPSON_INTERVALS;
-    let h = radius / n as f64;
-    let mut sum = f(0.0) + f(radius);
-    for k in 1..n {
-        sum += f(k as f64 * h) * if k % 2 == 1 { 4.0 } else { 2.0 };
-    }
-    sum * h / 3.0
+    let (h, nodes) = simpson_nodes(radius);
+    nodes.fold(0.0, |sum, (r, c)| sum + f(r) * c) * h / 3.0
 }
 
 /// The closed-form FIM's scale c (Theorem 6.3): `J ≈ c I₂` for sensors at

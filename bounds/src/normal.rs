@@ -29,11 +29,14 @@ pub fn pdf(x: f64) -> f64 {
 /// `x φ(x)`, with the limit 0 at ±∞ (the naive product is `∞ · 0 = NaN`).
 #[inline]
 pub fn x_pdf(x: f64) -> f64 {
-    if x.is_infinite() {
-        0.0
-    } else {
-        x * pdf(x)
-    }
+    pdf_and_x_pdf(x).1
+}
+
+/// `(φ(x), x φ(x))`, φ computed once.
+#[inline]
+pub fn pdf_and_x_pdf(x: f64) -> (f64, f64) {
+    let pdf = pdf(x);
+    (pdf, if x.is_infinite() { 0.0 } else { x * pdf })
 }
 
 /// Distribution function `Φ(x)`.

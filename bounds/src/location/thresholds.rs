@@ -117,8 +117,9 @@ impl WeighedAmplitudes {
     pub fn of_closed_form(law: DecayLaw, density: f64, radius: f64) -> Self {
         let scale = density * std::f64::consts::PI;
         let mut points = Self::default();
-        for (r, w) in super::simpson_nodes(radius) {
-            let weight = scale * w * law.slope_over_distance_squared(r) * r.powi(3);
+        let (h, nodes) = super::simpson_nodes(radius);
+        for (r, c) in nodes {
+            let weight = scale * (c * h / 3.0) * law.slope_over_distance_squared(r) * r.powi(3);
             points.push(law.amplitude(r), [weight, 0.0, 0.0]);
         }
         points
