@@ -86,7 +86,6 @@ pub fn run_monte_carlo_until(
     // they finished, the sums' rounding (and a mean's last digit) would
     // change from one invocation to the next.
     let run_sums: Mutex<Vec<Option<StepSeries>>> = Mutex::new(vec![None; runs as usize]);
-    let run_means: Mutex<Vec<Vec<StepMeans>>> = Mutex::new(vec![Vec::new(); runs as usize]);
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1).min(runs as usize) {
             scope.spawn(|| loop {
@@ -109,10 +108,6 @@ pub fn run_monte_carlo_until(
                         )
                     });
                 if result.is_ok() {
-                    run_means
-                        .lock()
-                        .expect("no worker panics while holding the lock")[i as usize] =
-                        run_series.means();
                     run_sums
                         .lock()
                         .expect("no worker panics while holding the lock")[i as usize] =
@@ -131,15 +126,15 @@ pub fn run_monte_carlo_until(
             out.display()
         );
     }
+    let run_sums = run_sums.into_inner().expect("workers finished");
     let mut series = StepSeries::default();
-    for run in run_sums
-        .into_inner()
-        .expect("workers finished")
-        .iter()
-        .flatten()
-    {
+    for run in run_sums.iter().flatten() {
         series.merge(run);
     }
+    let per_run_series: Vec<Vec<StepMeans>> = run_sums
+        .iter()
+        .map(|run| run.as_ref().map(StepSeries::means).unwrap_or_default())
+        .collect();
     let per_run: Vec<Summary> = results
         .into_inner()
         .expect("workers finished")
@@ -174,7 +169,7 @@ pub fn run_monte_carlo_until(
         wall_seconds: started.elapsed().as_secs_f64(),
         per_run,
         series,
-        per_run_series: run_means.into_inner().expect("workers finished"),
+        per_run_series,
     })
 }
 
