@@ -233,12 +233,7 @@ fn runs(options: &Options) -> u32 {
 fn run(options: &Options, dir: &Path) -> anyhow::Result<ComputedReport> {
     let options = &Options {
         runs: runs(options),
-        steps: options.steps,
-        threads: options.threads,
-        out: options.out.clone(),
-        trajectories: options.trajectories,
-        stop: options.stop.clone(),
-        small: options.small,
+        ..options.clone()
     };
     let mut points = Vec::new();
     for side in SIDES {

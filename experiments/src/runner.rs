@@ -18,6 +18,7 @@ use crate::claims::{claims_csv, Check};
 use crate::model::{Arm, ArmOutcome, Experiment, Figure, Outcome, Series, LOST_TRACK_FACTOR};
 use crate::{diagnostics, faults, figure};
 
+#[derive(Clone)]
 pub struct Options {
     pub runs: u32,
     /// Steps per run; the scenario's (100) when `None`.
