@@ -55,15 +55,23 @@ const EVEN_SHARE: f64 = 0.3;
 const INSIDE: f64 = 1e-9;
 
 /// S sensing matrices drawn from a reference design, kept as what the
-/// estimate needs: each sensor's count of slots and its diagonal entry of
-/// `Φᵀ R⁻¹ Φ`.
+/// estimate needs: for each matrix, the sensors it hears (a column not all
+/// zero), each with its count of slots and its diagonal entry of
+/// `Φᵀ R⁻¹ Φ`. A matrix hears about `M Σp` sensors of the N, so the
+/// estimate and its gradient, evaluated hundreds of times a design, cost
+/// that many terms a matrix rather than N; a sensor not heard adds exactly
+/// zero to either, so the sums are the same as over every sensor.
 #[derive(Debug, Clone)]
 pub struct DrawnMatrices {
     sensors: usize,
     reference_logit: Vec<f64>,
-    /// `k_js`, sample-major: `s · sensors + j`.
-    counts: Vec<u8>,
-    /// `(Φ_sᵀ R_s⁻¹ Φ_s)_jj`, as `counts`.
+    /// Matrix s's sensors heard are entries `starts[s]..starts[s + 1]` of
+    /// `heard`, `counts` and `diagonal`, in increasing sensor order.
+    starts: Vec<usize>,
+    heard: Vec<u32>,
+    /// `k_js`, the slots sensor j transmits in.
+    counts: Vec<f64>,
+    /// `(Φ_sᵀ R_s⁻¹ Φ_s)_jj`.
     diagonal: Vec<f64>,
     /// The normalized weights of the last evaluation.
     weights: Vec<f64>,
@@ -83,23 +91,35 @@ impl DrawnMatrices {
         rng: &mut R,
     ) -> Self {
         let n = reference.len();
-        let mut counts = Vec::with_capacity(samples * n);
-        let mut diagonal = vec![0.0; samples * n];
+        let expected = (slots as f64 * reference.iter().sum::<f64>()).ceil() as usize;
+        let capacity = samples * expected.min(n);
+        let (mut heard, mut counts, mut diagonal) = (
+            Vec::with_capacity(capacity),
+            Vec::with_capacity(capacity),
+            Vec::with_capacity(capacity),
+        );
+        let mut starts = Vec::with_capacity(samples + 1);
+        starts.push(0);
         let mut chol = vec![0.0; slots * slots];
-        for s in 0..samples {
+        let mut dense = vec![0.0; n];
+        for _ in 0..samples {
             let phi = SensingMatrix::draw(reference, slots, rng);
-            counts.extend((0..n).map(|j| phi.column(j).0.count_ones() as u8));
-            diagonal_information(
-                &phi,
-                r,
-                epsilon,
-                &mut chol,
-                &mut diagonal[s * n..(s + 1) * n],
-            );
+            diagonal_information(&phi, r, epsilon, &mut chol, &mut dense);
+            for (j, d) in dense.iter().enumerate() {
+                let k = phi.column(j).0.count_ones();
+                if k > 0 {
+                    heard.push(j as u32);
+                    counts.push(f64::from(k));
+                    diagonal.push(*d);
+                }
+            }
+            starts.push(heard.len());
         }
         Self {
             sensors: n,
             reference_logit: reference.iter().map(|p| logit(*p)).collect(),
+            starts,
+            heard,
             counts,
             diagonal,
             weights: vec![0.0; samples],
@@ -111,19 +131,35 @@ impl DrawnMatrices {
         self.weights.len()
     }
 
+    /// Matrix s's sensors heard, their counts and diagonal entries.
+    #[inline]
+    fn matrix(&self, s: usize) -> (&[u32], &[f64], &[f64]) {
+        let range = self.starts[s]..self.starts[s + 1];
+        (
+            &self.heard[range.clone()],
+            &self.counts[range.clone()],
+            &self.diagonal[range],
+        )
+    }
+
     /// `τ(p)` into `tau`, estimated from the drawn matrices; returns the
     /// weights' effective sample size `1 / Σ w̄²`.
     pub fn counted_once(&mut self, p: &[f64], tau: &mut [f64]) -> f64 {
+        debug_assert_eq!(p.len(), self.sensors);
         for ((c, p), r) in self.shift.iter_mut().zip(p).zip(&self.reference_logit) {
             *c = logit(*p) - r;
         }
-        let (n, shift) = (self.sensors, &self.shift);
         let mut largest = f64::NEG_INFINITY;
-        for (s, w) in self.weights.iter_mut().enumerate() {
-            let k = &self.counts[s * n..(s + 1) * n];
+        for s in 0..self.weights.len() {
+            let (heard, counts, _) = self.matrix(s);
             // The ratio's log, up to a constant of p alone.
-            *w = k.iter().zip(shift).map(|(k, c)| f64::from(*k) * c).sum();
-            largest = largest.max(*w);
+            let w: f64 = heard
+                .iter()
+                .zip(counts)
+                .map(|(j, k)| k * self.shift[*j as usize])
+                .sum();
+            self.weights[s] = w;
+            largest = largest.max(w);
         }
         let mut total = 0.0;
         for w in &mut self.weights {
@@ -132,11 +168,13 @@ impl DrawnMatrices {
         }
         let mut squares = 0.0;
         tau.fill(0.0);
-        for (s, w) in self.weights.iter_mut().enumerate() {
-            *w /= total;
-            squares += *w * *w;
-            for (t, d) in tau.iter_mut().zip(&self.diagonal[s * n..(s + 1) * n]) {
-                *t += *w * d;
+        for s in 0..self.weights.len() {
+            let w = self.weights[s] / total;
+            self.weights[s] = w;
+            squares += w * w;
+            let (heard, _, diagonal) = self.matrix(s);
+            for (j, d) in heard.iter().zip(diagonal) {
+                tau[*j as usize] += w * d;
             }
         }
         1.0 / squares
@@ -149,14 +187,18 @@ impl DrawnMatrices {
         // ∂τ_i/∂p_j = Σ_s w̄_s (T_is − τ_i) ∂ln ω_s/∂p_j, and the part of
         // ∂ln ω_s/∂p_j that does not depend on s cancels: it is
         // k_js / (p_j (1 − p_j)).
-        let n = self.sensors;
         let mean: f64 = trace.iter().zip(tau).map(|(t, u)| t * u).sum();
         out.fill(0.0);
         for (s, w) in self.weights.iter().enumerate() {
-            let row = &self.diagonal[s * n..(s + 1) * n];
-            let c = w * (trace.iter().zip(row).map(|(t, d)| t * d).sum::<f64>() - mean);
-            for (o, k) in out.iter_mut().zip(&self.counts[s * n..(s + 1) * n]) {
-                *o += c * f64::from(*k);
+            let (heard, counts, diagonal) = self.matrix(s);
+            let row: f64 = heard
+                .iter()
+                .zip(diagonal)
+                .map(|(j, d)| trace[*j as usize] * d)
+                .sum();
+            let c = w * (row - mean);
+            for (j, k) in heard.iter().zip(counts) {
+                out[*j as usize] += c * k;
             }
         }
         for (o, p) in out.iter_mut().zip(p) {
