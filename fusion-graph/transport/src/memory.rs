@@ -14,11 +14,15 @@ use fusion_graph::shaper::LinkShaper;
 use wire::ActorId;
 use wire::{Message, WireFormat};
 
+/// A message's bytes, shared by every inbox it is in: a message to n
+/// readers is one allocation and one copy, not n.
+type Bytes = Rc<[u8]>;
+
 /// The shared medium: who subscribes to what, and each actor's inbox.
 #[derive(Debug, Default)]
 pub struct MemoryBus {
     subscribers: HashMap<Channel, Vec<ActorId>>,
-    inboxes: HashMap<ActorId, VecDeque<(ActorId, Vec<u8>)>>,
+    inboxes: HashMap<ActorId, VecDeque<(ActorId, Bytes)>>,
     /// The driver's clock.
     now: Duration,
 }
@@ -47,11 +51,12 @@ impl MemoryBus {
     /// Writes raw bytes as if `channel`'s publisher had sent them: for
     /// testing how receivers cope with garbage.
     pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) {
+        let bytes: Bytes = bytes.into();
         for to in self.subscribers.get(&channel).cloned().unwrap_or_default() {
             self.inboxes
                 .entry(to)
                 .or_default()
-                .push_back((channel.publisher(), bytes.to_vec()));
+                .push_back((channel.publisher(), bytes.clone()));
         }
     }
 }
@@ -63,6 +68,9 @@ pub struct MemoryTransport {
     accounting: Accounting,
     shaper: LinkShaper,
     buffer: Vec<u8>,
+    /// What a receive takes from the inbox, kept between receives so that
+    /// receiving allocates nothing.
+    arrived: VecDeque<(ActorId, Bytes)>,
 }
 
 impl MemoryTransport {
@@ -74,6 +82,7 @@ impl MemoryTransport {
             accounting: Accounting::default(),
             shaper: LinkShaper::new(seed),
             buffer: Vec::with_capacity(512),
+            arrived: VecDeque::new(),
         }
     }
 }
@@ -122,31 +131,30 @@ impl Transport for MemoryTransport {
         let readers = subscribers.get(&channel).map_or(&[][..], Vec::as_slice);
         crate::check_receivers(channel, receivers, readers, &[])?;
         outbound.send(channel, message, receivers, |bytes| {
+            let bytes: Bytes = bytes.into();
             for to in readers {
                 inboxes
                     .entry(*to)
                     .or_default()
-                    .push_back((me, bytes.to_vec()));
+                    .push_back((me, bytes.clone()));
             }
             Ok(())
         })
     }
 
     fn receive(&mut self, now: Duration, out: &mut Vec<Message>) -> Result<(), ReceiveError> {
-        let arrived: Vec<(ActorId, Vec<u8>)> = self
-            .bus
-            .borrow_mut()
-            .inboxes
-            .get_mut(&self.me)
-            .map(|q| q.drain(..).collect())
-            .unwrap_or_default();
+        // The inbox and the empty queue trade places: the inbox keeps
+        // the capacity the last receive left.
+        if let Some(inbox) = self.bus.borrow_mut().inboxes.get_mut(&self.me) {
+            std::mem::swap(inbox, &mut self.arrived);
+        }
         let mut inbound = Inbound {
             me: self.me,
             format: &self.format,
             accounting: &mut self.accounting,
             shaper: &mut self.shaper,
         };
-        for (from, bytes) in arrived {
+        for (from, bytes) in self.arrived.drain(..) {
             inbound.arrive(from, &bytes, now, out);
         }
         inbound.release(now, out);
