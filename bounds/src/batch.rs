@@ -15,8 +15,12 @@
 //! operations in the same order, and Rust never contracts a multiply and an
 //! add into an FMA, so a vectorised lane rounds exactly as the scalar code
 //! does. The library functions the lanes replace are written out from the
-//! same source (fdlibm's `atan2`, `sincos` and `exp`, as the `libm` crate
+//! same source (fdlibm's `atan2`, `sincos`, `exp`, `erf` and `erfc`, as the `libm` crate
 //! has them; rand_distr's ziggurat). The tests hold each pass to that.
+
+mod erf;
+
+pub use erf::{erf, erf_or_erfc, erfc};
 
 use crate::ziggurat_tables::{ZIG_NORM_F as F, ZIG_NORM_R as R, ZIG_NORM_X as X};
 use crate::State;

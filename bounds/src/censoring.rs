@@ -87,6 +87,48 @@ impl CensoringRule {
         normal::ln_interval_mass((-half - mu) / sd, (half - mu) / sd)
     }
 
+    /// [`ln_silence_probability`](Self::ln_silence_probability) at a
+    /// batch of offsets `mu` with one `s` and `r`, equal to it lane by
+    /// lane, bit for bit, and vectorised
+    /// ([`normal::ln_interval_mass_batch`]): a silent sensor's likelihood
+    /// at a batch of particles.
+    pub fn ln_silence_probability_batch(
+        &self,
+        mu: &[f64; CHUNK],
+        s: f64,
+        r: f64,
+        out: &mut [f64; CHUNK],
+    ) {
+        #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
+        unsafe fn avx2(
+            rule: &CensoringRule,
+            mu: &[f64; CHUNK],
+            s: f64,
+            r: f64,
+            out: &mut [f64; CHUNK],
+        ) {
+            rule.silence_batch(mu, s, r, out)
+        }
+        if crate::batch::has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            unsafe { avx2(self, mu, s, r, out) }
+        } else {
+            self.silence_batch(mu, s, r, out)
+        }
+    }
+
+    #[inline(always)]
+    fn silence_batch(&self, mu: &[f64; CHUNK], s: f64, r: f64, out: &mut [f64; CHUNK]) {
+        let (half, sd) = self.window(s, r);
+        let (mut a, mut b) = ([0.0; CHUNK], [0.0; CHUNK]);
+        for i in 0..CHUNK {
+            a[i] = (-half - mu[i]) / sd;
+            b[i] = (half - mu[i]) / sd;
+        }
+        normal::ln_interval_mass_batch(&a, &b, out)
+    }
+
+    #[inline(always)]
     fn window(&self, s: f64, r: f64) -> (f64, f64) {
         ((self.threshold * s).sqrt(), r.sqrt())
     }

@@ -9,6 +9,8 @@
 
 use std::f64::consts::{FRAC_1_SQRT_2, LN_2, PI};
 
+use crate::batch::CHUNK;
+
 /// `1/√(2π)`.
 pub const INV_SQRT_2PI: f64 = 0.398_942_280_401_432_7;
 
@@ -119,6 +121,51 @@ pub fn ln_interval_mass(a: f64, b: f64) -> f64 {
     }
 }
 
+/// [`ln_interval_mass`] at a batch of intervals, equal to it lane by
+/// lane, bit for bit: the two `erfc` (an interval in a tail) or `erf`
+/// (one that straddles zero) of every lane in one vectorised pass
+/// ([`crate::batch::erf_or_erfc`]), then each lane's logarithm. A lane
+/// whose difference the direct form would not keep to a few ulps (the far
+/// tail, or a cell too narrow for its tail) takes the scalar path.
+#[inline(always)]
+pub fn ln_interval_mass_batch(a: &[f64; CHUNK], b: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+    // Each lane's interval as the scalar code takes it: a tail's mirrored
+    // onto the positive side, and whether it is a tail.
+    let (mut lo, mut hi, mut tail) = ([0.0; CHUNK], [0.0; CHUNK], [false; CHUNK]);
+    let mut near_end = [0.0; CHUNK];
+    for i in 0..CHUNK {
+        let (l, h, t) = if a[i] >= 0.0 {
+            (a[i], b[i], true)
+        } else if b[i] <= 0.0 {
+            (-b[i], -a[i], true)
+        } else {
+            (a[i], b[i], false)
+        };
+        near_end[i] = l;
+        lo[i] = l * FRAC_1_SQRT_2;
+        hi[i] = h * FRAC_1_SQRT_2;
+        tail[i] = t;
+    }
+    let (mut e_lo, mut e_hi) = ([0.0; CHUNK], [0.0; CHUNK]);
+    crate::batch::erf_or_erfc(&lo, &tail, &mut e_lo);
+    crate::batch::erf_or_erfc(&hi, &tail, &mut e_hi);
+    for i in 0..CHUNK {
+        out[i] = if a[i] >= b[i] {
+            f64::NEG_INFINITY
+        } else if tail[i] {
+            // ln_tail_difference's first form, from the same erfc values.
+            let (qa, qb) = (0.5 * e_lo[i], 0.5 * e_hi[i]);
+            if near_end[i] < ASYMPTOTIC_FROM && qb <= 0.9 * qa {
+                (qa - qb).ln()
+            } else {
+                ln_interval_mass(a[i], b[i])
+            }
+        } else {
+            (0.5 * (e_hi[i] - e_lo[i])).ln()
+        };
+    }
+}
+
 /// `ln(Q(a) − Q(b))` for `0 ≤ a < b`.
 fn ln_tail_difference(a: f64, b: f64) -> f64 {
     if a < ASYMPTOTIC_FROM {
@@ -160,6 +207,54 @@ pub fn ln_sum_exp(values: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn batch_avx2(a: &[f64; CHUNK], b: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
+        ln_interval_mass_batch(a, b, out)
+    }
+
+    /// The batch, in the AVX2 copy and the baseline one, against the
+    /// scalar function at every lane, bit for bit: intervals anywhere from
+    /// −45 to 45 and of any width, empty ones, half-lines.
+    #[test]
+    fn the_batch_interval_mass_is_the_scalar_one_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        for round in 0..3000 {
+            let a: [f64; CHUNK] = std::array::from_fn(|_| rng.random_range(-45.0..45.0));
+            let b: [f64; CHUNK] = std::array::from_fn(|i| match (round + i) % 5 {
+                0 => a[i] + rng.random_range(0.0..0.01),
+                1 => a[i] + rng.random_range(0.0..4.0),
+                2 => rng.random_range(-45.0..45.0),
+                3 => f64::INFINITY,
+                _ => a[i] + 10f64.powf(rng.random_range(-12.0..0.0)),
+            });
+            let mut copies = Vec::new();
+            let mut out = [0.0; CHUNK];
+            ln_interval_mass_batch(&a, &b, &mut out);
+            copies.push(out);
+            #[cfg(target_arch = "x86_64")]
+            if crate::batch::has_avx2() {
+                // SAFETY: the CPU has AVX2.
+                unsafe { batch_avx2(&a, &b, &mut out) };
+                copies.push(out);
+            }
+            for i in 0..CHUNK {
+                let want = ln_interval_mass(a[i], b[i]);
+                for got in &copies {
+                    assert!(
+                        got[i].to_bits() == want.to_bits() || (got[i].is_nan() && want.is_nan()),
+                        "ln P({}, {}) = {:e}, scalar {want:e}",
+                        a[i],
+                        b[i],
+                        got[i]
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn the_tail_inverse_gives_the_tabulated_quantiles_and_round_trips() {

@@ -1,6 +1,7 @@
 //! The fusion centre of the censoring tables: the node's particle filter
 //! weighing what each sensor sent, or its silence, over many trials.
 
+use bounds::batch::CHUNK;
 use bounds::censoring::{CensoringRule, VectorSilence};
 use bounds::local_predictions::{update_divergence, LocalPredictions};
 use bounds::{Mat4, ObservationModel, State};
@@ -136,6 +137,9 @@ struct TrialFilter {
     filter: ParticleFilter,
     reports: Vec<Report>,
     silent: Vec<usize>,
+    /// Each report's silence at a batch of particles (scalar silent
+    /// sensors only).
+    silences: Vec<[f64; CHUNK]>,
 }
 
 /// What the centre learnt from one sensor this step.
@@ -154,6 +158,33 @@ enum Report {
 }
 
 impl Report {
+    /// A scalar sensor's silence at a batch of states (at most [`CHUNK`];
+    /// the lanes past them are not to be read), as
+    /// [`ln_likelihood`](Self::ln_likelihood) gives it at each; nothing
+    /// for any other report.
+    fn ln_silence_batch(
+        &self,
+        sensors: &[Vec<ObservationModel>],
+        rule: &CensoringRule,
+        states: &[State],
+        out: &mut [f64; CHUNK],
+    ) {
+        if let Report::Silent {
+            sensor,
+            g,
+            s,
+            r,
+            vector: None,
+        } = self
+        {
+            let mut mu = [0.0; CHUNK];
+            for (m, x) in mu.iter_mut().zip(states) {
+                *m = sensors[*sensor][0].mean_and_variance(x).0 - g[0];
+            }
+            rule.ln_silence_probability_batch(&mu, s[(0, 0)], r[(0, 0)], out);
+        }
+    }
+
     /// `ln p(report | x)`.
     fn ln_likelihood(
         &self,
@@ -223,6 +254,7 @@ impl TrialFilter {
                 .expect("every setup's prior is positive definite"),
             reports: Vec::with_capacity(setup.sensors.len()),
             silent: Vec::with_capacity(setup.sensors.len()),
+            silences: Vec::with_capacity(setup.sensors.len()),
         }
     }
 
@@ -368,19 +400,32 @@ impl TrialFilter {
                 _ => None,
             };
             let reports = &self.reports;
+            let silences = &mut self.silences;
+            silences.resize(reports.len(), [0.0; CHUNK]);
             let active = setup.active();
             self.filter.update_untempered(|particles, out| {
-                for (l, x) in out.iter_mut().zip(particles) {
-                    *l = reports
-                        .iter()
-                        .map(|report| report.ln_likelihood(&setup.sensors, rule, x))
-                        .sum();
-                    if let Some(joint) = &joint {
-                        let mut at = [0.0; 4];
-                        for (a, &c) in at.iter_mut().zip(active) {
-                            *a = x[c];
+                for (states, out) in particles.chunks(CHUNK).zip(out.chunks_mut(CHUNK)) {
+                    // The scalar silences a batch of particles at a time;
+                    // each particle then sums its reports in their order.
+                    for (report, batch) in reports.iter().zip(silences.iter_mut()) {
+                        report.ln_silence_batch(&setup.sensors, rule, states, batch);
+                    }
+                    for (i, (l, x)) in out.iter_mut().zip(states).enumerate() {
+                        *l = reports
+                            .iter()
+                            .zip(silences.iter())
+                            .map(|(report, batch)| match report {
+                                Report::Silent { vector: None, .. } => batch[i],
+                                _ => report.ln_likelihood(&setup.sensors, rule, x),
+                            })
+                            .sum();
+                        if let Some(joint) = &joint {
+                            let mut at = [0.0; 4];
+                            for (a, &c) in at.iter_mut().zip(active) {
+                                *a = x[c];
+                            }
+                            *l += joint.ln_probability(&at[..active.len()]);
                         }
-                        *l += joint.ln_probability(&at[..active.len()]);
                     }
                 }
             });
