@@ -88,15 +88,15 @@ impl CensoringRule {
     }
 
     /// [`ln_silence_probability`](Self::ln_silence_probability) at a
-    /// batch of offsets `mu` with one `s` and `r`, equal to it lane by
-    /// lane, bit for bit, and vectorised
+    /// batch of offsets `mu` and noise variances `r` with one `s`, equal
+    /// to it lane by lane, bit for bit, and vectorised
     /// ([`normal::ln_interval_mass_batch`]): a silent sensor's likelihood
     /// at a batch of particles.
     pub fn ln_silence_probability_batch(
         &self,
         mu: &[f64; CHUNK],
         s: f64,
-        r: f64,
+        r: &[f64; CHUNK],
         out: &mut [f64; CHUNK],
     ) {
         #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
@@ -104,7 +104,7 @@ impl CensoringRule {
             rule: &CensoringRule,
             mu: &[f64; CHUNK],
             s: f64,
-            r: f64,
+            r: &[f64; CHUNK],
             out: &mut [f64; CHUNK],
         ) {
             rule.silence_batch(mu, s, r, out)
@@ -118,10 +118,10 @@ impl CensoringRule {
     }
 
     #[inline(always)]
-    fn silence_batch(&self, mu: &[f64; CHUNK], s: f64, r: f64, out: &mut [f64; CHUNK]) {
-        let (half, sd) = self.window(s, r);
+    fn silence_batch(&self, mu: &[f64; CHUNK], s: f64, r: &[f64; CHUNK], out: &mut [f64; CHUNK]) {
         let (mut a, mut b) = ([0.0; CHUNK], [0.0; CHUNK]);
         for i in 0..CHUNK {
+            let (half, sd) = self.window(s, r[i]);
             a[i] = (-half - mu[i]) / sd;
             b[i] = (half - mu[i]) / sd;
         }

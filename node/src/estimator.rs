@@ -9,6 +9,7 @@
 //!   before consensus, so that the node's observation information ΔL is
 //!   taken over the global predictive particles (the CQ/dPCRLB paper, eq. 55).
 
+use bounds::batch::CHUNK;
 use bounds::chacha::WideChaCha8;
 use bounds::pcrlb::information_update;
 use bounds::{BoundError, ConditionalBound, Dynamics, DynamicsTerms, Mat4, State};
@@ -226,7 +227,6 @@ impl LocalFilter {
         }
         // The full likelihood (dissertation eq. 3.9): what arrived, and the
         // silence of every censored sensor.
-        let silence = |x: &State| silent.iter().map(|s| model.ln_silence(s, x)).sum::<f64>();
         let late = |before: &State| {
             lagged
                 .iter()
@@ -234,14 +234,26 @@ impl LocalFilter {
                 .sum::<f64>()
         };
         // Adds the silences and the late observations to each path's
-        // received part, in the same order at every stage.
+        // received part, in the same order at every stage. The silences
+        // are taken a batch of particles at a time, sensor by sensor, and
+        // summed particle by particle in the sensors' order.
         let add_rest = |out: &mut [f64], particles: &[State], previous: &[State]| {
             if silent.is_empty() && lagged.is_empty() {
                 return;
             }
-            let paths = particles.iter().zip(previous);
-            for (l, (x, before)) in out.iter_mut().zip(paths) {
-                *l = *l + silence(x) + late(before);
+            let mut silences = vec![[0.0; CHUNK]; silent.len()];
+            let batches = out
+                .chunks_mut(CHUNK)
+                .zip(particles.chunks(CHUNK))
+                .zip(previous.chunks(CHUNK));
+            for ((out, states), before) in batches {
+                for (s, batch) in silent.iter().zip(silences.iter_mut()) {
+                    model.ln_silence_batch(s, states, batch);
+                }
+                for (i, (l, before)) in out.iter_mut().zip(before).enumerate() {
+                    let silence = silences.iter().map(|b| b[i]).sum::<f64>();
+                    *l = *l + silence + late(before);
+                }
             }
         };
         // The first stage's received part was taken with J_Y above.
@@ -872,6 +884,51 @@ mod tests {
         .unwrap();
         assert!((lambda - h_r_h).abs().max() < 1e-12, "{lambda}");
         assert!((eta - h_r_h * z).abs().max() < 1e-10, "{eta}");
+    }
+
+    /// A censored sensor's silence a batch of particles at a time is its
+    /// silence particle by particle, bit for bit: bearings whose
+    /// innovations wrap, particles near the prediction and far from it.
+    #[test]
+    fn a_batch_of_silences_is_each_particles_silence() {
+        use bounds::batch::CHUNK;
+        use bounds::censoring::{CensoringRule, Innovation};
+        use fusion_graph::scenario::DEFAULT_SCENARIO;
+        use rand::{Rng, SeedableRng};
+
+        let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap();
+        let topology = Topology::from_scenario(&scenario, "default").unwrap();
+        let model = SensingModel::from_scenario(&scenario, &topology).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for round in 0..200 {
+            let sensor = rng.random_range(0..model.sensors.len()) as u16;
+            let silence = Censored {
+                sensor,
+                innovation: Innovation {
+                    predicted: rng.random_range(-3.2..3.2),
+                    variance: 10f64.powf(rng.random_range(-5.0..-1.0)),
+                    angular: true,
+                },
+                rule: CensoringRule::for_budget(1.5, 3, 1).unwrap(),
+            };
+            let spread = if round % 2 == 0 { 30.0 } else { 1500.0 };
+            let states: Vec<State> = (0..CHUNK - round % 7)
+                .map(|_| {
+                    State::new(
+                        rng.random_range(-spread..spread) + 700.0,
+                        rng.random_range(-spread..spread) + 700.0,
+                        0.0,
+                        0.0,
+                    )
+                })
+                .collect();
+            let mut batch = [0.0; CHUNK];
+            model.ln_silence_batch(&silence, &states, &mut batch);
+            for (x, got) in states.iter().zip(batch) {
+                let want = model.ln_silence(&silence, x);
+                assert_eq!(got.to_bits(), want.to_bits(), "{got} against {want} at {x}");
+            }
+        }
     }
 
     /// The bound's information under censoring and with late observations,

@@ -238,6 +238,20 @@ impl SensingModel {
         silence.innovation.ln_silence(&silence.rule, e.g, e.r)
     }
 
+    /// [`ln_silence`](Self::ln_silence) at a batch of states (at most
+    /// [`CHUNK`]; the lanes past them are not to be read), bit for bit,
+    /// the interval masses vectorised.
+    pub fn ln_silence_batch(&self, silence: &Censored, states: &[State], out: &mut [f64; CHUNK]) {
+        let (mut mu, mut r) = ([0.0; CHUNK], [1.0; CHUNK]);
+        for ((m, r), x) in mu.iter_mut().zip(r.iter_mut()).zip(states) {
+            let e = self.sensors[silence.sensor as usize].evaluate(x);
+            *m = silence.innovation.of(e.g);
+            *r = e.r;
+        }
+        let s = silence.innovation.variance;
+        silence.rule.ln_silence_probability_batch(&mu, s, &r, out);
+    }
+
     /// A step's observation information for the conditional bound over a
     /// particle set: under NIS censoring `Σ_s J_cens,s` over every active
     /// sensor, sent or silent (silence is a measurement too; no traffic is

@@ -15,6 +15,10 @@
 //! `erfc` from |x| = 28 on, an exponential that underflows) are redone by
 //! `libm` itself.
 
+// fdlibm's constants as its source prints them (to 21 digits), so that
+// each can be checked against it; they parse to the same doubles.
+#![allow(clippy::excessive_precision)]
+
 use super::{exp_ordinary, CHUNK};
 
 const ERX: f64 = 8.45062911510467529297e-01;

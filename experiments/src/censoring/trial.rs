@@ -181,7 +181,7 @@ impl Report {
             for (m, x) in mu.iter_mut().zip(states) {
                 *m = sensors[*sensor][0].mean_and_variance(x).0 - g[0];
             }
-            rule.ln_silence_probability_batch(&mu, s[(0, 0)], r[(0, 0)], out);
+            rule.ln_silence_probability_batch(&mu, s[(0, 0)], &[r[(0, 0)]; CHUNK], out);
         }
     }
 
