@@ -273,23 +273,26 @@ impl LocalPredictions {
         let t = &h * conditional * h.transpose() + r;
         let t = 0.5 * (&t + t.transpose());
         let factor = t.clone().cholesky()?.l();
-        let draws = if rows == 1 {
-            Vec::new()
-        } else {
-            (0..draws)
-                .flat_map(|_| {
-                    let z = DVector::<f64>::from_fn(rows, |_, _| rng.sample(StandardNormal));
-                    (&factor * z).iter().copied().collect::<Vec<_>>()
-                })
-                .collect()
-        };
+        let draws = if rows == 1 { 0 } else { draws };
+        let padded = draws.next_multiple_of(LANES);
+        // Component by component, each padded with NaN, which no region
+        // holds: the count goes a block of draws at a time.
+        let mut columns = vec![f64::NAN; rows * padded];
+        for d in 0..draws {
+            let z = DVector::<f64>::from_fn(rows, |_, _| rng.sample(StandardNormal));
+            for (k, w) in (&factor * z).iter().enumerate() {
+                columns[k * padded + d] = *w;
+            }
+        }
         Some(JointSilence {
             threshold: rule.threshold,
             a,
             b,
             noise_sd: t[(0, 0)].sqrt(),
             regions,
+            columns,
             draws,
+            padded,
             rows,
         })
     }
@@ -315,29 +318,45 @@ struct Region {
     s_inv: Vec<f64>,
 }
 
+/// Draws a region is asked about at once: a block the compiler keeps in
+/// vector registers.
+const LANES: usize = 16;
+
 impl Region {
-    /// Whether `ν = μ + w` (this region's rows of them) is inside:
-    /// `Σ_i Σ_j ν_i S⁻¹[i, j] ν_j < η`, summed in that order.
-    #[inline]
-    fn inside(&self, mu: &[f64], w: &[f64], threshold: f64) -> bool {
-        let (f, s) = (self.first, &self.s_inv[..]);
-        let mut q = 0.0;
-        if self.rows == 2 {
-            let (n0, n1) = (mu[f] + w[f], mu[f + 1] + w[f + 1]);
-            q += n0 * s[0] * n0;
-            q += n0 * s[2] * n1;
-            q += n1 * s[1] * n0;
-            q += n1 * s[3] * n1;
-            return q < threshold;
-        }
-        let n = self.rows;
+    /// Which of a block of draws put `ν = μ + w` (this region's rows of
+    /// them) inside, `Σ_i Σ_j ν_i S⁻¹[i, j] ν_j < η` summed in that order,
+    /// cleared in `inside`. `columns` holds each component's draws,
+    /// `padded` apart, and the block starts at `at`.
+    #[inline(always)]
+    fn keep_inside(
+        &self,
+        mu: &[f64],
+        columns: &[f64],
+        padded: usize,
+        at: usize,
+        threshold: f64,
+        inside: &mut [bool; LANES],
+    ) {
+        let (f, n, s) = (self.first, self.rows, &self.s_inv[..]);
+        let column = |k: usize| -> &[f64; LANES] {
+            let start = (f + k) * padded + at;
+            columns[start..start + LANES]
+                .try_into()
+                .expect("a block is LANES draws")
+        };
+        let mut q = [0.0; LANES];
         for i in 0..n {
-            let nu_i = mu[f + i] + w[f + i];
+            let (wi, mi) = (column(i), mu[f + i]);
             for j in 0..n {
-                q += nu_i * s[i + j * n] * (mu[f + j] + w[f + j]);
+                let (wj, mj, sij) = (column(j), mu[f + j], s[i + j * n]);
+                for l in 0..LANES {
+                    q[l] += (mi + wi[l]) * sij * (mj + wj[l]);
+                }
             }
         }
-        q < threshold
+        for l in 0..LANES {
+            inside[l] &= q[l] < threshold;
+        }
     }
 }
 
@@ -353,8 +372,11 @@ pub struct JointSilence {
     b: DVector<f64>,
     noise_sd: f64,
     regions: Vec<Region>,
-    /// Draws of `N(0, T)`, `rows` numbers each.
-    draws: Vec<f64>,
+    /// Draws of `N(0, T)`, component by component: component k of draw d
+    /// at `k·padded + d`, the `padded − draws` past the last NaN.
+    columns: Vec<f64>,
+    draws: usize,
+    padded: usize,
     rows: usize,
 }
 
@@ -371,18 +393,36 @@ impl JointSilence {
             let sd = self.noise_sd;
             return normal::ln_interval_mass((-half - mu[0]) / sd, (half - mu[0]) / sd);
         }
-        let count = self
-            .draws
-            .chunks_exact(self.rows)
-            .filter(|w| {
-                self.regions
-                    .iter()
-                    .all(|region| region.inside(&mu, w, self.threshold))
-            })
-            .count();
+        let count = self.count_inside(&mu);
         // Half a draw keeps a state no draw supports from a weight of zero.
-        let draws = (self.draws.len() / self.rows) as f64;
-        ((count as f64 + 0.5) / (draws + 1.0)).ln()
+        ((count as f64 + 0.5) / (self.draws as f64 + 1.0)).ln()
+    }
+
+    /// The draws that every region holds, with the innovations' mean `mu`.
+    fn count_inside(&self, mu: &[f64; MAX_ROWS]) -> usize {
+        #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
+        unsafe fn avx2(s: &JointSilence, mu: &[f64; MAX_ROWS]) -> usize {
+            s.count_blocks(mu)
+        }
+        if crate::batch::has_avx2() {
+            // SAFETY: the CPU has AVX2.
+            unsafe { avx2(self, mu) }
+        } else {
+            self.count_blocks(mu)
+        }
+    }
+
+    #[inline(always)]
+    fn count_blocks(&self, mu: &[f64; MAX_ROWS]) -> usize {
+        let mut count = 0;
+        for at in (0..self.padded).step_by(LANES) {
+            let mut inside = [true; LANES];
+            for region in &self.regions {
+                region.keep_inside(mu, &self.columns, self.padded, at, self.threshold, &mut inside);
+            }
+            count += inside.iter().filter(|&&b| b).count();
+        }
+        count
     }
 }
 
@@ -638,5 +678,61 @@ mod tests {
             );
             assert!((a - b).abs() < 0.01, "x = {x}: {a} vs {b}");
         }
+    }
+
+    /// The count a block of draws at a time is the count draw by draw, for
+    /// silent sensors of one and of two components and a number of draws
+    /// that does not fill the last block.
+    #[test]
+    fn the_blocked_count_is_the_count_draw_by_draw() {
+        let f = DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]);
+        let q = 4.0 * DMatrix::from_row_slice(2, 2, &[0.25, 0.5, 0.5, 1.0]);
+        let scalar = (
+            DMatrix::from_row_slice(1, 2, &[1.0, 0.0]),
+            DMatrix::from_element(1, 1, 1.0),
+        );
+        let pair = (
+            DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.5, 1.0]),
+            DMatrix::from_row_slice(2, 2, &[1.0, 0.3, 0.3, 2.0]),
+        );
+        let mut law = LocalPredictions::new(
+            f,
+            q,
+            vec![scalar.clone(), pair, scalar],
+            DVector::from_vec(vec![0.0, 10.0]),
+            DMatrix::identity(2, 2),
+        );
+        law.predict();
+        let rule = CensoringRule::for_budget(1.5, 3, 1).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let silence = law.silence(&[0, 1, 2], &rule, 1003, &mut rng).unwrap();
+        let (rows, padded) = (silence.rows, silence.padded);
+        let mut partial = 0;
+        for x in [-4.0, 0.0, 3.0, 6.0, 8.0, 10.0, 12.0, 14.0, 25.0] {
+            let state = [x, 10.0];
+            let mut mu = [0.0; MAX_ROWS];
+            for (row, m) in mu.iter_mut().enumerate().take(rows) {
+                *m = (0..2).map(|c| silence.a[(row, c)] * state[c]).sum::<f64>() - silence.b[row];
+            }
+            let by_draw = (0..silence.draws)
+                .filter(|&d| {
+                    silence.regions.iter().all(|region| {
+                        let n = region.rows;
+                        let nu = |k: usize| mu[region.first + k] + silence.columns[(region.first + k) * padded + d];
+                        let mut q = 0.0;
+                        for i in 0..n {
+                            for j in 0..n {
+                                q += nu(i) * region.s_inv[i + j * n] * nu(j);
+                            }
+                        }
+                        q < silence.threshold
+                    })
+                })
+                .count();
+            let blocked = silence.count_inside(&mu);
+            assert_eq!(blocked, by_draw, "x = {x}");
+            partial += usize::from(by_draw > 0 && by_draw < silence.draws);
+        }
+        assert!(partial >= 3, "the states hold some draws and not others");
     }
 }

@@ -702,6 +702,36 @@ mod tests {
                 sigma: 0.5,
             }
             .at([250.0, 750.0]),
+            // The other whole exponents take their own branch of dⁿ, and
+            // a fractional one `powf`.
+            SensorLaw::Amplitude {
+                p0: 1e4,
+                alpha: 1e-2,
+                exponent: 1.0,
+                sigma: 0.5,
+            }
+            .at([250.0, 750.0]),
+            SensorLaw::Amplitude {
+                p0: 1e4,
+                alpha: 1e-4,
+                exponent: 3.0,
+                sigma: 0.5,
+            }
+            .at([250.0, 750.0]),
+            SensorLaw::Amplitude {
+                p0: 1e4,
+                alpha: 1e-4,
+                exponent: 4.0,
+                sigma: 0.5,
+            }
+            .at([250.0, 750.0]),
+            SensorLaw::Amplitude {
+                p0: 1e4,
+                alpha: 1e-4,
+                exponent: 2.5,
+                sigma: 0.5,
+            }
+            .at([250.0, 750.0]),
             SensorLaw::Linear {
                 h: [1.0, 0.5, -0.25, 2.0],
                 r: 4.0,
