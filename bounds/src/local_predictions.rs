@@ -418,7 +418,14 @@ impl JointSilence {
         for at in (0..self.padded).step_by(LANES) {
             let mut inside = [true; LANES];
             for region in &self.regions {
-                region.keep_inside(mu, &self.columns, self.padded, at, self.threshold, &mut inside);
+                region.keep_inside(
+                    mu,
+                    &self.columns,
+                    self.padded,
+                    at,
+                    self.threshold,
+                    &mut inside,
+                );
             }
             count += inside.iter().filter(|&&b| b).count();
         }
@@ -718,7 +725,9 @@ mod tests {
                 .filter(|&d| {
                     silence.regions.iter().all(|region| {
                         let n = region.rows;
-                        let nu = |k: usize| mu[region.first + k] + silence.columns[(region.first + k) * padded + d];
+                        let nu = |k: usize| {
+                            mu[region.first + k] + silence.columns[(region.first + k) * padded + d]
+                        };
                         let mut q = 0.0;
                         for i in 0..n {
                             for j in 0..n {
