@@ -2,7 +2,6 @@
 //! observation, with the centralized conditional PCRLB. The distributed
 //! bound is judged against it.
 
-use bounds::BoundError;
 use fusion_graph::scenario::Scenario;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use wire::{Message, Payload};
@@ -48,8 +47,12 @@ impl CentralizedReference {
         }
     }
 
-    /// Runs the step with what was collected: estimate and centralized bound.
-    pub fn finish_step(&mut self) -> Result<LocalUpdate, BoundError> {
+    /// Runs the step with what was collected: estimate and centralized
+    /// bound. A step that fails (its bound's information no longer
+    /// positive definite, say) is logged and gives nothing, as a node's
+    /// does: the reference goes on to the next step rather than ending
+    /// the run it is only a yardstick for.
+    pub fn finish_step(&mut self) -> Option<LocalUpdate> {
         self.received.sort_by_key(|o| o.sensor);
         let update = self.filter.update(
             &self.model,
@@ -62,5 +65,9 @@ impl CentralizedReference {
         self.received.clear();
         self.step += 1;
         update
+            .inspect_err(|e| {
+                tracing::error!(step = self.step, error = %e, "centralized reference step failed; no row for it");
+            })
+            .ok()
     }
 }
