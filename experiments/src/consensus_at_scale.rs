@@ -226,8 +226,8 @@ fn fault_matrix(
 /// 10 × 10 grid is 100 node filters and their bounds for 100 steps, and
 /// one run of every arm costs more than two minutes of a core; every
 /// claim holds at the default 20's 7 runs with room to spare: the widest
-/// paired interval, the fault matrix's delay on 30 % of links, is ±0.09 m
-/// at 10 runs against a margin of 0.26 m.
+/// paired interval, the fault matrix's delay on 30 % of links, is ±0.092 m
+/// against a margin of 0.27 m.
 fn runs(options: &Options) -> u32 {
     options.runs.div_ceil(3).max(2)
 }
