@@ -373,7 +373,8 @@ pub struct JointSilence {
     noise_sd: f64,
     regions: Vec<Region>,
     /// Draws of `N(0, T)`, component by component: component k of draw d
-    /// at `k·padded + d`, the `padded − draws` past the last NaN.
+    /// at `k·padded + d`, and each component's last `padded − draws`
+    /// entries NaN.
     columns: Vec<f64>,
     draws: usize,
     padded: usize,
