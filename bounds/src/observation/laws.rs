@@ -151,11 +151,12 @@ impl Amplitude {
         }
     }
 
-    /// `g` and `dⁿ`.
+    /// `g`, `dⁿ` and `1 + α dⁿ`.
     #[inline]
-    fn amplitude(&self, d2: f64) -> (f64, f64) {
+    fn amplitude(&self, d2: f64) -> (f64, f64, f64) {
         let dn = self.distance_power(d2);
-        ((self.p0 / (1.0 + self.alpha * dn)).sqrt(), dn)
+        let denom = 1.0 + self.alpha * dn;
+        ((self.p0 / denom).sqrt(), dn, denom)
     }
 }
 
@@ -163,10 +164,10 @@ impl ObservationLaw for Amplitude {
     #[inline]
     fn evaluate(&self, sensor: [f64; 2], x: &State) -> Evaluation {
         let (dx, dy, d2) = offset(x, sensor);
-        let (g, dn) = self.amplitude(d2);
+        let (g, dn, denom) = self.amplitude(d2);
         // ∂g/∂p = ∂g/∂d · (p − X)/d, ∂g/∂d = −g α n d^{n−1} / (2 (1 + α dⁿ)):
         // together −g α n dⁿ / (2 (1 + α dⁿ) d²) · (p − X).
-        let k = -g * self.alpha * self.exponent * dn / (2.0 * (1.0 + self.alpha * dn) * d2);
+        let k = -g * self.alpha * self.exponent * dn / (2.0 * denom * d2);
         Evaluation {
             g,
             grad_g: State::new(k * dx, k * dy, 0.0, 0.0),
