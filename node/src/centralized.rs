@@ -6,6 +6,7 @@ use fusion_graph::scenario::Scenario;
 use fusion_graph::{stream_rng, ActorId, Stream, Topology};
 use wire::{Message, Payload};
 
+use crate::collector::in_range;
 use crate::estimator::{LocalFilter, LocalUpdate, Observation, ObservedValue, SensingModel};
 use crate::NodeError;
 
@@ -31,7 +32,10 @@ impl CentralizedReference {
         })
     }
 
-    /// Collects an observation message of the current step.
+    /// Collects an observation message of the current step: the first
+    /// from each sensor. One from a sensor the network does not have, or of
+    /// a cell its quantizer does not have, is dropped, as a node drops it:
+    /// the message decoded, but its values are the sender's word.
     pub fn observe(&mut self, message: &Message) {
         let ActorId::Sensor(sensor) = message.header.sender else {
             return;
@@ -41,6 +45,15 @@ impl CentralizedReference {
             Payload::RawObservation { value } => ObservedValue::Raw(value),
             _ => return,
         };
+        let cells = self.model.quantizer.as_ref().map(|q| q.cells());
+        if usize::from(sensor) >= self.model.sensors.len() || !in_range(value, cells) {
+            tracing::debug!(
+                sensor,
+                ?value,
+                "observation out of range; the centralized reference drops it"
+            );
+            return;
+        }
         if message.header.step == self.step + 1 && !self.received.iter().any(|o| o.sensor == sensor)
         {
             self.received.push(Observation { sensor, value });
@@ -69,5 +82,45 @@ impl CentralizedReference {
                 tracing::error!(step = self.step, error = %e, "centralized reference step failed; no row for it");
             })
             .ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_graph::scenario::DEFAULT_SCENARIO;
+
+    fn reference() -> CentralizedReference {
+        let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap();
+        let topology = Topology::from_scenario(&scenario, "default").unwrap();
+        CentralizedReference::new(&scenario, &topology).unwrap()
+    }
+
+    fn observation(sensor: u16, cell: u32) -> Message {
+        Message::new(ActorId::Sensor(sensor), 1, 0, Payload::Observation { cell })
+    }
+
+    /// A cell the quantizer does not have and a sensor the network does
+    /// not have are dropped: the step is the one that heard nothing, to
+    /// the bit, where they would otherwise have indexed past the models.
+    #[test]
+    fn an_observation_out_of_range_is_dropped() {
+        let mut heard_garbage = reference();
+        let cells = heard_garbage.model.quantizer.as_ref().unwrap().cells() as u32;
+        let sensors = heard_garbage.model.sensors.len() as u16;
+        heard_garbage.observe(&observation(0, cells));
+        heard_garbage.observe(&observation(0, u32::MAX));
+        heard_garbage.observe(&observation(sensors, 0));
+        heard_garbage.observe(&observation(u16::MAX, 0));
+        assert!(heard_garbage.received.is_empty());
+        let garbage = heard_garbage.finish_step().unwrap();
+        let nothing = reference().finish_step().unwrap();
+        assert_eq!(garbage.estimate, nothing.estimate);
+        assert_eq!(garbage.bound, nothing.bound);
+
+        // An observation in range is taken.
+        let mut heard = reference();
+        heard.observe(&observation(sensors - 1, cells - 1));
+        assert_eq!(heard.received.len(), 1);
     }
 }

@@ -28,7 +28,7 @@ pub struct Collected {
 }
 
 /// Whether a cell index is one the quantizer has (raw values always are).
-fn in_range(value: ObservedValue, cells: Option<usize>) -> bool {
+pub(crate) fn in_range(value: ObservedValue, cells: Option<usize>) -> bool {
     match (value, cells) {
         (ObservedValue::Cell(c), Some(cells)) => (c as usize) < cells,
         _ => true,
