@@ -123,4 +123,26 @@ mod tests {
         heard.observe(&observation(sensors - 1, cells - 1));
         assert_eq!(heard.received.len(), 1);
     }
+
+    /// A step whose bound fails (here the information made indefinite)
+    /// gives no row, and the reference goes on: the next step's
+    /// observations are taken, and once its information is sound again
+    /// it gives rows.
+    #[test]
+    fn a_failed_step_gives_no_row_and_the_next_goes_on() {
+        let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap();
+        let prior = scenario.network_prior(&scenario.models().unwrap());
+        let mut r = reference();
+        r.filter.reset(&prior, bounds::Mat4::identity() * -1e15);
+        r.observe(&observation(0, 0));
+        assert!(r.finish_step().is_none());
+
+        let next = Message::new(ActorId::Sensor(0), 2, 0, Payload::Observation { cell: 0 });
+        r.observe(&next);
+        assert_eq!(r.received.len(), 1, "step 2's observation is taken");
+        r.filter
+            .reset(&prior, prior.cov.try_inverse().expect("the prior's covariance"));
+        let update = r.finish_step().expect("a sound step gives a row");
+        assert!(update.bound.is_some_and(f64::is_finite));
+    }
 }

@@ -3,6 +3,7 @@ Ctrl-C between steps."""
 
 import _thread
 import json
+import signal
 import subprocess
 import threading
 
@@ -72,6 +73,11 @@ def test_several_runs_average_their_seeds(tmp_out):
 
 def test_ctrl_c_stops_a_sim_between_steps(tmp_out):
     s = small_scenario(steps=1_000_000)
+    # A process started in the background by a shell without job control
+    # inherits SIGINT ignored, and then `interrupt_main` does nothing and
+    # the sim would run its million steps: Ctrl-C is made Python's own
+    # for the test.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(1.0, _thread.interrupt_main)
     timer.start()
     try:
@@ -79,6 +85,7 @@ def test_ctrl_c_stops_a_sim_between_steps(tmp_out):
             cqnet.sim(s, out=tmp_out, progress=False)
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     written = (tmp_out / "ticks.csv").read_text().splitlines()
     assert 1 < len(written) < 1_000_000 * 3
 
