@@ -140,8 +140,10 @@ mod tests {
         let next = Message::new(ActorId::Sensor(0), 2, 0, Payload::Observation { cell: 0 });
         r.observe(&next);
         assert_eq!(r.received.len(), 1, "step 2's observation is taken");
-        r.filter
-            .reset(&prior, prior.cov.try_inverse().expect("the prior's covariance"));
+        r.filter.reset(
+            &prior,
+            prior.cov.try_inverse().expect("the prior's covariance"),
+        );
         let update = r.finish_step().expect("a sound step gives a row");
         assert!(update.bound.is_some_and(f64::is_finite));
     }
