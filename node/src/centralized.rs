@@ -90,8 +90,12 @@ mod tests {
     use super::*;
     use fusion_graph::scenario::DEFAULT_SCENARIO;
 
+    fn default_scenario() -> Scenario {
+        Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap()
+    }
+
     fn reference() -> CentralizedReference {
-        let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap();
+        let scenario = default_scenario();
         let topology = Topology::from_scenario(&scenario, "default").unwrap();
         CentralizedReference::new(&scenario, &topology).unwrap()
     }
@@ -130,7 +134,7 @@ mod tests {
     /// it gives rows.
     #[test]
     fn a_failed_step_gives_no_row_and_the_next_goes_on() {
-        let scenario = Scenario::from_toml(DEFAULT_SCENARIO, "default", &[]).unwrap();
+        let scenario = default_scenario();
         let prior = scenario.network_prior(&scenario.models().unwrap());
         let mut r = reference();
         r.filter.reset(&prior, bounds::Mat4::identity() * -1e15);
