@@ -26,6 +26,7 @@ pub mod preflight;
 pub mod progress;
 pub mod results;
 pub mod sim;
+pub mod spawner;
 pub mod summary;
 pub mod supervisor;
 pub mod usage;

@@ -4,8 +4,11 @@
 //! and at the end stops and reaps every child, whatever happened.
 
 use std::collections::{HashMap, VecDeque};
+use std::ffi::OsString;
+use std::os::fd::OwnedFd;
+use std::os::unix::process::ExitStatusExt;
 use std::path::PathBuf;
-use std::process::Stdio;
+use std::process::ExitStatus;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -13,6 +16,9 @@ use fusion_graph::scenario::Signal;
 use fusion_graph::ActorId;
 use nix::sys::signal::{kill, Signal as NixSignal};
 use nix::unistd::Pid;
+
+use crate::spawner::{Spawned, Spawner};
+use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::signal::unix::{signal as unix_signal, SignalKind};
 use tokio::sync::mpsc::UnboundedReceiver;
@@ -191,6 +197,9 @@ pub async fn supervise(
     events: std::sync::mpsc::Sender<Event>,
 ) {
     let mut children: HashMap<ActorId, Child> = HashMap::new();
+    // Dropped after every child is reaped: children die with the thread
+    // that started them.
+    let spawner = Spawner::start();
     // SIGTERM (what `timeout`, systemd and CI send) and SIGHUP (a closed
     // terminal) stop a run exactly as Ctrl-C does: children stopped and
     // reaped, shared memory removed, results written.
@@ -214,7 +223,11 @@ pub async fn supervise(
         };
         match command {
             Some(Command::Spawn { actor, rejoin }) => {
-                match spawn(&spec, actor, rejoin, events.clone()) {
+                let started = spawner
+                    .as_ref()
+                    .map_err(|e| std::io::Error::new(e.kind(), format!("no spawner thread: {e}")))
+                    .and_then(|spawner| spawn(spawner, &spec, actor, rejoin, events.clone()));
+                match started {
                     Ok(child) => {
                         children.insert(actor, child);
                     }
@@ -278,40 +291,44 @@ async fn reap_all(children: &mut HashMap<ActorId, Child>) {
 }
 
 fn spawn(
+    spawner: &Spawner,
     spec: &ChildSpec,
     actor: ActorId,
     rejoin: bool,
     events: std::sync::mpsc::Sender<Event>,
 ) -> std::io::Result<Child> {
-    let mut cmd = tokio::process::Command::new(&spec.program.program);
-    cmd.args(&spec.program.leading_args)
-        .arg("actor")
-        .arg("--run-id")
-        .arg(&spec.run_id)
-        .arg("--actor")
-        .arg(actor.to_string())
-        .arg("--scenario")
-        .arg(&spec.scenario_file);
+    let mut args = spec.program.leading_args.clone();
+    args.extend(
+        [
+            "actor",
+            "--run-id",
+            &spec.run_id,
+            "--actor",
+            &actor.to_string(),
+            "--scenario",
+        ]
+        .map(OsString::from),
+    );
+    args.push(spec.scenario_file.clone().into());
     if spec.centralized {
-        cmd.arg("--centralized");
+        args.push("--centralized".into());
     }
     if rejoin {
-        cmd.arg("--rejoin");
+        args.push("--rejoin".into());
     }
     // One pipe for the child's stdout and stderr: the launcher holds one
     // descriptor per child for its output instead of two, and opens its
     // log file only when it has something to say. At 2,600 children the
     // launcher's descriptors are what limits the network (ulimit -n).
-    let (output, child_output) = std::io::pipe()?;
-    cmd.stdin(Stdio::null())
-        .stdout(Stdio::from(child_output.try_clone()?))
-        .stderr(Stdio::from(child_output))
-        .kill_on_drop(true);
-    let mut child = cmd.spawn()?;
-    // The write ends must close here, or the reader never sees the end.
-    drop(cmd);
-    let pid = child.id();
-    let output = tokio::net::unix::pipe::Receiver::from_owned_fd(output.into())?;
+    let Spawned { pid, output, pidfd } = spawner
+        .spawn(spec.program.program.clone(), args)
+        .map_err(|e| {
+            std::io::Error::new(e.kind(), format!("{}: {e}", spec.program.program.display()))
+        })?;
+    // Killed and reaped if the supervisor goes before it has waited for it.
+    let exit = ExitWatch::new(pid, pidfd)?;
+    let pid = Some(pid);
+    let output = tokio::net::unix::pipe::Receiver::from_owned_fd(output)?;
     let tail = Arc::new(Mutex::new(VecDeque::new()));
     let (done_tx, done_rx) = tokio::sync::watch::channel(false);
 
@@ -346,7 +363,7 @@ fn spawn(
     });
     let exit_tail = tail.clone();
     tokio::spawn(async move {
-        let status = child
+        let status = exit
             .wait()
             .await
             .map_or_else(|e| format!("wait failed: {e}"), |s| s.to_string());
@@ -367,4 +384,59 @@ fn spawn(
         });
     });
     Ok(Child { pid, done: done_rx })
+}
+
+/// A child's exit, watched through its pidfd. A child not yet waited for
+/// when this is dropped (the supervisor gone) is killed and reaped.
+struct ExitWatch {
+    pid: u32,
+    pidfd: AsyncFd<OwnedFd>,
+    reaped: bool,
+}
+
+impl ExitWatch {
+    fn new(pid: u32, pidfd: OwnedFd) -> std::io::Result<Self> {
+        // SAFETY: the AsyncFd owns the OwnedFd, which stays open and the same
+        // descriptor until the AsyncFd is dropped.
+        let pidfd =
+            unsafe { AsyncFd::register_with_interest(pidfd, tokio::io::Interest::READABLE) }
+                .map_err(std::io::Error::from)?;
+        Ok(Self {
+            pid,
+            pidfd,
+            reaped: false,
+        })
+    }
+
+    async fn wait(mut self) -> std::io::Result<ExitStatus> {
+        // Readable once the child has exited: the wait below returns at once.
+        let _exited = self.pidfd.readable().await?;
+        let status = wait_for_exit(self.pid)?;
+        self.reaped = true;
+        Ok(status)
+    }
+}
+
+impl Drop for ExitWatch {
+    fn drop(&mut self) {
+        if !self.reaped {
+            let _ = kill(Pid::from_raw(self.pid as i32), NixSignal::SIGKILL);
+            let _ = wait_for_exit(self.pid);
+        }
+    }
+}
+
+/// Reaps child `pid`, waiting for it to exit.
+fn wait_for_exit(pid: u32) -> std::io::Result<ExitStatus> {
+    let mut status = 0;
+    loop {
+        // SAFETY: waitpid writes the status of our own child `pid`.
+        if unsafe { libc::waitpid(pid as i32, &mut status, 0) } == pid as i32 {
+            return Ok(ExitStatus::from_raw(status));
+        }
+        let e = std::io::Error::last_os_error();
+        if e.kind() != std::io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
 }
