@@ -265,6 +265,7 @@ fn run(cli: Cli, vocabulary: Vocabulary) -> anyhow::Result<()> {
                 view: None,
                 local_agents: args.local_agents,
                 stop: None,
+                cores: args.cores,
             };
             let view = args
                 .view
@@ -358,6 +359,7 @@ fn soak(args: &SoakArgs, vocabulary: Vocabulary) -> anyhow::Result<()> {
         view: None,
         local_agents: false,
         stop: None,
+        cores: launch::cores::Cores::Auto,
     };
     let result = launch::network::run_network(&scenario, &topology, options, move |p| {
         if let RunProgress::Step { step: s, rows } = p {

@@ -143,6 +143,11 @@ pub struct RunArgs {
     /// machine (simulated hosts) instead of reaching agents already running.
     #[arg(long)]
     pub local_agents: bool,
+    /// Place each node with its sensors on one core, by parts of the fusion
+    /// graph, when there are more nodes than cores (`auto`); or leave every
+    /// process to the kernel (`off`).
+    #[arg(long, value_enum, default_value_t = launch::cores::Cores::Auto)]
+    pub cores: launch::cores::Cores,
 }
 
 #[derive(Debug, Args)]

@@ -583,6 +583,7 @@ fn measure(scenario: &Scenario, topology: &Topology, out: &Path) -> anyhow::Resu
         view: None,
         local_agents: false,
         stop: None,
+        cores: launch::cores::Cores::Auto,
     };
     let summary = launch::network::run_network(scenario, topology, options, |_| {})?;
     let links = links_csv(out);

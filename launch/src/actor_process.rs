@@ -72,6 +72,13 @@ pub fn run_actor(args: &ActorArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
     }
     .context("ignoring SIGINT")?;
     let actor: ActorId = args.actor.parse().map_err(anyhow::Error::msg)?;
+    if let Some(core) = args.core {
+        // Before anything else: start-up's work is on the core too. A core
+        // refused (taken away since the launcher looked) costs only time.
+        if let Err(e) = crate::cores::pin_to(core) {
+            tracing::warn!(core, error = %e, "running on any core");
+        }
+    }
     if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {
         anyhow::bail!("failing at start as {FAIL_AT_START_ENV} asks");
     }
@@ -464,6 +471,9 @@ pub struct ActorArgs {
     /// dead predecessor left.
     #[arg(long)]
     pub rejoin: bool,
+    /// The core to run on (see `launch::cores`).
+    #[arg(long)]
+    pub core: Option<usize>,
 }
 
 /// Loads the scenario file a launcher wrote for its children.

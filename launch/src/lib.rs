@@ -16,6 +16,7 @@
 //! - `hosts` (`--features zenoh`): agents and bridges between hosts.
 
 pub mod actor_process;
+pub mod cores;
 pub mod drive;
 pub mod feed;
 #[cfg(feature = "zenoh")]

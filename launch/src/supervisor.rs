@@ -176,6 +176,8 @@ pub struct ChildSpec {
     pub scenario_file: PathBuf,
     pub log_dir: PathBuf,
     pub centralized: bool,
+    /// Which core each actor runs on, if the run places them.
+    pub cores: Option<crate::cores::CorePlacement>,
 }
 
 struct Child {
@@ -315,6 +317,9 @@ fn spawn(
     }
     if rejoin {
         args.push("--rejoin".into());
+    }
+    if let Some(core) = spec.cores.as_ref().and_then(|c| c.core_of(actor)) {
+        args.extend(["--core".into(), core.to_string().into()]);
     }
     // One pipe for the child's stdout and stderr: the launcher holds one
     // descriptor per child for its output instead of two, and opens its

@@ -237,6 +237,7 @@ fn start_run(
             view: None,
             local_agents: false,
             stop: Some(shared.stop.clone()),
+            cores: launch::cores::Cores::Auto,
         };
         let steps = s.steps as u64;
         let reporter = shared.clone();

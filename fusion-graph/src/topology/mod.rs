@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 mod layout;
 mod mixing;
+mod partition;
 
 pub use mixing::Mixing;
 

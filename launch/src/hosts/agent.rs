@@ -269,6 +269,9 @@ impl Agent<'_> {
             scenario_file,
             log_dir: dir.join("logs"),
             centralized,
+            // A host's own cores are its business: its actors are left to
+            // its scheduler.
+            cores: None,
         };
         let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
         let (event_tx, events) = mpsc::channel();

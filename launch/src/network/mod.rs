@@ -104,6 +104,10 @@ pub fn run_network(
         scenario_file,
         log_dir: options.out.join("logs"),
         centralized: options.centralized,
+        cores: placement
+            .is_none()
+            .then(|| crate::cores::CorePlacement::for_network(topology, options.cores))
+            .flatten(),
     };
     let (command_tx, command_rx) = tokio::sync::mpsc::unbounded_channel();
     let (event_tx, event_rx) = std::sync::mpsc::channel();

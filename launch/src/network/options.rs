@@ -22,6 +22,8 @@ pub struct RunOptions {
     /// Set by the caller to stop the run as Ctrl-C does: children stopped
     /// and reaped, shared memory removed, the results so far written.
     pub stop: Option<Arc<AtomicBool>>,
+    /// Whether to place the processes on cores (see [`crate::cores`]).
+    pub cores: crate::cores::Cores,
 }
 
 /// What the launcher tells its caller as the run goes.

@@ -1,0 +1,161 @@
+//! Which core each process of a network runs on.
+//!
+//! A network with more nodes than the machine has cores is placed by parts
+//! of its fusion graph (`Topology::core_parts`): each node and its sensors
+//! (and its multiple-access channel) on one core, neighbours mostly on the
+//! same one, so that a consensus round's wake-ups seldom cross between
+//! cores. The launcher decides; each actor pins itself at start (`--core`).
+
+use std::sync::Arc;
+
+use fusion_graph::topology::Topology;
+use fusion_graph::ActorId;
+
+/// Whether a run places its processes on cores.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Cores {
+    /// By parts of the fusion graph when there are more nodes than cores.
+    #[default]
+    Auto,
+    /// Leave every process to the kernel's scheduler.
+    Off,
+}
+
+/// The core of each node, and through it of each sensor and channel.
+#[derive(Debug, Clone)]
+pub struct CorePlacement {
+    node_core: Vec<usize>,
+    sensor_owner: Arc<[u16]>,
+}
+
+impl CorePlacement {
+    /// The placement of `topology` on the cores this process may run on;
+    /// none when `cores` is off, when there is only one core, or when every
+    /// node can have a core to itself (the scheduler then does as well).
+    pub fn for_network(topology: &Topology, cores: Cores) -> Option<Self> {
+        if cores == Cores::Off {
+            return None;
+        }
+        let allowed = allowed_cores();
+        if allowed.len() < 2 || topology.nodes() <= allowed.len() {
+            return None;
+        }
+        let node_core = topology
+            .core_parts(allowed.len())
+            .into_iter()
+            .map(|part| allowed[part])
+            .collect();
+        Some(Self {
+            node_core,
+            sensor_owner: topology.sensor_owner.clone(),
+        })
+    }
+
+    pub fn core_of(&self, actor: ActorId) -> Option<usize> {
+        let node = match actor {
+            ActorId::Node(n) | ActorId::Mac(n) => n,
+            ActorId::Sensor(s) => *self.sensor_owner.get(s as usize)?,
+            ActorId::Launcher => return None,
+        };
+        self.node_core.get(node as usize).copied()
+    }
+}
+
+/// The cores this process may run on (its affinity), in increasing order.
+pub fn allowed_cores() -> Vec<usize> {
+    // SAFETY: an all-zero cpu_set_t is the empty set; sched_getaffinity
+    // writes at most its size.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    let got = unsafe { libc::sched_getaffinity(0, std::mem::size_of_val(&set), &mut set) };
+    if got != 0 {
+        return Vec::new();
+    }
+    (0..libc::CPU_SETSIZE as usize)
+        // SAFETY: CPU_ISSET reads the set within its size.
+        .filter(|&c| unsafe { libc::CPU_ISSET(c, &set) })
+        .collect()
+}
+
+/// Pins the calling process (every thread it starts after) to `core`.
+pub fn pin_to(core: usize) -> std::io::Result<()> {
+    if core >= libc::CPU_SETSIZE as usize {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!(
+                "core {core} is beyond the {} a CPU set holds",
+                libc::CPU_SETSIZE
+            ),
+        ));
+    }
+    // SAFETY: as in `allowed_cores`; CPU_SET writes within the set.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    unsafe { libc::CPU_SET(core, &mut set) };
+    if unsafe { libc::sched_setaffinity(0, std::mem::size_of_val(&set), &set) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO};
+
+    fn topology(sets: &[&str]) -> Topology {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let s = Scenario::from_toml(DEFAULT_SCENARIO, "test", &sets).unwrap();
+        Topology::from_scenario(&s, "test").unwrap()
+    }
+
+    #[test]
+    fn off_places_nothing() {
+        assert!(CorePlacement::for_network(&topology(&[]), Cores::Off).is_none());
+    }
+
+    /// Every actor of a node is on its node's core, and the cores are the
+    /// ones this process may use.
+    #[test]
+    fn a_nodes_sensors_share_its_core() {
+        let t = topology(&[
+            "nodes.grid=[6,6]",
+            "region.width=3000",
+            "region.height=3000",
+        ]);
+        let allowed = allowed_cores();
+        let Some(p) = CorePlacement::for_network(&t, Cores::Auto) else {
+            // One core, or as many as nodes: nothing to place.
+            assert!(allowed.len() < 2 || allowed.len() >= t.nodes());
+            return;
+        };
+        for n in 0..t.nodes() as u16 {
+            let core = p.core_of(ActorId::Node(n)).unwrap();
+            assert!(allowed.contains(&core));
+            assert_eq!(p.core_of(ActorId::Mac(n)), Some(core));
+            for &s in &t.node_sensors[n as usize] {
+                assert_eq!(p.core_of(ActorId::Sensor(s)), Some(core));
+            }
+        }
+        assert_eq!(p.core_of(ActorId::Launcher), None);
+    }
+
+    /// Affinity is per thread on Linux: a thread of the test pins itself
+    /// and sees only its core, the rest of the test process untouched.
+    #[test]
+    fn a_pinned_thread_runs_on_its_core_alone() {
+        let allowed = allowed_cores();
+        let core = *allowed.last().expect("at least one core");
+        let seen = std::thread::spawn(move || {
+            pin_to(core).unwrap();
+            allowed_cores()
+        })
+        .join()
+        .unwrap();
+        assert_eq!(seen, vec![core]);
+        assert_eq!(allowed_cores(), allowed);
+    }
+
+    #[test]
+    fn a_core_beyond_the_set_is_an_error() {
+        assert!(pin_to(usize::MAX).is_err());
+    }
+}
