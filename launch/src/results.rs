@@ -35,7 +35,7 @@ impl TickRow {
     }
 }
 
-const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active,design,disagreement\n";
+const TICKS_HEADER: &str = "step,node,true_x,true_y,est_x,est_y,error,bound,local_bound,aux_bound,rounds,live_neighbours,observations,deadline_missed,spread,active,design,disagreement,short_rounds\n";
 
 /// A row of `ticks.csv` as read back (the live view's replay and the
 /// testkit read it; [`ResultsWriter`] writes it): a node's (or the
@@ -76,6 +76,9 @@ pub struct Tick {
     /// How far the node still was from its neighbours after its last
     /// consensus round, as a share (the protocol's measure).
     pub disagreement: Option<f64>,
+    /// Consensus rounds that ended at their deadline without a
+    /// neighbour's value they awaited.
+    pub short_rounds: u32,
     /// The row as written.
     pub line: String,
 }
@@ -121,6 +124,7 @@ impl Tick {
                 None => Vec::new(),
             },
             disagreement: num(17),
+            short_rounds: int(18)?,
             line: line.to_string(),
         })
     }
@@ -165,7 +169,7 @@ impl ResultsWriter {
             let t = &r.telemetry;
             writeln!(
                 self.ticks,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.step,
                 r.node,
                 r.truth[0],
@@ -191,7 +195,8 @@ impl ResultsWriter {
                     .map(|p| format!("{}", f64::from(*p) / 1e4))
                     .collect::<Vec<_>>()
                     .join(";"),
-                opt(t.disagreement)
+                opt(t.disagreement),
+                t.short_rounds
             )?;
         }
         self.ticks.flush()?;
@@ -530,6 +535,8 @@ impl<'w> Recorder<'w> {
                 if t.missed_neighbours > 0 {
                     self.cost.rounds_with_fewer_neighbours += 1;
                 }
+                self.cost.short_rounds += u64::from(t.short_rounds);
+                self.cost.node_steps_with_short_rounds += u64::from(t.short_rounds > 0);
             }
             self.averages.add(&r);
             self.series.add(&r);
@@ -566,7 +573,13 @@ impl<'w> Recorder<'w> {
             .sum();
         let (traffic, bound_traffic) = traffic(accounting, facts.steps_done.max(1));
         let means = self.series.means();
-        let timing_dependent = timing_dependent(&self.scenario, &facts.command);
+        let mut timing_dependent = timing_dependent(&self.scenario, &facts.command);
+        if self.cost.short_rounds > 0 {
+            timing_dependent.push(format!(
+                "{} consensus rounds in {} node-steps ended at their deadline without a neighbour's value",
+                self.cost.short_rounds, self.cost.node_steps_with_short_rounds
+            ));
+        }
         let summary = crate::summary::Summary {
             command: facts.command,
             run_id: facts.run_id,

@@ -97,6 +97,13 @@ pub struct FaultCost {
     /// step's deadline first).
     #[serde(default)]
     pub node_steps_without_choice: u64,
+    /// Consensus rounds that ended at their deadline without a
+    /// neighbour's value they awaited (a slow or lost neighbour), and the
+    /// node-steps they were in: results then depend on timing.
+    #[serde(default)]
+    pub short_rounds: u64,
+    #[serde(default)]
+    pub node_steps_with_short_rounds: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]

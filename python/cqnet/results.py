@@ -36,7 +36,9 @@ class Results:
       sensor's transmission probability, ``;``-separated; and the
       ``disagreement``: how far the node still was from its neighbours
       after its last consensus round, as a share (empty where its
-      protocol does not measure it).
+      protocol does not measure it); ``short_rounds``: consensus rounds
+      that ended at their deadline without a neighbour's value they
+      awaited.
     - ``links``: per directed link (``from``, ``to``) and message ``kind``,
       messages and bytes sent, received, dropped, malformed and duplicated.
     - ``summary``: ``summary.json`` as a dict, with its ``estimates``

@@ -25,7 +25,8 @@ enum Kind {
 fn kind_of(column: &str) -> Option<Kind> {
     Some(match column {
         "node" | "active" | "design" | "from" | "to" | "kind" => Kind::Text,
-        "step" | "rounds" | "live_neighbours" | "observations" | "deadline_missed" => Kind::Count,
+        "step" | "rounds" | "live_neighbours" | "observations" | "deadline_missed"
+        | "short_rounds" => Kind::Count,
         c if c.ends_with("_messages") || c.ends_with("_bytes") => Kind::Count,
         "true_x" | "true_y" | "est_x" | "est_y" | "error" | "bound" | "local_bound"
         | "aux_bound" | "spread" | "disagreement" => Kind::Float,

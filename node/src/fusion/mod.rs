@@ -72,6 +72,11 @@ pub struct RoundStats {
     /// for random exchange, those whose gossip targets the node for a
     /// push-sum. Hearing fewer is what a fault cost the step.
     pub neighbours_expected: u16,
+    /// Rounds that ended at their deadline without the value of a
+    /// neighbour they awaited. Each makes the step's result depend on
+    /// when messages arrived: `run --lockstep` equals `sim` only without
+    /// them.
+    pub short_rounds: u16,
     /// From the start to the result.
     pub total: Duration,
     /// From the end of round 1 to the result: the rounds' own latency, once

@@ -144,6 +144,8 @@ struct Running<V> {
     first_round_done: Option<Duration>,
     neighbours_heard: u16,
     neighbours_expected: u16,
+    /// Rounds so far completed without a neighbour they awaited.
+    short_rounds: u16,
     /// Round k is `offset + k` on the wire.
     offset: u16,
     /// Set once only neighbours on probation are missing: the round waits
@@ -290,6 +292,7 @@ impl<R: RoundRule> RoundEngine<R> {
             first_round_done: None,
             neighbours_heard: 0,
             neighbours_expected: 0,
+            short_rounds: 0,
             offset,
             grace_until: None,
         };
@@ -444,6 +447,9 @@ impl<R: RoundRule> RoundEngine<R> {
                 r.view[m as usize] = false;
             }
         }
+        if unheard > 0 {
+            r.short_rounds = r.short_rounds.saturating_add(1);
+        }
         let mut weights = self.topology.metropolis_weights(self.node, &present);
         weights.unheard = unheard;
         let last = r.round >= self.rounds;
@@ -478,6 +484,7 @@ impl<R: RoundRule> RoundEngine<R> {
                     rounds_completed: self.rounds,
                     neighbours_heard: r.neighbours_heard,
                     neighbours_expected: r.neighbours_expected,
+                    short_rounds: r.short_rounds,
                     total: now.saturating_sub(r.started),
                     later_rounds: r
                         .first_round_done
@@ -596,12 +603,13 @@ impl<R: RoundRule> FusionProtocol for RoundEngine<R> {
     /// Completes every remaining round with what has been heard. The
     /// result counts only the rounds that had run, not the ones cut short.
     fn finish_now(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> Option<R::Output> {
-        let cut_at = self.running.as_ref().map(|r| r.round - 1);
+        let cut_at = self.running.as_ref().map(|r| (r.round - 1, r.short_rounds));
         while self.running.is_some() {
             self.complete_round(now, out);
         }
-        if let (Some(done), Some(ran)) = (self.done.as_mut(), cut_at) {
+        if let (Some(done), Some((ran, short))) = (self.done.as_mut(), cut_at) {
             done.stats.rounds_completed = ran;
+            done.stats.short_rounds = short;
         }
         self.take_result()
     }
@@ -745,5 +753,43 @@ mod tests {
         e.handle_timeout(TIMEOUT * 2, &mut out);
         let done = e.finish_now(TIMEOUT * 2, &mut out).unwrap();
         assert_eq!(done.stats.rounds_completed, 2);
+        // Both ended at their deadline, with no neighbour heard.
+        assert_eq!(done.stats.short_rounds, 2);
+    }
+
+    /// A round ends short only when a neighbour's value misses its
+    /// deadline: with every value in time, no node has one; with node 5's
+    /// values late, its neighbours do.
+    #[test]
+    fn short_rounds_are_those_a_late_value_missed() {
+        let (t, _) = times_with_a_slow_node(true);
+        let value = |i: u16| InformationVector {
+            delta_eta: [i as f64; 4],
+            delta_lambda: [1.0; 10],
+            delta_l: [1.0; 10],
+            delta_l_late: [0.0; 10],
+            s_obs: None,
+        };
+        let run = |slow_ms: u64| {
+            let nodes: Vec<_> = (0..16)
+                .map(|i| average_consensus(i, &t, 12, TIMEOUT, false).stop_awaiting_the_late())
+                .collect();
+            let latency = move |from: u16, _: u16, _: &Payload| {
+                Fate::Deliver(Duration::from_millis(if from == SLOW {
+                    slow_ms
+                } else {
+                    1
+                }))
+            };
+            drive(nodes, value, &[true; 16], latency, Duration::from_secs(60))
+                .into_iter()
+                .map(|f| f.unwrap().stats.short_rounds)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(run(1), vec![0; 16], "every value in time");
+        let late = run(80);
+        for m in &t.neighbours[SLOW as usize] {
+            assert!(late[*m as usize] > 0, "node-{m} heard every late value");
+        }
     }
 }

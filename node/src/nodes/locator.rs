@@ -150,6 +150,10 @@ impl LocatorNode {
         s.stats.rounds_completed += summed.stats.rounds_completed;
         s.stats.neighbours_heard = summed.stats.neighbours_heard;
         s.stats.neighbours_expected = summed.stats.neighbours_expected;
+        s.stats.short_rounds = s
+            .stats
+            .short_rounds
+            .saturating_add(summed.stats.short_rounds);
         s.stats.total += summed.stats.total;
         s.stats.later_rounds += summed.stats.later_rounds;
         let information_phase = self.phases.len() - 1;

@@ -63,6 +63,7 @@ impl Report {
         self.telemetry.missed_neighbours = stats
             .neighbours_expected
             .saturating_sub(stats.neighbours_heard);
+        self.telemetry.short_rounds = stats.short_rounds;
         self.telemetry.disagreement = stats.disagreement.filter(|d| d.is_finite());
         self.stage(Stage::LaterRounds, stats.later_rounds)
             .stage(Stage::Consensus, stats.total)

@@ -19,6 +19,7 @@ pub fn examples() -> Vec<Message> {
         rounds_completed: 10,
         live_neighbours: 4,
         missed_neighbours: 1,
+        short_rounds: 2,
         observations: 3,
         gated: 1,
         lagged: 2,

@@ -48,6 +48,9 @@ pub struct Telemetry {
     /// Neighbours the fusion protocol expected in its last round but did
     /// not hear (what "fewer neighbours" means is the protocol's).
     pub missed_neighbours: u16,
+    /// Consensus rounds of the step that ended at their deadline without
+    /// a neighbour's value they awaited: the result then depends on timing.
+    pub short_rounds: u16,
     pub observations: u16,
     /// Observations the innovation gate left out.
     pub gated: u16,
@@ -101,6 +104,7 @@ impl Telemetry {
             rounds_completed: 0,
             live_neighbours: 0,
             missed_neighbours: 0,
+            short_rounds: 0,
             observations: 0,
             gated: 0,
             lagged: 0,
