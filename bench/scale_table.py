@@ -3,6 +3,8 @@ larger grids of the same spacing (235, 937 and 2,601 processes), each with
 the consensus rounds its fusion graph needs (`consensus.rounds = "auto"`,
 unless --rounds says), run by `sim`, by `run --lockstep` and by `run` at the
 scenario's clock (10 Hz), one run at a time. Prints a Markdown table.
+"Short rounds" are consensus rounds that ended at their deadline without a
+neighbour's value: a run with any depends on timing.
 
     python3 bench/scale_table.py [--cqnet target/release/cqnet] [--steps 100]
         [--sizes 235,937,2601] [--clocks lockstep,realtime] [--rounds auto]
@@ -74,6 +76,7 @@ def row(processes, clock, s, sim):
         f"{sim['steps_per_second']:.1f}{against_sim}",
         f"{s['deadline_misses']:,}",
         f"{reported:,} / {nodes * s['steps']:,}",
+        f"{s['fault_cost'].get('short_rounds', 0):,}",
         f"{s['estimates']['rmse']:.2f} / {s['estimates']['mean_bound']:.2f} m",
         f"{lat.get('p50', 0) / 1e3:.2f} / {lat.get('p99', 0) / 1e3:.2f} ms",
         f"{cpu.get('user_seconds', 0):.1f} / {cpu.get('system_seconds', 0):.1f} s",
@@ -115,11 +118,11 @@ def main():
                 rows.append(row(size, label, s, sim))
     print(
         "| processes | clock | rounds | start-up | steps/s | `sim` steps/s "
-        "| deadline misses | node-steps reported | RMSE / bound "
+        "| deadline misses | node-steps reported | short rounds | RMSE / bound "
         "| round p50 / p99 | children user / kernel CPU | context switches "
         "per step, voluntary / involuntary |"
     )
-    print("|" + "---|" * 12)
+    print("|" + "---|" * 13)
     for r in rows:
         print(r)
 

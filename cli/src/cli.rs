@@ -144,8 +144,8 @@ pub struct RunArgs {
     #[arg(long)]
     pub local_agents: bool,
     /// Place each node with its sensors on one core, by parts of the fusion
-    /// graph, when there are more nodes than cores (`auto`); or leave every
-    /// process to the kernel (`off`).
+    /// graph, when there are at least 16 nodes a core (`auto`); or leave
+    /// every process to the kernel (`off`).
     #[arg(long, value_enum, default_value_t = launch::cores::Cores::Auto)]
     pub cores: launch::cores::Cores,
 }

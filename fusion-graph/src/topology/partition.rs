@@ -1,5 +1,5 @@
 //! Parts of the fusion graph for the machine's cores: which core each
-//! node's processes run on when a network has more nodes than cores.
+//! node's processes run on when a network has many more nodes than cores.
 //!
 //! A consensus round wakes each node once per neighbour's value. A wake-up
 //! of a process that last ran on the other core costs an inter-processor
