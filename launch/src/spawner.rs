@@ -194,25 +194,23 @@ fn send_reply(socket: &OwnedFd, reply: io::Result<(u32, OwnedFd, OwnedFd)>) -> i
     let mut data = [0u8; REPLY_LEN];
     data[..4].copy_from_slice(&code.to_ne_bytes());
     data[4..].copy_from_slice(&pid.to_ne_bytes());
-    let mut iov = libc::iovec {
-        iov_base: data.as_mut_ptr().cast(),
-        iov_len: data.len(),
-    };
-    // SAFETY: all-zero is a valid msghdr and control buffer.
+    let mut iov = buffer(&mut data);
+    // SAFETY: all-zero is a valid control buffer.
     let mut control: Control = unsafe { std::mem::zeroed() };
-    let mut msg: libc::msghdr = unsafe { std::mem::zeroed() };
-    msg.msg_iov = &mut iov;
-    msg.msg_iovlen = 1;
+    let fd_bytes = std::mem::size_of_val(fds.as_slice());
+    // SAFETY: CMSG_SPACE is arithmetic.
+    let space = if fds.is_empty() {
+        0
+    } else {
+        unsafe { libc::CMSG_SPACE(fd_bytes as u32) as usize }
+    };
+    assert!(space <= std::mem::size_of::<Control>());
+    let msg = header(&mut iov, &mut control, space);
     if !fds.is_empty() {
-        let fd_bytes = std::mem::size_of_val(fds.as_slice());
-        // SAFETY: CMSG_SPACE/CMSG_LEN are arithmetic; the buffer holds
-        // CMSG_SPACE of two descriptors (checked), and CMSG_FIRSTHDR points
-        // into it because msg_controllen says so.
+        // SAFETY: the control buffer holds CMSG_SPACE of the descriptors
+        // (checked), and CMSG_FIRSTHDR points into it because
+        // msg_controllen says so.
         unsafe {
-            let space = libc::CMSG_SPACE(fd_bytes as u32) as usize;
-            assert!(space <= std::mem::size_of::<Control>());
-            msg.msg_control = (&raw mut control).cast();
-            msg.msg_controllen = space;
             let header = libc::CMSG_FIRSTHDR(&msg);
             (*header).cmsg_level = libc::SOL_SOCKET;
             (*header).cmsg_type = libc::SCM_RIGHTS;
@@ -224,45 +222,23 @@ fn send_reply(socket: &OwnedFd, reply: io::Result<(u32, OwnedFd, OwnedFd)>) -> i
             );
         }
     }
-    loop {
-        // SAFETY: msg points at live buffers for the duration of the call.
-        let sent = unsafe { libc::sendmsg(socket.as_raw_fd(), &msg, libc::MSG_NOSIGNAL) };
-        if sent >= 0 {
-            // The descriptors now travel in the message; ours close here.
-            drop(reply);
-            return Ok(());
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() != io::ErrorKind::Interrupted {
-            return Err(e);
-        }
-    }
+    // SAFETY: msg points at live buffers for the duration of the call.
+    retrying(|| unsafe { libc::sendmsg(socket.as_raw_fd(), &msg, libc::MSG_NOSIGNAL) })?;
+    // The descriptors now travel in the message; ours close here.
+    drop(reply);
+    Ok(())
 }
 
 fn receive_reply(socket: &OwnedFd) -> io::Result<Spawned> {
     let mut data = [0u8; REPLY_LEN];
-    let mut iov = libc::iovec {
-        iov_base: data.as_mut_ptr().cast(),
-        iov_len: data.len(),
-    };
-    // SAFETY: as in `send_reply`.
+    let mut iov = buffer(&mut data);
+    // SAFETY: all-zero is a valid control buffer.
     let mut control: Control = unsafe { std::mem::zeroed() };
-    let mut msg: libc::msghdr = unsafe { std::mem::zeroed() };
-    msg.msg_iov = &mut iov;
-    msg.msg_iovlen = 1;
-    msg.msg_control = (&raw mut control).cast();
-    msg.msg_controllen = std::mem::size_of::<Control>();
-    let received = loop {
-        // SAFETY: msg points at live buffers for the duration of the call.
-        let n = unsafe { libc::recvmsg(socket.as_raw_fd(), &mut msg, libc::MSG_CMSG_CLOEXEC) };
-        if n >= 0 {
-            break n as usize;
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() != io::ErrorKind::Interrupted {
-            return Err(e);
-        }
-    };
+    let mut msg = header(&mut iov, &mut control, std::mem::size_of::<Control>());
+    // SAFETY: msg points at live buffers for the duration of the call.
+    let received = retrying(|| unsafe {
+        libc::recvmsg(socket.as_raw_fd(), &mut msg, libc::MSG_CMSG_CLOEXEC)
+    })?;
     let mut fds = Vec::new();
     // SAFETY: the kernel filled the control buffer up to msg_controllen;
     // CMSG_FIRSTHDR/NXTHDR walk only that.
@@ -293,6 +269,41 @@ fn receive_reply(socket: &OwnedFd) -> io::Result<Spawned> {
         _ => Err(io::Error::other(
             "the spawner's reply came without its descriptors",
         )),
+    }
+}
+
+fn buffer(data: &mut [u8]) -> libc::iovec {
+    libc::iovec {
+        iov_base: data.as_mut_ptr().cast(),
+        iov_len: data.len(),
+    }
+}
+
+/// A message header over one buffer and the first `control_len` bytes of
+/// `control`.
+fn header(iov: &mut libc::iovec, control: &mut Control, control_len: usize) -> libc::msghdr {
+    // SAFETY: all-zero is a valid msghdr.
+    let mut msg: libc::msghdr = unsafe { std::mem::zeroed() };
+    msg.msg_iov = iov;
+    msg.msg_iovlen = 1;
+    if control_len > 0 {
+        msg.msg_control = (control as *mut Control).cast();
+        msg.msg_controllen = control_len;
+    }
+    msg
+}
+
+/// Makes a system call until a signal does not interrupt it.
+fn retrying(mut call: impl FnMut() -> isize) -> io::Result<usize> {
+    loop {
+        let n = call();
+        if n >= 0 {
+            return Ok(n as usize);
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
     }
 }
 

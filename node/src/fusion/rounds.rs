@@ -638,6 +638,18 @@ mod tests {
         Topology::from_scenario(&s, "grid").unwrap()
     }
 
+    /// Node i's value in the slow-node runs: its own, so that consensus
+    /// has something to agree on.
+    fn node_value(i: u16) -> InformationVector {
+        InformationVector {
+            delta_eta: [i as f64; 4],
+            delta_lambda: [1.0; 10],
+            delta_l: [1.0; 10],
+            delta_l_late: [0.0; 10],
+            s_obs: None,
+        }
+    }
+
     /// Each node's time from the start of 12 rounds of average consensus to
     /// its result, when everything node 5 sends takes 80 ms, longer than a
     /// round's 50 ms timeout.
@@ -653,17 +665,16 @@ mod tests {
                 }
             })
             .collect();
-        let value = |i: u16| InformationVector {
-            delta_eta: [i as f64; 4],
-            delta_lambda: [1.0; 10],
-            delta_l: [1.0; 10],
-            delta_l_late: [0.0; 10],
-            s_obs: None,
-        };
         let latency = |from: u16, _: u16, _: &Payload| {
             Fate::Deliver(Duration::from_millis(if from == SLOW { 80 } else { 1 }))
         };
-        let got = drive(nodes, value, &[true; 16], latency, Duration::from_secs(60));
+        let got = drive(
+            nodes,
+            node_value,
+            &[true; 16],
+            latency,
+            Duration::from_secs(60),
+        );
         let times = got
             .iter()
             .map(|f| f.as_ref().unwrap().stats.total)
@@ -762,14 +773,7 @@ mod tests {
     /// values late, its neighbours do.
     #[test]
     fn short_rounds_are_those_a_late_value_missed() {
-        let (t, _) = times_with_a_slow_node(true);
-        let value = |i: u16| InformationVector {
-            delta_eta: [i as f64; 4],
-            delta_lambda: [1.0; 10],
-            delta_l: [1.0; 10],
-            delta_l_late: [0.0; 10],
-            s_obs: None,
-        };
+        let t = grid();
         let run = |slow_ms: u64| {
             let nodes: Vec<_> = (0..16)
                 .map(|i| average_consensus(i, &t, 12, TIMEOUT, false).stop_awaiting_the_late())
@@ -781,10 +785,16 @@ mod tests {
                     1
                 }))
             };
-            drive(nodes, value, &[true; 16], latency, Duration::from_secs(60))
-                .into_iter()
-                .map(|f| f.unwrap().stats.short_rounds)
-                .collect::<Vec<_>>()
+            drive(
+                nodes,
+                node_value,
+                &[true; 16],
+                latency,
+                Duration::from_secs(60),
+            )
+            .into_iter()
+            .map(|f| f.unwrap().stats.short_rounds)
+            .collect::<Vec<_>>()
         };
         assert_eq!(run(1), vec![0; 16], "every value in time");
         let late = run(80);
