@@ -716,7 +716,81 @@ mod tests {
         assert!(recorder.reported.len() <= LATE_ROW_HORIZON as usize + 1);
         // Too late: step 1 is long past the horizon.
         recorder.record(vec![row(1, 0), row(10, 0)]).unwrap();
-        let facts = RunFacts {
+        let summary = recorder
+            .finish(&Accounting::default(), facts(steps))
+            .unwrap();
+        assert_eq!(summary.fault_cost.missing_node_steps, steps as u64 / 10);
+        let latency = summary.round_latency_micros.unwrap();
+        assert_eq!((latency.p50, latency.p99), (20.0, 20.0));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A lockstep run with a round that ended short is named as depending
+    /// on timing, its short rounds counted in the fault cost and written
+    /// to `ticks.csv`; one without is not.
+    #[test]
+    fn short_rounds_make_a_lockstep_run_depend_on_timing() {
+        let run = |short: &[(u32, u16, u16)], tag: &str| {
+            let dir =
+                std::env::temp_dir().join(format!("cqnet-short-{tag}-{}", std::process::id()));
+            let mut writer = ResultsWriter::create(&dir).unwrap();
+            let mut scenario = fusion_graph::Scenario::default_scenario();
+            scenario.faults.clear();
+            let topology = fusion_graph::Topology::from_scenario(&scenario, "d").unwrap();
+            let mut recorder = Recorder::new(&mut writer, &scenario, &topology);
+            for step in 1..=4 {
+                recorder.begin_step(step);
+                let rows = (0..topology.nodes() as u16)
+                    .map(|n| {
+                        let mut r = row(step, n);
+                        if let Some((_, _, k)) =
+                            short.iter().find(|(s, m, _)| *s == step && *m == n)
+                        {
+                            r.telemetry.short_rounds = *k;
+                        }
+                        r
+                    })
+                    .collect();
+                recorder.record(rows).unwrap();
+            }
+            let mut facts = facts(4);
+            facts.command = "run --lockstep".into();
+            let summary = recorder.finish(&Accounting::default(), facts).unwrap();
+            drop(writer);
+            let ticks: Vec<Tick> = std::fs::read_to_string(dir.join("ticks.csv"))
+                .unwrap()
+                .lines()
+                .skip(1)
+                .map(|l| Tick::parse(l).unwrap())
+                .collect();
+            let _ = std::fs::remove_dir_all(&dir);
+            (summary, ticks)
+        };
+        let (clean, _) = run(&[], "clean");
+        assert!(
+            clean.timing_dependent.is_empty(),
+            "{:?}",
+            clean.timing_dependent
+        );
+        assert_eq!(clean.fault_cost.short_rounds, 0);
+        let (short, ticks) = run(&[(2, 3, 2), (3, 3, 1), (3, 5, 1)], "short");
+        assert_eq!(short.fault_cost.short_rounds, 4);
+        assert_eq!(short.fault_cost.node_steps_with_short_rounds, 3);
+        assert_eq!(short.timing_dependent.len(), 1);
+        assert!(
+            short.timing_dependent[0].starts_with("4 consensus rounds in 3 node-steps"),
+            "{:?}",
+            short.timing_dependent
+        );
+        let node_3_step_2 = ticks
+            .iter()
+            .find(|t| t.step == 2 && t.node == "node-3")
+            .unwrap();
+        assert_eq!(node_3_step_2.short_rounds, 2);
+    }
+
+    fn facts(steps: u32) -> RunFacts {
+        RunFacts {
             command: "test".into(),
             run_id: "test".into(),
             steps_done: steps,
@@ -728,11 +802,6 @@ mod tests {
             children_cpu: None,
             real_time_rounds: true,
             unscheduled_faults: vec![],
-        };
-        let summary = recorder.finish(&Accounting::default(), facts).unwrap();
-        assert_eq!(summary.fault_cost.missing_node_steps, steps as u64 / 10);
-        let latency = summary.round_latency_micros.unwrap();
-        assert_eq!((latency.p50, latency.p99), (20.0, 20.0));
-        let _ = std::fs::remove_dir_all(&dir);
+        }
     }
 }

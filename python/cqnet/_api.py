@@ -106,6 +106,7 @@ def run(
     centralized: Optional[bool] = None,
     run_id: Optional[str] = None,
     progress: Optional[bool] = None,
+    cores: str = "auto",
 ) -> Results:
     """Runs the scenario as a network of real processes over iceoryx2
     shared memory, as ``cqnet run`` does: one process per node and per
@@ -113,7 +114,12 @@ def run(
     every byte counted.
 
     ``lockstep``: each step waits for every report instead of the clock,
-    which gives ``sim``'s results bit for bit. ``faults``: dicts as
+    which gives ``sim``'s results bit for bit unless a consensus round
+    ends at its deadline without a neighbour's value (``short_rounds`` in
+    ``ticks``; the summary's ``timing_dependent`` says so). ``cores``:
+    ``"auto"`` places each node with its sensors on one core when there are
+    16 nodes a core or more, ``"off"`` leaves them to the kernel.
+    ``faults``: dicts as
     ``[[faults]]`` tables, e.g. ``{"kind": "kill", "actor": "node-4",
     "at_step": 10, "signal": "SIGKILL", "restart_after": 5}``. Ctrl-C stops
     the run: its processes are stopped and reaped and its shared memory
@@ -122,7 +128,7 @@ def run(
     s = _prepared(scenario, seed, faults)
     folder = _out(out, "run")
     _cqnet.set_actor_program(*_actor_command())
-    job = _cqnet.start_run(s, str(folder), lockstep, centralized, run_id)
+    job = _cqnet.start_run(s, str(folder), lockstep, centralized, run_id, cores)
     summary = json.loads(follow(job, progress, "run"))
     return Results(folder, summary)
 

@@ -84,6 +84,7 @@ def start_run(
     lockstep: bool = False,
     centralized: Optional[bool] = None,
     run_id: Optional[str] = None,
+    cores: str = "auto",
 ) -> Job: ...
 def start_experiment(
     name: str,

@@ -212,14 +212,24 @@ fn start_sim(
 /// as [`set_actor_program`](crate::set_actor_program) said. The outcome is
 /// the summary.
 #[pyfunction]
-#[pyo3(signature = (scenario, out, lockstep = false, centralized = None, run_id = None))]
+#[pyo3(signature = (scenario, out, lockstep = false, centralized = None, run_id = None, cores = "auto"))]
 fn start_run(
     scenario: &PyScenario,
     out: PathBuf,
     lockstep: bool,
     centralized: Option<bool>,
     run_id: Option<String>,
+    cores: &str,
 ) -> PyResult<Job> {
+    let cores = match cores {
+        "auto" => launch::cores::Cores::Auto,
+        "off" => launch::cores::Cores::Off,
+        other => {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "cores: `{other}` is neither \"auto\" nor \"off\""
+            )))
+        }
+    };
     let topology = scenario.topology()?;
     let s = scenario.scenario.clone();
     let run_id = match run_id {
@@ -237,7 +247,7 @@ fn start_run(
             view: None,
             local_agents: false,
             stop: Some(shared.stop.clone()),
-            cores: launch::cores::Cores::Auto,
+            cores,
         };
         let steps = s.steps as u64;
         let reporter = shared.clone();

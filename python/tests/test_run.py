@@ -9,6 +9,7 @@ import textwrap
 import time
 
 import cqnet
+import pytest
 from conftest import processes_of, small_scenario
 
 LOSS = {
@@ -54,7 +55,13 @@ def test_lockstep_gives_sims_ticks_bit_for_bit(tmp_out, run_id):
     # A run writes each step's rows in the order they arrive.
     assert sorted_rows(r.out / "ticks.csv") == sorted_rows(sim.out / "ticks.csv")
     assert len(sorted_rows(r.out / "ticks.csv")) == 1 + 12 * 3
+    assert r.summary["fault_cost"]["short_rounds"] == 0
     assert processes_of(run_id) == []
+
+
+def test_cores_other_than_auto_or_off_is_refused(tmp_out, run_id):
+    with pytest.raises(ValueError, match="cores: `all`"):
+        cqnet.run(small_scenario(steps=1), out=tmp_out, run_id=run_id, cores="all")
 
 
 def sorted_rows(path):
