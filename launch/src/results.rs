@@ -576,7 +576,7 @@ impl<'w> Recorder<'w> {
         let mut timing_dependent = timing_dependent(&self.scenario, &facts.command);
         if self.cost.short_rounds > 0 {
             timing_dependent.push(format!(
-                "{} consensus rounds in {} node-steps ended at their deadline without a neighbour's value",
+                "{} consensus rounds in {} node-steps ended at their deadline without a neighbour's value (a larger consensus.round_timeout_ms waits for slow neighbours)",
                 self.cost.short_rounds, self.cost.node_steps_with_short_rounds
             ));
         }
