@@ -16,12 +16,12 @@ use fusion_graph::scenario::Signal;
 use fusion_graph::ActorId;
 use nix::sys::signal::{kill, Signal as NixSignal};
 use nix::unistd::Pid;
-
-use crate::spawner::{Spawned, Spawner};
 use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::signal::unix::{signal as unix_signal, SignalKind};
 use tokio::sync::mpsc::UnboundedReceiver;
+
+use crate::spawner::{Spawned, Spawner};
 
 /// Lines of a child's output kept for error messages (its stderr: its
 /// stdout carries only the `ready` line, which is not kept).
@@ -405,7 +405,12 @@ impl ExitWatch {
         // descriptor until the AsyncFd is dropped.
         let pidfd =
             unsafe { AsyncFd::register_with_interest(pidfd, tokio::io::Interest::READABLE) }
-                .map_err(std::io::Error::from)?;
+                .map_err(|e| {
+                    // Unwatchable: not left running.
+                    let _ = kill(Pid::from_raw(pid as i32), NixSignal::SIGKILL);
+                    let _ = wait_for_exit(pid);
+                    std::io::Error::from(e)
+                })?;
         Ok(Self {
             pid,
             pidfd,

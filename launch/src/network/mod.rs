@@ -104,6 +104,8 @@ pub fn run_network(
         scenario_file,
         log_dir: options.out.join("logs"),
         centralized: options.centralized,
+        // Over several hosts each agent starts its own actors, and leaves
+        // its cores to its host.
         cores: placement
             .is_none()
             .then(|| crate::cores::CorePlacement::for_network(topology, options.cores))
