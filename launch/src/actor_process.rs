@@ -138,6 +138,13 @@ pub fn run_actor(args: &ActorArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
                     .then(|| Duration::from_secs_f64(scenario.clock.step_period_ms / 1e3)),
             };
             let node = processing_node(&scenario, &topology, i, start)?;
+            if !args.rejoin {
+                // A neighbour's first values can come before this node reads
+                // its first `BeginStep`: they meet the first step's faults,
+                // as in `sim`, where every node has begun the step before any
+                // value of it is sent.
+                schedule.apply_link_faults(1, transport.me(), transport.shaper(), &topology);
+            }
             let pace = Pace {
                 idle: IDLE_WAIT,
                 spin: SPIN_BEFORE_SLEEP,

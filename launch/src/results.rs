@@ -575,8 +575,15 @@ impl<'w> Recorder<'w> {
         let means = self.series.means();
         let mut timing_dependent = timing_dependent(&self.scenario, &facts.command);
         if self.cost.short_rounds > 0 {
+            // With nothing else to blame, the neighbours were slow, and a
+            // longer timeout waits for them; lost values it cannot bring.
+            let hint = if timing_dependent.is_empty() {
+                " (a larger consensus.round_timeout_ms waits for slow neighbours)"
+            } else {
+                ""
+            };
             timing_dependent.push(format!(
-                "{} consensus rounds in {} node-steps ended at their deadline without a neighbour's value (a larger consensus.round_timeout_ms waits for slow neighbours)",
+                "{} consensus rounds in {} node-steps ended at their deadline without a neighbour's value{hint}",
                 self.cost.short_rounds, self.cost.node_steps_with_short_rounds
             ));
         }

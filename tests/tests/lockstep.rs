@@ -109,7 +109,8 @@ fn every_built_in_scenario_protocol_and_manager_runs_in_lockstep_as_sim_does() {
 }
 
 /// A message lost on purpose ends a wait by the clock: the run says in its
-/// summary that its results may depend on timing.
+/// summary that its results may depend on timing, and counts the rounds
+/// that ended without a lost value.
 #[test]
 fn a_scenario_that_loses_messages_says_lockstep_need_not_equal_sim() {
     let n = Network::from_file(scenario_file("default"))
@@ -126,6 +127,11 @@ fn a_scenario_that_loses_messages_says_lockstep_need_not_equal_sim() {
     let s = n.sim().unwrap();
     s.assert_success();
     let why = &s.summary().timing_dependent;
-    assert_eq!(why.len(), 1, "{why:?}");
+    assert_eq!(why.len(), 2, "{why:?}");
     assert!(why[0].contains("loss"), "{why:?}");
+    assert!(
+        why[1].contains("consensus rounds") && !why[1].contains("round_timeout_ms"),
+        "the lost values' rounds, with no advice to wait longer: {why:?}"
+    );
+    assert!(s.summary().fault_cost.short_rounds > 0);
 }
