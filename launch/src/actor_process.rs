@@ -75,8 +75,8 @@ pub fn run_actor(args: &ActorArgs, vocabulary: Vocabulary) -> anyhow::Result<()>
     if let Some(core) = args.core {
         // Before anything else: start-up's work is on the core too. A core
         // refused (taken away since the launcher looked) costs only time.
-        if let Err(e) = crate::cores::pin_to(core) {
-            tracing::warn!(core, error = %e, "running on any core");
+        if let Err(e) = crate::cores::settle_on(core) {
+            tracing::warn!(core, error = %e, "not settled on its core");
         }
     }
     if std::env::var(FAIL_AT_START_ENV).is_ok_and(|v| v == args.actor) {

@@ -5,7 +5,8 @@
 //! of its fusion graph (`Topology::core_parts`): each node and its sensors
 //! (and its multiple-access channel) on one core, neighbours mostly on the
 //! same one, so that a consensus round's wake-ups seldom cross between
-//! cores. The launcher decides; each actor pins itself at start (`--core`).
+//! cores, and each a batch task there ([`settle_on`]). The launcher
+//! decides; each actor settles itself at start (`--core`).
 
 use std::sync::Arc;
 
@@ -88,7 +89,28 @@ pub fn allowed_cores() -> Vec<usize> {
         .collect()
 }
 
-/// Pins the calling process (every thread it starts after) to `core`.
+/// Pins the calling thread (and every thread it starts after, so an
+/// actor's whole process when called first) to `core`, and makes it a
+/// batch task there (`SCHED_BATCH`): a node that wakes a neighbour on its
+/// own core then goes on to the rest of its round (its other neighbours'
+/// wake-ups, its own wait) instead of being preempted by the woken one.
+/// 100 nodes at 40 rounds, eight alternated pairs of `run --lockstep`
+/// (60 steps), both placed: 12.3, 13.1, 12.8, 12.1, 12.1, 12.2, 12.3, 12.6
+/// steps/s as batch tasks against 12.9, 11.9, 11.4, 10.7, 11.4, 11.3,
+/// 11.8, 12.1 not, +0.75 ± 0.55 paired; round p99 lower in seven of
+/// eight. At 10 Hz, two pairs: 1,326 and 1,348 deadline misses against
+/// 1,538 and 1,633.
+pub fn settle_on(core: usize) -> std::io::Result<()> {
+    pin_to(core)?;
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: sched_setscheduler reads `param` only during the call.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_BATCH, &param) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+/// Pins the calling thread (and every thread it starts after) to `core`.
 pub fn pin_to(core: usize) -> std::io::Result<()> {
     if core >= libc::CPU_SETSIZE as usize {
         return Err(std::io::Error::new(
@@ -157,20 +179,27 @@ mod tests {
         assert_eq!(p.core_of(ActorId::Launcher), None);
     }
 
-    /// Affinity is per thread on Linux: a thread of the test pins itself
-    /// and sees only its core, the rest of the test process untouched.
+    /// Affinity and policy are per thread on Linux: a thread of the test
+    /// settles on a core and sees only it, as a batch task, the rest of
+    /// the test process untouched.
     #[test]
     fn a_pinned_thread_runs_on_its_core_alone() {
         let allowed = allowed_cores();
+        // SAFETY: reads this thread's policy.
+        let policy_before = unsafe { libc::sched_getscheduler(0) };
         let core = *allowed.last().expect("at least one core");
-        let seen = std::thread::spawn(move || {
-            pin_to(core).unwrap();
-            allowed_cores()
+        let (seen, policy) = std::thread::spawn(move || {
+            settle_on(core).unwrap();
+            // SAFETY: reads this thread's policy.
+            (allowed_cores(), unsafe { libc::sched_getscheduler(0) })
         })
         .join()
         .unwrap();
         assert_eq!(seen, vec![core]);
+        assert_eq!(policy, libc::SCHED_BATCH);
         assert_eq!(allowed_cores(), allowed);
+        // SAFETY: as above.
+        assert_eq!(unsafe { libc::sched_getscheduler(0) }, policy_before);
     }
 
     #[test]
