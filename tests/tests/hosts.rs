@@ -605,9 +605,12 @@ fn a_stranger_is_not_heard_and_another_runs_orders_are_refused() {
 
 /// Host b's `link` delays by 5 ms where the kernel has no say (over
 /// 127.0.0.1, through its relay): in lockstep, the answer is `sim`'s bit
-/// for bit, and the median consensus round, which waits for a neighbour
-/// across b's link, takes the 5 ms more (at least, since a relay never
-/// releases early; at most 5 ms above that, for a loaded machine).
+/// for bit, and the median consensus round takes most of the 5 ms more.
+/// Not all of it: a node's round latency is its rounds after the first
+/// over their number, and a node away from b's link runs its first later
+/// rounds before the delayed values reach it, so its mean is a little
+/// under 5 ms (4,960 µs in one run). At most 10 ms above the undelayed
+/// median, for a loaded machine.
 #[test]
 fn a_relays_delay_shows_in_the_round_latency() {
     let _guard = exclusive();
@@ -627,7 +630,7 @@ fn a_relays_delay_shows_in_the_round_latency() {
     let (delayed, p50) = run(5.0, "relay-5ms");
     assert_eq!(plain.sorted_tick_lines(), delayed.sorted_tick_lines());
     assert!(
-        p50 >= 5000.0 && p50 <= base + 10_000.0,
+        p50 >= 4000.0 && p50 <= base + 10_000.0,
         "round p50 {p50} µs through a 5 ms relay, {base} µs without"
     );
     plain.assert_clean();
