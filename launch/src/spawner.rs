@@ -312,9 +312,10 @@ mod tests {
     use super::*;
     use std::io::Read;
 
-    /// A child started by the spawner writes to the pipe it was handed,
-    /// its pidfd says when it has exited, and the spawner's thread holds
-    /// only its few descriptors, whatever the process holds.
+    /// A child started by the spawner writes to the pipe it was handed and
+    /// is reaped with its exit code; it inherits only standard input and
+    /// output, whatever the process holds, and none of the spawner
+    /// thread's blocked signals.
     #[test]
     fn a_child_from_the_spawner_reports_through_its_descriptors() {
         // Descriptors the process holds that the spawner must not pass on.
@@ -327,7 +328,9 @@ mod tests {
                 "/bin/sh".into(),
                 vec![
                     "-c".into(),
-                    "echo ready; ls /proc/self/fd | wc -l; echo oops >&2; exit 3".into(),
+                    "echo ready; ls /proc/self/fd | wc -l; grep SigBlk /proc/self/status; \
+                     echo oops >&2; exit 3"
+                        .into(),
                 ],
             )
             .unwrap();
@@ -341,7 +344,12 @@ mod tests {
         // the 50 (or of the test harness's).
         let open: usize = lines[1].trim().parse().unwrap();
         assert!(open <= 4, "the child inherited {open} descriptors");
-        assert_eq!(lines[2], "oops");
+        // The spawner thread blocks every signal; its children must not.
+        assert_eq!(
+            lines[2].split_whitespace().collect::<Vec<_>>(),
+            ["SigBlk:", "0000000000000000"]
+        );
+        assert_eq!(lines[3], "oops");
         let mut status = 0;
         // SAFETY: the child is ours; its output ended, so it is exiting.
         let reaped = unsafe { libc::waitpid(child.pid as i32, &mut status, 0) };
