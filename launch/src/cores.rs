@@ -111,7 +111,7 @@ pub fn settle_on(core: usize) -> std::io::Result<()> {
 }
 
 /// Pins the calling thread (and every thread it starts after) to `core`.
-pub fn pin_to(core: usize) -> std::io::Result<()> {
+fn pin_to(core: usize) -> std::io::Result<()> {
     if core >= libc::CPU_SETSIZE as usize {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,

@@ -224,16 +224,9 @@ fn lanczos_ritz_values(rows: &[Vec<(usize, f64)>], steps: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::Scenario;
 
     fn grid(side: u32, width: f64) -> Topology {
-        let sets = [
-            format!("nodes.grid=[{side},{side}]"),
-            format!("region.width={width}"),
-            format!("region.height={width}"),
-        ];
-        let s = Scenario::from_toml(crate::scenario::DEFAULT_SCENARIO, "grid", &sets).unwrap();
-        Topology::from_scenario(&s, "grid").unwrap()
+        crate::topology::test_grid(side, side, width, width)
     }
 
     /// A ring of n nodes, each of degree 2: every weight is 1/3 and W's

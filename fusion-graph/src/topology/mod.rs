@@ -365,6 +365,20 @@ pub(crate) fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
 }
 
+/// The default scenario's network laid out as a grid of `cols` × `rows`
+/// nodes over a `width` × `height` field: the test networks of this
+/// module's parts.
+#[cfg(test)]
+pub(crate) fn test_grid(cols: u32, rows: u32, width: f64, height: f64) -> Topology {
+    let sets = [
+        format!("nodes.grid=[{cols},{rows}]"),
+        format!("region.width={width}"),
+        format!("region.height={height}"),
+    ];
+    let s = Scenario::from_toml(crate::scenario::DEFAULT_SCENARIO, "grid", &sets).unwrap();
+    Topology::from_scenario(&s, "grid").unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -67,17 +67,10 @@ impl Topology {
 
 #[cfg(test)]
 mod tests {
-    use crate::scenario::Scenario;
     use crate::topology::Topology;
 
     fn grid(rows: u32, cols: u32, width: f64, height: f64) -> Topology {
-        let sets = [
-            format!("nodes.grid=[{cols},{rows}]"),
-            format!("region.width={width}"),
-            format!("region.height={height}"),
-        ];
-        let s = Scenario::from_toml(crate::scenario::DEFAULT_SCENARIO, "grid", &sets).unwrap();
-        Topology::from_scenario(&s, "grid").unwrap()
+        crate::topology::test_grid(cols, rows, width, height)
     }
 
     fn sizes(parts: &[usize], k: usize) -> Vec<usize> {
