@@ -157,7 +157,8 @@ impl Ledger {
         self.store(JOURNAL_SLOT, 0);
     }
 
-    fn slot(&mut self, key: LinkKey) -> Result<usize, LedgerError> {
+    /// The slot that holds `key`'s counts, given it now if it has none.
+    pub fn slot(&mut self, key: LinkKey) -> Result<usize, LedgerError> {
         if let Some(s) = self.slots.get(&key) {
             return Ok(*s);
         }
@@ -187,6 +188,14 @@ impl Ledger {
         bytes: i64,
     ) -> Result<(), LedgerError> {
         let slot = self.slot(key)?;
+        self.add_at(slot, pair, messages, bytes);
+        Ok(())
+    }
+
+    /// [`add`](Self::add) to the link in `slot`, as [`slot`](Self::slot)
+    /// gave it.
+    pub fn add_at(&mut self, slot: usize, pair: Pair, messages: i64, bytes: i64) {
+        debug_assert!(slot < self.load(USED) as usize, "a slot the ledger gave");
         let base = slot_base(slot) + 1 + 2 * pair as usize;
         let (m, b) = (self.load(base), self.load(base + 1));
         self.store(JOURNAL_MESSAGES, m);
@@ -196,7 +205,6 @@ impl Ledger {
         self.store(base, m.wrapping_add_signed(messages));
         self.store(base + 1, b.wrapping_add_signed(bytes));
         self.store(JOURNAL_SLOT, 0);
-        Ok(())
     }
 
     /// Counts one read of the world's truth that failed. One word, one
