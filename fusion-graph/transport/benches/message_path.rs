@@ -99,34 +99,58 @@ fn network() -> Network {
     }
 }
 
+/// What a round needs of a network of nodes: that node `n` send its
+/// values to its neighbours, and read what came.
+trait Exchange {
+    fn nodes(&self) -> usize;
+    fn send(&mut self, n: usize, message: &Message);
+    /// Returns how many messages were read.
+    fn receive(&mut self, n: usize, out: &mut Vec<Message>) -> usize;
+}
+
+impl Exchange for Network {
+    fn nodes(&self) -> usize {
+        self.nodes.len()
+    }
+
+    fn send(&mut self, n: usize, message: &Message) {
+        let (t, readers) = &mut self.nodes[n];
+        t.send_waking(Channel::Consensus(n as u16), message, readers, readers)
+            .unwrap();
+    }
+
+    fn receive(&mut self, n: usize, out: &mut Vec<Message>) -> usize {
+        let (t, _) = &mut self.nodes[n];
+        t.poll_wake().unwrap();
+        let now = t.now();
+        t.receive(now, out).unwrap();
+        out.len()
+    }
+}
+
 /// One round: every node sends, then every node reads, each node's turn
 /// preceded by `between` (the other processes of its core, in a real
 /// network). Returns the messages read and the time the turns took.
 fn round(
-    net: &mut Network,
+    net: &mut impl Exchange,
     step: u32,
     r: u16,
     inbox: &mut Vec<Message>,
     mut between: impl FnMut(),
 ) -> (usize, Duration) {
     let mut took = Duration::ZERO;
-    for (n, (t, readers)) in net.nodes.iter_mut().enumerate() {
+    for n in 0..net.nodes() {
         between();
         let started = Instant::now();
-        let m = round_message(n as u16, step, r);
-        t.send_waking(Channel::Consensus(n as u16), &m, readers, readers)
-            .unwrap();
+        net.send(n, &round_message(n as u16, step, r));
         took += started.elapsed();
     }
     let mut read = 0;
-    for (t, _) in &mut net.nodes {
+    for n in 0..net.nodes() {
         between();
         let started = Instant::now();
         inbox.clear();
-        t.poll_wake().unwrap();
-        let now = t.now();
-        t.receive(now, inbox).unwrap();
-        read += inbox.len();
+        read += net.receive(n, inbox);
         took += started.elapsed();
     }
     (read, took)
@@ -239,12 +263,14 @@ mod inbox {
                 start: Instant::now(),
             }
         }
+    }
 
-        pub fn nodes(&self) -> usize {
+    impl super::Exchange for Inboxes {
+        fn nodes(&self) -> usize {
             self.nodes.len()
         }
 
-        pub fn send(&mut self, n: usize, message: &Message) {
+        fn send(&mut self, n: usize, message: &Message) {
             let Self {
                 pages,
                 nodes,
@@ -279,7 +305,7 @@ mod inbox {
             .unwrap();
         }
 
-        pub fn receive(&mut self, n: usize, out: &mut Vec<Message>) {
+        fn receive(&mut self, n: usize, out: &mut Vec<Message>) -> usize {
             let now: Duration = self.start.elapsed();
             let node = &mut self.nodes[n];
             let page = &self.pages[n];
@@ -299,35 +325,9 @@ mod inbox {
                 let len = slot.len.load(Ordering::Relaxed) as usize;
                 inbound.arrive(ActorId::Node(*from), &slot.bytes[..len], now, out);
             }
+            out.len()
         }
     }
-}
-
-/// [`round`] through the inboxes.
-fn inbox_round(
-    net: &mut inbox::Inboxes,
-    step: u32,
-    r: u16,
-    inbox: &mut Vec<Message>,
-    mut between: impl FnMut(),
-) -> (usize, Duration) {
-    let mut took = Duration::ZERO;
-    for n in 0..net.nodes() {
-        between();
-        let started = Instant::now();
-        net.send(n, &round_message(n as u16, step, r));
-        took += started.elapsed();
-    }
-    let mut read = 0;
-    for n in 0..net.nodes() {
-        between();
-        let started = Instant::now();
-        inbox.clear();
-        net.receive(n, inbox);
-        read += inbox.len();
-        took += started.elapsed();
-    }
-    (read, took)
 }
 
 /// Writes a byte of every `stride` bytes of `memory`: with a stride of a
@@ -406,7 +406,7 @@ fn bench(c: &mut Criterion) {
     }
     let (scenario, topology) = grid();
     let mut boxes = inbox::Inboxes::new(&topology, scenario.wire_format(&topology), &net._ledgers);
-    let (read, _) = inbox_round(&mut boxes, 0, 0, &mut inbox, || {});
+    let (read, _) = round(&mut boxes, 0, 0, &mut inbox, || {});
     assert_eq!(read, per_round, "an inbox round lost messages");
     for (name, stride) in [
         ("caches warm", None),
@@ -418,7 +418,7 @@ fn bench(c: &mut Criterion) {
                 let mut took = Duration::ZERO;
                 for _ in 0..iterations {
                     let (step, r) = next();
-                    took += inbox_round(&mut boxes, step, r, &mut inbox, || {
+                    took += round(&mut boxes, step, r, &mut inbox, || {
                         if let Some(stride) = stride {
                             evict(&mut others, stride)
                         }
