@@ -223,7 +223,8 @@ struct LauncherWatch {
     checked: Instant,
 }
 
-/// How long an actor may run on after its launcher died, at most.
+/// The least time between two of those questions (an actor asleep asks
+/// when it wakes, at the latest after its idle wait).
 const PARENT_CHECK: Duration = Duration::from_millis(20);
 
 impl LauncherWatch {
