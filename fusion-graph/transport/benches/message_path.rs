@@ -18,12 +18,17 @@
 
 use std::time::{Duration, Instant};
 
-use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use criterion::measurement::WallTime;
+use criterion::{criterion_group, criterion_main, BenchmarkGroup, Criterion, Throughput};
 use fusion_graph::scenario::{Scenario, DEFAULT_SCENARIO};
 use fusion_graph::{ActorId, Topology};
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use wire::{ConsensusValues, Message, Payload};
+use wire::Message;
+
+#[path = "common/consensus.rs"]
+mod common;
+use common::consensus_message;
 
 fn grid() -> (Scenario, Topology) {
     let sets: Vec<String> = [
@@ -39,44 +44,29 @@ fn grid() -> (Scenario, Topology) {
     (s, t)
 }
 
-fn round_message(node: u16, step: u32, round: u16) -> Message {
-    Message::new(
-        ActorId::Node(node),
-        step,
-        round,
-        Payload::Consensus(ConsensusValues {
-            delta_eta: [1.0; 4],
-            delta_lambda: [2.0; 10],
-            delta_l: [3.0; 10],
-            delta_l_late: None,
-        }),
-    )
-}
-
 struct Network {
     run: RunId,
     nodes: Vec<(IceoryxTransport, Vec<ActorId>)>,
-    _ledgers: std::path::PathBuf,
+    ledgers: std::path::PathBuf,
 }
 
 impl Drop for Network {
     fn drop(&mut self) {
         self.nodes.clear();
         let _ = remove_run_resources(&self.run);
-        let _ = std::fs::remove_dir_all(&self._ledgers);
+        let _ = std::fs::remove_dir_all(&self.ledgers);
     }
 }
 
-fn network() -> Network {
-    let (scenario, topology) = grid();
-    let format = scenario.wire_format(&topology);
+fn network(scenario: &Scenario, topology: &Topology) -> Network {
+    let format = scenario.wire_format(topology);
     let run = RunId::new(&format!("bench-mp-{}", std::process::id())).unwrap();
     let ledgers = std::env::temp_dir().join(format!("cqnet-message-path-{}", std::process::id()));
     std::fs::create_dir_all(&ledgers).unwrap();
     let mut nodes = Vec::new();
     for n in 0..topology.nodes() as u16 {
         let me = ActorId::Node(n);
-        let mut t = IceoryxTransport::new(&run, me, &topology, format, u64::from(n)).unwrap();
+        let mut t = IceoryxTransport::new(&run, me, topology, format, u64::from(n)).unwrap();
         t.keep_counts_in(&ledgers.join(format!("node-{n}.ledger")))
             .unwrap();
         t.publish_on(Channel::Consensus(n)).unwrap();
@@ -95,7 +85,7 @@ fn network() -> Network {
     Network {
         run,
         nodes,
-        _ledgers: ledgers,
+        ledgers,
     }
 }
 
@@ -142,7 +132,7 @@ fn round(
     for n in 0..net.nodes() {
         between();
         let started = Instant::now();
-        net.send(n, &round_message(n as u16, step, r));
+        net.send(n, &consensus_message(n as u16, step, r));
         took += started.elapsed();
     }
     let mut read = 0;
@@ -362,65 +352,49 @@ fn small_pages(memory: &mut [u8]) {
 /// between two turns of one (50 processes of 100–300 KiB each).
 const OTHERS_TOUCH: usize = 16 << 20;
 
-fn bench(c: &mut Criterion) {
-    let mut net = network();
-    let mut inbox = Vec::new();
-    let (per_round, _) = round(&mut net, 0, 0, &mut inbox, || {});
-    let expected: usize = net.nodes.iter().map(|(_, r)| r.len()).sum();
-    assert_eq!(per_round, expected, "a round lost messages");
-    println!("a round of the 10 × 10 grid: {per_round} messages received");
-    let mut g = c.benchmark_group("message_path");
-    g.throughput(Throughput::Elements(per_round as u64));
-    g.measurement_time(Duration::from_secs(5));
-    let (mut step, mut r) = (1u32, 0u16);
-    let mut next = move || {
-        r = r.wrapping_add(1);
-        if r == 0 {
-            step += 1;
+/// The three ways a round runs: with nothing between two turns of a
+/// node, or with the other processes' writes at a stride of a cache line
+/// or of a page.
+const BETWEEN_TURNS: [(&str, Option<usize>); 3] = [
+    ("caches warm", None),
+    ("caches cold", Some(64)),
+    ("TLB cold", Some(4096)),
+];
+
+/// Each round of a run a new (step, round) on the wire.
+struct RoundNumbers {
+    step: u32,
+    round: u16,
+}
+
+impl RoundNumbers {
+    fn next(&mut self) -> (u32, u16) {
+        self.round = self.round.wrapping_add(1);
+        if self.round == 0 {
+            self.step += 1;
         }
-        (step, r)
-    };
-    g.bench_function("consensus round, 100 nodes, caches warm", |b| {
-        b.iter_custom(|iterations| {
-            let mut took = Duration::ZERO;
-            for _ in 0..iterations {
-                let (step, r) = next();
-                took += round(&mut net, step, r, &mut inbox, || {}).1;
-            }
-            took
-        })
-    });
-    let mut others = vec![0u8; OTHERS_TOUCH];
-    small_pages(&mut others);
-    for (name, stride) in [("caches cold", 64), ("TLB cold", 4096)] {
-        g.bench_function(format!("consensus round, 100 nodes, {name}"), |b| {
-            b.iter_custom(|iterations| {
-                let mut took = Duration::ZERO;
-                for _ in 0..iterations {
-                    let (step, r) = next();
-                    took += round(&mut net, step, r, &mut inbox, || evict(&mut others, stride)).1;
-                }
-                took
-            })
-        });
+        (self.step, self.round)
     }
-    let (scenario, topology) = grid();
-    let mut boxes = inbox::Inboxes::new(&topology, scenario.wire_format(&topology), &net._ledgers);
-    let (read, _) = round(&mut boxes, 0, 0, &mut inbox, || {});
-    assert_eq!(read, per_round, "an inbox round lost messages");
-    for (name, stride) in [
-        ("caches warm", None),
-        ("caches cold", Some(64)),
-        ("TLB cold", Some(4096)),
-    ] {
-        g.bench_function(format!("inbox round, 100 nodes, {name}"), |b| {
+}
+
+/// Times `net`'s rounds each of the three ways.
+fn bench_rounds(
+    g: &mut BenchmarkGroup<'_, WallTime>,
+    what: &str,
+    net: &mut impl Exchange,
+    numbers: &mut RoundNumbers,
+    inbox: &mut Vec<Message>,
+    others: &mut [u8],
+) {
+    for (name, stride) in BETWEEN_TURNS {
+        g.bench_function(format!("{what}, 100 nodes, {name}"), |b| {
             b.iter_custom(|iterations| {
                 let mut took = Duration::ZERO;
                 for _ in 0..iterations {
-                    let (step, r) = next();
-                    took += round(&mut boxes, step, r, &mut inbox, || {
+                    let (step, r) = numbers.next();
+                    took += round(net, step, r, inbox, || {
                         if let Some(stride) = stride {
-                            evict(&mut others, stride)
+                            evict(others, stride)
                         }
                     })
                     .1;
@@ -429,6 +403,41 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+}
+
+fn bench(c: &mut Criterion) {
+    let (scenario, topology) = grid();
+    let mut net = network(&scenario, &topology);
+    let mut boxes = inbox::Inboxes::new(&topology, scenario.wire_format(&topology), &net.ledgers);
+    let mut inbox = Vec::new();
+    let (per_round, _) = round(&mut net, 0, 0, &mut inbox, || {});
+    let expected: usize = net.nodes.iter().map(|(_, r)| r.len()).sum();
+    assert_eq!(per_round, expected, "a round lost messages");
+    let (read, _) = round(&mut boxes, 0, 0, &mut inbox, || {});
+    assert_eq!(read, per_round, "an inbox round lost messages");
+    println!("a round of the 10 × 10 grid: {per_round} messages received");
+    let mut others = vec![0u8; OTHERS_TOUCH];
+    small_pages(&mut others);
+    let mut numbers = RoundNumbers { step: 1, round: 0 };
+    let mut g = c.benchmark_group("message_path");
+    g.throughput(Throughput::Elements(per_round as u64));
+    g.measurement_time(Duration::from_secs(5));
+    bench_rounds(
+        &mut g,
+        "consensus round",
+        &mut net,
+        &mut numbers,
+        &mut inbox,
+        &mut others,
+    );
+    bench_rounds(
+        &mut g,
+        "inbox round",
+        &mut boxes,
+        &mut numbers,
+        &mut inbox,
+        &mut others,
+    );
     g.finish();
 }
 

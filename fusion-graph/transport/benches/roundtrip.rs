@@ -16,7 +16,11 @@ use iceoryx2::prelude::*;
 use transport::futex;
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use wire::{ConsensusValues, Message, Payload, WireFormat};
+use wire::{Message, WireFormat};
+
+#[path = "common/consensus.rs"]
+mod common;
+use common::consensus_message;
 
 const ROLE: &str = "CQNET_ROUNDTRIP_ROLE";
 const RUN: &str = "CQNET_ROUNDTRIP_RUN";
@@ -30,20 +34,6 @@ const FORMAT: WireFormat = WireFormat {
 
 fn topology() -> Topology {
     Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
-}
-
-fn consensus(step: u32) -> Message {
-    Message::new(
-        ActorId::Node(0),
-        step,
-        1,
-        Payload::Consensus(ConsensusValues {
-            delta_eta: [1.0; 4],
-            delta_lambda: [2.0; 10],
-            delta_l: [3.0; 10],
-            delta_l_late: None,
-        }),
-    )
 }
 
 fn percentiles(mut v: Vec<f64>) -> (f64, f64) {
@@ -84,8 +74,12 @@ fn cqnet_transport() -> (f64, f64) {
     // Until the echo is up, resend.
     'connect: loop {
         t.update_connections();
-        t.send(Channel::Consensus(0), &consensus(0), &[ActorId::Node(1)])
-            .unwrap();
+        t.send(
+            Channel::Consensus(0),
+            &consensus_message(0, 0, 1),
+            &[ActorId::Node(1)],
+        )
+        .unwrap();
         let deadline = Instant::now() + Duration::from_millis(50);
         while Instant::now() < deadline {
             let now = t.now();
@@ -99,8 +93,12 @@ fn cqnet_transport() -> (f64, f64) {
     for i in 1..=(ROUNDS + WARMUP) as u32 {
         inbox.clear();
         let start = Instant::now();
-        t.send(Channel::Consensus(0), &consensus(i), &[ActorId::Node(1)])
-            .unwrap();
+        t.send(
+            Channel::Consensus(0),
+            &consensus_message(0, i, 1),
+            &[ActorId::Node(1)],
+        )
+        .unwrap();
         loop {
             let now = t.now();
             t.receive(now, &mut inbox).unwrap();
@@ -195,7 +193,7 @@ fn bare<S: Service>(role: &str) -> (f64, f64) {
     let _echo;
     let (_node, publisher, subscriber, notifier, listener) = bare_ports::<S>(&run, "a", "b");
     _echo = spawn(role, &run);
-    let bytes = consensus(0).to_bytes(&FORMAT);
+    let bytes = consensus_message(0, 0, 1).to_bytes(&FORMAT);
     'connect: loop {
         use iceoryx2::port::update_connections::UpdateConnections;
         let _ = publisher.update_connections();
@@ -251,7 +249,7 @@ fn main() {
         }
         return;
     }
-    let bytes = consensus(0).to_bytes(&FORMAT).len();
+    let bytes = consensus_message(0, 0, 1).to_bytes(&FORMAT).len();
     let (b50, b99) = bare::<ipc::Service>("bare");
     let (f50, f99) = bare::<futex::Service>("futex");
     let (c50, c99) = cqnet_transport();
