@@ -1,8 +1,9 @@
 //! The CPU one consensus round costs the transport, without a context
 //! switch: every node of the 10 × 10 grid lives in this one process with
-//! its own iceoryx2 transport, wired as a node process wires itself (its
-//! neighbours' consensus channels, its launcher control channel, a ledger
-//! under every count), and one iteration is one round: each node publishes
+//! its own transport, wired as a node process wires itself (its
+//! neighbours' consensus channels, which are its inbox, its launcher
+//! control channel, an iceoryx2 service, its wake-ups, a ledger under every
+//! count), and one iteration is one round: each node publishes
 //! its values to its neighbours, waking them, then each node takes its
 //! wake-ups and reads what came. Only the nodes' turns are timed.
 //!
@@ -147,11 +148,11 @@ fn round(
 }
 
 /// For comparison: the same round through a bare inbox per node, one
-/// shared page of slots, one slot per neighbour, that the neighbours write
-/// their encoded values into. cqnet's own layer stays as it is (encoding,
-/// the link shaper, decoding, the accounting and its ledger); iceoryx2's
-/// ports and events go. The gap to the transport's round, cold, is what a
-/// round that touches fewer pages would save.
+/// shared page of slots, one slot per neighbour and no ring, that the
+/// neighbours write their encoded values into, and no wake-ups. cqnet's
+/// own layer stays as it is (encoding, the link shaper, decoding, the
+/// accounting and its ledger). The gap to the transport's round is what
+/// its wake-ups, its control channel and the rest of its bookkeeping cost.
 mod inbox {
     use std::sync::atomic::{AtomicU32, Ordering};
     use std::time::{Duration, Instant};

@@ -2,6 +2,9 @@
 //! processes on one machine, one service per channel named
 //! `cqnet/<run>/<channel>`, and one event service per actor
 //! (`cqnet/<run>/wake/<actor>`) so an idle actor sleeps instead of polling.
+//! On a host of its own, the channels from node to node go through the
+//! nodes' inboxes instead (`inbox.rs`), and only their wake-ups through
+//! iceoryx2.
 //!
 //! Every resource of a run lives under the prefix `cqnet_<run>_`, so two runs
 //! never see each other and cleanup is removing that prefix's files.
@@ -17,6 +20,7 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 
 use super::futex;
+use super::inbox::{self, Inboxes};
 pub use super::limits::QUEUE_DEPTH;
 use super::limits::{max_message_len, ChannelLimits};
 use super::{Channel, Inbound, Outbound, Transport};
@@ -79,6 +83,13 @@ struct FarWakes {
     ids: HashMap<ActorId, EventId>,
 }
 
+/// Where a subscribed channel's messages wait.
+enum Subscription {
+    Service(Sub),
+    /// A slot of this node's inbox.
+    Inbox(usize),
+}
+
 pub struct IceoryxTransport {
     me: ActorId,
     run: RunId,
@@ -87,9 +98,12 @@ pub struct IceoryxTransport {
     start: Instant,
     node: Node<futex::Service>,
     /// Each channel this actor publishes on, with who reads it: a send's
-    /// receivers must be them all.
-    publishers: HashMap<Channel, (Pub, Vec<ActorId>)>,
-    subscribers: Vec<(Channel, Sub)>,
+    /// receivers must be them all. No publisher: the channel goes through
+    /// `inboxes`.
+    publishers: HashMap<Channel, (Option<Pub>, Vec<ActorId>)>,
+    /// In the order subscribed, which is the order `receive` reads them.
+    subscribers: Vec<(Channel, Subscription)>,
+    inboxes: Inboxes,
     /// Which subscriptions were heard from since the last `receive`: see
     /// [`Heard`].
     heard: Heard,
@@ -153,6 +167,7 @@ impl IceoryxTransport {
             node,
             publishers: HashMap::new(),
             subscribers: Vec::new(),
+            inboxes: Inboxes::new(run, topology, me),
             heard: Heard::new(me, topology),
             notifiers: HashMap::new(),
             raw_publishers: HashMap::new(),
@@ -169,13 +184,26 @@ impl IceoryxTransport {
         open_channel(&self.node, &self.run, &self.topology, channel)
     }
 
+    /// Whether `channel` goes through the nodes' inboxes: a channel from
+    /// node to node, in a run on one host. (On a host of several, the
+    /// bridges relay iceoryx2's services to the other hosts.)
+    fn through_inboxes(&self, channel: Channel) -> bool {
+        self.far.is_none() && inbox::carries(channel)
+    }
+
     fn add_publisher(&mut self, channel: Channel) -> Result<(), SetupError> {
-        let service = self.open_channel(channel)?;
-        let publisher = service
-            .publisher_builder()
-            .initial_max_slice_len(max_message_len(channel, &self.topology))
-            .create()
-            .map_err(|e| setup("publisher", e))?;
+        let publisher = if self.through_inboxes(channel) {
+            self.inboxes.publish_on(channel)?;
+            None
+        } else {
+            let service = self.open_channel(channel)?;
+            let publisher = service
+                .publisher_builder()
+                .initial_max_slice_len(max_message_len(channel, &self.topology))
+                .create()
+                .map_err(|e| setup("publisher", e))?;
+            Some(publisher)
+        };
         let readers = self.topology.readers(channel);
         self.publishers.insert(channel, (publisher, readers));
         Ok(())
@@ -183,7 +211,19 @@ impl IceoryxTransport {
 
     /// Publishes raw bytes on `channel` through a second publisher, bypassing
     /// encoding: fault injection for tests of the malformed-message path.
+    /// A channel that goes through inboxes has one writer per slot, so the
+    /// bytes are written as its publisher, which must not be sending too.
     pub fn inject_raw(&mut self, channel: Channel, bytes: &[u8]) -> Result<(), SendError> {
+        let backend = |source| SendError::Backend {
+            channel: channel.service_suffix(),
+            source,
+        };
+        if self.through_inboxes(channel) {
+            self.inboxes
+                .publish_on(channel)
+                .map_err(|e| backend(Box::new(e)))?;
+            return self.inboxes.send(channel, bytes).map_err(backend);
+        }
         if !self.raw_publishers.contains_key(&channel) {
             let p = self
                 .open_channel(channel)
@@ -245,8 +285,14 @@ impl IceoryxTransport {
 
     /// Tells the transport that its actor runs on `host` of `placement`:
     /// from now on [`notify`](Transport::notify) of an actor elsewhere
-    /// wakes this host's bridge instead. Call it before the first `notify`.
+    /// wakes this host's bridge instead, and the channels between nodes are
+    /// iceoryx2's services, which the bridges relay. Call it before the
+    /// first `publish_on`, `subscribe` or `notify`.
     pub fn place_on(&mut self, placement: &Placement, host: usize) {
+        debug_assert!(
+            self.publishers.is_empty() && self.subscribers.is_empty(),
+            "placed after its channels were set up"
+        );
         self.far = Some(FarWakes {
             placement: placement.clone(),
             host,
@@ -268,12 +314,17 @@ impl Transport for IceoryxTransport {
     }
 
     fn subscribe(&mut self, channel: Channel) -> Result<(), SetupError> {
-        let service = self.open_channel(channel)?;
-        let sub = service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| setup("subscriber", e))?;
-        self.subscribers.push((channel, sub));
+        let subscription = if self.through_inboxes(channel) {
+            Subscription::Inbox(self.inboxes.subscribe(channel)?)
+        } else {
+            let service = self.open_channel(channel)?;
+            let sub = service
+                .subscriber_builder()
+                .create()
+                .map_err(|e| setup("subscriber", e))?;
+            Subscription::Service(sub)
+        };
+        self.subscribers.push((channel, subscription));
         self.heard.selective |= matches!(channel, Channel::Observation(_));
         Ok(())
     }
@@ -315,7 +366,7 @@ impl Transport for IceoryxTransport {
 
     /// Connects publishers to subscribers that appeared since they were made.
     fn update_connections(&mut self) {
-        for (p, _) in self.publishers.values() {
+        for p in self.publishers.values().filter_map(|(p, _)| p.as_ref()) {
             let _ = p.update_connections();
         }
     }
@@ -342,14 +393,16 @@ impl Transport for IceoryxTransport {
             &[]
         };
         crate::check_receivers(channel, receivers, readers, may_read)?;
+        let inboxes = &self.inboxes;
         Outbound {
             me: self.me,
             format: &self.format,
             accounting: &mut self.accounting,
             buffer: &mut self.buffer,
         }
-        .send(channel, message, receivers, |bytes| {
-            publish(publisher, bytes)
+        .send(channel, message, receivers, |bytes| match publisher {
+            Some(publisher) => publish(publisher, bytes),
+            None => inboxes.send(channel, bytes),
         })?;
         for w in wake {
             // A failed wake-up only delays the receiver until its timeout.
@@ -380,6 +433,7 @@ impl Transport for IceoryxTransport {
             accounting,
             shaper,
             subscribers,
+            inboxes,
             start,
             ..
         } = self;
@@ -390,10 +444,20 @@ impl Transport for IceoryxTransport {
             shaper,
         };
         let heard = &mut self.heard;
-        for (channel, sub) in subscribers.iter() {
+        for (channel, subscription) in subscribers.iter() {
             if !heard.may_have_data(*channel) {
                 continue;
             }
+            let sub = match subscription {
+                Subscription::Service(sub) => sub,
+                Subscription::Inbox(slot) => {
+                    inboxes.drain(*slot, |bytes| {
+                        let arrived = now.max(start.elapsed());
+                        inbound.arrive(channel.publisher(), bytes, arrived, out)
+                    });
+                    continue;
+                }
+            };
             loop {
                 match sub.receive() {
                     Ok(Some(sample)) => {

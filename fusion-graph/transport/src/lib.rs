@@ -13,6 +13,7 @@ pub mod counters;
 mod error;
 pub mod futex;
 pub mod iceoryx;
+mod inbox;
 pub mod ledger;
 pub mod limits;
 pub mod memory;

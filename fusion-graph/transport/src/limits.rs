@@ -240,11 +240,18 @@ const LAUNCHER_MAPS_PER_OBSERVED_SENSOR: u64 = 4;
 impl Footprint {
     /// A one-host run of `topology`: `pairs` when its protocol exchanges in
     /// pairs, `centralized` when the launcher reads every observation, and
-    /// `table_bytes` of table rows the nodes share.
+    /// `table_bytes` of table rows the nodes share. The channels between
+    /// nodes are the nodes' inboxes there, a file each (`inbox.rs`).
     pub fn of(topology: &Topology, pairs: bool, centralized: bool, table_bytes: u64) -> Self {
         let children = topology.actors().count() as u64;
         let processes = children + 1;
-        let channels = channels(topology, pairs);
+        let channels: Vec<Channel> = channels(topology, pairs)
+            .into_iter()
+            .filter(|c| !crate::inbox::carries(*c))
+            .collect();
+        let inbox_bytes: u64 = (0..topology.nodes() as u16)
+            .map(|n| crate::inbox::Layout::of(topology, n).len() as u64)
+            .sum();
         let mut segments = 0u64;
         let mut connections = 0u64;
         let mut connection_bytes = 0u64;
@@ -277,13 +284,15 @@ impl Footprint {
                 + connection_bytes
                 + services * SERVICE_BYTES
                 + processes * PROCESS_BYTES
+                + inbox_bytes
                 + table_bytes,
             files: processes * FILES_PER_PROCESS
                 + services * FILES_PER_SERVICE
                 + ports * FILES_PER_PORT
                 + publishers
                 + connections
-                + wake_services,
+                + wake_services
+                + topology.nodes() as u64,
             launcher_maps: LAUNCHER_BASE_MAPS
                 + LAUNCHER_MAPS_PER_CHILD * children
                 + LAUNCHER_MAPS_PER_OBSERVED_SENSOR * observed,
@@ -308,21 +317,21 @@ mod tests {
 
     /// Against `/dev/shm` (`du -sb`, `find -type f | wc -l`) and
     /// `/proc/<launcher>/maps` while the network ran without the
-    /// centralized reference: 26,200,529 bytes, 8,094 files and 583 maps
-    /// for the default network of 235 processes; 226,248,205 bytes, 90,218
-    /// files and 5,947 maps for 2,601. The estimate stays above, within
-    /// half again as much.
+    /// centralized reference (the largest of once a second over the run):
+    /// 26,242,967 bytes, 7,985 files and 582 maps for the default network
+    /// of 235 processes; 231,490,012 bytes, 88,737 files and 5,860 maps
+    /// for 2,601. The estimate stays above, within half again as much.
     #[test]
     fn the_footprint_is_estimated_above_what_runs_were_measured_to_use() {
         let cases = [
-            (topology(&[]), [26_200_529.0, 8_094.0, 583.0]),
+            (topology(&[]), [26_242_967.0, 7_985.0, 582.0]),
             (
                 topology(&[
                     "nodes.grid=[10,10]",
                     "region.width=5000",
                     "region.height=5000",
                 ]),
-                [226_248_205.0, 90_218.0, 5_947.0],
+                [231_490_012.0, 88_737.0, 5_860.0],
             ),
         ];
         for (t, measured) in cases {
