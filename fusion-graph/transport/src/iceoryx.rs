@@ -325,7 +325,10 @@ impl Transport for IceoryxTransport {
             Subscription::Service(sub)
         };
         self.subscribers.push((channel, subscription));
-        self.heard.selective |= matches!(channel, Channel::Observation(_));
+        self.heard.selective |= matches!(
+            channel,
+            Channel::Observation(_) | Channel::Control(_) | Channel::Lifecycle
+        );
         Ok(())
     }
 
@@ -605,13 +608,13 @@ mod tests {
         let ids = WakeIds::of(node, &topology);
         assert_eq!(
             ids.max(),
-            1 + own.len(),
-            "a node's service: its sensors, and two more"
+            2 + own.len(),
+            "a node's service: its sensors, and three more"
         );
-        assert_eq!(WakeIds::of(ActorId::Sensor(0), &topology).max(), 1);
+        assert_eq!(WakeIds::of(ActorId::Sensor(0), &topology).max(), 2);
         assert_eq!(
             WakeIds::of(ActorId::Launcher, &topology).max(),
-            1 + topology.sensors()
+            2 + topology.sensors()
         );
         // The services are sized for the same ids.
         for a in [node, ActorId::Sensor(0), ActorId::Launcher] {
@@ -624,17 +627,24 @@ mod tests {
         heard.clear();
         assert!(!heard.may_have_data(Channel::Observation(mine)));
         assert!(heard.may_have_data(Channel::Consensus(1)));
-        assert!(heard.may_have_data(Channel::Control(node)));
+        assert!(!heard.may_have_data(Channel::Control(node)));
         heard.hear(ids.id_of(ActorId::Sensor(mine)));
         assert!(heard.may_have_data(Channel::Observation(mine)));
         assert!(!heard.may_have_data(Channel::Observation(own[4])));
         heard.clear();
-        // A node or the launcher waking us says nothing about sensors, and
+        // A node waking us says nothing about sensors or the launcher, and
         // neither does a sensor that is not ours.
-        for waker in [ActorId::Node(1), ActorId::Launcher, ActorId::Sensor(other)] {
+        for waker in [ActorId::Node(1), ActorId::Sensor(other)] {
             assert_eq!(ids.id_of(waker), WakeIds::OTHER);
             heard.hear(ids.id_of(waker));
         }
+        assert!(!heard.may_have_data(Channel::Observation(mine)));
+        assert!(!heard.may_have_data(Channel::Control(node)));
+        // The launcher's wake-up reads its channels, and no sensor's.
+        assert_eq!(ids.id_of(ActorId::Launcher), WakeIds::LAUNCHER);
+        heard.hear(WakeIds::LAUNCHER);
+        assert!(heard.may_have_data(Channel::Control(node)));
+        assert!(heard.may_have_data(Channel::Lifecycle));
         assert!(!heard.may_have_data(Channel::Observation(mine)));
         // A wake-up that does not say whose message it brings reads all.
         heard.hear(WakeIds::ANONYMOUS);

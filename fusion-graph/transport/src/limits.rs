@@ -159,11 +159,11 @@ impl WakeLimits {
 }
 
 /// The largest event id of an actor's wake-up service, in the numbering
-/// of `wake.rs`'s `WakeIds`: 0 and 1 for a waker that does not say who it
-/// is and for the launcher or a node, then one for each sensor the actor
+/// of `wake.rs`'s `WakeIds`: 0, 1 and 2 for a waker that does not say who
+/// it is, a node and the launcher, then one for each sensor the actor
 /// reads (a node's own, every sensor for the launcher).
 fn max_wake_id(topology: &Topology, actor: ActorId) -> usize {
-    1 + match actor {
+    2 + match actor {
         ActorId::Node(n) | ActorId::Mac(n) => topology.node_sensors[n as usize].len(),
         ActorId::Launcher => topology.sensors(),
         ActorId::Sensor(_) => 0,
@@ -389,8 +389,8 @@ mod tests {
         let node = WakeLimits::of_actor(&t, ActorId::Node(4));
         // 25 sensors, 4 neighbours and the launcher, and the slack.
         assert_eq!(node.notifiers, 25 + 4 + 1 + WAKE_SLACK);
-        assert_eq!(node.max_event_id, 1 + 25);
+        assert_eq!(node.max_event_id, 2 + 25);
         let sensor = WakeLimits::of_actor(&t, ActorId::Sensor(0));
-        assert_eq!((sensor.notifiers, sensor.max_event_id), (2 + WAKE_SLACK, 1));
+        assert_eq!((sensor.notifiers, sensor.max_event_id), (2 + WAKE_SLACK, 2));
     }
 }

@@ -20,14 +20,15 @@ use super::resources::{retry, setup, RunResources};
 ///
 /// - `ANONYMOUS` (0): a wake-up that does not say whose message it brings
 ///   (a host's bridge); the woken read everything.
-/// - `OTHER` (1): the launcher or a node; their channels are read at every
-///   receive anyway.
-/// - `2 + k`: the k-th sensor whose observations the actor reads (a node's
+/// - `OTHER` (1): a node; its channels are read at every receive anyway.
+/// - `LAUNCHER` (2): the launcher, whose channels to an actor (its control
+///   channel, the lifecycle) are read when it woke the actor.
+/// - `3 + k`: the k-th sensor whose observations the actor reads (a node's
 ///   own sensors in topology order; every sensor for the launcher).
 ///
 /// Ids are numbered per receiver, not per network: iceoryx2 drains a
 /// listener by swapping every id's counter, so a wait costs a locked
-/// instruction per id the service has. A node's service has 27 (its 25
+/// instruction per id the service has. A node's service has 28 (its 25
 /// sensors), not the 2,600 of a network-wide numbering at the largest size.
 pub(crate) struct WakeIds {
     /// The sensors, in id order.
@@ -37,6 +38,8 @@ pub(crate) struct WakeIds {
 impl WakeIds {
     pub(crate) const ANONYMOUS: usize = 0;
     pub(crate) const OTHER: usize = 1;
+    pub(crate) const LAUNCHER: usize = 2;
+    const FIRST_SENSOR: usize = 3;
 
     pub(crate) fn of(receiver: ActorId, topology: &Topology) -> Self {
         Self {
@@ -53,7 +56,7 @@ impl WakeIds {
     /// The largest id (`limits::WakeLimits` sizes the service for it).
     #[cfg(test)]
     pub(crate) fn max(&self) -> usize {
-        Self::OTHER + self.sensors.len()
+        Self::LAUNCHER + self.sensors.len()
     }
 
     /// The id wake-ups from `waker` carry.
@@ -63,7 +66,8 @@ impl WakeIds {
                 .sensors
                 .iter()
                 .position(|&x| x == s)
-                .map_or(Self::OTHER, |k| 2 + k),
+                .map_or(Self::OTHER, |k| Self::FIRST_SENSOR + k),
+            ActorId::Launcher => Self::LAUNCHER,
             _ => Self::OTHER,
         }
     }
@@ -78,7 +82,11 @@ impl WakeIds {
 /// a tenth of `run`'s CPU, more than any function of the filters but one.
 /// A sensor wakes every receiver of every observation it publishes, after
 /// publishing it, so its channel needs reading only when its wake-up was
-/// heard. Every other channel is read at every `receive`: their publishers
+/// heard. The launcher's channels likewise: it wakes every receiver of
+/// what it sends, and a node that polled its control channel at every
+/// wake-up paid for the subscriber's pages at every consensus round (a
+/// quarter of the transport's round with caches cold, `benches/message_path.rs`).
+/// Every other channel is read at every `receive`: their publishers
 /// wake only some receivers (a node's activation wakes its active sensors,
 /// its consensus its live neighbours), and the rest must still find the
 /// message when something else wakes them. A wake-up that does not say who
@@ -88,6 +96,8 @@ pub(crate) struct Heard {
     pub(crate) ids: WakeIds,
     /// Whether each sensor (by sensor index) woke us.
     pub(crate) sensors: Vec<bool>,
+    /// Whether the launcher woke us.
+    pub(crate) launcher: bool,
     pub(crate) everything: bool,
     /// Whether a wait took the wake-ups since the last `receive`; if not,
     /// `receive` takes them itself (a system call), unless no subscription
@@ -101,6 +111,7 @@ impl Heard {
         Self {
             ids: WakeIds::of(me, topology),
             sensors: vec![false; topology.sensors()],
+            launcher: false,
             everything: true,
             waited: false,
             selective: false,
@@ -110,10 +121,14 @@ impl Heard {
     /// A wake-up carrying event id `id`.
     pub(crate) fn hear(&mut self, id: usize) {
         match id {
-            // The launcher's and nodes' channels are read anyway.
+            // The nodes' channels are read anyway.
             WakeIds::OTHER => {}
-            k if k >= 2 && k - 2 < self.ids.sensors.len() => {
-                if let Some(heard) = self.sensors.get_mut(self.ids.sensors[k - 2] as usize) {
+            WakeIds::LAUNCHER => self.launcher = true,
+            k if k >= WakeIds::FIRST_SENSOR
+                && k - WakeIds::FIRST_SENSOR < self.ids.sensors.len() =>
+            {
+                let sensor = self.ids.sensors[k - WakeIds::FIRST_SENSOR];
+                if let Some(heard) = self.sensors.get_mut(sensor as usize) {
                     *heard = true;
                 }
             }
@@ -130,12 +145,14 @@ impl Heard {
             Channel::Observation(s) => {
                 self.everything || self.sensors.get(s as usize).copied().unwrap_or(true)
             }
+            Channel::Control(_) | Channel::Lifecycle => self.everything || self.launcher,
             _ => true,
         }
     }
 
     pub(crate) fn clear(&mut self) {
         self.everything = false;
+        self.launcher = false;
         self.waited = false;
         self.sensors.fill(false);
     }
