@@ -407,7 +407,12 @@ impl Transport for IceoryxTransport {
             Some(publisher) => publish(publisher, bytes),
             None => inboxes.send(channel, bytes),
         })?;
+        let inboxes = publisher.is_none();
         for w in wake {
+            if inboxes && !self.inboxes.may_sleep(*w) {
+                // Awake, it finds the message in its inbox.
+                continue;
+            }
             // A failed wake-up only delays the receiver until its timeout.
             if let Some((n, id)) = self.notifiers.get(w) {
                 let _ = n.notify_with_custom_event_id(*id);
@@ -491,7 +496,15 @@ impl Transport for IceoryxTransport {
             Some(due) => timeout.min(due.saturating_sub(self.now())),
             None => timeout,
         };
-        let woken = self.take_wake_ups(timeout)?;
+        // A node whose neighbour wrote its inbox while it was awake was not
+        // woken for it (`inbox.rs`): it looks before it sleeps.
+        let woken = if self.inboxes.sleep() {
+            self.take_wake_ups(Duration::ZERO).map(|_| true)
+        } else {
+            self.take_wake_ups(timeout)
+        };
+        self.inboxes.wake();
+        let woken = woken?;
         self.heard.waited = true;
         if !woken {
             // A timeout, or a wake-up that came without its event.
@@ -501,7 +514,9 @@ impl Transport for IceoryxTransport {
     }
 
     fn poll_wake(&mut self) -> Result<bool, WaitError> {
-        let woken = self.take_wake_ups(Duration::ZERO)?;
+        // A polling node is not woken for what its neighbours write in its
+        // inbox: it looks.
+        let woken = self.take_wake_ups(Duration::ZERO)? | self.inboxes.unread();
         // Nothing heard leaves `receive` to take the wake-ups itself.
         self.heard.waited |= woken;
         Ok(woken)

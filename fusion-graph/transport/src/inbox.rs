@@ -21,8 +21,18 @@
 //! from the topology, and the file is zeroed when made, so whoever opens
 //! it first (reader or writer) needs to write nothing into it. It holds a
 //! head per slot, each on its own cache line (how many messages the slot's
-//! writer has finished), then a ring of [`QUEUE_DEPTH`] entries per slot:
-//! a stamp, a length, the bytes.
+//! writer has finished), a word that says whether the reader sleeps, then
+//! a ring of [`QUEUE_DEPTH`] entries per slot: a stamp, a length, the
+//! bytes.
+//!
+//! A writer wakes the reader (through its wake-up service) only when the
+//! reader sleeps: a node that runs reads its inbox at its next receive,
+//! and one that polls looks at the heads as it polls. Waking a neighbour
+//! through iceoryx2's notifier touches that neighbour's event pages, and a
+//! round with no wake-ups at all cost a third less with caches cold
+//! (`benches/message_path.rs`). The reader says it sleeps and then looks
+//! at the heads; the writer advances a head and then looks at the word;
+//! both sequentially consistent, so at least one sees the other.
 //!
 //! Each slot has one writer, the channel's one publisher. It stamps the
 //! entry odd (being written), writes it, stamps it even with the sequence,
@@ -99,9 +109,19 @@ impl Layout {
         self.slots * LINE
     }
 
+    /// Where the word that says the reader sleeps is: after the heads.
+    fn sleeping(&self) -> usize {
+        self.heads_len()
+    }
+
+    /// The heads and the sleeping word.
+    fn header_len(&self) -> usize {
+        self.heads_len() + LINE
+    }
+
     /// The inbox's bytes.
     pub(crate) fn len(&self) -> usize {
-        self.heads_len() + self.slots * QUEUE_DEPTH * self.stride
+        self.header_len() + self.slots * QUEUE_DEPTH * self.stride
     }
 
     fn capacity(&self) -> usize {
@@ -109,7 +129,7 @@ impl Layout {
     }
 
     fn entry(&self, slot: usize, sequence: u64) -> usize {
-        self.heads_len() + (slot * QUEUE_DEPTH + (sequence % DEPTH) as usize) * self.stride
+        self.header_len() + (slot * QUEUE_DEPTH + (sequence % DEPTH) as usize) * self.stride
     }
 }
 
@@ -152,6 +172,10 @@ impl Memory {
 
     fn head(&self, slot: usize) -> &AtomicU64 {
         self.word(slot * LINE)
+    }
+
+    fn sleeping(&self) -> &AtomicU64 {
+        self.word(self.layout.sleeping())
     }
 
     /// Appends `bytes` to `slot`'s ring. Only the slot's writer calls it.
@@ -221,6 +245,9 @@ pub(crate) struct Inboxes {
     own: Option<Memory>,
     /// The next sequence to read in each slot of the own inbox.
     cursors: Vec<u64>,
+    /// The slots this actor reads: the others' heads are none of its
+    /// business (a program's protocol might write a pair it never reads).
+    subscribed: Vec<usize>,
     /// The neighbours' inboxes, by node.
     theirs: HashMap<u16, Memory>,
     /// Each channel this actor writes: the inboxes and slots it lands in.
@@ -237,6 +264,7 @@ impl Inboxes {
             me,
             own: None,
             cursors: Vec::new(),
+            subscribed: Vec::new(),
             theirs: HashMap::new(),
             routes: HashMap::new(),
             scratch: Vec::with_capacity(512),
@@ -258,6 +286,9 @@ impl Inboxes {
                 .map(|s| own.head(s).load(Ordering::Acquire))
                 .collect();
             self.own = Some(own);
+        }
+        if !self.subscribed.contains(&slot) {
+            self.subscribed.push(slot);
         }
         Ok(slot)
     }
@@ -296,6 +327,45 @@ impl Inboxes {
             self.theirs[reader].write(*slot, bytes)?;
         }
         Ok(())
+    }
+
+    /// Whether `reader`, whose inbox this actor writes, may be asleep and
+    /// so needs waking: after a `send` to it, with [`Self::sleep`]'s
+    /// ordering. An actor whose inbox this one does not write may be.
+    pub(crate) fn may_sleep(&self, reader: ActorId) -> bool {
+        let ActorId::Node(r) = reader else {
+            return true;
+        };
+        let Some(theirs) = self.theirs.get(&r) else {
+            return true;
+        };
+        // The heads written before the look at the word.
+        fence(Ordering::SeqCst);
+        theirs.sleeping().load(Ordering::SeqCst) != 0
+    }
+
+    /// Says this actor is about to sleep, and whether a message came
+    /// meanwhile (then it should not sleep). [`Self::wake`] after.
+    pub(crate) fn sleep(&self) -> bool {
+        let Some(own) = &self.own else { return false };
+        own.sleeping().store(1, Ordering::SeqCst);
+        // The word written before the look at the heads.
+        fence(Ordering::SeqCst);
+        self.unread()
+    }
+
+    pub(crate) fn wake(&self) {
+        if let Some(own) = &self.own {
+            own.sleeping().store(0, Ordering::SeqCst);
+        }
+    }
+
+    /// Whether any slot this actor reads holds what it has not read.
+    pub(crate) fn unread(&self) -> bool {
+        let Some(own) = &self.own else { return false };
+        self.subscribed
+            .iter()
+            .any(|&slot| own.head(slot).load(Ordering::Acquire) > self.cursors[slot])
     }
 
     /// Hands each message waiting in `slot` of the own inbox to `arrive`,
@@ -515,6 +585,39 @@ mod tests {
             own.read(slot, 0, &mut Vec::new()),
             Entry::Overwritten
         ));
+    }
+
+    #[test]
+    fn a_writer_sees_whether_its_reader_sleeps() {
+        let run = Run(RunId::new("inbox-sleep").unwrap());
+        let t = grid();
+        let mut reader = ends(&run.0, &t, 0);
+        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
+        let mut w = ends(&run.0, &t, 1);
+        w.publish_on(Channel::Consensus(1)).unwrap();
+        // Awake, the reader needs no wake-up; actors whose inbox the
+        // writer does not write always may.
+        assert!(!w.may_sleep(ActorId::Node(0)));
+        assert!(w.may_sleep(ActorId::Node(7)));
+        assert!(w.may_sleep(ActorId::Launcher));
+        assert!(!reader.sleep(), "nothing waits");
+        assert!(w.may_sleep(ActorId::Node(0)));
+        reader.wake();
+        assert!(!w.may_sleep(ActorId::Node(0)));
+        // What came before the reader's look keeps it from sleeping.
+        w.send(Channel::Consensus(1), b"v").unwrap();
+        assert!(reader.unread());
+        assert!(reader.sleep());
+        reader.wake();
+        assert_eq!(drained(&mut reader, slot), vec![b"v".to_vec()]);
+        assert!(!reader.unread());
+        // A slot the reader does not read never keeps it awake.
+        let mut pairs = ends(&run.0, &t, 1);
+        pairs.publish_on(Channel::Pair { from: 1, to: 0 }).unwrap();
+        pairs.send(Channel::Pair { from: 1, to: 0 }, b"p").unwrap();
+        assert!(!reader.unread());
+        assert!(!reader.sleep());
+        reader.wake();
     }
 
     #[test]
