@@ -13,7 +13,9 @@
 //! data segment). With fifty node processes per core each turn finds the
 //! TLB empty, and every page costs a walk: 23-25 µs a node-round cold
 //! against 4-5 warm (`benches/message_path.rs`). An inbox round touches
-//! the reader's inbox and one page of each neighbour's.
+//! the reader's inbox and one page of each neighbour's: a fifth off the
+//! benchmark's round, though in a network of processes that alone was
+//! not resolved; with the wake-ups below, it was (docs/performance.md).
 //!
 //! Node r's inbox has two slots per neighbour: slot `2k` carries
 //! `Consensus(m)` and slot `2k + 1` carries `Pair { from: m, to: r }`,
