@@ -20,7 +20,12 @@ use launch::actor_process::wait_as_a_node;
 use launch::usage::own_cpu_seconds;
 use transport::iceoryx::remove_run_resources;
 use transport::{Channel, IceoryxTransport, RunId, Transport};
-use wire::{ConsensusValues, Message, Payload, WireFormat};
+use wire::WireFormat;
+
+// The transport's benchmarks' message, so that both measure the same bytes.
+#[path = "../../fusion-graph/transport/benches/common/consensus.rs"]
+mod common;
+use common::consensus_message;
 
 const RUN: &str = "CQNET_ROUNDS_RUN";
 const NODE: &str = "CQNET_ROUNDS_NODE";
@@ -39,20 +44,6 @@ type Heard = (u32, u16, u16);
 
 fn topology() -> Topology {
     Topology::from_scenario(&Scenario::default_scenario(), "default").unwrap()
-}
-
-fn round_message(node: u16, step: u32, round: u16) -> Message {
-    Message::new(
-        ActorId::Node(node),
-        step,
-        round,
-        Payload::Consensus(ConsensusValues {
-            delta_eta: [1.0; 4],
-            delta_lambda: [2.0; 10],
-            delta_l: [3.0; 10],
-            delta_l_late: None,
-        }),
-    )
 }
 
 /// A spawned node, killed and reaped if the benchmark ends first; the
@@ -92,7 +83,7 @@ fn round_node(run: &RunId, node: u16) -> (IceoryxTransport, Vec<u16>, Vec<Heard>
         let all = heard.iter().all(|h| *h) as u32;
         t.send(
             Channel::Consensus(node),
-            &round_message(node, all, 0),
+            &consensus_message(node, all, 0),
             &receivers,
         )
         .unwrap();
@@ -135,7 +126,7 @@ fn run_rounds(
         for round in 1..=ROUNDS_A_STEP {
             t.send(
                 Channel::Consensus(node),
-                &round_message(node, step, round),
+                &consensus_message(node, step, round),
                 &receivers,
             )
             .unwrap();

@@ -1,5 +1,6 @@
-//! The consensus message the transport's benchmarks send: a CF/DPF
-//! round's values, of the size every round's message has.
+//! The consensus message the transport's benchmarks (and `launch`'s
+//! rounds benchmark, which includes this file) send: a CF/DPF round's
+//! values, of the size every round's message has.
 
 use wire::{ActorId, ConsensusValues, Message, Payload};
 
