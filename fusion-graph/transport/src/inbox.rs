@@ -250,10 +250,11 @@ pub(crate) struct Inboxes {
     /// The slots this actor reads: the others' heads are none of its
     /// business (a program's protocol might write a pair it never reads).
     subscribed: Vec<usize>,
-    /// The neighbours' inboxes, by node.
-    theirs: HashMap<u16, Memory>,
-    /// Each channel this actor writes: the inboxes and slots it lands in.
-    routes: HashMap<Channel, Vec<(u16, usize)>>,
+    /// The neighbours' inboxes, with their nodes: a handful, so a send
+    /// finds them by index and a wake-up by a short scan, not a hash.
+    theirs: Vec<(u16, Memory)>,
+    /// Each channel this actor writes: where in `theirs`, and which slot.
+    routes: HashMap<Channel, Vec<(usize, usize)>>,
     /// Where `receive` copies an entry, reused.
     scratch: Vec<u8>,
 }
@@ -267,7 +268,7 @@ impl Inboxes {
             own: None,
             cursors: Vec::new(),
             subscribed: Vec::new(),
-            theirs: HashMap::new(),
+            theirs: Vec::new(),
             routes: HashMap::new(),
             scratch: Vec::with_capacity(512),
         }
@@ -307,11 +308,15 @@ impl Inboxes {
             };
             let slot =
                 slot_of(&self.topology, channel, r).ok_or_else(|| not_a_reader(channel, reader))?;
-            if !self.theirs.contains_key(&r) {
-                let memory = Memory::open(&self.run, &self.topology, r)?;
-                self.theirs.insert(r, memory);
-            }
-            route.push((r, slot));
+            let at = match self.theirs.iter().position(|(n, _)| *n == r) {
+                Some(at) => at,
+                None => {
+                    let memory = Memory::open(&self.run, &self.topology, r)?;
+                    self.theirs.push((r, memory));
+                    self.theirs.len() - 1
+                }
+            };
+            route.push((at, slot));
         }
         self.routes.insert(channel, route);
         Ok(())
@@ -325,8 +330,8 @@ impl Inboxes {
                 channel.service_suffix()
             )
         })?;
-        for (reader, slot) in route {
-            self.theirs[reader].write(*slot, bytes)?;
+        for &(at, slot) in route {
+            self.theirs[at].1.write(slot, bytes)?;
         }
         Ok(())
     }
@@ -338,7 +343,7 @@ impl Inboxes {
         let ActorId::Node(r) = reader else {
             return true;
         };
-        let Some(theirs) = self.theirs.get(&r) else {
+        let Some((_, theirs)) = self.theirs.iter().find(|(n, _)| *n == r) else {
             return true;
         };
         // The heads written before the look at the word.
@@ -432,6 +437,16 @@ mod tests {
         Inboxes::new(run, topology, ActorId::Node(me))
     }
 
+    /// Node 0 reading node 1's consensus channel (and its slot), and node
+    /// 1 writing it.
+    fn one_to_zero(run: &RunId, t: &Topology) -> (Inboxes, usize, Inboxes) {
+        let mut reader = ends(run, t, 0);
+        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
+        let mut w = ends(run, t, 1);
+        w.publish_on(Channel::Consensus(1)).unwrap();
+        (reader, slot, w)
+    }
+
     fn drained(inboxes: &mut Inboxes, slot: usize) -> Vec<Vec<u8>> {
         let mut got = Vec::new();
         inboxes.drain(slot, |b| got.push(b.to_vec()));
@@ -515,10 +530,7 @@ mod tests {
     fn a_restarted_writer_continues_its_sequence() {
         let run = Run(RunId::new("inbox-writer").unwrap());
         let t = grid();
-        let mut reader = ends(&run.0, &t, 0);
-        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
-        let mut w = ends(&run.0, &t, 1);
-        w.publish_on(Channel::Consensus(1)).unwrap();
+        let (mut reader, slot, w) = one_to_zero(&run.0, &t);
         w.send(Channel::Consensus(1), b"a").unwrap();
         drop(w);
         let mut w = ends(&run.0, &t, 1);
@@ -534,10 +546,7 @@ mod tests {
     fn a_lapped_reader_keeps_the_newest_ring() {
         let run = Run(RunId::new("inbox-lapped").unwrap());
         let t = grid();
-        let mut reader = ends(&run.0, &t, 0);
-        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
-        let mut w = ends(&run.0, &t, 1);
-        w.publish_on(Channel::Consensus(1)).unwrap();
+        let (mut reader, slot, w) = one_to_zero(&run.0, &t);
         let sent = QUEUE_DEPTH + 10;
         for k in 0..sent as u32 {
             w.send(Channel::Consensus(1), &k.to_le_bytes()).unwrap();
@@ -553,12 +562,9 @@ mod tests {
     fn a_writer_killed_midway_is_written_over() {
         let run = Run(RunId::new("inbox-torn").unwrap());
         let t = grid();
-        let mut reader = ends(&run.0, &t, 0);
-        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
-        let mut w = ends(&run.0, &t, 1);
-        w.publish_on(Channel::Consensus(1)).unwrap();
+        let (mut reader, slot, w) = one_to_zero(&run.0, &t);
         // What a writer killed after stamping and before finishing leaves.
-        let memory = &w.theirs[&0];
+        let (_, memory) = &w.theirs[0];
         let at = memory.layout.entry(slot, 0);
         memory.word(at).store(1, Ordering::Release);
         memory
@@ -573,13 +579,10 @@ mod tests {
     fn an_entry_overwritten_while_read_is_dropped() {
         let run = Run(RunId::new("inbox-race").unwrap());
         let t = grid();
-        let mut reader = ends(&run.0, &t, 0);
-        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
-        let mut w = ends(&run.0, &t, 1);
-        w.publish_on(Channel::Consensus(1)).unwrap();
+        let (reader, slot, w) = one_to_zero(&run.0, &t);
         w.send(Channel::Consensus(1), b"old").unwrap();
         // The writer a ring ahead has begun the entry the reader is at.
-        let memory = &w.theirs[&0];
+        let (_, memory) = &w.theirs[0];
         let at = memory.layout.entry(slot, DEPTH);
         memory.word(at).store(2 * DEPTH + 1, Ordering::Release);
         let own = reader.own.as_ref().unwrap();
@@ -593,10 +596,7 @@ mod tests {
     fn a_writer_sees_whether_its_reader_sleeps() {
         let run = Run(RunId::new("inbox-sleep").unwrap());
         let t = grid();
-        let mut reader = ends(&run.0, &t, 0);
-        let slot = reader.subscribe(Channel::Consensus(1)).unwrap();
-        let mut w = ends(&run.0, &t, 1);
-        w.publish_on(Channel::Consensus(1)).unwrap();
+        let (mut reader, slot, w) = one_to_zero(&run.0, &t);
         // Awake, the reader needs no wake-up; actors whose inbox the
         // writer does not write always may.
         assert!(!w.may_sleep(ActorId::Node(0)));
